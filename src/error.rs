@@ -1,0 +1,102 @@
+//! Typed library errors, classified by whose fault they are (exrs style): the file is not a VDB,
+//! the file is corrupt, the file is valid but uses a feature umbra does not support, the caller
+//! asked for something that does not exist, or the operating system failed.
+
+use std::path::PathBuf;
+
+/// Result alias used throughout the library.
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+/// Every error the umbra library can return. Each variant names the file it concerns so a
+/// one-line message is enough for a user to act on.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    /// The operating system could not read or write the path.
+    #[error("{}: {err}", path.display())]
+    Io {
+        /// File concerned.
+        path: PathBuf,
+        /// Underlying error (not a `#[source]`: the message already includes it).
+        err: std::io::Error,
+    },
+    /// The path exists but is not an OpenVDB file (bad magic number, too short, a directory).
+    #[error("{}: not a VDB file ({reason})", path.display())]
+    NotVdb {
+        /// File concerned.
+        path: PathBuf,
+        /// What made it not a VDB file.
+        reason: String,
+    },
+    /// The file is a VDB file but its content is corrupt or truncated.
+    #[error("{}: corrupt VDB file: {reason}", path.display())]
+    Invalid {
+        /// File concerned.
+        path: PathBuf,
+        /// What is wrong, with the byte offset where it was found.
+        reason: String,
+    },
+    /// The file is valid but uses a feature umbra does not implement.
+    #[error("{}: unsupported: {what}", path.display())]
+    Unsupported {
+        /// File concerned.
+        path: PathBuf,
+        /// The unsupported feature, by its OpenVDB name.
+        what: String,
+    },
+    /// The requested grid is not in the file.
+    #[error("{}: no grid named '{name}' (available: {})", path.display(), if available.is_empty() { "none".to_string() } else { available.join(", ") })]
+    GridNotFound {
+        /// File concerned.
+        path: PathBuf,
+        /// Name asked for.
+        name: String,
+        /// Display names of the grids the file holds, in file order.
+        available: Vec<String>,
+    },
+    /// A caller-supplied argument is out of its domain.
+    #[error("invalid argument '{name}': {reason}")]
+    InvalidArgument {
+        /// Argument name.
+        name: String,
+        /// Why it is invalid.
+        reason: String,
+    },
+}
+
+/// A decoding error without a path: the byte reader and decoders produce these, and
+/// [`DecodeError::at`] attaches the file name at the module boundary.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(crate) enum DecodeError {
+    /// The data ran out before a field was complete.
+    Truncated(String),
+    /// The data is corrupt.
+    Invalid(String),
+    /// The data uses an unsupported feature.
+    Unsupported(String),
+}
+
+impl DecodeError {
+    pub(crate) fn invalid(msg: impl Into<String>) -> Self {
+        Self::Invalid(msg.into())
+    }
+    pub(crate) fn unsupported(msg: impl Into<String>) -> Self {
+        Self::Unsupported(msg.into())
+    }
+    /// Attach the file path, turning this into a public [`Error`].
+    pub(crate) fn at(self, path: &std::path::Path) -> Error {
+        match self {
+            Self::Invalid(reason) | Self::Truncated(reason) => Error::Invalid {
+                path: path.to_path_buf(),
+                reason,
+            },
+            Self::Unsupported(what) => Error::Unsupported {
+                path: path.to_path_buf(),
+                what,
+            },
+        }
+    }
+}
+
+/// Result alias for path-less decoding.
+pub(crate) type DecodeResult<T> = std::result::Result<T, DecodeError>;

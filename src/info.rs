@@ -1,0 +1,210 @@
+//! `umbra info`: what a `.vdb` file holds, grid by grid, as a serializable report.
+
+use crate::vdb::{Archive, Grid, ValueKind};
+use serde::Serialize;
+use serde_json::{json, Value};
+
+/// Per-grid report, the JSON schema of `umbra info --json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct GridInfo {
+    /// Display name (`density[1]` for duplicates, `[0]` for unnamed grids).
+    pub name: String,
+    /// Name as stored (with OpenVDB's `\x1e` separator).
+    pub stored_name: String,
+    /// OpenVDB value type (`float`, `double`, `vec3s`, ...).
+    pub value_type: String,
+    /// Tree type name as stored, without `_HalfFloat`.
+    pub tree_type: String,
+    /// `class` metadata, if any.
+    pub class: Option<String>,
+    /// Compression as OpenVDB names it.
+    pub compression: Option<String>,
+    /// Whether values are stored as halves.
+    pub saved_as_half: bool,
+    /// Background value.
+    pub background: Option<Value>,
+    /// World length of each index axis.
+    pub voxel_size: Option<[f64; 3]>,
+    /// OpenVDB map type name.
+    pub map: Option<String>,
+    /// 4x4 affine, column-vector convention, row-major (translation in the last column).
+    pub world_from_index: Option<[[f64; 4]; 4]>,
+    /// Inclusive index bbox of active voxels `[[min], [max]]`.
+    pub index_bbox: Option<[[i32; 3]; 2]>,
+    /// World bbox of the active voxel centres (the 8 corners of `index_bbox` mapped to world).
+    pub world_bbox: Option<[[f64; 3]; 2]>,
+    /// Active voxels; tiles count as the voxels they cover.
+    pub active_voxels: Option<u64>,
+    /// Number of leaf nodes.
+    pub leaf_count: Option<u64>,
+    /// Active tile counts per level.
+    pub tiles: Option<Value>,
+    /// Smallest active value (NaN ignored; `"inf"`/`"-inf"` as strings).
+    pub value_min: Option<Value>,
+    /// Largest active value.
+    pub value_max: Option<Value>,
+    /// Sum of finite active values, tiles weighted by voxel count.
+    pub value_sum: Option<f64>,
+    /// Active NaN voxels.
+    pub nan_count: Option<u64>,
+    /// Active ±Inf voxels.
+    pub inf_count: Option<u64>,
+    /// What the value statistics are of: `value` or `vector length`.
+    pub value_stats_of: &'static str,
+    /// Bytes of umbra's tree.
+    pub memory_bytes: Option<u64>,
+    /// OpenVDB's `file_mem_bytes` metadata, if present.
+    pub file_mem_bytes: Option<i64>,
+    /// Why the grid could not be decoded, if it could not.
+    pub error: Option<String>,
+}
+
+/// A float as JSON: a number when finite, else `"inf"`, `"-inf"` or `"nan"`.
+#[must_use]
+pub fn json_f32(v: f32) -> Value {
+    if v.is_finite() {
+        json!(f64::from(v))
+    } else if v.is_nan() {
+        json!("nan")
+    } else if v > 0.0 {
+        json!("inf")
+    } else {
+        json!("-inf")
+    }
+}
+
+impl GridInfo {
+    /// Report on a decoded grid.
+    #[must_use]
+    pub fn from_grid(grid: &Grid, tree_type: &str) -> Self {
+        let s = grid.tree.stats();
+        let t = &grid.transform;
+        let world_bbox = s.index_bbox.filter(|_| t.is_affine()).map(|b| {
+            let mut lo = [f64::INFINITY; 3];
+            let mut hi = [f64::NEG_INFINITY; 3];
+            for c in 0..8 {
+                let p = [0, 1, 2].map(|a| f64::from(b[(c >> a) & 1][a]));
+                let w = t.index_to_world(p);
+                for a in 0..3 {
+                    lo[a] = lo[a].min(w[a]);
+                    hi[a] = hi[a].max(w[a]);
+                }
+            }
+            [lo, hi]
+        });
+        let vector = matches!(
+            grid.value_type,
+            ValueKind::Vec3s | ValueKind::Vec3d | ValueKind::Vec3i
+        );
+        Self {
+            name: grid.name.clone(),
+            stored_name: grid.stored_name.clone(),
+            value_type: grid.value_type.name().to_string(),
+            tree_type: tree_type.to_string(),
+            class: grid.class.clone(),
+            compression: Some(grid.compression.describe()),
+            saved_as_half: grid.saved_as_half,
+            background: Some(json_f32(grid.tree.background)),
+            voxel_size: t.is_affine().then(|| t.voxel_size()),
+            map: Some(t.map.clone()),
+            world_from_index: t.is_affine().then_some(t.world_from_index),
+            index_bbox: s.index_bbox,
+            world_bbox,
+            active_voxels: Some(s.active_voxels),
+            leaf_count: Some(s.leaf_count),
+            tiles: Some(json!({"root": s.root_tiles, "upper": s.upper_tiles, "lower": s.lower_tiles})),
+            value_min: s.value_range.map(|r| json_f32(r.0)),
+            value_max: s.value_range.map(|r| json_f32(r.1)),
+            value_sum: Some(s.value_sum),
+            nan_count: Some(s.nan_count),
+            inf_count: Some(s.inf_count),
+            value_stats_of: if vector { "vector length" } else { "value" },
+            memory_bytes: Some(grid.tree.memory_bytes()),
+            file_mem_bytes: grid.file_mem_bytes(),
+            error: None,
+        }
+    }
+
+    /// Report on a grid that failed to decode: what the directory says, plus the error.
+    #[must_use]
+    pub fn failed(name: &str, stored: &str, tree_type: &str, half: bool, err: String) -> Self {
+        Self {
+            name: name.to_string(),
+            stored_name: stored.to_string(),
+            value_type: tree_type
+                .strip_prefix("Tree_")
+                .and_then(|t| t.strip_suffix("_5_4_3"))
+                .unwrap_or(tree_type)
+                .to_string(),
+            tree_type: tree_type.to_string(),
+            class: None,
+            compression: None,
+            saved_as_half: half,
+            background: None,
+            voxel_size: None,
+            map: None,
+            world_from_index: None,
+            index_bbox: None,
+            world_bbox: None,
+            active_voxels: None,
+            leaf_count: None,
+            tiles: None,
+            value_min: None,
+            value_max: None,
+            value_sum: None,
+            nan_count: None,
+            inf_count: None,
+            value_stats_of: "value",
+            memory_bytes: None,
+            file_mem_bytes: None,
+            error: Some(err),
+        }
+    }
+}
+
+/// Report on a whole file: header facts and one [`GridInfo`] per grid, in file order. Grids
+/// that fail to decode are reported with their error; the file-level call still succeeds.
+#[derive(Debug, Clone, Serialize)]
+pub struct FileInfo {
+    /// Path as given.
+    pub path: String,
+    /// File size in bytes.
+    pub file_bytes: u64,
+    /// File format version.
+    pub file_version: u32,
+    /// Writer library version `major.minor`.
+    pub library_version: String,
+    /// File UUID.
+    pub uuid: String,
+    /// Grids in file order.
+    pub grids: Vec<GridInfo>,
+}
+
+impl FileInfo {
+    /// Decode every grid of `archive` and report on it.
+    #[must_use]
+    pub fn from_archive(archive: &Archive) -> Self {
+        let grids = archive
+            .grids
+            .iter()
+            .map(|gd| match archive.load(gd) {
+                Ok(g) => GridInfo::from_grid(&g, &gd.tree_type),
+                Err(e) => GridInfo::failed(
+                    &gd.display_name,
+                    &gd.stored_name,
+                    &gd.tree_type,
+                    gd.saved_as_half,
+                    e.to_string(),
+                ),
+            })
+            .collect();
+        Self {
+            path: archive.path.display().to_string(),
+            file_bytes: archive.file_len,
+            file_version: archive.file_version,
+            library_version: format!("{}.{}", archive.library_version.0, archive.library_version.1),
+            uuid: archive.uuid.clone(),
+            grids,
+        }
+    }
+}

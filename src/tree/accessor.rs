@@ -1,0 +1,131 @@
+//! A cached read accessor: remembers the last leaf, lower and upper node it visited and starts
+//! each lookup from the deepest cached node containing the voxel, as NanoVDB's ReadAccessor does.
+//! Coherent lookups (along a ray) almost always hit the leaf cache. It takes `&mut self`, so each
+//! thread owns its own.
+
+use super::{
+    leaf_offset, node_origin, Found, RootSlot, Tree, LEAF_LOG2, LOWER_LOG2,
+    UPPER_LOG2,
+};
+
+const NONE: u32 = u32::MAX;
+
+/// Per-thread cached accessor over a [`Tree`]. Sampling follows OpenVDB: nearest is
+/// `PointSampler` (voxel `floor(p + 0.5)`), trilinear is `BoxSampler` (the 8 voxels around `p`).
+#[derive(Debug, Clone)]
+pub struct Accessor<'t> {
+    tree: &'t Tree,
+    leaf_key: [i32; 3],
+    leaf: u32,
+    lower_key: [i32; 3],
+    lower: u32,
+    upper_key: [i32; 3],
+    upper: u32,
+    lookups: u64,
+}
+
+impl<'t> Accessor<'t> {
+    /// A fresh accessor with an empty cache.
+    #[must_use]
+    pub fn new(tree: &'t Tree) -> Self {
+        Self {
+            tree,
+            leaf_key: [0; 3],
+            leaf: NONE,
+            lower_key: [0; 3],
+            lower: NONE,
+            upper_key: [0; 3],
+            upper: NONE,
+            lookups: 0,
+        }
+    }
+
+    /// The tree it reads.
+    #[must_use]
+    pub fn tree(&self) -> &'t Tree {
+        self.tree
+    }
+
+    /// Number of voxel value reads so far (the deterministic cost measure).
+    #[must_use]
+    pub fn lookups(&self) -> u64 {
+        self.lookups
+    }
+
+    /// The value at voxel `ijk`, active or not (OpenVDB `getValue`).
+    #[inline]
+    pub fn value(&mut self, ijk: [i32; 3]) -> f32 {
+        self.lookups += 1;
+        if self.leaf != NONE && node_origin(ijk, LEAF_LOG2) == self.leaf_key {
+            return self.tree.leaves[self.leaf as usize].values[leaf_offset(ijk)];
+        }
+        let found = if self.lower != NONE && node_origin(ijk, LOWER_LOG2) == self.lower_key {
+            self.tree.find_in_lower(self.lower, ijk)
+        } else if self.upper != NONE && node_origin(ijk, UPPER_LOG2) == self.upper_key {
+            self.descend_upper(self.upper, ijk)
+        } else {
+            match self.tree.root_find(ijk) {
+                None => Found::Background,
+                Some(r) => match self.tree.root[r].slot {
+                    RootSlot::Tile { .. } => Found::RootTile(r),
+                    RootSlot::Child(u) => {
+                        self.upper = u;
+                        self.upper_key = node_origin(ijk, UPPER_LOG2);
+                        self.descend_upper(u, ijk)
+                    }
+                },
+            }
+        };
+        if let Found::Voxel { node, .. } = found {
+            self.leaf = node;
+            self.leaf_key = node_origin(ijk, LEAF_LOG2);
+        }
+        self.tree.value_of(found)
+    }
+
+    fn descend_upper(&mut self, upper: u32, ijk: [i32; 3]) -> Found {
+        let f = self.tree.find_in_upper(upper, ijk);
+        if !matches!(f, Found::UpperTile { .. }) {
+            let node = &self.tree.uppers[upper as usize];
+            self.lower = node.slots[super::upper_offset(ijk)];
+            self.lower_key = node_origin(ijk, LOWER_LOG2);
+        }
+        f
+    }
+
+    /// Nearest-neighbour sample at index-space point `p`: the voxel `floor(p + 0.5)`.
+    #[inline]
+    pub fn nearest(&mut self, p: [f64; 3]) -> f32 {
+        self.value(p.map(|c| round_to_voxel(c + 0.5)))
+    }
+
+    /// Trilinear sample at index-space point `p` (OpenVDB `BoxSampler`): interpolates the 8
+    /// voxels `floor(p) + {0,1}^3`, z first, then y, then x, as OpenVDB does.
+    #[inline]
+    pub fn trilinear(&mut self, p: [f64; 3]) -> f32 {
+        let i = p.map(round_to_voxel);
+        let u = [
+            p[0] - f64::from(i[0]),
+            p[1] - f64::from(i[1]),
+            p[2] - f64::from(i[2]),
+        ];
+        let mut v = [[[0f32; 2]; 2]; 2];
+        for (dx, vx) in v.iter_mut().enumerate() {
+            for (dy, vy) in vx.iter_mut().enumerate() {
+                for (dz, vz) in vy.iter_mut().enumerate() {
+                    *vz = self.value([i[0] + dx as i32, i[1] + dy as i32, i[2] + dz as i32]);
+                }
+            }
+        }
+        let lerp = |a: f32, b: f32, w: f64| (f64::from(a) + (f64::from(b) - f64::from(a)) * w) as f32;
+        let y0 = lerp(lerp(v[0][0][0], v[0][0][1], u[2]), lerp(v[0][1][0], v[0][1][1], u[2]), u[1]);
+        let y1 = lerp(lerp(v[1][0][0], v[1][0][1], u[2]), lerp(v[1][1][0], v[1][1][1], u[2]), u[1]);
+        lerp(y0, y1, u[0])
+    }
+}
+
+/// `floor(c)` as an index coordinate, saturating at the i32 range (NaN maps to 0).
+#[inline]
+fn round_to_voxel(c: f64) -> i32 {
+    c.floor() as i32
+}

@@ -1,0 +1,309 @@
+//! umbra's flat sparse tree, in the NanoVDB mould: three contiguous arrays of nodes (upper 32^3
+//! children of 128^3 voxels each, lower 16^3 children of 8^3 voxels, leaves of 8^3 voxels), a
+//! sorted root table, `u32` child indices instead of pointers, and bit masks. An internal node's
+//! slot holds either a child index or a tile value (as `f32` bits); the child mask says which.
+//!
+//! Index space: voxel `(i, j, k)` is centred at index coordinate `(i, j, k)`. A node at level L
+//! covers voxels `[origin, origin + dim)` with dim = 8, 128, 4096 for leaf, lower, upper.
+
+mod accessor;
+mod bounds;
+mod stats;
+
+pub use accessor::Accessor;
+pub use bounds::Bounds;
+pub use stats::TreeStats;
+
+/// log2 of a leaf's edge in voxels.
+pub const LEAF_LOG2: u32 = 3;
+/// log2 of a lower internal node's edge in voxels (16 leaves).
+pub const LOWER_LOG2: u32 = 7;
+/// log2 of an upper internal node's edge in voxels (32 lower nodes).
+pub const UPPER_LOG2: u32 = 12;
+
+/// Edge length in voxels of a node at `level` (0 = voxel, 1 = leaf, 2 = lower, 3 = upper).
+#[must_use]
+pub const fn level_dim(level: u32) -> i64 {
+    match level {
+        0 => 1,
+        1 => 1 << LEAF_LOG2,
+        2 => 1 << LOWER_LOG2,
+        _ => 1 << UPPER_LOG2,
+    }
+}
+
+/// Test bit `i` of a mask.
+#[inline]
+#[must_use]
+pub fn bit(mask: &[u64], i: usize) -> bool {
+    mask[i >> 6] >> (i & 63) & 1 != 0
+}
+
+/// Offset of voxel `ijk` inside its leaf: `(x & 7) << 6 | (y & 7) << 3 | (z & 7)`.
+#[inline]
+#[must_use]
+pub fn leaf_offset(ijk: [i32; 3]) -> usize {
+    (((ijk[0] & 7) << 6) | ((ijk[1] & 7) << 3) | (ijk[2] & 7)) as usize
+}
+
+/// Slot of `ijk` inside its lower node (16^3 slots of 8^3 voxels).
+#[inline]
+#[must_use]
+pub fn lower_offset(ijk: [i32; 3]) -> usize {
+    ((((ijk[0] & 127) >> 3) << 8) | (((ijk[1] & 127) >> 3) << 4) | ((ijk[2] & 127) >> 3)) as usize
+}
+
+/// Slot of `ijk` inside its upper node (32^3 slots of 128^3 voxels).
+#[inline]
+#[must_use]
+pub fn upper_offset(ijk: [i32; 3]) -> usize {
+    ((((ijk[0] & 4095) >> 7) << 10) | (((ijk[1] & 4095) >> 7) << 5) | ((ijk[2] & 4095) >> 7))
+        as usize
+}
+
+/// Origin of the node of edge `2^log2` containing `ijk`.
+#[inline]
+#[must_use]
+pub fn node_origin(ijk: [i32; 3], log2: u32) -> [i32; 3] {
+    let m = !((1i32 << log2) - 1);
+    [ijk[0] & m, ijk[1] & m, ijk[2] & m]
+}
+
+/// A leaf: 8^3 voxel values and their active mask.
+#[derive(Debug, Clone)]
+pub struct Leaf {
+    /// Index coordinate of voxel (0,0,0) of the leaf.
+    pub origin: [i32; 3],
+    /// Active-voxel mask, bit `leaf_offset(ijk)`.
+    pub value_mask: [u64; 8],
+    /// All 512 values (inactive ones too), x-major.
+    pub values: [f32; 512],
+    /// min/max of every value a nearest lookup can return inside the leaf.
+    pub bounds: Bounds,
+    /// min/max of every value a trilinear lookup inside the leaf can touch (one-voxel halo).
+    pub halo: Bounds,
+}
+
+/// An internal node with `N` slots (`N` = 4096 for lower, 32768 for upper).
+#[derive(Debug, Clone)]
+pub struct Internal {
+    /// Index coordinate of the node's first voxel.
+    pub origin: [i32; 3],
+    /// Slots holding a child (bit set) rather than a tile value.
+    pub child_mask: Box<[u64]>,
+    /// Active tiles (only meaningful where the child bit is clear).
+    pub value_mask: Box<[u64]>,
+    /// Child index into the next level's array, or tile value as `f32::to_bits`.
+    pub slots: Box<[u32]>,
+    /// min/max of every value a nearest lookup can return inside the node.
+    pub bounds: Bounds,
+    /// min/max with the one-voxel halo of trilinear lookups.
+    pub halo: Bounds,
+}
+
+impl Internal {
+    /// True if slot `n` holds a child.
+    #[inline]
+    #[must_use]
+    pub fn has_child(&self, n: usize) -> bool {
+        bit(&self.child_mask, n)
+    }
+    /// The tile value of slot `n` (meaningless if it holds a child).
+    #[inline]
+    #[must_use]
+    pub fn tile_value(&self, n: usize) -> f32 {
+        f32::from_bits(self.slots[n])
+    }
+}
+
+/// One entry of the root table: a 4096^3 tile or an upper node.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum RootSlot {
+    /// A constant root-level tile.
+    Tile {
+        /// Tile value.
+        value: f32,
+        /// Whether the tile is active.
+        active: bool,
+    },
+    /// Index into [`Tree::uppers`].
+    Child(u32),
+}
+
+/// A root table entry, keyed by its origin (a multiple of 4096 on every axis).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RootEntry {
+    /// Origin of the 4096^3 region.
+    pub origin: [i32; 3],
+    /// Its content.
+    pub slot: RootSlot,
+}
+
+/// The flat tree of one grid, values decoded to `f32`.
+#[derive(Debug, Clone, Default)]
+pub struct Tree {
+    /// Value everywhere outside the root's entries.
+    pub background: f32,
+    /// Root table sorted by origin (x, then y, then z), as OpenVDB orders it.
+    pub root: Vec<RootEntry>,
+    /// Upper internal nodes (32^3 slots, 4096^3 voxels).
+    pub uppers: Vec<Internal>,
+    /// Lower internal nodes (16^3 slots, 128^3 voxels).
+    pub lowers: Vec<Internal>,
+    /// Leaves (8^3 voxels).
+    pub leaves: Vec<Leaf>,
+    /// min/max of every value a nearest lookup anywhere can return, background included.
+    pub bounds: Bounds,
+}
+
+/// What a descent to `ijk` found: the value and the node that holds it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Found {
+    /// Outside every root entry: the background.
+    Background,
+    /// A root-level tile (root entry index).
+    RootTile(usize),
+    /// A tile in an upper node.
+    UpperTile {
+        /// Index into [`Tree::uppers`].
+        node: u32,
+        /// Slot within the node.
+        slot: usize,
+    },
+    /// A tile in a lower node.
+    LowerTile {
+        /// Index into [`Tree::lowers`].
+        node: u32,
+        /// Slot within the node.
+        slot: usize,
+    },
+    /// A voxel of a leaf.
+    Voxel {
+        /// Index into [`Tree::leaves`].
+        node: u32,
+        /// Voxel offset within the leaf.
+        offset: usize,
+    },
+}
+
+impl Tree {
+    /// Index of the root entry whose region contains `ijk`.
+    #[must_use]
+    pub fn root_find(&self, ijk: [i32; 3]) -> Option<usize> {
+        let key = node_origin(ijk, UPPER_LOG2);
+        self.root.binary_search_by(|e| e.origin.cmp(&key)).ok()
+    }
+
+    /// Descend from the root to the deepest node holding `ijk`.
+    #[must_use]
+    pub fn find(&self, ijk: [i32; 3]) -> Found {
+        let Some(r) = self.root_find(ijk) else {
+            return Found::Background;
+        };
+        let upper = match self.root[r].slot {
+            RootSlot::Tile { .. } => return Found::RootTile(r),
+            RootSlot::Child(u) => u,
+        };
+        self.find_in_upper(upper, ijk)
+    }
+
+    /// Descend from upper node `upper`.
+    #[must_use]
+    pub fn find_in_upper(&self, upper: u32, ijk: [i32; 3]) -> Found {
+        let node = &self.uppers[upper as usize];
+        let slot = upper_offset(ijk);
+        if !node.has_child(slot) {
+            return Found::UpperTile { node: upper, slot };
+        }
+        self.find_in_lower(node.slots[slot], ijk)
+    }
+
+    /// Descend from lower node `lower`.
+    #[must_use]
+    pub fn find_in_lower(&self, lower: u32, ijk: [i32; 3]) -> Found {
+        let node = &self.lowers[lower as usize];
+        let slot = lower_offset(ijk);
+        if !node.has_child(slot) {
+            return Found::LowerTile { node: lower, slot };
+        }
+        Found::Voxel {
+            node: node.slots[slot],
+            offset: leaf_offset(ijk),
+        }
+    }
+
+    /// The value a [`Found`] refers to.
+    #[must_use]
+    pub fn value_of(&self, f: Found) -> f32 {
+        match f {
+            Found::Background => self.background,
+            Found::RootTile(r) => match self.root[r].slot {
+                RootSlot::Tile { value, .. } => value,
+                RootSlot::Child(_) => self.background,
+            },
+            Found::UpperTile { node, slot } => self.uppers[node as usize].tile_value(slot),
+            Found::LowerTile { node, slot } => self.lowers[node as usize].tile_value(slot),
+            Found::Voxel { node, offset } => self.leaves[node as usize].values[offset],
+        }
+    }
+
+    /// The value at voxel `ijk` (active or not), as OpenVDB's `tree.getValue(ijk)`.
+    #[must_use]
+    pub fn value(&self, ijk: [i32; 3]) -> f32 {
+        self.value_of(self.find(ijk))
+    }
+
+    /// Whether voxel `ijk` is active.
+    #[must_use]
+    pub fn is_active(&self, ijk: [i32; 3]) -> bool {
+        match self.find(ijk) {
+            Found::Background => false,
+            Found::RootTile(r) => matches!(self.root[r].slot, RootSlot::Tile { active: true, .. }),
+            Found::UpperTile { node, slot } => bit(&self.uppers[node as usize].value_mask, slot),
+            Found::LowerTile { node, slot } => bit(&self.lowers[node as usize].value_mask, slot),
+            Found::Voxel { node, offset } => bit(&self.leaves[node as usize].value_mask, offset),
+        }
+    }
+
+    /// Bytes of memory the tree holds.
+    #[must_use]
+    pub fn memory_bytes(&self) -> u64 {
+        let internal = |v: &Vec<Internal>| {
+            v.iter()
+                .map(|n| {
+                    std::mem::size_of::<Internal>()
+                        + 8 * (n.child_mask.len() + n.value_mask.len())
+                        + 4 * n.slots.len()
+                })
+                .sum::<usize>()
+        };
+        (std::mem::size_of::<Self>()
+            + self.root.capacity() * std::mem::size_of::<RootEntry>()
+            + internal(&self.uppers)
+            + internal(&self.lowers)
+            + self.leaves.capacity() * std::mem::size_of::<Leaf>()) as u64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn offsets_round_trip_every_voxel_of_a_leaf_and_negative_coords() {
+        let mut seen = [false; 512];
+        for x in -8..0 {
+            for y in 0..8 {
+                for z in 8..16 {
+                    let n = leaf_offset([x, y, z]);
+                    assert!(!seen[n]);
+                    seen[n] = true;
+                }
+            }
+        }
+        assert!(seen.iter().all(|&s| s));
+        assert_eq!(node_origin([-1, 4095, 4096], UPPER_LOG2), [-4096, 0, 4096]);
+        assert_eq!(lower_offset([127, 0, 8]), (15 << 8) | 1);
+        assert_eq!(upper_offset([-1, 0, 0]), 31 << 10);
+    }
+}

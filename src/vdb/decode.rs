@@ -1,0 +1,189 @@
+//! Decode one grid's topology and leaf buffers straight into umbra's flat [`Tree`]: a single
+//! depth-first pass over the topology (root table, upper nodes, lower nodes, leaf masks), then
+//! the leaf buffers, which OpenVDB writes in the same depth-first order.
+
+use super::bytes::ByteReader;
+use super::values::{read_compressed_values, StreamInfo, ValueKind};
+use crate::error::{DecodeError, DecodeResult};
+use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree};
+
+/// Decode topology then buffers. `block_pos` is where the descriptor says buffers start; the
+/// topology must end exactly there.
+pub(crate) fn decode_tree(
+    r: &mut ByteReader<'_>,
+    kind: ValueKind,
+    half: bool,
+    compression: super::Compression,
+    block_pos: u64,
+) -> DecodeResult<Tree> {
+    let buffer_count = r.i32("tree buffer count")?;
+    if buffer_count != 1 {
+        return Err(DecodeError::unsupported(format!(
+            "multi-buffer tree ({buffer_count} buffers)"
+        )));
+    }
+    let background = kind.decode(r.take(kind.size(), "background value")?);
+    let s = StreamInfo {
+        kind,
+        half,
+        compression,
+        background,
+    };
+    let mut tree = Tree {
+        background,
+        ..Tree::default()
+    };
+    let num_tiles = r.u32("root tile count")?;
+    let num_children = r.u32("root child count")?;
+    for _ in 0..num_tiles {
+        let origin = r.vec3i("root tile origin")?;
+        let value = kind.decode(r.take(kind.size(), "root tile value")?);
+        let active = r.u8("root tile state")? != 0;
+        tree.root.push(RootEntry {
+            origin,
+            slot: RootSlot::Tile { value, active },
+        });
+    }
+    for _ in 0..num_children {
+        let origin = r.vec3i("root child origin")?;
+        let index = read_internal(r, &s, &mut tree, origin, Level::Upper)?;
+        tree.root.push(RootEntry {
+            origin,
+            slot: RootSlot::Child(index),
+        });
+    }
+    for e in &tree.root {
+        if e.origin.iter().any(|c| c & 4095 != 0) {
+            return Err(DecodeError::invalid(format!(
+                "root entry origin {:?} is not a multiple of 4096",
+                e.origin
+            )));
+        }
+    }
+    tree.root.sort_by(|a, b| a.origin.cmp(&b.origin));
+    if tree.root.windows(2).any(|w| w[0].origin == w[1].origin) {
+        return Err(DecodeError::invalid("two root entries share an origin"));
+    }
+    if r.offset() != block_pos {
+        return Err(DecodeError::invalid(format!(
+            "topology ends at offset {} but the grid descriptor puts the leaf buffers at {block_pos}",
+            r.offset()
+        )));
+    }
+    for leaf in &mut tree.leaves {
+        read_leaf_buffer(r, &s, leaf)?;
+    }
+    tree.compute_bounds();
+    Ok(tree)
+}
+
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Level {
+    Upper,
+    Lower,
+}
+
+impl Level {
+    /// (log2 of slots per side, log2 of child edge in voxels, slot count)
+    fn shape(self) -> (u32, u32, usize) {
+        match self {
+            Self::Upper => (5, 7, 32768),
+            Self::Lower => (4, 3, 4096),
+        }
+    }
+}
+
+/// `InternalNode::readTopology`: child mask, value mask, tile values, then each child.
+fn read_internal(
+    r: &mut ByteReader<'_>,
+    s: &StreamInfo,
+    tree: &mut Tree,
+    origin: [i32; 3],
+    level: Level,
+) -> DecodeResult<u32> {
+    let (side_log2, child_log2, n) = level.shape();
+    let words = n / 64;
+    let mut child_mask = vec![0u64; words].into_boxed_slice();
+    let mut value_mask = vec![0u64; words].into_boxed_slice();
+    r.u64_words(&mut child_mask, "internal node child mask")?;
+    r.u64_words(&mut value_mask, "internal node value mask")?;
+    let mut values = vec![0f32; n];
+    read_compressed_values(r, s, &value_mask, &mut values)?;
+    let mut slots: Box<[u32]> = values.iter().map(|v| v.to_bits()).collect();
+    drop(values);
+    let side_mask = (1usize << side_log2) - 1;
+    for (w, &word) in child_mask.iter().enumerate() {
+        let mut bits = word;
+        while bits != 0 {
+            let slot = w * 64 + bits.trailing_zeros() as usize;
+            bits &= bits - 1;
+            let local = [
+                slot >> (2 * side_log2),
+                (slot >> side_log2) & side_mask,
+                slot & side_mask,
+            ];
+            let child_origin =
+                [0, 1, 2].map(|a| origin[a].wrapping_add((local[a] as i32) << child_log2));
+            slots[slot] = match level {
+                Level::Upper => read_internal(r, s, tree, child_origin, Level::Lower)?,
+                Level::Lower => read_leaf_topology(r, tree, child_origin)?,
+            };
+        }
+    }
+    let node = Internal {
+        origin,
+        child_mask,
+        value_mask,
+        slots,
+        bounds: Bounds::EMPTY,
+        halo: Bounds::EMPTY,
+    };
+    let list = match level {
+        Level::Upper => &mut tree.uppers,
+        Level::Lower => &mut tree.lowers,
+    };
+    let index = u32::try_from(list.len())
+        .map_err(|_| DecodeError::unsupported("more than 2^32 internal nodes"))?;
+    list.push(node);
+    Ok(index)
+}
+
+/// `LeafNode::readTopology`: just the value mask; values come with the buffers.
+fn read_leaf_topology(r: &mut ByteReader<'_>, tree: &mut Tree, origin: [i32; 3]) -> DecodeResult<u32> {
+    let mut value_mask = [0u64; 8];
+    r.u64_words(&mut value_mask, "leaf value mask")?;
+    let index = u32::try_from(tree.leaves.len())
+        .map_err(|_| DecodeError::unsupported("more than 2^32 leaves"))?;
+    tree.leaves.push(Leaf {
+        origin,
+        value_mask,
+        values: [0.0; 512],
+        bounds: Bounds::EMPTY,
+        halo: Bounds::EMPTY,
+    });
+    Ok(index)
+}
+
+/// `LeafNode::readBuffers`: the value mask again, then the values (bool leaves: origin and a
+/// value bit mask instead).
+fn read_leaf_buffer(r: &mut ByteReader<'_>, s: &StreamInfo, leaf: &mut Leaf) -> DecodeResult<()> {
+    let at = r.offset();
+    let mut mask = [0u64; 8];
+    r.u64_words(&mut mask, "leaf buffer value mask")?;
+    if mask != leaf.value_mask {
+        return Err(DecodeError::invalid(format!(
+            "leaf at {:?}: value mask in the buffers (offset {at}) differs from the topology",
+            leaf.origin
+        )));
+    }
+    if s.kind == ValueKind::Bool {
+        r.skip(12, "bool leaf origin")?;
+        let mut bits = [0u64; 8];
+        r.u64_words(&mut bits, "bool leaf values")?;
+        for (i, v) in leaf.values.iter_mut().enumerate() {
+            *v = f32::from(u8::from(crate::tree::bit(&bits, i)));
+        }
+        return Ok(());
+    }
+    read_compressed_values(r, s, &mask, &mut leaf.values)
+}

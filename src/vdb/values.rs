@@ -1,0 +1,355 @@
+//! Value types and OpenVDB's node-value compression (`io::readCompressedValues`): the per-node
+//! metadata byte, up to two inactive values, the selection mask, then the (active or all) values,
+//! optionally as 16-bit halves, raw, zlib or blosc compressed. Everything decodes to `f32`, the
+//! precision umbra traces in.
+
+use super::archive::Compression;
+use super::blosc;
+use super::bytes::ByteReader;
+use crate::error::{DecodeError, DecodeResult};
+use std::borrow::Cow;
+use std::io::Read;
+
+/// Value type of a grid, from its tree type name (`Tree_float_5_4_3` etc.).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ValueKind {
+    /// `float`
+    Float,
+    /// `double`, converted to f32.
+    Double,
+    /// `int32`
+    Int32,
+    /// `int64`
+    Int64,
+    /// `bool`
+    Bool,
+    /// `vec3s`; umbra keeps the vector length.
+    Vec3s,
+    /// `vec3d`; umbra keeps the vector length.
+    Vec3d,
+    /// `vec3i`; umbra keeps the vector length.
+    Vec3i,
+}
+
+impl ValueKind {
+    /// Parse the OpenVDB tree type name; only the standard 5-4-3 configuration is accepted.
+    pub(crate) fn from_tree_type(tree_type: &str) -> DecodeResult<Self> {
+        let Some(rest) = tree_type.strip_prefix("Tree_") else {
+            return Err(DecodeError::unsupported(format!("grid type '{tree_type}'")));
+        };
+        let Some(value) = rest.strip_suffix("_5_4_3") else {
+            return Err(DecodeError::unsupported(format!(
+                "tree configuration '{tree_type}' (umbra reads 5-4-3 trees)"
+            )));
+        };
+        Ok(match value {
+            "float" => Self::Float,
+            "double" => Self::Double,
+            "int32" => Self::Int32,
+            "int64" => Self::Int64,
+            "bool" => Self::Bool,
+            "vec3s" => Self::Vec3s,
+            "vec3d" => Self::Vec3d,
+            "vec3i" => Self::Vec3i,
+            other => {
+                return Err(DecodeError::unsupported(format!(
+                    "value type '{other}' ({tree_type})"
+                )))
+            }
+        })
+    }
+
+    /// OpenVDB's value type name.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Float => "float",
+            Self::Double => "double",
+            Self::Int32 => "int32",
+            Self::Int64 => "int64",
+            Self::Bool => "bool",
+            Self::Vec3s => "vec3s",
+            Self::Vec3d => "vec3d",
+            Self::Vec3i => "vec3i",
+        }
+    }
+
+    /// True for scalar floating-point grids, the ones that can be a density.
+    #[must_use]
+    pub fn is_scalar_real(self) -> bool {
+        matches!(self, Self::Float | Self::Double)
+    }
+
+    /// True for types OpenVDB stores as halves when "save as half" is on.
+    fn is_real(self) -> bool {
+        matches!(self, Self::Float | Self::Double | Self::Vec3s | Self::Vec3d)
+    }
+
+    /// Bytes of one full-precision value on disk.
+    pub(crate) fn size(self) -> usize {
+        match self {
+            Self::Float | Self::Int32 => 4,
+            Self::Double | Self::Int64 => 8,
+            Self::Bool => 1,
+            Self::Vec3s | Self::Vec3i => 12,
+            Self::Vec3d => 24,
+        }
+    }
+
+    /// Bytes of one value in a value array, which is half precision for real types in a
+    /// `_HalfFloat` grid.
+    fn array_size(self, half: bool) -> usize {
+        match (half && self.is_real(), self) {
+            (true, Self::Float | Self::Double) => 2,
+            (true, _) => 6,
+            (false, _) => self.size(),
+        }
+    }
+
+    /// Decode one full-precision value (`b.len() == self.size()`).
+    pub(crate) fn decode(self, b: &[u8]) -> f32 {
+        let f32_at = |i: usize| f32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let i32_at = |i: usize| i32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
+        let f64_at = |i: usize| {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(&b[i..i + 8]);
+            f64::from_le_bytes(a)
+        };
+        let len3 = |x: f64, y: f64, z: f64| (x * x + y * y + z * z).sqrt() as f32;
+        match self {
+            Self::Float => f32_at(0),
+            Self::Double => f64_at(0) as f32,
+            Self::Int32 => i32_at(0) as f32,
+            Self::Int64 => {
+                let mut a = [0u8; 8];
+                a.copy_from_slice(&b[..8]);
+                i64::from_le_bytes(a) as f32
+            }
+            Self::Bool => f32::from(u8::from(b[0] != 0)),
+            Self::Vec3s => len3(f32_at(0).into(), f32_at(4).into(), f32_at(8).into()),
+            Self::Vec3d => len3(f64_at(0), f64_at(8), f64_at(16)),
+            Self::Vec3i => len3(i32_at(0).into(), i32_at(4).into(), i32_at(8).into()),
+        }
+    }
+
+    /// Decode one array element (half precision when `half` and the type is real).
+    fn decode_array(self, b: &[u8], half: bool) -> f32 {
+        if !(half && self.is_real()) {
+            return self.decode(b);
+        }
+        let h = |i: usize| half::f16::from_le_bytes([b[i], b[i + 1]]).to_f32();
+        match self {
+            Self::Float | Self::Double => h(0),
+            _ => {
+                let (x, y, z) = (h(0), h(2), h(4));
+                (x * x + y * y + z * z).sqrt()
+            }
+        }
+    }
+}
+
+/// Everything a node decoder needs to know about the stream it reads.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct StreamInfo {
+    pub kind: ValueKind,
+    pub half: bool,
+    pub compression: Compression,
+    pub background: f32,
+}
+
+/// `io::readData`: a run of `nbytes` bytes, raw, zlib (`i64` size prefix) or blosc (`i64` size
+/// prefix). A non-positive prefix means the bytes follow uncompressed.
+pub(crate) fn read_data<'a>(
+    r: &mut ByteReader<'a>,
+    comp: Compression,
+    nbytes: usize,
+) -> DecodeResult<Cow<'a, [u8]>> {
+    if !(comp.blosc || comp.zip) {
+        return Ok(Cow::Borrowed(r.take(nbytes, "uncompressed values")?));
+    }
+    let codec = if comp.blosc { "blosc" } else { "zip" };
+    let n = r.i64("compressed size")?;
+    if n <= 0 {
+        let raw = n.unsigned_abs();
+        if raw != nbytes as u64 {
+            return Err(DecodeError::invalid(format!(
+                "{codec} block at offset {} stores {raw} raw bytes, expected {nbytes}",
+                r.offset()
+            )));
+        }
+        return Ok(Cow::Borrowed(r.take(nbytes, "values")?));
+    }
+    let at = r.offset();
+    let len = usize::try_from(n).unwrap_or(usize::MAX);
+    let src = r.take(len, "compressed values")?;
+    let out = if comp.blosc {
+        blosc::decompress(src, nbytes)
+    } else {
+        inflate(src, nbytes)
+    };
+    out.map(Cow::Owned).map_err(|e| match e {
+        DecodeError::Invalid(m) | DecodeError::Truncated(m) => {
+            DecodeError::invalid(format!("{m} (block at offset {at})"))
+        }
+        other @ DecodeError::Unsupported(_) => other,
+    })
+}
+
+fn inflate(src: &[u8], expected: usize) -> DecodeResult<Vec<u8>> {
+    let mut out = Vec::with_capacity(expected);
+    let mut dec = flate2::read::ZlibDecoder::new(src).take(expected as u64 + 1);
+    dec.read_to_end(&mut out)
+        .map_err(|e| DecodeError::invalid(format!("zlib data is corrupt: {e}")))?;
+    if out.len() != expected {
+        return Err(DecodeError::invalid(format!(
+            "zlib block expands to {} bytes, expected {expected}",
+            out.len()
+        )));
+    }
+    Ok(out)
+}
+
+/// Per-node flag saying which inactive values and masks follow (`io::NodeMetadata`).
+const NO_MASK_OR_INACTIVE_VALS: u8 = 0;
+// 1 = NO_MASK_AND_MINUS_BG: inactive values are -background, the default below.
+const NO_MASK_AND_ONE_INACTIVE_VAL: u8 = 2;
+const MASK_AND_NO_INACTIVE_VALS: u8 = 3;
+const MASK_AND_ONE_INACTIVE_VAL: u8 = 4;
+const MASK_AND_TWO_INACTIVE_VALS: u8 = 5;
+const NO_MASK_AND_ALL_VALS: u8 = 6;
+
+fn is_on(mask: &[u64], i: usize) -> bool {
+    mask[i >> 6] >> (i & 63) & 1 != 0
+}
+
+/// `io::readCompressedValues` for a node of `dest.len()` values with the given value mask.
+/// `dest.len()` must be `64 * mask.len()`.
+pub(crate) fn read_compressed_values(
+    r: &mut ByteReader<'_>,
+    s: &StreamInfo,
+    mask: &[u64],
+    dest: &mut [f32],
+) -> DecodeResult<()> {
+    debug_assert_eq!(dest.len(), mask.len() * 64);
+    let mask_compressed = s.compression.active_mask;
+    let meta = r.u8("node metadata")?;
+    if meta > NO_MASK_AND_ALL_VALS {
+        return Err(DecodeError::invalid(format!(
+            "node metadata byte {meta} at offset {} is not 0..=6",
+            r.offset() - 1
+        )));
+    }
+    let bg = s.background;
+    let mut inactive0 = if meta == NO_MASK_OR_INACTIVE_VALS {
+        bg
+    } else {
+        -bg
+    };
+    let mut inactive1 = bg;
+    if matches!(
+        meta,
+        NO_MASK_AND_ONE_INACTIVE_VAL | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
+    ) {
+        inactive0 = s.kind.decode(r.take(s.kind.size(), "inactive value")?);
+        if meta == MASK_AND_TWO_INACTIVE_VALS {
+            inactive1 = s.kind.decode(r.take(s.kind.size(), "inactive value")?);
+        }
+    }
+    let mut selection = [0u64; 512];
+    let selection = &mut selection[..mask.len()];
+    if matches!(
+        meta,
+        MASK_AND_NO_INACTIVE_VALS | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
+    ) {
+        r.u64_words(selection, "selection mask")?;
+    }
+    let only_active = mask_compressed && meta != NO_MASK_AND_ALL_VALS;
+    let count = if only_active {
+        mask.iter().map(|w| w.count_ones() as usize).sum()
+    } else {
+        dest.len()
+    };
+    let half = s.half && s.kind.is_real();
+    // HalfWriter writes nothing at all for an empty array (not even a size prefix).
+    if half && count == 0 {
+        dest.iter_mut().enumerate().for_each(|(i, d)| {
+            *d = if is_on(selection, i) { inactive1 } else { inactive0 };
+        });
+        return Ok(());
+    }
+    let elem = s.kind.array_size(s.half);
+    let data = read_data(r, s.compression, count * elem)?;
+    let mut values = data.chunks_exact(elem).map(|b| s.kind.decode_array(b, half));
+    if only_active {
+        for (i, d) in dest.iter_mut().enumerate() {
+            *d = if is_on(mask, i) {
+                values.next().unwrap_or(0.0)
+            } else if is_on(selection, i) {
+                inactive1
+            } else {
+                inactive0
+            };
+        }
+    } else {
+        dest.iter_mut().zip(values).for_each(|(d, v)| *d = v);
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn stream(comp: u32, half: bool) -> StreamInfo {
+        StreamInfo {
+            kind: ValueKind::Float,
+            half,
+            compression: Compression::from_flags(comp),
+            background: 0.5,
+        }
+    }
+
+    #[test]
+    fn active_mask_values_restore_inactive_as_background_or_minus_background() {
+        let mut mask = [0u64; 8];
+        mask[0] = 0b101; // voxels 0 and 2 active
+        for (meta, expect_inactive) in [(0u8, 0.5f32), (1, -0.5)] {
+            let mut bytes = vec![meta];
+            bytes.extend_from_slice(&1.0f32.to_le_bytes());
+            bytes.extend_from_slice(&2.0f32.to_le_bytes());
+            let mut dest = [9.0f32; 512];
+            let mut r = ByteReader::new(&bytes, 0);
+            let res = read_compressed_values(&mut r, &stream(2, false), &mask, &mut dest);
+            assert!(res.is_ok(), "{res:?}");
+            assert_eq!((dest[0], dest[1], dest[2], dest[511]), (1.0, expect_inactive, 2.0, expect_inactive));
+            assert_eq!(r.remaining(), 0);
+        }
+    }
+
+    #[test]
+    fn empty_half_array_reads_nothing() {
+        // A node with no active values in a half grid: just the metadata byte, then the next node.
+        let bytes = [0u8, 0xAB];
+        let mut dest = [1.0f32; 512];
+        let mut r = ByteReader::new(&bytes, 0);
+        let res = read_compressed_values(&mut r, &stream(6, true), &[0u64; 8], &mut dest);
+        assert!(res.is_ok());
+        assert_eq!(r.remaining(), 1);
+        assert!(dest.iter().all(|&v| v == 0.5));
+    }
+
+    #[test]
+    fn zip_round_trip_and_size_mismatch() {
+        use std::io::Write;
+        let raw: Vec<u8> = (0..64u8).collect();
+        let mut enc = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::default());
+        let _ = enc.write_all(&raw);
+        let z = enc.finish().unwrap_or_default();
+        let mut bytes = (z.len() as i64).to_le_bytes().to_vec();
+        bytes.extend_from_slice(&z);
+        let comp = Compression::from_flags(1);
+        let got = read_data(&mut ByteReader::new(&bytes, 0), comp, 64);
+        assert_eq!(got.ok().map(|c| c.into_owned()), Some(raw));
+        assert!(read_data(&mut ByteReader::new(&bytes, 0), comp, 65).is_err());
+    }
+}
