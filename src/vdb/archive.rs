@@ -158,7 +158,7 @@ impl Archive {
         };
         let io = |err| Error::Io {
             path: path.to_path_buf(),
-            source,
+            err,
         };
         let meta = std::fs::metadata(path).map_err(io)?;
         if meta.is_dir() {
