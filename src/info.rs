@@ -112,7 +112,9 @@ impl GridInfo {
             world_bbox,
             active_voxels: Some(s.active_voxels),
             leaf_count: Some(s.leaf_count),
-            tiles: Some(json!({"root": s.root_tiles, "upper": s.upper_tiles, "lower": s.lower_tiles})),
+            tiles: Some(
+                json!({"root": s.root_tiles, "upper": s.upper_tiles, "lower": s.lower_tiles}),
+            ),
             value_min: s.value_range.map(|r| json_f32(r.0)),
             value_max: s.value_range.map(|r| json_f32(r.1)),
             value_sum: Some(s.value_sum),
@@ -202,7 +204,10 @@ impl FileInfo {
             path: archive.path.display().to_string(),
             file_bytes: archive.file_len,
             file_version: archive.file_version,
-            library_version: format!("{}.{}", archive.library_version.0, archive.library_version.1),
+            library_version: format!(
+                "{}.{}",
+                archive.library_version.0, archive.library_version.1
+            ),
             uuid: archive.uuid.clone(),
             grids,
         }

@@ -9,7 +9,9 @@ use std::path::PathBuf;
 use umbra::tree::{Accessor, Bounds, Tree};
 
 fn corpus(file: &str) -> Option<PathBuf> {
-    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus").join(file);
+    let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus")
+        .join(file);
     if p.exists() {
         Some(p)
     } else {
@@ -80,11 +82,21 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
             for node in nodes.iter() {
                 for _ in 0..2000 {
                     // Continuous region of the node's voxels: [o - 0.5, o + dim - 0.5).
-                    let p = node.origin.map(|c| f64::from(c) - 0.5 + rng.gen::<f64>() * dim);
+                    let p = node
+                        .origin
+                        .map(|c| f64::from(c) - 0.5 + rng.gen::<f64>() * dim);
                     let n = acc.nearest(p);
                     let l = acc.trilinear(p);
-                    assert!(inside(node.bounds, n), "{file}: nearest {n} at {p:?} outside {:?}", node.bounds);
-                    assert!(inside(node.halo, l), "{file}: trilinear {l} at {p:?} outside {:?}", node.halo);
+                    assert!(
+                        inside(node.bounds, n),
+                        "{file}: nearest {n} at {p:?} outside {:?}",
+                        node.bounds
+                    );
+                    assert!(
+                        inside(node.halo, l),
+                        "{file}: trilinear {l} at {p:?} outside {:?}",
+                        node.halo
+                    );
                     samples += 1;
                 }
                 assert!(node.bounds.min >= node.halo.min && node.bounds.max <= node.halo.max);
@@ -97,7 +109,9 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
 
 #[test]
 fn accessor_agrees_with_uncached_lookup_along_random_walks() {
-    let Some(path) = corpus("gen/tiles_mixed.vdb") else { return };
+    let Some(path) = corpus("gen/tiles_mixed.vdb") else {
+        return;
+    };
     let g = umbra::vdb::load_grid(&path, "density").unwrap();
     let t = &g.tree;
     let mut acc = Accessor::new(t);
@@ -107,7 +121,11 @@ fn accessor_agrees_with_uncached_lookup_along_random_walks() {
         let a = rng.gen_range(0..3);
         p[a] += rng.gen_range(-9..=9);
         if rng.gen_bool(0.001) {
-            p = [rng.gen_range(-300..600), rng.gen_range(-300..600), rng.gen_range(-300..600)];
+            p = [
+                rng.gen_range(-300..600),
+                rng.gen_range(-300..600),
+                rng.gen_range(-300..600),
+            ];
         }
         assert_eq!(acc.value(p).to_bits(), t.value(p).to_bits(), "at {p:?}");
     }

@@ -101,7 +101,10 @@ fn every_active_value_vdb_rs_reads_matches_umbra() {
         "vdb-rs cross-check: {} grids, {checked_values} active values/tiles compared",
         FLOAT_CASES.len()
     );
-    assert!(checked_values > 1_000_000, "too few values compared: {checked_values}");
+    assert!(
+        checked_values > 1_000_000,
+        "too few values compared: {checked_values}"
+    );
     assert!(failures.is_empty(), "{}", failures.join("\n"));
 }
 

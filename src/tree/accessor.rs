@@ -3,10 +3,7 @@
 //! Coherent lookups (along a ray) almost always hit the leaf cache. It takes `&mut self`, so each
 //! thread owns its own.
 
-use super::{
-    leaf_offset, node_origin, Found, RootSlot, Tree, LEAF_LOG2, LOWER_LOG2,
-    UPPER_LOG2,
-};
+use super::{leaf_offset, node_origin, Found, RootSlot, Tree, LEAF_LOG2, LOWER_LOG2, UPPER_LOG2};
 
 const NONE: u32 = u32::MAX;
 
@@ -117,9 +114,18 @@ impl<'t> Accessor<'t> {
                 }
             }
         }
-        let lerp = |a: f32, b: f32, w: f64| (f64::from(a) + (f64::from(b) - f64::from(a)) * w) as f32;
-        let y0 = lerp(lerp(v[0][0][0], v[0][0][1], u[2]), lerp(v[0][1][0], v[0][1][1], u[2]), u[1]);
-        let y1 = lerp(lerp(v[1][0][0], v[1][0][1], u[2]), lerp(v[1][1][0], v[1][1][1], u[2]), u[1]);
+        let lerp =
+            |a: f32, b: f32, w: f64| (f64::from(a) + (f64::from(b) - f64::from(a)) * w) as f32;
+        let y0 = lerp(
+            lerp(v[0][0][0], v[0][0][1], u[2]),
+            lerp(v[0][1][0], v[0][1][1], u[2]),
+            u[1],
+        );
+        let y1 = lerp(
+            lerp(v[1][0][0], v[1][0][1], u[2]),
+            lerp(v[1][1][0], v[1][1][1], u[2]),
+            u[1],
+        );
         lerp(y0, y1, u[0])
     }
 }

@@ -125,19 +125,28 @@ impl Tree {
             .par_iter()
             .map(|l| self.box_bounds(VoxelBox::around(l.origin, 8, 1)))
             .collect();
-        self.leaves.iter_mut().zip(halos).for_each(|(l, h)| l.halo = h);
+        self.leaves
+            .iter_mut()
+            .zip(halos)
+            .for_each(|(l, h)| l.halo = h);
         let halos: Vec<Bounds> = self
             .lowers
             .par_iter()
             .map(|n| self.box_bounds(VoxelBox::around(n.origin, 128, 1)))
             .collect();
-        self.lowers.iter_mut().zip(halos).for_each(|(n, h)| n.halo = h);
+        self.lowers
+            .iter_mut()
+            .zip(halos)
+            .for_each(|(n, h)| n.halo = h);
         let halos: Vec<Bounds> = self
             .uppers
             .par_iter()
             .map(|n| self.box_bounds(VoxelBox::around(n.origin, 4096, 1)))
             .collect();
-        self.uppers.iter_mut().zip(halos).for_each(|(n, h)| n.halo = h);
+        self.uppers
+            .iter_mut()
+            .zip(halos)
+            .for_each(|(n, h)| n.halo = h);
     }
 
     /// Bounds of the values a trilinear lookup can read anywhere in the `dim`^3 region at
@@ -168,15 +177,15 @@ impl Tree {
             hit += 1;
             match e.slot {
                 RootSlot::Tile { value, .. } => b.include(value),
-                RootSlot::Child(u) => b.union(self.internal_box(
-                    &self.uppers[u as usize],
-                    4096,
-                    128,
-                    bx,
-                    &|c, bx| self.internal_box(&self.lowers[c as usize], 128, 8, bx, &|l, bx| {
-                        leaf_box(&self.leaves[l as usize], bx)
-                    }),
-                )),
+                RootSlot::Child(u) => {
+                    b.union(
+                        self.internal_box(&self.uppers[u as usize], 4096, 128, bx, &|c, bx| {
+                            self.internal_box(&self.lowers[c as usize], 128, 8, bx, &|l, bx| {
+                                leaf_box(&self.leaves[l as usize], bx)
+                            })
+                        }),
+                    )
+                }
             }
         }
         if hit < cells {

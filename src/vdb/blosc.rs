@@ -19,7 +19,8 @@ pub(crate) fn decompress(src: &[u8], expected: usize) -> DecodeResult<Vec<u8>> {
     let mut nbytes: usize = 0;
     // SAFETY: `src` is a live slice of `src.len()` bytes; blosc_cbuffer_validate reads at most
     // that many bytes and writes one usize through the valid pointer `&mut nbytes`.
-    let ok = unsafe { blosc_src::blosc_cbuffer_validate(src.as_ptr().cast(), src.len(), &mut nbytes) };
+    let ok =
+        unsafe { blosc_src::blosc_cbuffer_validate(src.as_ptr().cast(), src.len(), &mut nbytes) };
     if ok != 0 {
         return Err(DecodeError::invalid("blosc chunk header is corrupt"));
     }

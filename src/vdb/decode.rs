@@ -60,7 +60,7 @@ pub(crate) fn decode_tree(
             )));
         }
     }
-    tree.root.sort_by(|a, b| a.origin.cmp(&b.origin));
+    tree.root.sort_by_key(|e| e.origin);
     if tree.root.windows(2).any(|w| w[0].origin == w[1].origin) {
         return Err(DecodeError::invalid("two root entries share an origin"));
     }
@@ -149,7 +149,11 @@ fn read_internal(
 }
 
 /// `LeafNode::readTopology`: just the value mask; values come with the buffers.
-fn read_leaf_topology(r: &mut ByteReader<'_>, tree: &mut Tree, origin: [i32; 3]) -> DecodeResult<u32> {
+fn read_leaf_topology(
+    r: &mut ByteReader<'_>,
+    tree: &mut Tree,
+    origin: [i32; 3],
+) -> DecodeResult<u32> {
     let mut value_mask = [0u64; 8];
     r.u64_words(&mut value_mask, "leaf value mask")?;
     let index = u32::try_from(tree.leaves.len())

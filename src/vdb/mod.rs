@@ -81,7 +81,8 @@ impl Archive {
         let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(path))?;
         let bytes = self.grid_bytes(gd)?;
         let mut r = ByteReader::new(&bytes, gd.grid_pos);
-        let compression = Compression::from_flags(r.u32("compression flags").map_err(|e| e.at(path))?);
+        let compression =
+            Compression::from_flags(r.u32("compression flags").map_err(|e| e.at(path))?);
         let metadata = metadata::read_meta_map(&mut r).map_err(|e| e.at(path))?;
         let transform = transform::read_transform(&mut r).map_err(|e| e.at(path))?;
         let tree = if gd.instance_parent.is_empty() {

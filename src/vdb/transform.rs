@@ -87,13 +87,11 @@ fn scale_translate(name: &str, s: [f64; 3], t: [f64; 3]) -> Transform {
 
 /// OpenVDB stores `Mat4d` row by row in its row-vector convention; transpose to column vectors.
 fn read_mat4_transposed(r: &mut ByteReader<'_>) -> DecodeResult<[[f64; 4]; 4]> {
-    let mut m = [[0.0; 4]; 4];
-    for row in 0..4 {
-        for col in 0..4 {
-            m[col][row] = r.f64("affine matrix")?;
-        }
+    let mut rows = [[0.0; 4]; 4];
+    for v in rows.iter_mut().flatten() {
+        *v = r.f64("affine matrix")?;
     }
-    Ok(m)
+    Ok(std::array::from_fn(|i| std::array::from_fn(|j| rows[j][i])))
 }
 
 fn check_affine(name: &str, m: &[[f64; 4]; 4]) -> DecodeResult<()> {
@@ -152,11 +150,7 @@ pub(crate) fn read_transform(r: &mut ByteReader<'_>) -> DecodeResult<Transform> 
                 }),
             }
         }
-        other => {
-            return Err(DecodeError::unsupported(format!(
-                "transform map '{other}'"
-            )))
-        }
+        other => return Err(DecodeError::unsupported(format!("transform map '{other}'"))),
     };
     check_affine(&t.map, &t.world_from_index)?;
     Ok(t)

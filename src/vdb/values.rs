@@ -273,13 +273,19 @@ pub(crate) fn read_compressed_values(
     // HalfWriter writes nothing at all for an empty array (not even a size prefix).
     if half && count == 0 {
         dest.iter_mut().enumerate().for_each(|(i, d)| {
-            *d = if is_on(selection, i) { inactive1 } else { inactive0 };
+            *d = if is_on(selection, i) {
+                inactive1
+            } else {
+                inactive0
+            };
         });
         return Ok(());
     }
     let elem = s.kind.array_size(s.half);
     let data = read_data(r, s.compression, count * elem)?;
-    let mut values = data.chunks_exact(elem).map(|b| s.kind.decode_array(b, half));
+    let mut values = data
+        .chunks_exact(elem)
+        .map(|b| s.kind.decode_array(b, half));
     if only_active {
         for (i, d) in dest.iter_mut().enumerate() {
             *d = if is_on(mask, i) {
@@ -321,7 +327,10 @@ mod tests {
             let mut r = ByteReader::new(&bytes, 0);
             let res = read_compressed_values(&mut r, &stream(2, false), &mask, &mut dest);
             assert!(res.is_ok(), "{res:?}");
-            assert_eq!((dest[0], dest[1], dest[2], dest[511]), (1.0, expect_inactive, 2.0, expect_inactive));
+            assert_eq!(
+                (dest[0], dest[1], dest[2], dest[511]),
+                (1.0, expect_inactive, 2.0, expect_inactive)
+            );
             assert_eq!(r.remaining(), 0);
         }
     }

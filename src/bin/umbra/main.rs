@@ -7,7 +7,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Parser, Debug)]
-#[command(name = "umbra", version, about = "How much light gets through this OpenVDB cloud?")]
+#[command(
+    name = "umbra",
+    version,
+    about = "How much light gets through this OpenVDB cloud?"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,
@@ -74,7 +78,11 @@ fn cmd_info(file: &std::path::Path, json: bool, grid: Option<&str>) -> Result<Ex
             g.error.as_deref().unwrap_or_default()
         );
     }
-    Ok(if failed > 0 { ExitCode::from(2) } else { ExitCode::SUCCESS })
+    Ok(if failed > 0 {
+        ExitCode::from(2)
+    } else {
+        ExitCode::SUCCESS
+    })
 }
 
 fn print_text(out: &mut impl Write, info: &umbra::info::FileInfo) -> Result<()> {
@@ -88,15 +96,31 @@ fn print_text(out: &mut impl Write, info: &umbra::info::FileInfo) -> Result<()> 
         info.grids.len()
     )?;
     for g in &info.grids {
-        writeln!(out, "\n{} ({}{})", g.name, g.value_type, if g.saved_as_half { ", half" } else { "" })?;
+        writeln!(
+            out,
+            "\n{} ({}{})",
+            g.name,
+            g.value_type,
+            if g.saved_as_half { ", half" } else { "" }
+        )?;
         if let Some(e) = &g.error {
             writeln!(out, "  error: {e}")?;
             continue;
         }
-        let v = |x: &Option<serde_json::Value>| x.as_ref().map_or("-".to_string(), ToString::to_string);
+        let v =
+            |x: &Option<serde_json::Value>| x.as_ref().map_or("-".to_string(), ToString::to_string);
         writeln!(out, "  class: {}", g.class.as_deref().unwrap_or("-"))?;
-        writeln!(out, "  compression: {}", g.compression.as_deref().unwrap_or("-"))?;
-        writeln!(out, "  map: {}  voxel size: {:?}", g.map.as_deref().unwrap_or("-"), g.voxel_size)?;
+        writeln!(
+            out,
+            "  compression: {}",
+            g.compression.as_deref().unwrap_or("-")
+        )?;
+        writeln!(
+            out,
+            "  map: {}  voxel size: {:?}",
+            g.map.as_deref().unwrap_or("-"),
+            g.voxel_size
+        )?;
         writeln!(out, "  background: {}", v(&g.background))?;
         writeln!(out, "  index bbox: {:?}", g.index_bbox)?;
         writeln!(out, "  world bbox: {:?}", g.world_bbox)?;
