@@ -56,7 +56,7 @@ fn leaf_bounds_and_halos_equal_brute_force() {
         for leaf in t.leaves.iter().step_by(step) {
             let o = leaf.origin;
             let own = brute(t, o, o.map(|c| c + 7));
-            let halo = brute(t, o.map(|c| c - 1), o.map(|c| c + 8));
+            let halo = brute(t, o, o.map(|c| c + 8));
             assert_eq!(leaf.bounds, own, "{file}: leaf {o:?} bounds");
             assert_eq!(leaf.halo, halo, "{file}: leaf {o:?} halo");
             leaves += 1;
@@ -81,12 +81,12 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
         for (nodes, dim) in [(&t.lowers, 128.0), (&t.uppers, 4096.0)] {
             for node in nodes.iter() {
                 for _ in 0..2000 {
-                    // Continuous region of the node's voxels: [o - 0.5, o + dim - 0.5).
-                    let p = node
-                        .origin
-                        .map(|c| f64::from(c) - 0.5 + rng.gen::<f64>() * dim);
+                    // Nearest region [o - 0.5, o + dim - 0.5); trilinear (dual) region [o, o + dim).
+                    let u = [rng.gen::<f64>(), rng.gen::<f64>(), rng.gen::<f64>()];
+                    let p = [0, 1, 2].map(|a| f64::from(node.origin[a]) - 0.5 + u[a] * dim);
+                    let q = [0, 1, 2].map(|a| f64::from(node.origin[a]) + u[a] * dim);
                     let n = acc.nearest(p);
-                    let l = acc.trilinear(p);
+                    let l = acc.trilinear(q);
                     assert!(
                         inside(node.bounds, n),
                         "{file}: nearest {n} at {p:?} outside {:?}",
@@ -94,7 +94,7 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
                     );
                     assert!(
                         inside(node.halo, l),
-                        "{file}: trilinear {l} at {p:?} outside {:?}",
+                        "{file}: trilinear {l} at {q:?} outside {:?}",
                         node.halo
                     );
                     samples += 1;
@@ -105,6 +105,32 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
         assert!(inside(t.bounds, t.background));
     }
     assert!(samples > 10_000);
+}
+
+#[test]
+fn tile_slot_halos_equal_brute_force() {
+    let mut checked = 0;
+    for &(file, grid) in FILES {
+        let Some(path) = corpus(file) else { return };
+        let g = umbra::vdb::load_grid(&path, grid).unwrap();
+        let t = &g.tree;
+        for node in &t.lowers {
+            for s in (0..4096).step_by(37) {
+                if node.has_child(s) {
+                    continue;
+                }
+                let l = [(s >> 8) as i32, ((s >> 4) & 15) as i32, (s & 15) as i32];
+                let o = [0, 1, 2].map(|a| node.origin[a] + 8 * l[a]);
+                assert_eq!(
+                    node.tile_halo[s],
+                    brute(t, o, o.map(|c| c + 8)),
+                    "{file}: tile {o:?}"
+                );
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked > 1000, "{checked}");
 }
 
 #[test]

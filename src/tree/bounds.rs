@@ -1,8 +1,12 @@
 //! Value bounds per node: the min and max of every value a lookup inside the node can return.
-//! Nearest lookups read only the node's own voxels and tiles; trilinear lookups at a point inside
-//! the node read voxels `floor(p)` and `floor(p) + 1`, one voxel beyond the node on every side, so
-//! the *halo* bound covers the node grown by one voxel (inactive values and background included).
-//! These bounds are the majorants and minorants the traversal hands to the estimators.
+//!
+//! Regions: for nearest lookups a node of edge `dim` at origin `o` owns the points whose voxel
+//! `floor(p + 0.5)` lies in `[o, o + dim)`; it reads only its own voxels and tiles (`bounds`).
+//! For trilinear lookups it owns the points with `floor(p)` in `[o, o + dim)` (the cells between
+//! voxel centres, the dual grid), and a lookup there reads voxels `floor(p) + {0, 1}`: the node's
+//! voxels plus a one-voxel halo on its + faces, `[o, o + dim]` (`halo`), inactive values and
+//! background included. Internal nodes also keep the halo bound of every tile slot. These are the
+//! majorants and minorants the traversal hands to the estimators.
 
 use super::{Internal, Leaf, RootSlot, Tree};
 use rayon::prelude::*;
@@ -67,11 +71,20 @@ struct VoxelBox {
 }
 
 impl VoxelBox {
-    fn around(origin: [i32; 3], dim: i64, grow: i64) -> Self {
+    /// The voxels a node's own values occupy: `[o, o + dim - 1]`.
+    fn own(origin: [i32; 3], dim: i64) -> Self {
         let o = origin.map(i64::from);
         Self {
-            lo: o.map(|v| v - grow),
-            hi: o.map(|v| v + dim - 1 + grow),
+            lo: o,
+            hi: o.map(|v| v + dim - 1),
+        }
+    }
+    /// The voxels trilinear lookups in the node's dual-grid region read: `[o, o + dim]`.
+    fn trilinear(origin: [i32; 3], dim: i64) -> Self {
+        let o = origin.map(i64::from);
+        Self {
+            lo: o,
+            hi: o.map(|v| v + dim),
         }
     }
     /// Range of child slots (each `child_dim` wide) of a node at `origin` that the box touches,
@@ -123,43 +136,73 @@ impl Tree {
         let halos: Vec<Bounds> = self
             .leaves
             .par_iter()
-            .map(|l| self.box_bounds(VoxelBox::around(l.origin, 8, 1)))
+            .map(|l| self.box_bounds(VoxelBox::trilinear(l.origin, 8)))
             .collect();
         self.leaves
             .iter_mut()
             .zip(halos)
             .for_each(|(l, h)| l.halo = h);
-        let halos: Vec<Bounds> = self
+        let halos: Vec<_> = self
             .lowers
             .par_iter()
-            .map(|n| self.box_bounds(VoxelBox::around(n.origin, 128, 1)))
+            .map(|n| self.internal_halos(n, 128, 8))
             .collect();
-        self.lowers
-            .iter_mut()
-            .zip(halos)
-            .for_each(|(n, h)| n.halo = h);
-        let halos: Vec<Bounds> = self
+        for (n, (h, t)) in self.lowers.iter_mut().zip(halos) {
+            n.halo = h;
+            n.tile_halo = t;
+        }
+        let halos: Vec<_> = self
             .uppers
             .par_iter()
-            .map(|n| self.box_bounds(VoxelBox::around(n.origin, 4096, 1)))
+            .map(|n| self.internal_halos(n, 4096, 128))
             .collect();
-        self.uppers
-            .iter_mut()
-            .zip(halos)
-            .for_each(|(n, h)| n.halo = h);
+        for (n, (h, t)) in self.uppers.iter_mut().zip(halos) {
+            n.halo = h;
+            n.tile_halo = t;
+        }
     }
 
-    /// Bounds of the values a trilinear lookup can read anywhere in the `dim`^3 region at
-    /// `origin` (a tile, a node or a voxel): the region grown by one voxel.
+    /// A node's halo bound and the halo bound of each of its tile slots (children get EMPTY).
+    fn internal_halos(&self, n: &Internal, dim: i64, child_dim: i64) -> (Bounds, Box<[Bounds]>) {
+        let side = dim / child_dim;
+        let tiles = (0..n.slots.len())
+            .into_par_iter()
+            .with_min_len(512)
+            .map(|s| {
+                if n.has_child(s) {
+                    return Bounds::EMPTY;
+                }
+                let s = s as i64;
+                let local = [s / (side * side), (s / side) % side, s % side];
+                let o = [0, 1, 2].map(|a| n.origin[a] + (local[a] * child_dim) as i32);
+                let bx = VoxelBox::trilinear(o, child_dim);
+                // Slots off the node's + faces read only this node: skip the root search.
+                if local.iter().all(|&l| l + 1 < side) {
+                    if dim == 4096 {
+                        self.upper_box(n, bx)
+                    } else {
+                        self.lower_box(n, bx)
+                    }
+                } else {
+                    self.box_bounds(bx)
+                }
+            })
+            .collect::<Vec<_>>()
+            .into_boxed_slice();
+        (self.box_bounds(VoxelBox::trilinear(n.origin, dim)), tiles)
+    }
+
+    /// Bounds of the values a trilinear lookup can read in the dual-grid region of the `dim`^3
+    /// block at `origin` (a tile, node, voxel, or empty root cell): voxels `[o, o + dim]`.
     #[must_use]
     pub fn halo_bounds(&self, origin: [i32; 3], dim: i64) -> Bounds {
-        self.box_bounds(VoxelBox::around(origin, dim, 1))
+        self.box_bounds(VoxelBox::trilinear(origin, dim))
     }
 
-    /// Bounds of the values of the `dim`^3 region at `origin`, without halo.
+    /// Bounds of the values of the `dim`^3 block at `origin`, without halo.
     #[must_use]
     pub fn region_bounds(&self, origin: [i32; 3], dim: i64) -> Bounds {
-        self.box_bounds(VoxelBox::around(origin, dim, 0))
+        self.box_bounds(VoxelBox::own(origin, dim))
     }
 
     /// min/max over every voxel value in the box, background included where the box leaves
@@ -177,21 +220,25 @@ impl Tree {
             hit += 1;
             match e.slot {
                 RootSlot::Tile { value, .. } => b.include(value),
-                RootSlot::Child(u) => {
-                    b.union(
-                        self.internal_box(&self.uppers[u as usize], 4096, 128, bx, &|c, bx| {
-                            self.internal_box(&self.lowers[c as usize], 128, 8, bx, &|l, bx| {
-                                leaf_box(&self.leaves[l as usize], bx)
-                            })
-                        }),
-                    )
-                }
+                RootSlot::Child(u) => b.union(self.upper_box(&self.uppers[u as usize], bx)),
             }
         }
         if hit < cells {
             b.include(self.background);
         }
         b
+    }
+
+    fn upper_box(&self, node: &Internal, bx: VoxelBox) -> Bounds {
+        self.internal_box(node, 4096, 128, bx, &|c, bx| {
+            self.lower_box(&self.lowers[c as usize], bx)
+        })
+    }
+
+    fn lower_box(&self, node: &Internal, bx: VoxelBox) -> Bounds {
+        self.internal_box(node, 128, 8, bx, &|l, bx| {
+            leaf_box(&self.leaves[l as usize], bx)
+        })
     }
 
     fn internal_box(

@@ -80,7 +80,8 @@ pub struct Leaf {
     pub values: [f32; 512],
     /// min/max of every value a nearest lookup can return inside the leaf.
     pub bounds: Bounds,
-    /// min/max of every value a trilinear lookup inside the leaf can touch (one-voxel halo).
+    /// min/max of what trilinear lookups in the leaf's dual-grid region read (voxels
+    /// `[o, o + 8]`: the leaf plus a one-voxel halo on its + faces).
     pub halo: Bounds,
 }
 
@@ -97,8 +98,11 @@ pub struct Internal {
     pub slots: Box<[u32]>,
     /// min/max of every value a nearest lookup can return inside the node.
     pub bounds: Bounds,
-    /// min/max with the one-voxel halo of trilinear lookups.
+    /// min/max of what trilinear lookups in the node's dual-grid region read (voxels
+    /// `[o, o + dim]`).
     pub halo: Bounds,
+    /// Per slot: the halo bound of a tile slot (EMPTY for child slots).
+    pub tile_halo: Box<[Bounds]>,
 }
 
 impl Internal {
@@ -274,6 +278,7 @@ impl Tree {
                     std::mem::size_of::<Internal>()
                         + 8 * (n.child_mask.len() + n.value_mask.len())
                         + 4 * n.slots.len()
+                        + std::mem::size_of::<Bounds>() * n.tile_halo.len()
                 })
                 .sum::<usize>()
         };

@@ -137,6 +137,7 @@ fn read_internal(
         slots,
         bounds: Bounds::EMPTY,
         halo: Bounds::EMPTY,
+        tile_halo: Box::new([]),
     };
     let list = match level {
         Level::Upper => &mut tree.uppers,
