@@ -15,7 +15,13 @@
 
 pub mod error;
 pub mod info;
+pub mod ray;
+pub mod regular;
+pub mod traverse;
 pub mod tree;
 pub mod vdb;
+pub mod volume;
 
 pub use error::{Error, Result};
+pub use ray::Ray;
+pub use volume::{Interp, Volume};

@@ -8,7 +8,7 @@ use super::{leaf_offset, node_origin, Found, RootSlot, Tree, LEAF_LOG2, LOWER_LO
 const NONE: u32 = u32::MAX;
 
 /// Per-thread cached accessor over a [`Tree`]. Sampling follows OpenVDB: nearest is
-/// `PointSampler` (voxel `floor(p + 0.5)`), trilinear is `BoxSampler` (the 8 voxels around `p`).
+/// `PointSampler` (voxel `round(p)`), trilinear is `BoxSampler` (the 8 voxels around `p`).
 #[derive(Debug, Clone)]
 pub struct Accessor<'t> {
     tree: &'t Tree,
@@ -90,10 +90,11 @@ impl<'t> Accessor<'t> {
         f
     }
 
-    /// Nearest-neighbour sample at index-space point `p`: the voxel `floor(p + 0.5)`.
+    /// Nearest-neighbour sample at index-space point `p`: the voxel `round(p)`, ties away from
+    /// zero, as OpenVDB's `PointSampler` (`::round`).
     #[inline]
     pub fn nearest(&mut self, p: [f64; 3]) -> f32 {
-        self.value(p.map(|c| round_to_voxel(c + 0.5)))
+        self.value(p.map(|c| c.round() as i32))
     }
 
     /// Trilinear sample at index-space point `p` (OpenVDB `BoxSampler`): interpolates the 8

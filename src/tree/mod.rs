@@ -8,10 +8,12 @@
 
 mod accessor;
 mod bounds;
+mod build;
 mod stats;
 
 pub use accessor::Accessor;
 pub use bounds::Bounds;
+pub use build::TreeBuilder;
 pub use stats::TreeStats;
 
 /// log2 of a leaf's edge in voxels.

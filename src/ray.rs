@@ -1,0 +1,115 @@
+//! Rays in world space and their image in a grid's index space.
+
+use crate::error::{Error, Result};
+
+/// A world-space ray segment `p(t) = origin + t * direction`, `t` in `[t_min, t_max]`.
+/// The direction is normalised on construction, so `t` is world distance along the ray.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Ray {
+    /// World-space origin.
+    pub origin: [f64; 3],
+    /// Unit world-space direction.
+    pub direction: [f64; 3],
+    /// Start of the segment (world units from `origin`).
+    pub t_min: f64,
+    /// End of the segment; may be `f64::INFINITY` ("until the ray leaves the volume").
+    pub t_max: f64,
+}
+
+impl Ray {
+    /// A ray from `origin` along `direction` over `[t_min, t_max]`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] for non-finite origin/direction, a zero direction, a NaN or
+    /// reversed range, or a negative `t_min`.
+    pub fn new(origin: [f64; 3], direction: [f64; 3], t_min: f64, t_max: f64) -> Result<Self> {
+        let bad = |reason: String| Error::InvalidArgument {
+            name: "ray".into(),
+            reason,
+        };
+        if !origin.iter().chain(&direction).all(|v| v.is_finite()) {
+            return Err(bad(format!(
+                "non-finite origin {origin:?} or direction {direction:?}"
+            )));
+        }
+        let len = direction.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if len == 0.0 || !len.is_finite() {
+            return Err(bad(format!("direction {direction:?} has no length")));
+        }
+        if t_min.is_nan() || t_max.is_nan() || t_min > t_max || t_min < 0.0 || t_min.is_infinite() {
+            return Err(bad(format!("invalid range [{t_min}, {t_max}]")));
+        }
+        Ok(Self {
+            origin,
+            direction: direction.map(|v| v / len),
+            t_min,
+            t_max,
+        })
+    }
+
+    /// The segment from `a` to `b`.
+    ///
+    /// # Errors
+    /// As [`Ray::new`]; `a == b` gives a valid zero-length segment along +x.
+    pub fn between(a: [f64; 3], b: [f64; 3]) -> Result<Self> {
+        let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let len = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+        if len == 0.0 {
+            return Self::new(a, [1.0, 0.0, 0.0], 0.0, 0.0);
+        }
+        Self::new(a, d, 0.0, len)
+    }
+
+    /// World point at `t`.
+    #[must_use]
+    pub fn at(&self, t: f64) -> [f64; 3] {
+        [0, 1, 2].map(|a| self.origin[a] + t * self.direction[a])
+    }
+}
+
+/// Slab test of the line `q + t d` against the box `[lo, hi]`: the `t` interval inside, or
+/// `None`. Zero (and negative-zero) direction components are handled without dividing.
+#[must_use]
+pub fn clip_box(q: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f64)> {
+    let mut t0 = f64::NEG_INFINITY;
+    let mut t1 = f64::INFINITY;
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if q[a] < lo[a] || q[a] > hi[a] {
+                return None;
+            }
+            continue;
+        }
+        let (u, v) = ((lo[a] - q[a]) / d[a], (hi[a] - q[a]) / d[a]);
+        t0 = t0.max(u.min(v));
+        t1 = t1.min(u.max(v));
+    }
+    (t0 <= t1).then_some((t0, t1))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clip_handles_axis_parallel_and_negative_zero() {
+        let r = clip_box([0.5, 0.5, -5.0], [0.0, -0.0, 1.0], [0.0; 3], [1.0; 3]);
+        assert_eq!(r, Some((5.0, 6.0)));
+        assert_eq!(
+            clip_box([2.0, 0.5, -5.0], [0.0, -0.0, 1.0], [0.0; 3], [1.0; 3]),
+            None
+        );
+    }
+
+    #[test]
+    fn rays_reject_bad_input() {
+        assert!(Ray::new([f64::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], 0.0, 1.0).is_err());
+        assert!(Ray::new([0.0; 3], [0.0; 3], 0.0, 1.0).is_err());
+        assert!(Ray::new([0.0; 3], [1.0, 0.0, 0.0], 2.0, 1.0).is_err());
+        let r = Ray::between([0.0; 3], [0.0, 3.0, 4.0]).ok();
+        assert_eq!(
+            r.map(|r| (r.t_max, r.direction)),
+            Some((5.0, [0.0, 0.6, 0.8]))
+        );
+    }
+}

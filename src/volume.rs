@@ -1,0 +1,278 @@
+//! A grid ready to trace: the flat tree with umbra's bad-voxel policy applied, the inverse of
+//! its affine transform, the density scale, and the box outside which the density is the
+//! background.
+//!
+//! **Bad-voxel policy** (applied once, here, and counted): extinction must be a finite,
+//! non-negative number, so NaN values become 0, negative values become 0, and +Inf stays +Inf
+//! (an opaque voxel: T = 0 across it, tau reported as inf). The counts are in
+//! [`Volume::sanitized`] and the CLI prints a warning when any is non-zero. The original
+//! values remain what `umbra info` reports.
+
+use crate::error::{Error, Result};
+use crate::tree::{Bounds, RootSlot, Tree};
+use crate::vdb::Grid;
+
+/// How the density between voxel centres is defined.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Interp {
+    /// OpenVDB `PointSampler`: the voxel `floor(p + 0.5)`, piecewise constant.
+    Nearest,
+    /// OpenVDB `BoxSampler`: trilinear interpolation of the 8 voxels around `p`.
+    Trilinear,
+}
+
+impl Interp {
+    /// Offset added to index coordinates so that the lookup cell is `floor(q)`: nearest lookups
+    /// own `[i - 0.5, i + 0.5)`, trilinear ones the dual cell `[i, i + 1)`.
+    #[must_use]
+    pub fn shift(self) -> f64 {
+        match self {
+            Self::Nearest => 0.5,
+            Self::Trilinear => 0.0,
+        }
+    }
+}
+
+/// Counts of voxels changed by the bad-voxel policy (tiles count once per tile).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Sanitized {
+    /// NaN values set to 0.
+    pub nan: u64,
+    /// Negative values set to 0.
+    pub negative: u64,
+    /// +Inf values kept as opaque.
+    pub pos_inf: u64,
+}
+
+/// A traceable volume.
+#[derive(Debug, Clone)]
+pub struct Volume {
+    /// Grid name.
+    pub name: String,
+    /// The tree, after the bad-voxel policy.
+    pub tree: Tree,
+    /// `world_from_index` (column vectors, row-major 3x4).
+    pub world_from_index: [[f64; 4]; 3],
+    /// `index_from_world`, its inverse.
+    pub index_from_world: [[f64; 4]; 3],
+    /// mu_t = `density_scale` x value, per world unit.
+    pub density_scale: f64,
+    /// Inclusive voxel box holding every leaf and every tile whose value differs from the
+    /// background; `None` if the density is the background everywhere.
+    pub value_box: Option<[[i64; 3]; 2]>,
+    /// What the bad-voxel policy changed.
+    pub sanitized: Sanitized,
+}
+
+fn sanitize(v: &mut f32, s: &mut Sanitized) {
+    if v.is_nan() {
+        s.nan += 1;
+        *v = 0.0;
+    } else if *v < 0.0 {
+        s.negative += 1;
+        *v = 0.0;
+    } else if *v == f32::INFINITY {
+        s.pos_inf += 1;
+    }
+}
+
+impl Volume {
+    /// Prepare `grid` for tracing with extinction `mu_t = density_scale * value`.
+    ///
+    /// # Errors
+    /// [`Error::Unsupported`] for frustum maps and non-scalar grids, [`Error::InvalidArgument`]
+    /// for a negative or non-finite density scale.
+    pub fn new(grid: Grid, density_scale: f64, path: &std::path::Path) -> Result<Self> {
+        if !(density_scale.is_finite() && density_scale >= 0.0) {
+            return Err(Error::InvalidArgument {
+                name: "density-scale".into(),
+                reason: format!("{density_scale} is not a finite non-negative number"),
+            });
+        }
+        if !grid.transform.is_affine() {
+            return Err(Error::Unsupported {
+                path: path.to_path_buf(),
+                what: format!("{} (grid '{}')", grid.transform.map, grid.name),
+            });
+        }
+        if !grid.value_type.is_scalar_real() {
+            return Err(Error::Unsupported {
+                path: path.to_path_buf(),
+                what: format!(
+                    "tracing a {} grid ('{}'); density must be a float or double grid",
+                    grid.value_type.name(),
+                    grid.name
+                ),
+            });
+        }
+        let m = grid.transform.world_from_index;
+        Ok(Self::from_tree(
+            grid.name,
+            grid.tree,
+            [m[0], m[1], m[2]],
+            density_scale,
+        ))
+    }
+
+    /// A volume from a tree built in memory (see [`crate::tree::TreeBuilder`]) and a
+    /// `world_from_index` affine map (3x4, column vectors). `density_scale` must be finite and
+    /// non-negative (checked by [`Volume::new`]; here it is the caller's contract).
+    #[must_use]
+    pub fn from_tree(
+        name: String,
+        mut tree: Tree,
+        world_from_index: [[f64; 4]; 3],
+        density_scale: f64,
+    ) -> Self {
+        let mut s = Sanitized::default();
+        sanitize(&mut tree.background, &mut s);
+        for e in &mut tree.root {
+            if let RootSlot::Tile { value, .. } = &mut e.slot {
+                sanitize(value, &mut s);
+            }
+        }
+        for n in tree.uppers.iter_mut().chain(tree.lowers.iter_mut()) {
+            for i in 0..n.slots.len() {
+                if !n.has_child(i) {
+                    let mut v = f32::from_bits(n.slots[i]);
+                    sanitize(&mut v, &mut s);
+                    n.slots[i] = v.to_bits();
+                }
+            }
+        }
+        for l in &mut tree.leaves {
+            l.values.iter_mut().for_each(|v| sanitize(v, &mut s));
+        }
+        if s.nan + s.negative > 0 {
+            tree.compute_bounds();
+        }
+        let index_from_world = invert_affine(&world_from_index);
+        let value_box = value_box(&tree);
+        Self {
+            name,
+            tree,
+            world_from_index,
+            index_from_world,
+            density_scale,
+            value_box,
+            sanitized: s,
+        }
+    }
+
+    /// Index-space point of a world point.
+    #[must_use]
+    pub fn to_index(&self, p: [f64; 3]) -> [f64; 3] {
+        let m = &self.index_from_world;
+        [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+    }
+
+    /// Index-space vector of a world vector.
+    #[must_use]
+    pub fn to_index_dir(&self, d: [f64; 3]) -> [f64; 3] {
+        let m = &self.index_from_world;
+        [0, 1, 2].map(|r| m[r][0] * d[0] + m[r][1] * d[1] + m[r][2] * d[2])
+    }
+
+    /// World-space point of an index point.
+    #[must_use]
+    pub fn to_world(&self, p: [f64; 3]) -> [f64; 3] {
+        let m = &self.world_from_index;
+        [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+    }
+
+    /// Extinction of the background, `density_scale * background`.
+    #[must_use]
+    pub fn mu_background(&self) -> f64 {
+        self.density_scale * f64::from(self.tree.background)
+    }
+
+    /// Bounds of every value, background included.
+    #[must_use]
+    pub fn bounds(&self) -> Bounds {
+        self.tree.bounds
+    }
+}
+
+fn value_box(tree: &Tree) -> Option<[[i64; 3]; 2]> {
+    let mut b: Option<[[i64; 3]; 2]> = None;
+    let mut add = |o: [i32; 3], dim: i64| {
+        let lo = o.map(i64::from);
+        let hi = lo.map(|c| c + dim - 1);
+        let bb = b.get_or_insert([lo, hi]);
+        for a in 0..3 {
+            bb[0][a] = bb[0][a].min(lo[a]);
+            bb[1][a] = bb[1][a].max(hi[a]);
+        }
+    };
+    let bg = tree.background;
+    for e in &tree.root {
+        if let RootSlot::Tile { value, .. } = e.slot {
+            if value != bg {
+                add(e.origin, 4096);
+            }
+        }
+    }
+    for (nodes, dim, child) in [(&tree.uppers, 32usize, 128i64), (&tree.lowers, 16, 8)] {
+        for n in nodes {
+            for s in 0..n.slots.len() {
+                if !n.has_child(s) && n.tile_value(s) != bg {
+                    let l = [s / (dim * dim), (s / dim) % dim, s % dim];
+                    add(
+                        [0, 1, 2].map(|a| n.origin[a] + (l[a] as i64 * child) as i32),
+                        child,
+                    );
+                }
+            }
+        }
+    }
+    for l in &tree.leaves {
+        add(l.origin, 8);
+    }
+    b
+}
+
+fn invert_affine(m: &[[f64; 4]; 3]) -> [[f64; 4]; 3] {
+    let a = |r: usize, c: usize| m[r][c];
+    let det = a(0, 0) * (a(1, 1) * a(2, 2) - a(1, 2) * a(2, 1))
+        - a(0, 1) * (a(1, 0) * a(2, 2) - a(1, 2) * a(2, 0))
+        + a(0, 2) * (a(1, 0) * a(2, 1) - a(1, 1) * a(2, 0));
+    let inv = |r: usize, c: usize| {
+        // cofactor transpose / det
+        let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
+        let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
+        (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det
+    };
+    let mut out = [[0.0; 4]; 3];
+    for r in 0..3 {
+        for c in 0..3 {
+            out[r][c] = inv(r, c);
+        }
+    }
+    for r in 0..3 {
+        out[r][3] = -(0..3).map(|c| out[r][c] * m[c][3]).sum::<f64>();
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn inverse_affine_round_trips() {
+        let m = [
+            [0.1, 0.02, 0.0, 3.0],
+            [-0.03, 0.2, 0.01, -1.0],
+            [0.0, 0.05, 0.3, 7.0],
+        ];
+        let inv = invert_affine(&m);
+        let p = [1.5, -2.0, 9.0];
+        let w = [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3]);
+        let back =
+            [0, 1, 2].map(|r| inv[r][0] * w[0] + inv[r][1] * w[1] + inv[r][2] * w[2] + inv[r][3]);
+        for a in 0..3 {
+            assert!((back[a] - p[a]).abs() < 1e-12, "{back:?}");
+        }
+    }
+}
