@@ -78,6 +78,15 @@ fn sanitize(v: &mut f32, s: &mut Sanitized) {
 }
 
 impl Volume {
+    /// Load grid `grid` of `path` and prepare it for tracing (see [`Volume::new`]).
+    ///
+    /// # Errors
+    /// Loading errors ([`crate::vdb::load_grid`]) and those of [`Volume::new`].
+    pub fn load(path: impl AsRef<std::path::Path>, grid: &str, density_scale: f64) -> Result<Self> {
+        let path = path.as_ref();
+        Self::new(crate::vdb::load_grid(path, grid)?, density_scale, path)
+    }
+
     /// Prepare `grid` for tracing with extinction `mu_t = density_scale * value`.
     ///
     /// # Errors
