@@ -12,7 +12,7 @@
 
 use crate::error::Result;
 use crate::ray::Ray;
-use crate::traverse::{dda, lookup_ray, walk, Granularity, Segment};
+use crate::traverse::{dda, lookup_ray, walk, Cells, Granularity, Segment};
 use crate::tree::Accessor;
 use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
@@ -87,7 +87,8 @@ fn integrate_cells(
     let lo = [0, 1, 2].map(|a| p0[a].min(p1[a]).floor() as i64);
     let hi = [0, 1, 2].map(|a| p0[a].max(p1[a]).floor() as i64);
     let mut sum = 0.0f64;
-    let _ = dda(q, d, t0, t1, 1.0, lo, hi, |c, ta, tb| {
+    let grid = Cells { size: 1.0, lo, hi };
+    let _ = dda(q, d, (t0, t1), &grid, |c, ta, tb| {
         *cells += 1;
         let ijk = c.map(|v| v as i32);
         sum += match interp {

@@ -252,16 +252,11 @@ fn invert_affine(m: &[[f64; 4]; 3]) -> [[f64; 4]; 3] {
         let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
         (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det
     };
-    let mut out = [[0.0; 4]; 3];
-    for r in 0..3 {
-        for c in 0..3 {
-            out[r][c] = inv(r, c);
-        }
-    }
-    for r in 0..3 {
-        out[r][3] = -(0..3).map(|c| out[r][c] * m[c][3]).sum::<f64>();
-    }
-    out
+    let lin: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| inv(r, c)));
+    std::array::from_fn(|r| {
+        let t = -(0..3).map(|c| lin[r][c] * m[c][3]).sum::<f64>();
+        [lin[r][0], lin[r][1], lin[r][2], t]
+    })
 }
 
 #[cfg(test)]

@@ -18,23 +18,23 @@ use std::sync::Mutex;
 use std::time::{Duration, Instant};
 use umbra::info::GridInfo;
 
-const FILES: &[&str] = &[
-    "gen/puff_blosc.vdb",
-    "gen/puff_zip.vdb",
-    "gen/cloud_fbm_half.vdb",
-    "gen/tiles_mixed.vdb",
-    "real/openvdb_smoke1_houdini_v222.vdb",
-    "gen/puff_none.vdb",
-    "gen/xform_affine_rotated.vdb",
-    "gen/bool_mask.vdb",
-    "real/blender_smoke_fluid_data_0050.vdb",
+/// Source files and how many byte-level mutations (half flips, half overwrites) each gets:
+/// fewer for the files that take longest to load, to keep the test fast.
+const SOURCES: &[(&str, usize)] = &[
+    ("gen/puff_blosc.vdb", 200),
+    ("gen/puff_zip.vdb", 160),
+    ("gen/cloud_fbm_half.vdb", 60),
+    ("gen/tiles_mixed.vdb", 60),
+    ("real/openvdb_smoke1_houdini_v222.vdb", 120),
+    ("gen/puff_none.vdb", 120),
+    ("gen/xform_affine_rotated.vdb", 100),
+    ("gen/bool_mask.vdb", 120),
+    ("real/blender_smoke_fluid_data_0050.vdb", 100),
 ];
 const SEED: u64 = 0x756d_6272_615f_6d75; // "umbra_mu"
 /// Truncate at every offset below this.
 const DENSE_TRUNCATION_BYTES: u64 = 300;
 const RANDOM_TRUNCATIONS_PER_FILE: usize = 40;
-const FLIPS_PER_FILE: usize = 140;
-const OVERWRITES_PER_FILE: usize = 140;
 const RSS_LIMIT: u64 = 2 << 30;
 const SLOW_CASE: Duration = Duration::from_secs(10);
 
@@ -58,6 +58,25 @@ impl std::fmt::Display for Mutation {
     }
 }
 
+impl Mutation {
+    /// The mutated copy of `orig`.
+    fn apply(&self, orig: &[u8]) -> Vec<u8> {
+        match self {
+            Self::Truncate(n) => orig[..*n as usize].to_vec(),
+            Self::Flip { at, xor } => {
+                let mut v = orig.to_vec();
+                v[*at as usize] ^= xor;
+                v
+            }
+            Self::Overwrite { at, bytes } => {
+                let mut v = orig.to_vec();
+                v[*at as usize..*at as usize + bytes.len()].copy_from_slice(bytes);
+                v
+            }
+        }
+    }
+}
+
 #[derive(Debug, Clone)]
 struct Case {
     file: usize,
@@ -77,13 +96,46 @@ struct Layout {
 const REGIONS: &[&str] = &[
     "header",
     "descriptor",
-    "grid metadata+transform",
+    "grid metadata",
+    "transform",
     "topology",
     "buffers",
 ];
 
+/// Where a grid's metadata and transform end: after the u32 compression flags come the
+/// metadata map (u32 count; per entry name, type name and a u32-sized value) and the transform
+/// (map type name, then the map's f64 parameters).
+fn grid_sections(file: &[u8], grid_pos: u64) -> (u64, u64) {
+    let mut at = grid_pos as usize + 4;
+    let u32_at = |at: &mut usize| {
+        let v = u32::from_le_bytes(file[*at..*at + 4].try_into().unwrap()) as usize;
+        *at += 4;
+        v
+    };
+    let count = u32_at(&mut at);
+    for _ in 0..count {
+        for _ in 0..3 {
+            let n = u32_at(&mut at);
+            at += n;
+        }
+    }
+    let meta_end = at;
+    let n = u32_at(&mut at);
+    let map = std::str::from_utf8(&file[at..at + n]).unwrap();
+    at += n;
+    at += match map {
+        "UniformScaleMap" | "ScaleMap" => 5 * 24,
+        "UniformScaleTranslateMap" | "ScaleTranslateMap" => 6 * 24,
+        "TranslationMap" => 24,
+        "AffineMap" | "UnitaryMap" => 16 * 8,
+        other => panic!("mutation source with an unexpected map {other}"),
+    };
+    (meta_end as u64, at as u64)
+}
+
 fn layout(path: &Path) -> Layout {
     let a = umbra::vdb::open(path).unwrap();
+    let file = std::fs::read(path).unwrap();
     let len = a.file_len;
     let mut regions = Vec::new();
     let mut boundaries = Vec::new();
@@ -106,14 +158,19 @@ fn layout(path: &Path) -> Layout {
     regions.push(("header", 0, desc_start));
     for g in &a.grids {
         regions.push(("descriptor", desc_start, g.grid_pos));
-        regions.push((
-            "grid metadata+transform",
-            g.grid_pos,
-            (g.grid_pos + 1024).min(g.block_pos),
-        ));
-        regions.push(("topology", g.grid_pos, g.block_pos));
+        let (meta_end, xform_end) = grid_sections(&file, g.grid_pos);
+        regions.push(("grid metadata", g.grid_pos, meta_end));
+        regions.push(("transform", meta_end, xform_end));
+        regions.push(("topology", xform_end, g.block_pos));
         regions.push(("buffers", g.block_pos, g.end_pos));
-        for b in [desc_start, g.grid_pos, g.block_pos, g.end_pos] {
+        for b in [
+            desc_start,
+            g.grid_pos,
+            meta_end,
+            xform_end,
+            g.block_pos,
+            g.end_pos,
+        ] {
             boundaries.extend([b.saturating_sub(1), b, b + 1]);
         }
         desc_start = g.end_pos;
@@ -175,7 +232,8 @@ fn make_cases(layouts: &[Layout]) -> Vec<Case> {
                 Mutation::Truncate(rng.gen_range(DENSE_TRUNCATION_BYTES..l.len)),
             );
         }
-        for i in 0..FLIPS_PER_FILE + OVERWRITES_PER_FILE {
+        let byte_mutations = SOURCES[file].1;
+        for i in 0..byte_mutations {
             // Round-robin over the regions so small ones (header, descriptors) get their share.
             let region = REGIONS[i % REGIONS.len()];
             let spans: Vec<(u64, u64)> = l
@@ -186,7 +244,7 @@ fn make_cases(layouts: &[Layout]) -> Vec<Case> {
                 .collect();
             let (lo, hi) = spans[rng.gen_range(0..spans.len())];
             let at = rng.gen_range(lo..hi);
-            let mutation = if i < FLIPS_PER_FILE {
+            let mutation = if i < byte_mutations / 2 {
                 let xor = if rng.gen_bool(0.5) {
                     1u8 << rng.gen_range(0..8)
                 } else {
@@ -252,27 +310,44 @@ fn try_load(path: &Path) -> Outcome {
 /// Panic locations seen by the hook (the payload carries only the message).
 static PANIC_SITES: Mutex<Vec<String>> = Mutex::new(Vec::new());
 
+thread_local! {
+    /// Set on fuzz worker threads, whose expected-to-be-caught panics are recorded quietly.
+    static IN_FUZZ: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Record every panic's message and location; print it as usual unless it happened on a fuzz
+/// worker (where it is caught and reported as a failed case).
+fn install_panic_hook() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let default_hook = std::panic::take_hook();
+        std::panic::set_hook(Box::new(move |info| {
+            let site = info
+                .location()
+                .map_or("?".into(), |l| format!("{}:{}", l.file(), l.line()));
+            let msg = panic_message(info.payload());
+            PANIC_SITES
+                .lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push(format!("{msg} (at {site})"));
+            if !IN_FUZZ.with(std::cell::Cell::get) {
+                default_hook(info);
+            }
+        }));
+    });
+}
+
 #[test]
 fn mutated_corpus_files_never_panic() {
     let Some(dir) = corpus_dir() else { return };
     let started = Instant::now();
-    let sources: Vec<PathBuf> = FILES.iter().map(|f| dir.join(f)).collect();
+    let sources: Vec<PathBuf> = SOURCES.iter().map(|f| dir.join(f.0)).collect();
     let originals: Vec<Vec<u8>> = sources.iter().map(|p| std::fs::read(p).unwrap()).collect();
     let layouts: Vec<Layout> = sources.iter().map(|p| layout(p)).collect();
     let cases = make_cases(&layouts);
     let tmp = tempfile::tempdir().unwrap();
 
-    let default_hook = std::panic::take_hook();
-    std::panic::set_hook(Box::new(|info| {
-        let site = info
-            .location()
-            .map_or("?".into(), |l| format!("{}:{}", l.file(), l.line()));
-        let msg = panic_message(info.payload());
-        PANIC_SITES
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .push(format!("{msg} (at {site})"));
-    }));
+    install_panic_hook();
 
     let threads = std::thread::available_parallelism()
         .map_or(2, |n| n.get())
@@ -284,8 +359,9 @@ fn mutated_corpus_files_never_panic() {
             let (cases, originals, next, results, tmp) =
                 (&cases, &originals, &next, &results, tmp.path());
             s.spawn(move || {
+                IN_FUZZ.with(|f| f.set(true));
                 // One working copy per source file, patched in place and restored after each case.
-                let work: Vec<PathBuf> = (0..FILES.len())
+                let work: Vec<PathBuf> = (0..SOURCES.len())
                     .map(|f| tmp.join(format!("w{t}_{f}.vdb")))
                     .collect();
                 for (w, o) in work.iter().zip(originals) {
@@ -324,7 +400,6 @@ fn mutated_corpus_files_never_panic() {
             });
         }
     });
-    std::panic::set_hook(default_hook);
 
     let results: Vec<(Outcome, Duration)> = results
         .into_inner()
@@ -336,8 +411,15 @@ fn mutated_corpus_files_never_panic() {
     let (mut open_err, mut load_err, mut ok, mut partial) = (0, 0, 0, 0);
     let mut kinds = std::collections::BTreeMap::<&str, usize>::new();
     let mut slowest = (Duration::ZERO, 0);
+    // Per region: (cases, errors).
+    let mut by_region = std::collections::BTreeMap::<&str, (usize, usize)>::new();
+    let mut time_per_file = vec![Duration::ZERO; SOURCES.len()];
     for (i, (case, (outcome, took))) in cases.iter().zip(&results).enumerate() {
-        let what = format!("{} [{}] {}", FILES[case.file], case.region, case.mutation);
+        let what = format!(
+            "{} [{}] {}",
+            SOURCES[case.file].0, case.region, case.mutation
+        );
+        time_per_file[case.file] += *took;
         if *took > slowest.0 {
             slowest = (*took, i);
         }
@@ -365,6 +447,9 @@ fn mutated_corpus_files_never_panic() {
                 *k
             }
         };
+        let tally = by_region.entry(case.region).or_default();
+        tally.0 += 1;
+        tally.1 += usize::from(first_kind.is_some());
         if let Some(k) = first_kind {
             *kinds.entry(k).or_default() += 1;
             // A regular, readable file can only be not-a-VDB, corrupt or unsupported.
@@ -386,13 +471,21 @@ fn mutated_corpus_files_never_panic() {
          to open, {load_err} opened but a grid failed ({partial} with other grids loaded), {ok} loaded \
          Ok; error kinds {kinds:?}; slowest case {:?} ({} [{}] {}); peak RSS {} MiB",
         cases.len(),
-        FILES.len(),
+        SOURCES.len(),
         slowest.0,
-        FILES[cases[slowest.1].file],
+        SOURCES[cases[slowest.1].file].0,
         cases[slowest.1].region,
         cases[slowest.1].mutation,
         rss.map_or("?".into(), |b| (b >> 20).to_string()),
     );
+    eprintln!("  per region (cases, errors): {by_region:?}");
+    let per_file: Vec<String> = SOURCES
+        .iter()
+        .map(|s| s.0)
+        .zip(&time_per_file)
+        .map(|(f, t)| format!("{f} {:.1}s", t.as_secs_f64()))
+        .collect();
+    eprintln!("  time per file: {}", per_file.join(", "));
     if !failures.is_empty() {
         let mut sites = PANIC_SITES.lock().unwrap().clone();
         sites.sort();
@@ -418,4 +511,75 @@ fn mutated_corpus_files_never_panic() {
             RSS_LIMIT >> 20
         );
     }
+}
+
+/// The CLI on a sample of the same mutants: `umbra info --json` must exit 0 (valid JSON), 2
+/// (valid JSON, some grid has an `error`) or 1 (one `umbra: error:` line), never crash.
+#[test]
+fn cli_survives_mutated_files() {
+    let Some(dir) = corpus_dir() else { return };
+    install_panic_hook();
+    let originals: Vec<Vec<u8>> = SOURCES
+        .iter()
+        .map(|f| std::fs::read(dir.join(f.0)).unwrap())
+        .collect();
+    let layouts: Vec<Layout> = SOURCES.iter().map(|f| layout(&dir.join(f.0))).collect();
+    let cases = make_cases(&layouts);
+    // Every 15th byte-level mutation, plus every 100th truncation.
+    let sample: Vec<&Case> = cases
+        .iter()
+        .filter(|c| !matches!(c.mutation, Mutation::Truncate(_)))
+        .step_by(15)
+        .chain(
+            cases
+                .iter()
+                .filter(|c| matches!(c.mutation, Mutation::Truncate(_)))
+                .step_by(100),
+        )
+        .collect();
+    let tmp = tempfile::tempdir().unwrap();
+    let path = tmp.path().join("mutant.vdb");
+    let mut failures = Vec::new();
+    let mut codes = std::collections::BTreeMap::<i32, usize>::new();
+    for case in &sample {
+        std::fs::write(&path, case.mutation.apply(&originals[case.file])).unwrap();
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .args(["info", path.to_str().unwrap(), "--json"])
+            .output()
+            .unwrap();
+        let what = format!(
+            "{} [{}] {}",
+            SOURCES[case.file].0, case.region, case.mutation
+        );
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        let code = out.status.code().unwrap_or(-1);
+        *codes.entry(code).or_default() += 1;
+        let json = serde_json::from_slice::<serde_json::Value>(&out.stdout).ok();
+        let grid_errors = json
+            .as_ref()
+            .and_then(|j| j["grids"].as_array())
+            .map(|g| g.iter().filter(|g| !g["error"].is_null()).count());
+        let ok = match code {
+            0 => grid_errors == Some(0),
+            2 => grid_errors.is_some_and(|n| n > 0),
+            1 => {
+                out.stdout.is_empty()
+                    && stderr.lines().count() == 1
+                    && stderr.starts_with("umbra: error: ")
+                    && stderr.contains("mutant.vdb")
+            }
+            _ => false,
+        };
+        if !ok || stderr.contains("panicked") {
+            failures.push(format!("{what}: exit {code}, stderr {stderr:?}"));
+        }
+    }
+    eprintln!("CLI on {} mutants: exit codes {codes:?}", sample.len());
+    assert!(sample.len() >= 50, "only {} CLI mutants", sample.len());
+    assert!(
+        failures.is_empty(),
+        "{} CLI failures:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }

@@ -4,7 +4,7 @@
 use proptest::prelude::*;
 use std::ops::ControlFlow;
 use umbra::regular::optical_depth;
-use umbra::traverse::{dda, walk, Granularity, Segment};
+use umbra::traverse::{dda, walk, Cells, Granularity, Segment};
 use umbra::tree::{Accessor, TreeBuilder};
 use umbra::{Interp, Ray, Volume};
 
@@ -162,21 +162,17 @@ fn brute_nearest(v: &Volume, r: &Ray) -> f64 {
     let d = v.to_index_dir(r.direction);
     let mut acc = Accessor::new(&v.tree);
     let mut s = 0.0;
-    let _ = dda(
-        q,
-        d,
-        r.t_min,
-        r.t_max,
-        1.0,
-        [-1 << 40; 3],
-        [1 << 40; 3],
-        |_, a, b| {
-            let m = 0.5 * (a + b);
-            let p = [0, 1, 2].map(|k| v.to_index(r.origin)[k] + d[k] * m);
-            s += f64::from(acc.nearest(p)) * (b - a);
-            ControlFlow::Continue(())
-        },
-    );
+    let cells = Cells {
+        size: 1.0,
+        lo: [-1 << 40; 3],
+        hi: [1 << 40; 3],
+    };
+    let _ = dda(q, d, (r.t_min, r.t_max), &cells, |_, a, b| {
+        let m = 0.5 * (a + b);
+        let p = [0, 1, 2].map(|k| v.to_index(r.origin)[k] + d[k] * m);
+        s += f64::from(acc.nearest(p)) * (b - a);
+        ControlFlow::Continue(())
+    });
     s * v.density_scale
 }
 
@@ -200,24 +196,20 @@ fn brute_trilinear(v: &Volume, r: &Ray) -> f64 {
         0.236_926_885_056_189,
     ];
     let mut s = 0.0;
-    let _ = dda(
-        o,
-        d,
-        r.t_min,
-        r.t_max,
-        1.0,
-        [-1 << 40; 3],
-        [1 << 40; 3],
-        |_, a, b| {
-            let (m, h) = (0.5 * (a + b), 0.5 * (b - a));
-            for i in 0..5 {
-                let t = m + h * x[i];
-                let p = [0, 1, 2].map(|k| o[k] + d[k] * t);
-                s += h * w[i] * f64::from(acc.trilinear(p));
-            }
-            ControlFlow::Continue(())
-        },
-    );
+    let cells = Cells {
+        size: 1.0,
+        lo: [-1 << 40; 3],
+        hi: [1 << 40; 3],
+    };
+    let _ = dda(o, d, (r.t_min, r.t_max), &cells, |_, a, b| {
+        let (m, h) = (0.5 * (a + b), 0.5 * (b - a));
+        for i in 0..5 {
+            let t = m + h * x[i];
+            let p = [0, 1, 2].map(|k| o[k] + d[k] * t);
+            s += h * w[i] * f64::from(acc.trilinear(p));
+        }
+        ControlFlow::Continue(())
+    });
     s * v.density_scale
 }
 

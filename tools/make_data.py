@@ -237,6 +237,33 @@ def make_bg_multi():
 # Reference statistics (computed from the files as read back)
 # ---------------------------------------------------------------------------
 
+def probe_points(grid):
+    """Fixed index points: origin, bbox corners/centre, just outside, far."""
+    lo, hi = grid.evalActiveVoxelBoundingBox()
+    mid = tuple((a + b) // 2 for a, b in zip(lo, hi))
+    pts = [(0, 0, 0), (-1, -1, -1), tuple(lo), tuple(hi), mid,
+           (lo[0] - 1, lo[1], lo[2]), (hi[0], hi[1] + 1, hi[2]),
+           (-20, 5, 10), (30, -10, -30), (7, 7, 7), (8, 8, 8),
+           (1000, -1000, 1000)]
+    # first leaf voxel with a fractional value and first active tile, in
+    # OpenVDB's (deterministic) iteration order
+    vmin, vmax = grid.evalMinMax()
+    leaf_pt = tile_pt = None
+    for item in grid.iterOnValues():
+        if leaf_pt is None and item.depth == 3 and vmin < item.value < vmax:
+            leaf_pt = tuple(item.min)
+        if tile_pt is None and item.depth < 3:
+            tile_pt = tuple(item.min)
+    pts += [p for p in (leaf_pt, tile_pt) if p is not None]
+    acc = grid.getConstAccessor()
+    out = []
+    for ijk in pts:
+        value, active = acc.probeValue(ijk)
+        out.append({"ijk": list(ijk), "value": float(value),
+                    "active": bool(active)})
+    return out
+
+
 def grid_stats(grid):
     tiles = {}
     leaf_voxels = 0
@@ -276,6 +303,8 @@ def grid_stats(grid):
         "active_sum": math.fsum(terms),
         "saved_as_half": bool(grid.metadata.get("is_saved_as_half_float",
                                                 False)),
+        # value (float32 widened to float64) and active state at fixed points
+        "probes": probe_points(grid),
     }
 
 

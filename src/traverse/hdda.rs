@@ -10,7 +10,7 @@
 //! halo. The same holds for background tiles and empty root cells next to data, which is why a
 //! trilinear walk reaches one voxel beyond the active data where vdb_render stops.
 
-use super::{dda, Segment};
+use super::{dda, non_empty, Cells, Segment};
 use crate::ray::{clip_box, Ray};
 use crate::tree::{Bounds, Internal, RootSlot};
 use crate::volume::{Interp, Volume};
@@ -103,14 +103,19 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
             return ControlFlow::Continue(());
         };
         let (t0, t1) = (a.max(ray.t_min), b.min(ray.t_max));
-        if !(t0 < t1) {
+        if !non_empty(t0, t1) {
             return ControlFlow::Continue(());
         }
         let cell = |c: f64| (c / 4096.0).floor() as i64;
         let rlo = clip_lo.map(cell);
         let rhi = clip_hi.map(|c| cell(c - 0.5));
         let (q, d) = (self.q, self.d);
-        dda(q, d, t0, t1, 4096.0, rlo, rhi, |c, ta, tb| {
+        let cells = Cells {
+            size: 4096.0,
+            lo: rlo,
+            hi: rhi,
+        };
+        dda(q, d, (t0, t1), &cells, |c, ta, tb| {
             let Some(origin) = to_i32(c.map(|v| v * 4096)) else {
                 return ControlFlow::Continue(());
             };
@@ -161,7 +166,12 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
         let side = (dim / child_dim) as usize;
         let level = if child_dim == 8 { 1 } else { 2 };
         let (q, d) = (self.q, self.d);
-        dda(q, d, t0, t1, child_dim as f64, lo, hi, |c, ta, tb| {
+        let cells = Cells {
+            size: child_dim as f64,
+            lo,
+            hi,
+        };
+        dda(q, d, (t0, t1), &cells, |c, ta, tb| {
             let l = [0, 1, 2].map(|a| (c[a] - lo[a]) as usize);
             let slot = (l[0] * side + l[1]) * side + l[2];
             if node.has_child(slot) {
@@ -242,7 +252,7 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
     }
 
     fn segment(&mut self, min: f64, max: f64, level: u8, t0: f64, t1: f64) -> ControlFlow<()> {
-        if !(t0 < t1) {
+        if !non_empty(t0, t1) {
             return ControlFlow::Continue(());
         }
         self.covered += t1 - t0;

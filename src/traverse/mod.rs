@@ -5,7 +5,7 @@
 mod dda;
 mod hdda;
 
-pub use dda::dda;
+pub use dda::{dda, non_empty, Cells};
 pub use hdda::{lookup_ray, walk, Granularity, Walk};
 
 /// A piece of a ray `[t_min, t_max]` (world units) inside one node or tile, with bounds on the

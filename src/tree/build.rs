@@ -7,11 +7,14 @@ use super::{
 };
 use std::collections::BTreeMap;
 
+/// A leaf under construction: active mask and values.
+type LeafData = Box<([u64; 8], [f32; 512])>;
+
 /// Accumulates voxels and tiles, then builds the flat tree.
 #[derive(Debug, Clone, Default)]
 pub struct TreeBuilder {
     background: f32,
-    leaves: BTreeMap<[i32; 3], Box<([u64; 8], [f32; 512])>>,
+    leaves: BTreeMap<[i32; 3], LeafData>,
     /// (origin, log2 edge) -> value; log2 3 = 8^3 tile, 7 = 128^3 tile, 12 = root tile.
     tiles: Vec<([i32; 3], u32, f32)>,
 }
@@ -39,8 +42,9 @@ impl TreeBuilder {
         self
     }
 
-    /// An active constant tile of edge `2^log2` (3, 7 or 12) containing `ijk`. Leaves set inside
-    /// it later win; a tile must not overlap another tile.
+    /// An active constant tile of edge `2^log2` (3, 7 or 12) containing `ijk`. A voxel set
+    /// inside a tile replaces the whole tile by a node (the tile's other voxels become
+    /// background), and tiles must not overlap each other.
     pub fn tile(&mut self, ijk: [i32; 3], log2: u32, value: f32) -> &mut Self {
         self.tiles.push((node_origin(ijk, log2), log2, value));
         self
@@ -142,14 +146,14 @@ mod tests {
         let mut b = TreeBuilder::new(0.25);
         b.set([1, 2, 3], 5.0).set([-9, 0, 200], 7.0);
         b.tile([128, 0, 0], 7, 2.0).tile([16, 16, 16], 3, 3.0);
-        b.tile([-4096, 0, 0], 12, 9.0);
+        b.tile([-8192, 0, 0], 12, 9.0);
         let t = b.build();
         assert_eq!(t.value([1, 2, 3]), 5.0);
         assert_eq!(t.value([1, 2, 4]), 0.25);
         assert_eq!(t.value([-9, 0, 200]), 7.0);
         assert_eq!(t.value([200, 100, 5]), 2.0);
         assert_eq!(t.value([23, 23, 23]), 3.0);
-        assert_eq!(t.value([-1, 5, 5]), 9.0);
+        assert_eq!(t.value([-4097, 5, 5]), 9.0);
         assert_eq!(t.value([5000, 0, 0]), 0.25);
         let s = t.stats();
         assert_eq!(s.active_voxels, 2 + 128 * 128 * 128 + 512 + 4096u64.pow(3));
