@@ -14,9 +14,11 @@
 //! is an affine map in f64 (column vectors); values are traced in `f32`.
 
 pub mod error;
+pub mod estimate;
 pub mod info;
 pub mod ray;
 pub mod regular;
+pub mod rng;
 pub mod traverse;
 pub mod tree;
 pub mod vdb;

@@ -73,7 +73,7 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
 }
 
 /// Integral of the (unscaled) density over `[t0, t1]`, cell by cell.
-fn integrate_cells(
+pub(crate) fn integrate_cells(
     acc: &mut Accessor<'_>,
     q: [f64; 3],
     d: [f64; 3],

@@ -1,0 +1,86 @@
+//! The extinction along one ray, as the estimators query it: `mu(t)` at world distance `t`,
+//! with the lookup count that is the estimators' deterministic cost measure.
+
+use crate::ray::Ray;
+use crate::regular::integrate_cells;
+use crate::traverse::lookup_ray;
+use crate::tree::Accessor;
+use crate::volume::{Interp, Volume};
+
+/// Extinction along a ray with a cached accessor and a lookup counter.
+#[derive(Debug, Clone)]
+pub struct RayMedium<'v> {
+    acc: Accessor<'v>,
+    /// Lookup-space origin (index space plus the interpolation's shift).
+    q: [f64; 3],
+    /// Index-space direction per world unit.
+    d: [f64; 3],
+    interp: Interp,
+    scale: f64,
+    lookups: u64,
+}
+
+impl<'v> RayMedium<'v> {
+    /// The medium of `vol` along `ray`.
+    #[must_use]
+    pub fn new(vol: &'v Volume, ray: &Ray, interp: Interp) -> Self {
+        let (q, d) = lookup_ray(vol, ray, interp);
+        Self {
+            acc: Accessor::new(&vol.tree),
+            q,
+            d,
+            interp,
+            scale: vol.density_scale,
+            lookups: 0,
+        }
+    }
+
+    /// Extinction `mu_t = scale * value` at world distance `t` (one lookup).
+    #[inline]
+    pub fn mu(&mut self, t: f64) -> f64 {
+        self.lookups += 1;
+        let p = [0, 1, 2].map(|a| self.q[a] + self.d[a] * t);
+        let v = match self.interp {
+            // In lookup space the nearest voxel is floor(q).
+            Interp::Nearest => self.acc.value(p.map(|c| c.floor() as i32)),
+            Interp::Trilinear => self.acc.trilinear(p),
+        };
+        if self.scale == 0.0 {
+            0.0
+        } else {
+            self.scale * f64::from(v)
+        }
+    }
+
+    /// Exact optical depth over `[t0, t1]` by regular tracking (counts one lookup per cell).
+    pub fn exact(&mut self, t0: f64, t1: f64) -> f64 {
+        let mut cells = 0;
+        let v = integrate_cells(
+            &mut self.acc,
+            self.q,
+            self.d,
+            t0,
+            t1,
+            self.interp,
+            &mut cells,
+        );
+        self.lookups += cells;
+        if self.scale == 0.0 {
+            0.0
+        } else {
+            self.scale * v
+        }
+    }
+
+    /// Index-space length of one world unit along the ray (to convert voxel steps).
+    #[must_use]
+    pub fn voxels_per_world_unit(&self) -> f64 {
+        self.d.iter().map(|v| v * v).sum::<f64>().sqrt()
+    }
+
+    /// Density evaluations so far.
+    #[must_use]
+    pub fn lookups(&self) -> u64 {
+        self.lookups
+    }
+}

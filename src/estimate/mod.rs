@@ -1,0 +1,419 @@
+//! Transmittance estimators, all behind one interface: [`Estimator`] names an algorithm and its
+//! parameters, [`estimate`] runs it along a ray and returns an [`Estimate`].
+//!
+//! Glossary (lecture / pbrt): `mu` = extinction `mu_t` (pbrt `sigma_t`), `mu_maj` = majorant
+//! (`sigma_maj`), `mu_min` = minorant, `mu_c` = control extinction, `tau` = optical depth,
+//! `T = exp(-tau)` = transmittance.
+//!
+//! Every estimator sees the ray as the hierarchical DDA's segments (see [`crate::traverse`]):
+//! parts of the ray outside any segment have the background extinction and contribute
+//! `exp(-mu_bg * gap)` in closed form; constant segments (`mu_min == mu_maj`) contribute
+//! `exp(-mu * length)` in closed form; only the other segments are sampled. Segments with an
+//! infinite majorant (opaque voxels) are integrated exactly by regular tracking.
+//!
+//! Randomness: sample `i` of ray `r` under seed `s` uses the stream `Rng::new(s, r, i)`, so the
+//! same seed gives bit-identical results whatever the thread count.
+//!
+//! Signed estimators: residual ratio tracking with a midpoint control and the unbiased
+//! ray-marching power series can return values outside `[0, 1]`; they are reported raw
+//! (unbiased). The jackknife estimator is clamped to `[0, 1]` (it is biased anyway).
+
+mod marching;
+mod medium;
+mod null_collision;
+mod power_series;
+
+pub use medium::RayMedium;
+
+use crate::error::Result;
+use crate::ray::Ray;
+use crate::rng::Rng;
+use crate::traverse::{walk, Granularity, Segment};
+use crate::volume::{Interp, Volume};
+use std::ops::ControlFlow;
+
+/// How the control extinction of residual ratio tracking is chosen per segment.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Control {
+    /// `mu_c = mu_min`: residual in `[0, mu_maj - mu_min]`, weights in `[0, 1]`.
+    Minorant,
+    /// `mu_c = (mu_min + mu_maj) / 2`: residual majorant halved, weights in `[-1, 1]`
+    /// (signed, unbiased).
+    Midpoint,
+}
+
+/// A transmittance estimator and its parameters. `step` values are in index-space voxels.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(tag = "name", rename_all = "kebab-case")]
+pub enum Estimator {
+    /// Exact regular tracking (reference; zero variance).
+    Regular,
+    /// Ray marching, midpoint rule at a fixed step (biased, deterministic).
+    Riemann {
+        /// Step in voxels.
+        step: f64,
+    },
+    /// Ray marching, Monte Carlo optical depth from uniform random points, one per step length
+    /// (biased: `E[exp(-X)] >= exp(-E[X])`).
+    Mc {
+        /// Mean spacing in voxels.
+        step: f64,
+    },
+    /// Ray marching, stratified: one jittered point per step (biased, like `mc`).
+    Jittered {
+        /// Step in voxels.
+        step: f64,
+    },
+    /// Delta tracking, track-length estimator: 1 if the free flight passes the end (unbiased,
+    /// binary).
+    TrackLength,
+    /// Delta tracking, collision estimator of the free-flight CDF smoothed with a kernel of
+    /// width `kernel` (world units) around the end point (biased, O(kernel^2)).
+    Collision {
+        /// Kernel width in world units.
+        kernel: f64,
+    },
+    /// Ratio tracking (Novák et al. 2014): product of `1 - mu/mu_maj` at tentative collisions.
+    Ratio,
+    /// Residual ratio tracking (Novák et al. 2014): control extinction integrated exactly,
+    /// ratio tracking on the residual.
+    ResidualRatio {
+        /// Control choice.
+        control: Control,
+    },
+    /// Next-flight ratio tracking (Cramer 1978; Novák et al. 2018).
+    NextFlight,
+    /// Unbiased ray marching (Kettunen et al. 2021): power series around ray-marched optical
+    /// depths with aggressive Russian roulette on the order.
+    UnbiasedRaymarch,
+    /// Decomposition tracking (Kutz et al. 2017): minorant as an analytic control medium, delta
+    /// tracking only through the residual.
+    Decomposition,
+    /// Jackknife transmittance (Peters 2025): `cos(|X1 - X2| / 2) exp(-(X1 + X2) / 2)` from two
+    /// stratified optical-depth estimates (biased, fixed cost).
+    Jackknife {
+        /// Points per optical-depth estimate.
+        points: u32,
+    },
+}
+
+/// Names accepted by [`Estimator::from_name`], in the order reports list them.
+pub const ESTIMATOR_NAMES: &[&str] = &[
+    "regular",
+    "riemann",
+    "mc",
+    "jittered",
+    "track-length",
+    "collision",
+    "ratio",
+    "residual-ratio",
+    "next-flight",
+    "unbiased-raymarch",
+    "decomposition",
+    "jackknife",
+];
+
+impl Estimator {
+    /// The estimator called `name` with default parameters (`step` in voxels for the marching
+    /// estimators, kernel in world units for `collision`).
+    #[must_use]
+    pub fn from_name(name: &str, step: f64, kernel: f64) -> Option<Self> {
+        Some(match name {
+            "regular" => Self::Regular,
+            "riemann" => Self::Riemann { step },
+            "mc" => Self::Mc { step },
+            "jittered" => Self::Jittered { step },
+            "track-length" | "delta" => Self::TrackLength,
+            "collision" => Self::Collision { kernel },
+            "ratio" => Self::Ratio,
+            "residual-ratio" => Self::ResidualRatio {
+                control: Control::Minorant,
+            },
+            "residual-ratio-midpoint" => Self::ResidualRatio {
+                control: Control::Midpoint,
+            },
+            "next-flight" => Self::NextFlight,
+            "unbiased-raymarch" => Self::UnbiasedRaymarch,
+            "decomposition" => Self::Decomposition,
+            "jackknife" => Self::Jackknife { points: 10 },
+            _ => return None,
+        })
+    }
+
+    /// The estimator's name.
+    #[must_use]
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::Regular => "regular",
+            Self::Riemann { .. } => "riemann",
+            Self::Mc { .. } => "mc",
+            Self::Jittered { .. } => "jittered",
+            Self::TrackLength => "track-length",
+            Self::Collision { .. } => "collision",
+            Self::Ratio => "ratio",
+            Self::ResidualRatio { .. } => "residual-ratio",
+            Self::NextFlight => "next-flight",
+            Self::UnbiasedRaymarch => "unbiased-raymarch",
+            Self::Decomposition => "decomposition",
+            Self::Jackknife { .. } => "jackknife",
+        }
+    }
+
+    /// True for estimators whose expectation is exactly `T`.
+    #[must_use]
+    pub fn is_unbiased(&self) -> bool {
+        matches!(
+            self,
+            Self::Regular
+                | Self::TrackLength
+                | Self::Ratio
+                | Self::ResidualRatio { .. }
+                | Self::NextFlight
+                | Self::UnbiasedRaymarch
+                | Self::Decomposition
+        )
+    }
+
+    /// True for deterministic estimators (one sample says everything).
+    #[must_use]
+    pub fn is_deterministic(&self) -> bool {
+        matches!(self, Self::Regular | Self::Riemann { .. })
+    }
+}
+
+/// Settings shared by every estimator.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Options {
+    /// Lookup interpolation.
+    pub interp: Interp,
+    /// Independent samples averaged per ray (ignored by deterministic estimators).
+    pub samples: u32,
+    /// Seed of the random streams.
+    pub seed: u64,
+    /// Segment granularity of the HDDA (majorant tightness vs traversal cost).
+    pub granularity: Granularity,
+    /// Use one majorant for the whole grid instead of per-tile ones (the naive baseline).
+    pub global_majorant: bool,
+    /// Cap on tentative collisions per sample; a sample that hits it stops and is counted in
+    /// [`Estimate::capped`] (its value is then biased).
+    pub max_collisions: u64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            interp: Interp::Trilinear,
+            samples: 1,
+            seed: 0,
+            granularity: Granularity::Leaf,
+            global_majorant: false,
+            max_collisions: 10_000_000,
+        }
+    }
+}
+
+/// A transmittance estimate.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Estimate {
+    /// Mean of the per-sample estimates of `T`.
+    pub value: f64,
+    /// Standard error of the mean (0 for deterministic estimators or one sample).
+    pub std_err: f64,
+    /// Density evaluations (the deterministic cost measure).
+    pub lookups: u64,
+    /// HDDA segments of the ray.
+    pub segments: u64,
+    /// Samples averaged.
+    pub samples: u32,
+    /// Samples stopped by the collision cap.
+    pub capped: u64,
+    /// Exact optical depth, when the estimator computed it (regular tracking).
+    pub tau: Option<f64>,
+}
+
+/// The ray as the estimators see it: the segments that need sampling, and the closed-form
+/// optical depth of everything else.
+#[derive(Debug, Clone, Default)]
+pub struct Prepared {
+    /// Segments with a varying extinction and a finite majorant, in ray order.
+    pub segs: Vec<Segment>,
+    /// Optical depth known in closed form: background gaps, constant segments, and segments
+    /// with an infinite majorant integrated exactly.
+    pub tau_known: f64,
+    /// HDDA segments walked.
+    pub walked: u64,
+    /// Lookups spent on the closed-form part.
+    pub lookups: u64,
+}
+
+/// Walk the ray once and split it into closed-form and sampled parts.
+#[must_use]
+pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'_>) -> Prepared {
+    let mut all = Vec::new();
+    let w = walk(vol, ray, opts.interp, opts.granularity, |s| {
+        all.push(s);
+        ControlFlow::Continue(())
+    });
+    let mu_bg = vol.mu_background();
+    let bg_tau = |len: f64| {
+        if mu_bg != 0.0 && len > 0.0 {
+            mu_bg * len
+        } else {
+            0.0
+        }
+    };
+    let sampled = |s: &Segment| !s.is_constant() && s.mu_maj.is_finite();
+    let global = opts.global_majorant && vol.bounds().max.is_finite();
+    let (first, last) = match (all.iter().position(sampled), all.iter().rposition(sampled)) {
+        (Some(a), Some(b)) if global => (all[a].t_min, all[b].t_max),
+        _ => (f64::INFINITY, f64::NEG_INFINITY),
+    };
+    let mut p = Prepared {
+        walked: w.segments,
+        ..Prepared::default()
+    };
+    let mut covered_outside = 0.0;
+    for s in &all {
+        if global && s.t_min >= first && s.t_max <= last {
+            continue; // inside the single global segment: sampled
+        }
+        covered_outside += s.length();
+        if s.is_constant() {
+            p.tau_known += s.mu_min * s.length();
+        } else if s.mu_maj.is_finite() {
+            p.segs.push(*s);
+        } else {
+            p.tau_known += medium.exact(s.t_min, s.t_max);
+        }
+    }
+    if global && first < last {
+        // The naive baseline: one segment over the whole sampled range with the grid-wide
+        // bounds; constant parts and background gaps inside it are sampled too.
+        let b = vol.bounds();
+        p.segs = vec![Segment {
+            t_min: first,
+            t_max: last,
+            mu_min: vol.density_scale * f64::from(b.min.max(0.0)),
+            mu_maj: vol.density_scale * f64::from(b.max),
+            level: 4,
+        }];
+        p.tau_known += bg_tau(w.length - (last - first) - covered_outside);
+    } else {
+        p.tau_known += bg_tau(w.length - w.covered);
+    }
+    p.lookups = medium.lookups();
+    p
+}
+
+/// Estimate the transmittance along `ray` (ray index `ray_id` selects the random streams).
+///
+/// # Errors
+/// None at present (rays are validated on construction); kept for per-query failures.
+pub fn estimate(
+    vol: &Volume,
+    ray: &Ray,
+    ray_id: u64,
+    est: &Estimator,
+    opts: &Options,
+) -> Result<Estimate> {
+    let mut medium = RayMedium::new(vol, ray, opts.interp);
+    if let Estimator::Regular = est {
+        let od = crate::regular::optical_depth(vol, ray, opts.interp)?;
+        return Ok(Estimate {
+            value: od.transmittance(),
+            std_err: 0.0,
+            lookups: od.lookups,
+            segments: od.segments,
+            samples: 1,
+            capped: 0,
+            tau: Some(od.tau),
+        });
+    }
+    let prep = prepare(vol, ray, opts, &mut medium);
+    let known = (-prep.tau_known).exp();
+    let samples = if est.is_deterministic() || prep.segs.is_empty() {
+        1
+    } else {
+        opts.samples.max(1)
+    };
+    // Welford running mean and variance of the per-sample estimates.
+    let (mut mean, mut m2) = (0.0f64, 0.0f64);
+    let mut capped = 0u64;
+    for i in 0..samples {
+        let mut rng = Rng::new(opts.seed, ray_id, u64::from(i));
+        let mut cap = Cap::new(opts.max_collisions);
+        let x = known * sample_once(est, &prep.segs, &mut medium, &mut rng, &mut cap);
+        capped += u64::from(cap.hit);
+        let delta = x - mean;
+        mean += delta / f64::from(i + 1);
+        m2 += delta * (x - mean);
+    }
+    let std_err = if samples > 1 {
+        (m2 / f64::from(samples - 1) / f64::from(samples)).sqrt()
+    } else {
+        0.0
+    };
+    Ok(Estimate {
+        value: mean,
+        std_err,
+        lookups: medium.lookups(),
+        segments: prep.walked,
+        samples,
+        capped,
+        tau: None,
+    })
+}
+
+/// Collision budget of one sample.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Cap {
+    left: u64,
+    /// Set when the budget ran out.
+    pub hit: bool,
+}
+
+impl Cap {
+    fn new(n: u64) -> Self {
+        Self {
+            left: n,
+            hit: false,
+        }
+    }
+    /// Spend one collision; false when the budget is exhausted.
+    #[inline]
+    pub(crate) fn take(&mut self) -> bool {
+        if self.left == 0 {
+            self.hit = true;
+            return false;
+        }
+        self.left -= 1;
+        true
+    }
+}
+
+/// One sample of the transmittance of the sampled segments (closed-form parts excluded).
+fn sample_once(
+    est: &Estimator,
+    segs: &[Segment],
+    m: &mut RayMedium<'_>,
+    rng: &mut Rng,
+    cap: &mut Cap,
+) -> f64 {
+    match *est {
+        Estimator::Regular => (-segs.iter().map(|s| m.exact(s.t_min, s.t_max)).sum::<f64>()).exp(),
+        Estimator::Riemann { step } => marching::riemann(segs, m, step),
+        Estimator::Mc { step } => marching::monte_carlo(segs, m, rng, step),
+        Estimator::Jittered { step } => marching::jittered(segs, m, rng, step),
+        Estimator::TrackLength => null_collision::track_length(segs, m, rng, cap),
+        Estimator::Collision { kernel } => null_collision::collision(segs, m, rng, cap, kernel),
+        Estimator::Ratio => null_collision::ratio(segs, m, rng, cap),
+        Estimator::ResidualRatio { control } => {
+            null_collision::residual_ratio(segs, m, rng, cap, control)
+        }
+        Estimator::NextFlight => null_collision::next_flight(segs, m, rng, cap),
+        Estimator::Decomposition => null_collision::decomposition(segs, m, rng, cap),
+        Estimator::UnbiasedRaymarch => power_series::unbiased_raymarch(segs, m, rng),
+        Estimator::Jackknife { points } => power_series::jackknife(segs, m, rng, points),
+    }
+}
