@@ -55,6 +55,8 @@ pub struct GridInfo {
     pub memory_bytes: Option<u64>,
     /// OpenVDB's `file_mem_bytes` metadata, if present.
     pub file_mem_bytes: Option<i64>,
+    /// Double grids only: the cost of converting to `f32` for tracing.
+    pub precision_loss: Option<crate::vdb::PrecisionLoss>,
     /// Why the grid could not be decoded, if it could not.
     pub error: Option<String>,
 }
@@ -123,6 +125,7 @@ impl GridInfo {
             value_stats_of: if vector { "vector length" } else { "value" },
             memory_bytes: Some(grid.tree.memory_bytes()),
             file_mem_bytes: grid.file_mem_bytes(),
+            precision_loss: grid.precision_loss,
             error: None,
         }
     }
@@ -159,6 +162,7 @@ impl GridInfo {
             value_stats_of: "value",
             memory_bytes: None,
             file_mem_bytes: None,
+            precision_loss: None,
             error: Some(err),
         }
     }

@@ -3,7 +3,7 @@
 //! the leaf buffers, which OpenVDB writes in the same depth-first order.
 
 use super::bytes::ByteReader;
-use super::values::{read_compressed_values, StreamInfo, ValueKind};
+use super::values::{read_compressed_values, PrecisionLoss, StreamInfo, ValueKind};
 use crate::error::{DecodeError, DecodeResult};
 use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree};
 
@@ -15,20 +15,23 @@ pub(crate) fn decode_tree(
     half: bool,
     compression: super::Compression,
     block_pos: u64,
-) -> DecodeResult<Tree> {
+) -> DecodeResult<(Tree, Option<PrecisionLoss>)> {
     let buffer_count = r.i32("tree buffer count")?;
     if buffer_count != 1 {
         return Err(DecodeError::unsupported(format!(
             "multi-buffer tree ({buffer_count} buffers)"
         )));
     }
-    let background = kind.decode(r.take(kind.size(), "background value")?);
+    let bg_bytes = r.take(kind.size(), "background value")?;
+    let background = kind.decode(bg_bytes);
     let s = StreamInfo {
         kind,
         half,
         compression,
         background,
+        precision: std::cell::Cell::default(),
     };
+    s.track_doubles(bg_bytes);
     let mut tree = Tree {
         background,
         ..Tree::default()
@@ -37,7 +40,9 @@ pub(crate) fn decode_tree(
     let num_children = r.u32("root child count")?;
     for _ in 0..num_tiles {
         let origin = r.vec3i("root tile origin")?;
-        let value = kind.decode(r.take(kind.size(), "root tile value")?);
+        let bytes = r.take(kind.size(), "root tile value")?;
+        s.track_doubles(bytes);
+        let value = kind.decode(bytes);
         let active = r.u8("root tile state")? != 0;
         tree.root.push(RootEntry {
             origin,
@@ -74,7 +79,8 @@ pub(crate) fn decode_tree(
         read_leaf_buffer(r, &s, leaf)?;
     }
     tree.compute_bounds();
-    Ok(tree)
+    let precision = (kind == ValueKind::Double && !half).then(|| s.precision.get());
+    Ok((tree, precision))
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]

@@ -14,7 +14,7 @@ mod values;
 pub use archive::{display_name, Archive, Compression, GridDescriptor, NAME_SEPARATOR};
 pub use metadata::{MetaMap, MetaValue};
 pub use transform::{FrustumParams, Transform};
-pub use values::ValueKind;
+pub use values::{PrecisionLoss, ValueKind};
 
 use crate::error::{DecodeError, Error, Result};
 use crate::tree::Tree;
@@ -42,6 +42,8 @@ pub struct Grid {
     pub saved_as_half: bool,
     /// The tree, values converted to `f32` (vector grids: the vector length).
     pub tree: Tree,
+    /// For double grids: what the conversion to `f32` cost (None for other types).
+    pub precision_loss: Option<PrecisionLoss>,
 }
 
 impl Grid {
@@ -85,11 +87,12 @@ impl Archive {
             Compression::from_flags(r.u32("compression flags").map_err(|e| e.at(path))?);
         let metadata = metadata::read_meta_map(&mut r).map_err(|e| e.at(path))?;
         let transform = transform::read_transform(&mut r).map_err(|e| e.at(path))?;
-        let tree = if gd.instance_parent.is_empty() {
+        let (tree, precision_loss) = if gd.instance_parent.is_empty() {
             decode::decode_tree(&mut r, kind, gd.saved_as_half, compression, gd.block_pos)
                 .map_err(|e| e.at(path))?
         } else {
-            self.instance_tree(gd)?
+            let parent = self.instance_parent(gd)?;
+            (parent.tree, parent.precision_loss)
         };
         let class = metadata::meta_string(&metadata, "class").map(str::to_string);
         Ok(Grid {
@@ -102,6 +105,7 @@ impl Archive {
             compression,
             saved_as_half: gd.saved_as_half,
             tree,
+            precision_loss,
         })
     }
 
@@ -125,7 +129,7 @@ impl Archive {
     }
 
     /// An instanced grid shares its parent's tree (OpenVDB grid instancing).
-    fn instance_tree(&self, gd: &GridDescriptor) -> Result<Tree> {
+    fn instance_parent(&self, gd: &GridDescriptor) -> Result<Grid> {
         let parent = self
             .grids
             .iter()
@@ -138,6 +142,6 @@ impl Archive {
                 ))
                 .at(&self.path)
             })?;
-        Ok(self.load(parent)?.tree)
+        self.load(parent)
     }
 }

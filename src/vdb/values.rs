@@ -148,13 +148,59 @@ impl ValueKind {
     }
 }
 
+/// What converting a double-precision grid to `f32` cost, over every stored value.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct PrecisionLoss {
+    /// Values converted.
+    pub values: u64,
+    /// Largest relative rounding error `|f32(v) - v| / |v|` among finite, in-range values.
+    pub max_relative_error: f64,
+    /// Finite values beyond the `f32` range (became ±Inf).
+    pub overflowed: u64,
+    /// Non-zero values that became 0 or subnormal in `f32`.
+    pub underflowed: u64,
+}
+
+impl PrecisionLoss {
+    fn add(&mut self, v: f64) {
+        self.values += 1;
+        let f = v as f32;
+        if v.is_finite() && f.is_infinite() {
+            self.overflowed += 1;
+        } else if v != 0.0 && v.is_finite() && !f.is_normal() {
+            self.underflowed += 1;
+        } else if v != 0.0 && v.is_finite() {
+            let rel = ((f64::from(f) - v) / v).abs();
+            self.max_relative_error = self.max_relative_error.max(rel);
+        }
+    }
+}
+
 /// Everything a node decoder needs to know about the stream it reads.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub(crate) struct StreamInfo {
     pub kind: ValueKind,
     pub half: bool,
     pub compression: Compression,
     pub background: f32,
+    /// Conversion cost of double grids, accumulated while decoding.
+    pub precision: std::cell::Cell<PrecisionLoss>,
+}
+
+impl StreamInfo {
+    /// Record the `f64` values of a run of full-precision double bytes.
+    pub(crate) fn track_doubles(&self, bytes: &[u8]) {
+        if self.kind != ValueKind::Double || self.half {
+            return;
+        }
+        let mut p = self.precision.get();
+        for c in bytes.chunks_exact(8) {
+            let mut a = [0u8; 8];
+            a.copy_from_slice(c);
+            p.add(f64::from_le_bytes(a));
+        }
+        self.precision.set(p);
+    }
 }
 
 /// `io::readData`: a run of `nbytes` bytes, raw, zlib (`i64` size prefix) or blosc (`i64` size
@@ -283,6 +329,7 @@ pub(crate) fn read_compressed_values(
     }
     let elem = s.kind.array_size(s.half);
     let data = read_data(r, s.compression, count * elem)?;
+    s.track_doubles(&data);
     let mut values = data
         .chunks_exact(elem)
         .map(|b| s.kind.decode_array(b, half));
@@ -312,6 +359,7 @@ mod tests {
             half,
             compression: Compression::from_flags(comp),
             background: 0.5,
+            precision: std::cell::Cell::default(),
         }
     }
 
@@ -333,6 +381,16 @@ mod tests {
             );
             assert_eq!(r.remaining(), 0);
         }
+    }
+
+    #[test]
+    fn precision_loss_counts_overflow_underflow_and_rounding() {
+        let mut p = PrecisionLoss::default();
+        for v in [1.0, 0.1, 1e300, 1e-300, 0.0] {
+            p.add(v);
+        }
+        assert_eq!((p.values, p.overflowed, p.underflowed), (5, 1, 1));
+        assert!(p.max_relative_error > 1e-9 && p.max_relative_error < 6e-8);
     }
 
     #[test]

@@ -90,6 +90,13 @@ fn print_text(out: &mut impl Write, info: &umbra::info::FileInfo) -> Result<()> 
             g.nan_count.unwrap_or(0),
             g.inf_count.unwrap_or(0)
         )?;
+        if let Some(p) = &g.precision_loss {
+            writeln!(
+                out,
+                "  double -> float: {} values, max relative rounding {:.2e}, {} overflowed, {} underflowed",
+                p.values, p.max_relative_error, p.overflowed, p.underflowed
+            )?;
+        }
         writeln!(
             out,
             "  memory: {} bytes (OpenVDB file_mem_bytes: {})",
