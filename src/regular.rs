@@ -9,11 +9,17 @@
 //!   integrates exactly: `int_a^b f = h (f(m - h/sqrt3) + f(m + h/sqrt3))`, `m = (a+b)/2`,
 //!   `h = (b-a)/2`.
 //! - The parts of the ray outside every segment have the background density: `mu_bg * gap`.
+//!
+//! **Speed.** A leaf's segment reads the leaf's values directly (and, for trilinear, the 8^3
+//! blocks of up to 7 + neighbours, resolved once per segment), never descending the tree per
+//! voxel. The trilinear walk keeps the 8 corner values of the current dual cell and, stepping to
+//! the next cell along axis `a`, reads only the 4 corners of the new far face (the other 4 are
+//! the old cell's). `lookups` counts the voxel values actually read.
 
 use crate::error::Result;
 use crate::ray::Ray;
-use crate::traverse::{dda, lookup_ray, walk, Cells, Granularity, Segment};
-use crate::tree::Accessor;
+use crate::traverse::{floor_i64, lookup_ray, non_empty, walk_nodes, Granularity, Segment};
+use crate::tree::{Accessor, Block};
 use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
 
@@ -50,12 +56,16 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
     let (q, d) = lookup_ray(vol, ray, interp);
     let scale = vol.density_scale;
     let mut tau = 0.0f64;
-    let mut cells = 0u64;
-    let w = walk(vol, ray, interp, Granularity::Leaf, |s: Segment| {
+    let mut n = Counts::default();
+    let w = walk_nodes(vol, ray, interp, Granularity::Leaf, |s: Segment, leaf| {
         if s.is_constant() {
             tau += s.mu_min * s.length();
         } else {
-            tau += scale * integrate_cells(&mut acc, q, d, s.t_min, s.t_max, interp, &mut cells);
+            let part = match leaf {
+                Some(l) => leaf_integral(&mut acc, l, q, d, s.t_min, s.t_max, interp, &mut n),
+                None => cells_integral(&mut acc, q, d, s.t_min, s.t_max, interp, &mut n),
+            };
+            tau += scale * part;
         }
         ControlFlow::Continue(())
     });
@@ -66,10 +76,17 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
     }
     Ok(OpticalDepth {
         tau,
-        lookups: acc.lookups(),
+        lookups: n.reads,
         segments: w.segments,
-        cells,
+        cells: n.cells,
     })
+}
+
+/// Cells integrated and voxel values read.
+#[derive(Debug, Default, Clone, Copy)]
+struct Counts {
+    cells: u64,
+    reads: u64,
 }
 
 /// Integral of the (unscaled) density over `[t0, t1]`, cell by cell.
@@ -82,49 +99,372 @@ pub(crate) fn integrate_cells(
     interp: Interp,
     cells: &mut u64,
 ) -> f64 {
-    let p0 = [0, 1, 2].map(|a| q[a] + d[a] * t0);
-    let p1 = [0, 1, 2].map(|a| q[a] + d[a] * t1);
-    let lo = [0, 1, 2].map(|a| p0[a].min(p1[a]).floor() as i64);
-    let hi = [0, 1, 2].map(|a| p0[a].max(p1[a]).floor() as i64);
-    let mut sum = 0.0f64;
-    let grid = Cells { size: 1.0, lo, hi };
-    let _ = dda(q, d, (t0, t1), &grid, |c, ta, tb| {
-        *cells += 1;
-        let ijk = c.map(|v| v as i32);
-        sum += match interp {
-            Interp::Nearest => f64::from(acc.value(ijk)) * (tb - ta),
-            Interp::Trilinear => cubic_cell_integral(acc, ijk, q, d, ta, tb),
-        };
-        ControlFlow::Continue(())
-    });
-    sum
+    let mut n = Counts::default();
+    let v = cells_integral(acc, q, d, t0, t1, interp, &mut n);
+    *cells += n.cells;
+    v
 }
 
-/// Exact integral of the trilinear field of dual cell `ijk` along `q + t d`, `t` in `[ta, tb]`.
-fn cubic_cell_integral(
+/// The lookup cells the part `[t0, t1]` of the line can touch: `floor` of its end points.
+#[inline]
+fn cell_range(q: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> ([i64; 3], [i64; 3]) {
+    let p0 = [0, 1, 2].map(|a| q[a] + d[a] * t0);
+    let p1 = [0, 1, 2].map(|a| q[a] + d[a] * t1);
+    let lo = [0, 1, 2].map(|a| floor_i64(p0[a].min(p1[a])));
+    let hi = [0, 1, 2].map(|a| floor_i64(p0[a].max(p1[a])));
+    (lo, hi)
+}
+
+/// Any segment, every voxel through the cached accessor.
+fn cells_integral(
     acc: &mut Accessor<'_>,
-    ijk: [i32; 3],
     q: [f64; 3],
     d: [f64; 3],
+    t0: f64,
+    t1: f64,
+    interp: Interp,
+    n: &mut Counts,
+) -> f64 {
+    if !non_empty(t0, t1) {
+        return 0.0;
+    }
+    let (lo, hi) = cell_range(q, d, t0, t1);
+    let mut src = AccSource { acc, cell: [0; 3] };
+    match interp {
+        Interp::Nearest => nearest_cells(&mut src, q, d, t0, t1, lo, hi, n),
+        Interp::Trilinear => trilinear_cells(&mut src, q, d, t0, t1, lo, hi, n),
+    }
+}
+
+/// A leaf's segment: the cells are the leaf's (lookup cells `[o, o + 7]`), read straight from
+/// its values; trilinear corners on the + faces come from the neighbouring blocks.
+#[allow(clippy::too_many_arguments)]
+fn leaf_integral(
+    acc: &mut Accessor<'_>,
+    leaf: u32,
+    q: [f64; 3],
+    d: [f64; 3],
+    t0: f64,
+    t1: f64,
+    interp: Interp,
+    n: &mut Counts,
+) -> f64 {
+    if !non_empty(t0, t1) {
+        return 0.0;
+    }
+    let tree = acc.tree();
+    let l = &tree.leaves[leaf as usize];
+    let o = l.origin.map(i64::from);
+    let (lo, hi) = cell_range(q, d, t0, t1);
+    let lo = [0, 1, 2].map(|a| lo[a].clamp(o[a], o[a] + 7));
+    let hi = [0, 1, 2].map(|a| hi[a].clamp(o[a], o[a] + 7));
+    let mut src = LeafSource {
+        values: &l.values,
+        origin: o,
+        blocks: [Block::Const(f32::NAN); 8],
+        base: 0,
+        interior: true,
+        local: [0; 3],
+    };
+    match interp {
+        Interp::Nearest => nearest_cells(&mut src, q, d, t0, t1, lo, hi, n),
+        Interp::Trilinear => {
+            // Block `k` (bits x, y, z) is the 8^3 block at `o + 8 * bits`; only those the
+            // corners `[lo, hi + 1]` reach are resolved.
+            src.blocks[0] = Block::Leaf(&l.values);
+            let reach = [0, 1, 2].map(|a| usize::from(hi[a] == o[a] + 7));
+            for k in 1..8usize {
+                let bits = [k >> 2, (k >> 1) & 1, k & 1];
+                if (0..3).all(|a| bits[a] <= reach[a]) {
+                    src.blocks[k] =
+                        acc.block([0, 1, 2].map(|a| (o[a] + 8 * bits[a] as i64) as i32));
+                }
+            }
+            trilinear_cells(&mut src, q, d, t0, t1, lo, hi, n)
+        }
+    }
+}
+
+/// Where the cell walkers read voxel values: `at(cell)` positions the source on a lookup cell,
+/// `get(k)` reads corner `k` (`x << 2 | y << 1 | z` offsets) of that cell; nearest reads only
+/// corner 0, the cell's own voxel.
+trait CornerSource {
+    fn at(&mut self, cell: [i64; 3]);
+    fn get(&mut self, k: usize) -> f32;
+}
+
+/// Reads through the cached accessor (any cell anywhere).
+struct AccSource<'a, 't> {
+    acc: &'a mut Accessor<'t>,
+    cell: [i64; 3],
+}
+
+impl CornerSource for AccSource<'_, '_> {
+    #[inline]
+    fn at(&mut self, cell: [i64; 3]) {
+        self.cell = cell;
+    }
+    #[inline]
+    fn get(&mut self, k: usize) -> f32 {
+        let c = self.cell;
+        self.acc.value([
+            (c[0] + (k >> 2) as i64) as i32,
+            (c[1] + ((k >> 1) & 1) as i64) as i32,
+            (c[2] + (k & 1) as i64) as i32,
+        ])
+    }
+}
+
+/// Offsets of the 8 corners of a cell inside a leaf's value array.
+const CORNER_OFFSET: [usize; 8] = [0, 1, 8, 9, 64, 65, 72, 73];
+
+/// Reads a leaf's cells (`[o, o + 7]`): corners inside the leaf straight from its values, the
+/// others (on the + faces) from the neighbouring blocks.
+struct LeafSource<'t> {
+    values: &'t [f32; 512],
+    origin: [i64; 3],
+    blocks: [Block<'t>; 8],
+    /// Leaf offset of the current cell.
+    base: usize,
+    /// Every corner of the current cell is in the leaf.
+    interior: bool,
+    local: [usize; 3],
+}
+
+impl CornerSource for LeafSource<'_> {
+    #[inline]
+    fn at(&mut self, cell: [i64; 3]) {
+        let u = [0, 1, 2].map(|a| ((cell[a] - self.origin[a]) & 7) as usize);
+        self.local = u;
+        self.base = (u[0] << 6) | (u[1] << 3) | u[2];
+        self.interior = u[0] < 7 && u[1] < 7 && u[2] < 7;
+    }
+    #[inline]
+    fn get(&mut self, k: usize) -> f32 {
+        if self.interior || k == 0 {
+            return self.values[(self.base + CORNER_OFFSET[k]) & 511];
+        }
+        let u = [
+            self.local[0] + (k >> 2),
+            self.local[1] + ((k >> 1) & 1),
+            self.local[2] + (k & 1),
+        ];
+        let b = ((u[0] >> 3) << 2) | ((u[1] >> 3) << 1) | (u[2] >> 3);
+        self.blocks[b].get(((u[0] & 7) << 6) | ((u[1] & 7) << 3) | (u[2] & 7))
+    }
+}
+
+/// The unit-cell DDA state: current cell, step direction and the `t` of the next boundary on
+/// each axis.
+struct Dda {
+    cell: [i64; 3],
+    step: [i64; 3],
+    t_next: [f64; 3],
+}
+
+impl Dda {
+    #[inline]
+    fn new(q: [f64; 3], d: [f64; 3], t0: f64, lo: [i64; 3], hi: [i64; 3]) -> Self {
+        let mut s = Self {
+            cell: [0; 3],
+            step: [0; 3],
+            t_next: [f64::INFINITY; 3],
+        };
+        for a in 0..3 {
+            s.cell[a] = floor_i64(q[a] + d[a] * t0).clamp(lo[a], hi[a]);
+            s.step[a] = if d[a] > 0.0 {
+                1
+            } else if d[a] < 0.0 {
+                -1
+            } else {
+                0
+            };
+            s.t_next[a] = boundary_t(q[a], d[a], s.cell[a]);
+        }
+        s
+    }
+
+    /// The axis whose boundary comes first.
+    #[inline]
+    fn axis(&self) -> usize {
+        let t = &self.t_next;
+        if t[0] <= t[1] && t[0] <= t[2] {
+            0
+        } else if t[1] <= t[2] {
+            1
+        } else {
+            2
+        }
+    }
+
+    /// Step along `axis`; false when the walk leaves `[lo, hi]` or cannot move.
+    #[inline]
+    fn advance(
+        &mut self,
+        axis: usize,
+        q: [f64; 3],
+        d: [f64; 3],
+        lo: [i64; 3],
+        hi: [i64; 3],
+    ) -> bool {
+        if self.step[axis] == 0 {
+            return false;
+        }
+        let c = self.cell[axis] + self.step[axis];
+        if c < lo[axis] || c > hi[axis] {
+            return false;
+        }
+        self.cell[axis] = c;
+        self.t_next[axis] = boundary_t(q[axis], d[axis], c);
+        true
+    }
+}
+
+/// `t` at which the line leaves unit cell `c` along one axis (infinity if it never does).
+#[inline]
+fn boundary_t(q: f64, d: f64, c: i64) -> f64 {
+    if d > 0.0 {
+        ((c + 1) as f64 - q) / d
+    } else if d < 0.0 {
+        (c as f64 - q) / d
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Nearest: `sum value(cell) * dt` over the cells of `[t0, t1]` within `[lo, hi]`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn nearest_cells(
+    src: &mut impl CornerSource,
+    q: [f64; 3],
+    d: [f64; 3],
+    t0: f64,
+    t1: f64,
+    lo: [i64; 3],
+    hi: [i64; 3],
+    n: &mut Counts,
+) -> f64 {
+    let mut w = Dda::new(q, d, t0, lo, hi);
+    let (mut t, mut sum) = (t0, 0.0f64);
+    loop {
+        let axis = w.axis();
+        let t_exit = w.t_next[axis].min(t1);
+        if t_exit > t {
+            n.cells += 1;
+            n.reads += 1;
+            src.at(w.cell);
+            sum += f64::from(src.get(0)) * (t_exit - t);
+            t = t_exit;
+        }
+        if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
+            return sum;
+        }
+    }
+}
+
+/// Corner slots `(dst, src, fetch)`: `v[dst[i]] = v[src[i]]`, then read the `fetch` corners.
+type Shift = ([usize; 4], [usize; 4], [usize; 4]);
+
+/// For a step along axis `a` in direction `+` (index 0) or `-` (index 1): which corner slots
+/// keep which old values (`dst <- src`) and which 4 slots are read anew.
+const SHIFT: [[Shift; 2]; 3] = [
+    [
+        ([0, 1, 2, 3], [4, 5, 6, 7], [4, 5, 6, 7]),
+        ([4, 5, 6, 7], [0, 1, 2, 3], [0, 1, 2, 3]),
+    ],
+    [
+        ([0, 1, 4, 5], [2, 3, 6, 7], [2, 3, 6, 7]),
+        ([2, 3, 6, 7], [0, 1, 4, 5], [0, 1, 4, 5]),
+    ],
+    [
+        ([0, 2, 4, 6], [1, 3, 5, 7], [1, 3, 5, 7]),
+        ([1, 3, 5, 7], [0, 2, 4, 6], [0, 2, 4, 6]),
+    ],
+];
+
+/// Trilinear: the exact integral over the dual cells of `[t0, t1]` within `[lo, hi]`, reusing
+/// the 4 corners two consecutive cells share.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn trilinear_cells(
+    src: &mut impl CornerSource,
+    q: [f64; 3],
+    d: [f64; 3],
+    t0: f64,
+    t1: f64,
+    lo: [i64; 3],
+    hi: [i64; 3],
+    n: &mut Counts,
+) -> f64 {
+    let mut w = Dda::new(q, d, t0, lo, hi);
+    let shift = [0, 1, 2].map(|a| SHIFT[a][usize::from(w.step[a] < 0)]);
+    let du = [0, 1, 2].map(|a| d[a] * GAUSS);
+    let mut v = [0f64; 8];
+    src.at(w.cell);
+    for (k, x) in v.iter_mut().enumerate() {
+        *x = f64::from(src.get(k));
+    }
+    n.reads += 8;
+    let (mut t, mut sum) = (t0, 0.0f64);
+    loop {
+        let axis = w.axis();
+        let t_exit = w.t_next[axis].min(t1);
+        if t_exit > t {
+            n.cells += 1;
+            sum += cubic_cell_integral(&v, w.cell, q, d, du, t, t_exit);
+            t = t_exit;
+        }
+        if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
+            return sum;
+        }
+        // The old far face on `axis` is the new near face (or the other way round).
+        let (dst, from, fetch) = shift[axis];
+        for i in 0..4 {
+            v[dst[i]] = v[from[i]];
+        }
+        src.at(w.cell);
+        for k in fetch {
+            v[k] = f64::from(src.get(k));
+        }
+        n.reads += 4;
+    }
+}
+
+/// Exact integral of the trilinear field of dual cell `c` (corner values `v`, index
+/// `x << 2 | y << 1 | z`) along `q + t d`, `t` in `[ta, tb]`, by 2-point Gauss-Legendre
+/// (`du = d / sqrt 3`). Both Gauss points are evaluated side by side (two-lane arithmetic).
+#[inline]
+fn cubic_cell_integral(
+    v: &[f64; 8],
+    c: [i64; 3],
+    q: [f64; 3],
+    d: [f64; 3],
+    du: [f64; 3],
     ta: f64,
     tb: f64,
 ) -> f64 {
-    let mut v = [0f64; 8];
-    for (n, val) in v.iter_mut().enumerate() {
-        let o = [(n >> 2) as i32 & 1, (n >> 1) as i32 & 1, n as i32 & 1];
-        *val = f64::from(acc.value([ijk[0] + o[0], ijk[1] + o[1], ijk[2] + o[2]]));
-    }
-    if v.iter().all(|&x| x == v[0]) {
-        return v[0] * (tb - ta);
-    }
     let m = 0.5 * (ta + tb);
     let h = 0.5 * (tb - ta);
-    let f = |t: f64| {
-        let u = [0, 1, 2].map(|a| q[a] + d[a] * t - f64::from(ijk[a]));
-        let lerp = |a: f64, b: f64, w: f64| a + (b - a) * w;
-        let x0 = lerp(lerp(v[0], v[1], u[2]), lerp(v[2], v[3], u[2]), u[1]);
-        let x1 = lerp(lerp(v[4], v[5], u[2]), lerp(v[6], v[7], u[2]), u[1]);
-        lerp(x0, x1, u[0])
+    let u = [0, 1, 2].map(|a| {
+        let um = q[a] + d[a] * m - c[a] as f64;
+        [um - du[a] * h, um + du[a] * h]
+    });
+    let lerp = |a: [f64; 2], b: [f64; 2], w: [f64; 2]| {
+        [a[0] + (b[0] - a[0]) * w[0], a[1] + (b[1] - a[1]) * w[1]]
     };
-    h * (f(m - h * GAUSS) + f(m + h * GAUSS))
+    let s = |k: usize| [v[k], v[k]];
+    let z0 = lerp(s(0), s(1), u[2]);
+    let z1 = lerp(s(2), s(3), u[2]);
+    let z2 = lerp(s(4), s(5), u[2]);
+    let z3 = lerp(s(6), s(7), u[2]);
+    let f = lerp(lerp(z0, z1, u[1]), lerp(z2, z3, u[1]), u[0]);
+    let r = h * (f[0] + f[1]);
+    if !r.is_finite() && v.iter().any(|x| x.is_infinite()) {
+        // An opaque (+Inf) corner makes the field infinite wherever its weight is positive,
+        // i.e. along any piece of positive length inside the cell: inf, not inf * 0 = NaN.
+        f64::INFINITY
+    } else {
+        r
+    }
 }

@@ -19,6 +19,19 @@ pub struct Cells {
     pub hi: [i64; 3],
 }
 
+/// `floor(x) as i64` (saturating; NaN gives 0) without a libm call: the default x86-64 target
+/// has no `roundsd`, so `f64::floor` is a function call in the hottest loops.
+#[inline]
+#[must_use]
+pub fn floor_i64(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x {
+        i.saturating_sub(1)
+    } else {
+        i
+    }
+}
+
 /// True if `[t0, t1]` is a non-empty interval (false for NaN ends).
 #[inline]
 #[must_use]
@@ -45,7 +58,7 @@ pub fn dda(
     let mut t_next = [f64::INFINITY; 3];
     for a in 0..3 {
         let p = q[a] + d[a] * t0;
-        cell[a] = ((p / size).floor() as i64).clamp(lo[a], hi[a]);
+        cell[a] = floor_i64(p / size).clamp(lo[a], hi[a]);
         step[a] = if d[a] > 0.0 {
             1
         } else if d[a] < 0.0 {
@@ -131,6 +144,33 @@ mod tests {
         assert!((total - 4.0).abs() < 1e-12);
         assert!(v.windows(2).all(|w| w[0].2 == w[1].1));
         assert_eq!(v.len(), 4, "zero-length corner visits are skipped: {v:?}");
+    }
+
+    #[test]
+    fn fast_floor_matches_floor() {
+        for x in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.9999,
+            -2.0001,
+            1e300,
+            -1e300,
+            9.3e18,
+            -9.3e18,
+            f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            4503599627370497.0,
+            -4503599627370497.5,
+            f64::MIN_POSITIVE,
+            -f64::MIN_POSITIVE,
+        ] {
+            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
+        }
     }
 
     #[test]

@@ -49,7 +49,7 @@ struct Walker<'v, F> {
     d: [f64; 3],
     scale: f64,
     bg: f32,
-    emit: F,
+    visit: F,
     covered: f64,
     segments: u64,
 }
@@ -62,7 +62,20 @@ pub fn walk(
     ray: &Ray,
     interp: Interp,
     gran: Granularity,
-    visit: impl FnMut(Segment) -> ControlFlow<()>,
+    mut visit: impl FnMut(Segment) -> ControlFlow<()>,
+) -> Walk {
+    walk_nodes(vol, ray, interp, gran, |s, _| visit(s))
+}
+
+/// [`walk`], also telling the visitor which leaf (index into `Tree::leaves`) produced a segment
+/// (`None` for tiles, empty root cells and coarser nodes), so that regular tracking can read the
+/// leaf's voxels directly instead of descending the tree for every voxel.
+pub(crate) fn walk_nodes(
+    vol: &Volume,
+    ray: &Ray,
+    interp: Interp,
+    gran: Granularity,
+    visit: impl FnMut(Segment, Option<u32>) -> ControlFlow<()>,
 ) -> Walk {
     let length = ray.t_max - ray.t_min;
     let (q, d) = lookup_ray(vol, ray, interp);
@@ -74,7 +87,7 @@ pub fn walk(
         d,
         scale: vol.density_scale,
         bg: vol.tree.background,
-        emit: visit,
+        visit,
         covered: 0.0,
         segments: 0,
     };
@@ -87,7 +100,7 @@ pub fn walk(
     }
 }
 
-impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
+impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
     fn run(&mut self, ray: &Ray) -> ControlFlow<()> {
         let Some([lo, hi]) = self.vol.value_box else {
             return ControlFlow::Continue(());
@@ -106,7 +119,7 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
         if !non_empty(t0, t1) {
             return ControlFlow::Continue(());
         }
-        let cell = |c: f64| (c / 4096.0).floor() as i64;
+        let cell = |c: f64| super::floor_i64(c / 4096.0);
         let rlo = clip_lo.map(cell);
         let rhi = clip_hi.map(|c| cell(c - 0.5));
         let (q, d) = (self.q, self.d);
@@ -133,7 +146,7 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
         let tree = &self.vol.tree;
         let node = &tree.uppers[u as usize];
         if self.gran == Granularity::Upper {
-            return self.node_segment(self.pick(node.bounds, node.halo), 3, t0, t1);
+            return self.node_segment(self.pick(node.bounds, node.halo), 3, None, t0, t1);
         }
         self.internal(node, 4096, 128, t0, t1, |w, child, ta, tb| {
             w.lower(child, ta, tb)
@@ -143,11 +156,11 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
     fn lower(&mut self, l: u32, t0: f64, t1: f64) -> ControlFlow<()> {
         let node = &self.vol.tree.lowers[l as usize];
         if self.gran == Granularity::Lower {
-            return self.node_segment(self.pick(node.bounds, node.halo), 2, t0, t1);
+            return self.node_segment(self.pick(node.bounds, node.halo), 2, None, t0, t1);
         }
-        self.internal(node, 128, 8, t0, t1, |w, leaf, ta, tb| {
-            let leaf = &w.vol.tree.leaves[leaf as usize];
-            w.node_segment(w.pick(leaf.bounds, leaf.halo), 1, ta, tb)
+        self.internal(node, 128, 8, t0, t1, |w, l, ta, tb| {
+            let leaf = &w.vol.tree.leaves[l as usize];
+            w.node_segment(w.pick(leaf.bounds, leaf.halo), 1, Some(l), ta, tb)
         })
     }
 
@@ -199,11 +212,18 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
         }
     }
 
-    fn node_segment(&mut self, b: Bounds, level: u8, t0: f64, t1: f64) -> ControlFlow<()> {
+    fn node_segment(
+        &mut self,
+        b: Bounds,
+        level: u8,
+        leaf: Option<u32>,
+        t0: f64,
+        t1: f64,
+    ) -> ControlFlow<()> {
         if b.min == self.bg && b.max == self.bg {
             return ControlFlow::Continue(());
         }
-        self.segment(f64::from(b.min), f64::from(b.max), level, t0, t1)
+        self.emit(f64::from(b.min), f64::from(b.max), level, leaf, t0, t1)
     }
 
     /// A constant region of value `v` (tile, background tile or empty root cell).
@@ -252,18 +272,33 @@ impl<F: FnMut(Segment) -> ControlFlow<()>> Walker<'_, F> {
     }
 
     fn segment(&mut self, min: f64, max: f64, level: u8, t0: f64, t1: f64) -> ControlFlow<()> {
+        self.emit(min, max, level, None, t0, t1)
+    }
+
+    fn emit(
+        &mut self,
+        min: f64,
+        max: f64,
+        level: u8,
+        leaf: Option<u32>,
+        t0: f64,
+        t1: f64,
+    ) -> ControlFlow<()> {
         if !non_empty(t0, t1) {
             return ControlFlow::Continue(());
         }
         self.covered += t1 - t0;
         self.segments += 1;
-        (self.emit)(Segment {
-            t_min: t0,
-            t_max: t1,
-            mu_min: mul(self.scale, min),
-            mu_maj: mul(self.scale, max),
-            level,
-        })
+        (self.visit)(
+            Segment {
+                t_min: t0,
+                t_max: t1,
+                mu_min: mul(self.scale, min),
+                mu_maj: mul(self.scale, max),
+                level,
+            },
+            leaf,
+        )
     }
 }
 

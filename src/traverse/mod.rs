@@ -5,7 +5,8 @@
 mod dda;
 mod hdda;
 
-pub use dda::{dda, non_empty, Cells};
+pub use dda::{dda, floor_i64, non_empty, Cells};
+pub(crate) use hdda::walk_nodes;
 pub use hdda::{lookup_ray, walk, Granularity, Walk};
 
 /// A piece of a ray `[t_min, t_max]` (world units) inside one node or tile, with bounds on the

@@ -56,6 +56,26 @@ impl<'t> Accessor<'t> {
         if self.leaf != NONE && node_origin(ijk, LEAF_LOG2) == self.leaf_key {
             return self.tree.leaves[self.leaf as usize].values[leaf_offset(ijk)];
         }
+        let found = self.locate(ijk);
+        self.tree.value_of(found)
+    }
+
+    /// The 8^3 block holding voxel `ijk`: a leaf's values, or the one value of the tile or
+    /// background covering it. Not counted as a lookup (the caller counts its reads).
+    #[inline]
+    pub(crate) fn block(&mut self, ijk: [i32; 3]) -> Block<'t> {
+        if self.leaf != NONE && node_origin(ijk, LEAF_LOG2) == self.leaf_key {
+            return Block::Leaf(&self.tree.leaves[self.leaf as usize].values);
+        }
+        match self.locate(ijk) {
+            Found::Voxel { node, .. } => Block::Leaf(&self.tree.leaves[node as usize].values),
+            f => Block::Const(self.tree.value_of(f)),
+        }
+    }
+
+    /// Descend to `ijk` from the deepest cached node that holds it, updating the caches.
+    #[inline]
+    fn locate(&mut self, ijk: [i32; 3]) -> Found {
         let found = if self.lower != NONE && node_origin(ijk, LOWER_LOG2) == self.lower_key {
             self.tree.find_in_lower(self.lower, ijk)
         } else if self.upper != NONE && node_origin(ijk, UPPER_LOG2) == self.upper_key {
@@ -77,7 +97,7 @@ impl<'t> Accessor<'t> {
             self.leaf = node;
             self.leaf_key = node_origin(ijk, LEAF_LOG2);
         }
-        self.tree.value_of(found)
+        found
     }
 
     fn descend_upper(&mut self, upper: u32, ijk: [i32; 3]) -> Found {
@@ -108,15 +128,37 @@ impl<'t> Accessor<'t> {
             p[2] - f64::from(i[2]),
         ];
         let mut v = [[[0f32; 2]; 2]; 2];
-        for (dx, vx) in v.iter_mut().enumerate() {
-            for (dy, vy) in vx.iter_mut().enumerate() {
-                for (dz, vz) in vy.iter_mut().enumerate() {
-                    *vz = self.value([i[0] + dx as i32, i[1] + dy as i32, i[2] + dz as i32]);
+        if i.iter().all(|&c| c & 7 != 7) {
+            // All 8 voxels in one 8^3 block: one cached descent, then direct reads.
+            self.lookups += 8;
+            let b = self.block(i);
+            let o = leaf_offset(i);
+            for (dx, vx) in v.iter_mut().enumerate() {
+                for (dy, vy) in vx.iter_mut().enumerate() {
+                    for (dz, vz) in vy.iter_mut().enumerate() {
+                        *vz = b.get(o + (dx << 6) + (dy << 3) + dz);
+                    }
+                }
+            }
+        } else {
+            for (dx, vx) in v.iter_mut().enumerate() {
+                for (dy, vy) in vx.iter_mut().enumerate() {
+                    for (dz, vz) in vy.iter_mut().enumerate() {
+                        *vz = self.value([i[0] + dx as i32, i[1] + dy as i32, i[2] + dz as i32]);
+                    }
                 }
             }
         }
-        let lerp =
-            |a: f32, b: f32, w: f64| (f64::from(a) + (f64::from(b) - f64::from(a)) * w) as f32;
+        // Guarded so that infinite values give inf, not `inf * 0 = NaN`, at zero weight.
+        let lerp = |a: f32, b: f32, w: f64| {
+            if a == b || w == 0.0 {
+                a
+            } else if w == 1.0 {
+                b
+            } else {
+                (f64::from(a) + (f64::from(b) - f64::from(a)) * w) as f32
+            }
+        };
         let y0 = lerp(
             lerp(v[0][0][0], v[0][0][1], u[2]),
             lerp(v[0][1][0], v[0][1][1], u[2]),
@@ -131,8 +173,28 @@ impl<'t> Accessor<'t> {
     }
 }
 
+/// The values of one 8^3 block of voxels: a leaf's, or a single value (tile or background).
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Block<'t> {
+    /// A leaf's 512 values, indexed by [`leaf_offset`].
+    Leaf(&'t [f32; 512]),
+    /// Every voxel of the block has this value.
+    Const(f32),
+}
+
+impl Block<'_> {
+    /// The value at leaf offset `n` (`n < 512`).
+    #[inline]
+    pub(crate) fn get(self, n: usize) -> f32 {
+        match self {
+            Self::Leaf(v) => v[n],
+            Self::Const(c) => c,
+        }
+    }
+}
+
 /// `floor(c)` as an index coordinate, saturating at the i32 range (NaN maps to 0).
 #[inline]
 fn round_to_voxel(c: f64) -> i32 {
-    c.floor() as i32
+    crate::traverse::floor_i64(c).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }

@@ -12,6 +12,7 @@ mod build;
 mod stats;
 
 pub use accessor::Accessor;
+pub(crate) use accessor::Block;
 pub use bounds::Bounds;
 pub use build::TreeBuilder;
 pub use stats::TreeStats;
