@@ -42,6 +42,58 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
+/// A minimal single-part scanline OpenEXR file, uncompressed, float channels `A, B, G, R` with
+/// `R = G = B = T` and `A = 1 - T` (what vdb_render writes), row 0 at the top.
+fn exr_rgba(t: &[f32], w: usize, h: usize) -> Vec<u8> {
+    let mut b: Vec<u8> = vec![0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0];
+    let attr = |b: &mut Vec<u8>, name: &str, ty: &str, v: &[u8]| {
+        b.extend_from_slice(name.as_bytes());
+        b.push(0);
+        b.extend_from_slice(ty.as_bytes());
+        b.push(0);
+        b.extend_from_slice(&(v.len() as i32).to_le_bytes());
+        b.extend_from_slice(v);
+    };
+    let mut ch = Vec::new();
+    for c in ["A", "B", "G", "R"] {
+        ch.extend_from_slice(c.as_bytes());
+        ch.push(0);
+        ch.extend_from_slice(&2i32.to_le_bytes()); // FLOAT
+        ch.extend_from_slice(&[0, 0, 0, 0]); // pLinear, reserved
+        ch.extend_from_slice(&1i32.to_le_bytes());
+        ch.extend_from_slice(&1i32.to_le_bytes());
+    }
+    ch.push(0);
+    let win: Vec<u8> = [0i32, 0, w as i32 - 1, h as i32 - 1]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    attr(&mut b, "channels", "chlist", &ch);
+    attr(&mut b, "compression", "compression", &[0]);
+    attr(&mut b, "dataWindow", "box2i", &win);
+    attr(&mut b, "displayWindow", "box2i", &win);
+    attr(&mut b, "lineOrder", "lineOrder", &[0]);
+    attr(&mut b, "pixelAspectRatio", "float", &1f32.to_le_bytes());
+    attr(&mut b, "screenWindowCenter", "v2f", &[0; 8]);
+    attr(&mut b, "screenWindowWidth", "float", &1f32.to_le_bytes());
+    b.push(0);
+    let line = 8 + 16 * w;
+    let first = b.len() + 8 * h;
+    for y in 0..h {
+        b.extend_from_slice(&((first + y * line) as u64).to_le_bytes());
+    }
+    for y in 0..h {
+        b.extend_from_slice(&(y as i32).to_le_bytes());
+        b.extend_from_slice(&((16 * w) as i32).to_le_bytes());
+        let row = &t[y * w..(y + 1) * w];
+        for f in [|t: f32| 1.0 - t, |t| t, |t| t, |t| t] {
+            row.iter()
+                .for_each(|&v| b.extend_from_slice(&f(v).to_le_bytes()));
+        }
+    }
+    b
+}
+
 /// Peak resident set size (VmHWM) of this process in bytes.
 fn peak_rss() -> u64 {
     std::fs::read_to_string("/proc/self/status")
@@ -159,11 +211,7 @@ fn main() {
     times.sort_by(f64::total_cmp);
     let render_s = times[times.len() / 2];
     if let Some(path) = &out {
-        exr::prelude::write_rgba_file(path, w, h, |x, y| {
-            let t = img[y * w + x];
-            (t, t, t, 1.0 - t)
-        })
-        .unwrap();
+        std::fs::write(path, exr_rgba(&img, w, h)).unwrap();
     }
     let rays = (w * h) as f64;
     println!(
