@@ -3,9 +3,10 @@
 
 use crate::ray::Ray;
 use crate::regular::integrate_cells;
-use crate::traverse::lookup_ray;
+use crate::traverse::{dda, lookup_ray, Cells, Segment};
 use crate::tree::Accessor;
 use crate::volume::{Interp, Volume};
+use std::ops::ControlFlow;
 
 /// Extinction along a ray with a cached accessor and a lookup counter.
 #[derive(Debug, Clone)]
@@ -70,6 +71,48 @@ impl<'v> RayMedium<'v> {
         } else {
             self.scale * v
         }
+    }
+
+    /// Split `s` into one segment per lookup cell it crosses, each with the exact bounds of
+    /// that cell: the voxel value (nearest; constant) or the min/max of its 8 corners
+    /// (trilinear). Used where a node's bounds are too loose to sample efficiently.
+    pub fn refine(&mut self, s: &Segment, out: &mut Vec<Segment>) {
+        let p0 = [0, 1, 2].map(|a| self.q[a] + self.d[a] * s.t_min);
+        let p1 = [0, 1, 2].map(|a| self.q[a] + self.d[a] * s.t_max);
+        let lo = [0, 1, 2].map(|a| p0[a].min(p1[a]).floor() as i64);
+        let hi = [0, 1, 2].map(|a| p0[a].max(p1[a]).floor() as i64);
+        let grid = Cells { size: 1.0, lo, hi };
+        let (q, d, interp, scale) = (self.q, self.d, self.interp, self.scale);
+        let acc = &mut self.acc;
+        let mut reads = 0;
+        let _ = dda(q, d, (s.t_min, s.t_max), &grid, |c, ta, tb| {
+            let ijk = c.map(|v| v as i32);
+            let (mut mn, mut mx) = (f32::INFINITY, f32::NEG_INFINITY);
+            let corners = if interp == Interp::Nearest { 1 } else { 8 };
+            for n in 0..corners {
+                let o = [(n >> 2) & 1, (n >> 1) & 1, n & 1];
+                let v = acc.value([ijk[0] + o[0], ijk[1] + o[1], ijk[2] + o[2]]);
+                mn = mn.min(v);
+                mx = mx.max(v);
+            }
+            reads += 1;
+            let k = |v: f32| {
+                if scale == 0.0 {
+                    0.0
+                } else {
+                    scale * f64::from(v)
+                }
+            };
+            out.push(Segment {
+                t_min: ta,
+                t_max: tb,
+                mu_min: k(mn),
+                mu_maj: k(mx),
+                level: 0,
+            });
+            ControlFlow::Continue(())
+        });
+        self.lookups += reads;
     }
 
     /// Index-space length of one world unit along the ray (to convert voxel steps).

@@ -14,9 +14,15 @@
 //! Randomness: sample `i` of ray `r` under seed `s` uses the stream `Rng::new(s, r, i)`, so the
 //! same seed gives bit-identical results whatever the thread count.
 //!
-//! Signed estimators: residual ratio tracking with a midpoint control and the unbiased
-//! ray-marching power series can return values outside `[0, 1]`; they are reported raw
-//! (unbiased). The jackknife estimator is clamped to `[0, 1]` (it is biased anyway).
+//! Estimates outside `[0, 1]`: residual ratio tracking with a midpoint control (weights up to
+//! 2) and next-flight ratio tracking (a sum of positive terms) can exceed 1, and the unbiased
+//! ray-marching power series can also go below 0; all are reported raw (that is what keeps them
+//! unbiased; averages converge to `T`). The jackknife estimator is clamped to `[0, 1]` (it is
+//! biased anyway). [`Estimator::may_leave_unit_interval`] says which.
+//!
+//! High-contrast nodes: a segment whose expected null collisions `(mu_maj - mu_min) * length`
+//! exceed [`REFINE_NULL_COLLISIONS`] is split into per-cell segments with exact cell bounds
+//! before sampling, so a single 1e6 spike in a near-empty leaf costs a few lookups, not 1e6.
 
 mod marching;
 mod medium;
@@ -175,6 +181,19 @@ impl Estimator {
         )
     }
 
+    /// True for estimators whose single-sample estimates can fall outside `[0, 1]`.
+    #[must_use]
+    pub fn may_leave_unit_interval(&self) -> bool {
+        matches!(
+            self,
+            Self::UnbiasedRaymarch
+                | Self::NextFlight
+                | Self::ResidualRatio {
+                    control: Control::Midpoint
+                }
+        )
+    }
+
     /// True for deterministic estimators (one sample says everything).
     #[must_use]
     pub fn is_deterministic(&self) -> bool {
@@ -247,6 +266,9 @@ pub struct Prepared {
     pub lookups: u64,
 }
 
+/// Expected null collisions above which a node segment is refined to per-cell bounds.
+pub const REFINE_NULL_COLLISIONS: f64 = 8.0;
+
 /// Walk the ray once and split it into closed-form and sampled parts.
 #[must_use]
 pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'_>) -> Prepared {
@@ -274,17 +296,28 @@ pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'
         ..Prepared::default()
     };
     let mut covered_outside = 0.0;
+    let mut cells = Vec::new();
     for s in &all {
         if global && s.t_min >= first && s.t_max <= last {
             continue; // inside the single global segment: sampled
         }
         covered_outside += s.length();
-        if s.is_constant() {
-            p.tau_known += s.mu_min * s.length();
-        } else if s.mu_maj.is_finite() {
-            p.segs.push(*s);
+        // High-contrast nodes (a 1e6 spike in a near-empty leaf) would cost millions of null
+        // collisions: refine them to per-cell bounds, unless the global baseline is asked for.
+        cells.clear();
+        if !global && sampled(s) && (s.mu_maj - s.mu_min) * s.length() > REFINE_NULL_COLLISIONS {
+            medium.refine(s, &mut cells);
         } else {
-            p.tau_known += medium.exact(s.t_min, s.t_max);
+            cells.push(*s);
+        }
+        for c in &cells {
+            if c.is_constant() {
+                p.tau_known += c.mu_min * c.length();
+            } else if c.mu_maj.is_finite() {
+                p.segs.push(*c);
+            } else {
+                p.tau_known += medium.exact(c.t_min, c.t_max);
+            }
         }
     }
     if global && first < last {

@@ -17,6 +17,7 @@
 //!   reported raw, unbiased).
 //! - `next_flight`: ratio tracking plus, at every tentative collision, the running weight times
 //!   the majorant transmittance to the end: `exp(-tau_maj) + sum_k W_k exp(-tau_maj(t_k, b))`.
+//!   Never negative, but a sum of positive terms: one sample can exceed 1 (reported raw).
 //! - `decomposition`: the minorant is a homogeneous control medium whose transmittance
 //!   `exp(-int mu_min)` is exact; delta tracking only through the residual `mu - mu_min` with
 //!   rate `mu_maj - mu_min`. Lookups drop from `int mu_maj` to `int (mu_maj - mu_min)`.
@@ -149,8 +150,14 @@ pub(crate) fn residual_ratio(
             Control::Minorant => (s.mu_min, s.mu_maj - s.mu_min),
             Control::Midpoint => (0.5 * (s.mu_min + s.mu_maj), 0.5 * (s.mu_maj - s.mu_min)),
         };
-        w *= (-mu_c * s.length()).exp() * ratio_segment(s, mu_c, rate, m, rng, cap);
-        if w == 0.0 || cap.hit {
+        // Control first: a weight that underflows to 0 stops before the residual weights
+        // (which reach 2 per collision with the midpoint control) can overflow to inf * 0.
+        w *= (-mu_c * s.length()).exp();
+        if w == 0.0 {
+            return 0.0;
+        }
+        w *= ratio_segment(s, mu_c, rate, m, rng, cap);
+        if w == 0.0 || !w.is_finite() || cap.hit {
             break;
         }
     }
