@@ -54,6 +54,15 @@ pub enum Error {
         /// Display names of the grids the file holds, in file order.
         available: Vec<String>,
     },
+    /// An output file could not be written (exists and may not be overwritten, its directory is
+    /// missing, the encoder failed). Nothing is left behind at `path` when this is returned.
+    #[error("{}: cannot write: {reason}", path.display())]
+    Output {
+        /// File that was to be written.
+        path: PathBuf,
+        /// Why it was not written.
+        reason: String,
+    },
     /// A caller-supplied argument is out of its domain.
     #[error("invalid argument '{name}': {reason}")]
     InvalidArgument {

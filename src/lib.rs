@@ -13,6 +13,7 @@
 //! Conventions: index space puts voxel `(i, j, k)` at the point `(i, j, k)`; `world_from_index`
 //! is an affine map in f64 (column vectors); values are traced in `f32`.
 
+pub mod bake;
 pub mod error;
 pub mod estimate;
 pub mod info;

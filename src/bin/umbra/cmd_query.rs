@@ -1,10 +1,13 @@
-//! `umbra query`: what does the cloud attenuate along a segment?
+//! `umbra query`: what does the cloud attenuate along a segment, toward a light, or along
+//! thousands of segments from a CSV file?
 
-use anyhow::{Context, Result};
-use std::io::Write;
-use std::path::PathBuf;
+use anyhow::{anyhow, bail, Context, Result};
+use rayon::prelude::*;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use umbra::estimate::{estimate, Estimator, Options, ESTIMATOR_NAMES};
+use umbra::bake::Light;
+use umbra::estimate::{estimate, Estimate, Estimator, Options, ESTIMATOR_NAMES};
 use umbra::traverse::Granularity;
 use umbra::{Interp, Ray, Volume};
 
@@ -34,12 +37,27 @@ pub struct QueryArgs {
     /// Grid to trace (display name such as `density[1]`, or the stored name).
     #[arg(long, default_value = "density")]
     grid: String,
-    /// Segment start, world space: X,Y,Z.
+    /// Segment start, world space: X,Y,Z (with --to).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    from: [f64; 3],
-    /// Segment end, world space: X,Y,Z.
+    from: Option<[f64; 3]>,
+    /// Segment end, world space: X,Y,Z (with --from).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    to: [f64; 3],
+    to: Option<[f64; 3]>,
+    /// Shading point, world space: X,Y,Z (with --light-dir or --light-pos).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    at: Option<[f64; 3]>,
+    /// Direction the light travels, DX,DY,DZ: trace from --at against it until the ray leaves
+    /// the volume box.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    light_dir: Option<[f64; 3]>,
+    /// Point light position X,Y,Z: trace the segment from --at to it.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    light_pos: Option<[f64; 3]>,
+    /// CSV of segments (header `ox,oy,oz,ex,ey,ez`, one segment per line), or `-` for stdin.
+    /// Answers come in input order; a bad line is reported on its own output line and makes
+    /// the exit code 2 once every other line is answered.
+    #[arg(long)]
+    rays: Option<PathBuf>,
     /// How the density between voxel centres is defined.
     #[arg(long, value_enum, default_value = "trilinear")]
     interp: InterpArg,
@@ -49,6 +67,13 @@ pub struct QueryArgs {
     /// One JSON object per query on stdout.
     #[arg(long)]
     json: bool,
+    /// Ray id of the query (selects its random streams; `--rays` numbers its rows from it).
+    /// Pixel (i, j) of a bake is ray id j*W+i.
+    #[arg(long, default_value_t = 0)]
+    ray_id: u64,
+    /// Worker threads for --rays (0: all cores).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
     #[command(flatten)]
     est: EstimatorArgs,
 }
@@ -62,7 +87,7 @@ pub struct EstimatorArgs {
     #[arg(long, default_value = "regular")]
     pub estimator: String,
     /// Independent samples per ray (stochastic estimators).
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, visible_alias = "spp", default_value_t = 64)]
     pub samples: u32,
     /// Seed of the random streams.
     #[arg(long, default_value_t = 0)]
@@ -146,56 +171,218 @@ pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     }
 }
 
-/// Run the query and print the answer.
-pub fn run(a: &QueryArgs) -> Result<ExitCode> {
-    let vol = Volume::load(&a.file, &a.grid, a.density_scale)
-        .with_context(|| format!("loading grid '{}'", a.grid))?;
+/// Load a grid for tracing, warning about voxels the bad-voxel policy changed.
+pub fn load_volume(file: &Path, grid: &str, density_scale: f64) -> Result<Volume> {
+    let vol = Volume::load(file, grid, density_scale)
+        .with_context(|| format!("loading grid '{grid}'"))?;
     let s = vol.sanitized;
     if s.nan + s.negative > 0 {
         eprintln!(
             "umbra: warning: {}: {} NaN and {} negative values in grid '{}' treated as 0",
-            a.file.display(),
+            file.display(),
             s.nan,
             s.negative,
             vol.name
         );
     }
+    Ok(vol)
+}
+
+/// A rayon pool of `threads` workers (0: as many as cores).
+pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("starting worker threads")
+}
+
+/// One answered (or failed) query.
+struct Answer {
+    line: Option<usize>,
+    result: Result<(Ray, Estimate, f64), String>,
+}
+
+/// Run the query and print the answer(s).
+pub fn run(a: &QueryArgs) -> Result<ExitCode> {
+    let single = match (a.from, a.to, a.at) {
+        (Some(from), Some(to), None) => Some((from, to)),
+        (Some(_), None, _) | (None, Some(_), _) => {
+            bail!("--from and --to go together (a segment from one point to the other)")
+        }
+        _ => None,
+    };
+    let light = match (a.light_dir, a.light_pos) {
+        (Some(_), Some(_)) => bail!("give --light-dir or --light-pos, not both"),
+        (Some(dir), None) => Some(Light::Directional { dir }),
+        (None, Some(pos)) => Some(Light::Point { pos }),
+        (None, None) => None,
+    };
+    let modes =
+        usize::from(single.is_some()) + usize::from(a.at.is_some()) + usize::from(a.rays.is_some());
+    if modes != 1 || (a.from.is_some() && a.at.is_some()) {
+        bail!(
+            "give exactly one of --from/--to, --at with --light-dir or --light-pos, or --rays FILE"
+        );
+    }
+    if a.at.is_some() != light.is_some() {
+        bail!("--at needs --light-dir DX,DY,DZ or --light-pos X,Y,Z, and those need --at");
+    }
+    // Read the batch before the (possibly slow) load so a missing file fails fast.
+    let batch = match &a.rays {
+        Some(p) => Some(read_rays(p)?),
+        None => None,
+    };
+    let vol = load_volume(&a.file, &a.grid, a.density_scale)?;
     let interp: Interp = a.interp.into();
     let (est, opts) = a.est.resolve(interp)?;
-    let ray = Ray::between(a.from, a.to)?;
-    let start = std::time::Instant::now();
-    let e = estimate(&vol, &ray, 0, &est, &opts)?;
-    let seconds = start.elapsed().as_secs_f64();
-    let mut out = std::io::stdout().lock();
-    if a.json {
-        let v = serde_json::json!({
-            "T": e.value, "std_err": e.std_err, "tau": e.tau, "lookups": e.lookups,
-            "estimator": est.name(), "samples": e.samples, "interp": interp,
-            "length": ray.t_max, "segments": e.segments, "capped": e.capped, "seconds": seconds,
-        });
-        writeln!(out, "{v}")?;
-    } else {
-        let tau = e.tau.map_or(String::new(), |t| format!(", tau = {t:.9}"));
-        let err = if e.std_err > 0.0 {
-            format!(" +- {:.2e}", e.std_err)
-        } else {
-            String::new()
+    let answers: Vec<Answer> = if let Some(rows) = batch {
+        let one = |(n, (line, seg)): (usize, &(usize, Result<Ray, String>))| Answer {
+            line: Some(*line),
+            result: seg.clone().and_then(|ray| {
+                answer(&vol, &ray, a.ray_id.wrapping_add(n as u64), &est, &opts)
+                    .map_err(|e| format!("{e:#}"))
+            }),
         };
-        writeln!(
-            out,
-            "T = {:.9}{err}{tau} ({}, {interp:?}, {} samples, length {:.6}, {} lookups)",
-            e.value,
-            est.name(),
-            e.samples,
-            ray.t_max,
-            e.lookups
-        )?;
+        thread_pool(a.threads)?.install(|| rows.par_iter().enumerate().map(one).collect())
+    } else {
+        let ray = match (single, a.at, light) {
+            (Some((from, to)), _, _) => Ray::between(from, to)?,
+            (None, Some(at), Some(l)) => l.ray_from(&vol, at)?,
+            _ => bail!("nothing to query"),
+        };
+        let r = answer(&vol, &ray, a.ray_id, &est, &opts)?;
+        vec![Answer {
+            line: None,
+            result: Ok(r),
+        }]
+    };
+    print_answers(&answers, est.name(), interp, a.json)
+}
+
+fn answer(
+    vol: &Volume,
+    ray: &Ray,
+    ray_id: u64,
+    est: &Estimator,
+    opts: &Options,
+) -> Result<(Ray, Estimate, f64)> {
+    let start = std::time::Instant::now();
+    let e = estimate(vol, ray, ray_id, est, opts)?;
+    Ok((*ray, e, start.elapsed().as_secs_f64()))
+}
+
+/// Read a CSV of segments: `(line number, ray or why the line is bad)` per data line.
+fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
+    let text = if path.as_os_str() == "-" {
+        let mut s = String::new();
+        std::io::stdin()
+            .read_to_string(&mut s)
+            .context("reading rays from stdin")?;
+        s
+    } else {
+        std::fs::read_to_string(path).with_context(|| format!("reading {}", path.display()))?
+    };
+    let name = if path.as_os_str() == "-" {
+        "stdin".to_string()
+    } else {
+        path.display().to_string()
+    };
+    let mut lines = text
+        .lines()
+        .enumerate()
+        .map(|(n, l)| (n + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
+    let Some((hline, header)) = lines.next() else {
+        bail!("{name}: no header line (expected ox,oy,oz,ex,ey,ez)");
+    };
+    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
+    let want = ["ox", "oy", "oz", "ex", "ey", "ez"];
+    let idx: Vec<usize> = want
+        .iter()
+        .map(|w| cols.iter().position(|c| c == w))
+        .collect::<Option<_>>()
+        .filter(|_| cols.len() == want.len())
+        .ok_or_else(|| {
+            anyhow!("{name}:{hline}: header '{header}' is not the six columns ox,oy,oz,ex,ey,ez")
+        })?;
+    Ok(lines
+        .map(|(n, l)| {
+            let parse = || -> Result<Ray, String> {
+                let f: Vec<&str> = l.split(',').map(str::trim).collect();
+                if f.len() != 6 {
+                    return Err(format!("expected 6 fields, got {}", f.len()));
+                }
+                let v: Vec<f64> = idx
+                    .iter()
+                    .zip(want)
+                    .map(|(&i, w)| match f[i].parse::<f64>() {
+                        Ok(x) if x.is_finite() => Ok(x),
+                        _ => Err(format!("{w} = '{}' is not a finite number", f[i])),
+                    })
+                    .collect::<Result<_, _>>()?;
+                Ray::between([v[0], v[1], v[2]], [v[3], v[4], v[5]]).map_err(|e| e.to_string())
+            };
+            (n, parse())
+        })
+        .collect())
+}
+
+fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> Result<ExitCode> {
+    let mut out = std::io::BufWriter::new(std::io::stdout().lock());
+    let mut failed: Vec<String> = Vec::new();
+    let mut capped = 0u64;
+    for a in answers {
+        let at = a.line.map_or(String::new(), |n| format!("line {n}: "));
+        match &a.result {
+            Err(e) => {
+                if json {
+                    let v = serde_json::json!({ "line": a.line, "error": e });
+                    writeln!(out, "{v}")?;
+                } else {
+                    writeln!(out, "{at}error: {e}")?;
+                }
+                failed.push(format!("{at}{e}"));
+            }
+            Ok((ray, e, seconds)) => {
+                capped += e.capped;
+                if json {
+                    let mut v = serde_json::json!({
+                        "T": e.value, "std_err": e.std_err, "tau": e.tau, "lookups": e.lookups,
+                        "estimator": est, "samples": e.samples, "interp": interp,
+                        "length": ray.t_max, "segments": e.segments, "capped": e.capped,
+                        "seconds": seconds,
+                    });
+                    if let Some(n) = a.line {
+                        v["line"] = n.into();
+                    }
+                    writeln!(out, "{v}")?;
+                } else {
+                    let tau = e.tau.map_or(String::new(), |t| format!(", tau = {t:.9}"));
+                    let err = if e.std_err > 0.0 {
+                        format!(" +- {:.2e}", e.std_err)
+                    } else {
+                        String::new()
+                    };
+                    writeln!(
+                        out,
+                        "{at}T = {:.9}{err}{tau} ({est}, {interp:?}, {} samples, length {:.6}, {} lookups)",
+                        e.value, e.samples, ray.t_max, e.lookups
+                    )?;
+                }
+            }
+        }
     }
-    if e.capped > 0 {
+    out.flush()?;
+    if capped > 0 {
+        eprintln!("umbra: warning: {capped} samples hit the collision cap (biased)");
+    }
+    if let Some(first) = failed.first() {
         eprintln!(
-            "umbra: warning: {} samples hit the collision cap (biased)",
-            e.capped
+            "umbra: error: {} of {} queries failed (first: {first})",
+            failed.len(),
+            answers.len()
         );
+        return Ok(ExitCode::from(2));
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -1,5 +1,7 @@
-//! The `umbra` command line: `info` describes a file, `query` answers transmittance questions.
+//! The `umbra` command line: `info` describes a file, `query` answers transmittance questions,
+//! `bake` writes transmittance (shadow) maps.
 
+mod cmd_bake;
 mod cmd_info;
 mod cmd_query;
 
@@ -34,6 +36,8 @@ enum Command {
     },
     /// Optical depth and transmittance along world-space segments.
     Query(cmd_query::QueryArgs),
+    /// Bake a transmittance (shadow) map seen from a light into an OpenEXR file.
+    Bake(cmd_bake::BakeArgs),
 }
 
 fn main() -> ExitCode {
@@ -58,5 +62,6 @@ fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
         Command::Info { file, json, grid } => cmd_info::run(&file, json, grid.as_deref()),
         Command::Query(args) => cmd_query::run(&args),
+        Command::Bake(args) => cmd_bake::run(&args),
     }
 }

@@ -1,0 +1,332 @@
+//! Writing baked maps: OpenEXR with every attribute needed to use the map, an 8-bit PNG
+//! preview, and the atomic write both go through.
+
+use super::camera::Projection;
+use super::render::Map;
+use crate::error::{Error, Result};
+use exr::meta::attribute::{AttributeValue, Text};
+use exr::prelude::{
+    AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec,
+    WritableImage,
+};
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicU64, Ordering};
+
+fn output_err(path: &Path, reason: impl Into<String>) -> Error {
+    Error::Output {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
+}
+
+/// Removes the temporary file unless it was renamed into place.
+struct TempGuard(Option<PathBuf>);
+
+impl Drop for TempGuard {
+    fn drop(&mut self) {
+        if let Some(p) = self.0.take() {
+            let _ = std::fs::remove_file(p);
+        }
+    }
+}
+
+/// Write `path` atomically: `write` fills a new temporary file in the same directory, which is
+/// flushed, synced and renamed over `path` only if everything succeeded. On any error (or a
+/// panic in `write`) the temporary file is removed and `path` is untouched.
+///
+/// # Errors
+/// [`Error::Output`] if `path` exists and `overwrite` is false, is a directory, its directory
+/// does not exist, or the temporary file cannot be created, written or renamed; `write`'s
+/// error message is reported as the reason.
+pub fn write_atomic(
+    path: &Path,
+    overwrite: bool,
+    write: impl FnOnce(&mut BufWriter<std::fs::File>) -> std::result::Result<(), String>,
+) -> Result<()> {
+    check_target(path, overwrite)?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .ok_or_else(|| output_err(path, "not a file name"))?;
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+    let tmp = dir.join(format!(".{name}.umbra-{}-{n}.tmp", std::process::id()));
+    let file = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .map_err(|e| {
+            output_err(
+                path,
+                format!("cannot create a file in {}: {e}", dir.display()),
+            )
+        })?;
+    let mut guard = TempGuard(Some(tmp.clone()));
+    let mut w = BufWriter::new(file);
+    write(&mut w).map_err(|e| output_err(path, e))?;
+    let file = w
+        .into_inner()
+        .map_err(|e| output_err(path, format!("writing: {}", e.error())))?;
+    file.sync_all()
+        .map_err(|e| output_err(path, format!("writing: {e}")))?;
+    drop(file);
+    check_target(path, overwrite)?;
+    std::fs::rename(&tmp, path)
+        .map_err(|e| output_err(path, format!("renaming into place: {e}")))?;
+    guard.0 = None;
+    Ok(())
+}
+
+/// Check that `path` may be written: not a directory, not an existing file unless `overwrite`,
+/// in an existing directory. [`write_atomic`] checks this before and after writing; callers
+/// check it before a long computation.
+///
+/// # Errors
+/// [`Error::Output`] naming the problem.
+pub fn check_target(path: &Path, overwrite: bool) -> Result<()> {
+    if let Ok(m) = std::fs::symlink_metadata(path) {
+        if m.is_dir() {
+            return Err(output_err(path, "is a directory"));
+        }
+        if !overwrite {
+            return Err(output_err(
+                path,
+                "already exists (use --force to overwrite)",
+            ));
+        }
+    }
+    if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        if !d.is_dir() {
+            return Err(output_err(path, format!("no directory {}", d.display())));
+        }
+    }
+    Ok(())
+}
+
+/// Where a map came from, for the EXR attributes.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct Provenance {
+    /// Source `.vdb` file as given.
+    pub source_file: String,
+    /// Grid name.
+    pub grid: String,
+    /// `mu_t = density_scale x value`.
+    pub density_scale: f64,
+    /// Light direction as given (direction the light travels).
+    pub light_dir: Option<[f64; 3]>,
+    /// Light position as given.
+    pub light_pos: Option<[f64; 3]>,
+}
+
+/// An EXR text attribute: characters outside Latin-1 become `?`.
+fn text(s: &str) -> AttributeValue {
+    let s: String = s
+        .chars()
+        .map(|c| if u32::from(c) < 256 { c } else { '?' })
+        .collect();
+    AttributeValue::Text(Text::new_or_none(&s).unwrap_or_default())
+}
+
+/// OpenEXR `v3d` (three little-endian f64).
+fn v3d(v: [f64; 3]) -> AttributeValue {
+    AttributeValue::Custom {
+        kind: Text::from("v3d"),
+        bytes: v.iter().flat_map(|c| c.to_le_bytes()).collect(),
+    }
+}
+
+/// A column-vector 4x4 as OpenEXR's row-vector `m44f` (the transpose, row-major).
+fn m44f(m: [[f64; 4]; 4]) -> [f32; 16] {
+    std::array::from_fn(|k| m[k % 4][k / 4] as f32)
+}
+
+/// Name of depth slice `k`'s channel: `slice00.T`, `slice01.T`, ...
+#[must_use]
+pub fn slice_channel(k: usize) -> String {
+    format!("slice{k:02}.T")
+}
+
+/// Write `map` to `path` as a single-part scanline OpenEXR (ZIP, increasing line order) with
+/// f32 channels `T`, `T.stderr` (if baked) and `sliceNN.T` per depth, the standard
+/// `worldToCamera` / `worldToNDC` matrices and `umbra:*` attributes: `camera_kind`,
+/// `camera_origin`, `camera_step_x`, `camera_step_y`, `camera_direction` (v3d), `camera_t_max`
+/// (double), `light_dir` / `light_pos` (v3d, as given), `fov_deg` (perspective), `estimator`,
+/// `estimator_params` (JSON), `interp`, `spp`, `target_error`, `max_spp`, `mean_spp`, `seed`
+/// (decimal text), `density_scale`, `source_file`, `grid`, `depth.NN` (double per slice),
+/// `ray_ids`. Same map, same bytes.
+///
+/// # Errors
+/// [`Error::Output`] as [`write_atomic`], or if the encoder fails.
+pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> Result<()> {
+    let c = &map.camera;
+    let size = (c.width as usize, c.height as usize);
+    let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
+    list.push(AnyChannel::new("T", FlatSamples::F32(map.t.clone())));
+    if let Some(e) = &map.std_err {
+        list.push(AnyChannel::new("T.stderr", FlatSamples::F32(e.clone())));
+    }
+    for (k, s) in map.slices.iter().enumerate() {
+        let name = Text::new_or_none(slice_channel(k)).unwrap_or_default();
+        list.push(AnyChannel::new(name, FlatSamples::F32(s.clone())));
+    }
+    let mut a = LayerAttributes {
+        world_to_camera: Some(m44f(c.world_to_camera())),
+        world_to_normalized_device: Some(m44f(c.world_to_ndc())),
+        software_name: Some(Text::from(concat!("umbra ", env!("CARGO_PKG_VERSION")))),
+        comments: Some(Text::from(
+            "T = exp(-tau) along each pixel's ray; see the umbra:* attributes",
+        )),
+        ..LayerAttributes::default()
+    };
+    let s = &map.settings;
+    let kind = match c.kind {
+        Projection::Ortho => "ortho",
+        Projection::Perspective => "perspective",
+    };
+    let mut attrs: Vec<(String, AttributeValue)> = vec![
+        ("camera_kind".into(), text(kind)),
+        ("camera_origin".into(), v3d(c.origin)),
+        ("camera_step_x".into(), v3d(c.step_x)),
+        ("camera_step_y".into(), v3d(c.step_y)),
+        ("camera_direction".into(), v3d(c.direction)),
+        ("camera_t_max".into(), AttributeValue::F64(c.t_max)),
+        ("estimator".into(), text(s.estimator.name())),
+        (
+            "estimator_params".into(),
+            text(&serde_json::to_string(&s.estimator).unwrap_or_default()),
+        ),
+        ("interp".into(), text(&format!("{:?}", s.options.interp).to_lowercase())),
+        ("spp".into(), AttributeValue::I32(clamp_i32(u64::from(s.options.samples)))),
+        ("max_spp".into(), AttributeValue::I32(clamp_i32(u64::from(s.max_spp)))),
+        (
+            "mean_spp".into(),
+            AttributeValue::F64(map.stats.samples as f64 / map.stats.rays.max(1) as f64),
+        ),
+        ("seed".into(), text(&s.options.seed.to_string())),
+        ("density_scale".into(), AttributeValue::F64(prov.density_scale)),
+        ("source_file".into(), text(&prov.source_file)),
+        ("grid".into(), text(&prov.grid)),
+        (
+            "ray_ids".into(),
+            text("pixel (i, j): T uses ray id j*W+i, adaptive batch b ray id b*W*H+j*W+i, slice k ray id (64+k)*W*H+j*W+i"),
+        ),
+    ];
+    if let Some(d) = prov.light_dir {
+        attrs.push(("light_dir".into(), v3d(d)));
+    }
+    if let Some(p) = prov.light_pos {
+        attrs.push(("light_pos".into(), v3d(p)));
+    }
+    if let Some((h, _)) = c.fov_deg() {
+        attrs.push(("fov_deg".into(), AttributeValue::F64(h)));
+    }
+    if let Some(e) = s.target_error {
+        attrs.push(("target_error".into(), AttributeValue::F64(e)));
+    }
+    for (k, d) in map.depths.iter().enumerate() {
+        attrs.push((format!("depth.{k:02}"), AttributeValue::F64(*d)));
+    }
+    for (k, v) in attrs {
+        a.other.insert(Text::from(format!("umbra:{k}").as_str()), v);
+    }
+    let enc = Encoding {
+        compression: exr::compression::Compression::ZIP16,
+        blocks: exr::image::Blocks::ScanLines,
+        line_order: exr::meta::attribute::LineOrder::Increasing,
+    };
+    let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
+    let writer = image.write();
+    let writer = if s.threads == 0 {
+        writer
+    } else {
+        writer.non_parallel()
+    };
+    let mut buf = std::io::Cursor::new(Vec::new());
+    writer
+        .to_buffered(&mut buf)
+        .map_err(|e| output_err(path, format!("OpenEXR encoder: {e}")))?;
+    let mut bytes = buf.into_inner();
+    sort_attributes(&mut bytes).map_err(|e| output_err(path, e))?;
+    write_atomic(path, overwrite, |w| {
+        w.write_all(&bytes).map_err(|e| format!("writing: {e}"))
+    })
+}
+
+/// Put the attributes of a single-part OpenEXR header in name order, as the OpenEXR library
+/// itself writes them (the exr crate keeps custom attributes in a `HashMap`, whose order
+/// changes from run to run). The header keeps its length, so the offset table stays valid.
+fn sort_attributes(bytes: &mut [u8]) -> std::result::Result<(), String> {
+    let bad = || "OpenEXR encoder produced an unreadable header".to_string();
+    let nul = |from: usize| {
+        bytes
+            .get(from..)
+            .and_then(|b| b.iter().position(|&c| c == 0))
+            .map(|p| from + p)
+    };
+    let start = 8; // magic number and version
+    let mut pos = start;
+    let mut attrs: Vec<(Vec<u8>, std::ops::Range<usize>)> = Vec::new();
+    loop {
+        let name_end = nul(pos).ok_or_else(bad)?;
+        if name_end == pos {
+            break;
+        }
+        let type_end = nul(name_end + 1).ok_or_else(bad)?;
+        let size = bytes
+            .get(type_end + 1..type_end + 5)
+            .and_then(|b| <[u8; 4]>::try_from(b).ok())
+            .map(i32::from_le_bytes)
+            .and_then(|v| usize::try_from(v).ok())
+            .ok_or_else(bad)?;
+        let end = type_end + 5 + size;
+        if end > bytes.len() {
+            return Err(bad());
+        }
+        attrs.push((bytes[pos..name_end].to_vec(), pos..end));
+        pos = end;
+    }
+    attrs.sort_by(|a, b| a.0.cmp(&b.0));
+    let sorted: Vec<u8> = attrs
+        .iter()
+        .flat_map(|(_, r)| bytes[r.clone()].to_vec())
+        .collect();
+    bytes[start..pos].copy_from_slice(&sorted);
+    Ok(())
+}
+
+fn clamp_i32(v: u64) -> i32 {
+    i32::try_from(v).unwrap_or(i32::MAX)
+}
+
+/// Write `map.t` as an 8-bit grayscale PNG: `round(255 clamp(T, 0, 1))` per pixel (linear, no
+/// gamma; black is opaque, white fully transparent), row 0 at the top.
+///
+/// # Errors
+/// [`Error::Output`] as [`write_atomic`], or if the encoder fails.
+pub fn write_png(path: &Path, map: &Map, overwrite: bool) -> Result<()> {
+    let bytes: Vec<u8> = map
+        .t
+        .iter()
+        .map(|&t| {
+            let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+            (t * 255.0).round() as u8
+        })
+        .collect();
+    write_atomic(path, overwrite, |w| {
+        let mut enc = png::Encoder::new(&mut *w, map.camera.width, map.camera.height);
+        enc.set_color(png::ColorType::Grayscale);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut pw = enc
+            .write_header()
+            .map_err(|e| format!("PNG encoder: {e}"))?;
+        pw.write_image_data(&bytes)
+            .map_err(|e| format!("PNG encoder: {e}"))?;
+        pw.finish().map_err(|e| format!("PNG encoder: {e}"))?;
+        w.flush().map_err(|e| format!("writing: {e}"))
+    })
+}

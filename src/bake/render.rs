@@ -1,0 +1,374 @@
+//! The parallel tile renderer: one estimate per pixel (plus adaptive batches and depth slices).
+
+use super::camera::{Camera, MAX_PIXELS};
+use crate::error::{Error, Result};
+use crate::estimate::{estimate, Estimate, Estimator, Options};
+use crate::ray::Ray;
+use crate::volume::Volume;
+use rayon::prelude::*;
+
+/// Tile side in pixels (tiles are the unit of parallel work and of progress).
+const TILE: u32 = 16;
+/// Most adaptive batches per pixel (each doubles the sample count).
+pub const MAX_BATCHES: u32 = 32;
+/// Most depth slices of one map.
+pub const MAX_SLICES: usize = 64;
+
+/// Depths at which extra transmittance channels are baked.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Depths {
+    /// Only the full-depth `T`.
+    None,
+    /// `K` depths evenly spaced across the volume's depth range:
+    /// `t_k = t_near + (t_max - t_near) (k + 1) / K`, `k = 0..K`.
+    Slices(usize),
+    /// Explicit depths (world distance along each ray), strictly increasing, non-negative.
+    At(Vec<f64>),
+}
+
+/// How to bake.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct BakeSettings {
+    /// Estimator of every pixel.
+    pub estimator: Estimator,
+    /// Estimator options; `options.samples` is the samples per pixel (first batch).
+    pub options: Options,
+    /// Adaptive sampling: while a pixel's error bound `sqrt(s^2 + (sqrt(3) / n)^2)` (`s` its
+    /// standard error over `n` samples; the second term is the rule-of-three bound on a rare
+    /// event that n samples all missed) exceeds this, add a batch as large as all its samples
+    /// so far (its total doubles), up to `max_spp`. So a pixel takes at least `sqrt(3) / E`
+    /// samples unless its ray needs no sampling at all.
+    pub target_error: Option<f64>,
+    /// Cap on samples per pixel for adaptive sampling.
+    pub max_spp: u32,
+    /// Extra depth channels.
+    pub depths: Depths,
+    /// Also keep each pixel's standard error (`T.stderr`).
+    pub std_err: bool,
+    /// Worker threads: 0 runs on the current rayon pool, `n` on a local pool of `n` threads.
+    pub threads: usize,
+}
+
+impl BakeSettings {
+    /// Settings for `estimator` with `options`: no adaptivity, no slices, no stderr channel,
+    /// the current thread pool.
+    #[must_use]
+    pub fn new(estimator: Estimator, options: Options) -> Self {
+        Self {
+            estimator,
+            options,
+            target_error: None,
+            max_spp: 65_536,
+            depths: Depths::None,
+            std_err: false,
+            threads: 0,
+        }
+    }
+}
+
+/// What a bake cost.
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct BakeStats {
+    /// Pixels (primary rays).
+    pub rays: u64,
+    /// Samples of the main `T` summed over pixels (`rays` for deterministic estimators).
+    pub samples: u64,
+    /// Density lookups, slices included.
+    pub lookups: u64,
+    /// Samples stopped by the collision cap (biased).
+    pub capped: u64,
+    /// Pixels whose error bound is still above the target (adaptive sampling hit the cap).
+    pub unconverged: u64,
+    /// Largest per-pixel standard error.
+    pub max_std_err: f64,
+    /// Wall time of the render, seconds.
+    pub seconds: f64,
+}
+
+/// A baked map: row-major channels, row 0 at the top, pixel `(i, j)` at index `j W + i`.
+#[derive(Debug, Clone)]
+pub struct Map {
+    /// The camera every pixel's ray comes from.
+    pub camera: Camera,
+    /// The settings it was baked with.
+    pub settings: BakeSettings,
+    /// Transmittance over `[0, t_max]`.
+    pub t: Vec<f32>,
+    /// Standard error of `t`, when asked for.
+    pub std_err: Option<Vec<f32>>,
+    /// Depths of the slices (world distance along each ray).
+    pub depths: Vec<f64>,
+    /// Transmittance over `[0, depths[k]]`, one image per depth.
+    pub slices: Vec<Vec<f32>>,
+    /// Cost.
+    pub stats: BakeStats,
+}
+
+fn bad(name: &str, reason: String) -> Error {
+    Error::InvalidArgument {
+        name: name.into(),
+        reason,
+    }
+}
+
+/// The slice depths `settings` asks for on `camera`.
+fn resolve_depths(depths: &Depths, camera: &Camera) -> Result<Vec<f64>> {
+    match depths {
+        Depths::None => Ok(Vec::new()),
+        Depths::Slices(k) => {
+            if *k == 0 || *k > MAX_SLICES {
+                return Err(bad("slices", format!("{k} is not in 1..={MAX_SLICES}")));
+            }
+            let (a, b) = (camera.t_near, camera.t_max);
+            Ok((1..=*k)
+                .map(|n| a + (b - a) * n as f64 / *k as f64)
+                .collect())
+        }
+        Depths::At(v) => {
+            if v.is_empty() || v.len() > MAX_SLICES {
+                return Err(bad("depths", format!("give 1 to {MAX_SLICES} depths")));
+            }
+            let ok =
+                v.iter().all(|d| d.is_finite() && *d >= 0.0) && v.windows(2).all(|w| w[0] < w[1]);
+            if !ok {
+                return Err(bad(
+                    "depths",
+                    format!("{v:?} must be finite, non-negative and strictly increasing"),
+                ));
+            }
+            Ok(v.clone())
+        }
+    }
+}
+
+/// One pixel's results.
+#[derive(Debug, Clone, Copy, Default)]
+struct Px {
+    t: f64,
+    std_err: f64,
+    samples: u64,
+    lookups: u64,
+    capped: u64,
+    unconverged: bool,
+}
+
+/// Merge two batches' means and squared-deviation sums (Chan et al.).
+fn merge(a: (f64, f64, u64), e: &Estimate) -> (f64, f64, u64) {
+    let (mean, m2, n) = a;
+    let nb = u64::from(e.samples);
+    let m2b = e.std_err * e.std_err * nb as f64 * nb.saturating_sub(1) as f64;
+    let tot = n + nb;
+    let delta = e.value - mean;
+    (
+        mean + delta * nb as f64 / tot as f64,
+        m2 + m2b + delta * delta * (n as f64) * (nb as f64) / tot as f64,
+        tot,
+    )
+}
+
+fn pixel(
+    vol: &Volume,
+    s: &BakeSettings,
+    depths: &[f64],
+    ray: &Ray,
+    p: u64,
+    npix: u64,
+    slices_out: &mut [f32],
+) -> Result<Px> {
+    let e = estimate(vol, ray, p, &s.estimator, &s.options)?;
+    let mut px = Px {
+        t: e.value,
+        std_err: e.std_err,
+        samples: u64::from(e.samples),
+        lookups: e.lookups,
+        capped: e.capped,
+        unconverged: false,
+    };
+    if let Some(target) = s.target_error {
+        let mut acc = merge((0.0, 0.0, 0), &e);
+        px.unconverged = e.samples > 1;
+        let max = u64::from(s.max_spp);
+        let mut b = 1u64;
+        // Stop on sqrt(s^2 + (sqrt(3) / n)^2) <= E: the second term is the rule-of-three
+        // bound on what n samples that all missed a rare event can hide (estimates in [0, 1]),
+        // so n samples that happen to agree (s = 0) do not stop a pixel early.
+        let err = |s: f64, n: u64| s.hypot(3f64.sqrt() / n as f64);
+        while err(px.std_err, acc.2) > target
+            && acc.2 < max
+            && b < u64::from(MAX_BATCHES)
+            && e.samples > 1
+        {
+            let batch = acc.2.min(max - acc.2);
+            let opts = Options {
+                samples: u32::try_from(batch).unwrap_or(u32::MAX),
+                ..s.options
+            };
+            let eb = estimate(vol, ray, b * npix + p, &s.estimator, &opts)?;
+            acc = merge(acc, &eb);
+            px.lookups += eb.lookups;
+            px.capped += eb.capped;
+            px.t = acc.0;
+            px.std_err = (acc.1 / (acc.2 - 1) as f64 / acc.2 as f64).sqrt();
+            px.samples = acc.2;
+            b += 1;
+        }
+        px.unconverged &= err(px.std_err, acc.2) > target;
+    }
+    if depths.is_empty() {
+        return Ok(px);
+    }
+    if s.estimator == Estimator::Regular {
+        // Exact optical depth is additive: trace [t_{k-1}, t_k] once each.
+        let (mut tau, mut t0) = (0.0, 0.0);
+        for (k, &d) in depths.iter().enumerate() {
+            let seg = Ray::new(ray.origin, ray.direction, t0, d)?;
+            let e = estimate(vol, &seg, p, &s.estimator, &s.options)?;
+            tau += e.tau.unwrap_or_else(|| -e.value.ln());
+            px.lookups += e.lookups;
+            slices_out[k] = (-tau).exp() as f32;
+            t0 = d;
+        }
+    } else {
+        let opts = Options {
+            samples: u32::try_from(px.samples).unwrap_or(u32::MAX),
+            ..s.options
+        };
+        for (k, &d) in depths.iter().enumerate() {
+            let seg = Ray::new(ray.origin, ray.direction, 0.0, d)?;
+            let e = estimate(vol, &seg, (64 + k as u64) * npix + p, &s.estimator, &opts)?;
+            px.lookups += e.lookups;
+            px.capped += e.capped;
+            slices_out[k] = e.value as f32;
+        }
+    }
+    Ok(px)
+}
+
+/// Bake a map of `vol` seen by `camera`. `progress` is called (from worker threads) with the
+/// number of pixels each finished tile held.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for bad settings (samples, target error, depths, threads, an
+/// oversized image); estimator errors of any pixel.
+pub fn bake(
+    vol: &Volume,
+    camera: &Camera,
+    settings: &BakeSettings,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Map> {
+    super::check_res(camera.width, camera.height)?;
+    if settings.options.samples == 0 {
+        return Err(bad("spp", "must be at least 1".into()));
+    }
+    if let Some(e) = settings.target_error {
+        if !(e.is_finite() && e > 0.0) {
+            return Err(bad("target-error", format!("{e} is not a positive number")));
+        }
+    }
+    let depths = resolve_depths(&settings.depths, camera)?;
+    let channels = 1 + depths.len() as u64 + u64::from(settings.std_err);
+    if camera.pixels() * channels > MAX_PIXELS {
+        return Err(bad(
+            "res",
+            format!(
+                "{}x{} with {channels} channels is more than {MAX_PIXELS} samples",
+                camera.width, camera.height
+            ),
+        ));
+    }
+    let run = || render(vol, camera, settings, &depths, progress);
+    if settings.threads == 0 {
+        return run();
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(settings.threads)
+        .build()
+        .map_err(|e| bad("threads", e.to_string()))?
+        .install(run)
+}
+
+struct Tile {
+    x0: u32,
+    y0: u32,
+    w: u32,
+    h: u32,
+    px: Vec<Px>,
+    slices: Vec<f32>,
+}
+
+fn render(
+    vol: &Volume,
+    camera: &Camera,
+    s: &BakeSettings,
+    depths: &[f64],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Map> {
+    let start = std::time::Instant::now();
+    let (w, h) = (camera.width, camera.height);
+    let npix = camera.pixels();
+    let k = depths.len();
+    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
+        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
+        .collect();
+    let done: Vec<Tile> = tiles
+        .par_iter()
+        .map(|&(x0, y0)| {
+            let (tw, th) = (TILE.min(w - x0), TILE.min(h - y0));
+            let mut t = Tile {
+                x0,
+                y0,
+                w: tw,
+                h: th,
+                px: Vec::with_capacity((tw * th) as usize),
+                slices: vec![0.0; (tw * th) as usize * k],
+            };
+            for j in y0..y0 + th {
+                for i in x0..x0 + tw {
+                    let n = t.px.len();
+                    let ray = camera.pixel_ray(i, j)?;
+                    let p = u64::from(j) * u64::from(w) + u64::from(i);
+                    let out = &mut t.slices[n * k..(n + 1) * k];
+                    t.px.push(pixel(vol, s, depths, &ray, p, npix, out)?);
+                }
+            }
+            progress(u64::from(tw * th));
+            Ok(t)
+        })
+        .collect::<Result<_>>()?;
+    let len = npix as usize;
+    let mut map = Map {
+        camera: *camera,
+        settings: s.clone(),
+        t: vec![0.0; len],
+        std_err: s.std_err.then(|| vec![0.0; len]),
+        depths: depths.to_vec(),
+        slices: vec![vec![0.0; len]; k],
+        stats: BakeStats {
+            rays: npix,
+            ..BakeStats::default()
+        },
+    };
+    for t in &done {
+        for (n, px) in t.px.iter().enumerate() {
+            let (i, j) = (t.x0 + n as u32 % t.w, t.y0 + n as u32 / t.w);
+            let idx = j as usize * w as usize + i as usize;
+            map.t[idx] = px.t as f32;
+            if let Some(e) = map.std_err.as_mut() {
+                e[idx] = px.std_err as f32;
+            }
+            for (c, slice) in map.slices.iter_mut().enumerate() {
+                slice[idx] = t.slices[n * k + c];
+            }
+            let st = &mut map.stats;
+            st.samples += px.samples;
+            st.lookups += px.lookups;
+            st.capped += px.capped;
+            st.max_std_err = st.max_std_err.max(px.std_err);
+            st.unconverged += u64::from(px.unconverged);
+        }
+        debug_assert_eq!(t.px.len(), (t.w * t.h) as usize);
+    }
+    map.stats.seconds = start.elapsed().as_secs_f64();
+    Ok(map)
+}

@@ -1,0 +1,267 @@
+//! `umbra bake`: transmittance / shadow maps from a light, written to OpenEXR.
+
+use crate::cmd_query::{load_volume, parse_vec3, EstimatorArgs, InterpArg};
+use anyhow::{bail, Context, Result};
+use std::io::{IsTerminal, Write};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use umbra::bake::{
+    bake, check_target, slice_channel, volume_corners, write_exr, write_png, BakeSettings, Camera,
+    Depths, Map, Projection, Provenance, View,
+};
+use umbra::Interp;
+
+/// Arguments of `umbra bake`.
+#[derive(Debug, clap::Args)]
+pub struct BakeArgs {
+    /// The .vdb file.
+    file: PathBuf,
+    /// Grid to trace (display name such as `density[1]`, or the stored name).
+    #[arg(long, default_value = "density")]
+    grid: String,
+    /// Direction the light travels, DX,DY,DZ: an orthographic map framing the volume box.
+    /// With --light-pos it aims the perspective map.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    light_dir: Option<[f64; 3]>,
+    /// Light position X,Y,Z: a perspective map from the light (aimed at the volume box centre
+    /// unless --light-dir is given).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    light_pos: Option<[f64; 3]>,
+    /// With --light-pos: an orthographic map whose image plane passes through the light.
+    #[arg(long)]
+    ortho: bool,
+    /// Perspective field of view across the longer image side, degrees (default: just holds
+    /// the volume box).
+    #[arg(long)]
+    fov: Option<f64>,
+    /// Output OpenEXR file (written atomically).
+    #[arg(short, long)]
+    output: PathBuf,
+    /// Resolution WxH (default: 1024 on the long side, the framed box's aspect).
+    #[arg(long)]
+    res: Option<String>,
+    /// Overwrite existing outputs.
+    #[arg(long)]
+    force: bool,
+    /// Also write an 8-bit grayscale PNG preview of T here.
+    #[arg(long)]
+    preview: Option<PathBuf>,
+    /// K extra channels `sliceNN.T`: T at K depths evenly spaced across the volume's depth range.
+    #[arg(long)]
+    slices: Option<usize>,
+    /// Extra channels `sliceNN.T` at these depths (world distance along each ray): a,b,c.
+    #[arg(long)]
+    depths: Option<String>,
+    /// Also write each pixel's standard error (`T.stderr`).
+    #[arg(long)]
+    stderr: bool,
+    /// Adaptive sampling: double a pixel's samples until its standard error is below E.
+    #[arg(long)]
+    target_error: Option<f64>,
+    /// Cap on samples per pixel for --target-error.
+    #[arg(long, default_value_t = 65_536)]
+    max_spp: u32,
+    /// How the density between voxel centres is defined.
+    #[arg(long, value_enum, default_value = "trilinear")]
+    interp: InterpArg,
+    /// mu_t = S x value, per world unit.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f64,
+    /// Worker threads (0: all cores).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
+    /// No progress bar.
+    #[arg(long, short)]
+    quiet: bool,
+    /// Print a JSON summary on stdout.
+    #[arg(long)]
+    json: bool,
+    #[command(flatten)]
+    est: EstimatorArgs,
+}
+
+/// Parse `WxH`.
+fn parse_res(s: &str) -> Result<(u32, u32)> {
+    let parsed = s
+        .split_once(['x', 'X'])
+        .and_then(|(w, h)| Some((w.trim().parse().ok()?, h.trim().parse().ok()?)));
+    match parsed {
+        Some((w, h)) => {
+            umbra::bake::check_res(w, h)?;
+            Ok((w, h))
+        }
+        None => bail!("--res '{s}': expected WxH, two whole numbers such as 1024x768"),
+    }
+}
+
+fn parse_depths(s: &str) -> Result<Vec<f64>> {
+    s.split(',')
+        .map(|c| {
+            c.trim()
+                .parse::<f64>()
+                .with_context(|| format!("--depths: '{c}' is not a number"))
+        })
+        .collect()
+}
+
+/// The camera request the arguments make.
+fn view(a: &BakeArgs) -> Result<View> {
+    let projection = match (a.light_dir, a.light_pos) {
+        (None, None) => bail!(
+            "give --light-dir DX,DY,DZ (orthographic map) or --light-pos X,Y,Z (perspective map)"
+        ),
+        (_, Some(_)) if !a.ortho => Projection::Perspective,
+        _ => Projection::Ortho,
+    };
+    if a.fov.is_some() && projection == Projection::Ortho {
+        bail!("--fov applies to perspective maps (--light-pos without --ortho)");
+    }
+    Ok(View {
+        projection,
+        light_dir: a.light_dir,
+        light_pos: a.light_pos,
+        fov_deg: a.fov,
+        res: a.res.as_deref().map(parse_res).transpose()?,
+    })
+}
+
+/// Bake, write, report.
+pub fn run(a: &BakeArgs) -> Result<ExitCode> {
+    let total = std::time::Instant::now();
+    let view = view(a)?;
+    let depths = match (a.slices, &a.depths) {
+        (Some(_), Some(_)) => bail!("give --slices K or --depths a,b,c, not both"),
+        (Some(k), None) => Depths::Slices(k),
+        (None, Some(d)) => Depths::At(parse_depths(d)?),
+        (None, None) => Depths::None,
+    };
+    check_target(&a.output, a.force)?;
+    if let Some(p) = &a.preview {
+        check_target(p, a.force)?;
+        if *p == a.output {
+            bail!("--preview and -o name the same file");
+        }
+    }
+    let interp: Interp = a.interp.into();
+    let (estimator, options) = a.est.resolve(interp)?;
+    let vol = load_volume(&a.file, &a.grid, a.density_scale)?;
+    let camera = Camera::frame(&view, &volume_corners(&vol)?)?;
+    let settings = BakeSettings {
+        target_error: a.target_error,
+        max_spp: a.max_spp,
+        depths,
+        std_err: a.stderr,
+        threads: a.threads,
+        ..BakeSettings::new(estimator, options)
+    };
+    let bar = if a.quiet || !std::io::stderr().is_terminal() {
+        indicatif::ProgressBar::hidden()
+    } else {
+        let style = indicatif::ProgressStyle::with_template(
+            "{spinner} baking [{bar:40}] {percent}% {human_pos}/{human_len} px, {per_sec}, eta {eta}",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> ");
+        indicatif::ProgressBar::new(camera.pixels()).with_style(style)
+    };
+    let map = bake(&vol, &camera, &settings, &|n| bar.inc(n))?;
+    bar.finish_and_clear();
+    let prov = Provenance {
+        source_file: a.file.display().to_string(),
+        grid: vol.name.clone(),
+        density_scale: a.density_scale,
+        light_dir: a.light_dir,
+        light_pos: a.light_pos,
+    };
+    write_exr(&a.output, &map, &prov, a.force)?;
+    if let Some(p) = &a.preview {
+        write_png(p, &map, a.force)?;
+    }
+    report(a, &map, &prov, total.elapsed().as_secs_f64())?;
+    if map.stats.capped > 0 {
+        eprintln!(
+            "umbra: warning: {} samples hit the collision cap (biased)",
+            map.stats.capped
+        );
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> {
+    let c = &map.camera;
+    let st = &map.stats;
+    let rays_per_second = st.rays as f64 / st.seconds.max(1e-9);
+    let mean_spp = st.samples as f64 / st.rays.max(1) as f64;
+    let n = map.t.len().max(1) as f64;
+    let t_mean = map.t.iter().map(|&t| f64::from(t)).sum::<f64>() / n;
+    let t_min = map.t.iter().copied().fold(f32::INFINITY, f32::min);
+    let t_max = map.t.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let mut channels = vec!["T".to_string()];
+    if map.std_err.is_some() {
+        channels.push("T.stderr".into());
+    }
+    channels.extend((0..map.slices.len()).map(slice_channel));
+    let threads = if a.threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        a.threads
+    };
+    let s = &map.settings;
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        let v = serde_json::json!({
+            "output": a.output, "preview": a.preview, "file": prov.source_file, "grid": prov.grid,
+            "width": c.width, "height": c.height,
+            "camera": {
+                "kind": c.kind, "origin": c.origin, "step_x": c.step_x, "step_y": c.step_y,
+                "direction": c.direction, "t_max": c.t_max,
+            },
+            "light_dir": prov.light_dir, "light_pos": prov.light_pos,
+            "fov_deg": c.fov_deg().map(|f| [f.0, f.1]),
+            "channels": channels, "depths": map.depths,
+            "estimator": s.estimator.name(), "interp": s.options.interp,
+            "spp": s.options.samples, "target_error": s.target_error, "max_spp": s.max_spp,
+            "seed": s.options.seed, "density_scale": prov.density_scale, "threads": threads,
+            "seconds": st.seconds, "total_seconds": total, "rays": st.rays,
+            "rays_per_second": rays_per_second, "mean_spp": mean_spp, "lookups": st.lookups,
+            "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
+            "capped": st.capped, "unconverged": st.unconverged, "max_std_err": st.max_std_err,
+            "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
+        });
+        writeln!(out, "{v}")?;
+    } else {
+        writeln!(
+            out,
+            "{}: {}x{} {} map of {}:{} ({}), T in [{t_min:.4}, {t_max:.4}], mean {t_mean:.4}",
+            a.output.display(),
+            c.width,
+            c.height,
+            match c.kind {
+                Projection::Ortho => "ortho",
+                Projection::Perspective => "perspective",
+            },
+            prov.source_file,
+            prov.grid,
+            channels.join(", "),
+        )?;
+        writeln!(
+            out,
+            "{:.3} s on {threads} threads, {:.0} rays/s, {}, {mean_spp:.1} spp, {:.0} lookups/ray",
+            st.seconds,
+            rays_per_second,
+            s.estimator.name(),
+            st.lookups as f64 / st.rays.max(1) as f64
+        )?;
+        if st.unconverged > 0 {
+            writeln!(
+                out,
+                "{} pixels stopped at --max-spp above the target error (largest std_err {:.2e})",
+                st.unconverged, st.max_std_err
+            )?;
+        }
+        if let Some(p) = &a.preview {
+            writeln!(out, "preview: {}", p.display())?;
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,315 @@
+//! Baked maps read back from the EXR (exr crate) against exact answers: an analytic box medium
+//! pixel by pixel (ortho and perspective, with a non-zero background), the sample cloud against
+//! exact regular tracking, depth slices, adaptive sampling, thread-count determinism and the
+//! standard matrices.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+mod bake_support;
+
+use bake_support::{box_volume, ortho, prov, read_exr, regular, Exr};
+use std::path::Path;
+use umbra::bake::{
+    bake, volume_corners, write_exr, BakeSettings, Camera, Depths, Map, Projection, View,
+};
+use umbra::estimate::{Estimator, Options};
+use umbra::ray::clip_box;
+use umbra::regular::optical_depth;
+use umbra::{Interp, Ray, Volume};
+
+fn bake_to(dir: &Path, name: &str, vol: &Volume, cam: &Camera, s: &BakeSettings) -> (Map, Exr) {
+    let map = bake(vol, cam, s, &|_| {}).unwrap();
+    let p = dir.join(name);
+    write_exr(&p, &map, &prov(vol), false).unwrap();
+    let exr = read_exr(&p);
+    (map, exr)
+}
+
+/// Exact tau of a ray through the box medium: mu_bg (t_max - L) + mu L, L the chord.
+fn box_tau(vol: &Volume, r: &Ray) -> f64 {
+    let chord = clip_box(
+        vol.to_index(r.origin),
+        vol.to_index_dir(r.direction),
+        [-0.5; 3],
+        [127.5; 3],
+    )
+    .map_or(0.0, |(a, b)| (b.min(r.t_max) - a.max(r.t_min)).max(0.0));
+    0.125 * (r.t_max - r.t_min - chord) + chord
+}
+
+#[test]
+fn analytic_box_ortho_and_perspective_pixel_by_pixel() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = box_volume();
+    let corners = volume_corners(&vol).unwrap();
+    let persp = View {
+        projection: Projection::Perspective,
+        light_dir: None,
+        light_pos: Some([9.0, 14.0, -6.0]),
+        fov_deg: None,
+        res: Some((40, 30)),
+    };
+    for (n, view) in [ortho([0.3, -1.0, 0.45], 64, 48), persp].iter().enumerate() {
+        let cam = Camera::frame(view, &corners).unwrap();
+        let (map, exr) = bake_to(
+            dir.path(),
+            &format!("box{n}.exr"),
+            &vol,
+            &cam,
+            &regular(Interp::Nearest),
+        );
+        assert_eq!((exr.w, exr.h), (cam.width as usize, cam.height as usize));
+        let t = &exr.ch["T"];
+        let (mut worst, mut inside) = (0.0f64, 0);
+        for j in 0..exr.h {
+            for i in 0..exr.w {
+                let r = exr.ray(i, j);
+                let tau = box_tau(&vol, &r);
+                inside += usize::from(tau > 0.125 * r.t_max + 1e-9);
+                let d = (f64::from(t[j * exr.w + i]) - (-tau).exp()).abs();
+                worst = worst.max(d);
+                assert!(
+                    d < 2e-6,
+                    "{view:?} pixel ({i},{j}): {} vs {}",
+                    t[j * exr.w + i],
+                    (-tau).exp()
+                );
+            }
+        }
+        // The box is framed: most pixels see it, and the border pixels only see background.
+        assert!(inside > exr.w * exr.h / 4, "{inside} pixels hit the box");
+        assert_eq!(map.t, *t);
+        eprintln!("{:?}: worst |T - exact| = {worst:.2e}", cam.kind);
+    }
+}
+
+#[test]
+fn cloud_map_matches_exact_regular_tracking_per_pixel() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = Volume::load("data/cloud.vdb", "density", 2.0).unwrap();
+    let cam = Camera::frame(
+        &ortho([-1.0, -1.0, 0.3], 48, 40),
+        &volume_corners(&vol).unwrap(),
+    )
+    .unwrap();
+    let (_, exr) = bake_to(
+        dir.path(),
+        "cloud.exr",
+        &vol,
+        &cam,
+        &regular(Interp::Trilinear),
+    );
+    let t = &exr.ch["T"];
+    let mut worst = 0.0f64;
+    for j in 0..exr.h {
+        for i in 0..exr.w {
+            let od = optical_depth(&vol, &exr.ray(i, j), Interp::Trilinear).unwrap();
+            let want = od.transmittance() as f32;
+            worst = worst.max(f64::from((t[j * exr.w + i] - want).abs()));
+        }
+    }
+    assert!(worst <= 1e-6, "worst {worst}");
+    let min = t.iter().copied().fold(1.0f32, f32::min);
+    assert!(
+        min < 0.1,
+        "the cloud should cast a dark shadow, min T = {min}"
+    );
+}
+
+#[test]
+fn slices_are_prefix_transmittances() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = Volume::load("data/cloud.vdb", "density", 1.0).unwrap();
+    let cam = Camera::frame(
+        &ortho([0.2, -1.0, 0.1], 24, 20),
+        &volume_corners(&vol).unwrap(),
+    )
+    .unwrap();
+    let s = BakeSettings {
+        depths: Depths::Slices(4),
+        ..regular(Interp::Trilinear)
+    };
+    let (map, exr) = bake_to(dir.path(), "slices.exr", &vol, &cam, &s);
+    assert_eq!(map.depths.len(), 4);
+    assert!((map.depths[3] - cam.t_max).abs() < 1e-12);
+    for (k, &d) in map.depths.iter().enumerate() {
+        assert_eq!(exr.f64(&format!("depth.{k:02}")), d);
+        let ch = &exr.ch[&format!("slice{k:02}.T")];
+        for j in 0..exr.h {
+            for i in 0..exr.w {
+                let mut r = exr.ray(i, j);
+                r.t_max = d;
+                let want = optical_depth(&vol, &r, Interp::Trilinear)
+                    .unwrap()
+                    .transmittance();
+                let got = f64::from(ch[j * exr.w + i]);
+                assert!(
+                    (got - want).abs() < 1e-6,
+                    "slice {k} ({i},{j}): {got} vs {want}"
+                );
+                if k > 0 {
+                    let prev = exr.ch[&format!("slice{:02}.T", k - 1)][j * exr.w + i];
+                    assert!(got <= f64::from(prev) + 1e-7);
+                }
+            }
+        }
+    }
+    // The deepest slice is the full T.
+    let full = &exr.ch["T"];
+    let last = &exr.ch["slice03.T"];
+    assert!(full.iter().zip(last).all(|(a, b)| (a - b).abs() < 1e-6));
+}
+
+#[test]
+fn adaptive_sampling_reaches_the_target_error_and_stays_unbiased() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = Volume::load("data/cloud.vdb", "density", 1.0).unwrap();
+    let cam = Camera::frame(
+        &ortho([0.0, -1.0, 0.0], 16, 16),
+        &volume_corners(&vol).unwrap(),
+    )
+    .unwrap();
+    let s = BakeSettings {
+        target_error: Some(0.02),
+        std_err: true,
+        ..BakeSettings::new(
+            Estimator::Ratio,
+            Options {
+                samples: 8,
+                seed: 3,
+                ..Options::default()
+            },
+        )
+    };
+    let (map, exr) = bake_to(dir.path(), "adaptive.exr", &vol, &cam, &s);
+    assert_eq!(map.stats.unconverged, 0);
+    let (t, e) = (&exr.ch["T"], &exr.ch["T.stderr"]);
+    assert!(e.iter().all(|&x| x <= 0.02));
+    assert!(
+        map.stats.samples > 8 * map.stats.rays,
+        "no pixel needed more samples?"
+    );
+    // Sequential stopping on a sample variance is slightly optimistic on heavy-tailed pixels,
+    // so allow a tenth of the target on top of 4 standard errors, and 2 outliers in 256.
+    let (mut far, mut sum_diff, mut sum_var) = (0, 0.0, 0.0);
+    for j in 0..exr.h {
+        for i in 0..exr.w {
+            let exact = optical_depth(&vol, &exr.ray(i, j), Interp::Trilinear)
+                .unwrap()
+                .transmittance();
+            let n = j * exr.w + i;
+            let (diff, err) = (f64::from(t[n]) - exact, f64::from(e[n]));
+            sum_diff += diff;
+            sum_var += err * err;
+            if diff.abs() > 4.0 * err + 0.002 {
+                eprintln!("({i},{j}) T {} exact {exact} stderr {err}", t[n]);
+                far += 1;
+            }
+        }
+    }
+    assert!(
+        sum_diff.abs() < 4.0 * sum_var.sqrt(),
+        "mean bias {sum_diff} vs {}",
+        sum_var.sqrt()
+    );
+    assert!(
+        far <= 2,
+        "{far} of 256 pixels further than 4 std_err from exact"
+    );
+}
+
+#[test]
+fn one_and_two_threads_write_identical_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = Volume::load("data/cloud.vdb", "density", 1.5).unwrap();
+    let cam = Camera::frame(
+        &ortho([-1.0, -0.5, 0.2], 40, 33),
+        &volume_corners(&vol).unwrap(),
+    )
+    .unwrap();
+    for est in [Estimator::Regular, Estimator::Ratio] {
+        let mut files = Vec::new();
+        for threads in [1, 2, 0] {
+            let s = BakeSettings {
+                threads,
+                target_error: Some(0.05),
+                std_err: true,
+                depths: Depths::At(vec![1.0, 2.5]),
+                ..BakeSettings::new(
+                    est,
+                    Options {
+                        samples: 4,
+                        seed: 11,
+                        ..Options::default()
+                    },
+                )
+            };
+            let p = dir.path().join(format!("{}-{threads}.exr", est.name()));
+            let map = bake(&vol, &cam, &s, &|_| {}).unwrap();
+            let s0 = BakeSettings { threads: 1, ..s };
+            write_exr(
+                &p,
+                &Map {
+                    settings: s0,
+                    ..map
+                },
+                &prov(&vol),
+                false,
+            )
+            .unwrap();
+            files.push(std::fs::read(&p).unwrap());
+            eprintln!("{threads}: {:?}", read_exr(&p).ch["T"][..4].to_vec());
+        }
+        assert!(
+            files.windows(2).all(|w| w[0] == w[1]),
+            "{} differs across threads",
+            est.name()
+        );
+    }
+}
+
+#[test]
+fn standard_matrices_map_pixel_rays_to_their_pixels() {
+    let dir = tempfile::tempdir().unwrap();
+    let vol = box_volume();
+    let corners = volume_corners(&vol).unwrap();
+    let persp = View {
+        projection: Projection::Perspective,
+        light_dir: Some([-0.5, -1.0, 0.7]),
+        light_pos: Some([9.0, 14.0, -6.0]),
+        fov_deg: Some(50.0),
+        res: Some((20, 12)),
+    };
+    for (n, view) in [ortho([1.0, 0.2, -0.3], 20, 12), persp].iter().enumerate() {
+        let cam = Camera::frame(view, &corners).unwrap();
+        let (_, exr) = bake_to(
+            dir.path(),
+            &format!("m{n}.exr"),
+            &vol,
+            &cam,
+            &regular(Interp::Nearest),
+        );
+        let ndc = exr.attrs.world_to_normalized_device.unwrap();
+        let w2c = exr.attrs.world_to_camera.unwrap();
+        for (i, j) in [(0, 0), (19, 0), (0, 11), (7, 5), (19, 11)] {
+            let r = exr.ray(i, j);
+            let p = r.at(0.6 * r.t_max);
+            // Row-vector convention: [x y z 1] * M.
+            let mul = |m: &[f32; 16], c: usize| {
+                (0..4)
+                    .map(|k| [p[0], p[1], p[2], 1.0][k] * f64::from(m[4 * k + c]))
+                    .sum::<f64>()
+            };
+            let w = mul(&ndc, 3);
+            let (x, y) = (mul(&ndc, 0) / w, mul(&ndc, 1) / w);
+            assert!(
+                (x - (i as f64 + 0.5) / 20.0).abs() < 1e-4,
+                "{n} ({i},{j}) x {x}"
+            );
+            assert!(
+                (y - (j as f64 + 0.5) / 12.0).abs() < 1e-4,
+                "{n} ({i},{j}) y {y}"
+            );
+            assert!(mul(&w2c, 2) > 0.0, "camera z is forward");
+        }
+    }
+}

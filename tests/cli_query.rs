@@ -1,0 +1,317 @@
+//! `umbra query` modes: `--at` toward a directional or point light, `--rays` CSV batches (input
+//! order, per-line errors, thread-count independence, stdin), and bad arguments.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use assert_cmd::Command;
+use serde_json::Value;
+use umbra::regular::optical_depth;
+use umbra::{Interp, Ray, Volume};
+
+fn umbra() -> Command {
+    Command::cargo_bin("umbra").unwrap()
+}
+
+/// Run `umbra query FILE ARGS --json`; (exit code, one JSON value per stdout line, stderr).
+fn query(file: &str, args: &[&str], stdin: Option<&str>) -> (i32, Vec<Value>, String) {
+    let mut c = umbra();
+    c.args(["query", file, "--json"]).args(args);
+    if let Some(s) = stdin {
+        c.write_stdin(s);
+    }
+    let o = c.output().unwrap();
+    let lines = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    (
+        o.status.code().unwrap(),
+        lines,
+        String::from_utf8_lossy(&o.stderr).into_owned(),
+    )
+}
+
+fn t(v: &Value) -> f64 {
+    v["T"].as_f64().unwrap()
+}
+
+fn csv(p: [f64; 3]) -> String {
+    format!("{},{},{}", p[0], p[1], p[2])
+}
+
+#[test]
+fn at_light_dir_traces_to_the_volume_edge() {
+    let at = [0.1, 1.4, -0.2];
+    let d = [-1.0, -1.5, 0.5];
+    let (code, a, _) = query(
+        "data/cloud.vdb",
+        &["--at", &csv(at), "--light-dir", &csv(d)],
+        None,
+    );
+    assert_eq!(code, 0);
+    let len = a[0]["length"].as_f64().unwrap();
+    assert!(len > 0.5 && len < 10.0, "{len}");
+    // The same segment written out, and a much longer one (zero background: nothing more).
+    let n = (d.iter().map(|v| v * v).sum::<f64>()).sqrt();
+    let end = |l: f64| std::array::from_fn(|k| at[k] - l * d[k] / n);
+    for l in [len, 100.0] {
+        let (_, b, _) = query(
+            "data/cloud.vdb",
+            &[
+                &format!("--from={}", csv(at)),
+                &format!("--to={}", csv(end(l))),
+            ],
+            None,
+        );
+        assert!(
+            (t(&a[0]) - t(&b[0])).abs() < 1e-12,
+            "{} vs {}",
+            t(&a[0]),
+            t(&b[0])
+        );
+    }
+    assert!(t(&a[0]) < 0.99, "the point is inside the cloud");
+    // A non-zero background: the ray still ends (finite tau), where the volume box ends.
+    let (code, c, err) = query(
+        "data/bg_multi.vdb",
+        &[
+            "--grid",
+            "density",
+            "--at",
+            "0,2,0",
+            "--light-dir",
+            "1,0.2,0",
+        ],
+        None,
+    );
+    if code == 0 {
+        let tau = c[0]["tau"].as_f64().unwrap();
+        assert!(tau.is_finite() && tau > 0.0, "{tau}");
+    } else {
+        panic!("{err}");
+    }
+}
+
+#[test]
+fn at_light_pos_is_the_segment_to_the_light() {
+    let (at, light) = ([0.3, 1.5, 0.1], [4.0, 5.0, -2.0]);
+    let (code, a, _) = query(
+        "data/cloud.vdb",
+        &[
+            "--at",
+            &csv(at),
+            "--light-pos",
+            &csv(light),
+            "--density-scale",
+            "3",
+        ],
+        None,
+    );
+    assert_eq!(code, 0);
+    let (_, b, _) = query(
+        "data/cloud.vdb",
+        &[
+            &format!("--from={}", csv(at)),
+            &format!("--to={}", csv(light)),
+            "--density-scale",
+            "3",
+        ],
+        None,
+    );
+    assert_eq!(t(&a[0]), t(&b[0]));
+}
+
+/// A CSV data row: its line number and segment, or `None` for a bad line.
+type Row = Option<(usize, [f64; 6])>;
+
+/// 150 segments through the cloud from a fixed LCG, with bad lines at known places.
+fn batch() -> (String, Vec<Row>) {
+    let mut s = 12345u64;
+    let mut r = || {
+        s = s
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (s >> 11) as f64 / (1u64 << 53) as f64
+    };
+    let mut text = String::from("# a comment\nox, oy, oz, ex, ey, ez\n");
+    let mut rows = Vec::new();
+    for n in 0..150 {
+        let line = text.lines().count() + 1;
+        match n {
+            7 => text.push_str("1,2,three,4,5,6\n"),
+            40 => text.push_str("1,2,3,4,5\n"),
+            41 => text.push('\n'),
+            90 => text.push_str("nan,0,0,1,1,1\n"),
+            _ => {
+                let v: [f64; 6] = std::array::from_fn(|k| {
+                    if k % 3 == 1 {
+                        0.2 + 3.0 * r()
+                    } else {
+                        4.0 * r() - 2.0
+                    }
+                });
+                text.push_str(&format!(
+                    "{},{},{},{},{},{}\n",
+                    v[0], v[1], v[2], v[3], v[4], v[5]
+                ));
+                rows.push(Some((line, v)));
+                continue;
+            }
+        }
+        if n != 41 {
+            rows.push(None);
+        }
+    }
+    (text, rows)
+}
+
+#[test]
+fn rays_batch_answers_in_order_with_per_line_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let (text, rows) = batch();
+    let f = dir.path().join("rays.csv");
+    std::fs::write(&f, &text).unwrap();
+    let vol = Volume::load("data/cloud.vdb", "density", 1.0).unwrap();
+    let mut outs = Vec::new();
+    for threads in ["1", "2"] {
+        let (code, out, err) = query(
+            "data/cloud.vdb",
+            &["--rays", f.to_str().unwrap(), "--threads", threads],
+            None,
+        );
+        assert_eq!(code, 2, "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(
+            err.starts_with("umbra: error: 3 of 149 queries failed (first: line 10: oz = 'three'"),
+            "{err}"
+        );
+        assert_eq!(out.len(), rows.len());
+        for (o, row) in out.iter().zip(&rows) {
+            match row {
+                None => assert!(o["error"].is_string(), "{o}"),
+                Some((line, v)) => {
+                    assert_eq!(o["line"].as_u64().unwrap() as usize, *line);
+                    let ray = Ray::between([v[0], v[1], v[2]], [v[3], v[4], v[5]]).unwrap();
+                    let want = optical_depth(&vol, &ray, Interp::Trilinear).unwrap();
+                    let tau = o["tau"].as_f64().unwrap();
+                    assert!(
+                        (tau - want.tau).abs() <= 1e-14 * want.tau.max(1.0),
+                        "{tau} vs {}",
+                        want.tau
+                    );
+                    for k in ["T", "std_err", "tau", "lookups", "estimator", "seconds"] {
+                        assert!(!o[k].is_null() || k == "tau", "{k} missing in {o}");
+                    }
+                }
+            }
+        }
+        outs.push(out);
+    }
+    // Stochastic answers do not depend on the thread count, and row n is ray id n.
+    let est = ["--estimator", "ratio", "--samples", "8", "--seed", "4"];
+    let mut ts = Vec::new();
+    for threads in ["1", "2"] {
+        let (_, out, _) = query(
+            "data/cloud.vdb",
+            &[&["--rays", "-", "--threads", threads][..], &est[..]].concat(),
+            Some(&text),
+        );
+        ts.push(out.iter().map(|o| o["T"].clone()).collect::<Vec<_>>());
+    }
+    assert_eq!(ts[0], ts[1]);
+    let (n, (_, v)) = rows
+        .iter()
+        .enumerate()
+        .filter_map(|(n, r)| r.map(|r| (n, r)))
+        .nth(20)
+        .unwrap();
+    let (_, single, _) = query(
+        "data/cloud.vdb",
+        &[
+            &[
+                &format!("--from={},{},{}", v[0], v[1], v[2]) as &str,
+                &format!("--to={},{},{}", v[3], v[4], v[5]),
+                "--ray-id",
+                &n.to_string(),
+            ][..],
+            &est[..],
+        ]
+        .concat(),
+        None,
+    );
+    assert_eq!(single[0]["T"], ts[0][n]);
+}
+
+#[test]
+fn plain_batch_output_names_lines() {
+    let o = umbra()
+        .args(["query", "data/cloud.vdb", "--rays", "-"])
+        .write_stdin("ox,oy,oz,ex,ey,ez\n-3,1.5,0,3,1.5,0\nx\n")
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    let lines: Vec<&str> = out.lines().collect();
+    assert_eq!(o.status.code(), Some(2));
+    assert!(lines[0].starts_with("line 2: T = "), "{out}");
+    assert!(
+        lines[1].starts_with("line 3: error: expected 6 fields"),
+        "{out}"
+    );
+}
+
+#[test]
+fn bad_query_arguments_are_one_line_errors() {
+    let cases: [(&[&str], Option<&str>, &str); 9] = [
+        (&["--from", "0,0,0"], None, "go together"),
+        (&["--at", "0,0,0"], None, "--at needs"),
+        (
+            &[
+                "--at",
+                "0,0,0",
+                "--light-dir",
+                "1,0,0",
+                "--light-pos",
+                "1,1,1",
+            ],
+            None,
+            "not both",
+        ),
+        (&["--light-dir", "1,0,0"], None, "exactly one"),
+        (
+            &["--from", "0,0,0", "--to", "1,1,1", "--rays", "-"],
+            Some("ox,oy,oz,ex,ey,ez\n"),
+            "exactly one",
+        ),
+        (&[], None, "exactly one"),
+        (
+            &["--at", "0,0,0", "--light-dir", "0,0,0"],
+            None,
+            "has no length",
+        ),
+        (
+            &["--rays", "-"],
+            Some("a,b,c\n1,2,3\n"),
+            "is not the six columns",
+        ),
+        (&["--rays", "-"], Some("\n# nothing\n"), "no header"),
+    ];
+    for (args, stdin, want) in cases {
+        let mut c = umbra();
+        c.args(["query", "data/cloud.vdb"]).args(args);
+        if let Some(s) = stdin {
+            c.write_stdin(s);
+        }
+        let o = c.output().unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{args:?}: {err}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        assert!(
+            err.starts_with("umbra: error: ") && err.contains(want),
+            "{args:?}: {err}"
+        );
+    }
+    let o = umbra()
+        .args(["query", "data/cloud.vdb", "--rays", "/no/such.csv"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+}
