@@ -2,6 +2,7 @@
 //! `bake` writes transmittance (shadow) maps.
 
 mod cmd_bake;
+mod cmd_batch;
 mod cmd_info;
 mod cmd_query;
 
@@ -38,6 +39,8 @@ enum Command {
     Query(cmd_query::QueryArgs),
     /// Bake a transmittance (shadow) map seen from a light into an OpenEXR file.
     Bake(cmd_bake::BakeArgs),
+    /// Run a batch job file: many inputs x many lights, resumable, shardable for farms.
+    Batch(cmd_batch::BatchArgs),
 }
 
 fn main() -> ExitCode {
@@ -63,5 +66,6 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Info { file, json, grid } => cmd_info::run(&file, json, grid.as_deref()),
         Command::Query(args) => cmd_query::run(&args),
         Command::Bake(args) => cmd_bake::run(&args),
+        Command::Batch(args) => cmd_batch::run(&args),
     }
 }

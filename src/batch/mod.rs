@@ -1,0 +1,606 @@
+//! Batch jobs: a TOML job file (inputs x lights, bake settings, an output pattern) expanded into
+//! tasks in a deterministic order, sharded for farms, resumed by output age, and logged as JSON
+//! lines.
+//!
+//! **Job file.** Relative paths are relative to the job file's directory, so a job runs the same
+//! from any working directory (what a farm needs):
+//!
+//! ```toml
+//! grid = "density"
+//! output = "out/shadow_{light}.{frame:04}.exr"   # {light}, {frame}, {frame:0N}, {stem}
+//!
+//! [[inputs]]
+//! pattern = "cache/cloud.####.vdb"               # or cloud.$F4.vdb; frames inclusive
+//! frames = [1, 100]
+//!
+//! [[inputs]]
+//! file = "hero.vdb"                              # an explicit file (frame: none)
+//!
+//! [[lights]]
+//! name = "sun"
+//! dir = [0.3, -1.0, 0.2]                         # directional: direction the light travels
+//!
+//! [[lights]]
+//! name = "lamp"
+//! pos = [0.0, 4.0, 0.0]                          # point light
+//!
+//! [bake]
+//! res = [512, 512]
+//! estimator = "regular"
+//! spp = 64
+//! seed = 0
+//! density_scale = 1.0
+//! interp = "trilinear"
+//! ```
+//!
+//! **Tasks.** Input-major: every input in file order (a sequence in frame order), then every
+//! light in file order; task `i` is the `i`-th pair (0-based). Shard `I/N` runs the tasks with
+//! `i % N == I - 1`.
+//!
+//! **Resume.** A task is up to date when its output exists and its modification time is not
+//! older than its input's; outputs are written atomically, so an existing output is complete.
+
+use crate::bake::{
+    bake, volume_corners, write_exr, BakeSettings, Camera, Projection, Provenance, View,
+};
+use crate::estimate::{Estimator, Options};
+use crate::{Interp, Volume};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// A job file problem (parse or validation), naming the file and the key.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct JobError(pub String);
+
+impl std::fmt::Display for JobError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for JobError {}
+
+/// The job file as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct JobFile {
+    /// Grid to bake in every input.
+    #[serde(default = "default_grid")]
+    pub grid: String,
+    /// Output path pattern.
+    pub output: String,
+    /// JSON-lines log (default: `umbra_batch.jsonl` in the first output's directory).
+    pub log: Option<String>,
+    /// Inputs, in order.
+    pub inputs: Vec<InputSpec>,
+    /// Lights, in order.
+    pub lights: Vec<LightSpec>,
+    /// Bake settings.
+    #[serde(default)]
+    pub bake: BakeSpec,
+}
+
+fn default_grid() -> String {
+    "density".into()
+}
+
+/// One `[[inputs]]` entry: `file`, or `pattern` with `frames`.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputSpec {
+    /// An explicit file.
+    pub file: Option<String>,
+    /// A sequence pattern: `####` (padding = number of `#`) or `$F4` / `$F`.
+    pub pattern: Option<String>,
+    /// Inclusive frame range `[first, last]` of a pattern.
+    pub frames: Option<[i64; 2]>,
+    /// Frame step of a pattern (default 1).
+    pub step: Option<i64>,
+}
+
+/// One `[[lights]]` entry.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LightSpec {
+    /// Name used by `{light}`.
+    pub name: String,
+    /// Direction the light travels (directional light, orthographic map).
+    pub dir: Option<[f64; 3]>,
+    /// Light position (point light, perspective map).
+    pub pos: Option<[f64; 3]>,
+}
+
+/// The `[bake]` table.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct BakeSpec {
+    /// `[width, height]` (default: 1024 on the long side).
+    pub res: Option<[u32; 2]>,
+    /// Estimator name (as `umbra bake --estimator`).
+    pub estimator: String,
+    /// Samples per pixel (stochastic estimators).
+    pub spp: u32,
+    /// Seed of the random streams.
+    pub seed: u64,
+    /// `mu_t = density_scale x value`.
+    pub density_scale: f64,
+    /// `nearest` or `trilinear`.
+    pub interp: String,
+    /// Ray-marching step in voxels.
+    pub step: f64,
+    /// Collision kernel width.
+    pub kernel: f64,
+}
+
+impl Default for BakeSpec {
+    fn default() -> Self {
+        Self {
+            res: None,
+            estimator: "regular".into(),
+            spp: 64,
+            seed: 0,
+            density_scale: 1.0,
+            interp: "trilinear".into(),
+            step: 1.0,
+            kernel: 0.01,
+        }
+    }
+}
+
+/// A validated job.
+#[derive(Debug, Clone)]
+pub struct Job {
+    /// The job file (absolute when it could be made so).
+    pub path: PathBuf,
+    /// Grid to bake.
+    pub grid: String,
+    /// JSON-lines log path.
+    pub log: PathBuf,
+    /// Tasks in order.
+    pub tasks: Vec<Task>,
+    /// Estimator.
+    pub estimator: Estimator,
+    /// Estimator options.
+    pub options: Options,
+    /// Resolution.
+    pub res: Option<(u32, u32)>,
+    /// Density scale.
+    pub density_scale: f64,
+}
+
+/// One bake: an input under one light.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Task {
+    /// Index in the job (0-based).
+    pub index: usize,
+    /// Input file.
+    pub input: PathBuf,
+    /// Frame number for sequence inputs.
+    pub frame: Option<i64>,
+    /// Light name.
+    pub light: String,
+    /// Direction the light travels.
+    pub dir: Option<[f64; 3]>,
+    /// Light position.
+    pub pos: Option<[f64; 3]>,
+    /// Output file.
+    pub output: PathBuf,
+}
+
+/// What happened to a task (one JSON line of the log).
+#[derive(Debug, Clone, Serialize)]
+pub struct Record {
+    /// Task index.
+    pub task: usize,
+    /// Input file.
+    pub input: PathBuf,
+    /// Grid.
+    pub grid: String,
+    /// Light name.
+    pub light: String,
+    /// Output file.
+    pub output: PathBuf,
+    /// `ok`, `skipped` or `failed`.
+    pub status: &'static str,
+    /// Wall time of the task.
+    pub seconds: f64,
+    /// Rays per second of the bake (0 when not baked).
+    pub rays_per_second: f64,
+    /// Error message of a failed task.
+    pub error: Option<String>,
+}
+
+fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> JobError {
+    JobError(format!("{}: {key}: {reason}", path.display()))
+}
+
+/// Expand a sequence pattern for one frame: `#...#` (zero-padded to the number of `#`) or
+/// `$F` / `$FN` (padded to N). `None` when the pattern has no frame token.
+#[must_use]
+pub fn expand_pattern(pattern: &str, frame: i64) -> Option<String> {
+    if let Some(start) = pattern.find('#') {
+        let n = pattern[start..].chars().take_while(|&c| c == '#').count();
+        return Some(format!(
+            "{}{frame:0n$}{}",
+            &pattern[..start],
+            &pattern[start + n..]
+        ));
+    }
+    let start = pattern.find("$F")?;
+    let digits: String = pattern[start + 2..]
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect();
+    let n: usize = digits.parse().unwrap_or(0);
+    Some(format!(
+        "{}{frame:0n$}{}",
+        &pattern[..start],
+        &pattern[start + 2 + digits.len()..]
+    ))
+}
+
+/// Fill an output pattern: `{light}`, `{stem}`, `{frame}`, `{frame:0N}`.
+///
+/// # Errors
+/// An unknown placeholder, or `{frame}` for an input that has no frame.
+pub fn fill_output(
+    pattern: &str,
+    light: &str,
+    stem: &str,
+    frame: Option<i64>,
+) -> Result<String, String> {
+    let mut out = String::new();
+    let mut rest = pattern;
+    while let Some(open) = rest.find('{') {
+        out.push_str(&rest[..open]);
+        let close = rest[open..]
+            .find('}')
+            .ok_or_else(|| format!("unclosed '{{' in '{pattern}'"))?
+            + open;
+        let key = &rest[open + 1..close];
+        match key {
+            "light" => out.push_str(light),
+            "stem" => out.push_str(stem),
+            _ if key == "frame" || key.starts_with("frame:") => {
+                let f = frame.ok_or_else(|| {
+                    format!("'{{{key}}}' but input '{stem}' is not from a sequence")
+                })?;
+                let width = match key.strip_prefix("frame:") {
+                    None => 0,
+                    Some(w) => w
+                        .parse::<usize>()
+                        .map_err(|_| format!("'{{{key}}}': expected {{frame:04}}"))?,
+                };
+                out.push_str(&format!("{f:0width$}"));
+            }
+            _ => {
+                return Err(format!(
+                    "unknown placeholder '{{{key}}}' (known: {{light}}, {{stem}}, {{frame}}, {{frame:04}})"
+                ))
+            }
+        }
+        rest = &rest[close + 1..];
+    }
+    out.push_str(rest);
+    Ok(out)
+}
+
+/// Parse and validate a job file's text; `path` is the job file (relative paths in it are
+/// relative to its directory).
+///
+/// # Errors
+/// [`JobError`] naming the file and the key (TOML syntax and type errors carry line and column).
+pub fn parse_job(path: &Path, text: &str) -> Result<Job, JobError> {
+    let file: JobFile =
+        toml::from_str(text).map_err(|e| JobError(format!("{}: {e}", path.display())))?;
+    let path = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let resolve = |s: &str| base.join(s);
+    let b = &file.bake;
+    let interp = match b.interp.as_str() {
+        "nearest" => Interp::Nearest,
+        "trilinear" => Interp::Trilinear,
+        other => {
+            return Err(err(
+                &path,
+                "bake.interp",
+                format!("'{other}': expected \"nearest\" or \"trilinear\""),
+            ))
+        }
+    };
+    if !(b.step.is_finite() && b.step > 0.0) {
+        return Err(err(
+            &path,
+            "bake.step",
+            "must be a positive number of voxels",
+        ));
+    }
+    if !(b.kernel.is_finite() && b.kernel >= 0.0) {
+        return Err(err(&path, "bake.kernel", "must be a non-negative length"));
+    }
+    let estimator = Estimator::from_name(&b.estimator, b.step, b.kernel).ok_or_else(|| {
+        err(
+            &path,
+            "bake.estimator",
+            format!(
+                "unknown estimator '{}' (known: {})",
+                b.estimator,
+                crate::estimate::ESTIMATOR_NAMES.join(", ")
+            ),
+        )
+    })?;
+    if b.spp == 0 {
+        return Err(err(&path, "bake.spp", "must be at least 1"));
+    }
+    if !(b.density_scale.is_finite() && b.density_scale >= 0.0) {
+        return Err(err(
+            &path,
+            "bake.density_scale",
+            "must be a finite non-negative number",
+        ));
+    }
+    if let Some([w, h]) = b.res {
+        crate::bake::check_res(w, h).map_err(|e| err(&path, "bake.res", e))?;
+    }
+    if file.grid.is_empty() {
+        return Err(err(&path, "grid", "must not be empty"));
+    }
+    if file.lights.is_empty() {
+        return Err(err(&path, "lights", "give at least one [[lights]] entry"));
+    }
+    let mut names = std::collections::HashSet::new();
+    for (i, l) in file.lights.iter().enumerate() {
+        let key = |k: &str| format!("lights[{i}].{k}");
+        if l.name.is_empty() || l.name.contains(['/', '\\']) {
+            return Err(err(
+                &path,
+                &key("name"),
+                "must be a non-empty name without slashes",
+            ));
+        }
+        if !names.insert(l.name.as_str()) {
+            return Err(err(
+                &path,
+                &key("name"),
+                format!("'{}' is used twice", l.name),
+            ));
+        }
+        match (l.dir, l.pos) {
+            (None, None) => {
+                return Err(err(
+                    &path,
+                    &format!("lights[{i}]"),
+                    "give dir = [x, y, z] (directional) or pos = [x, y, z] (point)",
+                ))
+            }
+            (Some(_), Some(_)) => {
+                return Err(err(
+                    &path,
+                    &format!("lights[{i}]"),
+                    "give dir or pos, not both",
+                ))
+            }
+            (Some(d), None) => {
+                if !d.iter().all(|c| c.is_finite()) || d.iter().all(|&c| c == 0.0) {
+                    return Err(err(&path, &key("dir"), "must be finite and non-zero"));
+                }
+            }
+            (None, Some(p)) => {
+                if !p.iter().all(|c| c.is_finite()) {
+                    return Err(err(&path, &key("pos"), "must be finite"));
+                }
+            }
+        }
+    }
+    if file.inputs.is_empty() {
+        return Err(err(&path, "inputs", "give at least one [[inputs]] entry"));
+    }
+    let mut inputs: Vec<(PathBuf, Option<i64>)> = Vec::new();
+    for (i, inp) in file.inputs.iter().enumerate() {
+        let key = |k: &str| format!("inputs[{i}].{k}");
+        match (&inp.file, &inp.pattern) {
+            (Some(f), None) => {
+                if inp.frames.is_some() || inp.step.is_some() {
+                    return Err(err(
+                        &path,
+                        &key("frames"),
+                        "frames/step go with pattern, not file",
+                    ));
+                }
+                inputs.push((resolve(f), None));
+            }
+            (None, Some(p)) => {
+                let [first, last] = inp.frames.ok_or_else(|| {
+                    err(
+                        &path,
+                        &key("frames"),
+                        "a pattern needs frames = [first, last]",
+                    )
+                })?;
+                let step = inp.step.unwrap_or(1);
+                if step < 1 {
+                    return Err(err(&path, &key("step"), "must be at least 1"));
+                }
+                if last < first {
+                    return Err(err(&path, &key("frames"), "last frame before the first"));
+                }
+                if expand_pattern(p, first).is_none() {
+                    return Err(err(
+                        &path,
+                        &key("pattern"),
+                        format!("'{p}' has no frame token (#### or $F4)"),
+                    ));
+                }
+                let mut f = first;
+                while f <= last {
+                    let name = expand_pattern(p, f).unwrap_or_default();
+                    inputs.push((resolve(&name), Some(f)));
+                    f += step;
+                }
+            }
+            _ => {
+                return Err(err(
+                    &path,
+                    &format!("inputs[{i}]"),
+                    "give file = \"...\" or pattern = \"...\" with frames",
+                ))
+            }
+        }
+    }
+    if file.lights.len() > 1 && !file.output.contains("{light}") {
+        return Err(err(
+            &path,
+            "output",
+            "several lights but no {light} in the pattern: outputs would collide",
+        ));
+    }
+    let mut tasks = Vec::new();
+    let mut seen = std::collections::HashMap::new();
+    for (input, frame) in &inputs {
+        let stem = input
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        for l in &file.lights {
+            let out = fill_output(&file.output, &l.name, &stem, *frame)
+                .map_err(|e| err(&path, "output", e))?;
+            let output = resolve(&out);
+            let index = tasks.len();
+            if let Some(prev) = seen.insert(output.clone(), index) {
+                return Err(err(
+                    &path,
+                    "output",
+                    format!(
+                        "tasks {prev} and {index} both write {} (add {{stem}} or {{frame:04}})",
+                        output.display()
+                    ),
+                ));
+            }
+            tasks.push(Task {
+                index,
+                input: input.clone(),
+                frame: *frame,
+                light: l.name.clone(),
+                dir: l.dir,
+                pos: l.pos,
+                output,
+            });
+        }
+    }
+    let log = match &file.log {
+        Some(l) => resolve(l),
+        None => tasks[0]
+            .output
+            .parent()
+            .map(|d| d.join("umbra_batch.jsonl"))
+            .unwrap_or_else(|| PathBuf::from("umbra_batch.jsonl")),
+    };
+    let options = Options {
+        interp,
+        samples: b.spp,
+        seed: b.seed,
+        ..Options::default()
+    };
+    Ok(Job {
+        path,
+        grid: file.grid,
+        log,
+        tasks,
+        estimator,
+        options,
+        res: b.res.map(|[w, h]| (w, h)),
+        density_scale: b.density_scale,
+    })
+}
+
+/// Read, parse and validate a job file.
+///
+/// # Errors
+/// [`JobError`] when it cannot be read or is invalid.
+pub fn load_job(path: &Path) -> Result<Job, JobError> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| JobError(format!("{}: cannot read: {e}", path.display())))?;
+    parse_job(path, &text)
+}
+
+/// Parse a shard `I/N` (1-based `I`).
+///
+/// # Errors
+/// When it is not `I/N` with `1 <= I <= N`.
+pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
+    let parsed = s
+        .split_once('/')
+        .and_then(|(i, n)| Some((i.trim().parse().ok()?, n.trim().parse().ok()?)));
+    match parsed {
+        Some((i, n)) if n >= 1 && (1..=n).contains(&i) => Ok((i, n)),
+        _ => Err(format!("expected I/N with 1 <= I <= N, got '{s}'")),
+    }
+}
+
+/// Whether task `index` belongs to shard `i/n` (1-based `i`).
+#[must_use]
+pub fn in_shard(index: usize, (i, n): (usize, usize)) -> bool {
+    index % n == i - 1
+}
+
+/// Whether a task's output exists and is not older than its input.
+#[must_use]
+pub fn up_to_date(task: &Task) -> bool {
+    let mtime = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    match (mtime(&task.output), mtime(&task.input)) {
+        (Some(out), Some(inp)) => out >= inp,
+        _ => false,
+    }
+}
+
+impl Job {
+    /// Bake one task and write its output atomically (overwriting a stale output). Loads only
+    /// the job's grid of the task's input. `threads` as [`BakeSettings::threads`]; `progress`
+    /// receives finished pixel counts.
+    ///
+    /// # Errors
+    /// Any load, framing, bake or write error, as text.
+    pub fn run_task(
+        &self,
+        task: &Task,
+        threads: usize,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<f64, String> {
+        let vol =
+            Volume::load(&task.input, &self.grid, self.density_scale).map_err(|e| e.to_string())?;
+        let view = View {
+            projection: if task.pos.is_some() {
+                Projection::Perspective
+            } else {
+                Projection::Ortho
+            },
+            light_dir: task.dir,
+            light_pos: task.pos,
+            fov_deg: None,
+            res: self.res,
+        };
+        let corners = volume_corners(&vol).map_err(|e| e.to_string())?;
+        let camera = Camera::frame(&view, &corners).map_err(|e| e.to_string())?;
+        let settings = BakeSettings {
+            threads,
+            ..BakeSettings::new(self.estimator, self.options)
+        };
+        let map = bake(&vol, &camera, &settings, progress).map_err(|e| e.to_string())?;
+        drop(vol);
+        let prov = Provenance {
+            source_file: task.input.display().to_string(),
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            light_dir: task.dir,
+            light_pos: task.pos,
+        };
+        write_exr(&task.output, &map, &prov, true).map_err(|e| e.to_string())?;
+        Ok(map.stats.rays as f64 / map.stats.seconds.max(1e-9))
+    }
+
+    /// Pixels of a task's map when it is known without loading (fixed resolution).
+    #[must_use]
+    pub fn pixels_hint(&self) -> Option<u64> {
+        self.res.map(|(w, h)| u64::from(w) * u64::from(h))
+    }
+}

@@ -1,0 +1,272 @@
+//! `umbra batch`: sequences x lights, failures, resume, shards, plan.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn data(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("data")
+        .join(name)
+}
+
+/// A 3-frame sequence (copies of data/cloud.vdb) and a two-light job in `dir`.
+fn setup(dir: &Path, extra: &str) -> PathBuf {
+    for f in 1..=3 {
+        std::fs::copy(data("cloud.vdb"), dir.join(format!("cloud.{f:04}.vdb"))).unwrap();
+    }
+    let job = dir.join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            r#"grid = "density"
+output = "out/shadow_{{light}}.{{frame:04}}.exr"
+{extra}
+[[inputs]]
+pattern = "cloud.$F4.vdb"
+frames = [1, 3]
+
+[[lights]]
+name = "sun"
+dir = [0.3, -1.0, 0.2]
+
+[[lights]]
+name = "lamp"
+pos = [0.0, 4.0, 3.0]
+
+[bake]
+res = [32, 32]
+estimator = "ratio"
+spp = 4
+seed = 7
+density_scale = 2.0
+"#
+        ),
+    )
+    .unwrap();
+    job
+}
+
+fn umbra(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn batch(job: &Path, extra: &[&str]) -> Output {
+    let mut a = vec!["batch", job.to_str().unwrap(), "--quiet"];
+    a.extend_from_slice(extra);
+    umbra(&a)
+}
+
+fn outputs(dir: &Path) -> Vec<(String, Vec<u8>)> {
+    if !dir.join("out").exists() {
+        return Vec::new();
+    }
+    let mut v: Vec<_> = std::fs::read_dir(dir.join("out"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "exr"))
+        .map(|p| {
+            (
+                p.file_name().unwrap().to_string_lossy().into_owned(),
+                std::fs::read(&p).unwrap(),
+            )
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+fn log_records(dir: &Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(dir.join("out/umbra_batch.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
+fn names(dir: &Path) -> Vec<String> {
+    outputs(dir).into_iter().map(|(n, _)| n).collect()
+}
+
+const ALL: [&str; 6] = [
+    "shadow_lamp.0001.exr",
+    "shadow_lamp.0002.exr",
+    "shadow_lamp.0003.exr",
+    "shadow_sun.0001.exr",
+    "shadow_sun.0002.exr",
+    "shadow_sun.0003.exr",
+];
+
+#[test]
+fn sequence_two_lights_writes_every_output_then_rerun_skips_all() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "");
+    let out = batch(&job, &[]);
+    assert!(out.status.success(), "{out:?}");
+    assert_eq!(names(dir.path()), ALL);
+    let recs = log_records(dir.path());
+    assert_eq!(recs.len(), 6);
+    assert!(recs.iter().all(|r| r["status"] == "ok"), "{recs:?}");
+    let first = outputs(dir.path());
+    let out = batch(&job, &[]);
+    assert!(out.status.success());
+    let recs = log_records(dir.path());
+    assert_eq!(recs.len(), 12);
+    assert!(recs[6..].iter().all(|r| r["status"] == "skipped"));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("0 baked, 6 skipped"));
+    assert_eq!(outputs(dir.path()), first);
+}
+
+#[test]
+fn corrupt_frame_fails_alone_with_exit_code_3() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "");
+    let bad = dir.path().join("cloud.0002.vdb");
+    let bytes = std::fs::read(&bad).unwrap();
+    std::fs::write(&bad, &bytes[..bytes.len() / 3]).unwrap();
+    let out = batch(&job, &[]);
+    assert_eq!(out.status.code(), Some(3), "{out:?}");
+    assert_eq!(
+        names(dir.path()),
+        [
+            "shadow_lamp.0001.exr",
+            "shadow_lamp.0003.exr",
+            "shadow_sun.0001.exr",
+            "shadow_sun.0003.exr"
+        ]
+    );
+    let recs = log_records(dir.path());
+    let failed: Vec<_> = recs.iter().filter(|r| r["status"] == "failed").collect();
+    assert_eq!(failed.len(), 2);
+    for r in failed {
+        assert!(r["input"].as_str().unwrap().ends_with("cloud.0002.vdb"));
+        assert!(!r["error"].as_str().unwrap().is_empty());
+    }
+    assert!(String::from_utf8_lossy(&out.stderr).contains("cloud.0002.vdb"));
+}
+
+#[test]
+fn killed_run_resumes_to_identical_outputs() {
+    let whole = tempfile::tempdir().unwrap();
+    let job = setup(whole.path(), "");
+    assert!(batch(&job, &[]).status.success());
+    let reference = outputs(whole.path());
+
+    // Same directory (the EXR records the input path): start over.
+    std::fs::remove_dir_all(whole.path().join("out")).unwrap();
+    let part = &whole;
+    // "Killed" after two tasks: only tasks 0 and 1 ran.
+    assert!(batch(&job, &["--task", "0"]).status.success());
+    assert!(batch(&job, &["--task", "1"]).status.success());
+    assert_eq!(names(part.path()).len(), 2);
+    let out = batch(&job, &[]);
+    assert!(out.status.success());
+    assert!(String::from_utf8_lossy(&out.stdout).contains("4 baked, 2 skipped"));
+    // A deleted output is re-baked, the others are skipped.
+    std::fs::remove_file(part.path().join("out/shadow_sun.0002.exr")).unwrap();
+    let out = batch(&job, &[]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("1 baked, 5 skipped"));
+    assert_eq!(outputs(part.path()), reference);
+}
+
+#[test]
+fn three_shards_equal_one_run_bit_identical() {
+    let whole = tempfile::tempdir().unwrap();
+    let job = setup(whole.path(), "");
+    assert!(batch(&job, &[]).status.success());
+    let reference = outputs(whole.path());
+
+    // Same directory (the EXR records the input path): start over.
+    std::fs::remove_dir_all(whole.path().join("out")).unwrap();
+    let sharded = &whole;
+    let mut counts = Vec::new();
+    for s in ["1/3", "2/3", "3/3"] {
+        let before = names(sharded.path()).len();
+        let out = batch(&job, &["--shard", s, "--jobs", "1"]);
+        assert!(out.status.success(), "{out:?}");
+        counts.push(names(sharded.path()).len() - before);
+    }
+    assert_eq!(counts, [2, 2, 2]);
+    assert_eq!(outputs(sharded.path()), reference);
+}
+
+#[test]
+fn plan_lists_one_command_per_task() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "");
+    let out = umbra(&["batch", job.to_str().unwrap(), "--plan"]);
+    assert!(out.status.success());
+    let text = String::from_utf8(out.stdout).unwrap();
+    let lines: Vec<&str> = text.lines().collect();
+    assert_eq!(lines.len(), 6);
+    for (i, l) in lines.iter().enumerate() {
+        assert!(l.contains(" batch "), "{l}");
+        assert!(l.contains("job.toml"), "{l}");
+        assert!(l.ends_with(&format!("--task {i}")), "{l}");
+    }
+    assert!(!dir.path().join("out").exists(), "--plan runs nothing");
+}
+
+#[test]
+fn job_errors_name_the_key_and_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "colour = 3\n");
+    let out = umbra(&["batch", job.to_str().unwrap(), "--plan"]);
+    assert!(!out.status.success());
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("colour") && e.contains("line 3"), "{e}");
+
+    let text = std::fs::read_to_string(&job)
+        .unwrap()
+        .replace("colour = 3\n", "")
+        .replace("dir = [0.3, -1.0, 0.2]", "dir = [0.0, 0.0, 0.0]");
+    std::fs::write(&job, text).unwrap();
+    let out = umbra(&["batch", job.to_str().unwrap(), "--plan"]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("lights[0].dir"), "{e}");
+
+    let text = std::fs::read_to_string(&job)
+        .unwrap()
+        .replace("dir = [0.0, 0.0, 0.0]", "dir = [0.3, -1.0, 0.2]")
+        .replace("shadow_{light}.", "shadow.");
+    std::fs::write(&job, text).unwrap();
+    let out = umbra(&["batch", job.to_str().unwrap(), "--plan"]);
+    let e = String::from_utf8_lossy(&out.stderr);
+    assert!(e.contains("output") && e.contains("{light}"), "{e}");
+}
+
+#[test]
+fn patterns_and_placeholders() {
+    use umbra::batch::{expand_pattern, fill_output, in_shard, parse_shard};
+    assert_eq!(
+        expand_pattern("a/cloud.####.vdb", 7).unwrap(),
+        "a/cloud.0007.vdb"
+    );
+    assert_eq!(
+        expand_pattern("cloud.$F4.vdb", 12).unwrap(),
+        "cloud.0012.vdb"
+    );
+    assert_eq!(expand_pattern("cloud.$F.vdb", 12).unwrap(), "cloud.12.vdb");
+    assert_eq!(expand_pattern("cloud.vdb", 1), None);
+    assert_eq!(
+        fill_output(
+            "s_{light}.{stem}.{frame:04}.{frame}.exr",
+            "sun",
+            "c",
+            Some(3)
+        )
+        .unwrap(),
+        "s_sun.c.0003.3.exr"
+    );
+    assert!(fill_output("{frame}", "sun", "c", None).is_err());
+    assert!(fill_output("{colour}", "sun", "c", None).is_err());
+    assert_eq!(parse_shard("2/3").unwrap(), (2, 3));
+    assert!(parse_shard("0/3").is_err() && parse_shard("4/3").is_err());
+    let shards: Vec<Vec<usize>> = (1..=3)
+        .map(|i| (0..7).filter(|&t| in_shard(t, (i, 3))).collect())
+        .collect();
+    assert_eq!(shards, [vec![0, 3, 6], vec![1, 4], vec![2, 5]]);
+}
