@@ -158,7 +158,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         indicatif::ProgressBar::hidden()
     } else {
         let style = indicatif::ProgressStyle::with_template(
-            "{spinner} baking [{bar:40}] {percent}% {human_pos}/{human_len} px, {per_sec}, eta {eta}",
+            "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
         .progress_chars("=> ");
