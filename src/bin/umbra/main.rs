@@ -3,6 +3,7 @@
 
 mod cmd_bake;
 mod cmd_batch;
+mod cmd_compare;
 mod cmd_info;
 mod cmd_query;
 
@@ -41,6 +42,8 @@ enum Command {
     Bake(cmd_bake::BakeArgs),
     /// Run a batch job file: many inputs x many lights, resumable, shardable for farms.
     Batch(cmd_batch::BatchArgs),
+    /// Error against run time of every estimator, and the stress suite on extreme media.
+    Compare(cmd_compare::CompareArgs),
 }
 
 fn main() -> ExitCode {
@@ -67,5 +70,6 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Query(args) => cmd_query::run(&args),
         Command::Bake(args) => cmd_bake::run(&args),
         Command::Batch(args) => cmd_batch::run(&args),
+        Command::Compare(args) => cmd_compare::run(&args),
     }
 }

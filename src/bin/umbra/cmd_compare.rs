@@ -1,0 +1,191 @@
+//! `umbra compare`: error against run time for every estimator, and the stress suite.
+
+use crate::cmd_query::InterpArg;
+use anyhow::{Context, Result};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use umbra::compare::{self, stress, Meta, Settings};
+use umbra::estimate::{Options, ESTIMATOR_NAMES};
+use umbra::{Interp, Volume};
+
+/// Arguments of `umbra compare`.
+#[derive(Debug, clap::Args)]
+pub struct CompareArgs {
+    /// The .vdb file (optional with --stress alone).
+    file: Option<PathBuf>,
+    /// Grid to trace.
+    #[arg(long, default_value = "density")]
+    grid: String,
+    /// Output directory for report.{csv,json,md} and error_vs_time.svg (and stress.*).
+    #[arg(short = 'o', long)]
+    out: PathBuf,
+    /// Number of random rays crossing the volume.
+    #[arg(long, default_value_t = 256)]
+    rays: usize,
+    /// Estimators: `all` or a comma-separated list of names.
+    #[arg(long, default_value = "all")]
+    estimators: String,
+    /// mu_t = S x value, per world unit.
+    #[arg(long, default_value_t = 1.0)]
+    density_scale: f64,
+    /// Lookup interpolation.
+    #[arg(long, value_enum, default_value = "trilinear")]
+    interp: InterpArg,
+    /// Seed of the rays and of the estimators' random streams.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Timed repetitions per point (median reported), after one warm-up.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Kernel width of the collision estimator, world units.
+    #[arg(long, default_value_t = 0.01)]
+    kernel: f64,
+    /// Also run the stress catalogue and write stress.{md,json}.
+    #[arg(long)]
+    stress: bool,
+    /// Samples per ray in the stress suite.
+    #[arg(long, default_value_t = 16)]
+    stress_samples: u32,
+    /// No progress messages.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn machine() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into());
+    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    format!(
+        "{cpu}, {cores} cores available, {} {}",
+        std::env::consts::OS,
+        std::env::consts::ARCH
+    )
+}
+
+/// Run the comparison (and the stress suite) and write the reports.
+pub fn run(a: &CompareArgs) -> Result<ExitCode> {
+    let threads = a
+        .threads
+        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads.max(1))
+        .build()
+        .context("starting worker threads")?;
+    let interp: Interp = a.interp.into();
+    if !(a.kernel.is_finite() && a.kernel >= 0.0) {
+        anyhow::bail!(
+            "--kernel must be a non-negative world length, got {}",
+            a.kernel
+        );
+    }
+    let names: Vec<String> = if a.estimators == "all" {
+        ESTIMATOR_NAMES.iter().map(|s| (*s).to_string()).collect()
+    } else {
+        a.estimators
+            .split(',')
+            .map(|s| s.trim().to_string())
+            .collect()
+    };
+    for n in &names {
+        if compare::ladder(n, a.kernel).is_empty() {
+            anyhow::bail!(
+                "unknown estimator '{n}' (known: {})",
+                ESTIMATOR_NAMES.join(", ")
+            );
+        }
+    }
+    let say = |m: &str| {
+        if !a.quiet {
+            eprintln!("umbra compare: {m}");
+        }
+    };
+    if let Some(file) = &a.file {
+        let vol = Volume::load(file, &a.grid, a.density_scale)
+            .with_context(|| format!("loading grid '{}'", a.grid))?;
+        let rays = compare::random_rays(&vol, a.rays, a.seed);
+        if rays.is_empty() {
+            anyhow::bail!(
+                "{}: grid '{}' is empty, nothing to compare",
+                file.display(),
+                a.grid
+            );
+        }
+        let options = Options {
+            interp,
+            seed: a.seed,
+            ..Options::default()
+        };
+        let settings = Settings {
+            options,
+            repeats: a.repeats,
+            threads,
+            global_baseline: true,
+        };
+        let rows = pool
+            .install(|| compare::compare(&vol, &rays, &names, a.kernel, &settings, |m| say(m)))?;
+        let exact = pool.install(|| compare::reference(&vol, &rays, &options));
+        let mean_t = exact.iter().sum::<f64>() / exact.len() as f64;
+        let taus: Vec<f64> = exact.iter().map(|t| -t.ln() + 0.0).collect();
+        let meta = Meta {
+            source: format!("{} grid '{}'", file.display(), a.grid),
+            rays: rays.len(),
+            threads,
+            repeats: a.repeats,
+            medium: format!(
+                "{interp:?} lookups, density scale {}, seed {}",
+                a.density_scale, a.seed
+            ),
+            machine: machine(),
+            reference: format!(
+                "mean exact T {mean_t:.4}; tau from {:.3} to {:.3}",
+                taus.iter().copied().fold(f64::INFINITY, f64::min),
+                taus.iter().copied().fold(0.0, f64::max)
+            ),
+        };
+        compare::write_reports(&a.out, &rows, &meta)?;
+        say(&format!(
+            "wrote {}/report.{{csv,json,md}} and error_vs_time.svg",
+            a.out.display()
+        ));
+    } else if !a.stress {
+        anyhow::bail!("give a .vdb file to compare estimators on, or --stress");
+    }
+    if a.stress {
+        say("stress catalogue");
+        let cases = stress::catalogue(16);
+        let rows = pool.install(|| stress::run(&cases, a.stress_samples, 5_000_000));
+        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+        let md = stress::markdown(&cases, &rows, a.stress_samples);
+        umbra::bake::write_atomic(&a.out.join("stress.md"), true, |w| {
+            std::io::Write::write_all(w, md.as_bytes()).map_err(|e| e.to_string())
+        })?;
+        let json = serde_json::to_string_pretty(&rows)?;
+        umbra::bake::write_atomic(&a.out.join("stress.json"), true, |w| {
+            std::io::Write::write_all(w, json.as_bytes()).map_err(|e| e.to_string())
+        })?;
+        let bad = rows
+            .iter()
+            .filter(|r| {
+                r.non_finite > 0 || (!r.signed && r.out_of_range > 0) || r.underflow_violations > 0
+            })
+            .count();
+        say(&format!(
+            "wrote {}/stress.{{md,json}}: {} rows, {bad} with violations",
+            a.out.display(),
+            rows.len()
+        ));
+        if bad > 0 {
+            return Ok(ExitCode::from(2));
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
