@@ -14,8 +14,8 @@
 //! is an affine map in f64 (column vectors); values are traced in `f32`.
 
 pub mod bake;
-pub mod compare;
 pub mod batch;
+pub mod compare;
 pub mod error;
 pub mod estimate;
 pub mod info;
