@@ -19,7 +19,7 @@
 use crate::error::Result;
 use crate::ray::Ray;
 use crate::traverse::{floor_i64, lookup_ray, non_empty, walk_nodes, Granularity, Segment};
-use crate::tree::{Accessor, Block};
+use crate::tree::{Accessor, Block, Neighbour};
 use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
 
@@ -173,11 +173,15 @@ fn leaf_integral(
             // corners `[lo, hi + 1]` reach are resolved.
             src.blocks[0] = Block::Leaf(&l.values);
             let reach = [0, 1, 2].map(|a| usize::from(hi[a] == o[a] + 7));
+            let nb = tree.neighbours.get(leaf as usize);
             for k in 1..8usize {
                 let bits = [k >> 2, (k >> 1) & 1, k & 1];
                 if (0..3).all(|a| bits[a] <= reach[a]) {
-                    src.blocks[k] =
-                        acc.block([0, 1, 2].map(|a| (o[a] + 8 * bits[a] as i64) as i32));
+                    src.blocks[k] = match nb.map(|n| n[k - 1]) {
+                        Some(Neighbour::Leaf(i)) => Block::Leaf(&tree.leaves[i as usize].values),
+                        Some(Neighbour::Const(c)) => Block::Const(c),
+                        _ => acc.block([0, 1, 2].map(|a| (o[a] + 8 * bits[a] as i64) as i32)),
+                    };
                 }
             }
             trilinear_cells(&mut src, q, d, t0, t1, lo, hi, n)

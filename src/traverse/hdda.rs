@@ -191,7 +191,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
                 child(self, node.slots[slot], ta, tb)
             } else {
                 let origin = c.map(|v| (v * child_dim) as i32);
-                let halo = node.tile_halo.get(slot).copied();
+                let halo = Some(node.tile_halo_of(slot));
                 self.tile(
                     node.tile_value(slot),
                     halo,

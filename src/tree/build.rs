@@ -69,6 +69,7 @@ impl TreeBuilder {
             bounds: Bounds::EMPTY,
             halo: Bounds::EMPTY,
             tile_halo: Box::new([]),
+            halo_exceptions: Box::new([]),
         };
         let set_bit = |m: &mut [u64], n: usize| m[n >> 6] |= 1 << (n & 63);
         for &(o, log2, v) in &self.tiles {

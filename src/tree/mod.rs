@@ -104,8 +104,12 @@ pub struct Internal {
     /// min/max of what trilinear lookups in the node's dual-grid region read (voxels
     /// `[o, o + dim]`).
     pub halo: Bounds,
-    /// Per slot: the halo bound of a tile slot (EMPTY for child slots).
+    /// Per slot: the halo bound of a tile slot (EMPTY for child slots). Lower nodes only;
+    /// upper nodes leave it empty and keep `halo_exceptions` (see [`Internal::tile_halo_of`]).
     pub tile_halo: Box<[Bounds]>,
+    /// Upper nodes: `(slot, halo)` of the tile slots whose halo is not just their own value,
+    /// sorted by slot (a dense table would be 256 KiB per upper node).
+    pub halo_exceptions: Box<[(u32, Bounds)]>,
 }
 
 impl Internal {
@@ -121,6 +125,43 @@ impl Internal {
     pub fn tile_value(&self, n: usize) -> f32 {
         f32::from_bits(self.slots[n])
     }
+
+    /// The halo bound of tile slot `n`: what trilinear lookups in its dual-grid region read.
+    #[inline]
+    #[must_use]
+    pub fn tile_halo_of(&self, n: usize) -> Bounds {
+        if let Some(&b) = self.tile_halo.get(n) {
+            return b;
+        }
+        match self
+            .halo_exceptions
+            .binary_search_by_key(&(n as u32), |e| e.0)
+        {
+            Ok(i) => self.halo_exceptions[i].1,
+            Err(_) => Bounds::point(self.tile_value(n)),
+        }
+    }
+}
+
+/// What covers an 8^3 (or 128^3, 4096^3) block next to another: a node or a single value.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Neighbour {
+    /// Every voxel has this value (a tile at any level, or the background).
+    Const(f32),
+    /// A leaf (index into [`Tree::leaves`]).
+    Leaf(u32),
+    /// A lower node (index into [`Tree::lowers`]).
+    Lower(u32),
+    /// An upper node (index into [`Tree::uppers`]).
+    Upper(u32),
+}
+
+/// Bounds of the 7 low faces of every node (see `bounds.rs`), what halos are made of.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Faces {
+    pub(crate) leaves: Vec<bounds::FaceBounds>,
+    pub(crate) lowers: Vec<bounds::FaceBounds>,
+    pub(crate) uppers: Vec<bounds::FaceBounds>,
 }
 
 /// One entry of the root table: a 4096^3 tile or an upper node.
@@ -161,6 +202,10 @@ pub struct Tree {
     pub leaves: Vec<Leaf>,
     /// min/max of every value a nearest lookup anywhere can return, background included.
     pub bounds: Bounds,
+    /// Per leaf: its 7 + neighbour blocks, `[k - 1]` for the block at `origin + 8 * (k >> 2,
+    /// k >> 1 & 1, k & 1)` (what a trilinear lookup on the leaf's + faces reads).
+    pub neighbours: Vec<[Neighbour; 7]>,
+    pub(crate) faces: Faces,
 }
 
 /// What a descent to `ijk` found: the value and the node that holds it.
@@ -282,6 +327,7 @@ impl Tree {
                         + 8 * (n.child_mask.len() + n.value_mask.len())
                         + 4 * n.slots.len()
                         + std::mem::size_of::<Bounds>() * n.tile_halo.len()
+                        + std::mem::size_of::<(u32, Bounds)>() * n.halo_exceptions.len()
                 })
                 .sum::<usize>()
         };
@@ -289,7 +335,12 @@ impl Tree {
             + self.root.capacity() * std::mem::size_of::<RootEntry>()
             + internal(&self.uppers)
             + internal(&self.lowers)
-            + self.leaves.capacity() * std::mem::size_of::<Leaf>()) as u64
+            + self.leaves.capacity() * std::mem::size_of::<Leaf>()
+            + self.neighbours.capacity() * std::mem::size_of::<[Neighbour; 7]>()
+            + (self.faces.leaves.capacity()
+                + self.faces.lowers.capacity()
+                + self.faces.uppers.capacity())
+                * std::mem::size_of::<bounds::FaceBounds>()) as u64
     }
 }
 

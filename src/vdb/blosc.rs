@@ -8,8 +8,9 @@ use crate::error::{DecodeError, DecodeResult};
 /// `BLOSC_MIN_HEADER_LENGTH`: bytes c-blosc reads to learn a buffer's sizes.
 const BLOSC_HEADER: usize = 16;
 
-/// Decompress one blosc chunk that must expand to exactly `expected` bytes.
-pub(crate) fn decompress(src: &[u8], expected: usize) -> DecodeResult<Vec<u8>> {
+/// Decompress one blosc chunk that must expand to exactly `out.len()` bytes, into `out`.
+pub(crate) fn decompress_into(src: &[u8], out: &mut [u8]) -> DecodeResult<()> {
+    let expected = out.len();
     if src.len() < BLOSC_HEADER {
         return Err(DecodeError::invalid(format!(
             "blosc chunk of {} bytes is shorter than its 16-byte header",
@@ -29,7 +30,6 @@ pub(crate) fn decompress(src: &[u8], expected: usize) -> DecodeResult<Vec<u8>> {
             "blosc chunk expands to {nbytes} bytes, expected {expected}"
         )));
     }
-    let mut out = vec![0u8; expected];
     // SAFETY: validate() above checked that `src` holds a complete blosc buffer of its stated
     // compressed size; `out` has exactly `expected` writable bytes and the context API is
     // documented never to write more than `destsize`. One internal thread, no global state.
@@ -41,7 +41,7 @@ pub(crate) fn decompress(src: &[u8], expected: usize) -> DecodeResult<Vec<u8>> {
             "blosc decompression failed (returned {n}, expected {expected} bytes)"
         )));
     }
-    Ok(out)
+    Ok(())
 }
 
 #[cfg(test)]
@@ -51,7 +51,8 @@ mod tests {
     #[test]
     fn garbage_is_an_error_not_a_crash() {
         let junk: Vec<u8> = (0..200u32).map(|i| (i * 37 % 251) as u8).collect();
-        assert!(decompress(&junk, 64).is_err());
-        assert!(decompress(&junk[..5], 64).is_err());
+        let mut out = [0u8; 64];
+        assert!(decompress_into(&junk, &mut out).is_err());
+        assert!(decompress_into(&junk[..5], &mut out).is_err());
     }
 }

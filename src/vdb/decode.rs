@@ -30,6 +30,7 @@ pub(crate) fn decode_tree(
         compression,
         background,
         precision: std::cell::Cell::default(),
+        scratch: std::cell::RefCell::default(),
     };
     s.track_doubles(bg_bytes);
     let mut tree = Tree {
@@ -49,9 +50,12 @@ pub(crate) fn decode_tree(
             slot: RootSlot::Tile { value, active },
         });
     }
+    // Leaf origins and masks first; the leaves themselves are allocated once, at their exact
+    // count, when their buffers are read.
+    let mut leaf_topo = Vec::new();
     for _ in 0..num_children {
         let origin = r.vec3i("root child origin")?;
-        let index = read_internal(r, &s, &mut tree, origin, Level::Upper)?;
+        let index = read_internal(r, &s, &mut tree, &mut leaf_topo, origin, Level::Upper)?;
         tree.root.push(RootEntry {
             origin,
             slot: RootSlot::Child(index),
@@ -75,8 +79,18 @@ pub(crate) fn decode_tree(
             r.offset()
         )));
     }
-    for leaf in &mut tree.leaves {
-        read_leaf_buffer(r, &s, leaf)?;
+    tree.leaves.reserve_exact(leaf_topo.len());
+    for (origin, value_mask) in leaf_topo {
+        tree.leaves.push(Leaf {
+            origin,
+            value_mask,
+            values: [0.0; 512],
+            bounds: Bounds::EMPTY,
+            halo: Bounds::EMPTY,
+        });
+        if let Some(leaf) = tree.leaves.last_mut() {
+            read_leaf_buffer(r, &s, leaf)?;
+        }
     }
     tree.compute_bounds();
     let precision = (kind == ValueKind::Double && !half).then(|| s.precision.get());
@@ -104,6 +118,7 @@ fn read_internal(
     r: &mut ByteReader<'_>,
     s: &StreamInfo,
     tree: &mut Tree,
+    leaf_topo: &mut Vec<LeafTopology>,
     origin: [i32; 3],
     level: Level,
 ) -> DecodeResult<u32> {
@@ -131,8 +146,8 @@ fn read_internal(
             let child_origin =
                 [0, 1, 2].map(|a| origin[a].wrapping_add((local[a] as i32) << child_log2));
             slots[slot] = match level {
-                Level::Upper => read_internal(r, s, tree, child_origin, Level::Lower)?,
-                Level::Lower => read_leaf_topology(r, tree, child_origin)?,
+                Level::Upper => read_internal(r, s, tree, leaf_topo, child_origin, Level::Lower)?,
+                Level::Lower => read_leaf_topology(r, leaf_topo, child_origin)?,
             };
         }
     }
@@ -144,6 +159,7 @@ fn read_internal(
         bounds: Bounds::EMPTY,
         halo: Bounds::EMPTY,
         tile_halo: Box::new([]),
+        halo_exceptions: Box::new([]),
     };
     let list = match level {
         Level::Upper => &mut tree.uppers,
@@ -155,23 +171,20 @@ fn read_internal(
     Ok(index)
 }
 
+/// A leaf's origin and value mask, from the topology.
+type LeafTopology = ([i32; 3], [u64; 8]);
+
 /// `LeafNode::readTopology`: just the value mask; values come with the buffers.
 fn read_leaf_topology(
     r: &mut ByteReader<'_>,
-    tree: &mut Tree,
+    leaf_topo: &mut Vec<LeafTopology>,
     origin: [i32; 3],
 ) -> DecodeResult<u32> {
     let mut value_mask = [0u64; 8];
     r.u64_words(&mut value_mask, "leaf value mask")?;
-    let index = u32::try_from(tree.leaves.len())
+    let index = u32::try_from(leaf_topo.len())
         .map_err(|_| DecodeError::unsupported("more than 2^32 leaves"))?;
-    tree.leaves.push(Leaf {
-        origin,
-        value_mask,
-        values: [0.0; 512],
-        bounds: Bounds::EMPTY,
-        halo: Bounds::EMPTY,
-    });
+    leaf_topo.push((origin, value_mask));
     Ok(index)
 }
 

@@ -7,7 +7,6 @@ use super::archive::Compression;
 use super::blosc;
 use super::bytes::ByteReader;
 use crate::error::{DecodeError, DecodeResult};
-use std::borrow::Cow;
 use std::io::Read;
 
 /// Value type of a grid, from its tree type name (`Tree_float_5_4_3` etc.).
@@ -185,6 +184,8 @@ pub(crate) struct StreamInfo {
     pub background: f32,
     /// Conversion cost of double grids, accumulated while decoding.
     pub precision: std::cell::Cell<PrecisionLoss>,
+    /// Decompression buffer reused by every node.
+    pub scratch: std::cell::RefCell<Vec<u8>>,
 }
 
 impl StreamInfo {
@@ -204,14 +205,16 @@ impl StreamInfo {
 }
 
 /// `io::readData`: a run of `nbytes` bytes, raw, zlib (`i64` size prefix) or blosc (`i64` size
-/// prefix). A non-positive prefix means the bytes follow uncompressed.
-pub(crate) fn read_data<'a>(
+/// prefix). A non-positive prefix means the bytes follow uncompressed. Decompressed bytes go to
+/// `scratch`, which is reused from node to node (no allocation or zeroing per leaf).
+pub(crate) fn read_data<'x, 'a: 'x>(
     r: &mut ByteReader<'a>,
     comp: Compression,
     nbytes: usize,
-) -> DecodeResult<Cow<'a, [u8]>> {
+    scratch: &'x mut Vec<u8>,
+) -> DecodeResult<&'x [u8]> {
     if !(comp.blosc || comp.zip) {
-        return Ok(Cow::Borrowed(r.take(nbytes, "uncompressed values")?));
+        return r.take(nbytes, "uncompressed values");
     }
     let codec = if comp.blosc { "blosc" } else { "zip" };
     let n = r.i64("compressed size")?;
@@ -223,28 +226,33 @@ pub(crate) fn read_data<'a>(
                 r.offset()
             )));
         }
-        return Ok(Cow::Borrowed(r.take(nbytes, "values")?));
+        return r.take(nbytes, "values");
     }
     let at = r.offset();
     let len = usize::try_from(n).unwrap_or(usize::MAX);
     let src = r.take(len, "compressed values")?;
     let out = if comp.blosc {
-        blosc::decompress(src, nbytes)
-    } else {
-        inflate(src, nbytes)
-    };
-    out.map(Cow::Owned).map_err(|e| match e {
-        DecodeError::Invalid(m) | DecodeError::Truncated(m) => {
-            DecodeError::invalid(format!("{m} (block at offset {at})"))
+        if scratch.len() < nbytes {
+            scratch.resize(nbytes, 0);
         }
-        other @ DecodeError::Unsupported(_) => other,
-    })
+        blosc::decompress_into(src, &mut scratch[..nbytes])
+    } else {
+        inflate(src, nbytes, scratch)
+    };
+    match out {
+        Ok(()) => Ok(&scratch[..nbytes]),
+        Err(DecodeError::Invalid(m) | DecodeError::Truncated(m)) => {
+            Err(DecodeError::invalid(format!("{m} (block at offset {at})")))
+        }
+        Err(other) => Err(other),
+    }
 }
 
-fn inflate(src: &[u8], expected: usize) -> DecodeResult<Vec<u8>> {
-    let mut out = Vec::with_capacity(expected);
+/// Inflate a zlib block that must expand to exactly `expected` bytes into `out[..expected]`.
+fn inflate(src: &[u8], expected: usize, out: &mut Vec<u8>) -> DecodeResult<()> {
+    out.clear();
     let mut dec = flate2::read::ZlibDecoder::new(src).take(expected as u64 + 1);
-    dec.read_to_end(&mut out)
+    dec.read_to_end(out)
         .map_err(|e| DecodeError::invalid(format!("zlib data is corrupt: {e}")))?;
     if out.len() != expected {
         return Err(DecodeError::invalid(format!(
@@ -252,7 +260,7 @@ fn inflate(src: &[u8], expected: usize) -> DecodeResult<Vec<u8>> {
             out.len()
         )));
     }
-    Ok(out)
+    Ok(())
 }
 
 /// Per-node flag saying which inactive values and masks follow (`io::NodeMetadata`).
@@ -263,10 +271,6 @@ const MASK_AND_NO_INACTIVE_VALS: u8 = 3;
 const MASK_AND_ONE_INACTIVE_VAL: u8 = 4;
 const MASK_AND_TWO_INACTIVE_VALS: u8 = 5;
 const NO_MASK_AND_ALL_VALS: u8 = 6;
-
-fn is_on(mask: &[u64], i: usize) -> bool {
-    mask[i >> 6] >> (i & 63) & 1 != 0
-}
 
 /// `io::readCompressedValues` for a node of `dest.len()` values with the given value mask.
 /// `dest.len()` must be `64 * mask.len()`.
@@ -301,12 +305,20 @@ pub(crate) fn read_compressed_values(
             inactive1 = s.kind.decode(r.take(s.kind.size(), "inactive value")?);
         }
     }
-    let mut selection = [0u64; 512];
-    let selection = &mut selection[..mask.len()];
-    if matches!(
+    // Leaves have 8 mask words; only internal nodes need more (no 4 KiB zeroing per leaf).
+    let mut small = [0u64; 8];
+    let mut big = Vec::new();
+    let selection: &mut [u64] = if mask.len() <= small.len() {
+        &mut small[..mask.len()]
+    } else {
+        big.resize(mask.len(), 0);
+        &mut big
+    };
+    let has_selection = matches!(
         meta,
         MASK_AND_NO_INACTIVE_VALS | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
-    ) {
+    );
+    if has_selection {
         r.u64_words(selection, "selection mask")?;
     }
     let only_active = mask_compressed && meta != NO_MASK_AND_ALL_VALS;
@@ -316,37 +328,90 @@ pub(crate) fn read_compressed_values(
         dest.len()
     };
     let half = s.half && s.kind.is_real();
+    let fill_inactive = |dest: &mut [f32]| {
+        if has_selection {
+            for (w, &sel) in selection.iter().enumerate() {
+                for (b, d) in dest[w * 64..w * 64 + 64].iter_mut().enumerate() {
+                    *d = if sel >> b & 1 != 0 {
+                        inactive1
+                    } else {
+                        inactive0
+                    };
+                }
+            }
+        } else {
+            dest.fill(inactive0);
+        }
+    };
     // HalfWriter writes nothing at all for an empty array (not even a size prefix).
     if half && count == 0 {
-        dest.iter_mut().enumerate().for_each(|(i, d)| {
-            *d = if is_on(selection, i) {
-                inactive1
-            } else {
-                inactive0
-            };
-        });
+        fill_inactive(dest);
         return Ok(());
     }
     let elem = s.kind.array_size(s.half);
-    let data = read_data(r, s.compression, count * elem)?;
-    s.track_doubles(&data);
-    let mut values = data
-        .chunks_exact(elem)
-        .map(|b| s.kind.decode_array(b, half));
-    if only_active {
-        for (i, d) in dest.iter_mut().enumerate() {
-            *d = if is_on(mask, i) {
-                values.next().unwrap_or(0.0)
-            } else if is_on(selection, i) {
-                inactive1
-            } else {
-                inactive0
-            };
-        }
+    let mut scratch = s.scratch.borrow_mut();
+    let data = read_data(r, s.compression, count * elem, &mut scratch)?;
+    s.track_doubles(data);
+    if !only_active {
+        decode_array_into(s.kind, half, data, dest);
+        return Ok(());
+    }
+    // Decode the active values contiguously, then scatter them to the mask's set bits.
+    let mut stack = [0f32; 512];
+    let mut heap = Vec::new();
+    let vals: &mut [f32] = if count <= stack.len() {
+        &mut stack[..count]
     } else {
-        dest.iter_mut().zip(values).for_each(|(d, v)| *d = v);
+        heap.resize(count, 0.0);
+        &mut heap
+    };
+    decode_array_into(s.kind, half, data, vals);
+    fill_inactive(dest);
+    let mut next = 0;
+    for (w, &word) in mask.iter().enumerate() {
+        if word == u64::MAX {
+            dest[w * 64..w * 64 + 64].copy_from_slice(&vals[next..next + 64]);
+            next += 64;
+            continue;
+        }
+        let mut bits = word;
+        while bits != 0 {
+            dest[w * 64 + bits.trailing_zeros() as usize] = vals[next];
+            next += 1;
+            bits &= bits - 1;
+        }
     }
     Ok(())
+}
+
+/// Decode a value array (`out.len()` elements of `data`) into `out`, with the common types'
+/// loops specialised (no per-value dispatch).
+fn decode_array_into(kind: ValueKind, half: bool, data: &[u8], out: &mut [f32]) {
+    match (kind, half) {
+        (ValueKind::Float, false) => {
+            for (o, c) in out.iter_mut().zip(data.chunks_exact(4)) {
+                *o = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+            }
+        }
+        (ValueKind::Float | ValueKind::Double, true) => {
+            for (o, c) in out.iter_mut().zip(data.chunks_exact(2)) {
+                *o = half::f16::from_le_bytes([c[0], c[1]]).to_f32();
+            }
+        }
+        (ValueKind::Double, false) => {
+            for (o, c) in out.iter_mut().zip(data.chunks_exact(8)) {
+                let mut a = [0u8; 8];
+                a.copy_from_slice(c);
+                *o = f64::from_le_bytes(a) as f32;
+            }
+        }
+        _ => {
+            let elem = kind.array_size(half);
+            for (o, c) in out.iter_mut().zip(data.chunks_exact(elem)) {
+                *o = kind.decode_array(c, half);
+            }
+        }
+    }
 }
 
 #[cfg(test)]
@@ -360,6 +425,7 @@ mod tests {
             compression: Compression::from_flags(comp),
             background: 0.5,
             precision: std::cell::Cell::default(),
+            scratch: std::cell::RefCell::default(),
         }
     }
 
@@ -415,8 +481,9 @@ mod tests {
         let mut bytes = (z.len() as i64).to_le_bytes().to_vec();
         bytes.extend_from_slice(&z);
         let comp = Compression::from_flags(1);
-        let got = read_data(&mut ByteReader::new(&bytes, 0), comp, 64);
-        assert_eq!(got.ok().map(|c| c.into_owned()), Some(raw));
-        assert!(read_data(&mut ByteReader::new(&bytes, 0), comp, 65).is_err());
+        let mut sc = Vec::new();
+        let got = read_data(&mut ByteReader::new(&bytes, 0), comp, 64, &mut sc);
+        assert_eq!(got.ok().map(<[u8]>::to_vec), Some(raw));
+        assert!(read_data(&mut ByteReader::new(&bytes, 0), comp, 65, &mut sc).is_err());
     }
 }
