@@ -105,16 +105,21 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         .min(todo.len())
         .max(1);
     let per_task = (cores / workers).max(1);
+    // With a fixed resolution the bar counts pixels (it moves during long bakes), else tasks.
+    let pixels = job.pixels_hint();
+    let total_units = pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64);
     let bar = if a.quiet || !std::io::stderr().is_terminal() {
         indicatif::ProgressBar::hidden()
     } else {
         let style = indicatif::ProgressStyle::with_template(
-            "{spinner} batch [{bar:40}] {pos}/{len} tasks, {msg} eta {eta}",
+            "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}",
         )
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
         .progress_chars("=> ");
-        indicatif::ProgressBar::new(todo.len() as u64).with_style(style)
+        indicatif::ProgressBar::new(total_units).with_style(style)
     };
+    bar.set_message(format!("0/{} tasks, 0 failed,", todo.len()));
+    let done = AtomicUsize::new(0);
     let start = std::time::Instant::now();
     let next = AtomicUsize::new(0);
     let failed = AtomicUsize::new(0);
@@ -126,7 +131,11 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
                 let Some(t) = todo.get(k) else { break };
                 let t0 = std::time::Instant::now();
                 let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    job.run_task(t, per_task, &|_| {})
+                    job.run_task(t, per_task, &|n| {
+                        if pixels.is_some() {
+                            bar.inc(n);
+                        }
+                    })
                 }))
                 .unwrap_or_else(|_| Err("panicked".into()));
                 let secs = t0.elapsed().as_secs_f64();
@@ -149,8 +158,15 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
                         v.push(format!("{e:#}"));
                     }
                 }
-                bar.inc(1);
-                bar.set_message(format!("{} failed,", failed.load(Ordering::Relaxed)));
+                if pixels.is_none() {
+                    bar.inc(1);
+                }
+                bar.set_message(format!(
+                    "{}/{} tasks, {} failed,",
+                    done.fetch_add(1, Ordering::Relaxed) + 1,
+                    todo.len(),
+                    failed.load(Ordering::Relaxed)
+                ));
             });
         }
     });
