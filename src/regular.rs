@@ -129,10 +129,11 @@ fn cells_integral(
         return 0.0;
     }
     let (lo, hi) = cell_range(q, d, t0, t1);
+    let w = Dda::new(q, d, t0, lo, hi);
     let mut src = AccSource { acc, cell: [0; 3] };
     match interp {
-        Interp::Nearest => nearest_cells(&mut src, q, d, t0, t1, lo, hi, n),
-        Interp::Trilinear => trilinear_cells(&mut src, q, d, t0, t1, lo, hi, n),
+        Interp::Nearest => nearest_cells(&mut src, w, q, d, t1, lo, hi, n),
+        Interp::Trilinear => trilinear_cells(&mut src, w, q, d, t1, lo, hi, n),
     }
 }
 
@@ -155,24 +156,22 @@ fn leaf_integral(
     let tree = acc.tree();
     let l = &tree.leaves[leaf as usize];
     let o = l.origin.map(i64::from);
-    let (lo, hi) = cell_range(q, d, t0, t1);
-    let lo = [0, 1, 2].map(|a| lo[a].clamp(o[a], o[a] + 7));
-    let hi = [0, 1, 2].map(|a| hi[a].clamp(o[a], o[a] + 7));
+    let (lo, hi) = (o, o.map(|c| c + 7));
+    let w = Dda::new(q, d, t0, lo, hi);
     let mut src = LeafSource {
         values: &l.values,
-        origin: o,
         blocks: [Block::Const(f32::NAN); 8],
         base: 0,
         interior: true,
-        local: [0; 3],
     };
     match interp {
-        Interp::Nearest => nearest_cells(&mut src, q, d, t0, t1, lo, hi, n),
+        Interp::Nearest => nearest_cells(&mut src, w, q, d, t1, lo, hi, n),
         Interp::Trilinear => {
             // Block `k` (bits x, y, z) is the 8^3 block at `o + 8 * bits`; only those the
-            // corners `[lo, hi + 1]` reach are resolved.
+            // corners can reach are resolved: on axis `a` the cells reach the + face only if
+            // the ray moves up `a` or starts on that face.
             src.blocks[0] = Block::Leaf(&l.values);
-            let reach = [0, 1, 2].map(|a| usize::from(hi[a] == o[a] + 7));
+            let reach = [0, 1, 2].map(|a| usize::from(d[a] > 0.0 || w.cell[a] == hi[a]));
             let nb = tree.neighbours.get(leaf as usize);
             for k in 1..8usize {
                 let bits = [k >> 2, (k >> 1) & 1, k & 1];
@@ -184,7 +183,7 @@ fn leaf_integral(
                     };
                 }
             }
-            trilinear_cells(&mut src, q, d, t0, t1, lo, hi, n)
+            trilinear_cells(&mut src, w, q, d, t1, lo, hi, n)
         }
     }
 }
@@ -226,22 +225,21 @@ const CORNER_OFFSET: [usize; 8] = [0, 1, 8, 9, 64, 65, 72, 73];
 /// others (on the + faces) from the neighbouring blocks.
 struct LeafSource<'t> {
     values: &'t [f32; 512],
-    origin: [i64; 3],
     blocks: [Block<'t>; 8],
     /// Leaf offset of the current cell.
     base: usize,
     /// Every corner of the current cell is in the leaf.
     interior: bool,
-    local: [usize; 3],
 }
 
 impl CornerSource for LeafSource<'_> {
     #[inline]
     fn at(&mut self, cell: [i64; 3]) {
-        let u = [0, 1, 2].map(|a| ((cell[a] - self.origin[a]) & 7) as usize);
-        self.local = u;
+        // Leaf-local coordinates are the low 3 bits (the leaf origin is a multiple of 8).
+        let u = cell.map(|c| (c & 7) as usize);
         self.base = (u[0] << 6) | (u[1] << 3) | u[2];
-        self.interior = u[0] < 7 && u[1] < 7 && u[2] < 7;
+        // A local coordinate is 7 (the + face) iff its 3 bits are all set.
+        self.interior = self.base & (self.base >> 1) & (self.base >> 2) & 0o111 == 0;
     }
     #[inline]
     fn get(&mut self, k: usize) -> f32 {
@@ -249,9 +247,9 @@ impl CornerSource for LeafSource<'_> {
             return self.values[(self.base + CORNER_OFFSET[k]) & 511];
         }
         let u = [
-            self.local[0] + (k >> 2),
-            self.local[1] + ((k >> 1) & 1),
-            self.local[2] + (k & 1),
+            (self.base >> 6) + (k >> 2),
+            ((self.base >> 3) & 7) + ((k >> 1) & 1),
+            (self.base & 7) + (k & 1),
         ];
         let b = ((u[0] >> 3) << 2) | ((u[1] >> 3) << 1) | (u[2] >> 3);
         self.blocks[b].get(((u[0] & 7) << 6) | ((u[1] & 7) << 3) | (u[2] & 7))
@@ -261,6 +259,8 @@ impl CornerSource for LeafSource<'_> {
 /// The unit-cell DDA state: current cell, step direction and the `t` of the next boundary on
 /// each axis.
 struct Dda {
+    /// Where the walk starts.
+    t0: f64,
     cell: [i64; 3],
     step: [i64; 3],
     t_next: [f64; 3],
@@ -270,6 +270,7 @@ impl Dda {
     #[inline]
     fn new(q: [f64; 3], d: [f64; 3], t0: f64, lo: [i64; 3], hi: [i64; 3]) -> Self {
         let mut s = Self {
+            t0,
             cell: [0; 3],
             step: [0; 3],
             t_next: [f64::INFINITY; 3],
@@ -292,12 +293,13 @@ impl Dda {
     #[inline]
     fn axis(&self) -> usize {
         let t = &self.t_next;
-        if t[0] <= t[1] && t[0] <= t[2] {
-            0
-        } else if t[1] <= t[2] {
-            1
-        } else {
+        // Ties go to the lower axis, as in `traverse::dda`.
+        let a = usize::from(t[1] < t[0]);
+        let ta = if a == 1 { t[1] } else { t[0] };
+        if t[2] < ta {
             2
+        } else {
+            a
         }
     }
 
@@ -341,16 +343,15 @@ fn boundary_t(q: f64, d: f64, c: i64) -> f64 {
 #[inline]
 fn nearest_cells(
     src: &mut impl CornerSource,
+    mut w: Dda,
     q: [f64; 3],
     d: [f64; 3],
-    t0: f64,
     t1: f64,
     lo: [i64; 3],
     hi: [i64; 3],
     n: &mut Counts,
 ) -> f64 {
-    let mut w = Dda::new(q, d, t0, lo, hi);
-    let (mut t, mut sum) = (t0, 0.0f64);
+    let (mut t, mut sum) = (w.t0, 0.0f64);
     loop {
         let axis = w.axis();
         let t_exit = w.t_next[axis].min(t1);
@@ -367,42 +368,20 @@ fn nearest_cells(
     }
 }
 
-/// Corner slots `(dst, src, fetch)`: `v[dst[i]] = v[src[i]]`, then read the `fetch` corners.
-type Shift = ([usize; 4], [usize; 4], [usize; 4]);
-
-/// For a step along axis `a` in direction `+` (index 0) or `-` (index 1): which corner slots
-/// keep which old values (`dst <- src`) and which 4 slots are read anew.
-const SHIFT: [[Shift; 2]; 3] = [
-    [
-        ([0, 1, 2, 3], [4, 5, 6, 7], [4, 5, 6, 7]),
-        ([4, 5, 6, 7], [0, 1, 2, 3], [0, 1, 2, 3]),
-    ],
-    [
-        ([0, 1, 4, 5], [2, 3, 6, 7], [2, 3, 6, 7]),
-        ([2, 3, 6, 7], [0, 1, 4, 5], [0, 1, 4, 5]),
-    ],
-    [
-        ([0, 2, 4, 6], [1, 3, 5, 7], [1, 3, 5, 7]),
-        ([1, 3, 5, 7], [0, 2, 4, 6], [0, 2, 4, 6]),
-    ],
-];
-
 /// Trilinear: the exact integral over the dual cells of `[t0, t1]` within `[lo, hi]`, reusing
 /// the 4 corners two consecutive cells share.
 #[allow(clippy::too_many_arguments)]
 #[inline]
 fn trilinear_cells(
     src: &mut impl CornerSource,
+    mut w: Dda,
     q: [f64; 3],
     d: [f64; 3],
-    t0: f64,
     t1: f64,
     lo: [i64; 3],
     hi: [i64; 3],
     n: &mut Counts,
 ) -> f64 {
-    let mut w = Dda::new(q, d, t0, lo, hi);
-    let shift = [0, 1, 2].map(|a| SHIFT[a][usize::from(w.step[a] < 0)]);
     let du = [0, 1, 2].map(|a| d[a] * GAUSS);
     let mut v = [0f64; 8];
     src.at(w.cell);
@@ -410,7 +389,7 @@ fn trilinear_cells(
         *x = f64::from(src.get(k));
     }
     n.reads += 8;
-    let (mut t, mut sum) = (t0, 0.0f64);
+    let (mut t, mut sum) = (w.t0, 0.0f64);
     loop {
         let axis = w.axis();
         let t_exit = w.t_next[axis].min(t1);
@@ -423,14 +402,17 @@ fn trilinear_cells(
             return sum;
         }
         // The old far face on `axis` is the new near face (or the other way round).
-        let (dst, from, fetch) = shift[axis];
-        for i in 0..4 {
-            v[dst[i]] = v[from[i]];
-        }
+        // Constant indices in each arm, so the 8 corners can stay in registers.
         src.at(w.cell);
-        for k in fetch {
-            v[k] = f64::from(src.get(k));
-        }
+        let mut get = |k: usize| f64::from(src.get(k));
+        v = match (axis, w.step[axis] > 0) {
+            (0, true) => [v[4], v[5], v[6], v[7], get(4), get(5), get(6), get(7)],
+            (0, false) => [get(0), get(1), get(2), get(3), v[0], v[1], v[2], v[3]],
+            (1, true) => [v[2], v[3], get(2), get(3), v[6], v[7], get(6), get(7)],
+            (1, false) => [get(0), get(1), v[0], v[1], get(4), get(5), v[4], v[5]],
+            (_, true) => [v[1], get(1), v[3], get(3), v[5], get(5), v[7], get(7)],
+            (_, false) => [get(0), v[0], get(2), v[2], get(4), v[4], get(6), v[6]],
+        };
         n.reads += 4;
     }
 }
@@ -457,11 +439,15 @@ fn cubic_cell_integral(
     let lerp = |a: [f64; 2], b: [f64; 2], w: [f64; 2]| {
         [a[0] + (b[0] - a[0]) * w[0], a[1] + (b[1] - a[1]) * w[1]]
     };
-    let s = |k: usize| [v[k], v[k]];
-    let z0 = lerp(s(0), s(1), u[2]);
-    let z1 = lerp(s(2), s(3), u[2]);
-    let z2 = lerp(s(4), s(5), u[2]);
-    let z3 = lerp(s(6), s(7), u[2]);
+    // Along z the two corner values are the same for both points: one difference each.
+    let zl = |a: f64, b: f64| {
+        let dd = b - a;
+        [a + dd * u[2][0], a + dd * u[2][1]]
+    };
+    let z0 = zl(v[0], v[1]);
+    let z1 = zl(v[2], v[3]);
+    let z2 = zl(v[4], v[5]);
+    let z3 = zl(v[6], v[7]);
     let f = lerp(lerp(z0, z1, u[1]), lerp(z2, z3, u[1]), u[0]);
     let r = h * (f[0] + f[1]);
     if !r.is_finite() && v.iter().any(|x| x.is_infinite()) {
