@@ -1,13 +1,16 @@
 //! Render one orthographic transmittance view exactly as `vdb_render -camera ortho` frames it
-//! (the convention of `../shared/tools/oracle.py image`), in parallel, and write `T` to an EXR
-//! (`R = G = B = T`, `A = 1 - T`, as vdb_render's alpha). The peer benchmark (`bench/peer.sh`)
-//! runs it against vdb_render on the same view.
+//! (the convention of `../shared/tools/oracle.py image`) with the bake library
+//! (`umbra::bake::bake`, parallel 16x16 tiles) and write it with `umbra::bake::write_exr`
+//! (channel `T`). The peer benchmark (`bench/peer.sh`) runs it against vdb_render on the same
+//! view. `--compare A.exr:CH B.exr:CH` instead prints the RMSE, max and mean signed difference
+//! of two images (`CH` a channel name, or `1-A` for vdb_render's `T = 1 - alpha`).
 //!
 //! ```sh
 //! cargo run --release --example ortho_view -- FILE --grid density --scale 5 \
 //!     --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res 512x512 \
 //!     [--estimator regular|riemann] [--step 1] [--interp trilinear|nearest] [--threads 0] \
 //!     [--reps 1] [--out t.exr]
+//! cargo run --release --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
 //! ```
 //!
 //! Camera (OpenVDB `OrthographicCamera`): `d = normalise(dir)`, `u = normalise(up - (up.d) d)`,
@@ -17,11 +20,10 @@
 //! (median of `--reps`), rays/s, cells and lookups per ray, peak resident memory.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
-use rayon::prelude::*;
 use std::time::Instant;
-use umbra::estimate::{estimate, Estimator, Options};
-use umbra::regular::optical_depth;
-use umbra::{Interp, Ray, Volume};
+use umbra::bake::{bake, write_exr, BakeSettings, Camera, Projection, Provenance};
+use umbra::estimate::{Estimator, Options};
+use umbra::{Interp, Volume};
 
 fn vec3(s: &str) -> [f64; 3] {
     let v: Vec<f64> = s.split(',').map(|x| x.trim().parse().unwrap()).collect();
@@ -42,56 +44,56 @@ fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
     ]
 }
 
-/// A minimal single-part scanline OpenEXR file, uncompressed, float channels `A, B, G, R` with
-/// `R = G = B = T` and `A = 1 - T` (what vdb_render writes), row 0 at the top.
-fn exr_rgba(t: &[f32], w: usize, h: usize) -> Vec<u8> {
-    let mut b: Vec<u8> = vec![0x76, 0x2f, 0x31, 0x01, 2, 0, 0, 0];
-    let attr = |b: &mut Vec<u8>, name: &str, ty: &str, v: &[u8]| {
-        b.extend_from_slice(name.as_bytes());
-        b.push(0);
-        b.extend_from_slice(ty.as_bytes());
-        b.push(0);
-        b.extend_from_slice(&(v.len() as i32).to_le_bytes());
-        b.extend_from_slice(v);
+/// One channel of an EXR as f64, row 0 at the top; `1-CH` gives `1 - CH`.
+fn read_channel(spec: &str) -> (Vec<f64>, usize) {
+    let (path, ch) = spec.rsplit_once(':').unwrap_or((spec, "T"));
+    let (ch, flip) = match ch.strip_prefix("1-") {
+        Some(c) => (c, true),
+        None => (ch, false),
     };
-    let mut ch = Vec::new();
-    for c in ["A", "B", "G", "R"] {
-        ch.extend_from_slice(c.as_bytes());
-        ch.push(0);
-        ch.extend_from_slice(&2i32.to_le_bytes()); // FLOAT
-        ch.extend_from_slice(&[0, 0, 0, 0]); // pLinear, reserved
-        ch.extend_from_slice(&1i32.to_le_bytes());
-        ch.extend_from_slice(&1i32.to_le_bytes());
-    }
-    ch.push(0);
-    let win: Vec<u8> = [0i32, 0, w as i32 - 1, h as i32 - 1]
+    let img = exr::prelude::read_first_flat_layer_from_file(path).unwrap();
+    let width = img.layer_data.size.0;
+    let c = img
+        .layer_data
+        .channel_data
+        .list
         .iter()
-        .flat_map(|v| v.to_le_bytes())
+        .find(|c| c.name.to_string() == ch)
+        .unwrap_or_else(|| panic!("{path} has no channel {ch}"));
+    let v = c
+        .sample_data
+        .values_as_f32()
+        .map(|x| {
+            if flip {
+                1.0 - f64::from(x)
+            } else {
+                f64::from(x)
+            }
+        })
         .collect();
-    attr(&mut b, "channels", "chlist", &ch);
-    attr(&mut b, "compression", "compression", &[0]);
-    attr(&mut b, "dataWindow", "box2i", &win);
-    attr(&mut b, "displayWindow", "box2i", &win);
-    attr(&mut b, "lineOrder", "lineOrder", &[0]);
-    attr(&mut b, "pixelAspectRatio", "float", &1f32.to_le_bytes());
-    attr(&mut b, "screenWindowCenter", "v2f", &[0; 8]);
-    attr(&mut b, "screenWindowWidth", "float", &1f32.to_le_bytes());
-    b.push(0);
-    let line = 8 + 16 * w;
-    let first = b.len() + 8 * h;
-    for y in 0..h {
-        b.extend_from_slice(&((first + y * line) as u64).to_le_bytes());
-    }
-    for y in 0..h {
-        b.extend_from_slice(&(y as i32).to_le_bytes());
-        b.extend_from_slice(&((16 * w) as i32).to_le_bytes());
-        let row = &t[y * w..(y + 1) * w];
-        for f in [|t: f32| 1.0 - t, |t| t, |t| t, |t| t] {
-            row.iter()
-                .for_each(|&v| b.extend_from_slice(&f(v).to_le_bytes()));
-        }
-    }
-    b
+    (v, width)
+}
+
+/// `--compare A B`: RMSE, max |A - B| and mean (A - B) over pixels finite in both.
+fn compare(a: &str, b: &str) {
+    let ((x, wa), (y, wb)) = (read_channel(a), read_channel(b));
+    assert!(x.len() == y.len() && wa == wb, "{a} and {b} differ in size");
+    let d: Vec<f64> = x
+        .iter()
+        .zip(&y)
+        .filter(|(p, q)| p.is_finite() && q.is_finite())
+        .map(|(p, q)| p - q)
+        .collect();
+    let n = d.len() as f64;
+    println!(
+        "{}",
+        serde_json::json!({
+            "pixels": d.len(),
+            "rmse": (d.iter().map(|e| e * e).sum::<f64>() / n).sqrt(),
+            "max_abs": d.iter().fold(0.0f64, |m, e| m.max(e.abs())),
+            "mean_signed": d.iter().sum::<f64>() / n,
+        })
+    );
 }
 
 /// Peak resident set size (VmHWM) of this process in bytes.
@@ -108,6 +110,10 @@ fn peak_rss() -> u64 {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.first().map(String::as_str) == Some("--compare") && args.len() == 3 {
+        compare(&args[1], &args[2]);
+        return;
+    }
     let mut file = None;
     let mut opt = std::collections::HashMap::new();
     let mut i = 0;
@@ -152,8 +158,11 @@ fn main() {
     };
     let out = opt.get("out").cloned();
 
+    let rss_start = peak_rss();
     let t = Instant::now();
-    let vol = Volume::load(&file, &grid, scale).unwrap();
+    let g = umbra::vdb::load_grid(&file, &grid).unwrap();
+    let file_mem_bytes = g.file_mem_bytes();
+    let vol = Volume::new(g, scale, std::path::Path::new(&file)).unwrap();
     let load_s = t.elapsed().as_secs_f64();
     let rss_loaded = peak_rss();
 
@@ -162,71 +171,83 @@ fn main() {
         [0, 1, 2].map(|a| up[a] - k * dir[a])
     });
     let r = norm(cross(dir, u));
-    let half = frame / 2.0;
-    let aspect = h as f64 / w as f64;
-    let pixel_ray = |i: usize, j: usize| {
-        let x = (2.0 * (i as f64 + 0.5) / w as f64 - 1.0) * half;
-        let y = (1.0 - 2.0 * (j as f64 + 0.5) / h as f64) * half * aspect;
-        let o = [0, 1, 2].map(|a| center[a] + r[a] * x + u[a] * y);
-        Ray::new(o, dir, 0.0, f64::INFINITY).unwrap()
+    let s = frame / w as f64;
+    let (x0, y0) = (
+        -frame / 2.0 + s / 2.0,
+        frame / 2.0 * h as f64 / w as f64 - s / 2.0,
+    );
+    let origin = [0, 1, 2].map(|a| center[a] + r[a] * x0 + u[a] * y0);
+    // Trace every ray to the far side of the volume box (nothing behind the image plane).
+    let corners = umbra::bake::volume_corners(&vol).unwrap();
+    let depth = |p: &[f64; 3]| (0..3).map(|a| (p[a] - center[a]) * dir[a]).sum::<f64>();
+    let t_max = corners.iter().map(depth).fold(0.0, f64::max);
+    let t_near = corners
+        .iter()
+        .map(depth)
+        .fold(f64::INFINITY, f64::min)
+        .max(0.0);
+    let camera = Camera {
+        kind: Projection::Ortho,
+        width: w as u32,
+        height: h as u32,
+        origin,
+        step_x: r.map(|c| c * s),
+        step_y: u.map(|c| -c * s),
+        direction: dir,
+        t_max,
+        t_near,
+        forward: dir,
+        right: r,
+        up: u,
+        pixel_size: s,
     };
-    let opts = Options {
-        interp,
-        ..Options::default()
+    let mut settings = BakeSettings::new(
+        est,
+        Options {
+            interp,
+            ..Options::default()
+        },
+    );
+    settings.threads = threads;
+    let nthreads = if threads == 0 {
+        rayon::current_num_threads()
+    } else {
+        threads
     };
-    let pool = rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .unwrap();
-    let mut img = vec![0f32; w * h];
     let mut times = Vec::new();
-    let (mut cells, mut lookups) = (0u64, 0u64);
+    let mut map = None;
     for _ in 0..reps {
         let t = Instant::now();
-        let (c, l) = pool.install(|| {
-            img.par_chunks_mut(w)
-                .enumerate()
-                .map(|(j, row)| {
-                    let (mut c, mut l) = (0u64, 0u64);
-                    for (i, px) in row.iter_mut().enumerate() {
-                        let ray = pixel_ray(i, j);
-                        *px = if let Estimator::Regular = est {
-                            let od = optical_depth(&vol, &ray, interp).unwrap();
-                            c += od.cells;
-                            l += od.lookups;
-                            od.transmittance() as f32
-                        } else {
-                            let e = estimate(&vol, &ray, (j * w + i) as u64, &est, &opts).unwrap();
-                            l += e.lookups;
-                            e.value as f32
-                        };
-                    }
-                    (c, l)
-                })
-                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
-        });
+        let m = bake(&vol, &camera, &settings, &|_| {}).unwrap();
         times.push(t.elapsed().as_secs_f64());
-        (cells, lookups) = (c, l);
+        map = Some(m);
     }
+    let map = map.expect("--reps must be at least 1");
     times.sort_by(f64::total_cmp);
     let render_s = times[times.len() / 2];
+    let rss_baked = peak_rss();
     if let Some(path) = &out {
-        std::fs::write(path, exr_rgba(&img, w, h)).unwrap();
+        let prov = Provenance {
+            source_file: file.clone(),
+            grid: grid.clone(),
+            density_scale: scale,
+            light_dir: Some(dir),
+            light_pos: None,
+        };
+        write_exr(std::path::Path::new(path), &map, &prov, true).unwrap();
     }
+    let lookups = map.stats.lookups;
     let rays = (w * h) as f64;
     println!(
         "{}",
         serde_json::json!({
             "file": file, "estimator": est.name(), "step": step, "interp": format!("{interp:?}"),
-            "threads": pool.current_num_threads(), "res": [w, h],
+            "threads": nthreads, "res": [w, h],
             "load_s": load_s, "render_s": render_s, "render_s_all": times,
-            "rays_per_s": rays / render_s,
-            "cells_per_ray": cells as f64 / rays, "lookups_per_ray": lookups as f64 / rays,
-            "ns_per_cell_thread": if cells > 0 {
-                render_s * 1e9 * pool.current_num_threads() as f64 / cells as f64
-            } else { 0.0 },
-            "tree_bytes": vol.tree.memory_bytes(),
-            "peak_rss_after_load": rss_loaded, "peak_rss": peak_rss(),
+            "rays_per_s": rays / render_s, "lookups_per_ray": lookups as f64 / rays,
+            "tree_bytes": vol.tree.memory_bytes(), "file_mem_bytes": file_mem_bytes,
+            "peak_rss_start": rss_start, "peak_rss_after_load": rss_loaded,
+            "peak_rss_after_bake": rss_baked, "peak_rss": peak_rss(),
         })
     );
 }
