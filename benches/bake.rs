@@ -1,0 +1,47 @@
+//! Full bakes through the library (`umbra::bake::bake`): a 256x256 orthographic transmittance
+//! map of the sample cloud (`data/cloud.vdb`, density scale 4, light along (0.6, -0.35, -1)),
+//! exact regular tracking (trilinear) and ray marching (Riemann, 1 voxel), on 1 thread and on
+//! every core. The parallel speed-up is the ratio of the two; criterion reports maps/s.
+//! Run: `cargo bench --bench bake`.
+#![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::path::PathBuf;
+use std::time::Duration;
+use umbra::bake::{bake, volume_corners, BakeSettings, Camera, Projection, View};
+use umbra::estimate::{Estimator, Options};
+use umbra::Volume;
+
+fn bench_bake(c: &mut Criterion) {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb");
+    let vol = Volume::load(&path, "density", 4.0).unwrap();
+    let view = View {
+        projection: Projection::Ortho,
+        light_dir: Some([0.6, -0.35, -1.0]),
+        light_pos: None,
+        fov_deg: None,
+        res: Some((256, 256)),
+    };
+    let camera = Camera::frame(&view, &volume_corners(&vol).unwrap()).unwrap();
+    let cores = rayon::current_num_threads();
+    let mut g = c.benchmark_group("bake_256x256");
+    g.sample_size(10)
+        .warm_up_time(Duration::from_millis(500))
+        .measurement_time(Duration::from_secs(4));
+    for (name, est) in [
+        ("regular", Estimator::Regular),
+        ("riemann_1vox", Estimator::Riemann { step: 1.0 }),
+    ] {
+        for threads in [1, cores] {
+            let mut s = BakeSettings::new(est, Options::default());
+            s.threads = threads;
+            g.bench_function(format!("{name}/{threads}_threads"), |b| {
+                b.iter(|| bake(&vol, &camera, &s, &|_| {}).unwrap().stats.lookups);
+            });
+        }
+    }
+    g.finish();
+}
+
+criterion_group!(benches, bench_bake);
+criterion_main!(benches);
