@@ -8,8 +8,8 @@
 //! ```sh
 //! cargo run --release --example ortho_view -- FILE --grid density --scale 5 \
 //!     --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res 512x512 \
-//!     [--estimator regular|riemann] [--step 1] [--interp trilinear|nearest] [--threads 0] \
-//!     [--reps 1] [--out t.exr]
+//!     [--estimator regular|riemann|NAME] [--step 1] [--spp 1] [--seed 0] \
+//!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--out t.exr]
 //! cargo run --release --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
 //! ```
 //!
@@ -205,6 +205,8 @@ fn main() {
         est,
         Options {
             interp,
+            samples: get("spp", "1").parse().unwrap(),
+            seed: get("seed", "0").parse().unwrap(),
             ..Options::default()
         },
     );
