@@ -1,21 +1,146 @@
 //! Decode one grid's topology and leaf buffers straight into umbra's flat [`Tree`]: a single
 //! depth-first pass over the topology (root table, upper nodes, lower nodes, leaf masks), then
-//! the leaf buffers, which OpenVDB writes in the same depth-first order.
+//! the leaf buffers, which OpenVDB writes in the same depth-first order. The topology comes
+//! from memory; the leaf buffers are streamed from the file through a [`BufferWindow`] (1 MiB at
+//! a time), so a load never holds the whole compressed grid next to the decoded tree.
 
 use super::bytes::ByteReader;
 use super::values::{read_compressed_values, PrecisionLoss, StreamInfo, ValueKind};
-use crate::error::{DecodeError, DecodeResult};
+use crate::error::{DecodeError, DecodeResult, Error, Result};
 use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree};
+use std::io::{Read, Seek, SeekFrom};
+use std::path::Path;
 
-/// Decode topology then buffers. `block_pos` is where the descriptor says buffers start; the
-/// topology must end exactly there.
+/// Bytes of leaf buffers read from the file at a time.
+const WINDOW: usize = 1 << 20;
+
+/// The leaf buffers `[start, end)` of a grid, read from the file window by window.
+#[derive(Debug)]
+pub(crate) struct BufferWindow<'f> {
+    file: &'f mut std::fs::File,
+    path: &'f Path,
+    /// File bytes from `base`.
+    buf: Vec<u8>,
+    base: u64,
+    /// Bytes of `buf` already decoded.
+    used: usize,
+    end: u64,
+}
+
+impl<'f> BufferWindow<'f> {
+    /// The region `[start, end)` of `file`.
+    pub(crate) fn new(file: &'f mut std::fs::File, path: &'f Path, start: u64, end: u64) -> Self {
+        Self {
+            file,
+            path,
+            buf: Vec::new(),
+            base: start,
+            used: 0,
+            end,
+        }
+    }
+
+    /// Run `f` on a reader at the next undecoded byte. If `f` runs out of bytes before the end
+    /// of the region, the window is refilled (and grown) and `f` runs again from the same byte.
+    fn read<T>(&mut self, mut f: impl FnMut(&mut ByteReader<'_>) -> DecodeResult<T>) -> Result<T> {
+        loop {
+            let mut r = ByteReader::new(&self.buf[self.used..], self.base + self.used as u64);
+            match f(&mut r) {
+                Ok(v) => {
+                    self.used = usize::try_from(r.offset() - self.base).unwrap_or(usize::MAX);
+                    return Ok(v);
+                }
+                Err(DecodeError::Truncated(_)) if self.loaded_end() < self.end => self.refill()?,
+                Err(e) => return Err(e.at(self.path)),
+            }
+        }
+    }
+
+    fn loaded_end(&self) -> u64 {
+        self.base + self.buf.len() as u64
+    }
+
+    /// Drop the decoded bytes, then read at least a window (or twice what is left undecoded,
+    /// for a buffer larger than a window) up to the end of the region.
+    fn refill(&mut self) -> Result<()> {
+        self.buf.drain(..self.used);
+        self.base += self.used as u64;
+        self.used = 0;
+        let at = self.loaded_end();
+        let want = (WINDOW as u64)
+            .max(2 * self.buf.len() as u64)
+            .min(self.end - at);
+        let io = |err| Error::Io {
+            path: self.path.to_path_buf(),
+            err,
+        };
+        self.file.seek(SeekFrom::Start(at)).map_err(io)?;
+        let got = (&mut *self.file)
+            .take(want)
+            .read_to_end(&mut self.buf)
+            .map_err(|err| Error::Io {
+                path: self.path.to_path_buf(),
+                err,
+            })?;
+        if (got as u64) < want {
+            return Err(DecodeError::invalid(format!(
+                "the leaf buffers end at offset {} but the file has only {} bytes",
+                self.end,
+                at + got as u64
+            ))
+            .at(self.path));
+        }
+        Ok(())
+    }
+}
+
+/// Decode topology (from `r`, which must hold exactly the bytes up to `block_pos`, where the
+/// descriptor says the buffers start) then the leaf buffers (from `buffers`).
 pub(crate) fn decode_tree(
     r: &mut ByteReader<'_>,
     kind: ValueKind,
     half: bool,
     compression: super::Compression,
     block_pos: u64,
-) -> DecodeResult<(Tree, Option<PrecisionLoss>)> {
+    buffers: &mut BufferWindow<'_>,
+) -> Result<(Tree, Option<PrecisionLoss>)> {
+    let path = buffers.path;
+    let (mut tree, leaf_topo, s) = decode_topology(r, kind, half, compression, block_pos)
+        .map_err(|e| match e {
+            DecodeError::Truncated(m) => DecodeError::invalid(format!(
+                "{m}: the topology runs past offset {block_pos}, where the grid descriptor puts \
+                 the leaf buffers"
+            )),
+            other => other,
+        })
+        .map_err(|e| e.at(path))?;
+    tree.leaves.reserve_exact(leaf_topo.len());
+    for (origin, value_mask) in leaf_topo {
+        tree.leaves.push(Leaf {
+            origin,
+            value_mask,
+            values: [0.0; 512],
+            bounds: Bounds::EMPTY,
+            halo: Bounds::EMPTY,
+        });
+        if let Some(leaf) = tree.leaves.last_mut() {
+            buffers.read(|r| read_leaf_buffer(r, &s, leaf))?;
+        }
+    }
+    tree.compute_bounds();
+    let precision = (kind == ValueKind::Double && !half).then(|| s.precision.get());
+    Ok((tree, precision))
+}
+
+/// The topology: the tree without leaf values, the leaves' origins and masks, and the stream
+/// settings the buffers are decoded with.
+fn decode_topology(
+    r: &mut ByteReader<'_>,
+    kind: ValueKind,
+    half: bool,
+    compression: super::Compression,
+    block_pos: u64,
+) -> DecodeResult<(Tree, Vec<LeafTopology>, StreamInfo)> {
     let buffer_count = r.i32("tree buffer count")?;
     if buffer_count != 1 {
         return Err(DecodeError::unsupported(format!(
@@ -79,22 +204,7 @@ pub(crate) fn decode_tree(
             r.offset()
         )));
     }
-    tree.leaves.reserve_exact(leaf_topo.len());
-    for (origin, value_mask) in leaf_topo {
-        tree.leaves.push(Leaf {
-            origin,
-            value_mask,
-            values: [0.0; 512],
-            bounds: Bounds::EMPTY,
-            halo: Bounds::EMPTY,
-        });
-        if let Some(leaf) = tree.leaves.last_mut() {
-            read_leaf_buffer(r, &s, leaf)?;
-        }
-    }
-    tree.compute_bounds();
-    let precision = (kind == ValueKind::Double && !half).then(|| s.precision.get());
-    Ok((tree, precision))
+    Ok((tree, leaf_topo, s))
 }
 
 #[derive(Clone, Copy, PartialEq, Eq)]

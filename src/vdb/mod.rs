@@ -81,15 +81,26 @@ impl Archive {
     pub fn load(&self, gd: &GridDescriptor) -> Result<Grid> {
         let path = &self.path;
         let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(path))?;
-        let bytes = self.grid_bytes(gd)?;
+        let bytes = self.grid_head(gd)?;
         let mut r = ByteReader::new(&bytes, gd.grid_pos);
         let compression =
             Compression::from_flags(r.u32("compression flags").map_err(|e| e.at(path))?);
         let metadata = metadata::read_meta_map(&mut r).map_err(|e| e.at(path))?;
         let transform = transform::read_transform(&mut r).map_err(|e| e.at(path))?;
         let (tree, precision_loss) = if gd.instance_parent.is_empty() {
-            decode::decode_tree(&mut r, kind, gd.saved_as_half, compression, gd.block_pos)
-                .map_err(|e| e.at(path))?
+            let mut file = std::fs::File::open(path).map_err(|err| Error::Io {
+                path: path.clone(),
+                err,
+            })?;
+            let mut buffers = decode::BufferWindow::new(&mut file, path, gd.block_pos, gd.end_pos);
+            decode::decode_tree(
+                &mut r,
+                kind,
+                gd.saved_as_half,
+                compression,
+                gd.block_pos,
+                &mut buffers,
+            )?
         } else {
             let parent = self.instance_parent(gd)?;
             (parent.tree, parent.precision_loss)
@@ -109,18 +120,20 @@ impl Archive {
         })
     }
 
-    fn grid_bytes(&self, gd: &GridDescriptor) -> Result<Vec<u8>> {
+    /// The grid's bytes before its leaf buffers: metadata, transform and topology
+    /// (`[grid_pos, block_pos)`; the buffers are streamed by the decoder).
+    fn grid_head(&self, gd: &GridDescriptor) -> Result<Vec<u8>> {
         let mut file = std::fs::File::open(&self.path).map_err(|err| Error::Io {
             path: self.path.clone(),
             err,
         })?;
-        let len = gd.end_pos - gd.grid_pos;
+        let len = gd.block_pos - gd.grid_pos;
         let bytes = archive::read_window(&mut file, gd.grid_pos, len, &self.path)?;
         if bytes.len() as u64 != len {
             return Err(DecodeError::invalid(format!(
-                "grid '{}' ends at offset {} but the file has only {} bytes",
+                "grid '{}' topology ends at offset {} but the file has only {} bytes",
                 gd.display_name,
-                gd.end_pos,
+                gd.block_pos,
                 gd.grid_pos + bytes.len() as u64
             ))
             .at(&self.path));
