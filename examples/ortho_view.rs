@@ -9,7 +9,7 @@
 //! cargo run --release --example ortho_view -- FILE --grid density --scale 5 \
 //!     --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res 512x512 \
 //!     [--estimator regular|riemann|NAME] [--step 1] [--spp 1] [--seed 0] \
-//!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--out t.exr]
+//!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--index-offset 0] [--out t.exr]
 //! cargo run --release --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
 //! ```
 //!
@@ -160,7 +160,15 @@ fn main() {
 
     let rss_start = peak_rss();
     let t = Instant::now();
-    let g = umbra::vdb::load_grid(&file, &grid).unwrap();
+    let mut g = umbra::vdb::load_grid(&file, &grid).unwrap();
+    // `--index-offset 0.5`: voxel (i, j, k) sits at index (i, j, k) + offset (Cycles' convention).
+    let offset: f64 = get("index-offset", "0").parse().unwrap();
+    if offset != 0.0 {
+        let m = &mut g.transform.world_from_index;
+        for row in m.iter_mut().take(3) {
+            row[3] += offset * (row[0] + row[1] + row[2]);
+        }
+    }
     let file_mem_bytes = g.file_mem_bytes();
     let vol = Volume::new(g, scale, std::path::Path::new(&file)).unwrap();
     let load_s = t.elapsed().as_secs_f64();

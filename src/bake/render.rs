@@ -288,13 +288,32 @@ pub fn bake(
         .install(run)
 }
 
+/// One finished tile: its pixels in tile row-major order, already in output precision, and
+/// its share of the statistics (per-pixel records are not kept: 4 bytes a channel a pixel).
 struct Tile {
     x0: u32,
     y0: u32,
     w: u32,
     h: u32,
-    px: Vec<Px>,
+    t: Vec<f32>,
+    std_err: Vec<f32>,
     slices: Vec<f32>,
+    stats: BakeStats,
+}
+
+impl Tile {
+    fn add(&mut self, px: &Px, keep_std_err: bool) {
+        self.t.push(px.t as f32);
+        if keep_std_err {
+            self.std_err.push(px.std_err as f32);
+        }
+        let st = &mut self.stats;
+        st.samples += px.samples;
+        st.lookups += px.lookups;
+        st.capped += px.capped;
+        st.max_std_err = st.max_std_err.max(px.std_err);
+        st.unconverged += u64::from(px.unconverged);
+    }
 }
 
 fn render(
@@ -320,16 +339,19 @@ fn render(
                 y0,
                 w: tw,
                 h: th,
-                px: Vec::with_capacity((tw * th) as usize),
+                t: Vec::with_capacity((tw * th) as usize),
+                std_err: Vec::with_capacity(if s.std_err { (tw * th) as usize } else { 0 }),
                 slices: vec![0.0; (tw * th) as usize * k],
+                stats: BakeStats::default(),
             };
             for j in y0..y0 + th {
                 for i in x0..x0 + tw {
-                    let n = t.px.len();
+                    let n = t.t.len();
                     let ray = camera.pixel_ray(i, j)?;
                     let p = u64::from(j) * u64::from(w) + u64::from(i);
                     let out = &mut t.slices[n * k..(n + 1) * k];
-                    t.px.push(pixel(vol, s, depths, &ray, p, npix, out)?);
+                    let px = pixel(vol, s, depths, &ray, p, npix, out)?;
+                    t.add(&px, s.std_err);
                 }
             }
             progress(u64::from(tw * th));
@@ -350,24 +372,24 @@ fn render(
         },
     };
     for t in &done {
-        for (n, px) in t.px.iter().enumerate() {
+        for (n, &value) in t.t.iter().enumerate() {
             let (i, j) = (t.x0 + n as u32 % t.w, t.y0 + n as u32 / t.w);
             let idx = j as usize * w as usize + i as usize;
-            map.t[idx] = px.t as f32;
+            map.t[idx] = value;
             if let Some(e) = map.std_err.as_mut() {
-                e[idx] = px.std_err as f32;
+                e[idx] = t.std_err[n];
             }
             for (c, slice) in map.slices.iter_mut().enumerate() {
                 slice[idx] = t.slices[n * k + c];
             }
-            let st = &mut map.stats;
-            st.samples += px.samples;
-            st.lookups += px.lookups;
-            st.capped += px.capped;
-            st.max_std_err = st.max_std_err.max(px.std_err);
-            st.unconverged += u64::from(px.unconverged);
         }
-        debug_assert_eq!(t.px.len(), (t.w * t.h) as usize);
+        let st = &mut map.stats;
+        st.samples += t.stats.samples;
+        st.lookups += t.stats.lookups;
+        st.capped += t.stats.capped;
+        st.max_std_err = st.max_std_err.max(t.stats.max_std_err);
+        st.unconverged += t.stats.unconverged;
+        debug_assert_eq!(t.t.len(), (t.w * t.h) as usize);
     }
     map.stats.seconds = start.elapsed().as_secs_f64();
     Ok(map)
