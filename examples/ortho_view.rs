@@ -144,7 +144,13 @@ fn main() {
         let (a, b) = r.split_once('x').unwrap();
         (a.parse::<usize>().unwrap(), b.parse::<usize>().unwrap())
     };
-    let threads: usize = get("threads", "0").parse().unwrap();
+    // `--threads 1,2`: the renders of each rep alternate between the thread counts (so slow
+    // drift of the machine hits every count alike); the first count is the one reported.
+    let thread_list: Vec<usize> = get("threads", "0")
+        .split(',')
+        .map(|t| t.parse().unwrap())
+        .collect();
+    let threads = thread_list[0];
     let reps: usize = get("reps", "1").parse().unwrap();
     let step: f64 = get("step", "1").parse().unwrap();
     let interp = match get("interp", "trilinear").as_str() {
@@ -224,17 +230,30 @@ fn main() {
     } else {
         threads
     };
-    let mut times = Vec::new();
+    let mut times = vec![Vec::new(); thread_list.len()];
     let mut map = None;
     for _ in 0..reps {
-        let t = Instant::now();
-        let m = bake(&vol, &camera, &settings, &|_| {}).unwrap();
-        times.push(t.elapsed().as_secs_f64());
-        map = Some(m);
+        // The first count last, so that the image kept is its own.
+        for (k, &n) in thread_list.iter().enumerate().rev() {
+            settings.threads = n;
+            map = None; // the previous render's image is not part of this one's footprint
+            let t = Instant::now();
+            let m = bake(&vol, &camera, &settings, &|_| {}).unwrap();
+            times[k].push(t.elapsed().as_secs_f64());
+            if k == 0 {
+                map = Some(m);
+            }
+        }
     }
+    settings.threads = threads;
     let map = map.expect("--reps must be at least 1");
-    times.sort_by(f64::total_cmp);
-    let render_s = times[times.len() / 2];
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let medians: Vec<f64> = times.iter_mut().map(median).collect();
+    let render_s = medians[0];
+    let times = times.swap_remove(0);
     let rss_baked = peak_rss();
     if let Some(path) = &out {
         let prov = Provenance {
@@ -254,6 +273,7 @@ fn main() {
             "file": file, "estimator": est.name(), "step": step, "interp": format!("{interp:?}"),
             "threads": nthreads, "res": [w, h],
             "load_s": load_s, "render_s": render_s, "render_s_all": times,
+            "thread_counts": thread_list, "render_s_by_threads": medians,
             "rays_per_s": rays / render_s, "lookups_per_ray": lookups as f64 / rays,
             "tree_bytes": vol.tree.memory_bytes(), "file_mem_bytes": file_mem_bytes,
             "peak_rss_start": rss_start, "peak_rss_after_load": rss_loaded,

@@ -7,7 +7,7 @@ use crate::error::{Error, Result};
 use exr::meta::attribute::{AttributeValue, Text};
 use exr::prelude::{
     AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec,
-    WritableImage,
+    SpecificChannels, Vec2, WritableImage,
 };
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -165,15 +165,6 @@ pub fn slice_channel(k: usize) -> String {
 pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> Result<()> {
     let c = &map.camera;
     let size = (c.width as usize, c.height as usize);
-    let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
-    list.push(AnyChannel::new("T", FlatSamples::F32(map.t.clone())));
-    if let Some(e) = &map.std_err {
-        list.push(AnyChannel::new("T.stderr", FlatSamples::F32(e.clone())));
-    }
-    for (k, s) in map.slices.iter().enumerate() {
-        let name = Text::new_or_none(slice_channel(k)).unwrap_or_default();
-        list.push(AnyChannel::new(name, FlatSamples::F32(s.clone())));
-    }
     let mut a = LayerAttributes {
         world_to_camera: Some(m44f(c.world_to_camera())),
         world_to_normalized_device: Some(m44f(c.world_to_ndc())),
@@ -239,17 +230,40 @@ pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> 
         blocks: exr::image::Blocks::ScanLines,
         line_order: exr::meta::attribute::LineOrder::Increasing,
     };
-    let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
-    let writer = image.write();
-    let writer = if s.threads == 0 {
-        writer
-    } else {
-        writer.non_parallel()
-    };
+    let parallel = s.threads == 0;
     let mut buf = std::io::Cursor::new(Vec::new());
-    writer
-        .to_buffered(&mut buf)
-        .map_err(|e| output_err(path, format!("OpenEXR encoder: {e}")))?;
+    let encoded = if map.std_err.is_none() && map.slices.is_empty() {
+        // The common single-channel map is read straight from `map.t` (no copy of the image).
+        let width = size.0;
+        let channels = SpecificChannels::build()
+            .with_channel("T")
+            .with_pixel_fn(|p: Vec2<usize>| (map.t[p.y() * width + p.x()],));
+        let image = Image::from_layer(Layer::new(size, a, enc, channels));
+        let writer = image.write();
+        if parallel {
+            writer.to_buffered(&mut buf)
+        } else {
+            writer.non_parallel().to_buffered(&mut buf)
+        }
+    } else {
+        let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
+        list.push(AnyChannel::new("T", FlatSamples::F32(map.t.clone())));
+        if let Some(e) = &map.std_err {
+            list.push(AnyChannel::new("T.stderr", FlatSamples::F32(e.clone())));
+        }
+        for (k, s) in map.slices.iter().enumerate() {
+            let name = Text::new_or_none(slice_channel(k)).unwrap_or_default();
+            list.push(AnyChannel::new(name, FlatSamples::F32(s.clone())));
+        }
+        let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
+        let writer = image.write();
+        if parallel {
+            writer.to_buffered(&mut buf)
+        } else {
+            writer.non_parallel().to_buffered(&mut buf)
+        }
+    };
+    encoded.map_err(|e| output_err(path, format!("OpenEXR encoder: {e}")))?;
     let mut bytes = buf.into_inner();
     sort_attributes(&mut bytes).map_err(|e| output_err(path, e))?;
     write_atomic(path, overwrite, |w| {

@@ -7,7 +7,8 @@ use crate::ray::Ray;
 use crate::volume::Volume;
 use rayon::prelude::*;
 
-/// Tile side in pixels (tiles are the unit of parallel work and of progress).
+/// Tile side in pixels: bands of up to `TILE` rows are the unit of parallel work, and each
+/// band is traced `TILE` columns at a time (the unit of progress).
 const TILE: u32 = 16;
 /// Most adaptive batches per pixel (each doubles the sample count).
 pub const MAX_BATCHES: u32 = 32;
@@ -288,32 +289,20 @@ pub fn bake(
         .install(run)
 }
 
-/// One finished tile: its pixels in tile row-major order, already in output precision, and
-/// its share of the statistics (per-pixel records are not kept: 4 bytes a channel a pixel).
-struct Tile {
-    x0: u32,
-    y0: u32,
-    w: u32,
-    h: u32,
-    t: Vec<f32>,
+/// The optional channels of one finished band of rows (the main `T` is written in place) and
+/// its share of the statistics; per-pixel records are not kept.
+struct Band {
     std_err: Vec<f32>,
+    /// `slices[n k + c]`: slice `c` of the band's pixel `n` (band row-major).
     slices: Vec<f32>,
     stats: BakeStats,
 }
 
-impl Tile {
-    fn add(&mut self, px: &Px, keep_std_err: bool) {
-        self.t.push(px.t as f32);
-        if keep_std_err {
-            self.std_err.push(px.std_err as f32);
-        }
-        let st = &mut self.stats;
-        st.samples += px.samples;
-        st.lookups += px.lookups;
-        st.capped += px.capped;
-        st.max_std_err = st.max_std_err.max(px.std_err);
-        st.unconverged += u64::from(px.unconverged);
-    }
+/// Rows per band: one tile high, fewer when the image has too few rows to give every worker
+/// about four bands.
+fn band_rows(height: u32, workers: usize) -> u32 {
+    let per = u32::try_from(workers.max(1) * 4).unwrap_or(u32::MAX);
+    TILE.min((height / per).max(1))
 }
 
 fn render(
@@ -327,69 +316,78 @@ fn render(
     let (w, h) = (camera.width, camera.height);
     let npix = camera.pixels();
     let k = depths.len();
-    let tiles: Vec<(u32, u32)> = (0..h.div_ceil(TILE))
-        .flat_map(|ty| (0..w.div_ceil(TILE)).map(move |tx| (tx * TILE, ty * TILE)))
-        .collect();
-    let done: Vec<Tile> = tiles
-        .par_iter()
-        .map(|&(x0, y0)| {
-            let (tw, th) = (TILE.min(w - x0), TILE.min(h - y0));
-            let mut t = Tile {
-                x0,
-                y0,
-                w: tw,
-                h: th,
-                t: Vec::with_capacity((tw * th) as usize),
-                std_err: Vec::with_capacity(if s.std_err { (tw * th) as usize } else { 0 }),
-                slices: vec![0.0; (tw * th) as usize * k],
+    let len = npix as usize;
+    let rows = band_rows(h, rayon::current_num_threads());
+    // Bands of whole rows are contiguous in the row-major image, so every worker writes `T`
+    // straight into its own part of the output; inside a band, pixels go tile by tile
+    // (`TILE` columns at a time) so that neighbouring rays reuse the same cached nodes.
+    let mut t_image = vec![0.0f32; len];
+    let bands: Vec<Band> = t_image
+        .par_chunks_mut(rows as usize * w as usize)
+        .enumerate()
+        .map(|(b, t_band)| {
+            let y0 = b as u32 * rows;
+            let bh = (t_band.len() / w as usize) as u32;
+            let n_band = t_band.len();
+            let mut band = Band {
+                std_err: vec![0.0; if s.std_err { n_band } else { 0 }],
+                slices: vec![0.0; n_band * k],
                 stats: BakeStats::default(),
             };
-            for j in y0..y0 + th {
-                for i in x0..x0 + tw {
-                    let n = t.t.len();
-                    let ray = camera.pixel_ray(i, j)?;
-                    let p = u64::from(j) * u64::from(w) + u64::from(i);
-                    let out = &mut t.slices[n * k..(n + 1) * k];
-                    let px = pixel(vol, s, depths, &ray, p, npix, out)?;
-                    t.add(&px, s.std_err);
+            let mut x0 = 0;
+            while x0 < w {
+                let tw = TILE.min(w - x0);
+                for j in y0..y0 + bh {
+                    for i in x0..x0 + tw {
+                        let n = (j - y0) as usize * w as usize + i as usize;
+                        let ray = camera.pixel_ray(i, j)?;
+                        let p = u64::from(j) * u64::from(w) + u64::from(i);
+                        let out = &mut band.slices[n * k..(n + 1) * k];
+                        let px = pixel(vol, s, depths, &ray, p, npix, out)?;
+                        t_band[n] = px.t as f32;
+                        if s.std_err {
+                            band.std_err[n] = px.std_err as f32;
+                        }
+                        let st = &mut band.stats;
+                        st.samples += px.samples;
+                        st.lookups += px.lookups;
+                        st.capped += px.capped;
+                        st.max_std_err = st.max_std_err.max(px.std_err);
+                        st.unconverged += u64::from(px.unconverged);
+                    }
                 }
+                progress(u64::from(tw * bh));
+                x0 += tw;
             }
-            progress(u64::from(tw * th));
-            Ok(t)
+            Ok(band)
         })
         .collect::<Result<_>>()?;
-    let len = npix as usize;
     let mut map = Map {
         camera: *camera,
         settings: s.clone(),
-        t: vec![0.0; len],
-        std_err: s.std_err.then(|| vec![0.0; len]),
+        t: t_image,
+        std_err: s.std_err.then(|| Vec::with_capacity(len)),
         depths: depths.to_vec(),
-        slices: vec![vec![0.0; len]; k],
+        slices: vec![Vec::with_capacity(len); k],
         stats: BakeStats {
             rays: npix,
             ..BakeStats::default()
         },
     };
-    for t in &done {
-        for (n, &value) in t.t.iter().enumerate() {
-            let (i, j) = (t.x0 + n as u32 % t.w, t.y0 + n as u32 / t.w);
-            let idx = j as usize * w as usize + i as usize;
-            map.t[idx] = value;
-            if let Some(e) = map.std_err.as_mut() {
-                e[idx] = t.std_err[n];
-            }
-            for (c, slice) in map.slices.iter_mut().enumerate() {
-                slice[idx] = t.slices[n * k + c];
-            }
+    // Bands are in image order, so their optional channels concatenate into whole images.
+    for band in bands {
+        if let Some(e) = map.std_err.as_mut() {
+            e.extend_from_slice(&band.std_err);
+        }
+        for (c, slice) in map.slices.iter_mut().enumerate() {
+            slice.extend(band.slices.iter().skip(c).step_by(k.max(1)));
         }
         let st = &mut map.stats;
-        st.samples += t.stats.samples;
-        st.lookups += t.stats.lookups;
-        st.capped += t.stats.capped;
-        st.max_std_err = st.max_std_err.max(t.stats.max_std_err);
-        st.unconverged += t.stats.unconverged;
-        debug_assert_eq!(t.t.len(), (t.w * t.h) as usize);
+        st.samples += band.stats.samples;
+        st.lookups += band.stats.lookups;
+        st.capped += band.stats.capped;
+        st.max_std_err = st.max_std_err.max(band.stats.max_std_err);
+        st.unconverged += band.stats.unconverged;
     }
     map.stats.seconds = start.elapsed().as_secs_f64();
     Ok(map)

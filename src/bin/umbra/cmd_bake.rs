@@ -173,6 +173,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         light_dir: a.light_dir,
         light_pos: a.light_pos,
     };
+    drop(vol); // the tree is not needed to write the map: peak memory is load + bake
     write_exr(&a.output, &map, &prov, a.force)?;
     if let Some(p) = &a.preview {
         write_png(p, &map, a.force)?;
