@@ -43,7 +43,12 @@ fn main() {
         })
         .collect();
     let lo = [0, 1, 2].map(|a| corners.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min));
-    let hi = [0, 1, 2].map(|a| corners.iter().map(|p| p[a]).fold(f64::NEG_INFINITY, f64::max));
+    let hi = [0, 1, 2].map(|a| {
+        corners
+            .iter()
+            .map(|p| p[a])
+            .fold(f64::NEG_INFINITY, f64::max)
+    });
     let mut rng = rand_pcg::Pcg64::seed_from_u64(7);
     let rays: Vec<Ray> = (0..n_rays)
         .map(|_| {
