@@ -154,6 +154,31 @@ struct Px {
     unconverged: bool,
 }
 
+impl Px {
+    /// This pixel's share of the map statistics.
+    fn stats(&self) -> BakeStats {
+        BakeStats {
+            samples: self.samples,
+            lookups: self.lookups,
+            capped: self.capped,
+            max_std_err: self.std_err,
+            unconverged: u64::from(self.unconverged),
+            ..BakeStats::default()
+        }
+    }
+}
+
+impl BakeStats {
+    /// Add the counts of `o` (pixels, bands) to these; `rays` and `seconds` are the caller's.
+    fn absorb(&mut self, o: &BakeStats) {
+        self.samples += o.samples;
+        self.lookups += o.lookups;
+        self.capped += o.capped;
+        self.max_std_err = self.max_std_err.max(o.max_std_err);
+        self.unconverged += o.unconverged;
+    }
+}
+
 /// Merge two batches' means and squared-deviation sums (Chan et al.).
 fn merge(a: (f64, f64, u64), e: &Estimate) -> (f64, f64, u64) {
     let (mean, m2, n) = a;
@@ -348,12 +373,7 @@ fn render(
                         if s.std_err {
                             band.std_err[n] = px.std_err as f32;
                         }
-                        let st = &mut band.stats;
-                        st.samples += px.samples;
-                        st.lookups += px.lookups;
-                        st.capped += px.capped;
-                        st.max_std_err = st.max_std_err.max(px.std_err);
-                        st.unconverged += u64::from(px.unconverged);
+                        band.stats.absorb(&px.stats());
                     }
                 }
                 progress(u64::from(tw * bh));
@@ -382,12 +402,7 @@ fn render(
         for (c, slice) in map.slices.iter_mut().enumerate() {
             slice.extend(band.slices.iter().skip(c).step_by(k.max(1)));
         }
-        let st = &mut map.stats;
-        st.samples += band.stats.samples;
-        st.lookups += band.stats.lookups;
-        st.capped += band.stats.capped;
-        st.max_std_err = st.max_std_err.max(band.stats.max_std_err);
-        st.unconverged += band.stats.unconverged;
+        map.stats.absorb(&band.stats);
     }
     map.stats.seconds = start.elapsed().as_secs_f64();
     Ok(map)
