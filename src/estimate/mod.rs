@@ -272,7 +272,36 @@ pub const REFINE_NULL_COLLISIONS: f64 = 8.0;
 /// Walk the ray once and split it into closed-form and sampled parts.
 #[must_use]
 pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'_>) -> Prepared {
-    let mut all = Vec::new();
+    let mut p = Prepared::default();
+    prepare_into(vol, ray, opts, medium, &mut Scratch::default(), &mut p);
+    p
+}
+
+/// Buffers [`prepare`] fills and empties for each ray; kept per thread by [`estimate`] so that
+/// a warm thread allocates nothing per ray.
+#[derive(Debug, Default)]
+struct Scratch {
+    all: Vec<Segment>,
+    cells: Vec<Segment>,
+}
+
+thread_local! {
+    /// Per-thread buffers of [`estimate`]: the walk's segments and the prepared ray.
+    static BUFFERS: std::cell::RefCell<(Scratch, Prepared)> =
+        std::cell::RefCell::new((Scratch::default(), Prepared::default()));
+}
+
+/// [`prepare`] into `p` (cleared first), with `scratch` for the intermediate segments.
+fn prepare_into(
+    vol: &Volume,
+    ray: &Ray,
+    opts: &Options,
+    medium: &mut RayMedium<'_>,
+    scratch: &mut Scratch,
+    p: &mut Prepared,
+) {
+    let Scratch { all, cells } = scratch;
+    all.clear();
     let w = walk(vol, ray, opts.interp, opts.granularity, |s| {
         all.push(s);
         ControlFlow::Continue(())
@@ -291,13 +320,12 @@ pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'
         (Some(a), Some(b)) if global => (all[a].t_min, all[b].t_max),
         _ => (f64::INFINITY, f64::NEG_INFINITY),
     };
-    let mut p = Prepared {
-        walked: w.segments,
-        ..Prepared::default()
-    };
+    p.segs.clear();
+    p.tau_known = 0.0;
+    p.walked = w.segments;
+    p.lookups = 0;
     let mut covered_outside = 0.0;
-    let mut cells = Vec::new();
-    for s in &all {
+    for s in all.iter() {
         if global && s.t_min >= first && s.t_max <= last {
             continue; // inside the single global segment: sampled
         }
@@ -306,11 +334,11 @@ pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'
         // collisions: refine them to per-cell bounds, unless the global baseline is asked for.
         cells.clear();
         if !global && sampled(s) && (s.mu_maj - s.mu_min) * s.length() > REFINE_NULL_COLLISIONS {
-            medium.refine(s, &mut cells);
+            medium.refine(s, cells);
         } else {
             cells.push(*s);
         }
-        for c in &cells {
+        for c in cells.iter() {
             if c.is_constant() {
                 p.tau_known += c.mu_min * c.length();
             } else if c.mu_maj.is_finite() {
@@ -324,19 +352,19 @@ pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'
         // The naive baseline: one segment over the whole sampled range with the grid-wide
         // bounds; constant parts and background gaps inside it are sampled too.
         let b = vol.bounds();
-        p.segs = vec![Segment {
+        p.segs.clear();
+        p.segs.push(Segment {
             t_min: first,
             t_max: last,
             mu_min: vol.density_scale * f64::from(b.min.max(0.0)),
             mu_maj: vol.density_scale * f64::from(b.max),
             level: 4,
-        }];
+        });
         p.tau_known += bg_tau(w.length - (last - first) - covered_outside);
     } else {
         p.tau_known += bg_tau(w.length - w.covered);
     }
     p.lookups = medium.lookups();
-    p
 }
 
 /// Estimate the transmittance along `ray` (ray index `ray_id` selects the random streams).
@@ -363,7 +391,28 @@ pub fn estimate(
             tau: Some(od.tau),
         });
     }
-    let prep = prepare(vol, ray, opts, &mut medium);
+    BUFFERS.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut bufs) => {
+            let (scratch, prep) = &mut *bufs;
+            prepare_into(vol, ray, opts, &mut medium, scratch, prep);
+            Ok(sample_prepared(est, prep, medium, ray_id, opts))
+        }
+        // Re-entered on this thread (not done today): fresh buffers rather than a panic.
+        Err(_) => {
+            let prep = prepare(vol, ray, opts, &mut medium);
+            Ok(sample_prepared(est, &prep, medium, ray_id, opts))
+        }
+    })
+}
+
+/// The samples of a prepared ray: their mean, standard error and cost.
+fn sample_prepared(
+    est: &Estimator,
+    prep: &Prepared,
+    mut medium: RayMedium<'_>,
+    ray_id: u64,
+    opts: &Options,
+) -> Estimate {
     let known = (-prep.tau_known).exp();
     let samples = if est.is_deterministic() || prep.segs.is_empty() {
         1
@@ -387,7 +436,7 @@ pub fn estimate(
     } else {
         0.0
     };
-    Ok(Estimate {
+    Estimate {
         value: mean,
         std_err,
         lookups: medium.lookups(),
@@ -395,7 +444,7 @@ pub fn estimate(
         samples,
         capped,
         tau: None,
-    })
+    }
 }
 
 /// Collision budget of one sample.
