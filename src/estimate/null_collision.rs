@@ -171,16 +171,14 @@ pub(crate) fn next_flight(
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
-    // tail[i]: majorant optical depth of the segments after i.
-    let mut tail = vec![0.0; segs.len()];
-    for i in (0..segs.len().saturating_sub(1)).rev() {
-        tail[i] = tail[i + 1] + segs[i + 1].mu_maj * segs[i + 1].length();
-    }
-    let tau_maj =
-        segs.first().map_or(0.0, |s| s.mu_maj * s.length()) + tail.first().copied().unwrap_or(0.0);
+    let tau_maj: f64 = segs.iter().map(|s| s.mu_maj * s.length()).sum();
     let mut est = (-tau_maj).exp();
     let mut w = 1.0;
-    'outer: for (i, s) in segs.iter().enumerate() {
+    // Majorant optical depth of the segments after the current one, kept by subtraction (no
+    // per-sample table; clamped at 0 against rounding).
+    let mut tail = tau_maj;
+    'outer: for s in segs {
+        tail = (tail - s.mu_maj * s.length()).max(0.0);
         if s.mu_maj <= 0.0 {
             continue;
         }
@@ -197,7 +195,7 @@ pub(crate) fn next_flight(
             if w == 0.0 {
                 break 'outer;
             }
-            est += w * (-(s.mu_maj * (s.t_max - t) + tail[i])).exp();
+            est += w * (-(s.mu_maj * (s.t_max - t) + tail)).exp();
         }
     }
     est
