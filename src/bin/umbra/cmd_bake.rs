@@ -2,7 +2,7 @@
 
 use crate::cmd_query::{load_volume, parse_vec3, EstimatorArgs, InterpArg};
 use anyhow::{bail, Context, Result};
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::bake::{
@@ -154,16 +154,11 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         threads: a.threads,
         ..BakeSettings::new(estimator, options)
     };
-    let bar = if a.quiet || !std::io::stderr().is_terminal() {
-        indicatif::ProgressBar::hidden()
-    } else {
-        let style = indicatif::ProgressStyle::with_template(
-            "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-        .progress_chars("=> ");
-        indicatif::ProgressBar::new(camera.pixels()).with_style(style)
-    };
+    let bar = crate::progress_bar(
+        a.quiet,
+        "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
+        camera.pixels(),
+    );
     let map = bake(&vol, &camera, &settings, &|n| bar.inc(n))?;
     bar.finish_and_clear();
     let prov = Provenance {

@@ -1,7 +1,7 @@
 //! `umbra batch`: many inputs x many lights from a TOML job file, resumable, shardable.
 
 use anyhow::{bail, Context, Result};
-use std::io::{IsTerminal, Write};
+use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -108,16 +108,11 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     // With a fixed resolution the bar counts pixels (it moves during long bakes), else tasks.
     let pixels = job.pixels_hint();
     let total_units = pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64);
-    let bar = if a.quiet || !std::io::stderr().is_terminal() {
-        indicatif::ProgressBar::hidden()
-    } else {
-        let style = indicatif::ProgressStyle::with_template(
-            "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-        .progress_chars("=> ");
-        indicatif::ProgressBar::new(total_units).with_style(style)
-    };
+    let bar = crate::progress_bar(
+        a.quiet,
+        "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}",
+        total_units,
+    );
     bar.set_message(format!("0/{} tasks, 0 failed,", todo.len()));
     let done = AtomicUsize::new(0);
     let start = std::time::Instant::now();

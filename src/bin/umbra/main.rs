@@ -73,3 +73,16 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Compare(args) => cmd_compare::run(&args),
     }
 }
+
+/// A progress bar on stderr over `len` units with `template` (indicatif syntax), hidden with
+/// `--quiet` or when stderr is not a terminal.
+fn progress_bar(quiet: bool, template: &str, len: u64) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    if quiet || !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let style = indicatif::ProgressStyle::with_template(template)
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> ");
+    indicatif::ProgressBar::new(len).with_style(style)
+}
