@@ -29,8 +29,11 @@ fn bench_bake(c: &mut Criterion) {
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(4));
     for (name, est) in [
-        ("regular", Estimator::Regular),
-        ("riemann_1vox", Estimator::Riemann { step: 1.0 }),
+        ("regular", Estimator::REGULAR),
+        (
+            "riemann_1vox",
+            Estimator::with_params("riemann", &[("step", 1.0)]).unwrap(),
+        ),
     ] {
         for threads in [1, cores] {
             let mut s = BakeSettings::new(est, Options::default());

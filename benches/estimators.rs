@@ -14,7 +14,7 @@ use std::hint::black_box;
 use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::Duration;
-use umbra::estimate::{estimate, Estimator, Options, ESTIMATOR_NAMES};
+use umbra::estimate::{estimate, Estimator, Options};
 use umbra::regular::optical_depth;
 use umbra::traverse::{walk, Granularity};
 use umbra::{Interp, Ray, Volume};
@@ -29,7 +29,7 @@ const GROUPS: [(&str, f64, f64); 3] = [
 
 /// Random chords of the cloud's box, sorted into the optical-depth groups until each is full.
 fn grouped_rays(vol: &Volume) -> Vec<Vec<(Ray, f64)>> {
-    let [lo, hi] = vol.value_box.unwrap();
+    let [lo, hi] = vol.value_box().unwrap();
     let (lo, hi) = (
         vol.to_world(lo.map(|c| c as f64)),
         vol.to_world(hi.map(|c| c as f64)),
@@ -77,13 +77,14 @@ fn theory(vol: &Volume, est: &Estimator, ray: &Ray) -> (f64, &'static str) {
         });
         t
     };
-    match est {
-        Estimator::Regular => (
+    match est.name() {
+        "regular" => (
             optical_depth(vol, ray, Interp::Trilinear).unwrap().lookups as f64,
             "= reads (8 + 4/cell)",
         ),
-        Estimator::Riemann { step } | Estimator::Mc { step } | Estimator::Jittered { step } => {
-            let vox = vol.to_index_dir(ray.direction);
+        "riemann" | "mc" | "jittered" => {
+            let step = est.param("step").unwrap();
+            let vox = vol.to_index_dir(ray.direction());
             let per_world = (vox[0] * vox[0] + vox[1] * vox[1] + vox[2] * vox[2]).sqrt();
             let mut n = 0.0;
             walk(vol, ray, Interp::Trilinear, Granularity::Leaf, |s| {
@@ -95,14 +96,12 @@ fn theory(vol: &Volume, est: &Estimator, ray: &Ray) -> (f64, &'static str) {
             (n, "= sum ceil(L/h)")
         }
         // E = taubar, less where the weight reaches 0 (mu = mu_maj) and the walk stops.
-        Estimator::Ratio | Estimator::ResidualRatio { .. } | Estimator::NextFlight => {
+        "ratio" | "residual-ratio" | "residual-ratio-midpoint" | "next-flight" => {
             (taubar(), "E <= taubar")
         }
-        Estimator::TrackLength | Estimator::Collision { .. } | Estimator::Decomposition => {
-            (taubar(), "E <= taubar")
-        }
-        Estimator::Jackknife { points } => (2.0 * f64::from(*points), "= 2 x points"),
-        Estimator::UnbiasedRaymarch => (f64::NAN, "n/a"),
+        "track-length" | "collision" | "decomposition" => (taubar(), "E <= taubar"),
+        "jackknife" => (2.0 * est.param("points").unwrap(), "= 2 x points"),
+        _ => (f64::NAN, "n/a"),
     }
 }
 
@@ -114,9 +113,8 @@ fn bench_estimators(c: &mut Criterion) {
         samples: 1,
         ..Options::default()
     };
-    let ests: Vec<Estimator> = ESTIMATOR_NAMES
-        .iter()
-        .map(|n| Estimator::from_name(n, 1.0, 0.01).unwrap())
+    let ests: Vec<Estimator> = umbra::estimate::names()
+        .map(|n| Estimator::from_name(n).unwrap())
         .collect();
     eprintln!(
         "estimators on data/cloud.vdb (scale {SCALE}, trilinear, leaf majorants, 1 sample/ray)"

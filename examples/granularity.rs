@@ -29,7 +29,7 @@ fn main() {
     let n_rays: usize = args.get(3).map_or(4000, |s| s.parse().unwrap());
     let reps: usize = args.get(4).map_or(3, |s| s.parse().unwrap());
     let vol = Volume::load(&file, "density", scale).unwrap();
-    let vb = vol.value_box.expect("grid has values");
+    let vb = vol.value_box().expect("grid has values");
     let corners: Vec<[f64; 3]> = (0..8)
         .map(|c| {
             let p = [0, 1, 2].map(|a| {
@@ -70,7 +70,7 @@ fn main() {
         .iter()
         .enumerate()
         .map(|(i, r)| {
-            estimate(&vol, r, i as u64, &Estimator::Regular, &base)
+            estimate(&vol, r, i as u64, &Estimator::REGULAR, &base)
                 .unwrap()
                 .value
         })
@@ -97,7 +97,7 @@ fn main() {
         ("global majorant", Granularity::Leaf, true),
     ];
     for name in estimators {
-        let est = Estimator::from_name(name, 1.0, 0.0).unwrap();
+        let est = Estimator::from_name(name).unwrap();
         let mut leaf_eff = None;
         for (gname, g, global) in grans {
             let opts = Options {

@@ -157,11 +157,9 @@ fn main() {
         "nearest" => Interp::Nearest,
         _ => Interp::Trilinear,
     };
-    let est = match get("estimator", "regular").as_str() {
-        "regular" => Estimator::Regular,
-        "riemann" => Estimator::Riemann { step },
-        other => Estimator::from_name(other, step, 0.0).expect("estimator name"),
-    };
+    let name = get("estimator", "regular");
+    let est = Estimator::from_name(&name).expect("estimator name");
+    let est = est.set("step", step).unwrap_or(est);
     let out = opt.get("out").cloned();
 
     let rss_start = peak_rss();
@@ -275,7 +273,7 @@ fn main() {
             "load_s": load_s, "render_s": render_s, "render_s_all": times,
             "thread_counts": thread_list, "render_s_by_threads": medians,
             "rays_per_s": rays / render_s, "lookups_per_ray": lookups as f64 / rays,
-            "tree_bytes": vol.tree.memory_bytes(), "file_mem_bytes": file_mem_bytes,
+            "tree_bytes": vol.tree().memory_bytes(), "file_mem_bytes": file_mem_bytes,
             "peak_rss_start": rss_start, "peak_rss_after_load": rss_loaded,
             "peak_rss_after_bake": rss_baked, "peak_rss": peak_rss(),
         })

@@ -19,6 +19,8 @@ pub mod compare;
 pub mod error;
 pub mod estimate;
 pub mod info;
+pub mod light;
+pub mod output;
 pub mod ray;
 pub mod regular;
 pub mod rng;
@@ -28,5 +30,6 @@ pub mod vdb;
 pub mod volume;
 
 pub use error::{Error, Result};
+pub use light::Light;
 pub use ray::Ray;
 pub use volume::{Interp, Volume};

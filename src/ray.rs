@@ -4,16 +4,20 @@ use crate::error::{Error, Result};
 
 /// A world-space ray segment `p(t) = origin + t * direction`, `t` in `[t_min, t_max]`.
 /// The direction is normalised on construction, so `t` is world distance along the ray.
+///
+/// Invariants (checked by every constructor, so the fields are private): finite origin, unit
+/// finite direction, `0 <= t_min <= t_max` with `t_min` finite (`t_max` may be infinite).
+///
+/// ```compile_fail
+/// // A struct literal would bypass the checks: it does not compile.
+/// let r = umbra::Ray { origin: [0.0; 3], direction: [0.0; 3], t_min: 2.0, t_max: 1.0 };
+/// ```
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
-    /// World-space origin.
-    pub origin: [f64; 3],
-    /// Unit world-space direction.
-    pub direction: [f64; 3],
-    /// Start of the segment (world units from `origin`).
-    pub t_min: f64,
-    /// End of the segment; may be `f64::INFINITY` ("until the ray leaves the volume").
-    pub t_max: f64,
+    origin: [f64; 3],
+    direction: [f64; 3],
+    t_min: f64,
+    t_max: f64,
 }
 
 impl Ray {
@@ -58,6 +62,44 @@ impl Ray {
             return Self::new(a, [1.0, 0.0, 0.0], 0.0, 0.0);
         }
         Self::new(a, d, 0.0, len)
+    }
+
+    /// World-space origin.
+    #[must_use]
+    pub fn origin(&self) -> [f64; 3] {
+        self.origin
+    }
+
+    /// Unit world-space direction.
+    #[must_use]
+    pub fn direction(&self) -> [f64; 3] {
+        self.direction
+    }
+
+    /// Start of the segment (world units from the origin).
+    #[must_use]
+    pub fn t_min(&self) -> f64 {
+        self.t_min
+    }
+
+    /// End of the segment; may be `f64::INFINITY` ("until the ray leaves the volume").
+    #[must_use]
+    pub fn t_max(&self) -> f64 {
+        self.t_max
+    }
+
+    /// Length `t_max - t_min` (may be infinite).
+    #[must_use]
+    pub fn length(&self) -> f64 {
+        self.t_max - self.t_min
+    }
+
+    /// The same line over `[t_min, t_max]`.
+    ///
+    /// # Errors
+    /// As [`Ray::new`] for the range.
+    pub fn with_range(&self, t_min: f64, t_max: f64) -> Result<Self> {
+        Self::new(self.origin, self.direction, t_min, t_max)
     }
 
     /// World point at `t`.
@@ -108,7 +150,7 @@ mod tests {
         assert!(Ray::new([0.0; 3], [1.0, 0.0, 0.0], 2.0, 1.0).is_err());
         let r = Ray::between([0.0; 3], [0.0, 3.0, 4.0]).ok();
         assert_eq!(
-            r.map(|r| (r.t_max, r.direction)),
+            r.map(|r| (r.t_max(), r.direction())),
             Some((5.0, [0.0, 0.6, 0.8]))
         );
     }

@@ -52,9 +52,9 @@ const GAUSS: f64 = 0.577_350_269_189_625_8; // 1 / sqrt(3)
 /// # Errors
 /// None at present; the `Result` leaves room for per-query validation.
 pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalDepth> {
-    let mut acc = Accessor::new(&vol.tree);
+    let mut acc = Accessor::new(vol.tree());
     let (q, d) = lookup_ray(vol, ray, interp);
-    let scale = vol.density_scale;
+    let scale = vol.density_scale();
     let mut tau = 0.0f64;
     let mut n = Counts::default();
     let w = walk_nodes(vol, ray, interp, Granularity::Leaf, |s: Segment, leaf| {

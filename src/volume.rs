@@ -46,23 +46,29 @@ pub struct Sanitized {
 }
 
 /// A traceable volume.
+///
+/// Invariants (why the fields are private): the tree's bounds (every node's majorant and
+/// minorant, nearest and trilinear) bound the values it holds, after the bad-voxel policy;
+/// `index_from_world` is the inverse of `world_from_index`, an invertible affine map with
+/// finite entries; the density scale is finite and non-negative; `value_box` holds every value
+/// other than the background. A `Volume` is only made by [`Volume::load`], [`Volume::new`] and
+/// [`Volume::from_tree`], which establish them, and nothing hands out a mutable tree:
+///
+/// ```compile_fail
+/// fn scale_a_leaf(vol: &mut umbra::Volume) {
+///     // Would leave the majorants stale: does not compile.
+///     vol.tree.leaves[0].values[0] *= 2.0;
+/// }
+/// ```
 #[derive(Debug, Clone)]
 pub struct Volume {
-    /// Grid name.
-    pub name: String,
-    /// The tree, after the bad-voxel policy.
-    pub tree: Tree,
-    /// `world_from_index` (column vectors, row-major 3x4).
-    pub world_from_index: [[f64; 4]; 3],
-    /// `index_from_world`, its inverse.
-    pub index_from_world: [[f64; 4]; 3],
-    /// mu_t = `density_scale` x value, per world unit.
-    pub density_scale: f64,
-    /// Inclusive voxel box holding every leaf and every tile whose value differs from the
-    /// background; `None` if the density is the background everywhere.
-    pub value_box: Option<[[i64; 3]; 2]>,
-    /// What the bad-voxel policy changed.
-    pub sanitized: Sanitized,
+    name: String,
+    tree: Tree,
+    world_from_index: [[f64; 4]; 3],
+    index_from_world: [[f64; 4]; 3],
+    density_scale: f64,
+    value_box: Option<[[i64; 3]; 2]>,
+    sanitized: Sanitized,
 }
 
 fn sanitize(v: &mut f32, s: &mut Sanitized) {
@@ -93,12 +99,7 @@ impl Volume {
     /// [`Error::Unsupported`] for frustum maps and non-scalar grids, [`Error::InvalidArgument`]
     /// for a negative or non-finite density scale.
     pub fn new(grid: Grid, density_scale: f64, path: &std::path::Path) -> Result<Self> {
-        if !(density_scale.is_finite() && density_scale >= 0.0) {
-            return Err(Error::InvalidArgument {
-                name: "density-scale".into(),
-                reason: format!("{density_scale} is not a finite non-negative number"),
-            });
-        }
+        check_density_scale(density_scale)?;
         if !grid.transform.is_affine() {
             return Err(Error::Unsupported {
                 path: path.to_path_buf(),
@@ -116,24 +117,34 @@ impl Volume {
             });
         }
         let m = grid.transform.world_from_index;
-        Ok(Self::from_tree(
-            grid.name,
-            grid.tree,
-            [m[0], m[1], m[2]],
-            density_scale,
-        ))
+        Self::from_tree(grid.name, grid.tree, [m[0], m[1], m[2]], density_scale).map_err(
+            |e| match e {
+                Error::InvalidArgument { name, reason } if name == "transform" => {
+                    Error::Unsupported {
+                        path: path.to_path_buf(),
+                        what: format!("grid '{name}' transform: {reason}"),
+                    }
+                }
+                other => other,
+            },
+        )
     }
 
     /// A volume from a tree built in memory (see [`crate::tree::TreeBuilder`]) and a
-    /// `world_from_index` affine map (3x4, column vectors). `density_scale` must be finite and
-    /// non-negative (checked by [`Volume::new`]; here it is the caller's contract).
-    #[must_use]
+    /// `world_from_index` affine map (3x4, column vectors: `world = M [i j k 1]^T`).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] for a negative or non-finite density scale (name
+    /// `density-scale`), or a map with non-finite entries, a zero or non-finite determinant, or
+    /// a non-finite inverse (name `transform`).
     pub fn from_tree(
         name: String,
         mut tree: Tree,
         world_from_index: [[f64; 4]; 3],
         density_scale: f64,
-    ) -> Self {
+    ) -> Result<Self> {
+        check_density_scale(density_scale)?;
+        let index_from_world = invert_affine(&world_from_index)?;
         let mut s = Sanitized::default();
         sanitize(&mut tree.background, &mut s);
         for e in &mut tree.root {
@@ -156,9 +167,8 @@ impl Volume {
         if s.nan + s.negative > 0 {
             tree.compute_bounds();
         }
-        let index_from_world = invert_affine(&world_from_index);
         let value_box = value_box(&tree);
-        Self {
+        Ok(Self {
             name,
             tree,
             world_from_index,
@@ -166,6 +176,72 @@ impl Volume {
             density_scale,
             value_box,
             sanitized: s,
+        })
+    }
+
+    /// The same volume with another density scale (the tree is shared in meaning, copied in
+    /// memory).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] for a negative or non-finite scale.
+    pub fn with_density_scale(mut self, density_scale: f64) -> Result<Self> {
+        check_density_scale(density_scale)?;
+        self.density_scale = density_scale;
+        Ok(self)
+    }
+
+    /// Grid name.
+    #[must_use]
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The tree, after the bad-voxel policy (read only: its bounds must match its values).
+    #[must_use]
+    pub fn tree(&self) -> &Tree {
+        &self.tree
+    }
+
+    /// `world_from_index` (column vectors, row-major 3x4).
+    #[must_use]
+    pub fn world_from_index(&self) -> [[f64; 4]; 3] {
+        self.world_from_index
+    }
+
+    /// `index_from_world`, the inverse of [`Volume::world_from_index`].
+    #[must_use]
+    pub fn index_from_world(&self) -> [[f64; 4]; 3] {
+        self.index_from_world
+    }
+
+    /// `mu_t = density_scale x value`, per world unit.
+    #[must_use]
+    pub fn density_scale(&self) -> f64 {
+        self.density_scale
+    }
+
+    /// Inclusive voxel box holding every leaf and every tile whose value differs from the
+    /// background; `None` if the density is the background everywhere.
+    #[must_use]
+    pub fn value_box(&self) -> Option<[[i64; 3]; 2]> {
+        self.value_box
+    }
+
+    /// What the bad-voxel policy changed.
+    #[must_use]
+    pub fn sanitized(&self) -> Sanitized {
+        self.sanitized
+    }
+
+    /// `s x v`, with `0 x v = 0` even for an infinite value (a zero density scale makes the
+    /// medium empty, opaque voxels included).
+    #[inline]
+    #[must_use]
+    pub fn scaled(scale: f64, v: f64) -> f64 {
+        if scale == 0.0 {
+            0.0
+        } else {
+            scale * v
         }
     }
 
@@ -241,7 +317,25 @@ fn value_box(tree: &Tree) -> Option<[[i64; 3]; 2]> {
     b
 }
 
-fn invert_affine(m: &[[f64; 4]; 3]) -> [[f64; 4]; 3] {
+fn check_density_scale(density_scale: f64) -> Result<()> {
+    if density_scale.is_finite() && density_scale >= 0.0 {
+        return Ok(());
+    }
+    Err(Error::InvalidArgument {
+        name: "density-scale".into(),
+        reason: format!("{density_scale} is not a finite non-negative number"),
+    })
+}
+
+/// The inverse of an affine map, or an error when it has none that is finite.
+fn invert_affine(m: &[[f64; 4]; 3]) -> Result<[[f64; 4]; 3]> {
+    let bad = |reason: String| Error::InvalidArgument {
+        name: "transform".into(),
+        reason,
+    };
+    if !m.iter().flatten().all(|v| v.is_finite()) {
+        return Err(bad(format!("non-finite entries in {m:?}")));
+    }
     let a = |r: usize, c: usize| m[r][c];
     let det = a(0, 0) * (a(1, 1) * a(2, 2) - a(1, 2) * a(2, 1))
         - a(0, 1) * (a(1, 0) * a(2, 2) - a(1, 2) * a(2, 0))
@@ -253,15 +347,38 @@ fn invert_affine(m: &[[f64; 4]; 3]) -> [[f64; 4]; 3] {
         (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det
     };
     let lin: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| inv(r, c)));
-    std::array::from_fn(|r| {
+    let inv: [[f64; 4]; 3] = std::array::from_fn(|r| {
         let t = -(0..3).map(|c| lin[r][c] * m[c][3]).sum::<f64>();
         [lin[r][0], lin[r][1], lin[r][2], t]
-    })
+    });
+    if det == 0.0 || !det.is_finite() || !inv.iter().flatten().all(|v| v.is_finite()) {
+        return Err(bad(format!(
+            "not invertible (determinant {det:e}): the voxels have no volume"
+        )));
+    }
+    Ok(inv)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn singular_and_non_finite_maps_are_refused() {
+        let mut m = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 0.0, 0.0],
+        ];
+        assert!(invert_affine(&m).is_err());
+        m[2][2] = 5e-324;
+        assert!(
+            invert_affine(&m).is_err(),
+            "subnormal scale: inverse overflows"
+        );
+        m[2][2] = f64::NAN;
+        assert!(invert_affine(&m).is_err());
+    }
 
     #[test]
     fn inverse_affine_round_trips() {
@@ -270,7 +387,7 @@ mod tests {
             [-0.03, 0.2, 0.01, -1.0],
             [0.0, 0.05, 0.3, 7.0],
         ];
-        let inv = invert_affine(&m);
+        let inv = invert_affine(&m).expect("invertible");
         let p = [1.5, -2.0, 9.0];
         let w = [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3]);
         let back =

@@ -27,13 +27,13 @@ fn bake_to(dir: &Path, name: &str, vol: &Volume, cam: &Camera, s: &BakeSettings)
 /// Exact tau of a ray through the box medium: mu_bg (t_max - L) + mu L, L the chord.
 fn box_tau(vol: &Volume, r: &Ray) -> f64 {
     let chord = clip_box(
-        vol.to_index(r.origin),
-        vol.to_index_dir(r.direction),
+        vol.to_index(r.origin()),
+        vol.to_index_dir(r.direction()),
         [-0.5; 3],
         [127.5; 3],
     )
-    .map_or(0.0, |(a, b)| (b.min(r.t_max) - a.max(r.t_min)).max(0.0));
-    0.125 * (r.t_max - r.t_min - chord) + chord
+    .map_or(0.0, |(a, b)| (b.min(r.t_max()) - a.max(r.t_min())).max(0.0));
+    0.125 * (r.t_max() - r.t_min() - chord) + chord
 }
 
 #[test]
@@ -64,7 +64,7 @@ fn analytic_box_ortho_and_perspective_pixel_by_pixel() {
             for i in 0..exr.w {
                 let r = exr.ray(i, j);
                 let tau = box_tau(&vol, &r);
-                inside += usize::from(tau > 0.125 * r.t_max + 1e-9);
+                inside += usize::from(tau > 0.125 * r.t_max() + 1e-9);
                 let d = (f64::from(t[j * exr.w + i]) - (-tau).exp()).abs();
                 worst = worst.max(d);
                 assert!(
@@ -136,8 +136,7 @@ fn slices_are_prefix_transmittances() {
         let ch = &exr.ch[&format!("slice{k:02}.T")];
         for j in 0..exr.h {
             for i in 0..exr.w {
-                let mut r = exr.ray(i, j);
-                r.t_max = d;
+                let r = exr.ray(i, j).with_range(0.0, d).unwrap();
                 let want = optical_depth(&vol, &r, Interp::Trilinear)
                     .unwrap()
                     .transmittance();
@@ -172,7 +171,7 @@ fn adaptive_sampling_reaches_the_target_error_and_stays_unbiased() {
         target_error: Some(0.02),
         std_err: true,
         ..BakeSettings::new(
-            Estimator::Ratio,
+            Estimator::from_name("ratio").unwrap(),
             Options {
                 samples: 8,
                 seed: 3,
@@ -226,7 +225,7 @@ fn one_and_two_threads_write_identical_files() {
         &volume_corners(&vol).unwrap(),
     )
     .unwrap();
-    for est in [Estimator::Regular, Estimator::Ratio] {
+    for est in [Estimator::REGULAR, Estimator::from_name("ratio").unwrap()] {
         let mut files = Vec::new();
         for threads in [1, 2, 0] {
             let s = BakeSettings {
@@ -292,7 +291,7 @@ fn standard_matrices_map_pixel_rays_to_their_pixels() {
         let w2c = exr.attrs.world_to_camera.unwrap();
         for (i, j) in [(0, 0), (19, 0), (0, 11), (7, 5), (19, 11)] {
             let r = exr.ray(i, j);
-            let p = r.at(0.6 * r.t_max);
+            let p = r.at(0.6 * r.t_max());
             // Row-vector convention: [x y z 1] * M.
             let mul = |m: &[f32; 16], c: usize| {
                 (0..4)

@@ -5,9 +5,8 @@
 mod bake_support;
 
 use bake_support::{box_volume, ortho, prov, read_exr, regular};
-use umbra::bake::{
-    bake, volume_corners, write_atomic, write_exr, write_png, Camera, Projection, View,
-};
+use umbra::bake::{bake, volume_corners, write_exr, write_png, Camera, Projection, View};
+use umbra::output::write_atomic;
 use umbra::tree::TreeBuilder;
 use umbra::{Interp, Volume};
 
@@ -122,8 +121,9 @@ fn bad_cameras_are_refused() {
     let empty = Volume::from_tree(
         "e".into(),
         TreeBuilder::new(0.0).build(),
-        box_volume().world_from_index,
+        box_volume().world_from_index(),
         1.0,
-    );
+    )
+    .unwrap();
     assert!(volume_corners(&empty).is_err());
 }

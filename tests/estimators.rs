@@ -8,7 +8,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
-use umbra::estimate::{estimate, prepare, Control, Estimator, Options, RayMedium};
+use umbra::estimate::{estimate, prepare, Estimator, Options, RayMedium};
 use umbra::regular::optical_depth;
 use umbra::rng::Rng;
 use umbra::traverse::Granularity;
@@ -50,7 +50,7 @@ fn media() -> Vec<Medium> {
     let mut out = Vec::new();
     let m = |name, b: TreeBuilder, scale, interp| Medium {
         name,
-        vol: Volume::from_tree(name.into(), b.build(), unit_map(), scale),
+        vol: Volume::from_tree(name.into(), b.build(), unit_map(), scale).unwrap(),
         interp,
     };
     out.push(m(
@@ -81,7 +81,7 @@ fn media() -> Vec<Medium> {
 
 /// 50 rays through the middle of the medium's value box, a quarter of them aimed at its centre.
 fn rays(v: &Volume) -> Vec<Ray> {
-    let [lo, hi] = v.value_box.unwrap();
+    let [lo, hi] = v.value_box().unwrap();
     let lo_w = v.to_world(lo.map(|c| c as f64));
     let hi_w = v.to_world(hi.map(|c| c as f64));
     let c = [0, 1, 2].map(|a| 0.5 * (lo_w[a] + hi_w[a]));
@@ -156,21 +156,22 @@ fn second_moment(est: &Estimator, vol: &Volume, r: &Ray, o: &Options) -> Option<
     for sg in &prep.segs {
         let (lo, hi) = (sg.mu_min, sg.mu_maj);
         tau += integral(sg.t_min, sg.t_max, &|mu| mu);
-        log_m2 += match est {
-            Estimator::Ratio => integral(sg.t_min, sg.t_max, &|mu| 2.0 * mu - mu * mu / hi),
-            Estimator::ResidualRatio { control } => {
-                let (c, rate) = match control {
-                    Control::Minorant => (lo, hi - lo),
-                    Control::Midpoint => (0.5 * (lo + hi), 0.5 * (hi - lo)),
+        log_m2 += match est.name() {
+            "ratio" => integral(sg.t_min, sg.t_max, &|mu| 2.0 * mu - mu * mu / hi),
+            name @ ("residual-ratio" | "residual-ratio-midpoint") => {
+                let (c, rate) = if name == "residual-ratio" {
+                    (lo, hi - lo)
+                } else {
+                    (0.5 * (lo + hi), 0.5 * (hi - lo))
                 };
                 2.0 * c * sg.length()
                     + integral(sg.t_min, sg.t_max, &|mu| {
                         2.0 * (mu - c) - (mu - c) * (mu - c) / rate
                     })
             }
-            Estimator::Decomposition => lo * sg.length() + integral(sg.t_min, sg.t_max, &|mu| mu),
-            Estimator::TrackLength => integral(sg.t_min, sg.t_max, &|mu| mu),
-            Estimator::NextFlight => {
+            "decomposition" => lo * sg.length() + integral(sg.t_min, sg.t_max, &|mu| mu),
+            "track-length" => integral(sg.t_min, sg.t_max, &|mu| mu),
+            "next-flight" => {
                 let known = (-prep.tau_known).exp();
                 return Some(known * known * next_flight_m2(&prep.segs, &mut med));
             }
@@ -225,25 +226,18 @@ fn next_flight_m2(segs: &[umbra::traverse::Segment], med: &mut RayMedium<'_>) ->
 #[test]
 fn unbiased_estimators_agree_with_exact_on_every_ray() {
     let estimators: Vec<(Estimator, bool)> = vec![
-        (Estimator::TrackLength, false),
-        (Estimator::Ratio, false),
-        (Estimator::Ratio, true),
+        (Estimator::from_name("track-length").unwrap(), false),
+        (Estimator::from_name("ratio").unwrap(), false),
+        (Estimator::from_name("ratio").unwrap(), true),
+        (Estimator::from_name("residual-ratio").unwrap(), false),
         (
-            Estimator::ResidualRatio {
-                control: Control::Minorant,
-            },
+            Estimator::from_name("residual-ratio-midpoint").unwrap(),
             false,
         ),
-        (
-            Estimator::ResidualRatio {
-                control: Control::Midpoint,
-            },
-            false,
-        ),
-        (Estimator::NextFlight, false),
-        (Estimator::UnbiasedRaymarch, false),
-        (Estimator::Decomposition, false),
-        (Estimator::TrackLength, true),
+        (Estimator::from_name("next-flight").unwrap(), false),
+        (Estimator::from_name("unbiased-raymarch").unwrap(), false),
+        (Estimator::from_name("decomposition").unwrap(), false),
+        (Estimator::from_name("track-length").unwrap(), true),
     ];
     let n = 400;
     let mut failures = Vec::new();
@@ -346,7 +340,7 @@ fn bias(m: &Medium, rays: &[Ray], est: &Estimator, samples: u32) -> (f64, f64) {
 fn smooth_medium() -> Medium {
     Medium {
         name: "smooth",
-        vol: Volume::from_tree("s".into(), field(32, smooth).build(), unit_map(), 1.0),
+        vol: Volume::from_tree("s".into(), field(32, smooth).build(), unit_map(), 1.0).unwrap(),
         interp: Interp::Trilinear,
     }
 }
@@ -357,7 +351,16 @@ fn riemann_error_shrinks_quadratically() {
     let rays = &rays(&m.vol)[..20];
     let errs: Vec<f64> = [2.0, 1.0, 0.5, 0.25]
         .iter()
-        .map(|&step| bias(&m, rays, &Estimator::Riemann { step }, 1).0.abs())
+        .map(|&step| {
+            bias(
+                &m,
+                rays,
+                &Estimator::with_params("riemann", &[("step", step)]).unwrap(),
+                1,
+            )
+            .0
+            .abs()
+        })
         .collect();
     eprintln!("riemann |bias| at steps 2, 1, 0.5, 0.25 voxels: {errs:?}");
     for w in errs.windows(2) {
@@ -375,10 +378,14 @@ fn random_marching_overestimates_and_bias_shrinks_with_the_step() {
     let rays = &rays(&m.vol)[..6];
     for (make, min_ratio) in [
         (
-            Box::new(|step| Estimator::Mc { step }) as Box<dyn Fn(f64) -> Estimator>,
+            Box::new(|step| Estimator::with_params("mc", &[("step", step)]).unwrap())
+                as Box<dyn Fn(f64) -> Estimator>,
             1.4,
         ),
-        (Box::new(|step| Estimator::Jittered { step }), 2.0),
+        (
+            Box::new(|step| Estimator::with_params("jittered", &[("step", step)]).unwrap()),
+            2.0,
+        ),
     ] {
         let (b8, s8) = bias(&m, rays, &make(8.0), 20_000);
         let (b4, s4) = bias(&m, rays, &make(4.0), 20_000);
@@ -403,8 +410,18 @@ fn random_marching_overestimates_and_bias_shrinks_with_the_step() {
 fn collision_kernel_bias_is_positive_and_shrinks_linearly() {
     let m = smooth_medium();
     let rays = &rays(&m.vol)[..6];
-    let (b2, s2) = bias(&m, rays, &Estimator::Collision { kernel: 0.4 }, 40_000);
-    let (b1, s1) = bias(&m, rays, &Estimator::Collision { kernel: 0.2 }, 40_000);
+    let (b2, s2) = bias(
+        &m,
+        rays,
+        &Estimator::with_params("collision", &[("kernel", 0.4)]).unwrap(),
+        40_000,
+    );
+    let (b1, s1) = bias(
+        &m,
+        rays,
+        &Estimator::with_params("collision", &[("kernel", 0.2)]).unwrap(),
+        40_000,
+    );
     eprintln!(
         "collision: bias {b2:.3e} +- {s2:.1e} (kernel 0.4), {b1:.3e} +- {s1:.1e} (kernel 0.2)"
     );
@@ -417,8 +434,18 @@ fn collision_kernel_bias_is_positive_and_shrinks_linearly() {
 fn jackknife_is_nearly_unbiased_and_improves_with_points() {
     let m = smooth_medium();
     let rays = &rays(&m.vol)[..10];
-    let (b4, s4) = bias(&m, rays, &Estimator::Jackknife { points: 4 }, 20_000);
-    let (b16, s16) = bias(&m, rays, &Estimator::Jackknife { points: 16 }, 20_000);
+    let (b4, s4) = bias(
+        &m,
+        rays,
+        &Estimator::with_params("jackknife", &[("points", 4.0)]).unwrap(),
+        20_000,
+    );
+    let (b16, s16) = bias(
+        &m,
+        rays,
+        &Estimator::with_params("jackknife", &[("points", 16.0)]).unwrap(),
+        20_000,
+    );
     eprintln!(
         "jackknife: bias {b4:.3e} +- {s4:.1e} (4 points), {b16:.3e} +- {s16:.1e} (16 points)"
     );
@@ -434,7 +461,7 @@ fn ratio_lookups(vol: &Volume, rays: &[Ray], o: &Options) -> (f64, f64) {
         let mut med = RayMedium::new(vol, r, o.interp);
         let prep = prepare(vol, r, o, &mut med);
         theory += prep.segs.iter().map(|s| s.mu_maj * s.length()).sum::<f64>();
-        let e = estimate(vol, r, i as u64, &Estimator::Ratio, o).unwrap();
+        let e = estimate(vol, r, i as u64, &Estimator::from_name("ratio").unwrap(), o).unwrap();
         measured += (e.lookups - prep.lookups) as f64 / f64::from(e.samples);
     }
     (measured / rays.len() as f64, theory / rays.len() as f64)
@@ -496,8 +523,8 @@ fn same_seed_same_bits_and_granularities_agree() {
             granularity: g,
             ..opts(m.interp, 2000, 3)
         };
-        let a = estimate(&m.vol, r, 8, &Estimator::Ratio, &o).unwrap();
-        let b = estimate(&m.vol, r, 8, &Estimator::Ratio, &o).unwrap();
+        let a = estimate(&m.vol, r, 8, &Estimator::from_name("ratio").unwrap(), &o).unwrap();
+        let b = estimate(&m.vol, r, 8, &Estimator::from_name("ratio").unwrap(), &o).unwrap();
         assert_eq!(a.value.to_bits(), b.value.to_bits());
         assert!(
             (a.value - exact).abs() < 4.0 * a.std_err,

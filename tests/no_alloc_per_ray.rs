@@ -8,7 +8,7 @@
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicU64, Ordering};
-use umbra::estimate::{estimate, Estimator, Options, ESTIMATOR_NAMES};
+use umbra::estimate::{estimate, Estimator, Options};
 use umbra::{Interp, Ray, Volume};
 
 struct Counting;
@@ -36,7 +36,7 @@ static GLOBAL: Counting = Counting;
 #[test]
 fn estimators_do_not_allocate_per_ray() {
     let vol = Volume::load("data/cloud.vdb", "density", 4.0).unwrap();
-    let [lo, hi] = vol.value_box.unwrap();
+    let [lo, hi] = vol.value_box().unwrap();
     let (lo, hi) = (
         vol.to_world(lo.map(|c| c as f64)),
         vol.to_world(hi.map(|c| c as f64 + 1.0)),
@@ -56,11 +56,10 @@ fn estimators_do_not_allocate_per_ray() {
         })
         .collect();
     // Every estimator but the power-series family (see the module comment).
-    let names = ESTIMATOR_NAMES
-        .iter()
-        .filter(|n| !matches!(**n, "unbiased-raymarch" | "jackknife"));
-    for &name in names {
-        let est = Estimator::from_name(name, 1.0, 0.0).unwrap();
+    let names =
+        umbra::estimate::names().filter(|n| !matches!(*n, "unbiased-raymarch" | "jackknife"));
+    for name in names {
+        let est = Estimator::from_name(name).unwrap();
         for interp in [Interp::Trilinear, Interp::Nearest] {
             let opts = Options {
                 interp,

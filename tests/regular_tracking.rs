@@ -17,7 +17,7 @@ fn scale_map(s: f64, t: [f64; 3]) -> [[f64; 4]; 3] {
 }
 
 fn vol(b: &TreeBuilder, voxel: f64, scale: f64) -> Volume {
-    Volume::from_tree("t".into(), b.build(), scale_map(voxel, [0.0; 3]), scale)
+    Volume::from_tree("t".into(), b.build(), scale_map(voxel, [0.0; 3]), scale).unwrap()
 }
 
 fn tau(v: &Volume, r: &Ray, i: Interp) -> f64 {
@@ -88,7 +88,7 @@ fn linear_ramp_is_integrated_exactly_by_trilinear() {
     let v = vol(&b, 1.0, 1.0);
     let (a, e) = ([3.3, 4.1, 5.7], [30.2, 28.9, 33.3]);
     let r = Ray::between(a, e).unwrap();
-    let len = r.t_max;
+    let len = r.t_max();
     let expect = len * (1.0 + 0.5 * 0.5 * (a[0] + e[0]));
     assert!(
         close(tau(&v, &r, Interp::Trilinear), expect, 1e-10),
@@ -158,29 +158,29 @@ fn huge_coordinates_and_rays_along_axes() {
 /// Nearest: sum value * length over the unit cells of the whole ray, point lookups at the
 /// middle of each piece.
 fn brute_nearest(v: &Volume, r: &Ray) -> f64 {
-    let q = v.to_index(r.origin).map(|c| c + 0.5);
-    let d = v.to_index_dir(r.direction);
-    let mut acc = Accessor::new(&v.tree);
+    let q = v.to_index(r.origin()).map(|c| c + 0.5);
+    let d = v.to_index_dir(r.direction());
+    let mut acc = Accessor::new(v.tree());
     let mut s = 0.0;
     let cells = Cells {
         size: 1.0,
         lo: [-1 << 40; 3],
         hi: [1 << 40; 3],
     };
-    let _ = dda(q, d, (r.t_min, r.t_max), &cells, |_, a, b| {
+    let _ = dda(q, d, (r.t_min(), r.t_max()), &cells, |_, a, b| {
         let m = 0.5 * (a + b);
-        let p = [0, 1, 2].map(|k| v.to_index(r.origin)[k] + d[k] * m);
+        let p = [0, 1, 2].map(|k| v.to_index(r.origin())[k] + d[k] * m);
         s += f64::from(acc.nearest(p)) * (b - a);
         ControlFlow::Continue(())
     });
-    s * v.density_scale
+    s * v.density_scale()
 }
 
 /// Trilinear: 5-point Gauss-Legendre per unit cell with OpenVDB-style BoxSampler lookups.
 fn brute_trilinear(v: &Volume, r: &Ray) -> f64 {
-    let o = v.to_index(r.origin);
-    let d = v.to_index_dir(r.direction);
-    let mut acc = Accessor::new(&v.tree);
+    let o = v.to_index(r.origin());
+    let d = v.to_index_dir(r.direction());
+    let mut acc = Accessor::new(v.tree());
     let x = [
         0.0,
         -0.538_469_310_105_683,
@@ -201,7 +201,7 @@ fn brute_trilinear(v: &Volume, r: &Ray) -> f64 {
         lo: [-1 << 40; 3],
         hi: [1 << 40; 3],
     };
-    let _ = dda(o, d, (r.t_min, r.t_max), &cells, |_, a, b| {
+    let _ = dda(o, d, (r.t_min(), r.t_max()), &cells, |_, a, b| {
         let (m, h) = (0.5 * (a + b), 0.5 * (b - a));
         for i in 0..5 {
             let t = m + h * x[i];
@@ -210,7 +210,7 @@ fn brute_trilinear(v: &Volume, r: &Ray) -> f64 {
         }
         ControlFlow::Continue(())
     });
-    s * v.density_scale
+    s * v.density_scale()
 }
 
 #[derive(Debug, Clone)]
@@ -253,7 +253,7 @@ fn build(s: &Scene) -> Volume {
     for &(ijk, v) in &s.voxels {
         b.set(ijk, v);
     }
-    Volume::from_tree("p".into(), b.build(), scale_map(0.7, [0.3, -0.2, 0.1]), 1.3)
+    Volume::from_tree("p".into(), b.build(), scale_map(0.7, [0.3, -0.2, 0.1]), 1.3).unwrap()
 }
 
 fn check_segments(
@@ -267,22 +267,22 @@ fn check_segments(
         segs.push(s);
         ControlFlow::Continue(())
     });
-    let mut prev = r.t_min;
-    let mut acc = Accessor::new(&v.tree);
-    let o = v.to_index(r.origin);
-    let d = v.to_index_dir(r.direction);
+    let mut prev = r.t_min();
+    let mut acc = Accessor::new(v.tree());
+    let o = v.to_index(r.origin());
+    let d = v.to_index_dir(r.direction());
     let mu = |acc: &mut Accessor<'_>, t: f64| {
         let p = [0, 1, 2].map(|k| o[k] + d[k] * t);
         let x = match interp {
             Interp::Nearest => acc.nearest(p),
             Interp::Trilinear => acc.trilinear(p),
         };
-        v.density_scale * f64::from(x)
+        v.density_scale() * f64::from(x)
     };
     let mu_bg = v.mu_background();
     for s in &segs {
         prop_assert!(
-            s.t_min >= prev && s.t_max > s.t_min && s.t_max <= r.t_max,
+            s.t_min >= prev && s.t_max > s.t_min && s.t_max <= r.t_max(),
             "order {s:?} after {prev}"
         );
         // Gap before this segment has the background density.

@@ -15,21 +15,22 @@
 mod camera;
 mod matrix;
 mod output;
+mod pipeline;
 mod render;
 
 pub use camera::{check_res, Camera, Projection, View, DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE};
-pub use output::{check_target, slice_channel, write_atomic, write_exr, write_png, Provenance};
+pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
+pub use pipeline::{volume_warnings, BakeJob, BakeReport, Warning};
 pub use render::{bake, BakeSettings, BakeStats, Depths, Map, MAX_BATCHES, MAX_SLICES};
 
 use crate::error::{Error, Result};
-use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
 
 /// Index-space volume box `[lo, hi]`: `value_box` grown by one voxel; `None` when the density is
 /// the background everywhere.
 #[must_use]
 pub fn volume_box_index(vol: &Volume) -> Option<([f64; 3], [f64; 3])> {
-    vol.value_box
+    vol.value_box()
         .map(|[lo, hi]| (lo.map(|v| (v - 1) as f64), hi.map(|v| (v + 1) as f64)))
 }
 
@@ -44,53 +45,11 @@ pub fn volume_corners(vol: &Volume) -> Result<[[f64; 3]; 8]> {
         name: "grid".into(),
         reason: format!(
             "grid '{}' holds no value other than its background: nothing to frame",
-            vol.name
+            vol.name()
         ),
     })?;
     Ok(std::array::from_fn(|n| {
         let p = [0, 1, 2].map(|a| if n >> (2 - a) & 1 == 1 { hi[a] } else { lo[a] });
         vol.to_world(p)
     }))
-}
-
-/// Where a shading point's light comes from.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Light {
-    /// A directional light travelling along `dir` (from the light into the scene).
-    Directional {
-        /// Direction the light travels (any length but zero).
-        dir: [f64; 3],
-    },
-    /// A point light at `pos`.
-    Point {
-        /// World position.
-        pos: [f64; 3],
-    },
-}
-
-impl Light {
-    /// The ray from the world point `at` toward the light: for a point light the segment from
-    /// `at` to the light; for a directional light the ray `at - t dir / |dir|`, `t` in
-    /// `[0, t_exit]`, where `t_exit` is where it leaves the volume box (0 if it never meets it),
-    /// so a non-zero background counts only inside the box.
-    ///
-    /// # Errors
-    /// [`Error::InvalidArgument`] for a zero or non-finite direction or point.
-    pub fn ray_from(&self, vol: &Volume, at: [f64; 3]) -> Result<Ray> {
-        match *self {
-            Self::Point { pos } => Ray::between(at, pos),
-            Self::Directional { dir } => {
-                let d = camera::normalise(dir).ok_or_else(|| Error::InvalidArgument {
-                    name: "light-dir".into(),
-                    reason: format!("{dir:?} has no length; give the direction the light travels"),
-                })?;
-                let back = d.map(|v| -v);
-                let t_exit = volume_box_index(vol)
-                    .and_then(|(lo, hi)| clip_box(vol.to_index(at), vol.to_index_dir(back), lo, hi))
-                    .map_or(0.0, |(_, t1)| t1.max(0.0));
-                Ray::new(at, back, 0.0, t_exit)
-            }
-        }
-    }
 }

@@ -1,111 +1,24 @@
-//! Writing baked maps: OpenEXR with every attribute needed to use the map, an 8-bit PNG
-//! preview, and the atomic write both go through.
+//! Encoding baked maps: OpenEXR with every attribute needed to use the map, and an 8-bit PNG
+//! preview. Files are written through [`crate::output`] (atomic, all outputs of one bake
+//! together).
 
 use super::camera::Projection;
 use super::render::Map;
 use crate::error::{Error, Result};
+use crate::output::{commit_all, stage, write_atomic};
 use exr::meta::attribute::{AttributeValue, Text};
 use exr::prelude::{
     AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec,
     SpecificChannels, Vec2, WritableImage,
 };
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::io::Write;
+use std::path::Path;
 
 fn output_err(path: &Path, reason: impl Into<String>) -> Error {
     Error::Output {
         path: path.to_path_buf(),
         reason: reason.into(),
     }
-}
-
-/// Removes the temporary file unless it was renamed into place.
-struct TempGuard(Option<PathBuf>);
-
-impl Drop for TempGuard {
-    fn drop(&mut self) {
-        if let Some(p) = self.0.take() {
-            let _ = std::fs::remove_file(p);
-        }
-    }
-}
-
-/// Write `path` atomically: `write` fills a new temporary file in the same directory, which is
-/// flushed, synced and renamed over `path` only if everything succeeded. On any error (or a
-/// panic in `write`) the temporary file is removed and `path` is untouched.
-///
-/// # Errors
-/// [`Error::Output`] if `path` exists and `overwrite` is false, is a directory, its directory
-/// does not exist, or the temporary file cannot be created, written or renamed; `write`'s
-/// error message is reported as the reason.
-pub fn write_atomic(
-    path: &Path,
-    overwrite: bool,
-    write: impl FnOnce(&mut BufWriter<std::fs::File>) -> std::result::Result<(), String>,
-) -> Result<()> {
-    check_target(path, overwrite)?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .ok_or_else(|| output_err(path, "not a file name"))?;
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let n = COUNTER.fetch_add(1, Ordering::Relaxed);
-    let tmp = dir.join(format!(".{name}.umbra-{}-{n}.tmp", std::process::id()));
-    let file = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&tmp)
-        .map_err(|e| {
-            output_err(
-                path,
-                format!("cannot create a file in {}: {e}", dir.display()),
-            )
-        })?;
-    let mut guard = TempGuard(Some(tmp.clone()));
-    let mut w = BufWriter::new(file);
-    write(&mut w).map_err(|e| output_err(path, e))?;
-    let file = w
-        .into_inner()
-        .map_err(|e| output_err(path, format!("writing: {}", e.error())))?;
-    file.sync_all()
-        .map_err(|e| output_err(path, format!("writing: {e}")))?;
-    drop(file);
-    check_target(path, overwrite)?;
-    std::fs::rename(&tmp, path)
-        .map_err(|e| output_err(path, format!("renaming into place: {e}")))?;
-    guard.0 = None;
-    Ok(())
-}
-
-/// Check that `path` may be written: not a directory, not an existing file unless `overwrite`,
-/// in an existing directory. [`write_atomic`] checks this before and after writing; callers
-/// check it before a long computation.
-///
-/// # Errors
-/// [`Error::Output`] naming the problem.
-pub fn check_target(path: &Path, overwrite: bool) -> Result<()> {
-    if let Ok(m) = std::fs::symlink_metadata(path) {
-        if m.is_dir() {
-            return Err(output_err(path, "is a directory"));
-        }
-        if !overwrite {
-            return Err(output_err(
-                path,
-                "already exists (use --force to overwrite)",
-            ));
-        }
-    }
-    if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        if !d.is_dir() {
-            return Err(output_err(path, format!("no directory {}", d.display())));
-        }
-    }
-    Ok(())
 }
 
 /// Where a map came from, for the EXR attributes.
@@ -163,6 +76,41 @@ pub fn slice_channel(k: usize) -> String {
 /// # Errors
 /// [`Error::Output`] as [`write_atomic`], or if the encoder fails.
 pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> Result<()> {
+    let bytes = encode_exr(map, prov).map_err(|e| output_err(path, e))?;
+    write_atomic(path, overwrite, |w| {
+        w.write_all(&bytes).map_err(|e| format!("writing: {e}"))
+    })
+}
+
+/// Write the map to `exr` and, if given, its preview to `png`, all or nothing: both are
+/// encoded and written to temporary files first, and renamed into place only when both
+/// succeeded.
+///
+/// # Errors
+/// [`Error::Output`] for either file (as [`write_atomic`]); then neither was written.
+pub fn write_map(
+    exr: &Path,
+    png: Option<&Path>,
+    map: &Map,
+    prov: &Provenance,
+    overwrite: bool,
+) -> Result<()> {
+    if png == Some(exr) {
+        return Err(output_err(exr, "the preview and the map are the same file"));
+    }
+    let bytes = encode_exr(map, prov).map_err(|e| output_err(exr, e))?;
+    let mut staged = vec![stage(exr, overwrite, |w| {
+        w.write_all(&bytes).map_err(|e| format!("writing: {e}"))
+    })?];
+    if let Some(p) = png {
+        let px = preview_pixels(map);
+        staged.push(stage(p, overwrite, |w| encode_png(w, map, &px))?);
+    }
+    commit_all(staged)
+}
+
+/// The EXR file's bytes (see [`write_exr`]).
+fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, String> {
     let c = &map.camera;
     let size = (c.width as usize, c.height as usize);
     let mut a = LayerAttributes {
@@ -263,12 +211,10 @@ pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> 
             writer.non_parallel().to_buffered(&mut buf)
         }
     };
-    encoded.map_err(|e| output_err(path, format!("OpenEXR encoder: {e}")))?;
+    encoded.map_err(|e| format!("OpenEXR encoder: {e}"))?;
     let mut bytes = buf.into_inner();
-    sort_attributes(&mut bytes).map_err(|e| output_err(path, e))?;
-    write_atomic(path, overwrite, |w| {
-        w.write_all(&bytes).map_err(|e| format!("writing: {e}"))
-    })
+    sort_attributes(&mut bytes)?;
+    Ok(bytes)
 }
 
 /// Put the attributes of a single-part OpenEXR header in name order, as the OpenEXR library
@@ -323,24 +269,30 @@ fn clamp_i32(v: u64) -> i32 {
 /// # Errors
 /// [`Error::Output`] as [`write_atomic`], or if the encoder fails.
 pub fn write_png(path: &Path, map: &Map, overwrite: bool) -> Result<()> {
-    let bytes: Vec<u8> = map
-        .t
+    let px = preview_pixels(map);
+    write_atomic(path, overwrite, |w| encode_png(w, map, &px))
+}
+
+/// The preview's 8-bit values.
+fn preview_pixels(map: &Map) -> Vec<u8> {
+    map.t
         .iter()
         .map(|&t| {
             let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
             (t * 255.0).round() as u8
         })
-        .collect();
-    write_atomic(path, overwrite, |w| {
-        let mut enc = png::Encoder::new(&mut *w, map.camera.width, map.camera.height);
-        enc.set_color(png::ColorType::Grayscale);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut pw = enc
-            .write_header()
-            .map_err(|e| format!("PNG encoder: {e}"))?;
-        pw.write_image_data(&bytes)
-            .map_err(|e| format!("PNG encoder: {e}"))?;
-        pw.finish().map_err(|e| format!("PNG encoder: {e}"))?;
-        w.flush().map_err(|e| format!("writing: {e}"))
-    })
+        .collect()
+}
+
+fn encode_png(w: &mut impl Write, map: &Map, bytes: &[u8]) -> std::result::Result<(), String> {
+    let mut enc = png::Encoder::new(&mut *w, map.camera.width, map.camera.height);
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut pw = enc
+        .write_header()
+        .map_err(|e| format!("PNG encoder: {e}"))?;
+    pw.write_image_data(bytes)
+        .map_err(|e| format!("PNG encoder: {e}"))?;
+    pw.finish().map_err(|e| format!("PNG encoder: {e}"))?;
+    w.flush().map_err(|e| format!("writing: {e}"))
 }

@@ -52,6 +52,41 @@ pub struct BakeSettings {
 }
 
 impl BakeSettings {
+    /// Check the settings that do not depend on the camera: the estimator options, at least
+    /// one sample, a positive finite target error, `max_spp >= 1`, slice counts.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the setting.
+    pub fn validate(&self) -> Result<()> {
+        self.options.validate().map_err(|_| {
+            bad(
+                if self.options.samples == 0 {
+                    "spp"
+                } else {
+                    "max-collisions"
+                },
+                "must be at least 1".into(),
+            )
+        })?;
+        if let Some(e) = self.target_error {
+            if !(e.is_finite() && e > 0.0) {
+                return Err(bad("target-error", format!("{e} is not a positive number")));
+            }
+        }
+        if self.max_spp == 0 {
+            return Err(bad("max-spp", "must be at least 1".into()));
+        }
+        match &self.depths {
+            Depths::Slices(k) if *k == 0 || *k > MAX_SLICES => {
+                Err(bad("slices", format!("{k} is not in 1..={MAX_SLICES}")))
+            }
+            Depths::At(v) if v.is_empty() || v.len() > MAX_SLICES => {
+                Err(bad("depths", format!("give 1 to {MAX_SLICES} depths")))
+            }
+            _ => Ok(()),
+        }
+    }
+
     /// Settings for `estimator` with `options`: no adaptivity, no slices, no stderr channel,
     /// the current thread pool.
     #[must_use]
@@ -79,6 +114,8 @@ pub struct BakeStats {
     pub lookups: u64,
     /// Samples stopped by the collision cap (biased).
     pub capped: u64,
+    /// Lookups outside their segment's bounds (see [`Estimate::majorant_violations`]).
+    pub majorant_violations: u64,
     /// Pixels whose error bound is still above the target (adaptive sampling hit the cap).
     pub unconverged: u64,
     /// Largest per-pixel standard error.
@@ -151,6 +188,7 @@ struct Px {
     samples: u64,
     lookups: u64,
     capped: u64,
+    violations: u64,
     unconverged: bool,
 }
 
@@ -161,6 +199,7 @@ impl Px {
             samples: self.samples,
             lookups: self.lookups,
             capped: self.capped,
+            majorant_violations: self.violations,
             max_std_err: self.std_err,
             unconverged: u64::from(self.unconverged),
             ..BakeStats::default()
@@ -174,6 +213,7 @@ impl BakeStats {
         self.samples += o.samples;
         self.lookups += o.lookups;
         self.capped += o.capped;
+        self.majorant_violations += o.majorant_violations;
         self.max_std_err = self.max_std_err.max(o.max_std_err);
         self.unconverged += o.unconverged;
     }
@@ -209,6 +249,7 @@ fn pixel(
         samples: u64::from(e.samples),
         lookups: e.lookups,
         capped: e.capped,
+        violations: e.majorant_violations,
         unconverged: false,
     };
     if let Some(target) = s.target_error {
@@ -234,6 +275,7 @@ fn pixel(
             acc = merge(acc, &eb);
             px.lookups += eb.lookups;
             px.capped += eb.capped;
+            px.violations += eb.majorant_violations;
             px.t = acc.0;
             px.std_err = (acc.1 / (acc.2 - 1) as f64 / acc.2 as f64).sqrt();
             px.samples = acc.2;
@@ -244,11 +286,11 @@ fn pixel(
     if depths.is_empty() {
         return Ok(px);
     }
-    if s.estimator == Estimator::Regular {
+    if s.estimator == Estimator::REGULAR {
         // Exact optical depth is additive: trace [t_{k-1}, t_k] once each.
         let (mut tau, mut t0) = (0.0, 0.0);
         for (k, &d) in depths.iter().enumerate() {
-            let seg = Ray::new(ray.origin, ray.direction, t0, d)?;
+            let seg = ray.with_range(t0, d)?;
             let e = estimate(vol, &seg, p, &s.estimator, &s.options)?;
             tau += e.tau.unwrap_or_else(|| -e.value.ln());
             px.lookups += e.lookups;
@@ -261,10 +303,11 @@ fn pixel(
             ..s.options
         };
         for (k, &d) in depths.iter().enumerate() {
-            let seg = Ray::new(ray.origin, ray.direction, 0.0, d)?;
+            let seg = ray.with_range(0.0, d)?;
             let e = estimate(vol, &seg, (64 + k as u64) * npix + p, &s.estimator, &opts)?;
             px.lookups += e.lookups;
             px.capped += e.capped;
+            px.violations += e.majorant_violations;
             slices_out[k] = e.value as f32;
         }
     }
@@ -284,14 +327,7 @@ pub fn bake(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Map> {
     super::check_res(camera.width, camera.height)?;
-    if settings.options.samples == 0 {
-        return Err(bad("spp", "must be at least 1".into()));
-    }
-    if let Some(e) = settings.target_error {
-        if !(e.is_finite() && e > 0.0) {
-            return Err(bad("target-error", format!("{e} is not a positive number")));
-        }
-    }
+    settings.validate()?;
     let depths = resolve_depths(&settings.depths, camera)?;
     let channels = 1 + depths.len() as u64 + u64::from(settings.std_err);
     if camera.pixels() * channels > MAX_PIXELS {

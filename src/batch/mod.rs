@@ -24,13 +24,16 @@
 //! name = "lamp"
 //! pos = [0.0, 4.0, 0.0]                          # point light
 //!
-//! [bake]
+//! [bake]                                         # every option of `umbra bake`
 //! res = [512, 512]
-//! estimator = "regular"
+//! estimator = "regular"                          # step, kernel, points: its parameters
 //! spp = 64
 //! seed = 0
 //! density_scale = 1.0
 //! interp = "trilinear"
+//! # preview = "out/shadow_{light}.{frame:04}.png", slices = 4 (or depths = [1.0, 2.0]),
+//! # stderr = true, target_error = 0.01, max_spp = 4096, fov = 30.0, ortho = true,
+//! # granularity = "leaf", global_majorant = false
 //! ```
 //!
 //! **Tasks.** Input-major: every input in file order (a sequence in frame order), then every
@@ -40,25 +43,62 @@
 //! **Resume.** A task is up to date when its output exists and its modification time is not
 //! older than its input's; outputs are written atomically, so an existing output is complete.
 
-use crate::bake::{
-    bake, volume_corners, write_exr, BakeSettings, Camera, Projection, Provenance, View,
-};
+use crate::bake::{BakeJob, BakeReport, BakeSettings, Depths, Projection, View};
 use crate::estimate::{Estimator, Options};
-use crate::{Interp, Volume};
+use crate::traverse::Granularity;
+use crate::Interp;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-/// A job file problem (parse or validation), naming the file and the key.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct JobError(pub String);
-
-impl std::fmt::Display for JobError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(&self.0)
-    }
+/// Why a job or a task failed.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum BatchError {
+    /// The job file could not be read.
+    #[error("{}: cannot read: {err}", path.display())]
+    Read {
+        /// Job file.
+        path: PathBuf,
+        /// Underlying error.
+        err: std::io::Error,
+    },
+    /// The job file is not valid TOML for a job (syntax, types, unknown keys).
+    #[error("{}: {message}", path.display())]
+    Syntax {
+        /// Job file.
+        path: PathBuf,
+        /// The parser's message (with line and column).
+        message: String,
+    },
+    /// A key of the job file has an invalid value.
+    #[error("{}: {key}: {reason}", path.display())]
+    Invalid {
+        /// Job file.
+        path: PathBuf,
+        /// The key, e.g. `bake.step` or `lights[1].dir`.
+        key: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// A task's bake failed (load, framing, settings, write).
+    #[error(transparent)]
+    Task(#[from] crate::Error),
+    /// A task panicked (a bug): the panic message.
+    #[error("task panicked: {0}")]
+    Panic(String),
 }
 
-impl std::error::Error for JobError {}
+/// The message of a caught panic payload.
+#[must_use]
+pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
+    if let Some(s) = payload.downcast_ref::<&str>() {
+        (*s).to_string()
+    } else if let Some(s) = payload.downcast_ref::<String>() {
+        s.clone()
+    } else {
+        "a panic without a message".into()
+    }
+}
 
 /// The job file as written.
 #[derive(Debug, Clone, Deserialize)]
@@ -110,7 +150,7 @@ pub struct LightSpec {
     pub pos: Option<[f64; 3]>,
 }
 
-/// The `[bake]` table.
+/// The `[bake]` table: every option of `umbra bake`, with the same names (`_` for `-`).
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BakeSpec {
@@ -126,10 +166,32 @@ pub struct BakeSpec {
     pub density_scale: f64,
     /// `nearest` or `trilinear`.
     pub interp: String,
-    /// Ray-marching step in voxels.
-    pub step: f64,
-    /// Collision kernel width.
-    pub kernel: f64,
+    /// Ray-marching step in voxels (estimators with a `step` parameter).
+    pub step: Option<f64>,
+    /// Collision kernel width (estimators with a `kernel` parameter).
+    pub kernel: Option<f64>,
+    /// Points per optical-depth estimate (estimators with a `points` parameter).
+    pub points: Option<f64>,
+    /// HDDA majorant granularity: `leaf`, `lower`, `upper`.
+    pub granularity: String,
+    /// One grid-wide majorant (the naive baseline).
+    pub global_majorant: bool,
+    /// Adaptive sampling target error per pixel.
+    pub target_error: Option<f64>,
+    /// Cap on samples per pixel for adaptive sampling.
+    pub max_spp: u32,
+    /// K evenly spaced depth slices.
+    pub slices: Option<usize>,
+    /// Explicit slice depths (world distances along each ray).
+    pub depths: Option<Vec<f64>>,
+    /// Also write `T.stderr`.
+    pub stderr: bool,
+    /// Perspective field of view, degrees (point lights).
+    pub fov: Option<f64>,
+    /// Point lights: an orthographic map whose image plane passes through the light.
+    pub ortho: bool,
+    /// PNG preview path pattern (same placeholders as `output`).
+    pub preview: Option<String>,
 }
 
 impl Default for BakeSpec {
@@ -141,8 +203,19 @@ impl Default for BakeSpec {
             seed: 0,
             density_scale: 1.0,
             interp: "trilinear".into(),
-            step: 1.0,
-            kernel: 0.01,
+            step: None,
+            kernel: None,
+            points: None,
+            granularity: "leaf".into(),
+            global_majorant: false,
+            target_error: None,
+            max_spp: 65_536,
+            slices: None,
+            depths: None,
+            stderr: false,
+            fov: None,
+            ortho: false,
+            preview: None,
         }
     }
 }
@@ -158,12 +231,14 @@ pub struct Job {
     pub log: PathBuf,
     /// Tasks in order.
     pub tasks: Vec<Task>,
-    /// Estimator.
-    pub estimator: Estimator,
-    /// Estimator options.
-    pub options: Options,
+    /// Bake settings of every task (`threads` is set per run).
+    pub settings: BakeSettings,
     /// Resolution.
     pub res: Option<(u32, u32)>,
+    /// Perspective field of view (point lights).
+    pub fov_deg: Option<f64>,
+    /// Point lights bake orthographic maps through the light.
+    pub ortho: bool,
     /// Density scale.
     pub density_scale: f64,
 }
@@ -185,6 +260,8 @@ pub struct Task {
     pub pos: Option<[f64; 3]>,
     /// Output file.
     pub output: PathBuf,
+    /// PNG preview file.
+    pub preview: Option<PathBuf>,
 }
 
 /// What happened to a task (one JSON line of the log).
@@ -208,10 +285,16 @@ pub struct Record {
     pub rays_per_second: f64,
     /// Error message of a failed task.
     pub error: Option<String>,
+    /// Warnings of a finished task (bad voxels, capped samples, majorant violations).
+    pub warnings: Vec<String>,
 }
 
-fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> JobError {
-    JobError(format!("{}: {key}: {reason}", path.display()))
+fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> BatchError {
+    BatchError::Invalid {
+        path: path.to_path_buf(),
+        key: key.to_string(),
+        reason: reason.to_string(),
+    }
 }
 
 /// Expand a sequence pattern for one frame: `#...#` (zero-padded to the number of `#`) or
@@ -289,10 +372,12 @@ pub fn fill_output(
 /// relative to its directory).
 ///
 /// # Errors
-/// [`JobError`] naming the file and the key (TOML syntax and type errors carry line and column).
-pub fn parse_job(path: &Path, text: &str) -> Result<Job, JobError> {
-    let file: JobFile =
-        toml::from_str(text).map_err(|e| JobError(format!("{}: {e}", path.display())))?;
+/// [`BatchError::Syntax`] (with line and column) or [`BatchError::Invalid`] naming the key.
+pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
+    let file: JobFile = toml::from_str(text).map_err(|e| BatchError::Syntax {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })?;
     let path = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let resolve = |s: &str| base.join(s);
@@ -308,29 +393,72 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, JobError> {
             ))
         }
     };
-    if !(b.step.is_finite() && b.step > 0.0) {
-        return Err(err(
-            &path,
-            "bake.step",
-            "must be a positive number of voxels",
-        ));
-    }
-    if !(b.kernel.is_finite() && b.kernel >= 0.0) {
-        return Err(err(&path, "bake.kernel", "must be a non-negative length"));
-    }
-    let estimator = Estimator::from_name(&b.estimator, b.step, b.kernel).ok_or_else(|| {
-        err(
-            &path,
-            "bake.estimator",
-            format!(
-                "unknown estimator '{}' (known: {})",
-                b.estimator,
-                crate::estimate::ESTIMATOR_NAMES.join(", ")
-            ),
-        )
+    let params: Vec<(&str, f64)> = [("step", b.step), ("kernel", b.kernel), ("points", b.points)]
+        .into_iter()
+        .filter_map(|(n, v)| v.map(|v| (n, v)))
+        .collect();
+    let estimator = Estimator::with_params(&b.estimator, &params).map_err(|e| match e {
+        crate::Error::InvalidArgument { name, reason } => {
+            let key = if name == "estimator" {
+                name
+            } else {
+                name.replace('-', "_")
+            };
+            err(&path, &format!("bake.{key}"), reason)
+        }
+        other => BatchError::Task(other),
     })?;
-    if b.spp == 0 {
-        return Err(err(&path, "bake.spp", "must be at least 1"));
+    let granularity = match b.granularity.as_str() {
+        "leaf" => Granularity::Leaf,
+        "lower" => Granularity::Lower,
+        "upper" => Granularity::Upper,
+        other => {
+            return Err(err(
+                &path,
+                "bake.granularity",
+                format!("'{other}': expected \"leaf\", \"lower\" or \"upper\""),
+            ))
+        }
+    };
+    let depths = match (b.slices, &b.depths) {
+        (Some(_), Some(_)) => {
+            return Err(err(&path, "bake.slices", "give slices or depths, not both"))
+        }
+        (Some(k), None) => Depths::Slices(k),
+        (None, Some(d)) => Depths::At(d.clone()),
+        (None, None) => Depths::None,
+    };
+    let settings = BakeSettings {
+        estimator,
+        options: Options {
+            interp,
+            samples: b.spp,
+            seed: b.seed,
+            granularity,
+            global_majorant: b.global_majorant,
+            ..Options::default()
+        },
+        target_error: b.target_error,
+        max_spp: b.max_spp,
+        depths,
+        std_err: b.stderr,
+        threads: 0,
+    };
+    settings.validate().map_err(|e| match e {
+        crate::Error::InvalidArgument { name, reason } => {
+            let key = if name == "samples" {
+                "spp".into()
+            } else {
+                name.replace('-', "_")
+            };
+            err(&path, &format!("bake.{key}"), reason)
+        }
+        other => BatchError::Task(other),
+    })?;
+    if let Some(f) = b.fov {
+        if !(f.is_finite() && f > 0.0 && f < 180.0) {
+            return Err(err(&path, "bake.fov", "must be in (0, 180) degrees"));
+        }
     }
     if !(b.density_scale.is_finite() && b.density_scale >= 0.0) {
         return Err(err(
@@ -465,6 +593,16 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, JobError> {
             let out = fill_output(&file.output, &l.name, &stem, *frame)
                 .map_err(|e| err(&path, "output", e))?;
             let output = resolve(&out);
+            let preview = match &b.preview {
+                Some(p) => Some(resolve(
+                    &fill_output(p, &l.name, &stem, *frame)
+                        .map_err(|e| err(&path, "bake.preview", e))?,
+                )),
+                None => None,
+            };
+            if preview.as_ref() == Some(&output) {
+                return Err(err(&path, "bake.preview", "names the same file as output"));
+            }
             let index = tasks.len();
             if let Some(prev) = seen.insert(output.clone(), index) {
                 return Err(err(
@@ -484,6 +622,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, JobError> {
                 dir: l.dir,
                 pos: l.pos,
                 output,
+                preview,
             });
         }
     }
@@ -495,20 +634,15 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, JobError> {
             .map(|d| d.join("umbra_batch.jsonl"))
             .unwrap_or_else(|| PathBuf::from("umbra_batch.jsonl")),
     };
-    let options = Options {
-        interp,
-        samples: b.spp,
-        seed: b.seed,
-        ..Options::default()
-    };
     Ok(Job {
         path,
         grid: file.grid,
         log,
         tasks,
-        estimator,
-        options,
+        settings,
         res: b.res.map(|[w, h]| (w, h)),
+        fov_deg: b.fov,
+        ortho: b.ortho,
         density_scale: b.density_scale,
     })
 }
@@ -516,10 +650,12 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, JobError> {
 /// Read, parse and validate a job file.
 ///
 /// # Errors
-/// [`JobError`] when it cannot be read or is invalid.
-pub fn load_job(path: &Path) -> Result<Job, JobError> {
-    let text = std::fs::read_to_string(path)
-        .map_err(|e| JobError(format!("{}: cannot read: {e}", path.display())))?;
+/// [`BatchError::Read`] when it cannot be read, else as [`parse_job`].
+pub fn load_job(path: &Path) -> Result<Job, BatchError> {
+    let text = std::fs::read_to_string(path).map_err(|err| BatchError::Read {
+        path: path.to_path_buf(),
+        err,
+    })?;
     parse_job(path, &text)
 }
 
@@ -554,48 +690,55 @@ pub fn up_to_date(task: &Task) -> bool {
 }
 
 impl Job {
-    /// Bake one task and write its output atomically (overwriting a stale output). Loads only
-    /// the job's grid of the task's input. `threads` as [`BakeSettings::threads`]; `progress`
-    /// receives finished pixel counts.
+    /// The bake of one task, as `umbra bake` would run it.
+    #[must_use]
+    pub fn bake_job(&self, task: &Task, threads: usize) -> BakeJob {
+        BakeJob {
+            input: task.input.clone(),
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            view: View {
+                projection: if task.pos.is_some() && !self.ortho {
+                    Projection::Perspective
+                } else {
+                    Projection::Ortho
+                },
+                light_dir: task.dir,
+                light_pos: task.pos,
+                fov_deg: if task.pos.is_some() && !self.ortho {
+                    self.fov_deg
+                } else {
+                    None
+                },
+                res: self.res,
+            },
+            settings: BakeSettings {
+                threads,
+                ..self.settings.clone()
+            },
+            output: task.output.clone(),
+            preview: task.preview.clone(),
+            overwrite: true,
+        }
+    }
+
+    /// Bake one task through the shared pipeline ([`BakeJob::run`]) and write its outputs
+    /// atomically (overwriting stale ones). Loads only the job's grid of the task's input.
+    /// `threads` as [`BakeSettings::threads`]; `progress` receives finished pixel counts. A
+    /// panic inside the bake is caught and returned with its message.
     ///
     /// # Errors
-    /// Any load, framing, bake or write error, as text.
+    /// [`BatchError::Task`] for any load, framing, bake or write error; [`BatchError::Panic`].
     pub fn run_task(
         &self,
         task: &Task,
         threads: usize,
         progress: &(dyn Fn(u64) + Sync),
-    ) -> Result<f64, String> {
-        let vol =
-            Volume::load(&task.input, &self.grid, self.density_scale).map_err(|e| e.to_string())?;
-        let view = View {
-            projection: if task.pos.is_some() {
-                Projection::Perspective
-            } else {
-                Projection::Ortho
-            },
-            light_dir: task.dir,
-            light_pos: task.pos,
-            fov_deg: None,
-            res: self.res,
-        };
-        let corners = volume_corners(&vol).map_err(|e| e.to_string())?;
-        let camera = Camera::frame(&view, &corners).map_err(|e| e.to_string())?;
-        let settings = BakeSettings {
-            threads,
-            ..BakeSettings::new(self.estimator, self.options)
-        };
-        let map = bake(&vol, &camera, &settings, progress).map_err(|e| e.to_string())?;
-        drop(vol);
-        let prov = Provenance {
-            source_file: task.input.display().to_string(),
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            light_dir: task.dir,
-            light_pos: task.pos,
-        };
-        write_exr(&task.output, &map, &prov, true).map_err(|e| e.to_string())?;
-        Ok(map.stats.rays as f64 / map.stats.seconds.max(1e-9))
+    ) -> Result<BakeReport, BatchError> {
+        let job = self.bake_job(task, threads);
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job.run(progress)))
+            .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
+            .map_err(BatchError::Task)
     }
 
     /// Pixels of a task's map when it is known without loading (fixed resolution).

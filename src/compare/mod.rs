@@ -13,7 +13,8 @@ pub mod stress;
 pub use report::{markdown, write_reports, Meta};
 
 use crate::error::Result;
-use crate::estimate::{estimate, Control, Estimator, Options};
+use crate::estimate::registry::Budget;
+use crate::estimate::{estimate, Estimator, Options};
 use crate::ray::Ray;
 use crate::regular::optical_depth;
 use crate::rng::Rng;
@@ -26,7 +27,7 @@ use std::time::Instant;
 /// through a random point of the box's middle 60 %, to the far side of the sphere.
 #[must_use]
 pub fn random_rays(vol: &Volume, n: usize, seed: u64) -> Vec<Ray> {
-    let Some([lo, hi]) = vol.value_box else {
+    let Some([lo, hi]) = vol.value_box() else {
         return Vec::new();
     };
     let lo_w = vol.to_world(lo.map(|c| c as f64));
@@ -86,49 +87,31 @@ pub struct Row {
     pub non_finite: u64,
 }
 
-/// The budgets every estimator is run at.
+/// The ladder of budgets `umbra compare` runs `base` at, derived from its registry entry
+/// ([`crate::estimate::registry::Budget`]): exact estimators once, parameter budgets over
+/// [`crate::estimate::Param::ladder`] (other parameters as in `base`), sampled ones at
+/// 1, 4, 16, 64 samples per ray. Each entry is the estimator, its budget label and the budget
+/// value (samples for `spp=` labels).
 #[must_use]
-pub fn ladder(name: &str, kernel: f64) -> Vec<(Estimator, String, f64)> {
-    let spp = [1u32, 4, 16, 64];
-    let with_spp = |e: Estimator| -> Vec<(Estimator, String, f64)> {
-        spp.iter()
-            .map(|&n| (e, format!("spp={n}"), f64::from(n)))
-            .collect()
-    };
-    match name {
-        "regular" => vec![(Estimator::Regular, "exact".into(), 1.0)],
-        "riemann" => [4.0, 2.0, 1.0, 0.5]
+pub fn ladder(base: &Estimator) -> Vec<(Estimator, String, f64)> {
+    let spec = base.spec();
+    match spec.budget {
+        Budget::Exact => vec![(*base, "exact".into(), 1.0)],
+        Budget::Param => {
+            let p = &spec.params[0];
+            p.ladder
+                .iter()
+                .filter_map(|&v| base.set(p.name, v).ok())
+                .map(|e| {
+                    let v = e.param(p.name).unwrap_or(f64::NAN);
+                    (e, format!("{}={v}", p.name), v)
+                })
+                .collect()
+        }
+        Budget::Samples => [1u32, 4, 16, 64]
             .iter()
-            .map(|&s| (Estimator::Riemann { step: s }, format!("step={s}"), s))
+            .map(|&n| (*base, format!("spp={n}"), f64::from(n)))
             .collect(),
-        "mc" | "jittered" => [4.0, 2.0, 1.0, 0.5]
-            .iter()
-            .map(|&s| {
-                let e = if name == "mc" {
-                    Estimator::Mc { step: s }
-                } else {
-                    Estimator::Jittered { step: s }
-                };
-                (e, format!("step={s}"), s)
-            })
-            .collect(),
-        "jackknife" => [4u32, 8, 16, 32]
-            .iter()
-            .map(|&p| {
-                (
-                    Estimator::Jackknife { points: p },
-                    format!("points={p}"),
-                    f64::from(p),
-                )
-            })
-            .collect(),
-        "collision" => with_spp(Estimator::Collision { kernel }),
-        "residual-ratio" => with_spp(Estimator::ResidualRatio {
-            control: Control::Minorant,
-        }),
-        other => Estimator::from_name(other, 1.0, kernel)
-            .map(with_spp)
-            .unwrap_or_default(),
     }
 }
 
@@ -216,21 +199,21 @@ pub fn score(values: &[f64], exact: &[f64]) -> (f64, f64, f64, f64, u64) {
 pub fn compare(
     vol: &Volume,
     rays: &[Ray],
-    names: &[String],
-    kernel: f64,
+    estimators: &[Estimator],
     s: &Settings,
     mut progress: impl FnMut(&str),
 ) -> Result<Vec<Row>> {
+    s.options.validate()?;
     let exact = reference(vol, rays, &s.options);
     let mut rows = Vec::new();
     let mut points: Vec<(String, Estimator, String, f64, bool)> = Vec::new();
-    for name in names {
-        for (e, label, v) in ladder(name, kernel) {
-            points.push((name.clone(), e, label, v, false));
+    for base in estimators {
+        for (e, label, v) in ladder(base) {
+            points.push((base.name().to_string(), e, label, v, false));
         }
     }
     if s.global_baseline {
-        for (e, label, v) in ladder("ratio", kernel) {
+        for (e, label, v) in ladder(&Estimator::from_name("ratio")?) {
             points.push(("ratio-global-majorant".into(), e, label, v, true));
         }
     }

@@ -3,8 +3,8 @@
 //! one line per estimator). Every file is written atomically.
 
 use super::Row;
-use crate::bake::write_atomic;
 use crate::error::Result;
+use crate::output::write_atomic;
 use plotters::prelude::*;
 use serde::Serialize;
 use std::collections::BTreeMap;

@@ -4,7 +4,7 @@
 //! memory except the half-float one, which reads `data/cloud_half.vdb` when present.
 
 use super::random_rays;
-use crate::estimate::{estimate, Control, Estimator, Options};
+use crate::estimate::{estimate, Estimator, Options};
 use crate::ray::Ray;
 use crate::regular::optical_depth;
 use crate::tree::TreeBuilder;
@@ -58,21 +58,23 @@ fn case(
     t: [f64; 3],
     scale: f64,
     rays: usize,
-) -> Case {
-    let volume = Volume::from_tree(name.into(), b.build(), map(voxel, t), scale);
+) -> crate::Result<Case> {
+    let volume = Volume::from_tree(name.into(), b.build(), map(voxel, t), scale)?;
     let rays = random_rays(&volume, rays, 17);
-    Case {
+    Ok(Case {
         name,
         what,
         volume,
         rays,
-    }
+    })
 }
 
 /// Build the catalogue with `rays` random rays per case (plus hand-placed rays where the case
 /// is about geometry).
-#[must_use]
-pub fn catalogue(rays: usize) -> Vec<Case> {
+///
+/// # Errors
+/// None expected (the media are fixed); a volume constructor's error is passed on.
+pub fn catalogue(rays: usize) -> crate::Result<Vec<Case>> {
     let mut out = Vec::new();
     let smooth16 = block(16, smooth);
     // Optical depth along a ray through 16 voxels of ~1: ~16 * voxel * scale.
@@ -84,7 +86,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         1e-9,
         rays,
-    ));
+    )?);
     out.push(case(
         "tau-1e5",
         "optical depth ~1e5 along a ray (T underflows to 0)",
@@ -93,7 +95,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         1e4,
         rays,
-    ));
+    )?);
     out.push(case(
         "densities-1e-8-and-1e6",
         "densities 1e-8 and 1e6 in one grid, in alternating 4^3 blocks",
@@ -108,7 +110,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         1e-4,
         rays,
-    ));
+    )?);
     let mut spike = block(16, |_, _, _| 1e-3);
     spike.set([8, 8, 8], 1e6);
     out.push(case(
@@ -119,7 +121,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         1.0,
         rays,
-    ));
+    )?);
     let mut ratio = block(16, |_, _, _| 1e-6);
     for l in 0..2 {
         for m in 0..2 {
@@ -136,7 +138,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         1.0,
         rays,
-    ));
+    )?);
     let mut bad = block(16, smooth);
     bad.set([4, 4, 4], f32::NAN)
         .set([5, 9, 2], -3.0)
@@ -150,7 +152,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         0.2,
         rays,
-    );
+    )?;
     if let Ok(r) = Ray::between([12.0, 12.0, -5.0], [12.0, 12.0, 20.0]) {
         c.rays.push(r);
     }
@@ -174,7 +176,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         0.3,
         0,
-    );
+    )?;
     for (o, e) in [
         ([-2.0, 8.0, 8.0], [20.0, 8.0, 8.0]),
         ([-0.5, 7.5, 7.5], [20.0, 7.5, 7.5]),
@@ -197,7 +199,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [1.0e6, -1.0e6, 1.0e6],
         0.3,
         rays,
-    ));
+    )?);
     out.push(case(
         "voxel-1e-6",
         "voxel size 1e-6 world units",
@@ -206,7 +208,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         3e5,
         rays,
-    ));
+    )?);
     out.push(case(
         "voxel-1e3",
         "voxel size 1e3 world units",
@@ -215,7 +217,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         3e-4,
         rays,
-    ));
+    )?);
     let mut empty = case(
         "empty",
         "a grid with no values (T = 1)",
@@ -224,7 +226,7 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         1.0,
         0,
-    );
+    )?;
     if let Ok(r) = Ray::between([-1.0, 0.0, 0.0], [5.0, 2.0, 1.0]) {
         empty.rays.push(r);
     }
@@ -242,8 +244,8 @@ pub fn catalogue(rays: usize) -> Vec<Case> {
         [0.0; 3],
         1.0,
         rays,
-    ));
-    out
+    )?);
+    Ok(out)
 }
 
 /// Result of one estimator on one case.
@@ -276,17 +278,15 @@ pub struct StressRow {
 /// Every estimator variant the stress suite runs.
 #[must_use]
 pub fn stress_estimators() -> Vec<(String, Estimator)> {
-    let mut v: Vec<(String, Estimator)> = crate::estimate::ESTIMATOR_NAMES
+    crate::estimate::REGISTRY
         .iter()
-        .filter_map(|n| Estimator::from_name(n, 1.0, 0.05).map(|e| ((*n).to_string(), e)))
-        .collect();
-    v.push((
-        "residual-ratio-midpoint".into(),
-        Estimator::ResidualRatio {
-            control: Control::Midpoint,
-        },
-    ));
-    v
+        .map(|spec| {
+            let e = spec.default_estimator();
+            // A kernel of 0.05 world units: the stress media have unit voxels.
+            let e = e.set("kernel", 0.05).unwrap_or(e);
+            (spec.name.to_string(), e)
+        })
+        .collect()
 }
 
 /// Run every estimator on every case with `samples` samples per ray.

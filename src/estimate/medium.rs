@@ -27,11 +27,11 @@ impl<'v> RayMedium<'v> {
     pub fn new(vol: &'v Volume, ray: &Ray, interp: Interp) -> Self {
         let (q, d) = lookup_ray(vol, ray, interp);
         Self {
-            acc: Accessor::new(&vol.tree),
+            acc: Accessor::new(vol.tree()),
             q,
             d,
             interp,
-            scale: vol.density_scale,
+            scale: vol.density_scale(),
             lookups: 0,
         }
     }

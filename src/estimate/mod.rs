@@ -28,8 +28,12 @@ mod marching;
 mod medium;
 mod null_collision;
 mod power_series;
+pub mod registry;
 
 pub use medium::RayMedium;
+pub use null_collision::BOUND_TOLERANCE;
+use registry::Algo;
+pub use registry::{names, Estimator, Kind, Param, Spec, REGISTRY};
 
 use crate::error::Result;
 use crate::ray::Ray;
@@ -44,161 +48,9 @@ use std::ops::ControlFlow;
 pub enum Control {
     /// `mu_c = mu_min`: residual in `[0, mu_maj - mu_min]`, weights in `[0, 1]`.
     Minorant,
-    /// `mu_c = (mu_min + mu_maj) / 2`: residual majorant halved, weights in `[-1, 1]`
-    /// (signed, unbiased).
+    /// `mu_c = (mu_min + mu_maj) / 2`: residual majorant halved, weights
+    /// `1 - (mu - mu_c) / r` in `[0, 2]` (the estimate can exceed 1; unbiased).
     Midpoint,
-}
-
-/// A transmittance estimator and its parameters. `step` values are in index-space voxels.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-#[serde(tag = "name", rename_all = "kebab-case")]
-pub enum Estimator {
-    /// Exact regular tracking (reference; zero variance).
-    Regular,
-    /// Ray marching, midpoint rule at a fixed step (biased, deterministic).
-    Riemann {
-        /// Step in voxels.
-        step: f64,
-    },
-    /// Ray marching, Monte Carlo optical depth from uniform random points, one per step length
-    /// (biased: `E[exp(-X)] >= exp(-E[X])`).
-    Mc {
-        /// Mean spacing in voxels.
-        step: f64,
-    },
-    /// Ray marching, stratified: one jittered point per step (biased, like `mc`).
-    Jittered {
-        /// Step in voxels.
-        step: f64,
-    },
-    /// Delta tracking, track-length estimator: 1 if the free flight passes the end (unbiased,
-    /// binary).
-    TrackLength,
-    /// Delta tracking, collision estimator of the free-flight CDF smoothed with a kernel of
-    /// width `kernel` (world units) around the end point (biased, O(kernel^2)).
-    Collision {
-        /// Kernel width in world units.
-        kernel: f64,
-    },
-    /// Ratio tracking (Novák et al. 2014): product of `1 - mu/mu_maj` at tentative collisions.
-    Ratio,
-    /// Residual ratio tracking (Novák et al. 2014): control extinction integrated exactly,
-    /// ratio tracking on the residual.
-    ResidualRatio {
-        /// Control choice.
-        control: Control,
-    },
-    /// Next-flight ratio tracking (Cramer 1978; Novák et al. 2018).
-    NextFlight,
-    /// Unbiased ray marching (Kettunen et al. 2021): power series around ray-marched optical
-    /// depths with aggressive Russian roulette on the order.
-    UnbiasedRaymarch,
-    /// Decomposition tracking (Kutz et al. 2017): minorant as an analytic control medium, delta
-    /// tracking only through the residual.
-    Decomposition,
-    /// Jackknife transmittance (Peters 2025): `cos(|X1 - X2| / 2) exp(-(X1 + X2) / 2)` from two
-    /// stratified optical-depth estimates (biased, fixed cost).
-    Jackknife {
-        /// Points per optical-depth estimate.
-        points: u32,
-    },
-}
-
-/// Names accepted by [`Estimator::from_name`], in the order reports list them.
-pub const ESTIMATOR_NAMES: &[&str] = &[
-    "regular",
-    "riemann",
-    "mc",
-    "jittered",
-    "track-length",
-    "collision",
-    "ratio",
-    "residual-ratio",
-    "next-flight",
-    "unbiased-raymarch",
-    "decomposition",
-    "jackknife",
-];
-
-impl Estimator {
-    /// The estimator called `name` with default parameters (`step` in voxels for the marching
-    /// estimators, kernel in world units for `collision`).
-    #[must_use]
-    pub fn from_name(name: &str, step: f64, kernel: f64) -> Option<Self> {
-        Some(match name {
-            "regular" => Self::Regular,
-            "riemann" => Self::Riemann { step },
-            "mc" => Self::Mc { step },
-            "jittered" => Self::Jittered { step },
-            "track-length" | "delta" => Self::TrackLength,
-            "collision" => Self::Collision { kernel },
-            "ratio" => Self::Ratio,
-            "residual-ratio" => Self::ResidualRatio {
-                control: Control::Minorant,
-            },
-            "residual-ratio-midpoint" => Self::ResidualRatio {
-                control: Control::Midpoint,
-            },
-            "next-flight" => Self::NextFlight,
-            "unbiased-raymarch" => Self::UnbiasedRaymarch,
-            "decomposition" => Self::Decomposition,
-            "jackknife" => Self::Jackknife { points: 10 },
-            _ => return None,
-        })
-    }
-
-    /// The estimator's name.
-    #[must_use]
-    pub fn name(&self) -> &'static str {
-        match self {
-            Self::Regular => "regular",
-            Self::Riemann { .. } => "riemann",
-            Self::Mc { .. } => "mc",
-            Self::Jittered { .. } => "jittered",
-            Self::TrackLength => "track-length",
-            Self::Collision { .. } => "collision",
-            Self::Ratio => "ratio",
-            Self::ResidualRatio { .. } => "residual-ratio",
-            Self::NextFlight => "next-flight",
-            Self::UnbiasedRaymarch => "unbiased-raymarch",
-            Self::Decomposition => "decomposition",
-            Self::Jackknife { .. } => "jackknife",
-        }
-    }
-
-    /// True for estimators whose expectation is exactly `T`.
-    #[must_use]
-    pub fn is_unbiased(&self) -> bool {
-        matches!(
-            self,
-            Self::Regular
-                | Self::TrackLength
-                | Self::Ratio
-                | Self::ResidualRatio { .. }
-                | Self::NextFlight
-                | Self::UnbiasedRaymarch
-                | Self::Decomposition
-        )
-    }
-
-    /// True for estimators whose single-sample estimates can fall outside `[0, 1]`.
-    #[must_use]
-    pub fn may_leave_unit_interval(&self) -> bool {
-        matches!(
-            self,
-            Self::UnbiasedRaymarch
-                | Self::NextFlight
-                | Self::ResidualRatio {
-                    control: Control::Midpoint
-                }
-        )
-    }
-
-    /// True for deterministic estimators (one sample says everything).
-    #[must_use]
-    pub fn is_deterministic(&self) -> bool {
-        matches!(self, Self::Regular | Self::Riemann { .. })
-    }
 }
 
 /// Settings shared by every estimator.
@@ -217,6 +69,28 @@ pub struct Options {
     /// Cap on tentative collisions per sample; a sample that hits it stops and is counted in
     /// [`Estimate::capped`] (its value is then biased).
     pub max_collisions: u64,
+}
+
+impl Options {
+    /// Check the options: at least one sample, a collision cap of at least one.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidArgument`] naming the field (`samples`, `max-collisions`).
+    pub fn validate(&self) -> Result<()> {
+        if self.samples == 0 {
+            return Err(crate::Error::InvalidArgument {
+                name: "samples".into(),
+                reason: "must be at least 1".into(),
+            });
+        }
+        if self.max_collisions == 0 {
+            return Err(crate::Error::InvalidArgument {
+                name: "max-collisions".into(),
+                reason: "must be at least 1".into(),
+            });
+        }
+        Ok(())
+    }
 }
 
 impl Default for Options {
@@ -247,6 +121,10 @@ pub struct Estimate {
     pub samples: u32,
     /// Samples stopped by the collision cap.
     pub capped: u64,
+    /// Lookups that fell outside their segment's `[mu_min, mu_maj]` by more than round-off
+    /// (see [`BOUND_TOLERANCE`]): a wrong bound, which biases null-collision estimators. Always
+    /// 0 unless the tree's bounds are broken; callers should warn when it is not.
+    pub majorant_violations: u64,
     /// Exact optical depth, when the estimator computed it (regular tracking).
     pub tau: Option<f64>,
 }
@@ -356,8 +234,8 @@ fn prepare_into(
         p.segs.push(Segment {
             t_min: first,
             t_max: last,
-            mu_min: vol.density_scale * f64::from(b.min.max(0.0)),
-            mu_maj: vol.density_scale * f64::from(b.max),
+            mu_min: vol.density_scale() * f64::from(b.min.max(0.0)),
+            mu_maj: vol.density_scale() * f64::from(b.max),
             level: 4,
         });
         p.tau_known += bg_tau(w.length - (last - first) - covered_outside);
@@ -370,7 +248,8 @@ fn prepare_into(
 /// Estimate the transmittance along `ray` (ray index `ray_id` selects the random streams).
 ///
 /// # Errors
-/// None at present (rays are validated on construction); kept for per-query failures.
+/// [`crate::Error::InvalidArgument`] for invalid [`Options`] (see [`Options::validate`]);
+/// rays and estimators are valid by construction.
 pub fn estimate(
     vol: &Volume,
     ray: &Ray,
@@ -378,8 +257,9 @@ pub fn estimate(
     est: &Estimator,
     opts: &Options,
 ) -> Result<Estimate> {
+    opts.validate()?;
     let mut medium = RayMedium::new(vol, ray, opts.interp);
-    if let Estimator::Regular = est {
+    if est.algo().0 == Algo::Regular {
         let od = crate::regular::optical_depth(vol, ray, opts.interp)?;
         return Ok(Estimate {
             value: od.transmittance(),
@@ -388,6 +268,7 @@ pub fn estimate(
             segments: od.segments,
             samples: 1,
             capped: 0,
+            majorant_violations: 0,
             tau: Some(od.tau),
         });
     }
@@ -421,12 +302,13 @@ fn sample_prepared(
     };
     // Welford running mean and variance of the per-sample estimates.
     let (mut mean, mut m2) = (0.0f64, 0.0f64);
-    let mut capped = 0u64;
+    let (mut capped, mut violations) = (0u64, 0u64);
     for i in 0..samples {
         let mut rng = Rng::new(opts.seed, ray_id, u64::from(i));
         let mut cap = Cap::new(opts.max_collisions);
         let x = known * sample_once(est, &prep.segs, &mut medium, &mut rng, &mut cap);
         capped += u64::from(cap.hit);
+        violations += cap.violations;
         let delta = x - mean;
         mean += delta / f64::from(i + 1);
         m2 += delta * (x - mean);
@@ -443,23 +325,27 @@ fn sample_prepared(
         segments: prep.walked,
         samples,
         capped,
+        majorant_violations: violations,
         tau: None,
     }
 }
 
-/// Collision budget of one sample.
+/// Collision budget of one sample, and the bound violations it met.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Cap {
     left: u64,
     /// Set when the budget ran out.
     pub hit: bool,
+    /// Lookups outside their segment's bounds (see [`null_collision`]).
+    pub violations: u64,
 }
 
 impl Cap {
-    fn new(n: u64) -> Self {
+    pub(crate) fn new(n: u64) -> Self {
         Self {
             left: n,
             hit: false,
+            violations: 0,
         }
     }
     /// Spend one collision; false when the budget is exhausted.
@@ -482,20 +368,19 @@ fn sample_once(
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
-    match *est {
-        Estimator::Regular => (-segs.iter().map(|s| m.exact(s.t_min, s.t_max)).sum::<f64>()).exp(),
-        Estimator::Riemann { step } => marching::riemann(segs, m, step),
-        Estimator::Mc { step } => marching::monte_carlo(segs, m, rng, step),
-        Estimator::Jittered { step } => marching::jittered(segs, m, rng, step),
-        Estimator::TrackLength => null_collision::track_length(segs, m, rng, cap),
-        Estimator::Collision { kernel } => null_collision::collision(segs, m, rng, cap, kernel),
-        Estimator::Ratio => null_collision::ratio(segs, m, rng, cap),
-        Estimator::ResidualRatio { control } => {
-            null_collision::residual_ratio(segs, m, rng, cap, control)
-        }
-        Estimator::NextFlight => null_collision::next_flight(segs, m, rng, cap),
-        Estimator::Decomposition => null_collision::decomposition(segs, m, rng, cap),
-        Estimator::UnbiasedRaymarch => power_series::unbiased_raymarch(segs, m, rng),
-        Estimator::Jackknife { points } => power_series::jackknife(segs, m, rng, points),
+    let (algo, p) = est.algo();
+    match algo {
+        Algo::Regular => (-segs.iter().map(|s| m.exact(s.t_min, s.t_max)).sum::<f64>()).exp(),
+        Algo::Riemann => marching::riemann(segs, m, p),
+        Algo::Mc => marching::monte_carlo(segs, m, rng, p),
+        Algo::Jittered => marching::jittered(segs, m, rng, p),
+        Algo::TrackLength => null_collision::track_length(segs, m, rng, cap),
+        Algo::Collision => null_collision::collision(segs, m, rng, cap, p),
+        Algo::Ratio => null_collision::ratio(segs, m, rng, cap),
+        Algo::ResidualRatio(control) => null_collision::residual_ratio(segs, m, rng, cap, control),
+        Algo::NextFlight => null_collision::next_flight(segs, m, rng, cap),
+        Algo::Decomposition => null_collision::decomposition(segs, m, rng, cap),
+        Algo::UnbiasedRaymarch => power_series::unbiased_raymarch(segs, m, rng),
+        Algo::Jackknife => power_series::jackknife(segs, m, rng, p as u32),
     }
 }

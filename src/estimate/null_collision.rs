@@ -1,7 +1,20 @@
-//! Free-flight (null-collision) estimators over per-segment majorants. Tentative collisions
-//! are a Poisson process of rate `mu_maj` (or a residual rate) within each segment; the
-//! expected number of lookups is the integral of that rate along the ray.
+//! Free-flight (null-collision) estimators over per-segment majorants, all driven by one loop,
+//! [`free_flight`], in the manner of pbrt-v4's `SampleT_maj`.
 //!
+//! **The driver.** Within each sampled segment `s` the estimator names a control extinction
+//! `mu_c` and a tentative-collision rate `r` (the majorant of the residual `mu - mu_c`).
+//! Tentative collisions are a Poisson process of rate `r`: `t += -ln(1 - U) / r` until `t`
+//! passes `s.t_max`. A segment with `r <= 0` has no collisions (its residual is zero: closed
+//! form). Each collision spends one unit of the collision budget ([`Cap`]); when it runs out the
+//! sample stops where it is and scores its running value (counted in
+//! [`super::Estimate::capped`]). Each collision reads `mu(t)` once and checks the segment's
+//! bounds `mu_min <= mu <= mu_maj`: a value past them by more than float round-off (relative
+//! [`BOUND_TOLERANCE`]) is a *majorant violation*, counted in
+//! [`super::Estimate::majorant_violations`] (and a `debug_assert!` failure in debug builds) and
+//! passed on raw; round-off is clamped to the bound. The estimator is the callback
+//! ([`Tracker`]): what happens on entering a segment and at each tentative collision.
+//!
+//! **The estimators.**
 //! - `track_length` (delta tracking): a tentative collision is real with probability
 //!   `mu / mu_maj`; the estimate is 1 if no real collision happens before the end. Variance
 //!   `T (1 - T)`.
@@ -12,7 +25,7 @@
 //! - `ratio`: never stops; weight `prod (1 - mu / mu_maj)`. `E = exp(-int mu)`;
 //!   `Var = T^2 (exp(int mu^2 / mu_maj) - 1)`.
 //! - `residual_ratio`: `mu = mu_c + mu_r`; `exp(-int mu_c)` in closed form times ratio tracking
-//!   of `mu_r` with rate `r`: minorant control (`r = mu_maj - mu_min`, weights in [0,1]) or
+//!   of `mu_r` with rate `r`: minorant control (`r = mu_maj - mu_min`, weights in [0, 1]) or
 //!   midpoint control (`r = (mu_maj - mu_min) / 2`, weights in [0, 2]: the estimate can exceed 1;
 //!   reported raw, unbiased).
 //! - `next_flight`: ratio tracking plus, at every tentative collision, the running weight times
@@ -26,6 +39,145 @@ use super::medium::RayMedium;
 use super::{Cap, Control};
 use crate::rng::Rng;
 use crate::traverse::Segment;
+use std::ops::ControlFlow;
+
+/// Relative slack on a segment's bounds before a lookup counts as a majorant violation: the
+/// trilinear lerps are evaluated in `f32`, whose round-off can pass `max(corners)` by an ulp.
+pub const BOUND_TOLERANCE: f64 = 1e-5;
+
+/// An estimator driven by [`free_flight`].
+pub(crate) trait Tracker {
+    /// Control extinction `mu_c` and tentative-collision rate `r` in segment `s`.
+    fn rates(&self, s: &Segment) -> (f64, f64);
+    /// Entering segment `s` (control `mu_c`), before its collisions; `Break` ends the sample.
+    fn enter(&mut self, _s: &Segment, _mu_c: f64) -> ControlFlow<()> {
+        ControlFlow::Continue(())
+    }
+    /// A tentative collision at `t` where the extinction is `mu`; `Break` ends the sample.
+    fn collide(
+        &mut self,
+        s: &Segment,
+        t: f64,
+        mu: f64,
+        mu_c: f64,
+        rate: f64,
+        rng: &mut Rng,
+    ) -> ControlFlow<()>;
+    /// The sample's value once the walk has ended (passed the end, stopped, or capped).
+    fn value(&self) -> f64;
+}
+
+/// `mu` checked against `[mu_min, mu_maj]`: round-off is clamped, a real violation is counted
+/// and returned raw.
+#[inline]
+fn checked(mu: f64, s: &Segment, cap: &mut Cap) -> f64 {
+    if mu > s.mu_maj {
+        if mu > s.mu_maj * (1.0 + BOUND_TOLERANCE) {
+            debug_assert!(
+                false,
+                "majorant violation: mu {mu} > mu_maj {} in {s:?}",
+                s.mu_maj
+            );
+            cap.violations += 1;
+            return mu;
+        }
+        return s.mu_maj;
+    }
+    if mu < s.mu_min {
+        if mu < s.mu_min * (1.0 - BOUND_TOLERANCE) {
+            debug_assert!(
+                false,
+                "minorant violation: mu {mu} < mu_min {} in {s:?}",
+                s.mu_min
+            );
+            cap.violations += 1;
+            return mu;
+        }
+        return s.mu_min;
+    }
+    mu
+}
+
+/// Walk the tentative collisions of `tr` through `segs` (see the module docs) and return the
+/// sample's value.
+pub(crate) fn free_flight(
+    segs: &[Segment],
+    m: &mut RayMedium<'_>,
+    rng: &mut Rng,
+    cap: &mut Cap,
+    tr: &mut impl Tracker,
+) -> f64 {
+    'segments: for s in segs {
+        let (mu_c, rate) = tr.rates(s);
+        if tr.enter(s, mu_c).is_break() {
+            break;
+        }
+        if rate <= 0.0 {
+            continue; // no residual: closed form, no collisions
+        }
+        let mut t = s.t_min;
+        loop {
+            t += rng.exponential(rate);
+            if t >= s.t_max {
+                break;
+            }
+            if !cap.take() {
+                break 'segments;
+            }
+            let mu = checked(m.mu(t), s, cap);
+            if tr.collide(s, t, mu, mu_c, rate, rng).is_break() {
+                break 'segments;
+            }
+        }
+    }
+    tr.value()
+}
+
+/// Delta tracking: the first real collision (with probability `(mu - mu_c) / rate` per
+/// tentative one) ends the walk; `score` turns its position into the sample's value.
+struct Delta<F> {
+    /// Control extinction is the minorant (decomposition tracking) rather than 0.
+    decompose: bool,
+    /// Running closed-form control transmittance (decomposition).
+    w: f64,
+    /// The value once a real collision happened.
+    hit: Option<f64>,
+    score: F,
+}
+
+impl<F: Fn(f64) -> f64> Tracker for Delta<F> {
+    fn rates(&self, s: &Segment) -> (f64, f64) {
+        if self.decompose {
+            (s.mu_min, s.mu_maj - s.mu_min)
+        } else {
+            (0.0, s.mu_maj)
+        }
+    }
+    fn enter(&mut self, s: &Segment, mu_c: f64) -> ControlFlow<()> {
+        if self.decompose {
+            self.w *= (-mu_c * s.length()).exp();
+        }
+        ControlFlow::Continue(())
+    }
+    fn collide(
+        &mut self,
+        _s: &Segment,
+        t: f64,
+        mu: f64,
+        mu_c: f64,
+        rate: f64,
+        rng: &mut Rng,
+    ) -> ControlFlow<()> {
+        if rng.uniform() * rate < mu - mu_c {
+            self.hit = Some((self.score)(t));
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    }
+    fn value(&self) -> f64 {
+        self.hit.unwrap_or(self.w)
+    }
+}
 
 /// Delta tracking with the track-length estimator.
 pub(crate) fn track_length(
@@ -34,39 +186,13 @@ pub(crate) fn track_length(
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
-    for s in segs {
-        if first_real_collision(s, 0.0, m, rng, cap).is_some() {
-            return 0.0;
-        }
-        if cap.hit {
-            return 1.0;
-        }
-    }
-    1.0
-}
-
-/// First real collision in `s` for the residual above `floor` (delta tracking), or None.
-fn first_real_collision(
-    s: &Segment,
-    floor: f64,
-    m: &mut RayMedium<'_>,
-    rng: &mut Rng,
-    cap: &mut Cap,
-) -> Option<f64> {
-    let rate = s.mu_maj - floor;
-    if rate <= 0.0 {
-        return None;
-    }
-    let mut t = s.t_min;
-    loop {
-        t += rng.exponential(rate);
-        if t >= s.t_max || !cap.take() {
-            return None;
-        }
-        if rng.uniform() * rate < m.mu(t) - floor {
-            return Some(t);
-        }
-    }
+    let mut tr = Delta {
+        decompose: false,
+        w: 1.0,
+        hit: None,
+        score: |_| 0.0,
+    };
+    free_flight(segs, m, rng, cap, &mut tr)
 }
 
 /// Delta tracking scored with a ramp kernel of width `h` before the end.
@@ -80,60 +206,90 @@ pub(crate) fn collision(
     let Some(end) = segs.last().map(|s| s.t_max) else {
         return 1.0;
     };
-    for s in segs {
-        if let Some(t) = first_real_collision(s, 0.0, m, rng, cap) {
-            return if h > 0.0 {
+    let mut tr = Delta {
+        decompose: false,
+        w: 1.0,
+        hit: None,
+        score: |t: f64| {
+            if h > 0.0 {
                 ((t - (end - h)) / h).clamp(0.0, 1.0)
             } else {
                 0.0
-            };
-        }
-    }
-    1.0
+            }
+        },
+    };
+    free_flight(segs, m, rng, cap, &mut tr)
 }
 
-/// Ratio tracking.
-pub(crate) fn ratio(segs: &[Segment], m: &mut RayMedium<'_>, rng: &mut Rng, cap: &mut Cap) -> f64 {
-    let mut w = 1.0;
-    for s in segs {
-        w *= ratio_segment(s, 0.0, s.mu_maj, m, rng, cap);
-        if w == 0.0 || cap.hit {
-            break;
-        }
-    }
-    w
-}
-
-/// Ratio tracking of `mu - mu_c` through one segment with tentative-collision rate `rate`.
-fn ratio_segment(
-    s: &Segment,
-    mu_c: f64,
-    rate: f64,
+/// Decomposition tracking with the minorant as the control medium.
+pub(crate) fn decomposition(
+    segs: &[Segment],
     m: &mut RayMedium<'_>,
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
-    if rate <= 0.0 {
-        return 1.0;
-    }
-    let mut w = 1.0;
-    let mut t = s.t_min;
-    loop {
-        t += rng.exponential(rate);
-        if t >= s.t_max || !cap.take() {
-            return w;
+    let mut tr = Delta {
+        decompose: true,
+        w: 1.0,
+        hit: None,
+        score: |_| 0.0,
+    };
+    free_flight(segs, m, rng, cap, &mut tr)
+}
+
+/// (Residual) ratio tracking: weight `prod (1 - (mu - mu_c) / r)` times the closed-form control
+/// transmittance `exp(-int mu_c)`.
+struct RatioTracker {
+    control: Option<Control>,
+    w: f64,
+}
+
+impl Tracker for RatioTracker {
+    fn rates(&self, s: &Segment) -> (f64, f64) {
+        match self.control {
+            None => (0.0, s.mu_maj),
+            Some(Control::Minorant) => (s.mu_min, s.mu_maj - s.mu_min),
+            Some(Control::Midpoint) => (0.5 * (s.mu_min + s.mu_maj), 0.5 * (s.mu_maj - s.mu_min)),
         }
-        let x = 1.0 - (m.mu(t) - mu_c) / rate;
-        // Mathematically within the weight range; clamp only float round-off at the bounds.
-        w *= if mu_c <= s.mu_min {
-            x.clamp(0.0, 1.0)
-        } else {
-            x.clamp(0.0, 2.0)
-        };
-        if w == 0.0 {
-            return 0.0;
-        }
     }
+    fn enter(&mut self, s: &Segment, mu_c: f64) -> ControlFlow<()> {
+        // Control first: a weight that underflows to 0 stops before the residual weights
+        // (which reach 2 per collision with the midpoint control) can overflow to inf * 0.
+        if mu_c != 0.0 {
+            self.w *= (-mu_c * s.length()).exp();
+        }
+        if self.w == 0.0 || !self.w.is_finite() {
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    }
+    fn collide(
+        &mut self,
+        _s: &Segment,
+        _t: f64,
+        mu: f64,
+        mu_c: f64,
+        rate: f64,
+        _rng: &mut Rng,
+    ) -> ControlFlow<()> {
+        self.w *= 1.0 - (mu - mu_c) / rate;
+        if self.w == 0.0 || !self.w.is_finite() {
+            return ControlFlow::Break(());
+        }
+        ControlFlow::Continue(())
+    }
+    fn value(&self) -> f64 {
+        self.w
+    }
+}
+
+/// Ratio tracking.
+pub(crate) fn ratio(segs: &[Segment], m: &mut RayMedium<'_>, rng: &mut Rng, cap: &mut Cap) -> f64 {
+    let mut tr = RatioTracker {
+        control: None,
+        w: 1.0,
+    };
+    free_flight(segs, m, rng, cap, &mut tr)
 }
 
 /// Residual ratio tracking.
@@ -144,24 +300,50 @@ pub(crate) fn residual_ratio(
     cap: &mut Cap,
     control: Control,
 ) -> f64 {
-    let mut w = 1.0;
-    for s in segs {
-        let (mu_c, rate) = match control {
-            Control::Minorant => (s.mu_min, s.mu_maj - s.mu_min),
-            Control::Midpoint => (0.5 * (s.mu_min + s.mu_maj), 0.5 * (s.mu_maj - s.mu_min)),
-        };
-        // Control first: a weight that underflows to 0 stops before the residual weights
-        // (which reach 2 per collision with the midpoint control) can overflow to inf * 0.
-        w *= (-mu_c * s.length()).exp();
-        if w == 0.0 {
-            return 0.0;
-        }
-        w *= ratio_segment(s, mu_c, rate, m, rng, cap);
-        if w == 0.0 || !w.is_finite() || cap.hit {
-            break;
-        }
+    let mut tr = RatioTracker {
+        control: Some(control),
+        w: 1.0,
+    };
+    free_flight(segs, m, rng, cap, &mut tr)
+}
+
+/// Next-flight ratio tracking: the ratio weight, plus at every tentative collision the weight
+/// times the majorant transmittance to the end.
+struct NextFlightTracker {
+    w: f64,
+    est: f64,
+    /// Majorant optical depth of the segments after the current one, kept by subtraction (no
+    /// per-sample table; clamped at 0 against rounding).
+    tail: f64,
+}
+
+impl Tracker for NextFlightTracker {
+    fn rates(&self, s: &Segment) -> (f64, f64) {
+        (0.0, s.mu_maj)
     }
-    w
+    fn enter(&mut self, s: &Segment, _mu_c: f64) -> ControlFlow<()> {
+        self.tail = (self.tail - s.mu_maj * s.length()).max(0.0);
+        ControlFlow::Continue(())
+    }
+    fn collide(
+        &mut self,
+        s: &Segment,
+        t: f64,
+        mu: f64,
+        _mu_c: f64,
+        rate: f64,
+        _rng: &mut Rng,
+    ) -> ControlFlow<()> {
+        self.w *= 1.0 - mu / rate;
+        if self.w == 0.0 {
+            return ControlFlow::Break(());
+        }
+        self.est += self.w * (-(rate * (s.t_max - t) + self.tail)).exp();
+        ControlFlow::Continue(())
+    }
+    fn value(&self) -> f64 {
+        self.est
+    }
 }
 
 /// Next-flight ratio tracking.
@@ -172,51 +354,82 @@ pub(crate) fn next_flight(
     cap: &mut Cap,
 ) -> f64 {
     let tau_maj: f64 = segs.iter().map(|s| s.mu_maj * s.length()).sum();
-    let mut est = (-tau_maj).exp();
-    let mut w = 1.0;
-    // Majorant optical depth of the segments after the current one, kept by subtraction (no
-    // per-sample table; clamped at 0 against rounding).
-    let mut tail = tau_maj;
-    'outer: for s in segs {
-        tail = (tail - s.mu_maj * s.length()).max(0.0);
-        if s.mu_maj <= 0.0 {
-            continue;
-        }
-        let mut t = s.t_min;
-        loop {
-            t += rng.exponential(s.mu_maj);
-            if t >= s.t_max {
-                break;
-            }
-            if !cap.take() {
-                break 'outer;
-            }
-            w *= (1.0 - m.mu(t) / s.mu_maj).clamp(0.0, 1.0);
-            if w == 0.0 {
-                break 'outer;
-            }
-            est += w * (-(s.mu_maj * (s.t_max - t) + tail)).exp();
-        }
-    }
-    est
+    let mut tr = NextFlightTracker {
+        w: 1.0,
+        est: (-tau_maj).exp(),
+        tail: tau_maj,
+    };
+    free_flight(segs, m, rng, cap, &mut tr)
 }
 
-/// Decomposition tracking with the minorant as the control medium.
-pub(crate) fn decomposition(
-    segs: &[Segment],
-    m: &mut RayMedium<'_>,
-    rng: &mut Rng,
-    cap: &mut Cap,
-) -> f64 {
-    let mut w = 1.0;
-    for s in segs {
-        w *= (-s.mu_min * s.length()).exp();
-        if first_real_collision(s, s.mu_min, m, rng, cap).is_some() {
-            return 0.0;
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::estimate::Cap;
+    use crate::ray::Ray;
+    use crate::tree::TreeBuilder;
+    use crate::volume::{Interp, Volume};
+
+    /// A 16-voxel slab of density 2 along x, and a segment over it whose "majorant" is a
+    /// deliberately wrong 1.
+    fn wrong_majorant() -> (Volume, Ray, Segment) {
+        let mut b = TreeBuilder::new(0.0);
+        for i in 0..16 {
+            b.set([i, 0, 0], 2.0);
         }
-        if cap.hit {
-            break;
-        }
+        let m = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ];
+        let vol = Volume::from_tree("slab".into(), b.build(), m, 1.0).expect("valid volume");
+        let ray = Ray::between([0.0, 0.0, 0.0], [15.0, 0.0, 0.0]).expect("valid ray");
+        let seg = Segment {
+            t_min: 1.0,
+            t_max: 14.0,
+            mu_min: 0.0,
+            mu_maj: 1.0,
+            level: 1,
+        };
+        (vol, ray, seg)
     }
-    w
+
+    #[test]
+    #[cfg(not(debug_assertions))]
+    fn a_wrong_majorant_is_counted_not_clamped() {
+        let (vol, ray, seg) = wrong_majorant();
+        let mut m = RayMedium::new(&vol, &ray, Interp::Nearest);
+        let mut cap = Cap::new(1_000_000);
+        let mut rng = Rng::new(1, 2, 3);
+        let w = ratio(&[seg], &mut m, &mut rng, &mut cap);
+        assert!(cap.violations > 0, "violations {}", cap.violations);
+        // Unclamped: every collision multiplies by 1 - 2/1 = -1, so |w| = 1 (clamping would
+        // have given exactly 0).
+        assert_eq!(w.abs(), 1.0);
+    }
+
+    #[test]
+    #[cfg(debug_assertions)]
+    #[should_panic(expected = "majorant violation")]
+    fn a_wrong_majorant_fails_a_debug_assertion() {
+        let (vol, ray, seg) = wrong_majorant();
+        let mut m = RayMedium::new(&vol, &ray, Interp::Nearest);
+        let mut cap = Cap::new(1_000_000);
+        let mut rng = Rng::new(1, 2, 3);
+        let _ = ratio(&[seg], &mut m, &mut rng, &mut cap);
+    }
+
+    #[test]
+    fn a_correct_majorant_has_no_violations() {
+        let (vol, ray, mut seg) = wrong_majorant();
+        seg.mu_maj = 2.0;
+        let mut m = RayMedium::new(&vol, &ray, Interp::Nearest);
+        let mut cap = Cap::new(1_000_000);
+        for i in 0..100 {
+            let mut rng = Rng::new(1, 2, i);
+            let _ = next_flight(&[seg], &mut m, &mut rng, &mut cap);
+            let _ = decomposition(&[seg], &mut m, &mut rng, &mut cap);
+        }
+        assert_eq!(cap.violations, 0);
+    }
 }

@@ -77,7 +77,7 @@ pub(crate) fn walk_nodes(
     gran: Granularity,
     visit: impl FnMut(Segment, Option<u32>) -> ControlFlow<()>,
 ) -> Walk {
-    let length = ray.t_max - ray.t_min;
+    let length = ray.t_max() - ray.t_min();
     let (q, d) = lookup_ray(vol, ray, interp);
     let mut w = Walker {
         vol,
@@ -85,8 +85,8 @@ pub(crate) fn walk_nodes(
         gran,
         q,
         d,
-        scale: vol.density_scale,
-        bg: vol.tree.background,
+        scale: vol.density_scale(),
+        bg: vol.tree().background,
         visit,
         covered: 0.0,
         segments: 0,
@@ -102,7 +102,7 @@ pub(crate) fn walk_nodes(
 
 impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
     fn run(&mut self, ray: &Ray) -> ControlFlow<()> {
-        let Some([lo, hi]) = self.vol.value_box else {
+        let Some([lo, hi]) = self.vol.value_box() else {
             return ControlFlow::Continue(());
         };
         // Lookup cells whose reads can touch the value box.
@@ -115,7 +115,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         let Some((a, b)) = clip_box(self.q, self.d, clip_lo, clip_hi) else {
             return ControlFlow::Continue(());
         };
-        let (t0, t1) = (a.max(ray.t_min), b.min(ray.t_max));
+        let (t0, t1) = (a.max(ray.t_min()), b.min(ray.t_max()));
         if !non_empty(t0, t1) {
             return ControlFlow::Continue(());
         }
@@ -132,9 +132,9 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             let Some(origin) = to_i32(c.map(|v| v * 4096)) else {
                 return ControlFlow::Continue(());
             };
-            match self.vol.tree.root_find(origin) {
+            match self.vol.tree().root_find(origin) {
                 None => self.tile(self.bg, None, origin, 4096, 3, ta, tb),
-                Some(r) => match self.vol.tree.root[r].slot {
+                Some(r) => match self.vol.tree().root[r].slot {
                     RootSlot::Tile { value, .. } => self.tile(value, None, origin, 4096, 3, ta, tb),
                     RootSlot::Child(u) => self.upper(u, ta, tb),
                 },
@@ -143,7 +143,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
     }
 
     fn upper(&mut self, u: u32, t0: f64, t1: f64) -> ControlFlow<()> {
-        let tree = &self.vol.tree;
+        let tree = &self.vol.tree();
         let node = &tree.uppers[u as usize];
         if self.gran == Granularity::Upper {
             return self.node_segment(self.pick(node.bounds, node.halo), 3, None, t0, t1);
@@ -154,12 +154,12 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
     }
 
     fn lower(&mut self, l: u32, t0: f64, t1: f64) -> ControlFlow<()> {
-        let node = &self.vol.tree.lowers[l as usize];
+        let node = &self.vol.tree().lowers[l as usize];
         if self.gran == Granularity::Lower {
             return self.node_segment(self.pick(node.bounds, node.halo), 2, None, t0, t1);
         }
         self.internal(node, 128, 8, t0, t1, |w, l, ta, tb| {
-            let leaf = &w.vol.tree.leaves[l as usize];
+            let leaf = &w.vol.tree().leaves[l as usize];
             w.node_segment(w.pick(leaf.bounds, leaf.halo), 1, Some(l), ta, tb)
         })
     }
@@ -245,7 +245,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             let v = f64::from(v);
             return self.segment(v, v, level, t0, t1);
         }
-        let h = halo.unwrap_or_else(|| self.vol.tree.halo_bounds(origin, dim));
+        let h = halo.unwrap_or_else(|| self.vol.tree().halo_bounds(origin, dim));
         if h.min == h.max {
             if h.min == self.bg {
                 return ControlFlow::Continue(());
@@ -308,8 +308,8 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
 /// the same voxels as `PointSampler`.
 #[must_use]
 pub fn lookup_ray(vol: &Volume, ray: &Ray, interp: Interp) -> ([f64; 3], [f64; 3]) {
-    let p = vol.to_index(ray.origin);
-    let d = vol.to_index_dir(ray.direction);
+    let p = vol.to_index(ray.origin());
+    let d = vol.to_index_dir(ray.direction());
     let q = [0, 1, 2].map(|a| match interp {
         Interp::Nearest if d[a] == 0.0 => p[a].round() + 0.5,
         _ => p[a] + interp.shift(),

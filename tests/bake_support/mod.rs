@@ -94,8 +94,8 @@ impl Exr {
 pub fn prov(vol: &Volume) -> Provenance {
     Provenance {
         source_file: "memory".into(),
-        grid: vol.name.clone(),
-        density_scale: vol.density_scale,
+        grid: vol.name().to_string(),
+        density_scale: vol.density_scale(),
         light_dir: None,
         light_pos: None,
     }
@@ -103,7 +103,7 @@ pub fn prov(vol: &Volume) -> Provenance {
 
 pub fn regular(interp: Interp) -> BakeSettings {
     BakeSettings::new(
-        Estimator::Regular,
+        Estimator::REGULAR,
         Options {
             interp,
             ..Options::default()
@@ -131,5 +131,5 @@ pub fn box_volume() -> Volume {
         [0.0, 0.1, 0.0, 1.0],
         [0.0, 0.0, 0.1, 0.5],
     ];
-    Volume::from_tree("box".into(), b.build(), m, 0.5)
+    Volume::from_tree("box".into(), b.build(), m, 0.5).unwrap()
 }

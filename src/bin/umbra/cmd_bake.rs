@@ -1,13 +1,12 @@
 //! `umbra bake`: transmittance / shadow maps from a light, written to OpenEXR.
 
-use crate::cmd_query::{load_volume, parse_vec3, EstimatorArgs, InterpArg};
+use crate::common::{parse_vec3, progress_bar, EstimatorArgs, InterpArg};
 use anyhow::{bail, Context, Result};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::bake::{
-    bake, check_target, slice_channel, volume_corners, write_exr, write_png, BakeSettings, Camera,
-    Depths, Map, Projection, Provenance, View,
+    slice_channel, BakeJob, BakeSettings, Depths, Map, Projection, Provenance, View,
 };
 use umbra::Interp;
 
@@ -125,7 +124,7 @@ fn view(a: &BakeArgs) -> Result<View> {
     })
 }
 
-/// Bake, write, report.
+/// Bake, write, report: the shared pipeline ([`BakeJob`]) with a progress bar.
 pub fn run(a: &BakeArgs) -> Result<ExitCode> {
     let total = std::time::Instant::now();
     let view = view(a)?;
@@ -135,50 +134,46 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         (None, Some(d)) => Depths::At(parse_depths(d)?),
         (None, None) => Depths::None,
     };
-    check_target(&a.output, a.force)?;
-    if let Some(p) = &a.preview {
-        check_target(p, a.force)?;
-        if *p == a.output {
-            bail!("--preview and -o name the same file");
-        }
-    }
     let interp: Interp = a.interp.into();
     let (estimator, options) = a.est.resolve(interp)?;
-    let vol = load_volume(&a.file, &a.grid, a.density_scale)?;
-    let camera = Camera::frame(&view, &volume_corners(&vol)?)?;
-    let settings = BakeSettings {
-        target_error: a.target_error,
-        max_spp: a.max_spp,
-        depths,
-        std_err: a.stderr,
-        threads: a.threads,
-        ..BakeSettings::new(estimator, options)
+    let job = BakeJob {
+        input: a.file.clone(),
+        grid: a.grid.clone(),
+        density_scale: a.density_scale,
+        view,
+        settings: BakeSettings {
+            target_error: a.target_error,
+            max_spp: a.max_spp,
+            depths,
+            std_err: a.stderr,
+            threads: a.threads,
+            ..BakeSettings::new(estimator, options)
+        },
+        output: a.output.clone(),
+        preview: a.preview.clone(),
+        overwrite: a.force,
     };
-    let bar = crate::progress_bar(
+    job.check_outputs()?;
+    job.settings.validate()?;
+    let vol = umbra::Volume::load(&job.input, &job.grid, job.density_scale)
+        .with_context(|| format!("loading grid '{}'", job.grid))?;
+    let camera = umbra::bake::Camera::frame(&job.view, &umbra::bake::volume_corners(&vol)?)?;
+    let bar = progress_bar(
         a.quiet,
         "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
         camera.pixels(),
     );
-    let map = bake(&vol, &camera, &settings, &|n| bar.inc(n))?;
+    let result = job.run_on(vol, camera, &|n| bar.inc(n));
     bar.finish_and_clear();
-    let prov = Provenance {
-        source_file: a.file.display().to_string(),
-        grid: vol.name.clone(),
-        density_scale: a.density_scale,
-        light_dir: a.light_dir,
-        light_pos: a.light_pos,
-    };
-    drop(vol); // the tree is not needed to write the map: peak memory is load + bake
-    write_exr(&a.output, &map, &prov, a.force)?;
-    if let Some(p) = &a.preview {
-        write_png(p, &map, a.force)?;
-    }
-    report(a, &map, &prov, total.elapsed().as_secs_f64())?;
-    if map.stats.capped > 0 {
-        eprintln!(
-            "umbra: warning: {} samples hit the collision cap (biased)",
-            map.stats.capped
-        );
+    let done = result?;
+    report(
+        a,
+        &done.map,
+        &done.provenance,
+        total.elapsed().as_secs_f64(),
+    )?;
+    for w in &done.warnings {
+        eprintln!("umbra: warning: {}: {w}", a.file.display());
     }
     Ok(ExitCode::SUCCESS)
 }
@@ -215,13 +210,15 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
             "light_dir": prov.light_dir, "light_pos": prov.light_pos,
             "fov_deg": c.fov_deg().map(|f| [f.0, f.1]),
             "channels": channels, "depths": map.depths,
-            "estimator": s.estimator.name(), "interp": s.options.interp,
+            "estimator": s.estimator.name(), "estimator_params": s.estimator,
+            "interp": s.options.interp,
             "spp": s.options.samples, "target_error": s.target_error, "max_spp": s.max_spp,
             "seed": s.options.seed, "density_scale": prov.density_scale, "threads": threads,
             "seconds": st.seconds, "total_seconds": total, "rays": st.rays,
             "rays_per_second": rays_per_second, "mean_spp": mean_spp, "lookups": st.lookups,
             "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
-            "capped": st.capped, "unconverged": st.unconverged, "max_std_err": st.max_std_err,
+            "capped": st.capped, "majorant_violations": st.majorant_violations,
+            "unconverged": st.unconverged, "max_std_err": st.max_std_err,
             "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
         });
         writeln!(out, "{v}")?;

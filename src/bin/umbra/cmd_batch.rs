@@ -108,7 +108,7 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     // With a fixed resolution the bar counts pixels (it moves during long bakes), else tasks.
     let pixels = job.pixels_hint();
     let total_units = pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64);
-    let bar = crate::progress_bar(
+    let bar = crate::common::progress_bar(
         a.quiet,
         "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}",
         total_units,
@@ -125,17 +125,35 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
                 let k = next.fetch_add(1, Ordering::Relaxed);
                 let Some(t) = todo.get(k) else { break };
                 let t0 = std::time::Instant::now();
-                let result = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-                    job.run_task(t, per_task, &|n| {
-                        if pixels.is_some() {
-                            bar.inc(n);
-                        }
-                    })
-                }))
-                .unwrap_or_else(|_| Err("panicked".into()));
+                let result = job.run_task(t, per_task, &|n| {
+                    if pixels.is_some() {
+                        bar.inc(n);
+                    }
+                });
                 let secs = t0.elapsed().as_secs_f64();
                 let rec = match result {
-                    Ok(rps) => record(&job, t, "ok", secs, rps, None),
+                    Ok(done) => {
+                        let st = &done.map.stats;
+                        let mut r = record(
+                            &job,
+                            t,
+                            "ok",
+                            secs,
+                            st.rays as f64 / st.seconds.max(1e-9),
+                            None,
+                        );
+                        r.warnings = done.warnings.iter().map(ToString::to_string).collect();
+                        for w in &r.warnings {
+                            bar.suspend(|| {
+                                eprintln!(
+                                    "umbra: warning: task {} ({}): {w}",
+                                    t.index,
+                                    t.input.display()
+                                );
+                            });
+                        }
+                        r
+                    }
                     Err(e) => {
                         failed.fetch_add(1, Ordering::Relaxed);
                         bar.suspend(|| {
@@ -145,7 +163,7 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
                                 t.input.display()
                             );
                         });
-                        record(&job, t, "failed", secs, 0.0, Some(e))
+                        record(&job, t, "failed", secs, 0.0, Some(e.to_string()))
                     }
                 };
                 if let Err(e) = write_record(&log, &rec) {
@@ -203,6 +221,7 @@ fn record(
         seconds,
         rays_per_second,
         error,
+        warnings: Vec::new(),
     }
 }
 

@@ -1,11 +1,11 @@
 //! `umbra compare`: error against run time for every estimator, and the stress suite.
 
-use crate::cmd_query::InterpArg;
+use crate::common::{InterpArg, ParamArgs};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::compare::{self, stress, Meta, Settings};
-use umbra::estimate::{Options, ESTIMATOR_NAMES};
+use umbra::estimate::{Estimator, Options};
 use umbra::{Interp, Volume};
 
 /// Arguments of `umbra compare`.
@@ -22,9 +22,14 @@ pub struct CompareArgs {
     /// Number of random rays crossing the volume.
     #[arg(long, default_value_t = 256)]
     rays: usize,
-    /// Estimators: `all` or a comma-separated list of names.
+    /// Estimators: `all` (every registered one) or a comma-separated list of names; exactly
+    /// these are run.
     #[arg(long, default_value = "all")]
     estimators: String,
+    /// Also run ratio tracking with one grid-wide majorant (the naive baseline), reported as
+    /// `ratio-global-majorant`.
+    #[arg(long)]
+    global_baseline: bool,
     /// mu_t = S x value, per world unit.
     #[arg(long, default_value_t = 1.0)]
     density_scale: f64,
@@ -40,9 +45,10 @@ pub struct CompareArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     threads: Option<usize>,
-    /// Kernel width of the collision estimator, world units.
-    #[arg(long, default_value_t = 0.01)]
-    kernel: f64,
+    /// Parameters for the estimators that take them (the budget parameter of a ladder is
+    /// varied over its ladder).
+    #[command(flatten)]
+    params: ParamArgs,
     /// Also run the stress catalogue and write stress.{md,json}.
     #[arg(long)]
     stress: bool,
@@ -50,7 +56,7 @@ pub struct CompareArgs {
     #[arg(long, default_value_t = 16)]
     stress_samples: u32,
     /// No progress messages.
-    #[arg(long)]
+    #[arg(long, short)]
     quiet: bool,
 }
 
@@ -71,6 +77,36 @@ fn machine() -> String {
     )
 }
 
+/// The estimators `--estimators` names (registry order for `all`), with the given parameters
+/// applied to those that take them.
+fn selected(a: &CompareArgs) -> Result<Vec<Estimator>> {
+    let names: Vec<&str> = if a.estimators == "all" {
+        umbra::estimate::names().collect()
+    } else {
+        a.estimators.split(',').map(str::trim).collect()
+    };
+    let given = a.params.given();
+    let mut used = vec![false; given.len()];
+    let mut out = Vec::new();
+    for n in names {
+        let mut e = Estimator::from_name(n).map_err(crate::common::flag_error)?;
+        for (k, &(p, v)) in given.iter().enumerate() {
+            if e.spec().param(p).is_some() {
+                e = e.set(p, v).map_err(crate::common::flag_error)?;
+                used[k] = true;
+            }
+        }
+        out.push(e);
+    }
+    if let Some(k) = used.iter().position(|u| !u) {
+        anyhow::bail!(
+            "--{}: none of the selected estimators takes it (see umbra estimators)",
+            given[k].0
+        );
+    }
+    Ok(out)
+}
+
 /// Run the comparison (and the stress suite) and write the reports.
 pub fn run(a: &CompareArgs) -> Result<ExitCode> {
     let threads = a
@@ -81,28 +117,7 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         .build()
         .context("starting worker threads")?;
     let interp: Interp = a.interp.into();
-    if !(a.kernel.is_finite() && a.kernel >= 0.0) {
-        anyhow::bail!(
-            "--kernel must be a non-negative world length, got {}",
-            a.kernel
-        );
-    }
-    let names: Vec<String> = if a.estimators == "all" {
-        ESTIMATOR_NAMES.iter().map(|s| (*s).to_string()).collect()
-    } else {
-        a.estimators
-            .split(',')
-            .map(|s| s.trim().to_string())
-            .collect()
-    };
-    for n in &names {
-        if compare::ladder(n, a.kernel).is_empty() {
-            anyhow::bail!(
-                "unknown estimator '{n}' (known: {})",
-                ESTIMATOR_NAMES.join(", ")
-            );
-        }
-    }
+    let estimators = selected(a)?;
     let say = |m: &str| {
         if !a.quiet {
             eprintln!("umbra compare: {m}");
@@ -128,10 +143,10 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
             options,
             repeats: a.repeats,
             threads,
-            global_baseline: true,
+            global_baseline: a.global_baseline,
         };
-        let rows = pool
-            .install(|| compare::compare(&vol, &rays, &names, a.kernel, &settings, |m| say(m)))?;
+        let rows =
+            pool.install(|| compare::compare(&vol, &rays, &estimators, &settings, |m| say(m)))?;
         let exact = pool.install(|| compare::reference(&vol, &rays, &options));
         let mean_t = exact.iter().sum::<f64>() / exact.len() as f64;
         let taus: Vec<f64> = exact.iter().map(|t| -t.ln() + 0.0).collect();
@@ -161,15 +176,15 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
     }
     if a.stress {
         say("stress catalogue");
-        let cases = stress::catalogue(16);
+        let cases = stress::catalogue(16)?;
         let rows = pool.install(|| stress::run(&cases, a.stress_samples, 5_000_000));
         std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
         let md = stress::markdown(&cases, &rows, a.stress_samples);
-        umbra::bake::write_atomic(&a.out.join("stress.md"), true, |w| {
+        umbra::output::write_atomic(&a.out.join("stress.md"), true, |w| {
             std::io::Write::write_all(w, md.as_bytes()).map_err(|e| e.to_string())
         })?;
         let json = serde_json::to_string_pretty(&rows)?;
-        umbra::bake::write_atomic(&a.out.join("stress.json"), true, |w| {
+        umbra::output::write_atomic(&a.out.join("stress.json"), true, |w| {
             std::io::Write::write_all(w, json.as_bytes()).map_err(|e| e.to_string())
         })?;
         let bad = rows

@@ -1,33 +1,15 @@
 //! `umbra query`: what does the cloud attenuate along a segment, toward a light, or along
 //! thousands of segments from a CSV file?
 
+use crate::common::{load_volume, parse_vec3, thread_pool, EstimatorArgs, InterpArg};
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use umbra::bake::Light;
-use umbra::estimate::{estimate, Estimate, Estimator, Options, ESTIMATOR_NAMES};
-use umbra::traverse::Granularity;
-use umbra::{Interp, Ray, Volume};
-
-/// Lookup interpolation, as the CLI spells it.
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum InterpArg {
-    /// OpenVDB PointSampler.
-    Nearest,
-    /// OpenVDB BoxSampler.
-    Trilinear,
-}
-
-impl From<InterpArg> for Interp {
-    fn from(a: InterpArg) -> Self {
-        match a {
-            InterpArg::Nearest => Interp::Nearest,
-            InterpArg::Trilinear => Interp::Trilinear,
-        }
-    }
-}
+use umbra::bake::Warning;
+use umbra::estimate::{estimate, Estimate, Estimator, Options};
+use umbra::{Interp, Light, Ray, Volume};
 
 /// Arguments of `umbra query`.
 #[derive(Debug, clap::Args)]
@@ -76,124 +58,6 @@ pub struct QueryArgs {
     threads: usize,
     #[command(flatten)]
     est: EstimatorArgs,
-}
-
-/// Estimator selection shared by `query` (and later `bake`, `compare`).
-#[derive(Debug, clap::Args)]
-pub struct EstimatorArgs {
-    /// Estimator: regular (exact), riemann, mc, jittered, track-length, collision, ratio,
-    /// residual-ratio, residual-ratio-midpoint, next-flight, unbiased-raymarch, decomposition,
-    /// jackknife.
-    #[arg(long, default_value = "regular")]
-    pub estimator: String,
-    /// Independent samples per ray (stochastic estimators).
-    #[arg(long, visible_alias = "spp", default_value_t = 64)]
-    pub samples: u32,
-    /// Seed of the random streams.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    /// Ray-marching step in voxels (riemann, mc, jittered).
-    #[arg(long, default_value_t = 1.0)]
-    pub step: f64,
-    /// Kernel width in world units (collision).
-    #[arg(long, default_value_t = 0.01)]
-    pub kernel: f64,
-    /// Majorant granularity of the HDDA.
-    #[arg(long, value_enum, default_value = "leaf")]
-    pub granularity: GranularityArg,
-    /// One majorant for the whole grid (the naive baseline).
-    #[arg(long)]
-    pub global_majorant: bool,
-}
-
-/// HDDA granularity, as the CLI spells it.
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum GranularityArg {
-    /// 8^3 leaves and tiles.
-    Leaf,
-    /// 128^3 lower nodes.
-    Lower,
-    /// 4096^3 upper nodes.
-    Upper,
-}
-
-impl EstimatorArgs {
-    /// The estimator and options these arguments select.
-    pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
-        if !(self.step.is_finite() && self.step > 0.0) {
-            anyhow::bail!(
-                "--step must be a positive number of voxels, got {}",
-                self.step
-            );
-        }
-        if !(self.kernel.is_finite() && self.kernel >= 0.0) {
-            anyhow::bail!(
-                "--kernel must be a non-negative world length, got {}",
-                self.kernel
-            );
-        }
-        let est =
-            Estimator::from_name(&self.estimator, self.step, self.kernel).ok_or_else(|| {
-                anyhow::anyhow!(
-                    "unknown estimator '{}' (known: {}, residual-ratio-midpoint)",
-                    self.estimator,
-                    ESTIMATOR_NAMES.join(", ")
-                )
-            })?;
-        if self.samples == 0 {
-            anyhow::bail!("--samples must be at least 1");
-        }
-        let opts = Options {
-            interp,
-            samples: self.samples,
-            seed: self.seed,
-            granularity: match self.granularity {
-                GranularityArg::Leaf => Granularity::Leaf,
-                GranularityArg::Lower => Granularity::Lower,
-                GranularityArg::Upper => Granularity::Upper,
-            },
-            global_majorant: self.global_majorant,
-            ..Options::default()
-        };
-        Ok((est, opts))
-    }
-}
-
-/// Parse `X,Y,Z` into three finite numbers.
-pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|c| c.trim().parse::<f64>().map_err(|e| format!("'{c}': {e}")))
-        .collect::<Result<_, _>>()?;
-    match v.as_slice() {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
-        _ => Err(format!("expected three finite numbers X,Y,Z, got '{s}'")),
-    }
-}
-
-/// Load a grid for tracing, warning about voxels the bad-voxel policy changed.
-pub fn load_volume(file: &Path, grid: &str, density_scale: f64) -> Result<Volume> {
-    let vol = Volume::load(file, grid, density_scale)
-        .with_context(|| format!("loading grid '{grid}'"))?;
-    let s = vol.sanitized;
-    if s.nan + s.negative > 0 {
-        eprintln!(
-            "umbra: warning: {}: {} NaN and {} negative values in grid '{}' treated as 0",
-            file.display(),
-            s.nan,
-            s.negative,
-            vol.name
-        );
-    }
-    Ok(vol)
-}
-
-/// A rayon pool of `threads` workers (0: as many as cores).
-pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("starting worker threads")
 }
 
 /// One answered (or failed) query.
@@ -330,7 +194,7 @@ fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
 fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> Result<ExitCode> {
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let mut failed: Vec<String> = Vec::new();
-    let mut capped = 0u64;
+    let (mut capped, mut violations) = (0u64, 0u64);
     for a in answers {
         let at = a.line.map_or(String::new(), |n| format!("line {n}: "));
         match &a.result {
@@ -345,11 +209,12 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
             }
             Ok((ray, e, seconds)) => {
                 capped += e.capped;
+                violations += e.majorant_violations;
                 if json {
                     let mut v = serde_json::json!({
                         "T": e.value, "std_err": e.std_err, "tau": e.tau, "lookups": e.lookups,
                         "estimator": est, "samples": e.samples, "interp": interp,
-                        "length": ray.t_max, "segments": e.segments, "capped": e.capped,
+                        "length": ray.t_max(), "segments": e.segments, "capped": e.capped,
                         "seconds": seconds,
                     });
                     if let Some(n) = a.line {
@@ -366,15 +231,23 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                     writeln!(
                         out,
                         "{at}T = {:.9}{err}{tau} ({est}, {interp:?}, {} samples, length {:.6}, {} lookups)",
-                        e.value, e.samples, ray.t_max, e.lookups
+                        e.value, e.samples, ray.t_max(), e.lookups
                     )?;
                 }
             }
         }
     }
     out.flush()?;
-    if capped > 0 {
-        eprintln!("umbra: warning: {capped} samples hit the collision cap (biased)");
+    for w in [
+        Warning::Capped { samples: capped },
+        Warning::MajorantViolations {
+            lookups: violations,
+        },
+    ] {
+        if matches!(w, Warning::Capped { samples: n } | Warning::MajorantViolations { lookups: n } if n > 0)
+        {
+            eprintln!("umbra: warning: {w}");
+        }
     }
     if let Some(first) = failed.first() {
         eprintln!(

@@ -1,11 +1,14 @@
-//! The `umbra` command line: `info` describes a file, `query` answers transmittance questions,
-//! `bake` writes transmittance (shadow) maps.
+//! The `umbra` command line, a thin layer over the library: `info` describes files, `query`
+//! answers transmittance questions, `bake` writes transmittance (shadow) maps, `batch` runs job
+//! files, `compare` measures error against time, `estimators` lists the estimator registry.
 
 mod cmd_bake;
 mod cmd_batch;
 mod cmd_compare;
+mod cmd_estimators;
 mod cmd_info;
 mod cmd_query;
+mod common;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
@@ -44,6 +47,12 @@ enum Command {
     Batch(cmd_batch::BatchArgs),
     /// Error against run time of every estimator, and the stress suite on extreme media.
     Compare(cmd_compare::CompareArgs),
+    /// List the estimators: name, kind, parameters with defaults and ranges, summary.
+    Estimators {
+        /// Print a JSON array instead of a table.
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn main() -> ExitCode {
@@ -71,18 +80,6 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Bake(args) => cmd_bake::run(&args),
         Command::Batch(args) => cmd_batch::run(&args),
         Command::Compare(args) => cmd_compare::run(&args),
+        Command::Estimators { json } => cmd_estimators::run(json),
     }
-}
-
-/// A progress bar on stderr over `len` units with `template` (indicatif syntax), hidden with
-/// `--quiet` or when stderr is not a terminal.
-fn progress_bar(quiet: bool, template: &str, len: u64) -> indicatif::ProgressBar {
-    use std::io::IsTerminal;
-    if quiet || !std::io::stderr().is_terminal() {
-        return indicatif::ProgressBar::hidden();
-    }
-    let style = indicatif::ProgressStyle::with_template(template)
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
-        .progress_chars("=> ");
-    indicatif::ProgressBar::new(len).with_style(style)
 }

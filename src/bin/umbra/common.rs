@@ -1,0 +1,204 @@
+//! What the commands share: estimator and interpolation flags, vector parsing, loading with
+//! warnings, thread pools, progress bars.
+
+use anyhow::{Context, Result};
+use std::path::Path;
+use umbra::bake::volume_warnings;
+use umbra::estimate::{Estimator, Options};
+use umbra::traverse::Granularity;
+use umbra::{Interp, Volume};
+
+/// Lookup interpolation, as the CLI spells it.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum InterpArg {
+    /// OpenVDB PointSampler.
+    Nearest,
+    /// OpenVDB BoxSampler.
+    Trilinear,
+}
+
+impl From<InterpArg> for Interp {
+    fn from(a: InterpArg) -> Self {
+        match a {
+            InterpArg::Nearest => Interp::Nearest,
+            InterpArg::Trilinear => Interp::Trilinear,
+        }
+    }
+}
+
+/// Estimator selection shared by `query`, `bake` (and the parameters by `compare`).
+#[derive(Debug, clap::Args)]
+pub struct EstimatorArgs {
+    /// Estimator (`umbra estimators` lists them with their parameters).
+    #[arg(long, default_value = "regular", long_help = estimator_help())]
+    pub estimator: String,
+    /// Independent samples per ray (stochastic estimators).
+    #[arg(long, visible_alias = "spp", default_value_t = 64)]
+    pub samples: u32,
+    /// Seed of the random streams.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[command(flatten)]
+    pub params: ParamArgs,
+    /// Majorant granularity of the HDDA.
+    #[arg(long, value_enum, default_value = "leaf")]
+    pub granularity: GranularityArg,
+    /// One majorant for the whole grid (the naive baseline).
+    #[arg(long)]
+    pub global_majorant: bool,
+}
+
+/// HDDA granularity, as the CLI spells it.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+pub enum GranularityArg {
+    /// 8^3 leaves and tiles.
+    Leaf,
+    /// 128^3 lower nodes.
+    Lower,
+    /// 4096^3 upper nodes.
+    Upper,
+}
+
+impl EstimatorArgs {
+    /// The estimator and options these arguments select (validated by the library).
+    pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
+        let est = self.params.apply(&self.estimator)?;
+        let opts = Options {
+            interp,
+            samples: self.samples,
+            seed: self.seed,
+            granularity: self.granularity.into(),
+            global_majorant: self.global_majorant,
+            ..Options::default()
+        };
+        opts.validate().map_err(flag_error)?;
+        Ok((est, opts))
+    }
+}
+
+/// Estimator parameters (`umbra estimators` says which estimator takes which).
+#[derive(Debug, clap::Args)]
+pub struct ParamArgs {
+    /// Ray-marching step in voxels (riemann, mc, jittered; default 1).
+    #[arg(long, allow_negative_numbers = true)]
+    pub step: Option<f64>,
+    /// Kernel width in world units (collision; default 0.01).
+    #[arg(long, allow_negative_numbers = true)]
+    pub kernel: Option<f64>,
+    /// Points per optical-depth estimate (jackknife; default 10).
+    #[arg(long, allow_negative_numbers = true)]
+    pub points: Option<f64>,
+}
+
+impl ParamArgs {
+    /// The given parameters as `(name, value)`.
+    pub fn given(&self) -> Vec<(&'static str, f64)> {
+        [
+            ("step", self.step),
+            ("kernel", self.kernel),
+            ("points", self.points),
+        ]
+        .into_iter()
+        .filter_map(|(n, v)| v.map(|v| (n, v)))
+        .collect()
+    }
+
+    /// Estimator `name` with these parameters (an error names a parameter it does not take).
+    pub fn apply(&self, name: &str) -> Result<Estimator> {
+        Ok(Estimator::with_params(name, &self.given()).map_err(flag_error)?)
+    }
+}
+
+/// A library argument error, with its name spelled as the flag (`--step`).
+pub fn flag_error(e: umbra::Error) -> umbra::Error {
+    match e {
+        umbra::Error::InvalidArgument { name, reason } if !name.starts_with("--") => {
+            umbra::Error::InvalidArgument {
+                name: format!("--{name}"),
+                reason,
+            }
+        }
+        other => other,
+    }
+}
+
+/// `--estimator`'s long help: one line per registered estimator.
+fn estimator_help() -> String {
+    let mut s = String::from("Estimator (default regular, exact). One of:\n");
+    for spec in umbra::estimate::REGISTRY {
+        let params: Vec<String> = spec
+            .params
+            .iter()
+            .map(|p| format!("--{} (default {}, {})", p.name, p.default, p.unit))
+            .collect();
+        s.push_str(&format!(
+            "  {} [{}] {}{}\n",
+            spec.name,
+            spec.kind.as_str(),
+            spec.summary,
+            if params.is_empty() {
+                String::new()
+            } else {
+                format!("; {}", params.join(", "))
+            }
+        ));
+    }
+    s
+}
+
+impl From<GranularityArg> for Granularity {
+    fn from(g: GranularityArg) -> Self {
+        match g {
+            GranularityArg::Leaf => Granularity::Leaf,
+            GranularityArg::Lower => Granularity::Lower,
+            GranularityArg::Upper => Granularity::Upper,
+        }
+    }
+}
+
+/// Parse `X,Y,Z` into three finite numbers.
+pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>().map_err(|e| format!("'{c}': {e}")))
+        .collect::<Result<_, _>>()?;
+    match v.as_slice() {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
+        _ => Err(format!("expected three finite numbers X,Y,Z, got '{s}'")),
+    }
+}
+
+/// Load a grid for tracing, warning about voxels the bad-voxel policy changed.
+pub fn load_volume(file: &Path, grid: &str, density_scale: f64) -> Result<Volume> {
+    let vol = Volume::load(file, grid, density_scale)
+        .with_context(|| format!("loading grid '{grid}'"))?;
+    for w in volume_warnings(&vol.sanitized()) {
+        eprintln!(
+            "umbra: warning: {}: grid '{}': {w}",
+            file.display(),
+            vol.name()
+        );
+    }
+    Ok(vol)
+}
+
+/// A rayon pool of `threads` workers (0: as many as cores).
+pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .context("starting worker threads")
+}
+
+/// A progress bar on stderr over `len` units with `template` (indicatif syntax), hidden with
+/// `--quiet` or when stderr is not a terminal.
+pub fn progress_bar(quiet: bool, template: &str, len: u64) -> indicatif::ProgressBar {
+    use std::io::IsTerminal;
+    if quiet || !std::io::stderr().is_terminal() {
+        return indicatif::ProgressBar::hidden();
+    }
+    let style = indicatif::ProgressStyle::with_template(template)
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
+        .progress_chars("=> ");
+    indicatif::ProgressBar::new(len).with_style(style)
+}

@@ -1,0 +1,336 @@
+//! The library enforces its own invariants: every public constructor validates, invalid input
+//! is a typed error (never a hang, a NaN or a silently wrong answer), and the estimator
+//! registry round-trips through every place a name appears (library, CLI JSON, EXR header).
+//! Struct literals that would bypass the checks do not compile (`compile_fail` doc tests on
+//! `Ray` and `Volume`).
+
+use std::path::PathBuf;
+use std::process::Command;
+use umbra::bake::{bake, volume_corners, BakeSettings, Camera, Depths, Projection, View};
+use umbra::batch::{panic_message, parse_job, BatchError};
+use umbra::estimate::{estimate, names, Estimator, Kind, Options, REGISTRY};
+use umbra::tree::TreeBuilder;
+use umbra::{Error, Ray, Volume};
+
+const UNIT: [[f64; 4]; 3] = [
+    [1.0, 0.0, 0.0, 0.0],
+    [0.0, 1.0, 0.0, 0.0],
+    [0.0, 0.0, 1.0, 0.0],
+];
+
+fn slab() -> Volume {
+    let mut b = TreeBuilder::new(0.0);
+    for i in 0..16 {
+        for j in 0..4 {
+            b.set(
+                [i, j, 0],
+                0.5 + 0.1 * f32::from(u8::try_from(i % 3).unwrap()),
+            );
+        }
+    }
+    Volume::from_tree("slab".into(), b.build(), UNIT, 1.0).unwrap()
+}
+
+fn invalid_arg(e: Error) -> String {
+    match e {
+        Error::InvalidArgument { name, .. } => name,
+        other => panic!("expected InvalidArgument, got {other:?}"),
+    }
+}
+
+#[test]
+fn marching_steps_out_of_range_are_errors_not_hangs() {
+    for bad in [0.0, -1.0, 1e-300, 1e-9, f64::NAN, f64::INFINITY, 1e7] {
+        for name in ["riemann", "mc", "jittered"] {
+            let e = Estimator::with_params(name, &[("step", bad)]);
+            assert_eq!(invalid_arg(e.unwrap_err()), "step", "{name} step {bad}");
+        }
+    }
+    let e = Estimator::from_name("riemann").unwrap();
+    assert!(e.set("step", 0.0).is_err());
+    assert_eq!(
+        e.param("step"),
+        Some(1.0),
+        "a failed set leaves the value alone"
+    );
+    assert!(Estimator::with_params("jackknife", &[("points", 2.5)]).is_err());
+    assert!(Estimator::with_params("jackknife", &[("points", 0.0)]).is_err());
+    assert!(Estimator::with_params("collision", &[("kernel", -0.1)]).is_err());
+    // A parameter the estimator does not have is an error, not silently ignored.
+    assert_eq!(
+        invalid_arg(Estimator::with_params("ratio", &[("step", 1.0)]).unwrap_err()),
+        "step"
+    );
+    assert_eq!(
+        invalid_arg(Estimator::from_name("magic").unwrap_err()),
+        "estimator"
+    );
+}
+
+#[test]
+fn the_registry_round_trips_every_name_and_parameter() {
+    assert_eq!(names().count(), REGISTRY.len());
+    for spec in REGISTRY {
+        let e = Estimator::from_name(spec.name).unwrap();
+        assert_eq!(e.name(), spec.name);
+        assert_eq!(Estimator::from_name(e.name()).unwrap(), e);
+        assert_eq!(e.kind(), spec.kind);
+        assert_eq!(e.is_unbiased(), spec.kind != Kind::Biased);
+        assert_eq!(e.may_leave_unit_interval(), spec.kind == Kind::Signed);
+        for p in spec.params {
+            assert_eq!(e.param(p.name), Some(p.default));
+            // Every value of the compare ladder, and the range ends, are valid and read back.
+            for v in p.ladder.iter().copied().chain([p.min, p.max]) {
+                let f = e.set(p.name, v).unwrap();
+                assert_eq!(f.param(p.name), Some(v));
+                let again = Estimator::with_params(f.name(), &[(p.name, v)]).unwrap();
+                assert_eq!(again, f);
+            }
+        }
+        // The serialised form (the EXR umbra:estimator_params attribute) names it exactly.
+        let json = serde_json::to_value(e).unwrap();
+        assert_eq!(json["name"], spec.name);
+        assert_eq!(json.as_object().unwrap().len(), 1 + spec.params.len());
+    }
+    assert!(names().any(|n| n == "residual-ratio-midpoint"));
+    assert_eq!(Estimator::default(), Estimator::REGULAR);
+}
+
+#[test]
+fn query_reports_back_exactly_the_name_it_was_given() {
+    let data = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb");
+    for name in names() {
+        let o = Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .args([
+                "query",
+                data.to_str().unwrap(),
+                "--from",
+                "-2,0,0",
+                "--to",
+                "2,0.5,0",
+            ])
+            .args(["--estimator", name, "--samples", "4", "--json"])
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(v["estimator"], name);
+    }
+    let o = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(["estimators", "--json"])
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let list = v.as_array().unwrap();
+    assert_eq!(list.len(), REGISTRY.len());
+    for (entry, spec) in list.iter().zip(REGISTRY) {
+        assert_eq!(entry["name"], spec.name);
+        assert_eq!(entry["kind"], spec.kind.as_str());
+        assert_eq!(entry["params"].as_array().unwrap().len(), spec.params.len());
+        for (p, q) in entry["params"].as_array().unwrap().iter().zip(spec.params) {
+            assert_eq!(p["name"], q.name);
+            assert_eq!(p["default"].as_f64(), Some(q.default));
+            assert_eq!(p["min"].as_f64(), Some(q.min));
+            assert_eq!(p["max"].as_f64(), Some(q.max));
+        }
+    }
+}
+
+#[test]
+fn rays_validate_on_every_constructor() {
+    assert!(
+        Ray::new([0.0; 3], [0.0; 3], 0.0, 1.0).is_err(),
+        "zero direction"
+    );
+    assert!(
+        Ray::new([0.0; 3], [1.0, 0.0, 0.0], 2.0, 1.0).is_err(),
+        "t_min > t_max"
+    );
+    assert!(
+        Ray::new([0.0; 3], [1.0, 0.0, 0.0], -1.0, 1.0).is_err(),
+        "negative t_min"
+    );
+    assert!(Ray::new([f64::NAN, 0.0, 0.0], [1.0, 0.0, 0.0], 0.0, 1.0).is_err());
+    assert!(Ray::new([0.0; 3], [f64::INFINITY, 0.0, 0.0], 0.0, 1.0).is_err());
+    assert!(Ray::new([0.0; 3], [1.0, 0.0, 0.0], 0.0, f64::NAN).is_err());
+    let r = Ray::new([0.0; 3], [0.0, 3.0, 4.0], 0.0, 1.0).unwrap();
+    assert_eq!(r.direction(), [0.0, 0.6, 0.8], "normalised");
+    assert!(r.with_range(1.0, 0.5).is_err());
+    assert!(Ray::between([0.0; 3], [f64::NAN, 0.0, 0.0]).is_err());
+}
+
+#[test]
+fn volumes_validate_scale_and_transform() {
+    let tree = || TreeBuilder::new(0.0).build();
+    for s in [-1.0, f64::NAN, f64::INFINITY] {
+        let e = Volume::from_tree("v".into(), tree(), UNIT, s).unwrap_err();
+        assert_eq!(invalid_arg(e), "density-scale");
+    }
+    let mut flat = UNIT;
+    flat[1][1] = 0.0;
+    let e = Volume::from_tree("v".into(), tree(), flat, 1.0).unwrap_err();
+    assert_eq!(invalid_arg(e), "transform");
+    let mut tiny = UNIT;
+    tiny[0][0] = 5e-324;
+    assert!(Volume::from_tree("v".into(), tree(), tiny, 1.0).is_err());
+    let mut nan = UNIT;
+    nan[2][3] = f64::NAN;
+    assert!(Volume::from_tree("v".into(), tree(), nan, 1.0).is_err());
+    let v = slab();
+    assert!(v.clone().with_density_scale(-2.0).is_err());
+    assert_eq!(v.with_density_scale(3.0).unwrap().density_scale(), 3.0);
+}
+
+#[test]
+fn estimate_refuses_invalid_options() {
+    let v = slab();
+    let r = Ray::between([-1.0, 1.0, 0.0], [17.0, 1.0, 0.0]).unwrap();
+    let ratio = Estimator::from_name("ratio").unwrap();
+    let zero = Options {
+        samples: 0,
+        ..Options::default()
+    };
+    assert_eq!(
+        invalid_arg(estimate(&v, &r, 0, &ratio, &zero).unwrap_err()),
+        "samples"
+    );
+    let no_cap = Options {
+        max_collisions: 0,
+        ..Options::default()
+    };
+    assert!(estimate(&v, &r, 0, &ratio, &no_cap).is_err());
+    let ok = estimate(&v, &r, 0, &ratio, &Options::default()).unwrap();
+    assert_eq!(ok.majorant_violations, 0);
+}
+
+#[test]
+fn bake_settings_and_cameras_validate() {
+    let v = slab();
+    let view = View {
+        projection: Projection::Ortho,
+        light_dir: Some([0.0, 0.0, -1.0]),
+        light_pos: None,
+        fov_deg: None,
+        res: Some((8, 8)),
+    };
+    let cam = Camera::frame(&view, &volume_corners(&v).unwrap()).unwrap();
+    let base = BakeSettings::new(Estimator::REGULAR, Options::default());
+    let cases: Vec<(BakeSettings, &str)> = vec![
+        (
+            BakeSettings {
+                options: Options {
+                    samples: 0,
+                    ..Options::default()
+                },
+                ..base.clone()
+            },
+            "spp",
+        ),
+        (
+            BakeSettings {
+                target_error: Some(-1.0),
+                ..base.clone()
+            },
+            "target-error",
+        ),
+        (
+            BakeSettings {
+                target_error: Some(f64::NAN),
+                ..base.clone()
+            },
+            "target-error",
+        ),
+        (
+            BakeSettings {
+                max_spp: 0,
+                ..base.clone()
+            },
+            "max-spp",
+        ),
+        (
+            BakeSettings {
+                depths: Depths::Slices(0),
+                ..base.clone()
+            },
+            "slices",
+        ),
+        (
+            BakeSettings {
+                depths: Depths::At(vec![2.0, 1.0]),
+                ..base.clone()
+            },
+            "depths",
+        ),
+    ];
+    for (s, name) in cases {
+        let e = bake(&v, &cam, &s, &|_| {}).unwrap_err();
+        assert_eq!(invalid_arg(e), name);
+    }
+    let corners = volume_corners(&v).unwrap();
+    for bad in [
+        View {
+            light_dir: Some([0.0; 3]),
+            ..view
+        },
+        View {
+            light_dir: Some([f64::NAN, 0.0, 1.0]),
+            ..view
+        },
+        View {
+            res: Some((0, 8)),
+            ..view
+        },
+        View {
+            light_dir: None,
+            ..view
+        },
+        View {
+            projection: Projection::Perspective,
+            light_pos: Some([8.0, 2.0, 30.0]),
+            fov_deg: Some(0.0),
+            ..view
+        },
+        View {
+            projection: Projection::Perspective,
+            light_pos: Some([8.0, 2.0, 30.0]),
+            fov_deg: Some(180.0),
+            ..view
+        },
+    ] {
+        assert!(Camera::frame(&bad, &corners).is_err(), "{bad:?}");
+    }
+}
+
+#[test]
+fn batch_errors_are_typed_and_panics_keep_their_message() {
+    let path = std::path::Path::new("/tmp/job.toml");
+    let e = parse_job(path, "output = 1").unwrap_err();
+    assert!(matches!(e, BatchError::Syntax { .. }), "{e:?}");
+    let text = r#"
+        output = "o_{light}.exr"
+        [[inputs]]
+        file = "a.vdb"
+        [[lights]]
+        name = "sun"
+        dir = [0, -1, 0]
+        [bake]
+        estimator = "riemann"
+        step = 0
+    "#;
+    match parse_job(path, text).unwrap_err() {
+        BatchError::Invalid { key, .. } => assert_eq!(key, "bake.step"),
+        other => panic!("{other:?}"),
+    }
+    let ok = parse_job(path, &text.replace("step = 0", "step = 0.5\nslices = 2")).unwrap();
+    assert_eq!(ok.settings.estimator.param("step"), Some(0.5));
+    assert_eq!(ok.settings.depths, Depths::Slices(2));
+    let p = std::panic::catch_unwind(|| panic!("boom {}", 42)).unwrap_err();
+    assert_eq!(panic_message(p.as_ref()), "boom 42");
+    let q = std::panic::catch_unwind(|| panic!("static")).unwrap_err();
+    assert_eq!(panic_message(q.as_ref()), "static");
+}
