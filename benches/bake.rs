@@ -8,7 +8,7 @@
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::path::PathBuf;
 use std::time::Duration;
-use umbra::bake::{bake, volume_corners, BakeSettings, Camera, Projection, View};
+use umbra::bake::{bake, BakeSettings, Camera, Projection, View};
 use umbra::estimate::{Estimator, Options};
 use umbra::Volume;
 
@@ -22,7 +22,7 @@ fn bench_bake(c: &mut Criterion) {
         fov_deg: None,
         res: Some((256, 256)),
     };
-    let camera = Camera::frame(&view, &volume_corners(&vol).unwrap()).unwrap();
+    let camera = Camera::frame(&view, &vol.box_corners().unwrap()).unwrap();
     let cores = rayon::current_num_threads();
     let mut g = c.benchmark_group("bake_256x256");
     g.sample_size(10)

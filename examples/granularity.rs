@@ -39,7 +39,7 @@ fn main() {
                     vb[0][a] as f64
                 }
             });
-            vol.to_world(p)
+            vol.to_world(p).to_array()
         })
         .collect();
     let lo = [0, 1, 2].map(|a| corners.iter().map(|p| p[a]).fold(f64::INFINITY, f64::min));

@@ -21,7 +21,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use std::time::Instant;
-use umbra::bake::{bake, write_exr, BakeSettings, Camera, Projection, Provenance};
+use umbra::bake::{bake, write_exr, BakeSettings, Camera, CameraSpec, Projection, Provenance};
 use umbra::estimate::{Estimator, Options};
 use umbra::{Interp, Volume};
 
@@ -190,15 +190,10 @@ fn main() {
     );
     let origin = [0, 1, 2].map(|a| center[a] + r[a] * x0 + u[a] * y0);
     // Trace every ray to the far side of the volume box (nothing behind the image plane).
-    let corners = umbra::bake::volume_corners(&vol).unwrap();
-    let depth = |p: &[f64; 3]| (0..3).map(|a| (p[a] - center[a]) * dir[a]).sum::<f64>();
+    let corners = vol.box_corners().unwrap();
+    let depth = |p: &glam::DVec3| (0..3).map(|a| (p[a] - center[a]) * dir[a]).sum::<f64>();
     let t_max = corners.iter().map(depth).fold(0.0, f64::max);
-    let t_near = corners
-        .iter()
-        .map(depth)
-        .fold(f64::INFINITY, f64::min)
-        .max(0.0);
-    let camera = Camera {
+    let camera = Camera::from_spec(&CameraSpec {
         kind: Projection::Ortho,
         width: w as u32,
         height: h as u32,
@@ -207,12 +202,8 @@ fn main() {
         step_y: u.map(|c| -c * s),
         direction: dir,
         t_max,
-        t_near,
-        forward: dir,
-        right: r,
-        up: u,
-        pixel_size: s,
-    };
+    })
+    .unwrap();
     let mut settings = BakeSettings::new(
         est,
         Options {

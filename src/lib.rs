@@ -20,6 +20,7 @@ pub mod error;
 pub mod estimate;
 pub mod info;
 pub mod light;
+pub mod math;
 pub mod output;
 pub mod ray;
 pub mod regular;
@@ -30,6 +31,7 @@ pub mod vdb;
 pub mod volume;
 
 pub use error::{Error, Result};
+pub use glam;
 pub use light::Light;
 pub use ray::Ray;
 pub use volume::{Interp, Volume};

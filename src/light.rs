@@ -1,6 +1,5 @@
 //! Lights: where a shading point's light comes from, and the ray toward it.
 
-use crate::bake::volume_box_index;
 use crate::error::{Error, Result};
 use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
@@ -42,8 +41,9 @@ impl Light {
                             "{dir:?} has no length; give the direction the light travels"
                         ),
                     })?;
-                let back = d.map(|v| -v);
-                let t_exit = volume_box_index(vol)
+                let back = -glam::DVec3::from_array(d);
+                let t_exit = vol
+                    .box_index()
                     .and_then(|(lo, hi)| clip_box(vol.to_index(at), vol.to_index_dir(back), lo, hi))
                     .map_or(0.0, |(_, t1)| t1.max(0.0));
                 Ray::new(at, back, 0.0, t_exit)

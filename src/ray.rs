@@ -1,6 +1,7 @@
 //! Rays in world space and their image in a grid's index space.
 
 use crate::error::{Error, Result};
+use glam::DVec3;
 
 /// A world-space ray segment `p(t) = origin + t * direction`, `t` in `[t_min, t_max]`.
 /// The direction is normalised on construction, so `t` is world distance along the ray.
@@ -14,8 +15,8 @@ use crate::error::{Error, Result};
 /// ```
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Ray {
-    origin: [f64; 3],
-    direction: [f64; 3],
+    origin: DVec3,
+    direction: DVec3,
     t_min: f64,
     t_max: f64,
 }
@@ -26,26 +27,32 @@ impl Ray {
     /// # Errors
     /// [`Error::InvalidArgument`] for non-finite origin/direction, a zero direction, a NaN or
     /// reversed range, or a negative `t_min`.
-    pub fn new(origin: [f64; 3], direction: [f64; 3], t_min: f64, t_max: f64) -> Result<Self> {
+    pub fn new(
+        origin: impl Into<DVec3>,
+        direction: impl Into<DVec3>,
+        t_min: f64,
+        t_max: f64,
+    ) -> Result<Self> {
+        let (origin, direction) = (origin.into(), direction.into());
         let bad = |reason: String| Error::InvalidArgument {
             name: "ray".into(),
             reason,
         };
-        if !origin.iter().chain(&direction).all(|v| v.is_finite()) {
+        if !(origin.is_finite() && direction.is_finite()) {
             return Err(bad(format!(
-                "non-finite origin {origin:?} or direction {direction:?}"
+                "non-finite origin {origin} or direction {direction}"
             )));
         }
-        let len = direction.iter().map(|v| v * v).sum::<f64>().sqrt();
+        let len = direction.length();
         if len == 0.0 || !len.is_finite() {
-            return Err(bad(format!("direction {direction:?} has no length")));
+            return Err(bad(format!("direction {direction} has no length")));
         }
         if t_min.is_nan() || t_max.is_nan() || t_min > t_max || t_min < 0.0 || t_min.is_infinite() {
             return Err(bad(format!("invalid range [{t_min}, {t_max}]")));
         }
         Ok(Self {
             origin,
-            direction: direction.map(|v| v / len),
+            direction: direction / len,
             t_min,
             t_max,
         })
@@ -55,24 +62,25 @@ impl Ray {
     ///
     /// # Errors
     /// As [`Ray::new`]; `a == b` gives a valid zero-length segment along +x.
-    pub fn between(a: [f64; 3], b: [f64; 3]) -> Result<Self> {
-        let d = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-        let len = d.iter().map(|v| v * v).sum::<f64>().sqrt();
+    pub fn between(a: impl Into<DVec3>, b: impl Into<DVec3>) -> Result<Self> {
+        let (a, b) = (a.into(), b.into());
+        let d = b - a;
+        let len = d.length();
         if len == 0.0 {
-            return Self::new(a, [1.0, 0.0, 0.0], 0.0, 0.0);
+            return Self::new(a, DVec3::X, 0.0, 0.0);
         }
         Self::new(a, d, 0.0, len)
     }
 
     /// World-space origin.
     #[must_use]
-    pub fn origin(&self) -> [f64; 3] {
+    pub fn origin(&self) -> DVec3 {
         self.origin
     }
 
     /// Unit world-space direction.
     #[must_use]
-    pub fn direction(&self) -> [f64; 3] {
+    pub fn direction(&self) -> DVec3 {
         self.direction
     }
 
@@ -102,17 +110,23 @@ impl Ray {
         Self::new(self.origin, self.direction, t_min, t_max)
     }
 
-    /// World point at `t`.
+    /// World point at `t`: `origin + t direction`.
     #[must_use]
-    pub fn at(&self, t: f64) -> [f64; 3] {
-        [0, 1, 2].map(|a| self.origin[a] + t * self.direction[a])
+    pub fn at(&self, t: f64) -> DVec3 {
+        self.origin + t * self.direction
     }
 }
 
 /// Slab test of the line `q + t d` against the box `[lo, hi]`: the `t` interval inside, or
 /// `None`. Zero (and negative-zero) direction components are handled without dividing.
 #[must_use]
-pub fn clip_box(q: [f64; 3], d: [f64; 3], lo: [f64; 3], hi: [f64; 3]) -> Option<(f64, f64)> {
+pub fn clip_box(
+    q: impl Into<DVec3>,
+    d: impl Into<DVec3>,
+    lo: impl Into<DVec3>,
+    hi: impl Into<DVec3>,
+) -> Option<(f64, f64)> {
+    let (q, d, lo, hi) = (q.into(), d.into(), lo.into(), hi.into());
     let mut t0 = f64::NEG_INFINITY;
     let mut t1 = f64::INFINITY;
     for a in 0..3 {
@@ -150,7 +164,7 @@ mod tests {
         assert!(Ray::new([0.0; 3], [1.0, 0.0, 0.0], 2.0, 1.0).is_err());
         let r = Ray::between([0.0; 3], [0.0, 3.0, 4.0]).ok();
         assert_eq!(
-            r.map(|r| (r.t_max(), r.direction())),
+            r.map(|r| (r.t_max(), r.direction().to_array())),
             Some((5.0, [0.0, 0.6, 0.8]))
         );
     }

@@ -17,8 +17,9 @@
 //! the old cell's). `lookups` counts the voxel values actually read.
 
 use crate::error::Result;
+use crate::math::{floor_i64, non_empty};
 use crate::ray::Ray;
-use crate::traverse::{floor_i64, lookup_ray, non_empty, walk_nodes, Granularity, Segment};
+use crate::traverse::{lookup_ray, walk_nodes, Dda, Granularity, Segment};
 use crate::tree::{Accessor, Block, Neighbour};
 use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
@@ -253,88 +254,6 @@ impl CornerSource for LeafSource<'_> {
         ];
         let b = ((u[0] >> 3) << 2) | ((u[1] >> 3) << 1) | (u[2] >> 3);
         self.blocks[b].get(((u[0] & 7) << 6) | ((u[1] & 7) << 3) | (u[2] & 7))
-    }
-}
-
-/// The unit-cell DDA state: current cell, step direction and the `t` of the next boundary on
-/// each axis.
-struct Dda {
-    /// Where the walk starts.
-    t0: f64,
-    cell: [i64; 3],
-    step: [i64; 3],
-    t_next: [f64; 3],
-}
-
-impl Dda {
-    #[inline]
-    fn new(q: [f64; 3], d: [f64; 3], t0: f64, lo: [i64; 3], hi: [i64; 3]) -> Self {
-        let mut s = Self {
-            t0,
-            cell: [0; 3],
-            step: [0; 3],
-            t_next: [f64::INFINITY; 3],
-        };
-        for a in 0..3 {
-            s.cell[a] = floor_i64(q[a] + d[a] * t0).clamp(lo[a], hi[a]);
-            s.step[a] = if d[a] > 0.0 {
-                1
-            } else if d[a] < 0.0 {
-                -1
-            } else {
-                0
-            };
-            s.t_next[a] = boundary_t(q[a], d[a], s.cell[a]);
-        }
-        s
-    }
-
-    /// The axis whose boundary comes first.
-    #[inline]
-    fn axis(&self) -> usize {
-        let t = &self.t_next;
-        // Ties go to the lower axis, as in `traverse::dda`.
-        let a = usize::from(t[1] < t[0]);
-        let ta = if a == 1 { t[1] } else { t[0] };
-        if t[2] < ta {
-            2
-        } else {
-            a
-        }
-    }
-
-    /// Step along `axis`; false when the walk leaves `[lo, hi]` or cannot move.
-    #[inline]
-    fn advance(
-        &mut self,
-        axis: usize,
-        q: [f64; 3],
-        d: [f64; 3],
-        lo: [i64; 3],
-        hi: [i64; 3],
-    ) -> bool {
-        if self.step[axis] == 0 {
-            return false;
-        }
-        let c = self.cell[axis] + self.step[axis];
-        if c < lo[axis] || c > hi[axis] {
-            return false;
-        }
-        self.cell[axis] = c;
-        self.t_next[axis] = boundary_t(q[axis], d[axis], c);
-        true
-    }
-}
-
-/// `t` at which the line leaves unit cell `c` along one axis (infinity if it never does).
-#[inline]
-fn boundary_t(q: f64, d: f64, c: i64) -> f64 {
-    if d > 0.0 {
-        ((c + 1) as f64 - q) / d
-    } else if d < 0.0 {
-        (c as f64 - q) / d
-    } else {
-        f64::INFINITY
     }
 }
 

@@ -11,6 +11,7 @@
 use crate::error::{Error, Result};
 use crate::tree::{Bounds, RootSlot, Tree};
 use crate::vdb::Grid;
+use glam::{DAffine3, DMat3, DVec3};
 
 /// How the density between voxel centres is defined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
@@ -64,8 +65,8 @@ pub struct Sanitized {
 pub struct Volume {
     name: String,
     tree: Tree,
-    world_from_index: [[f64; 4]; 3],
-    index_from_world: [[f64; 4]; 3],
+    world_from_index: DAffine3,
+    index_from_world: DAffine3,
     density_scale: f64,
     value_box: Option<[[i64; 3]; 2]>,
     sanitized: Sanitized,
@@ -144,7 +145,7 @@ impl Volume {
         density_scale: f64,
     ) -> Result<Self> {
         check_density_scale(density_scale)?;
-        let index_from_world = invert_affine(&world_from_index)?;
+        let (world_from_index, index_from_world) = invert_affine(&world_from_index)?;
         let mut s = Sanitized::default();
         sanitize(&mut tree.background, &mut s);
         for e in &mut tree.root {
@@ -202,15 +203,24 @@ impl Volume {
         &self.tree
     }
 
-    /// `world_from_index` (column vectors, row-major 3x4).
+    /// `world_from_index`: `world = M index`.
     #[must_use]
-    pub fn world_from_index(&self) -> [[f64; 4]; 3] {
+    pub fn world_from_index(&self) -> DAffine3 {
         self.world_from_index
+    }
+
+    /// `world_from_index` as row-major 3x4 rows (column vectors, translation in the last
+    /// column): the convention of [`Volume::from_tree`].
+    #[must_use]
+    pub fn world_from_index_rows(&self) -> [[f64; 4]; 3] {
+        let m = self.world_from_index.matrix3;
+        let t = self.world_from_index.translation;
+        std::array::from_fn(|r| [m.x_axis[r], m.y_axis[r], m.z_axis[r], t[r]])
     }
 
     /// `index_from_world`, the inverse of [`Volume::world_from_index`].
     #[must_use]
-    pub fn index_from_world(&self) -> [[f64; 4]; 3] {
+    pub fn index_from_world(&self) -> DAffine3 {
         self.index_from_world
     }
 
@@ -233,43 +243,64 @@ impl Volume {
         self.sanitized
     }
 
-    /// `s x v`, with `0 x v = 0` even for an infinite value (a zero density scale makes the
-    /// medium empty, opaque voxels included).
-    #[inline]
-    #[must_use]
-    pub fn scaled(scale: f64, v: f64) -> f64 {
-        if scale == 0.0 {
-            0.0
-        } else {
-            scale * v
-        }
-    }
-
     /// Index-space point of a world point.
     #[must_use]
-    pub fn to_index(&self, p: [f64; 3]) -> [f64; 3] {
-        let m = &self.index_from_world;
-        [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+    pub fn to_index(&self, p: impl Into<DVec3>) -> DVec3 {
+        self.index_from_world.transform_point3(p.into())
     }
 
     /// Index-space vector of a world vector.
     #[must_use]
-    pub fn to_index_dir(&self, d: [f64; 3]) -> [f64; 3] {
-        let m = &self.index_from_world;
-        [0, 1, 2].map(|r| m[r][0] * d[0] + m[r][1] * d[1] + m[r][2] * d[2])
+    pub fn to_index_dir(&self, d: impl Into<DVec3>) -> DVec3 {
+        self.index_from_world.transform_vector3(d.into())
     }
 
     /// World-space point of an index point.
     #[must_use]
-    pub fn to_world(&self, p: [f64; 3]) -> [f64; 3] {
-        let m = &self.world_from_index;
-        [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3])
+    pub fn to_world(&self, p: impl Into<DVec3>) -> DVec3 {
+        self.world_from_index.transform_point3(p.into())
+    }
+
+    /// Index-space volume box `[lo, hi]`: [`Volume::value_box`] grown by one voxel (the reach
+    /// of a trilinear lookup). What a map frames and where "until the ray leaves the volume"
+    /// ends; `None` when the density is the background everywhere.
+    #[must_use]
+    pub fn box_index(&self) -> Option<(DVec3, DVec3)> {
+        self.value_box.map(|[lo, hi]| {
+            (
+                DVec3::from_array(lo.map(|v| (v - 1) as f64)),
+                DVec3::from_array(hi.map(|v| (v + 1) as f64)),
+            )
+        })
+    }
+
+    /// The 8 world corners of the volume box (a parallelepiped for a general affine map),
+    /// corner `n` taking `hi` on axis `a` when bit `2 - a` of `n` is set.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `grid`) when the grid holds nothing but its
+    /// background: there is nothing to frame.
+    pub fn box_corners(&self) -> Result<[DVec3; 8]> {
+        let (lo, hi) = self.box_index().ok_or_else(|| Error::InvalidArgument {
+            name: "grid".into(),
+            reason: format!(
+                "grid '{}' holds no value other than its background: nothing to frame",
+                self.name
+            ),
+        })?;
+        Ok(std::array::from_fn(|n| {
+            let p =
+                DVec3::from_array(
+                    [0, 1, 2].map(|a| if n >> (2 - a) & 1 == 1 { hi[a] } else { lo[a] }),
+                );
+            self.to_world(p)
+        }))
     }
 
     /// Extinction of the background, `density_scale * background`.
     #[must_use]
     pub fn mu_background(&self) -> f64 {
-        self.density_scale * f64::from(self.tree.background)
+        crate::math::scaled(self.density_scale, f64::from(self.tree.background))
     }
 
     /// Bounds of every value, background included.
@@ -327,8 +358,9 @@ fn check_density_scale(density_scale: f64) -> Result<()> {
     })
 }
 
-/// The inverse of an affine map, or an error when it has none that is finite.
-fn invert_affine(m: &[[f64; 4]; 3]) -> Result<[[f64; 4]; 3]> {
+/// The affine map of row-major 3x4 rows (column vectors) and its inverse, or an error when
+/// it has no finite inverse.
+fn invert_affine(m: &[[f64; 4]; 3]) -> Result<(DAffine3, DAffine3)> {
     let bad = |reason: String| Error::InvalidArgument {
         name: "transform".into(),
         reason,
@@ -336,27 +368,19 @@ fn invert_affine(m: &[[f64; 4]; 3]) -> Result<[[f64; 4]; 3]> {
     if !m.iter().flatten().all(|v| v.is_finite()) {
         return Err(bad(format!("non-finite entries in {m:?}")));
     }
-    let a = |r: usize, c: usize| m[r][c];
-    let det = a(0, 0) * (a(1, 1) * a(2, 2) - a(1, 2) * a(2, 1))
-        - a(0, 1) * (a(1, 0) * a(2, 2) - a(1, 2) * a(2, 0))
-        + a(0, 2) * (a(1, 0) * a(2, 1) - a(1, 1) * a(2, 0));
-    let inv = |r: usize, c: usize| {
-        // cofactor transpose / det
-        let (r1, r2) = ((c + 1) % 3, (c + 2) % 3);
-        let (c1, c2) = ((r + 1) % 3, (r + 2) % 3);
-        (a(r1, c1) * a(r2, c2) - a(r1, c2) * a(r2, c1)) / det
+    let col = |c: usize| DVec3::new(m[0][c], m[1][c], m[2][c]);
+    let fwd = DAffine3 {
+        matrix3: DMat3::from_cols(col(0), col(1), col(2)),
+        translation: col(3),
     };
-    let lin: [[f64; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| inv(r, c)));
-    let inv: [[f64; 4]; 3] = std::array::from_fn(|r| {
-        let t = -(0..3).map(|c| lin[r][c] * m[c][3]).sum::<f64>();
-        [lin[r][0], lin[r][1], lin[r][2], t]
-    });
-    if det == 0.0 || !det.is_finite() || !inv.iter().flatten().all(|v| v.is_finite()) {
+    let det = fwd.matrix3.determinant();
+    let inv = fwd.inverse();
+    if det == 0.0 || !det.is_finite() || !inv.is_finite() {
         return Err(bad(format!(
             "not invertible (determinant {det:e}): the voxels have no volume"
         )));
     }
-    Ok(inv)
+    Ok((fwd, inv))
 }
 
 #[cfg(test)]
@@ -387,13 +411,12 @@ mod tests {
             [-0.03, 0.2, 0.01, -1.0],
             [0.0, 0.05, 0.3, 7.0],
         ];
-        let inv = invert_affine(&m).expect("invertible");
-        let p = [1.5, -2.0, 9.0];
-        let w = [0, 1, 2].map(|r| m[r][0] * p[0] + m[r][1] * p[1] + m[r][2] * p[2] + m[r][3]);
-        let back =
-            [0, 1, 2].map(|r| inv[r][0] * w[0] + inv[r][1] * w[1] + inv[r][2] * w[2] + inv[r][3]);
-        for a in 0..3 {
-            assert!((back[a] - p[a]).abs() < 1e-12, "{back:?}");
-        }
+        let (fwd, inv) = invert_affine(&m).expect("invertible");
+        let p = DVec3::new(1.5, -2.0, 9.0);
+        let w = DVec3::from_array(
+            [0, 1, 2].map(|r| m[r][0] * p.x + m[r][1] * p.y + m[r][2] * p.z + m[r][3]),
+        );
+        assert!((fwd.transform_point3(p) - w).length() < 1e-12);
+        assert!((inv.transform_point3(w) - p).length() < 1e-12, "{w}");
     }
 }

@@ -8,9 +8,7 @@ mod bake_support;
 
 use bake_support::{box_volume, ortho, prov, read_exr, regular, Exr};
 use std::path::Path;
-use umbra::bake::{
-    bake, volume_corners, write_exr, BakeSettings, Camera, Depths, Map, Projection, View,
-};
+use umbra::bake::{bake, write_exr, BakeSettings, Camera, Depths, Map, Projection, View};
 use umbra::estimate::{Estimator, Options};
 use umbra::ray::clip_box;
 use umbra::regular::optical_depth;
@@ -40,7 +38,7 @@ fn box_tau(vol: &Volume, r: &Ray) -> f64 {
 fn analytic_box_ortho_and_perspective_pixel_by_pixel() {
     let dir = tempfile::tempdir().unwrap();
     let vol = box_volume();
-    let corners = volume_corners(&vol).unwrap();
+    let corners = vol.box_corners().unwrap();
     let persp = View {
         projection: Projection::Perspective,
         light_dir: None,
@@ -57,7 +55,10 @@ fn analytic_box_ortho_and_perspective_pixel_by_pixel() {
             &cam,
             &regular(Interp::Nearest),
         );
-        assert_eq!((exr.w, exr.h), (cam.width as usize, cam.height as usize));
+        assert_eq!(
+            (exr.w, exr.h),
+            (cam.width() as usize, cam.height() as usize)
+        );
         let t = &exr.ch["T"];
         let (mut worst, mut inside) = (0.0f64, 0);
         for j in 0..exr.h {
@@ -78,7 +79,7 @@ fn analytic_box_ortho_and_perspective_pixel_by_pixel() {
         // The box is framed: most pixels see it, and the border pixels only see background.
         assert!(inside > exr.w * exr.h / 4, "{inside} pixels hit the box");
         assert_eq!(map.t, *t);
-        eprintln!("{:?}: worst |T - exact| = {worst:.2e}", cam.kind);
+        eprintln!("{:?}: worst |T - exact| = {worst:.2e}", cam.kind());
     }
 }
 
@@ -88,7 +89,7 @@ fn cloud_map_matches_exact_regular_tracking_per_pixel() {
     let vol = Volume::load("data/cloud.vdb", "density", 2.0).unwrap();
     let cam = Camera::frame(
         &ortho([-1.0, -1.0, 0.3], 48, 40),
-        &volume_corners(&vol).unwrap(),
+        &vol.box_corners().unwrap(),
     )
     .unwrap();
     let (_, exr) = bake_to(
@@ -121,7 +122,7 @@ fn slices_are_prefix_transmittances() {
     let vol = Volume::load("data/cloud.vdb", "density", 1.0).unwrap();
     let cam = Camera::frame(
         &ortho([0.2, -1.0, 0.1], 24, 20),
-        &volume_corners(&vol).unwrap(),
+        &vol.box_corners().unwrap(),
     )
     .unwrap();
     let s = BakeSettings {
@@ -130,7 +131,7 @@ fn slices_are_prefix_transmittances() {
     };
     let (map, exr) = bake_to(dir.path(), "slices.exr", &vol, &cam, &s);
     assert_eq!(map.depths.len(), 4);
-    assert!((map.depths[3] - cam.t_max).abs() < 1e-12);
+    assert!((map.depths[3] - cam.t_max()).abs() < 1e-12);
     for (k, &d) in map.depths.iter().enumerate() {
         assert_eq!(exr.f64(&format!("depth.{k:02}")), d);
         let ch = &exr.ch[&format!("slice{k:02}.T")];
@@ -164,7 +165,7 @@ fn adaptive_sampling_reaches_the_target_error_and_stays_unbiased() {
     let vol = Volume::load("data/cloud.vdb", "density", 1.0).unwrap();
     let cam = Camera::frame(
         &ortho([0.0, -1.0, 0.0], 16, 16),
-        &volume_corners(&vol).unwrap(),
+        &vol.box_corners().unwrap(),
     )
     .unwrap();
     let s = BakeSettings {
@@ -222,7 +223,7 @@ fn one_and_two_threads_write_identical_files() {
     let vol = Volume::load("data/cloud.vdb", "density", 1.5).unwrap();
     let cam = Camera::frame(
         &ortho([-1.0, -0.5, 0.2], 40, 33),
-        &volume_corners(&vol).unwrap(),
+        &vol.box_corners().unwrap(),
     )
     .unwrap();
     for est in [Estimator::REGULAR, Estimator::from_name("ratio").unwrap()] {
@@ -270,7 +271,7 @@ fn one_and_two_threads_write_identical_files() {
 fn standard_matrices_map_pixel_rays_to_their_pixels() {
     let dir = tempfile::tempdir().unwrap();
     let vol = box_volume();
-    let corners = volume_corners(&vol).unwrap();
+    let corners = vol.box_corners().unwrap();
     let persp = View {
         projection: Projection::Perspective,
         light_dir: Some([-0.5, -1.0, 0.7]),

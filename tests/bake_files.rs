@@ -5,7 +5,7 @@
 mod bake_support;
 
 use bake_support::{box_volume, ortho, prov, read_exr, regular};
-use umbra::bake::{bake, volume_corners, write_exr, write_png, Camera, Projection, View};
+use umbra::bake::{bake, write_exr, write_png, Camera, Projection, View};
 use umbra::output::write_atomic;
 use umbra::tree::TreeBuilder;
 use umbra::{Interp, Volume};
@@ -14,11 +14,7 @@ use umbra::{Interp, Volume};
 fn png_preview_is_t_in_8_bits() {
     let dir = tempfile::tempdir().unwrap();
     let vol = box_volume();
-    let cam = Camera::frame(
-        &ortho([0.0, 0.0, 1.0], 30, 20),
-        &volume_corners(&vol).unwrap(),
-    )
-    .unwrap();
+    let cam = Camera::frame(&ortho([0.0, 0.0, 1.0], 30, 20), &vol.box_corners().unwrap()).unwrap();
     let map = bake(&vol, &cam, &regular(Interp::Nearest), &|_| {}).unwrap();
     let p = dir.path().join("p.png");
     write_png(&p, &map, false).unwrap();
@@ -69,11 +65,7 @@ fn atomic_writes_leave_nothing_on_failure() {
     assert_eq!(listing(), ["out.exr"]);
     // A missing directory or a directory as target: an error, nothing created.
     let vol = box_volume();
-    let cam = Camera::frame(
-        &ortho([0.0, 0.0, 1.0], 4, 4),
-        &volume_corners(&vol).unwrap(),
-    )
-    .unwrap();
+    let cam = Camera::frame(&ortho([0.0, 0.0, 1.0], 4, 4), &vol.box_corners().unwrap()).unwrap();
     let map = bake(&vol, &cam, &regular(Interp::Nearest), &|_| {}).unwrap();
     assert!(write_exr(&dir.path().join("no/such/dir.exr"), &map, &prov(&vol), true).is_err());
     assert!(write_exr(dir.path(), &map, &prov(&vol), true).is_err());
@@ -87,12 +79,12 @@ fn atomic_writes_leave_nothing_on_failure() {
 #[test]
 fn bad_cameras_are_refused() {
     let vol = box_volume();
-    let c = volume_corners(&vol).unwrap();
+    let c = vol.box_corners().unwrap();
     assert!(Camera::frame(&ortho([0.0; 3], 8, 8), &c).is_err());
     assert!(Camera::frame(&ortho([1.0, 0.0, 0.0], 0, 8), &c).is_err());
     assert!(Camera::frame(&ortho([1.0, 0.0, 0.0], 70_000, 8), &c).is_err());
     let inside = View {
-        light_pos: Some(vol.to_world([64.0; 3])),
+        light_pos: Some(vol.to_world([64.0; 3]).to_array()),
         ..ortho([1.0, 0.0, 0.0], 8, 8)
     };
     let e = Camera::frame(&inside, &c).unwrap_err().to_string();
@@ -121,9 +113,9 @@ fn bad_cameras_are_refused() {
     let empty = Volume::from_tree(
         "e".into(),
         TreeBuilder::new(0.0).build(),
-        box_volume().world_from_index(),
+        box_volume().world_from_index_rows(),
         1.0,
     )
     .unwrap();
-    assert!(volume_corners(&empty).is_err());
+    assert!(empty.box_corners().is_err());
 }

@@ -3,10 +3,11 @@
 //! registry round-trips through every place a name appears (library, CLI JSON, EXR header).
 //! Struct literals that would bypass the checks do not compile (`compile_fail` doc tests on
 //! `Ray` and `Volume`).
+#![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
 use std::process::Command;
-use umbra::bake::{bake, volume_corners, BakeSettings, Camera, Depths, Projection, View};
+use umbra::bake::{bake, BakeSettings, Camera, Depths, Projection, View};
 use umbra::batch::{panic_message, parse_job, BatchError};
 use umbra::estimate::{estimate, names, Estimator, Kind, Options, REGISTRY};
 use umbra::tree::TreeBuilder;
@@ -159,7 +160,7 @@ fn rays_validate_on_every_constructor() {
     assert!(Ray::new([0.0; 3], [f64::INFINITY, 0.0, 0.0], 0.0, 1.0).is_err());
     assert!(Ray::new([0.0; 3], [1.0, 0.0, 0.0], 0.0, f64::NAN).is_err());
     let r = Ray::new([0.0; 3], [0.0, 3.0, 4.0], 0.0, 1.0).unwrap();
-    assert_eq!(r.direction(), [0.0, 0.6, 0.8], "normalised");
+    assert_eq!(r.direction().to_array(), [0.0, 0.6, 0.8], "normalised");
     assert!(r.with_range(1.0, 0.5).is_err());
     assert!(Ray::between([0.0; 3], [f64::NAN, 0.0, 0.0]).is_err());
 }
@@ -218,7 +219,7 @@ fn bake_settings_and_cameras_validate() {
         fov_deg: None,
         res: Some((8, 8)),
     };
-    let cam = Camera::frame(&view, &volume_corners(&v).unwrap()).unwrap();
+    let cam = Camera::frame(&view, &v.box_corners().unwrap()).unwrap();
     let base = BakeSettings::new(Estimator::REGULAR, Options::default());
     let cases: Vec<(BakeSettings, &str)> = vec![
         (
@@ -271,7 +272,7 @@ fn bake_settings_and_cameras_validate() {
         let e = bake(&v, &cam, &s, &|_| {}).unwrap_err();
         assert_eq!(invalid_arg(e), name);
     }
-    let corners = volume_corners(&v).unwrap();
+    let corners = v.box_corners().unwrap();
     for bad in [
         View {
             light_dir: Some([0.0; 3]),
@@ -333,4 +334,53 @@ fn batch_errors_are_typed_and_panics_keep_their_message() {
     assert_eq!(panic_message(p.as_ref()), "boom 42");
     let q = std::panic::catch_unwind(|| panic!("static")).unwrap_err();
     assert_eq!(panic_message(q.as_ref()), "static");
+}
+
+#[test]
+fn cameras_rebuild_from_their_spec_and_refuse_bad_ones() {
+    let v = slab();
+    let corners = v.box_corners().unwrap();
+    for view in [
+        View {
+            projection: Projection::Ortho,
+            light_dir: Some([0.3, -1.0, 0.2]),
+            light_pos: None,
+            fov_deg: None,
+            res: Some((9, 7)),
+        },
+        View {
+            projection: Projection::Perspective,
+            light_dir: None,
+            light_pos: Some([8.0, 30.0, 5.0]),
+            fov_deg: None,
+            res: Some((9, 7)),
+        },
+    ] {
+        let cam = Camera::frame(&view, &corners).unwrap();
+        let again = Camera::from_spec(&cam.spec()).unwrap();
+        assert_eq!(again.spec(), cam.spec());
+        for (i, j) in [(0, 0), (8, 6), (4, 3)] {
+            let (a, b) = (cam.pixel_ray(i, j).unwrap(), again.pixel_ray(i, j).unwrap());
+            assert!((a.direction() - b.direction()).length() < 1e-12);
+            assert!((a.origin() - b.origin()).length() < 1e-12);
+        }
+        for k in 0..3 {
+            assert!(
+                (cam.forward()[k] - again.forward()[k]).abs() < 1e-9,
+                "{view:?}"
+            );
+        }
+        let mut bad = cam.spec();
+        bad.step_y = bad.step_x;
+        assert!(Camera::from_spec(&bad).is_err(), "parallel steps");
+        let mut bad = cam.spec();
+        bad.step_x = [0.0; 3];
+        assert!(Camera::from_spec(&bad).is_err(), "zero step");
+        let mut bad = cam.spec();
+        bad.t_max = f64::NAN;
+        assert!(Camera::from_spec(&bad).is_err(), "NaN t_max");
+        let mut bad = cam.spec();
+        bad.width = 0;
+        assert!(Camera::from_spec(&bad).is_err(), "no pixels");
+    }
 }

@@ -158,8 +158,8 @@ fn huge_coordinates_and_rays_along_axes() {
 /// Nearest: sum value * length over the unit cells of the whole ray, point lookups at the
 /// middle of each piece.
 fn brute_nearest(v: &Volume, r: &Ray) -> f64 {
-    let q = v.to_index(r.origin()).map(|c| c + 0.5);
-    let d = v.to_index_dir(r.direction());
+    let q = v.to_index(r.origin()).to_array().map(|c| c + 0.5);
+    let d = v.to_index_dir(r.direction()).to_array();
     let mut acc = Accessor::new(v.tree());
     let mut s = 0.0;
     let cells = Cells {
@@ -169,7 +169,7 @@ fn brute_nearest(v: &Volume, r: &Ray) -> f64 {
     };
     let _ = dda(q, d, (r.t_min(), r.t_max()), &cells, |_, a, b| {
         let m = 0.5 * (a + b);
-        let p = [0, 1, 2].map(|k| v.to_index(r.origin())[k] + d[k] * m);
+        let p = [0, 1, 2].map(|k| v.to_index(r.origin()).to_array()[k] + d[k] * m);
         s += f64::from(acc.nearest(p)) * (b - a);
         ControlFlow::Continue(())
     });
@@ -178,8 +178,8 @@ fn brute_nearest(v: &Volume, r: &Ray) -> f64 {
 
 /// Trilinear: 5-point Gauss-Legendre per unit cell with OpenVDB-style BoxSampler lookups.
 fn brute_trilinear(v: &Volume, r: &Ray) -> f64 {
-    let o = v.to_index(r.origin());
-    let d = v.to_index_dir(r.direction());
+    let o = v.to_index(r.origin()).to_array();
+    let d = v.to_index_dir(r.direction()).to_array();
     let mut acc = Accessor::new(v.tree());
     let x = [
         0.0,
@@ -269,8 +269,8 @@ fn check_segments(
     });
     let mut prev = r.t_min();
     let mut acc = Accessor::new(v.tree());
-    let o = v.to_index(r.origin());
-    let d = v.to_index_dir(r.direction());
+    let o = v.to_index(r.origin()).to_array();
+    let d = v.to_index_dir(r.direction()).to_array();
     let mu = |acc: &mut Accessor<'_>, t: f64| {
         let p = [0, 1, 2].map(|k| o[k] + d[k] * t);
         let x = match interp {

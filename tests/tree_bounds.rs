@@ -52,8 +52,8 @@ fn leaf_bounds_and_halos_equal_brute_force() {
         let g = umbra::vdb::load_grid(&path, grid).unwrap();
         let t = &g.tree;
         // Every leaf of small grids, a stride of the big ones.
-        let step = (t.leaves.len() / 400).max(1);
-        for leaf in t.leaves.iter().step_by(step) {
+        let step = (t.leaves().len() / 400).max(1);
+        for leaf in t.leaves().iter().step_by(step) {
             let o = leaf.origin;
             let own = brute(t, o, o.map(|c| c + 7));
             let halo = brute(t, o, o.map(|c| c + 8));
@@ -78,7 +78,7 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
         let g = umbra::vdb::load_grid(&path, grid).unwrap();
         let t = &g.tree;
         let mut acc = Accessor::new(t);
-        for (nodes, dim) in [(&t.lowers, 128.0), (&t.uppers, 4096.0)] {
+        for (nodes, dim) in [(&t.lowers(), 128.0), (&t.uppers(), 4096.0)] {
             for node in nodes.iter() {
                 for _ in 0..2000 {
                     // Nearest region [o - 0.5, o + dim - 0.5); trilinear (dual) region [o, o + dim).
@@ -102,7 +102,7 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
                 assert!(node.bounds.min >= node.halo.min && node.bounds.max <= node.halo.max);
             }
         }
-        assert!(inside(t.bounds, t.background));
+        assert!(inside(t.bounds(), t.background()));
     }
     assert!(samples > 10_000);
 }
@@ -114,7 +114,7 @@ fn tile_slot_halos_equal_brute_force() {
         let Some(path) = corpus(file) else { return };
         let g = umbra::vdb::load_grid(&path, grid).unwrap();
         let t = &g.tree;
-        for node in &t.lowers {
+        for node in t.lowers() {
             for s in (0..4096).step_by(37) {
                 if node.has_child(s) {
                     continue;

@@ -19,6 +19,7 @@
 
 use crate::error::{Error, Result};
 use crate::ray::Ray;
+use glam::DVec3;
 
 /// Largest accepted image side.
 pub const MAX_SIDE: u32 = 65_536;
@@ -28,7 +29,7 @@ pub const MAX_PIXELS: u64 = 1 << 28;
 pub const DEFAULT_LONG_SIDE: u32 = 1024;
 
 /// Projection of a baked map.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Projection {
     /// Parallel rays from a directional light (or a plane through a light position).
@@ -54,10 +55,11 @@ pub struct View {
     pub res: Option<(u32, u32)>,
 }
 
-/// A framed camera: everything needed to rebuild every pixel's ray (the `camera` object of
-/// `umbra bake --json` and the `umbra:camera_*` EXR attributes).
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
-pub struct Camera {
+/// What a camera is made of, as `umbra bake --json` prints it under `camera` and the
+/// `umbra:camera_*` EXR attributes store it: everything needed to rebuild every pixel's ray
+/// (see the module docs). Plain data; [`Camera::from_spec`] validates it.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CameraSpec {
     /// `ortho` or `perspective`.
     pub kind: Projection,
     /// Image width `W` in pixels.
@@ -66,55 +68,201 @@ pub struct Camera {
     pub height: u32,
     /// Ortho: world start of pixel (0, 0)'s centre ray. Perspective: the light position.
     pub origin: [f64; 3],
-    /// World step from one pixel centre to the next along a row (`s r`).
+    /// World step from one pixel centre to the next along a row.
     pub step_x: [f64; 3],
-    /// World step from one pixel centre to the next down a column (`-s u`).
+    /// World step from one pixel centre to the next down a column.
     pub step_y: [f64; 3],
-    /// Ortho: the unit ray direction. Perspective: pixel (0, 0)'s centre on the plane at
-    /// distance 1, relative to `origin`.
+    /// Ortho: the ray direction. Perspective: pixel (0, 0)'s centre on the plane at distance
+    /// 1, relative to `origin`.
     pub direction: [f64; 3],
     /// World distance each ray is traced: `t` in `[0, t_max]`.
     pub t_max: f64,
-    /// No ray meets the volume box before this `t` (the start of the volume's depth range).
-    pub t_near: f64,
-    /// Forward axis `f` (unit).
-    pub forward: [f64; 3],
-    /// Right axis `r` (unit).
-    pub right: [f64; 3],
-    /// Up axis `u` (unit).
-    pub up: [f64; 3],
-    /// Pixel size `s`: world units (ortho) or on the plane at distance 1 (perspective).
-    pub pixel_size: f64,
 }
 
-pub(crate) fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+/// A framed camera: everything needed to rebuild every pixel's ray (the `camera` object of
+/// `umbra bake --json` and the `umbra:camera_*` EXR attributes), plus its basis.
+///
+/// Invariants (checked by [`Camera::frame`] and [`Camera::from_spec`], so the fields are
+/// private): a resolution within [`check_res`], finite vectors, a unit orthonormal basis
+/// `(right, up, forward)` with `step_x = s right` and `step_y = -s up` for the pixel size
+/// `s > 0`, and `0 <= t_near <= t_max` finite.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct Camera {
+    pub(crate) kind: Projection,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) origin: [f64; 3],
+    pub(crate) step_x: [f64; 3],
+    pub(crate) step_y: [f64; 3],
+    pub(crate) direction: [f64; 3],
+    pub(crate) t_max: f64,
+    pub(crate) t_near: f64,
+    pub(crate) forward: [f64; 3],
+    pub(crate) right: [f64; 3],
+    pub(crate) up: [f64; 3],
+    pub(crate) pixel_size: f64,
 }
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+
+impl Camera {
+    /// `ortho` or `perspective`.
+    #[must_use]
+    pub fn kind(&self) -> Projection {
+        self.kind
+    }
+    /// Image width `W` in pixels.
+    #[must_use]
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+    /// Image height `H` in pixels.
+    #[must_use]
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+    /// Ortho: world start of pixel (0, 0)'s centre ray. Perspective: the light position.
+    #[must_use]
+    pub fn origin(&self) -> [f64; 3] {
+        self.origin
+    }
+    /// World step from one pixel centre to the next along a row (`s r`).
+    #[must_use]
+    pub fn step_x(&self) -> [f64; 3] {
+        self.step_x
+    }
+    /// World step from one pixel centre to the next down a column (`-s u`).
+    #[must_use]
+    pub fn step_y(&self) -> [f64; 3] {
+        self.step_y
+    }
+    /// Ortho: the unit ray direction. Perspective: pixel (0, 0)'s centre on the plane at
+    /// distance 1, relative to `origin`.
+    #[must_use]
+    pub fn direction(&self) -> [f64; 3] {
+        self.direction
+    }
+    /// World distance each ray is traced: `t` in `[0, t_max]`.
+    #[must_use]
+    pub fn t_max(&self) -> f64 {
+        self.t_max
+    }
+    /// No ray meets the volume box before this `t` (the start of the volume's depth range).
+    #[must_use]
+    pub fn t_near(&self) -> f64 {
+        self.t_near
+    }
+    /// Forward axis `f` (unit).
+    #[must_use]
+    pub fn forward(&self) -> [f64; 3] {
+        self.forward
+    }
+    /// Right axis `r` (unit).
+    #[must_use]
+    pub fn right(&self) -> [f64; 3] {
+        self.right
+    }
+    /// Up axis `u` (unit).
+    #[must_use]
+    pub fn up(&self) -> [f64; 3] {
+        self.up
+    }
+    /// Pixel size `s`: world units (ortho) or on the plane at distance 1 (perspective).
+    #[must_use]
+    pub fn pixel_size(&self) -> f64 {
+        self.pixel_size
+    }
+
+    /// The plain data of this camera.
+    #[must_use]
+    pub fn spec(&self) -> CameraSpec {
+        CameraSpec {
+            kind: self.kind,
+            width: self.width,
+            height: self.height,
+            origin: self.origin,
+            step_x: self.step_x,
+            step_y: self.step_y,
+            direction: self.direction,
+            t_max: self.t_max,
+        }
+    }
+
+    /// A camera from its plain data (an earlier map's, or made by hand). The basis is derived:
+    /// `right = step_x / |step_x|`, `up = -step_y / |step_y|`, `s = |step_x|`; `forward` is the
+    /// ortho direction (normalised), or the perspective image centre's direction
+    /// `normalise(direction + step_x (W - 1) / 2 + step_y (H - 1) / 2)`. `t_near` is 0.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `camera`, or `res`) for a resolution out of range,
+    /// non-finite values, a negative `t_max`, pixel steps that are zero, of different lengths
+    /// or not orthogonal to each other and to the forward axis (relative tolerance 1e-6).
+    pub fn from_spec(c: &CameraSpec) -> Result<Self> {
+        check_res(c.width, c.height)?;
+        let v = DVec3::from_array;
+        let (sx, sy, dir) = (v(c.step_x), v(c.step_y), v(c.direction));
+        let finite = v(c.origin).is_finite() && sx.is_finite() && sy.is_finite() && dir.is_finite();
+        if !(finite && c.t_max.is_finite() && c.t_max >= 0.0) {
+            return Err(bad(
+                "camera",
+                format!("non-finite or negative values in {c:?}"),
+            ));
+        }
+        let s = sx.length();
+        let (Some(r), Some(u_neg)) = (normalise(sx), normalise(sy)) else {
+            return Err(bad("camera", "a pixel step is zero".into()));
+        };
+        let u = -u_neg;
+        let centre = match c.kind {
+            Projection::Ortho => dir,
+            Projection::Perspective => {
+                dir + sx * (0.5 * (f64::from(c.width) - 1.0))
+                    + sy * (0.5 * (f64::from(c.height) - 1.0))
+            }
+        };
+        let Some(f) = normalise(centre) else {
+            return Err(bad("camera", "the view direction is zero".into()));
+        };
+        let tol = 1e-6;
+        if ((sy.length() - s) / s).abs() > tol
+            || r.dot(u).abs() > tol
+            || r.dot(f).abs() > tol
+            || u.dot(f).abs() > tol
+        {
+            return Err(bad(
+                "camera",
+                "pixel steps must have one length and be orthogonal to each other and to the \
+                 view direction"
+                    .into(),
+            ));
+        }
+        Ok(Self {
+            kind: c.kind,
+            width: c.width,
+            height: c.height,
+            origin: c.origin,
+            step_x: c.step_x,
+            step_y: c.step_y,
+            direction: match c.kind {
+                Projection::Ortho => clean(f),
+                Projection::Perspective => c.direction,
+            },
+            t_max: c.t_max,
+            t_near: 0.0,
+            forward: clean(f),
+            right: clean(r),
+            up: clean(u),
+            pixel_size: s,
+        })
+    }
 }
-pub(crate) fn mul(a: [f64; 3], k: f64) -> [f64; 3] {
-    a.map(|v| v * k)
-}
-pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
+
 /// `v / |v|`, or `None` for a zero or non-finite vector.
-pub(crate) fn normalise(v: [f64; 3]) -> Option<[f64; 3]> {
-    let n = dot(v, v).sqrt();
-    (n > 0.0 && n.is_finite() && v.iter().all(|c| c.is_finite())).then(|| mul(v, 1.0 / n))
+pub(crate) fn normalise(v: DVec3) -> Option<DVec3> {
+    v.try_normalize()
 }
 
 /// `+ 0.0` turns -0 into +0, so headers and JSON never show "-0".
-fn clean(v: [f64; 3]) -> [f64; 3] {
-    v.map(|c| c + 0.0)
+fn clean(v: DVec3) -> [f64; 3] {
+    (v + DVec3::ZERO).to_array()
 }
 
 fn bad(name: &str, reason: String) -> Error {
@@ -125,14 +273,14 @@ fn bad(name: &str, reason: String) -> Error {
 }
 
 /// The camera basis `(r, u)` for forward `f` (see the module docs).
-fn basis(f: [f64; 3]) -> ([f64; 3], [f64; 3]) {
-    let a = if f[1].abs() > 0.999 {
-        [0.0, 0.0, -1.0]
+fn basis(f: DVec3) -> (DVec3, DVec3) {
+    let a = if f.y.abs() > 0.999 {
+        DVec3::NEG_Z
     } else {
-        [0.0, 1.0, 0.0]
+        DVec3::Y
     };
-    let r = normalise(cross(f, a)).unwrap_or([1.0, 0.0, 0.0]);
-    (r, cross(r, f))
+    let r = normalise(f.cross(a)).unwrap_or(DVec3::X);
+    (r, r.cross(f))
 }
 
 /// Check a resolution: both sides in `1..=MAX_SIDE`, at most [`MAX_PIXELS`] pixels.
@@ -166,7 +314,7 @@ fn default_res(ex: f64, ey: f64) -> (u32, u32) {
 }
 
 impl Camera {
-    /// Frame `corners` (the volume box, see [`super::volume_corners`]) as `view` asks.
+    /// Frame `corners` (the volume box, see [`crate::Volume::box_corners`]) as `view` asks.
     ///
     /// Ortho: the corners project to `x = c . r`, `y = c . u`, `z = c . f`; the window is their
     /// `[x] x [y]` range, the pixel size `s = max(ex / W, ey / H)` (square pixels, the box
@@ -183,12 +331,12 @@ impl Camera {
     /// [`Error::InvalidArgument`] for a zero light direction, a missing light, a resolution out
     /// of range, a field of view outside `(0, 180)`, an ortho light inside or beside the box, or
     /// a perspective light inside the box without a field of view.
-    pub fn frame(view: &View, corners: &[[f64; 3]; 8]) -> Result<Self> {
+    pub fn frame(view: &View, corners: &[DVec3; 8]) -> Result<Self> {
         if let Some((w, h)) = view.res {
             check_res(w, h)?;
         }
         let dir = match view.light_dir {
-            Some(d) => Some(normalise(d).ok_or_else(|| {
+            Some(d) => Some(normalise(DVec3::from_array(d)).ok_or_else(|| {
                 bad(
                     "light-dir",
                     format!("{d:?} has no length; give the direction the light travels"),
@@ -196,9 +344,9 @@ impl Camera {
             })?),
             None => None,
         };
-        let centre = mul(corners.iter().fold([0.0; 3], |a, &c| add(a, c)), 0.125);
-        let towards_centre = |p: [f64; 3]| {
-            normalise(sub(centre, p)).ok_or_else(|| {
+        let centre = corners.iter().fold(DVec3::ZERO, |a, &c| a + c) * 0.125;
+        let towards_centre = |p: DVec3| {
+            normalise(centre - p).ok_or_else(|| {
                 bad(
                     "light-pos",
                     "the light is at the centre of the volume box; give --light-dir to aim it"
@@ -210,7 +358,7 @@ impl Camera {
             Projection::Ortho => {
                 let f = match (dir, view.light_pos) {
                     (Some(d), _) => d,
-                    (None, Some(p)) => towards_centre(p)?,
+                    (None, Some(p)) => towards_centre(DVec3::from_array(p))?,
                     (None, None) => {
                         return Err(bad(
                             "light-dir",
@@ -221,12 +369,12 @@ impl Camera {
                 Self::ortho(f, view, corners)
             }
             Projection::Perspective => {
-                let p = view.light_pos.ok_or_else(|| {
+                let p = DVec3::from_array(view.light_pos.ok_or_else(|| {
                     bad(
                         "light-pos",
                         "a perspective map needs a light position".into(),
                     )
-                })?;
+                })?);
                 let f = match dir {
                     Some(d) => d,
                     None => towards_centre(p)?,
@@ -236,20 +384,20 @@ impl Camera {
         }
     }
 
-    fn ortho(f: [f64; 3], view: &View, corners: &[[f64; 3]; 8]) -> Result<Self> {
+    fn ortho(f: DVec3, view: &View, corners: &[DVec3; 8]) -> Result<Self> {
         let (r, u) = basis(f);
-        let range = |axis: [f64; 3]| {
+        let range = |axis: DVec3| {
             corners
                 .iter()
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &c| {
-                    let v = dot(c, axis);
+                    let v = c.dot(axis);
                     (lo.min(v), hi.max(v))
                 })
         };
         let ((x0, x1), (y0, y1), (z0, z1)) = (range(r), range(u), range(f));
         let plane = match view.light_pos {
             Some(p) => {
-                let zp = dot(p, f);
+                let zp = DVec3::from_array(p).dot(f);
                 if zp > z0 {
                     return Err(bad(
                         "light-pos",
@@ -268,21 +416,16 @@ impl Camera {
         let (ex, ey) = (x1 - x0, y1 - y0);
         let (w, h) = view.res.unwrap_or_else(|| default_res(ex, ey));
         let s = (ex / f64::from(w)).max(ey / f64::from(h));
-        let c = add(
-            add(mul(r, 0.5 * (x0 + x1)), mul(u, 0.5 * (y0 + y1))),
-            mul(f, plane),
-        );
-        let origin = add(
-            add(c, mul(r, (0.5 - 0.5 * f64::from(w)) * s)),
-            mul(u, (0.5 * f64::from(h) - 0.5) * s),
-        );
+        let c = (r * (0.5 * (x0 + x1)) + u * (0.5 * (y0 + y1))) + f * plane;
+        let origin =
+            (c + r * ((0.5 - 0.5 * f64::from(w)) * s)) + u * ((0.5 * f64::from(h) - 0.5) * s);
         Ok(Self {
             kind: Projection::Ortho,
             width: w,
             height: h,
             origin: clean(origin),
-            step_x: clean(mul(r, s)),
-            step_y: clean(mul(u, -s)),
+            step_x: clean(r * s),
+            step_y: clean(u * -s),
             direction: clean(f),
             t_max: z1 - plane,
             t_near: z0 - plane,
@@ -293,11 +436,11 @@ impl Camera {
         })
     }
 
-    fn perspective(p: [f64; 3], f: [f64; 3], view: &View, corners: &[[f64; 3]; 8]) -> Result<Self> {
+    fn perspective(p: DVec3, f: DVec3, view: &View, corners: &[DVec3; 8]) -> Result<Self> {
         let (r, u) = basis(f);
-        let rel: Vec<[f64; 3]> = corners.iter().map(|&c| sub(c, p)).collect();
-        let z_min = rel.iter().map(|&v| dot(v, f)).fold(f64::INFINITY, f64::min);
-        let t_max = rel.iter().map(|&v| dot(v, v).sqrt()).fold(0.0, f64::max);
+        let rel: Vec<DVec3> = corners.iter().map(|&c| c - p).collect();
+        let z_min = rel.iter().map(|&v| v.dot(f)).fold(f64::INFINITY, f64::min);
+        let t_max = rel.iter().map(|&v| v.dot(v).sqrt()).fold(0.0, f64::max);
         let (w, h, s) = match view.fov_deg {
             Some(fov) => {
                 if !(fov > 0.0 && fov < 180.0) {
@@ -312,32 +455,31 @@ impl Camera {
                     return Err(bad(
                         "light-pos",
                         format!(
-                            "the light at {p:?} is inside or beside the volume box, so no view \
-                             from it holds the whole box; give --fov DEG (and --light-dir to aim)"
+                            "the light at {:?} is inside or beside the volume box, so no view \
+                             from it holds the whole box; give --fov DEG (and --light-dir to aim)",
+                            p.to_array()
                         ),
                     ));
                 }
                 let (mut ax, mut ay) = (0.0f64, 0.0f64);
                 for &v in &rel {
-                    let z = dot(v, f);
-                    ax = ax.max((dot(v, r) / z).abs());
-                    ay = ay.max((dot(v, u) / z).abs());
+                    let z = v.dot(f);
+                    ax = ax.max((v.dot(r) / z).abs());
+                    ay = ay.max((v.dot(u) / z).abs());
                 }
                 let (w, h) = view.res.unwrap_or_else(|| default_res(ax, ay));
                 (w, h, (2.0 * ax / f64::from(w)).max(2.0 * ay / f64::from(h)))
             }
         };
-        let direction = add(
-            add(f, mul(r, (0.5 - 0.5 * f64::from(w)) * s)),
-            mul(u, (0.5 * f64::from(h) - 0.5) * s),
-        );
+        let direction =
+            (f + r * ((0.5 - 0.5 * f64::from(w)) * s)) + u * ((0.5 * f64::from(h) - 0.5) * s);
         Ok(Self {
             kind: Projection::Perspective,
             width: w,
             height: h,
             origin: clean(p),
-            step_x: clean(mul(r, s)),
-            step_y: clean(mul(u, -s)),
+            step_x: clean(r * s),
+            step_y: clean(u * -s),
             direction: clean(direction),
             t_max,
             t_near: z_min.max(0.0),
@@ -360,13 +502,14 @@ impl Camera {
     /// [`Error::InvalidArgument`] only for a degenerate camera (non-finite values).
     pub fn pixel_ray(&self, i: u32, j: u32) -> Result<Ray> {
         let (x, y) = (f64::from(i), f64::from(j));
-        let offset = add(mul(self.step_x, x), mul(self.step_y, y));
+        let v = DVec3::from_array;
+        let offset = v(self.step_x) * x + v(self.step_y) * y;
         match self.kind {
             Projection::Ortho => {
-                Ray::new(add(self.origin, offset), self.direction, 0.0, self.t_max)
+                Ray::new(v(self.origin) + offset, v(self.direction), 0.0, self.t_max)
             }
             Projection::Perspective => {
-                Ray::new(self.origin, add(self.direction, offset), 0.0, self.t_max)
+                Ray::new(v(self.origin), v(self.direction) + offset, 0.0, self.t_max)
             }
         }
     }

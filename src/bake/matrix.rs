@@ -1,19 +1,19 @@
 //! The standard OpenEXR camera matrices of a [`Camera`]: `worldToCamera` and `worldToNDC`.
 
-use super::camera::{add, dot, mul, Camera, Projection};
+use super::camera::{Camera, Projection};
+use glam::DVec3;
 
 impl Camera {
     /// Camera-space origin: the image plane's centre (ortho) or the light (perspective).
-    fn eye(&self) -> [f64; 3] {
+    fn eye(&self) -> DVec3 {
+        let v = DVec3::from_array;
         match self.kind {
-            Projection::Ortho => add(
-                self.origin,
-                add(
-                    mul(self.step_x, 0.5 * f64::from(self.width) - 0.5),
-                    mul(self.step_y, 0.5 * f64::from(self.height) - 0.5),
-                ),
-            ),
-            Projection::Perspective => self.origin,
+            Projection::Ortho => {
+                v(self.origin)
+                    + (v(self.step_x) * (0.5 * f64::from(self.width) - 0.5)
+                        + v(self.step_y) * (0.5 * f64::from(self.height) - 0.5))
+            }
+            Projection::Perspective => v(self.origin),
         }
     }
 
@@ -23,7 +23,7 @@ impl Camera {
     #[must_use]
     pub fn world_to_camera(&self) -> [[f64; 4]; 4] {
         let e = self.eye();
-        let row = |a: [f64; 3]| [a[0], a[1], a[2], -dot(a, e)];
+        let row = |a: [f64; 3]| [a[0], a[1], a[2], -DVec3::from_array(a).dot(e)];
         [
             row(self.right),
             row(self.up),

@@ -2,7 +2,7 @@
 //! outputs, load the grid, frame the camera, bake, write the map and its preview together, and
 //! report what a user should be warned about.
 
-use super::{bake, volume_corners, write_map, BakeSettings, Camera, Map, Provenance, View};
+use super::{bake, write_map, BakeSettings, Camera, Map, Provenance, View};
 use crate::error::Result;
 use crate::output::check_target;
 use crate::volume::{Sanitized, Volume};
@@ -122,7 +122,7 @@ impl BakeJob {
         self.check_outputs()?;
         self.settings.validate()?;
         let vol = Volume::load(&self.input, &self.grid, self.density_scale)?;
-        let camera = Camera::frame(&self.view, &volume_corners(&vol)?)?;
+        let camera = Camera::frame(&self.view, &vol.box_corners()?)?;
         self.run_on(vol, camera, progress)
     }
 

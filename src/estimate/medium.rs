@@ -1,6 +1,7 @@
 //! The extinction along one ray, as the estimators query it: `mu(t)` at world distance `t`,
 //! with the lookup count that is the estimators' deterministic cost measure.
 
+use crate::math::scaled;
 use crate::ray::Ray;
 use crate::regular::integrate_cells;
 use crate::traverse::{dda, lookup_ray, Cells, Segment};
@@ -46,11 +47,7 @@ impl<'v> RayMedium<'v> {
             Interp::Nearest => self.acc.value(p.map(|c| c.floor() as i32)),
             Interp::Trilinear => self.acc.trilinear(p),
         };
-        if self.scale == 0.0 {
-            0.0
-        } else {
-            self.scale * f64::from(v)
-        }
+        scaled(self.scale, f64::from(v))
     }
 
     /// Exact optical depth over `[t0, t1]` by regular tracking (counts one lookup per cell).
@@ -66,11 +63,7 @@ impl<'v> RayMedium<'v> {
             &mut cells,
         );
         self.lookups += cells;
-        if self.scale == 0.0 {
-            0.0
-        } else {
-            self.scale * v
-        }
+        scaled(self.scale, v)
     }
 
     /// Split `s` into one segment per lookup cell it crosses, each with the exact bounds of
@@ -96,13 +89,7 @@ impl<'v> RayMedium<'v> {
                 mx = mx.max(v);
             }
             reads += 1;
-            let k = |v: f32| {
-                if scale == 0.0 {
-                    0.0
-                } else {
-                    scale * f64::from(v)
-                }
-            };
+            let k = |v: f32| scaled(scale, f64::from(v));
             out.push(Segment {
                 t_min: ta,
                 t_max: tb,

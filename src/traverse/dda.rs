@@ -1,14 +1,20 @@
-//! A 3D digital differential analyser (Amanatides & Woo) over cubic cells of edge `size`,
-//! restricted to an inclusive range of cell indices. Cells come in ray order with the exact `t`
-//! interval the ray spends in each; zero-length visits (at edges and corners) are skipped.
-//! Every step moves one axis's cell index one step in the ray's direction, so the walk ends
-//! after at most the number of cells in the range: no stall, no infinite loop.
+//! The one 3D digital differential analyser (Amanatides & Woo) of umbra. [`Dda`] walks unit
+//! cells (`cell c` covers `[c, c + 1)` on each axis) within an inclusive index range; [`dda`]
+//! walks cubic cells of any power-of-two edge by scaling the line into unit cells (exact:
+//! dividing by a power of two commutes with rounding), calling a visitor per cell. Regular
+//! tracking drives a [`Dda`] directly in its per-voxel loops; the hierarchical DDA uses [`dda`]
+//! at every node level.
+//!
+//! Cells come in ray order with the exact `t` interval the ray spends in each; zero-length
+//! visits (at edges and corners) are skipped. Ties between axes go to the lower axis. Every
+//! step moves one axis's cell index one step in the ray's direction, so the walk ends after at
+//! most the number of cells in the range: no stall, no infinite loop.
 
-use std::cmp::Ordering;
+use crate::math::{floor_i64, non_empty};
 use std::ops::ControlFlow;
 
-/// A lattice of cubic cells of edge `size`, restricted to the cell indices `[lo, hi]` (per axis,
-/// inclusive): cell `c` covers `[c * size, (c + 1) * size)`.
+/// A lattice of cubic cells of edge `size` (a power of two), restricted to the cell indices
+/// `[lo, hi]` (per axis, inclusive): cell `c` covers `[c * size, (c + 1) * size)`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Cells {
     /// Cell edge.
@@ -19,24 +25,91 @@ pub struct Cells {
     pub hi: [i64; 3],
 }
 
-/// `floor(x) as i64` (saturating; NaN gives 0) without a libm call: the default x86-64 target
-/// has no `roundsd`, so `f64::floor` is a function call in the hottest loops.
-#[inline]
-#[must_use]
-pub fn floor_i64(x: f64) -> i64 {
-    let i = x as i64;
-    if (i as f64) > x {
-        i.saturating_sub(1)
-    } else {
-        i
+/// The state of a walk over unit cells: current cell, step direction and the `t` of the next
+/// boundary on each axis.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Dda {
+    /// Where the walk starts.
+    pub(crate) t0: f64,
+    /// Current cell.
+    pub(crate) cell: [i64; 3],
+    /// Step per axis: -1, 0 or 1.
+    pub(crate) step: [i64; 3],
+    /// `t` where the line leaves the current cell on each axis.
+    pub(crate) t_next: [f64; 3],
+}
+
+impl Dda {
+    /// Start the walk of `q + t d` at `t0`, in the cell holding `q + t0 d` clamped to
+    /// `[lo, hi]`.
+    #[inline]
+    pub(crate) fn new(q: [f64; 3], d: [f64; 3], t0: f64, lo: [i64; 3], hi: [i64; 3]) -> Self {
+        let mut s = Self {
+            t0,
+            cell: [0; 3],
+            step: [0; 3],
+            t_next: [f64::INFINITY; 3],
+        };
+        for a in 0..3 {
+            s.cell[a] = floor_i64(q[a] + d[a] * t0).clamp(lo[a], hi[a]);
+            s.step[a] = if d[a] > 0.0 {
+                1
+            } else if d[a] < 0.0 {
+                -1
+            } else {
+                0
+            };
+            s.t_next[a] = boundary_t(q[a], d[a], s.cell[a]);
+        }
+        s
+    }
+
+    /// The axis whose boundary comes first (ties go to the lower axis).
+    #[inline]
+    pub(crate) fn axis(&self) -> usize {
+        let t = &self.t_next;
+        let a = usize::from(t[1] < t[0]);
+        let ta = if a == 1 { t[1] } else { t[0] };
+        if t[2] < ta {
+            2
+        } else {
+            a
+        }
+    }
+
+    /// Step along `axis`; false when the walk leaves `[lo, hi]` or cannot move.
+    #[inline]
+    pub(crate) fn advance(
+        &mut self,
+        axis: usize,
+        q: [f64; 3],
+        d: [f64; 3],
+        lo: [i64; 3],
+        hi: [i64; 3],
+    ) -> bool {
+        if self.step[axis] == 0 {
+            return false;
+        }
+        let c = self.cell[axis] + self.step[axis];
+        if c < lo[axis] || c > hi[axis] {
+            return false;
+        }
+        self.cell[axis] = c;
+        self.t_next[axis] = boundary_t(q[axis], d[axis], c);
+        true
     }
 }
 
-/// True if `[t0, t1]` is a non-empty interval (false for NaN ends).
+/// `t` at which the line leaves unit cell `c` along one axis (infinity if it never does).
 #[inline]
-#[must_use]
-pub fn non_empty(t0: f64, t1: f64) -> bool {
-    t0.partial_cmp(&t1) == Some(Ordering::Less)
+fn boundary_t(q: f64, d: f64, c: i64) -> f64 {
+    if d > 0.0 {
+        ((c + 1) as f64 - q) / d
+    } else if d < 0.0 {
+        (c as f64 - q) / d
+    } else {
+        f64::INFINITY
+    }
 }
 
 /// Visit the cells crossed by `q + t d` for `t` in `[t0, t1]`. The visitor gets the cell index
@@ -53,55 +126,24 @@ pub fn dda(
         return ControlFlow::Continue(());
     }
     let Cells { size, lo, hi } = *cells;
-    let mut cell = [0i64; 3];
-    let mut step = [0i64; 3];
-    let mut t_next = [f64::INFINITY; 3];
-    for a in 0..3 {
-        let p = q[a] + d[a] * t0;
-        cell[a] = floor_i64(p / size).clamp(lo[a], hi[a]);
-        step[a] = if d[a] > 0.0 {
-            1
-        } else if d[a] < 0.0 {
-            -1
-        } else {
-            0
-        };
-        t_next[a] = boundary_t(q[a], d[a], cell[a], size);
-    }
+    // In units of `size` the cells are unit cells and `t` is unchanged.
+    let (q, d) = if size == 1.0 {
+        (q, d)
+    } else {
+        (q.map(|v| v / size), d.map(|v| v / size))
+    };
+    let mut w = Dda::new(q, d, t0, lo, hi);
     let mut t = t0;
     loop {
-        let axis = if t_next[0] <= t_next[1] && t_next[0] <= t_next[2] {
-            0
-        } else if t_next[1] <= t_next[2] {
-            1
-        } else {
-            2
-        };
-        let t_exit = t_next[axis].min(t1);
+        let axis = w.axis();
+        let t_exit = w.t_next[axis].min(t1);
         if t_exit > t {
-            visit(cell, t, t_exit)?;
+            visit(w.cell, t, t_exit)?;
             t = t_exit;
         }
-        if t_exit >= t1 || step[axis] == 0 {
+        if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
             return ControlFlow::Continue(());
         }
-        cell[axis] += step[axis];
-        if cell[axis] < lo[axis] || cell[axis] > hi[axis] {
-            return ControlFlow::Continue(());
-        }
-        t_next[axis] = boundary_t(q[axis], d[axis], cell[axis], size);
-    }
-}
-
-/// `t` at which the ray leaves cell `c` along one axis (infinity if it never does).
-#[inline]
-fn boundary_t(q: f64, d: f64, c: i64, size: f64) -> f64 {
-    if d > 0.0 {
-        ((c + 1) as f64 * size - q) / d
-    } else if d < 0.0 {
-        (c as f64 * size - q) / d
-    } else {
-        f64::INFINITY
     }
 }
 
@@ -147,33 +189,6 @@ mod tests {
     }
 
     #[test]
-    fn fast_floor_matches_floor() {
-        for x in [
-            0.0,
-            -0.0,
-            0.5,
-            -0.5,
-            1.0,
-            -1.0,
-            2.9999,
-            -2.0001,
-            1e300,
-            -1e300,
-            9.3e18,
-            -9.3e18,
-            f64::NAN,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            4503599627370497.0,
-            -4503599627370497.5,
-            f64::MIN_POSITIVE,
-            -f64::MIN_POSITIVE,
-        ] {
-            assert_eq!(floor_i64(x), x.floor() as i64, "{x}");
-        }
-    }
-
-    #[test]
     fn huge_coordinates_make_progress() {
         let q = [1.0e6 + 0.25, -1.0e6 + 0.5, 3.0e6];
         let (mut n, mut total) = (0, 0.0);
@@ -191,5 +206,44 @@ mod tests {
         // 30 x-crossings and 39 z-crossings, 10 of which coincide (zero-length visits skipped).
         assert_eq!(n, 60);
         assert!((total - 50.0f64).abs() < 1e-9);
+    }
+}
+
+#[cfg(test)]
+mod scaled_cells {
+    use super::*;
+
+    /// Cells of edge 8 visited by `dda` are those of the unit walk of the line scaled by 1/8,
+    /// with the same `t` intervals.
+    #[test]
+    fn coarse_cells_are_scaled_unit_cells() {
+        let q = [3.25, -17.5, 40.125];
+        let d = [0.6, 0.48, -0.64];
+        let coarse = Cells {
+            size: 8.0,
+            lo: [-100; 3],
+            hi: [100; 3],
+        };
+        let unit = Cells {
+            size: 1.0,
+            ..coarse
+        };
+        let (mut a, mut b) = (Vec::new(), Vec::new());
+        let _ = dda(q, d, (0.0, 90.0), &coarse, |c, t0, t1| {
+            a.push((c, t0, t1));
+            ControlFlow::Continue(())
+        });
+        let _ = dda(
+            q.map(|v| v / 8.0),
+            d.map(|v| v / 8.0),
+            (0.0, 90.0),
+            &unit,
+            |c, t0, t1| {
+                b.push((c, t0, t1));
+                ControlFlow::Continue(())
+            },
+        );
+        assert_eq!(a, b);
+        assert!(a.len() > 10);
     }
 }

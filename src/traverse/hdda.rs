@@ -10,7 +10,8 @@
 //! halo. The same holds for background tiles and empty root cells next to data, which is why a
 //! trilinear walk reaches one voxel beyond the active data where vdb_render stops.
 
-use super::{dda, non_empty, Cells, Segment};
+use super::{dda, Cells, Segment};
+use crate::math::{floor_i64, non_empty, scaled};
 use crate::ray::{clip_box, Ray};
 use crate::tree::{Bounds, Internal, RootSlot};
 use crate::volume::{Interp, Volume};
@@ -119,7 +120,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         if !non_empty(t0, t1) {
             return ControlFlow::Continue(());
         }
-        let cell = |c: f64| super::floor_i64(c / 4096.0);
+        let cell = |c: f64| floor_i64(c / 4096.0);
         let rlo = clip_lo.map(cell);
         let rhi = clip_hi.map(|c| cell(c - 0.5));
         let (q, d) = (self.q, self.d);
@@ -293,8 +294,8 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             Segment {
                 t_min: t0,
                 t_max: t1,
-                mu_min: mul(self.scale, min),
-                mu_maj: mul(self.scale, max),
+                mu_min: scaled(self.scale, min),
+                mu_maj: scaled(self.scale, max),
                 level,
             },
             leaf,
@@ -308,23 +309,13 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
 /// the same voxels as `PointSampler`.
 #[must_use]
 pub fn lookup_ray(vol: &Volume, ray: &Ray, interp: Interp) -> ([f64; 3], [f64; 3]) {
-    let p = vol.to_index(ray.origin());
-    let d = vol.to_index_dir(ray.direction());
+    let p = vol.to_index(ray.origin()).to_array();
+    let d = vol.to_index_dir(ray.direction()).to_array();
     let q = [0, 1, 2].map(|a| match interp {
         Interp::Nearest if d[a] == 0.0 => p[a].round() + 0.5,
         _ => p[a] + interp.shift(),
     });
     (q, d)
-}
-
-/// `scale * value` with `0 * inf = 0` (a zero density scale makes even opaque voxels clear).
-#[inline]
-pub(crate) fn mul(scale: f64, v: f64) -> f64 {
-    if scale == 0.0 {
-        0.0
-    } else {
-        scale * v
-    }
 }
 
 fn to_i32(c: [i64; 3]) -> Option<[i32; 3]> {

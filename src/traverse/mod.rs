@@ -5,7 +5,8 @@
 mod dda;
 mod hdda;
 
-pub use dda::{dda, floor_i64, non_empty, Cells};
+pub(crate) use dda::Dda;
+pub use dda::{dda, Cells};
 pub(crate) use hdda::walk_nodes;
 pub use hdda::{lookup_ray, walk, Granularity, Walk};
 

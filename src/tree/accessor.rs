@@ -196,5 +196,5 @@ impl Block<'_> {
 /// `floor(c)` as an index coordinate, saturating at the i32 range (NaN maps to 0).
 #[inline]
 fn round_to_voxel(c: f64) -> i32 {
-    crate::traverse::floor_i64(c).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+    crate::math::floor_i64(c).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }

@@ -188,24 +188,68 @@ pub struct RootEntry {
 }
 
 /// The flat tree of one grid, values decoded to `f32`.
+///
+/// Invariant: `bounds`, every node's `bounds`/`halo`, the tile halos and the neighbour tables
+/// describe exactly the values the tree holds (what the majorant-driven estimators rely on).
+/// The fields are crate-private so that nothing outside the decoder, [`TreeBuilder`] and the
+/// bad-voxel policy can change values without recomputing the bounds; read them through the
+/// accessors.
 #[derive(Debug, Clone, Default)]
 pub struct Tree {
     /// Value everywhere outside the root's entries.
-    pub background: f32,
+    pub(crate) background: f32,
     /// Root table sorted by origin (x, then y, then z), as OpenVDB orders it.
-    pub root: Vec<RootEntry>,
+    pub(crate) root: Vec<RootEntry>,
     /// Upper internal nodes (32^3 slots, 4096^3 voxels).
-    pub uppers: Vec<Internal>,
+    pub(crate) uppers: Vec<Internal>,
     /// Lower internal nodes (16^3 slots, 128^3 voxels).
-    pub lowers: Vec<Internal>,
+    pub(crate) lowers: Vec<Internal>,
     /// Leaves (8^3 voxels).
-    pub leaves: Vec<Leaf>,
+    pub(crate) leaves: Vec<Leaf>,
     /// min/max of every value a nearest lookup anywhere can return, background included.
-    pub bounds: Bounds,
+    pub(crate) bounds: Bounds,
     /// Per leaf: its 7 + neighbour blocks, `[k - 1]` for the block at `origin + 8 * (k >> 2,
     /// k >> 1 & 1, k & 1)` (what a trilinear lookup on the leaf's + faces reads).
-    pub neighbours: Vec<[Neighbour; 7]>,
+    pub(crate) neighbours: Vec<[Neighbour; 7]>,
     pub(crate) faces: Faces,
+}
+
+impl Tree {
+    /// Value everywhere outside the root's entries.
+    #[must_use]
+    pub fn background(&self) -> f32 {
+        self.background
+    }
+    /// Root table sorted by origin (x, then y, then z), as OpenVDB orders it.
+    #[must_use]
+    pub fn root(&self) -> &[RootEntry] {
+        &self.root
+    }
+    /// Upper internal nodes (32^3 slots, 4096^3 voxels).
+    #[must_use]
+    pub fn uppers(&self) -> &[Internal] {
+        &self.uppers
+    }
+    /// Lower internal nodes (16^3 slots, 128^3 voxels).
+    #[must_use]
+    pub fn lowers(&self) -> &[Internal] {
+        &self.lowers
+    }
+    /// Leaves (8^3 voxels).
+    #[must_use]
+    pub fn leaves(&self) -> &[Leaf] {
+        &self.leaves
+    }
+    /// min/max of every value a nearest lookup anywhere can return, background included.
+    #[must_use]
+    pub fn bounds(&self) -> Bounds {
+        self.bounds
+    }
+    /// Per leaf: its 7 + neighbour blocks (see the field docs in the source).
+    #[must_use]
+    pub fn neighbours(&self) -> &[[Neighbour; 7]] {
+        &self.neighbours
+    }
 }
 
 /// What a descent to `ijk` found: the value and the node that holds it.

@@ -157,7 +157,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
     job.settings.validate()?;
     let vol = umbra::Volume::load(&job.input, &job.grid, job.density_scale)
         .with_context(|| format!("loading grid '{}'", job.grid))?;
-    let camera = umbra::bake::Camera::frame(&job.view, &umbra::bake::volume_corners(&vol)?)?;
+    let camera = umbra::bake::Camera::frame(&job.view, &vol.box_corners()?)?;
     let bar = progress_bar(
         a.quiet,
         "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
@@ -202,10 +202,10 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
     if a.json {
         let v = serde_json::json!({
             "output": a.output, "preview": a.preview, "file": prov.source_file, "grid": prov.grid,
-            "width": c.width, "height": c.height,
+            "width": c.width(), "height": c.height(),
             "camera": {
-                "kind": c.kind, "origin": c.origin, "step_x": c.step_x, "step_y": c.step_y,
-                "direction": c.direction, "t_max": c.t_max,
+                "kind": c.kind(), "origin": c.origin(), "step_x": c.step_x(), "step_y": c.step_y(),
+                "direction": c.direction(), "t_max": c.t_max(),
             },
             "light_dir": prov.light_dir, "light_pos": prov.light_pos,
             "fov_deg": c.fov_deg().map(|f| [f.0, f.1]),
@@ -227,9 +227,9 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
             out,
             "{}: {}x{} {} map of {}:{} ({}), T in [{t_min:.4}, {t_max:.4}], mean {t_mean:.4}",
             a.output.display(),
-            c.width,
-            c.height,
-            match c.kind {
+            c.width(),
+            c.height(),
+            match c.kind() {
                 Projection::Ortho => "ortho",
                 Projection::Perspective => "perspective",
             },
