@@ -1,14 +1,216 @@
 //! The stress catalogue (`umbra compare --stress`): every estimator on stiff and extreme media
 //! returns finite answers, in [0, 1] unless documented as signed, exactly 0 where the optical
-//! depth underflows, and stops at the collision cap instead of hanging. Also: `umbra compare`
-//! writes well-formed reports in which exact tracking has zero error and the stochastic
-//! estimators' error falls with budget.
+//! depth underflows, and stops at the collision cap instead of hanging. The references are
+//! independent of the code under test: regular tracking is checked on every case against a
+//! brute-force quadrature written here (5-point Gauss-Legendre between the integer planes the
+//! ray crosses, values from the tree's point sampler: exact for the piecewise-cubic trilinear
+//! field), and against closed forms on constant media with optical depths from 1e-8 to 1e5,
+//! where the unbiased estimators must also agree within a few standard errors. Also:
+//! `umbra compare` writes well-formed reports in which exact tracking has zero error and the
+//! stochastic estimators' error falls with budget.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::process::Command;
 use umbra::compare::stress::{catalogue, run};
-use umbra::estimate::{estimate, Estimator, Options};
-use umbra::Ray;
+use umbra::estimate::{estimate, Estimator, Kind, Options, REGISTRY};
+use umbra::tree::{Accessor, TreeBuilder};
+use umbra::{Interp, Ray, Volume};
+
+/// Brute-force trilinear optical depth of `r` through `v`, independent of umbra's traversal and
+/// regular tracking: the index-space line is cut at every integer plane it crosses inside the
+/// grid's value box (grown by 2 voxels; the background is 0 outside it in these media), and
+/// each piece, where the trilinear field is a cubic in `t`, is integrated by 5-point
+/// Gauss-Legendre (exact to degree 9) of the trilinear interpolation, in f64, of the 8 voxel
+/// values `Accessor::value` returns around each point.
+fn brute_tau(v: &Volume, r: &Ray) -> f64 {
+    let Some([lo, hi]) = v.value_box() else {
+        return 0.0;
+    };
+    let q = v.to_index(r.origin()).to_array();
+    let d = v.to_index_dir(r.direction()).to_array();
+    // Independent slab clip to [lo - 2, hi + 2].
+    let (mut t0, mut t1) = (r.t_min(), r.t_max());
+    for a in 0..3 {
+        let (l, h) = ((lo[a] - 2) as f64, (hi[a] + 2) as f64);
+        if d[a] == 0.0 {
+            if q[a] < l || q[a] > h {
+                return 0.0;
+            }
+            continue;
+        }
+        let (u, w) = ((l - q[a]) / d[a], (h - q[a]) / d[a]);
+        t0 = t0.max(u.min(w));
+        t1 = t1.min(u.max(w));
+    }
+    if t0.partial_cmp(&t1) != Some(std::cmp::Ordering::Less) {
+        return 0.0;
+    }
+    let mut cuts = vec![t0, t1];
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            continue;
+        }
+        let (p0, p1) = (q[a] + d[a] * t0, q[a] + d[a] * t1);
+        let (a0, a1) = (p0.min(p1).ceil() as i64, p0.max(p1).floor() as i64);
+        for k in a0..=a1 {
+            let t = (k as f64 - q[a]) / d[a];
+            if t > t0 && t < t1 {
+                cuts.push(t);
+            }
+        }
+    }
+    cuts.sort_by(f64::total_cmp);
+    let x = [
+        0.0,
+        -0.538_469_310_105_683_1,
+        0.538_469_310_105_683_1,
+        -0.906_179_845_938_664,
+        0.906_179_845_938_664,
+    ];
+    let w = [
+        0.568_888_888_888_888_9,
+        0.478_628_670_499_366_5,
+        0.478_628_670_499_366_5,
+        0.236_926_885_056_189_1,
+        0.236_926_885_056_189_1,
+    ];
+    let mut acc = Accessor::new(v.tree());
+    let mut s = 0.0;
+    for c in cuts.windows(2) {
+        let (m, h) = (0.5 * (c[0] + c[1]), 0.5 * (c[1] - c[0]));
+        if h <= 0.0 {
+            continue;
+        }
+        for g in 0..5 {
+            let t = m + h * x[g];
+            let p = [0, 1, 2].map(|k| q[k] + d[k] * t);
+            let i = p.map(|c| c.floor());
+            let f = [0, 1, 2].map(|k| p[k] - i[k]);
+            let mut val = 0.0;
+            for n in 0..8 {
+                let o = [n >> 2 & 1, n >> 1 & 1, n & 1];
+                let ijk = [0, 1, 2].map(|k| i[k] as i32 + o[k]);
+                let wt: f64 = (0..3)
+                    .map(|k| if o[k] == 1 { f[k] } else { 1.0 - f[k] })
+                    .product();
+                let x = f64::from(acc.value(ijk));
+                if wt != 0.0 {
+                    val += wt * x;
+                }
+            }
+            s += h * w[g] * val;
+        }
+    }
+    if v.density_scale() == 0.0 {
+        return 0.0;
+    }
+    s * v.density_scale()
+}
+
+#[test]
+fn regular_tracking_matches_an_independent_quadrature_on_every_stress_case() {
+    let cases = catalogue(24).unwrap();
+    let mut checked = 0;
+    for c in &cases {
+        for (i, r) in c.rays.iter().enumerate() {
+            let e = estimate(
+                &c.volume,
+                r,
+                i as u64,
+                &Estimator::REGULAR,
+                &Options::default(),
+            )
+            .unwrap();
+            let tau = e.tau.unwrap();
+            let want = brute_tau(&c.volume, r);
+            if !want.is_finite() {
+                // Through an opaque (+inf) voxel: the quadrature sees inf (or inf * 0).
+                assert_eq!(tau, f64::INFINITY, "{} ray {i}", c.name);
+                continue;
+            }
+            assert!(
+                (tau - want).abs() <= 1e-9 * want.abs() + 1e-300,
+                "{} ray {i}: regular {tau:e} vs quadrature {want:e}",
+                c.name
+            );
+            checked += 1;
+        }
+    }
+    assert!(checked > 200, "{checked} rays checked");
+}
+
+/// A constant cube of `n^3` voxels of density `c` (voxel `h`, scale `s`): along an
+/// axis-parallel line through the interior, nearest lookups see `c` over `n` voxels
+/// (`[-1/2, n - 1/2)`), trilinear ones `c` over `[0, n - 1]` plus two linear ramps of half a
+/// voxel each: `tau = n c h s` either way, in closed form.
+fn constant_cube(n: i32, c: f32, h: f64, s: f64) -> Volume {
+    let mut b = TreeBuilder::new(0.0);
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                b.set([i, j, k], c);
+            }
+        }
+    }
+    let m = [[h, 0.0, 0.0, 3.0], [0.0, h, 0.0, -2.0], [0.0, 0.0, h, 1.0]];
+    Volume::from_tree("cube".into(), b.build(), m, s).unwrap()
+}
+
+#[test]
+fn closed_form_optical_depths_from_1e_minus_8_to_1e5() {
+    let n = 16;
+    for (c, s, h) in [
+        (1.0f32, 1e-9, 0.5),
+        (0.25, 0.3, 1e-6),
+        (2.0, 0.05, 2.0),
+        (4.0, 1e4, 0.1),
+        (1.0, 6250.0, 1.0),
+    ] {
+        let vol = constant_cube(n, c, h, s);
+        let tau = f64::from(n) * f64::from(c) * h * s;
+        // Axis-parallel rays through voxel centres of the interior, from outside to outside.
+        let w = |i: f64, j: f64, k: f64| [3.0 + i * h, -2.0 + j * h, 1.0 + k * h];
+        let rays = [
+            Ray::between(w(-3.0, 7.0, 8.0), w(20.0, 7.0, 8.0)).unwrap(),
+            Ray::between(w(5.0, 21.0, 9.0), w(5.0, -4.0, 9.0)).unwrap(),
+            Ray::between(w(6.0, 6.0, -2.5), w(6.0, 6.0, 18.0)).unwrap(),
+        ];
+        for interp in [Interp::Nearest, Interp::Trilinear] {
+            let opts = Options {
+                interp,
+                samples: 400,
+                seed: 11,
+                ..Options::default()
+            };
+            for (i, r) in rays.iter().enumerate() {
+                let e = estimate(&vol, r, i as u64, &Estimator::REGULAR, &opts).unwrap();
+                let got = e.tau.unwrap();
+                assert!(
+                    (got - tau).abs() <= 1e-10 * tau,
+                    "c {c} s {s} {interp:?} ray {i}: tau {got:e} vs closed form {tau:e}"
+                );
+                assert_eq!(e.value, (-tau).exp());
+                // Unbiased estimators agree within 5 standard errors plus the rule-of-three
+                // bound 3 / n on an event that n samples all missed (a binary estimator on a
+                // ray with tau 1e-8 reads exactly 1 with standard error 0).
+                for spec in REGISTRY.iter().filter(|s| s.kind != Kind::Biased) {
+                    let est = spec.default_estimator();
+                    let e = estimate(&vol, r, i as u64, &est, &opts).unwrap();
+                    let t = (-tau).exp();
+                    assert!(
+                        (e.value - t).abs() <= 5.0 * e.std_err + 3.0 / f64::from(e.samples),
+                        "{} c {c} s {s} {interp:?} ray {i}: {} +- {} vs {t:e}",
+                        spec.name,
+                        e.value,
+                        e.std_err
+                    );
+                    assert_eq!(e.capped, 0);
+                    assert_eq!(e.majorant_violations, 0);
+                }
+            }
+        }
+    }
+}
 
 #[test]
 fn every_estimator_is_sound_on_every_stress_case() {
@@ -29,7 +231,9 @@ fn every_estimator_is_sound_on_every_stress_case() {
         .iter()
         .find(|r| r.case == "tau-1e5" && r.estimator == "regular")
         .unwrap();
-    assert!(thick.max_tau > 1e4 && thick.max_error == 0.0, "{thick:?}");
+    // max_error is against regular tracking itself (see the quadrature test for regular's own
+    // check); here only the magnitude of the case matters.
+    assert!(thick.max_tau > 1e4, "{thick:?}");
     let thin = rows
         .iter()
         .find(|r| r.case == "tau-1e-8" && r.estimator == "regular")

@@ -1,11 +1,11 @@
 //! Writing a comparison: `report.csv`, `report.json`, `report.md` (one table per budget level,
-//! best estimator per error level marked) and `error_vs_time.svg` (log-log RMSE against seconds,
-//! one line per estimator). Every file is written atomically.
+//! best estimator per error level marked) and, when the caller drew one, `error_vs_time.svg`
+//! (the CLI draws it with plotters; the library has no plotting dependency). The files are
+//! staged and renamed together: all of them appear, or none.
 
 use super::Row;
 use crate::error::Result;
-use crate::output::write_atomic;
-use plotters::prelude::*;
+use crate::output::{commit_all, stage};
 use serde::Serialize;
 use std::collections::BTreeMap;
 use std::io::Write;
@@ -34,16 +34,18 @@ fn io(e: impl std::fmt::Display) -> String {
     e.to_string()
 }
 
-/// Write the four report files into `dir` (created if missing).
+/// Write the report files into `dir` (created if missing): CSV, JSON, markdown, and `svg` as
+/// `error_vs_time.svg` when given.
 ///
 /// # Errors
-/// [`crate::Error::Output`] when a file cannot be written.
-pub fn write_reports(dir: &Path, rows: &[Row], meta: &Meta) -> Result<()> {
+/// [`crate::Error::Output`] when a file cannot be written (then none is).
+pub fn write_reports(dir: &Path, rows: &[Row], meta: &Meta, svg: Option<&str>) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| crate::Error::Io {
         path: dir.to_path_buf(),
         err: e,
     })?;
-    write_atomic(&dir.join("report.csv"), true, |w| {
+    let mut staged = Vec::new();
+    staged.push(stage(&dir.join("report.csv"), true, |w| {
         writeln!(w, "estimator,budget,rmse,bias,variance,max_error,seconds,lookups,efficiency,capped,non_finite").map_err(io)?;
         for r in rows {
             writeln!(
@@ -64,8 +66,8 @@ pub fn write_reports(dir: &Path, rows: &[Row], meta: &Meta) -> Result<()> {
             .map_err(io)?;
         }
         Ok(())
-    })?;
-    write_atomic(&dir.join("report.json"), true, |w| {
+    })?);
+    staged.push(stage(&dir.join("report.json"), true, |w| {
         let rows_json: Vec<serde_json::Value> = rows
             .iter()
             .map(|r| {
@@ -82,14 +84,16 @@ pub fn write_reports(dir: &Path, rows: &[Row], meta: &Meta) -> Result<()> {
         )
         .map_err(io)?;
         writeln!(w).map_err(io)
-    })?;
-    write_atomic(&dir.join("report.md"), true, |w| {
+    })?);
+    staged.push(stage(&dir.join("report.md"), true, |w| {
         w.write_all(markdown(rows, meta).as_bytes()).map_err(io)
-    })?;
-    let svg = svg(rows)?;
-    write_atomic(&dir.join("error_vs_time.svg"), true, |w| {
-        w.write_all(svg.as_bytes()).map_err(io)
-    })
+    })?);
+    if let Some(svg) = svg {
+        staged.push(stage(&dir.join("error_vs_time.svg"), true, |w| {
+            w.write_all(svg.as_bytes()).map_err(io)
+        })?);
+    }
+    commit_all(staged)
 }
 
 /// The markdown report: settings, then rows grouped by budget rank (cheapest first), the most
@@ -144,77 +148,4 @@ pub fn markdown(rows: &[Row], meta: &Meta) -> String {
         s.push('\n');
     }
     s
-}
-
-fn svg(rows: &[Row]) -> Result<String> {
-    let mut out = String::new();
-    {
-        let pts: Vec<&Row> = rows
-            .iter()
-            .filter(|r| r.rmse > 0.0 && r.seconds > 0.0)
-            .collect();
-        let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64);
-        for r in &pts {
-            x0 = x0.min(r.seconds);
-            x1 = x1.max(r.seconds);
-            y0 = y0.min(r.rmse);
-            y1 = y1.max(r.rmse);
-        }
-        if pts.is_empty() {
-            (x0, x1, y0, y1) = (1e-3, 1.0, 1e-4, 1.0);
-        }
-        let root = SVGBackend::with_string(&mut out, (960, 640)).into_drawing_area();
-        let err = |e: &dyn std::fmt::Display| crate::Error::InvalidArgument {
-            name: "plot".into(),
-            reason: e.to_string(),
-        };
-        root.fill(&WHITE).map_err(|e| err(&e))?;
-        let mut chart = ChartBuilder::on(&root)
-            .caption("RMSE of T against wall time (log-log)", ("sans-serif", 22))
-            .margin(20)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(
-                (x0 / 1.5..x1 * 1.5).log_scale(),
-                (y0 / 1.5..y1 * 1.5).log_scale(),
-            )
-            .map_err(|e| err(&e))?;
-        chart
-            .configure_mesh()
-            .x_desc("seconds (whole ray set)")
-            .y_desc("RMSE")
-            .draw()
-            .map_err(|e| err(&e))?;
-        let mut names: Vec<&str> = pts.iter().map(|r| r.estimator.as_str()).collect();
-        names.dedup();
-        names.sort_unstable();
-        names.dedup();
-        for (i, name) in names.iter().enumerate() {
-            let color = Palette99::pick(i).to_rgba();
-            let mut line: Vec<(f64, f64)> = pts
-                .iter()
-                .filter(|r| r.estimator == *name)
-                .map(|r| (r.seconds, r.rmse))
-                .collect();
-            line.sort_by(|a, b| a.0.total_cmp(&b.0));
-            chart
-                .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
-                .map_err(|e| err(&e))?
-                .label(*name)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-                });
-            chart
-                .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
-                .map_err(|e| err(&e))?;
-        }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
-            .map_err(|e| err(&e))?;
-        root.present().map_err(|e| err(&e))?;
-    }
-    Ok(out)
 }

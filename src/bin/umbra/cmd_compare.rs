@@ -166,7 +166,8 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
                 taus.iter().copied().fold(0.0, f64::max)
             ),
         };
-        compare::write_reports(&a.out, &rows, &meta)?;
+        let svg = crate::plot::svg(&rows)?;
+        compare::write_reports(&a.out, &rows, &meta, Some(&svg))?;
         say(&format!(
             "wrote {}/report.{{csv,json,md}} and error_vs_time.svg",
             a.out.display()

@@ -9,6 +9,7 @@ mod cmd_estimators;
 mod cmd_info;
 mod cmd_query;
 mod common;
+mod plot;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
