@@ -1,6 +1,8 @@
 //! `umbra batch`: sequences x lights, failures, resume, shards, plan.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod bake_support;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
@@ -269,4 +271,105 @@ fn patterns_and_placeholders() {
         .map(|i| (0..7).filter(|&t| in_shard(t, (i, 3))).collect())
         .collect();
     assert_eq!(shards, [vec![0, 3, 6], vec![1, 4], vec![2, 5]]);
+}
+
+/// A job file takes every option of `umbra bake`, and a task runs the same pipeline: the batch
+/// map has the same channels and pixels as `umbra bake` with the same options, and its preview.
+#[test]
+fn job_files_take_every_bake_option_and_match_umbra_bake() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::copy(data("cloud.vdb"), d.join("cloud.vdb")).unwrap();
+    std::fs::write(
+        d.join("job.toml"),
+        r#"output = "out/{stem}_{light}.exr"
+[[inputs]]
+file = "cloud.vdb"
+[[lights]]
+name = "lamp"
+pos = [0.5, 5.0, 2.0]
+[bake]
+res = [24, 16]
+estimator = "jittered"
+step = 0.5
+spp = 8
+seed = 3
+density_scale = 2.0
+interp = "nearest"
+granularity = "lower"
+slices = 3
+stderr = true
+fov = 50.0
+target_error = 0.05
+max_spp = 32
+preview = "out/{stem}_{light}.png"
+"#,
+    )
+    .unwrap();
+    let o = batch(&d.join("job.toml"), &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let map = d.join("out/cloud_lamp.exr");
+    assert!(d.join("out/cloud_lamp.png").exists());
+    let cloud = d.join("cloud.vdb");
+    let direct = d.join("direct.exr");
+    let o = umbra(&[
+        "bake",
+        cloud.to_str().unwrap(),
+        "--light-pos=0.5,5,2",
+        "--res",
+        "24x16",
+        "--estimator",
+        "jittered",
+        "--step",
+        "0.5",
+        "--spp",
+        "8",
+        "--seed",
+        "3",
+        "--density-scale",
+        "2",
+        "--interp",
+        "nearest",
+        "--granularity",
+        "lower",
+        "--slices",
+        "3",
+        "--stderr",
+        "--fov",
+        "50",
+        "--target-error",
+        "0.05",
+        "--max-spp",
+        "32",
+        "-q",
+        "-o",
+        direct.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let (a, b) = (
+        bake_support::read_exr(&map),
+        bake_support::read_exr(&direct),
+    );
+    let mut names: Vec<&String> = a.ch.keys().collect();
+    names.sort();
+    assert_eq!(
+        names,
+        ["T", "T.stderr", "slice00.T", "slice01.T", "slice02.T"]
+    );
+    for (k, v) in &a.ch {
+        assert_eq!(v, &b.ch[k], "channel {k}");
+    }
+    for k in [
+        "estimator",
+        "estimator_params",
+        "interp",
+        "camera_kind",
+        "fov_deg",
+    ] {
+        assert_eq!(a.attr(k), b.attr(k), "{k}");
+    }
+    assert_eq!(
+        a.text("estimator_params"),
+        r#"{"name":"jittered","step":0.5}"#
+    );
 }

@@ -348,6 +348,20 @@ impl Spec {
 /// A transmittance estimator with validated parameters. Made only through the registry:
 /// [`Estimator::from_name`], [`Estimator::with_params`], [`Estimator::set`] (or the
 /// [`Estimator::REGULAR`] constant), so its parameters are always within their ranges.
+///
+/// ```
+/// use umbra::estimate::Estimator;
+/// let e = Estimator::with_params("riemann", &[("step", 0.5)])?;
+/// assert_eq!((e.name(), e.param("step")), ("riemann", Some(0.5)));
+/// assert!(Estimator::with_params("riemann", &[("step", 0.0)]).is_err()); // would never end
+/// assert_eq!(Estimator::from_name(e.name())?.name(), "riemann");
+/// # Ok::<(), umbra::Error>(())
+/// ```
+///
+/// ```compile_fail
+/// // No way around the registry: the fields are private.
+/// let e = umbra::estimate::Estimator { id: 1, values: [0.0] };
+/// ```
 #[derive(Clone, Copy, PartialEq)]
 pub struct Estimator {
     /// Index into [`REGISTRY`].

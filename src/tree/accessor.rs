@@ -121,7 +121,7 @@ impl<'t> Accessor<'t> {
     /// voxels `floor(p) + {0,1}^3`, z first, then y, then x, as OpenVDB does.
     #[inline]
     pub fn trilinear(&mut self, p: [f64; 3]) -> f32 {
-        let i = p.map(round_to_voxel);
+        let i = p.map(floor_to_voxel);
         let u = [
             p[0] - f64::from(i[0]),
             p[1] - f64::from(i[1]),
@@ -195,6 +195,6 @@ impl Block<'_> {
 
 /// `floor(c)` as an index coordinate, saturating at the i32 range (NaN maps to 0).
 #[inline]
-fn round_to_voxel(c: f64) -> i32 {
+fn floor_to_voxel(c: f64) -> i32 {
     crate::math::floor_i64(c).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
 }

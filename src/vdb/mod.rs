@@ -1,7 +1,7 @@
 //! Reading `.vdb` files. umbra parses the archive (header, grid descriptors, metadata) and
 //! decodes each grid's transform and tree itself, straight into its flat [`Tree`]; it reads only
-//! the bytes of the grid asked for. See `ARCHITECTURE` notes in the README for why vdb-rs is used
-//! only as an independent cross-check in the tests.
+//! the bytes of the grid asked for. The README's "How loading works" says why vdb-rs is used only
+//! as an independent cross-check in the tests; `ARCHITECTURE.md` places this module in the layers.
 
 mod archive;
 mod blosc;
