@@ -20,7 +20,7 @@ fn bench_bake(c: &mut Criterion) {
         light_dir: Some([0.6, -0.35, -1.0]),
         light_pos: None,
         fov_deg: None,
-        res: Some((256, 256)),
+        res: Some(umbra::bake::Resolution::Exact(256, 256)),
     };
     let camera = Camera::frame(&view, &vol.box_corners().unwrap()).unwrap();
     let cores = rayon::current_num_threads();

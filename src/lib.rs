@@ -12,7 +12,7 @@
 //! it from a file).
 //!
 //! ```
-//! use umbra::bake::{bake, BakeSettings, Camera, Projection, View};
+//! use umbra::bake::{bake, BakeSettings, Camera, Projection, Resolution, View};
 //! use umbra::estimate::{estimate, Estimator, Options};
 //! use umbra::{Light, Ray, Volume};
 //!
@@ -40,7 +40,7 @@
 //!     light_dir: Some([-1.0, -1.0, 0.0]),
 //!     light_pos: None,
 //!     fov_deg: None,
-//!     res: Some((32, 32)),
+//!     res: Some(Resolution::Exact(32, 32)),
 //! };
 //! let camera = Camera::frame(&view, &vol.box_corners()?)?;
 //! let map = bake(&vol, &camera, &BakeSettings::new(Estimator::REGULAR, Options::default()), &|_| {})?;

@@ -2,11 +2,52 @@
 //! temporary file in its own directory (`.NAME.umbra-PID-N.tmp`), flushed, synced and renamed
 //! over the target only when complete. Several outputs of one command are staged first and
 //! renamed together ([`commit_all`]), so they appear together or not at all.
+//!
+//! **Interruption.** Every temporary file is registered while it exists. A signal handler calls
+//! [`remove_temporaries`]: it waits for a commit in progress to finish (renames happen under the
+//! same lock, so a group of outputs is never half renamed), deletes every registered temporary
+//! file and refuses any later stage or commit; the caller then exits.
 
 use crate::error::{Error, Result};
+use std::collections::BTreeSet;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Mutex, MutexGuard};
+
+/// Temporary files that exist now, and whether output has been shut down.
+struct Live {
+    temps: BTreeSet<PathBuf>,
+    closed: bool,
+}
+
+static LIVE: Mutex<Live> = Mutex::new(Live {
+    temps: BTreeSet::new(),
+    closed: false,
+});
+
+fn live() -> MutexGuard<'static, Live> {
+    // A panic while holding the lock cannot leave the set inconsistent (single operations).
+    LIVE.lock()
+        .unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// Delete every temporary file of this process and refuse all later writes; returns how many
+/// files were removed. For signal handlers: call it, then exit. A commit in progress finishes
+/// first.
+pub fn remove_temporaries() -> usize {
+    let mut l = live();
+    l.closed = true;
+    let n = l.temps.len();
+    for p in std::mem::take(&mut l.temps) {
+        let _ = std::fs::remove_file(p);
+    }
+    n
+}
+
+fn closed_err(path: &Path) -> Error {
+    output_err(path, "interrupted: output was shut down")
+}
 
 fn output_err(path: &Path, reason: impl Into<String>) -> Error {
     Error::Output {
@@ -27,7 +68,9 @@ pub struct Staged {
 impl Drop for Staged {
     fn drop(&mut self) {
         if let Some(p) = self.tmp.take() {
-            let _ = std::fs::remove_file(p);
+            let mut l = live();
+            let _ = std::fs::remove_file(&p);
+            l.temps.remove(&p);
         }
     }
 }
@@ -44,15 +87,24 @@ impl Staged {
     /// # Errors
     /// [`Error::Output`] when the target may no longer be written or the rename fails; the
     /// temporary file is removed.
-    pub fn commit(mut self) -> Result<()> {
-        check_target(&self.target, self.overwrite)?;
-        let Some(tmp) = self.tmp.as_ref() else {
+    pub fn commit(self) -> Result<()> {
+        commit_all(vec![self])
+    }
+
+    /// The rename, under the lock of the live set.
+    fn commit_locked(&mut self, l: &mut Live) -> Result<()> {
+        if l.closed {
+            return Err(closed_err(&self.target));
+        }
+        let Some(tmp) = self.tmp.take() else {
             return Err(output_err(&self.target, "already committed"));
         };
-        std::fs::rename(tmp, &self.target)
-            .map_err(|e| output_err(&self.target, format!("renaming into place: {e}")))?;
-        self.tmp = None;
-        Ok(())
+        let renamed = std::fs::rename(&tmp, &self.target);
+        if renamed.is_err() {
+            let _ = std::fs::remove_file(&tmp);
+        }
+        l.temps.remove(&tmp);
+        renamed.map_err(|e| output_err(&self.target, format!("renaming into place: {e}")))
     }
 }
 
@@ -80,16 +132,24 @@ pub fn stage(
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
     let tmp = dir.join(format!(".{name}.umbra-{}-{n}.tmp", std::process::id()));
-    let file = std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&tmp)
-        .map_err(|e| {
-            output_err(
-                path,
-                format!("cannot create a file in {}: {e}", dir.display()),
-            )
-        })?;
+    let file = {
+        let mut l = live();
+        if l.closed {
+            return Err(closed_err(path));
+        }
+        let f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+            .map_err(|e| {
+                output_err(
+                    path,
+                    format!("cannot create a file in {}: {e}", dir.display()),
+                )
+            })?;
+        l.temps.insert(tmp.clone());
+        f
+    };
     let staged = Staged {
         tmp: Some(tmp),
         target: path.to_path_buf(),
@@ -122,12 +182,13 @@ pub fn write_atomic(
 ///
 /// # Errors
 /// The first target that may not be written (nothing renamed), or a failed rename.
-pub fn commit_all(staged: Vec<Staged>) -> Result<()> {
+pub fn commit_all(mut staged: Vec<Staged>) -> Result<()> {
     for s in &staged {
         check_target(&s.target, s.overwrite)?;
     }
-    for s in staged {
-        s.commit()?;
+    let mut l = live();
+    for s in &mut staged {
+        s.commit_locked(&mut l)?;
     }
     Ok(())
 }
@@ -139,9 +200,21 @@ pub fn commit_all(staged: Vec<Staged>) -> Result<()> {
 /// # Errors
 /// [`Error::Output`] naming the problem.
 pub fn check_target(path: &Path, overwrite: bool) -> Result<()> {
-    if let Ok(m) = std::fs::symlink_metadata(path) {
+    if path.as_os_str() == "-" {
+        return Err(output_err(
+            path,
+            "writing to standard output is not supported for this file; give a file name",
+        ));
+    }
+    if let Ok(m) = std::fs::metadata(path) {
         if m.is_dir() {
             return Err(output_err(path, "is a directory"));
+        }
+        if !m.is_file() {
+            return Err(output_err(
+                path,
+                "is not a regular file (a device, pipe or socket); umbra only replaces files",
+            ));
         }
         if !overwrite {
             return Err(output_err(
@@ -150,12 +223,52 @@ pub fn check_target(path: &Path, overwrite: bool) -> Result<()> {
             ));
         }
     }
-    if let Some(d) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        if !d.is_dir() {
-            return Err(output_err(path, format!("no directory {}", d.display())));
-        }
+    let dir = match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(d) => d,
+        None => Path::new("."),
+    };
+    if !dir.is_dir() {
+        return Err(output_err(path, format!("no directory {}", dir.display())));
+    }
+    if std::fs::metadata(dir).is_ok_and(|m| m.permissions().readonly()) {
+        return Err(output_err(
+            path,
+            format!("directory {} is not writable", dir.display()),
+        ));
     }
     Ok(())
+}
+
+/// Check, before a long computation, that `path` can be created: [`check_target`] plus a probe
+/// file created and removed in its directory (what catches read-only mounts, `/sys`, missing
+/// permissions for other users).
+///
+/// # Errors
+/// [`Error::Output`] naming the problem.
+pub fn check_writable(path: &Path, overwrite: bool) -> Result<()> {
+    check_target(path, overwrite)?;
+    let dir = match path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        Some(d) => d.to_path_buf(),
+        None => PathBuf::from("."),
+    };
+    static PROBE: AtomicU64 = AtomicU64::new(0);
+    let n = PROBE.fetch_add(1, Ordering::Relaxed);
+    let probe = dir.join(format!(".umbra-probe-{}-{n}.tmp", std::process::id()));
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(f) => {
+            drop(f);
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) => Err(output_err(
+            path,
+            format!("cannot create files in {}: {e}", dir.display()),
+        )),
+    }
 }
 
 #[cfg(test)]

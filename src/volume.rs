@@ -97,10 +97,21 @@ impl Volume {
     /// Prepare `grid` for tracing with extinction `mu_t = density_scale * value`.
     ///
     /// # Errors
-    /// [`Error::Unsupported`] for frustum maps and non-scalar grids, [`Error::InvalidArgument`]
-    /// for a negative or non-finite density scale.
+    /// [`Error::Unsupported`] for level sets (grid class `level set`), frustum maps and
+    /// non-scalar grids, [`Error::InvalidArgument`] for a negative or non-finite density scale.
     pub fn new(grid: Grid, density_scale: f64, path: &std::path::Path) -> Result<Self> {
         check_density_scale(density_scale)?;
+        if grid.class.as_deref() == Some("level set") {
+            return Err(Error::Unsupported {
+                path: path.to_path_buf(),
+                what: format!(
+                    "grid '{}' is a level set (signed distance to a surface, not a density): \
+                     tracing it as fog would give meaningless transmittance; convert it to a \
+                     fog volume first (OpenVDB sdfToFogVolume, Houdini VDB Convert)",
+                    grid.name
+                ),
+            });
+        }
         if !grid.transform.is_affine() {
             return Err(Error::Unsupported {
                 path: path.to_path_buf(),

@@ -44,7 +44,7 @@ fn analytic_box_ortho_and_perspective_pixel_by_pixel() {
         light_dir: None,
         light_pos: Some([9.0, 14.0, -6.0]),
         fov_deg: None,
-        res: Some((40, 30)),
+        res: Some(umbra::bake::Resolution::Exact(40, 30)),
     };
     for (n, view) in [ortho([0.3, -1.0, 0.45], 64, 48), persp].iter().enumerate() {
         let cam = Camera::frame(view, &corners).unwrap();
@@ -277,7 +277,7 @@ fn standard_matrices_map_pixel_rays_to_their_pixels() {
         light_dir: Some([-0.5, -1.0, 0.7]),
         light_pos: Some([9.0, 14.0, -6.0]),
         fov_deg: Some(50.0),
-        res: Some((20, 12)),
+        res: Some(umbra::bake::Resolution::Exact(20, 12)),
     };
     for (n, view) in [ortho([1.0, 0.2, -0.3], 20, 12), persp].iter().enumerate() {
         let cam = Camera::frame(view, &corners).unwrap();

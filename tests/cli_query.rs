@@ -178,7 +178,7 @@ fn rays_batch_answers_in_order_with_per_line_errors() {
             &["--rays", f.to_str().unwrap(), "--threads", threads],
             None,
         );
-        assert_eq!(code, 2, "{err}");
+        assert_eq!(code, 3, "{err}");
         assert_eq!(err.lines().count(), 1, "{err}");
         assert!(
             err.starts_with("umbra: error: 3 of 149 queries failed (first: line 10: oz = 'three'"),
@@ -250,7 +250,7 @@ fn plain_batch_output_names_lines() {
         .unwrap();
     let out = String::from_utf8_lossy(&o.stdout);
     let lines: Vec<&str> = out.lines().collect();
-    assert_eq!(o.status.code(), Some(2));
+    assert_eq!(o.status.code(), Some(3));
     assert!(lines[0].starts_with("line 2: T = "), "{out}");
     assert!(
         lines[1].starts_with("line 3: error: expected 6 fields"),
@@ -290,9 +290,9 @@ fn bad_query_arguments_are_one_line_errors() {
         (
             &["--rays", "-"],
             Some("a,b,c\n1,2,3\n"),
-            "is not the six columns",
+            "neither the header ox,oy,oz,ex,ey,ez nor six numbers",
         ),
-        (&["--rays", "-"], Some("\n# nothing\n"), "no header"),
+        (&["--rays", "-"], Some("\n# nothing\n"), "no segments"),
     ];
     for (args, stdin, want) in cases {
         let mut c = umbra();

@@ -413,17 +413,17 @@ fn collision_kernel_bias_is_positive_and_shrinks_linearly() {
     let (b2, s2) = bias(
         &m,
         rays,
-        &Estimator::with_params("collision", &[("kernel", 0.4)]).unwrap(),
+        &Estimator::with_params("collision", &[("kernel", 4.0)]).unwrap(),
         40_000,
     );
     let (b1, s1) = bias(
         &m,
         rays,
-        &Estimator::with_params("collision", &[("kernel", 0.2)]).unwrap(),
+        &Estimator::with_params("collision", &[("kernel", 2.0)]).unwrap(),
         40_000,
     );
     eprintln!(
-        "collision: bias {b2:.3e} +- {s2:.1e} (kernel 0.4), {b1:.3e} +- {s1:.1e} (kernel 0.2)"
+        "collision: bias {b2:.3e} +- {s2:.1e} (kernel 4 voxels), {b1:.3e} +- {s1:.1e} (kernel 2 voxels)"
     );
     assert!(b2 > 4.0 * s2 && b1 > 0.0);
     let ratio = b2 / b1;

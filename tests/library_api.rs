@@ -217,7 +217,7 @@ fn bake_settings_and_cameras_validate() {
         light_dir: Some([0.0, 0.0, -1.0]),
         light_pos: None,
         fov_deg: None,
-        res: Some((8, 8)),
+        res: Some(umbra::bake::Resolution::Exact(8, 8)),
     };
     let cam = Camera::frame(&view, &v.box_corners().unwrap()).unwrap();
     let base = BakeSettings::new(Estimator::REGULAR, Options::default());
@@ -283,7 +283,7 @@ fn bake_settings_and_cameras_validate() {
             ..view
         },
         View {
-            res: Some((0, 8)),
+            res: Some(umbra::bake::Resolution::Exact(0, 8)),
             ..view
         },
         View {
@@ -346,14 +346,14 @@ fn cameras_rebuild_from_their_spec_and_refuse_bad_ones() {
             light_dir: Some([0.3, -1.0, 0.2]),
             light_pos: None,
             fov_deg: None,
-            res: Some((9, 7)),
+            res: Some(umbra::bake::Resolution::Exact(9, 7)),
         },
         View {
             projection: Projection::Perspective,
             light_dir: None,
             light_pos: Some([8.0, 30.0, 5.0]),
             fov_deg: None,
-            res: Some((9, 7)),
+            res: Some(umbra::bake::Resolution::Exact(9, 7)),
         },
     ] {
         let cam = Camera::frame(&view, &corners).unwrap();

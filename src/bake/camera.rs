@@ -51,8 +51,42 @@ pub struct View {
     /// Full field of view across the longer image side, in degrees (perspective only; default:
     /// the smallest symmetric view that holds the whole volume box).
     pub fov_deg: Option<f64>,
-    /// `(W, H)`; default [`DEFAULT_LONG_SIDE`] on the long side with the framed box's aspect.
-    pub res: Option<(u32, u32)>,
+    /// The image size; default [`DEFAULT_LONG_SIDE`] on the long side with the framed box's
+    /// aspect.
+    pub res: Option<Resolution>,
+}
+
+/// How large a map is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(untagged)]
+pub enum Resolution {
+    /// Exactly `W x H` pixels (`[W, H]` in job files).
+    Exact(u32, u32),
+    /// `N` pixels on the long side, the other side from the framed box's aspect (`N` in job
+    /// files, `--res N` on the command line).
+    LongSide(u32),
+}
+
+impl Resolution {
+    /// Check the size: sides in `1..=MAX_SIDE`, at most [`MAX_PIXELS`] pixels.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `res`.
+    pub fn check(self) -> Result<()> {
+        match self {
+            Self::Exact(w, h) => check_res(w, h),
+            Self::LongSide(n) => check_res(n, 1),
+        }
+    }
+
+    /// The exact size for a window of extent `ex x ey`.
+    fn size(view: Option<Self>, ex: f64, ey: f64) -> (u32, u32) {
+        match view {
+            Some(Self::Exact(w, h)) => (w, h),
+            Some(Self::LongSide(n)) => default_res(ex, ey, n),
+            None => default_res(ex, ey, DEFAULT_LONG_SIDE),
+        }
+    }
 }
 
 /// What a camera is made of, as `umbra bake --json` prints it under `camera` and the
@@ -300,16 +334,21 @@ pub fn check_res(w: u32, h: u32) -> Result<()> {
     Ok(())
 }
 
-/// Default `(W, H)` for a window of extent `ex x ey`: the long side gets `DEFAULT_LONG_SIDE`.
-fn default_res(ex: f64, ey: f64) -> (u32, u32) {
+/// `(W, H)` for a window of extent `ex x ey`: the long side gets `long`, the short one
+/// `round(long x short extent / long extent)` (at least 1).
+fn default_res(ex: f64, ey: f64, long: u32) -> (u32, u32) {
     let short = |a: f64, b: f64| {
-        let v = (f64::from(DEFAULT_LONG_SIDE) * a / b).round();
-        v.clamp(1.0, f64::from(DEFAULT_LONG_SIDE)) as u32
+        let v = (f64::from(long) * a / b).round();
+        if v.is_finite() {
+            v.clamp(1.0, f64::from(long)) as u32
+        } else {
+            long
+        }
     };
     if ex >= ey {
-        (DEFAULT_LONG_SIDE, short(ey, ex))
+        (long, short(ey, ex))
     } else {
-        (short(ex, ey), DEFAULT_LONG_SIDE)
+        (short(ex, ey), long)
     }
 }
 
@@ -332,8 +371,8 @@ impl Camera {
     /// of range, a field of view outside `(0, 180)`, an ortho light inside or beside the box, or
     /// a perspective light inside the box without a field of view.
     pub fn frame(view: &View, corners: &[DVec3; 8]) -> Result<Self> {
-        if let Some((w, h)) = view.res {
-            check_res(w, h)?;
+        if let Some(r) = view.res {
+            r.check()?;
         }
         let dir = match view.light_dir {
             Some(d) => Some(normalise(DVec3::from_array(d)).ok_or_else(|| {
@@ -414,7 +453,7 @@ impl Camera {
             None => z0,
         };
         let (ex, ey) = (x1 - x0, y1 - y0);
-        let (w, h) = view.res.unwrap_or_else(|| default_res(ex, ey));
+        let (w, h) = Resolution::size(view.res, ex, ey);
         let s = (ex / f64::from(w)).max(ey / f64::from(h));
         let c = (r * (0.5 * (x0 + x1)) + u * (0.5 * (y0 + y1))) + f * plane;
         let origin =
@@ -446,7 +485,7 @@ impl Camera {
                 if !(fov > 0.0 && fov < 180.0) {
                     return Err(bad("fov", format!("{fov} is not in (0, 180) degrees")));
                 }
-                let (w, h) = view.res.unwrap_or((DEFAULT_LONG_SIDE, DEFAULT_LONG_SIDE));
+                let (w, h) = Resolution::size(view.res, 1.0, 1.0);
                 let s = 2.0 * (0.5 * fov.to_radians()).tan() / f64::from(w.max(h));
                 (w, h, s)
             }
@@ -467,7 +506,7 @@ impl Camera {
                     ax = ax.max((v.dot(r) / z).abs());
                     ay = ay.max((v.dot(u) / z).abs());
                 }
-                let (w, h) = view.res.unwrap_or_else(|| default_res(ax, ay));
+                let (w, h) = Resolution::size(view.res, ax, ay);
                 (w, h, (2.0 * ax / f64::from(w)).max(2.0 * ay / f64::from(h)))
             }
         };

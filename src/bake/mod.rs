@@ -18,8 +18,9 @@ mod pipeline;
 mod render;
 
 pub use camera::{
-    check_res, Camera, CameraSpec, Projection, View, DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE,
+    check_res, Camera, CameraSpec, Projection, Resolution, View, DEFAULT_LONG_SIDE, MAX_PIXELS,
+    MAX_SIDE,
 };
 pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
-pub use pipeline::{volume_warnings, BakeJob, BakeReport, Warning};
+pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
 pub use render::{bake, BakeSettings, BakeStats, Depths, Map, MAX_BATCHES, MAX_SLICES};

@@ -3,8 +3,8 @@
 //! report what a user should be warned about.
 
 use super::{bake, write_map, BakeSettings, Camera, Map, Provenance, View};
-use crate::error::Result;
-use crate::output::check_target;
+use crate::error::{Error, Result};
+use crate::output::check_writable;
 use crate::volume::{Sanitized, Volume};
 use std::path::PathBuf;
 
@@ -30,7 +30,7 @@ pub struct BakeJob {
 }
 
 /// Something a finished bake wants its user to know.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum Warning {
     /// NaN or negative voxels were traced as 0 (the bad-voxel policy).
@@ -50,6 +50,20 @@ pub enum Warning {
         /// Lookups outside the bounds.
         lookups: u64,
     },
+    /// Every pixel lets more than 99% through: the density scale is probably far too small.
+    NearlyEmpty {
+        /// Smallest T of the map.
+        t_min: f64,
+        /// A density scale that would give the densest pixel an optical depth of about 2.
+        suggested_scale: f64,
+    },
+    /// No pixel lets 1% through: the density scale is probably far too large.
+    NearlyBlack {
+        /// Largest T of the map.
+        t_max: f64,
+        /// A density scale that would give the clearest pixel an optical depth of about 1.
+        suggested_scale: f64,
+    },
 }
 
 impl std::fmt::Display for Warning {
@@ -65,8 +79,75 @@ impl std::fmt::Display for Warning {
                 f,
                 "{lookups} lookups exceeded their majorant (the estimate is biased; please report)"
             ),
+            Self::NearlyEmpty {
+                t_min,
+                suggested_scale,
+            } => write!(
+                f,
+                "the map is almost empty (every T >= {t_min:.4}); try --density-scale \
+                 {suggested_scale:.2e}"
+            ),
+            Self::NearlyBlack {
+                t_max,
+                suggested_scale,
+            } => write!(
+                f,
+                "the map is almost black (every T <= {t_max:.2e}); try --density-scale \
+                 {suggested_scale:.2e}"
+            ),
         }
     }
+}
+
+/// The map-level warnings: almost empty (`min T > 0.99`) or almost black (`max T < 0.01`),
+/// with a suggested density scale `s'`. From the map itself when it can: the densest pixel has
+/// `tau_max = -ln(min T)` at scale `s`, so `s' = 2 s / tau_max` gives it `tau = 2` (and
+/// `s' = s / tau_min` gives the clearest pixel of a black map `tau = 1`); when the map holds no
+/// such information (T exactly 1 or 0 everywhere), from the grid's largest value `v_max` and
+/// the volume box diagonal `D`: `s' = 2 / (v_max D)`.
+#[must_use]
+pub fn map_warnings(map: &Map, density_scale: f64, v_max: f64, diagonal: f64) -> Vec<Warning> {
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for &t in map.t.iter().filter(|t| !t.is_nan()) {
+        lo = lo.min(f64::from(t));
+        hi = hi.max(f64::from(t));
+    }
+    if !lo.is_finite() {
+        return Vec::new();
+    }
+    let fallback = || {
+        let d = v_max * diagonal;
+        if d > 0.0 && d.is_finite() {
+            2.0 / d
+        } else {
+            1.0
+        }
+    };
+    let mut out = Vec::new();
+    if lo > 0.99 {
+        let tau_max = -lo.ln();
+        let suggested_scale = if tau_max > 0.0 && density_scale > 0.0 {
+            2.0 * density_scale / tau_max
+        } else {
+            fallback()
+        };
+        out.push(Warning::NearlyEmpty {
+            t_min: lo,
+            suggested_scale,
+        });
+    } else if hi < 0.01 {
+        let tau_min = -hi.ln();
+        let suggested_scale = if tau_min.is_finite() && tau_min > 0.0 {
+            density_scale / tau_min
+        } else {
+            fallback()
+        };
+        out.push(Warning::NearlyBlack {
+            t_max: hi,
+            suggested_scale,
+        });
+    }
+    out
 }
 
 /// Warnings about a volume's bad voxels.
@@ -100,11 +181,23 @@ impl BakeJob {
     /// # Errors
     /// [`crate::Error::Output`] naming the file.
     pub fn check_outputs(&self) -> Result<()> {
-        check_target(&self.output, self.overwrite)?;
+        for p in std::iter::once(&self.output).chain(&self.preview) {
+            if p.as_os_str() == "-" {
+                return Err(Error::Output {
+                    path: p.clone(),
+                    reason: "writing a map or preview to standard output is not supported; give \
+                             a file name"
+                        .into(),
+                });
+            }
+        }
+        check_writable(&self.output, self.overwrite)?;
+        check_extension(&self.output, "exr", "output", "a map is written as OpenEXR")?;
         if let Some(p) = &self.preview {
-            check_target(p, self.overwrite)?;
-            if *p == self.output {
-                return Err(crate::Error::Output {
+            check_writable(p, self.overwrite)?;
+            check_extension(p, "png", "preview", "the preview is written as PNG")?;
+            if same_file(p, &self.output) {
+                return Err(Error::Output {
                     path: p.clone(),
                     reason: "the preview and the map are the same file".into(),
                 });
@@ -141,6 +234,13 @@ impl BakeJob {
         self.check_outputs()?;
         let map = bake(&vol, &camera, &self.settings, progress)?;
         let mut warnings = volume_warnings(&vol.sanitized());
+        let diagonal = vol.box_corners().map_or(0.0, |c| (c[7] - c[0]).length());
+        warnings.extend(map_warnings(
+            &map,
+            self.density_scale,
+            f64::from(vol.bounds().max),
+            diagonal,
+        ));
         let provenance = Provenance {
             source_file: self.input.display().to_string(),
             grid: vol.name().to_string(),
@@ -172,4 +272,38 @@ impl BakeJob {
             warnings,
         })
     }
+}
+
+/// `path` must end in `.ext` (any case): an output of the wrong format is refused before any
+/// work, naming the flag.
+fn check_extension(path: &std::path::Path, ext: &str, flag: &str, what: &str) -> Result<()> {
+    let ok = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case(ext));
+    if ok {
+        return Ok(());
+    }
+    Err(Error::InvalidArgument {
+        name: flag.into(),
+        reason: format!(
+            "{}: {what}; give a file name ending in .{ext}",
+            path.display()
+        ),
+    })
+}
+
+/// Whether two paths name the same file (compared after resolving the directory, so
+/// `a.exr` and `./a.exr` or an absolute spelling match).
+pub(crate) fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
+    let canon = |p: &std::path::Path| {
+        let dir = match p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            Some(d) => d.to_path_buf(),
+            None => std::path::PathBuf::from("."),
+        };
+        std::fs::canonicalize(&dir)
+            .ok()
+            .map(|d| d.join(p.file_name().unwrap_or_default()))
+    };
+    a == b || matches!((canon(a), canon(b)), (Some(x), Some(y)) if x == y)
 }

@@ -43,7 +43,7 @@
 //! **Resume.** A task is up to date when its output exists and its modification time is not
 //! older than its input's; outputs are written atomically, so an existing output is complete.
 
-use crate::bake::{BakeJob, BakeReport, BakeSettings, Depths, Projection, View};
+use crate::bake::{BakeJob, BakeReport, BakeSettings, Depths, Projection, Resolution, View};
 use crate::estimate::{Estimator, Options};
 use crate::traverse::Granularity;
 use crate::Interp;
@@ -154,8 +154,9 @@ pub struct LightSpec {
 #[derive(Debug, Clone, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct BakeSpec {
-    /// `[width, height]` (default: 1024 on the long side).
-    pub res: Option<[u32; 2]>,
+    /// `[width, height]`, or `N` for N pixels on the long side (default: 1024 on the long
+    /// side).
+    pub res: Option<Resolution>,
     /// Estimator name (as `umbra bake --estimator`).
     pub estimator: String,
     /// Samples per pixel (stochastic estimators).
@@ -234,7 +235,7 @@ pub struct Job {
     /// Bake settings of every task (`threads` is set per run).
     pub settings: BakeSettings,
     /// Resolution.
-    pub res: Option<(u32, u32)>,
+    pub res: Option<Resolution>,
     /// Perspective field of view (point lights).
     pub fov_deg: Option<f64>,
     /// Point lights bake orthographic maps through the light.
@@ -374,9 +375,21 @@ pub fn fill_output(
 /// # Errors
 /// [`BatchError::Syntax`] (with line and column) or [`BatchError::Invalid`] naming the key.
 pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
-    let file: JobFile = toml::from_str(text).map_err(|e| BatchError::Syntax {
-        path: path.to_path_buf(),
-        message: e.to_string(),
+    let file: JobFile = toml::from_str(text).map_err(|e| {
+        // One line: "line L, column C: message" (the parser's own text quotes the source).
+        let message = match e.span() {
+            Some(r) if r.start <= text.len() => {
+                let before = &text[..r.start];
+                let line = before.matches('\n').count() + 1;
+                let column = r.start - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+                format!("line {line}, column {column}: {}", e.message().trim())
+            }
+            _ => e.message().trim().to_string(),
+        };
+        BatchError::Syntax {
+            path: path.to_path_buf(),
+            message: message.replace('\n', " "),
+        }
     })?;
     let path = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
@@ -467,8 +480,8 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             "must be a finite non-negative number",
         ));
     }
-    if let Some([w, h]) = b.res {
-        crate::bake::check_res(w, h).map_err(|e| err(&path, "bake.res", e))?;
+    if let Some(r) = b.res {
+        r.check().map_err(|e| err(&path, "bake.res", e))?;
     }
     if file.grid.is_empty() {
         return Err(err(&path, "grid", "must not be empty"));
@@ -640,7 +653,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         log,
         tasks,
         settings,
-        res: b.res.map(|[w, h]| (w, h)),
+        res: b.res,
         fov_deg: b.fov,
         ortho: b.ortho,
         density_scale: b.density_scale,
@@ -744,6 +757,9 @@ impl Job {
     /// Pixels of a task's map when it is known without loading (fixed resolution).
     #[must_use]
     pub fn pixels_hint(&self) -> Option<u64> {
-        self.res.map(|(w, h)| u64::from(w) * u64::from(h))
+        match self.res {
+            Some(Resolution::Exact(w, h)) => Some(u64::from(w) * u64::from(h)),
+            _ => None,
+        }
     }
 }

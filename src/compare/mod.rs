@@ -136,7 +136,13 @@ pub fn reference(vol: &Volume, rays: &[Ray], opts: &Options) -> Vec<f64> {
         .collect()
 }
 
-/// Run one ladder point over all rays.
+/// Shortest time one timed repetition of a ladder point lasts: shorter runs are repeated
+/// (the whole ray set again) until they reach it, and the time per pass is reported.
+pub const MIN_TIMED: std::time::Duration = std::time::Duration::from_millis(50);
+
+/// Run one ladder point over all rays: one warm-up, then `repeats` timed repetitions, each
+/// running the ray set `k` times where `k` makes it last at least [`MIN_TIMED`]. Returns the
+/// values, the median seconds per pass over the ray set, the lookups and the capped samples.
 ///
 /// # Errors
 /// Propagates estimator errors (none are expected for valid rays).
@@ -155,13 +161,17 @@ pub fn run_point(
             })
             .collect()
     };
-    let _ = run()?; // warm-up
+    let t0 = Instant::now();
+    let mut last = run()?; // warm-up, and the pass count that reaches MIN_TIMED
+    let once = t0.elapsed().as_secs_f64().max(1e-9);
+    let passes = (MIN_TIMED.as_secs_f64() / once).ceil().clamp(1.0, 1e6) as usize;
     let mut times = Vec::new();
-    let mut last = Vec::new();
     for _ in 0..repeats.max(1) {
         let t0 = Instant::now();
-        last = run()?;
-        times.push(t0.elapsed().as_secs_f64());
+        for _ in 0..passes {
+            last = run()?;
+        }
+        times.push(t0.elapsed().as_secs_f64() / passes as f64);
     }
     times.sort_by(f64::total_cmp);
     let values: Vec<f64> = last.iter().map(|x| x.0).collect();

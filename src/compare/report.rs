@@ -131,12 +131,12 @@ pub fn markdown(rows: &[Row], meta: &Meta) -> String {
                 r.estimator.clone()
             };
             s.push_str(&format!(
-                "| {name} | {} | {:.3e} | {:.2e} | {:.2e} | {:.4} | {} | {} |\n",
+                "| {name} | {} | {:.3e} | {:.2e} | {:.2e} | {} | {} | {} |\n",
                 r.budget,
                 r.rmse,
                 r.bias,
                 r.max_error,
-                r.seconds,
+                sig3(r.seconds),
                 r.lookups,
                 if r.efficiency.is_finite() {
                     format!("{:.3e}", r.efficiency)
@@ -148,4 +148,32 @@ pub fn markdown(rows: &[Row], meta: &Meta) -> String {
         s.push('\n');
     }
     s
+}
+
+/// `v` with 3 significant digits (`0.000123`, `0.0457`, `1.23`, `123`, `1.23e6`).
+#[must_use]
+pub fn sig3(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let mag = v.abs().log10().floor() as i32;
+    if !(-5..6).contains(&mag) {
+        return format!("{v:.2e}");
+    }
+    let decimals = usize::try_from((2 - mag).max(0)).unwrap_or(0);
+    format!("{v:.decimals$}")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::sig3;
+
+    #[test]
+    fn three_significant_digits() {
+        assert_eq!(sig3(0.000_123_4), "0.000123");
+        assert_eq!(sig3(0.045_67), "0.0457");
+        assert_eq!(sig3(1.234), "1.23");
+        assert_eq!(sig3(123.4), "123");
+        assert_eq!(sig3(1_234_567.0), "1.23e6");
+    }
 }

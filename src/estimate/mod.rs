@@ -375,7 +375,10 @@ fn sample_once(
         Algo::Mc => marching::monte_carlo(segs, m, rng, p),
         Algo::Jittered => marching::jittered(segs, m, rng, p),
         Algo::TrackLength => null_collision::track_length(segs, m, rng, cap),
-        Algo::Collision => null_collision::collision(segs, m, rng, cap, p),
+        Algo::Collision => {
+            let h = p / m.voxels_per_world_unit();
+            null_collision::collision(segs, m, rng, cap, h)
+        }
         Algo::Ratio => null_collision::ratio(segs, m, rng, cap),
         Algo::ResidualRatio(control) => null_collision::residual_ratio(segs, m, rng, cap, control),
         Algo::NextFlight => null_collision::next_flight(segs, m, rng, cap),

@@ -155,11 +155,11 @@ const STEP: Param = Param {
 
 const KERNEL: Param = Param {
     name: "kernel",
-    default: 0.01,
+    default: 1.0,
     min: 0.0,
-    max: 1e12,
+    max: 1e6,
     integer: false,
-    unit: "world units",
+    unit: "voxels",
     ladder: &[],
 };
 

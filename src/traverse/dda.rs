@@ -126,11 +126,13 @@ pub fn dda(
         return ControlFlow::Continue(());
     }
     let Cells { size, lo, hi } = *cells;
-    // In units of `size` the cells are unit cells and `t` is unchanged.
+    // In units of `size` the cells are unit cells and `t` is unchanged. `1 / size` is exact for
+    // a power of two, so `v * (1 / size)` equals `v / size` bit for bit at one division a walk.
     let (q, d) = if size == 1.0 {
         (q, d)
     } else {
-        (q.map(|v| v / size), d.map(|v| v / size))
+        let inv = 1.0 / size;
+        (q.map(|v| v * inv), d.map(|v| v * inv))
     };
     let mut w = Dda::new(q, d, t0, lo, hi);
     let mut t = t0;

@@ -117,7 +117,7 @@ pub fn ortho(dir: [f64; 3], w: u32, h: u32) -> View {
         light_dir: Some(dir),
         light_pos: None,
         fov_deg: None,
-        res: Some((w, h)),
+        res: Some(umbra::bake::Resolution::Exact(w, h)),
     }
 }
 

@@ -6,7 +6,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::bake::{
-    slice_channel, BakeJob, BakeSettings, Depths, Map, Projection, Provenance, View,
+    slice_channel, BakeJob, BakeSettings, Depths, Map, Projection, Provenance, Resolution, View,
 };
 use umbra::Interp;
 
@@ -31,31 +31,32 @@ pub struct BakeArgs {
     ortho: bool,
     /// Perspective field of view across the longer image side, degrees (default: just holds
     /// the volume box).
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     fov: Option<f64>,
-    /// Output OpenEXR file (written atomically).
+    /// Output OpenEXR file (.exr; written atomically, together with the preview).
     #[arg(short, long)]
     output: PathBuf,
-    /// Resolution WxH (default: 1024 on the long side, the framed box's aspect).
-    #[arg(long)]
+    /// Resolution: WxH, or N for N pixels on the long side with the framed box's aspect
+    /// (default 1024).
+    #[arg(long, allow_hyphen_values = true)]
     res: Option<String>,
     /// Overwrite existing outputs.
     #[arg(long)]
     force: bool,
-    /// Also write an 8-bit grayscale PNG preview of T here.
+    /// Also write an 8-bit grayscale PNG preview of T here (.png).
     #[arg(long)]
     preview: Option<PathBuf>,
     /// K extra channels `sliceNN.T`: T at K depths evenly spaced across the volume's depth range.
     #[arg(long)]
     slices: Option<usize>,
     /// Extra channels `sliceNN.T` at these depths (world distance along each ray): a,b,c.
-    #[arg(long)]
+    #[arg(long, allow_hyphen_values = true)]
     depths: Option<String>,
     /// Also write each pixel's standard error (`T.stderr`).
     #[arg(long)]
     stderr: bool,
     /// Adaptive sampling: double a pixel's samples until its standard error is below E.
-    #[arg(long)]
+    #[arg(long, allow_negative_numbers = true)]
     target_error: Option<f64>,
     /// Cap on samples per pixel for --target-error.
     #[arg(long, default_value_t = 65_536)]
@@ -64,7 +65,7 @@ pub struct BakeArgs {
     #[arg(long, value_enum, default_value = "trilinear")]
     interp: InterpArg,
     /// mu_t = S x value, per world unit.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     density_scale: f64,
     /// Worker threads (0: all cores).
     #[arg(long, default_value_t = 0)]
@@ -79,17 +80,27 @@ pub struct BakeArgs {
     est: EstimatorArgs,
 }
 
-/// Parse `WxH`.
-fn parse_res(s: &str) -> Result<(u32, u32)> {
-    let parsed = s
-        .split_once(['x', 'X'])
-        .and_then(|(w, h)| Some((w.trim().parse().ok()?, h.trim().parse().ok()?)));
+/// Parse `WxH` or `N` (N on the long side).
+fn parse_res(s: &str) -> Result<Resolution> {
+    let t = s.trim();
+    let parsed = match t.split_once(['x', 'X']) {
+        Some((w, h)) => w
+            .trim()
+            .parse()
+            .ok()
+            .zip(h.trim().parse().ok())
+            .map(|(w, h)| Resolution::Exact(w, h)),
+        None => t.parse().ok().map(Resolution::LongSide),
+    };
     match parsed {
-        Some((w, h)) => {
-            umbra::bake::check_res(w, h)?;
-            Ok((w, h))
+        Some(r) => {
+            r.check().map_err(crate::common::flag_error)?;
+            Ok(r)
         }
-        None => bail!("--res '{s}': expected WxH, two whole numbers such as 1024x768"),
+        None => bail!(
+            "invalid argument '--res': '{s}': expected WxH (such as 1024x768) or N (pixels on \
+             the long side), whole positive numbers"
+        ),
     }
 }
 
@@ -98,7 +109,7 @@ fn parse_depths(s: &str) -> Result<Vec<f64>> {
         .map(|c| {
             c.trim()
                 .parse::<f64>()
-                .with_context(|| format!("--depths: '{c}' is not a number"))
+                .with_context(|| format!("invalid argument '--depths': '{c}' is not a number"))
         })
         .collect()
 }
@@ -153,11 +164,12 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         preview: a.preview.clone(),
         overwrite: a.force,
     };
-    job.check_outputs()?;
-    job.settings.validate()?;
+    job.check_outputs().map_err(crate::common::flag_error)?;
+    job.settings.validate().map_err(crate::common::flag_error)?;
     let vol = umbra::Volume::load(&job.input, &job.grid, job.density_scale)
         .with_context(|| format!("loading grid '{}'", job.grid))?;
-    let camera = umbra::bake::Camera::frame(&job.view, &vol.box_corners()?)?;
+    let camera = umbra::bake::Camera::frame(&job.view, &vol.box_corners()?)
+        .map_err(crate::common::flag_error)?;
     let bar = progress_bar(
         a.quiet,
         "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",

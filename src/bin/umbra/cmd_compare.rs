@@ -16,8 +16,9 @@ pub struct CompareArgs {
     /// Grid to trace.
     #[arg(long, default_value = "density")]
     grid: String,
-    /// Output directory for report.{csv,json,md} and error_vs_time.svg (and stress.*).
-    #[arg(short = 'o', long)]
+    /// Output directory for report.{csv,json,md} and error_vs_time.svg (and stress.*); created
+    /// if missing (its parent must exist).
+    #[arg(short = 'o', long = "output", visible_alias = "out")]
     out: PathBuf,
     /// Number of random rays crossing the volume.
     #[arg(long, default_value_t = 256)]
@@ -31,7 +32,7 @@ pub struct CompareArgs {
     #[arg(long)]
     global_baseline: bool,
     /// mu_t = S x value, per world unit.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     density_scale: f64,
     /// Lookup interpolation.
     #[arg(long, value_enum, default_value = "trilinear")]
@@ -39,12 +40,13 @@ pub struct CompareArgs {
     /// Seed of the rays and of the estimators' random streams.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Timed repetitions per point (median reported), after one warm-up.
+    /// Timed repetitions per point (median reported), after one warm-up; each repetition runs
+    /// the ray set as many times as it takes to last at least 50 ms.
     #[arg(long, default_value_t = 3)]
     repeats: usize,
-    /// Worker threads (default: all cores).
-    #[arg(long)]
-    threads: Option<usize>,
+    /// Worker threads (0: all cores).
+    #[arg(long, default_value_t = 0)]
+    threads: usize,
     /// Parameters for the estimators that take them (the budget parameter of a ladder is
     /// varied over its ladder).
     #[command(flatten)]
@@ -109,9 +111,27 @@ fn selected(a: &CompareArgs) -> Result<Vec<Estimator>> {
 
 /// Run the comparison (and the stress suite) and write the reports.
 pub fn run(a: &CompareArgs) -> Result<ExitCode> {
-    let threads = a
-        .threads
-        .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get));
+    let threads = if a.threads == 0 {
+        std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
+    } else {
+        a.threads
+    };
+    // The output directory: its parent must exist and be writable before any work.
+    if !a.out.is_dir() {
+        let parent = a
+            .out
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(std::path::Path::new("."));
+        umbra::output::check_writable(&parent.join(".umbra-compare"), true).with_context(|| {
+            format!(
+                "invalid argument '--output': cannot create {}",
+                a.out.display()
+            )
+        })?;
+    } else {
+        umbra::output::check_writable(&a.out.join("report.csv"), true)?;
+    }
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()
@@ -200,7 +220,12 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
             rows.len()
         ));
         if bad > 0 {
-            return Ok(ExitCode::from(2));
+            eprintln!(
+                "umbra: error: {bad} of {} stress rows violate the soundness properties (see {}/stress.md)",
+                rows.len(),
+                a.out.display()
+            );
+            return Ok(ExitCode::from(3));
         }
     }
     Ok(ExitCode::SUCCESS)

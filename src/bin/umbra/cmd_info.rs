@@ -1,40 +1,184 @@
-//! `umbra info`: describe every grid of a file.
+//! `umbra info`: describe the grids of one or more files, one line per grid in the manner of
+//! `vdb_print` (`-v`: everything umbra knows), or JSON.
 
 use anyhow::{Context, Result};
+use serde_json::Value;
 use std::io::Write;
+use std::path::PathBuf;
 use std::process::ExitCode;
+use umbra::info::{FileInfo, GridInfo};
 
-/// Print the report; exit code 2 if some grid could not be decoded.
-pub fn run(file: &std::path::Path, json: bool, grid: Option<&str>) -> Result<ExitCode> {
-    let archive = umbra::vdb::open(file)?;
-    let mut info = umbra::info::FileInfo::from_archive(&archive);
-    if let Some(name) = grid {
-        let gd = archive.find_grid(name)?;
-        info.grids.retain(|g| g.stored_name == gd.stored_name);
+/// Arguments of `umbra info`.
+#[derive(Debug, clap::Args)]
+pub struct InfoArgs {
+    /// The .vdb files.
+    #[arg(required = true)]
+    files: Vec<PathBuf>,
+    /// Everything about each grid: transform, bounding boxes, tiles, statistics, memory.
+    #[arg(short, long)]
+    verbose: bool,
+    /// JSON: one object per file (an array of them for several files).
+    #[arg(long)]
+    json: bool,
+    /// Only this grid (display name such as `density[1]`, or the stored name).
+    #[arg(long)]
+    grid: Option<String>,
+}
+
+/// Print the reports. Exit code 3 when some grid or file could not be read but others could;
+/// a single file that cannot be opened is an error (1).
+pub fn run(a: &InfoArgs) -> Result<ExitCode> {
+    let mut reports = Vec::new();
+    let mut file_errors = Vec::new();
+    for file in &a.files {
+        let one = || -> umbra::Result<FileInfo> {
+            let archive = umbra::vdb::open(file)?;
+            let mut info = FileInfo::from_archive(&archive);
+            if let Some(name) = &a.grid {
+                let gd = archive.find_grid(name)?;
+                info.grids.retain(|g| g.stored_name == gd.stored_name);
+            }
+            Ok(info)
+        };
+        match one() {
+            Ok(info) => reports.push(info),
+            Err(e) if a.files.len() == 1 => return Err(e.into()),
+            Err(e) => file_errors.push(e.to_string()),
+        }
     }
-    let failed = info.grids.iter().filter(|g| g.error.is_some()).count();
     let mut out = std::io::stdout().lock();
-    if json {
-        serde_json::to_writer_pretty(&mut out, &info).context("writing JSON")?;
+    if a.json {
+        if a.files.len() == 1 {
+            serde_json::to_writer_pretty(&mut out, &reports[0]).context("writing JSON")?;
+        } else {
+            serde_json::to_writer_pretty(&mut out, &reports).context("writing JSON")?;
+        }
         writeln!(out)?;
     } else {
-        print_text(&mut out, &info)?;
+        for info in &reports {
+            if a.verbose {
+                print_long(&mut out, info)?;
+            } else {
+                print_short(&mut out, info)?;
+            }
+        }
     }
-    for g in info.grids.iter().filter(|g| g.error.is_some()) {
+    out.flush()?;
+    let failed: Vec<String> = reports
+        .iter()
+        .flat_map(|f| {
+            f.grids.iter().filter_map(move |g| {
+                g.error
+                    .as_ref()
+                    .map(|e| format!("{}: grid '{}': {e}", f.path, g.name))
+            })
+        })
+        .chain(file_errors)
+        .collect();
+    let total: usize =
+        reports.iter().map(|f| f.grids.len()).sum::<usize>() + a.files.len() - reports.len();
+    if let Some(first) = failed.first() {
         eprintln!(
-            "umbra: warning: grid '{}' could not be read: {}",
-            g.name,
-            g.error.as_deref().unwrap_or_default()
+            "umbra: error: {} of {total} grids or files could not be read (first: {first})",
+            failed.len()
         );
+        // Partial failure (3) when something was described; nothing readable is an error (1).
+        return Ok(ExitCode::from(if failed.len() < total { 3 } else { 1 }));
     }
-    Ok(if failed > 0 {
-        ExitCode::from(2)
+    Ok(ExitCode::SUCCESS)
+}
+
+/// A number as a person reads it: integers plainly, others with 6 significant digits
+/// (scientific where that is shorter), `inf`/`nan` as words.
+fn num(v: f64) -> String {
+    if v.is_nan() {
+        return "nan".into();
+    }
+    if v.is_infinite() {
+        return if v > 0.0 { "inf" } else { "-inf" }.into();
+    }
+    if v == v.trunc() && v.abs() < 1e15 {
+        return format!("{v:.0}");
+    }
+    let a = v.abs();
+    if !(1e-4..1e6).contains(&a) {
+        return format!("{v:.5e}");
+    }
+    let s = format!("{v:.6}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}
+
+/// A JSON value (number, `"inf"`, vector) as text.
+fn val(v: &Option<Value>) -> String {
+    match v {
+        None => "-".into(),
+        Some(Value::Number(n)) => n.as_f64().map_or_else(|| n.to_string(), num),
+        Some(Value::String(s)) => s.clone(),
+        Some(Value::Array(a)) => {
+            let parts: Vec<String> = a.iter().map(|x| val(&Some(x.clone()))).collect();
+            format!("({})", parts.join(", "))
+        }
+        Some(other) => other.to_string(),
+    }
+}
+
+fn vec3(v: [f64; 3]) -> String {
+    if v[0] == v[1] && v[1] == v[2] {
+        num(v[0])
     } else {
-        ExitCode::SUCCESS
+        format!("({}, {}, {})", num(v[0]), num(v[1]), num(v[2]))
+    }
+}
+
+fn bbox(b: Option<[[i32; 3]; 2]>) -> String {
+    b.map_or("empty".into(), |[lo, hi]| {
+        format!(
+            "({},{},{})->({},{},{})",
+            lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+        )
     })
 }
 
-fn print_text(out: &mut impl Write, info: &umbra::info::FileInfo) -> Result<()> {
+/// Active voxel count with an SI suffix, as `vdb_print` shows it.
+fn count(n: u64) -> String {
+    let f = n as f64;
+    match n {
+        0..=999 => n.to_string(),
+        1_000..=999_999 => format!("{:.1}K", f / 1e3),
+        1_000_000..=999_999_999 => format!("{:.1}M", f / 1e6),
+        _ => format!("{:.2}G", f / 1e9),
+    }
+}
+
+/// One line per grid: name, type, class, voxel size, active voxels, index bbox, value range.
+fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
+    writeln!(out, "{}:", info.path)?;
+    for g in &info.grids {
+        let ty = format!(
+            "{}{}",
+            g.value_type,
+            if g.saved_as_half { " (half)" } else { "" }
+        );
+        if let Some(e) = &g.error {
+            writeln!(out, "  {:<16} {ty:<12} error: {e}", g.name)?;
+            continue;
+        }
+        writeln!(
+            out,
+            "  {:<16} {ty:<12} {:<10} voxel {:<10} {:>8} active  {}  [{}, {}]",
+            g.name,
+            g.class.as_deref().unwrap_or("-"),
+            g.voxel_size.map_or("-".into(), vec3),
+            count(g.active_voxels.unwrap_or(0)),
+            bbox(g.index_bbox),
+            val(&g.value_min),
+            val(&g.value_max),
+        )?;
+    }
+    Ok(())
+}
+
+fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
     writeln!(
         out,
         "{}: VDB format {}, library {}, {} bytes, {} grid(s)",
@@ -45,64 +189,103 @@ fn print_text(out: &mut impl Write, info: &umbra::info::FileInfo) -> Result<()> 
         info.grids.len()
     )?;
     for g in &info.grids {
-        writeln!(
-            out,
-            "\n{} ({}{})",
-            g.name,
-            g.value_type,
-            if g.saved_as_half { ", half" } else { "" }
-        )?;
-        if let Some(e) = &g.error {
-            writeln!(out, "  error: {e}")?;
-            continue;
-        }
-        let v =
-            |x: &Option<serde_json::Value>| x.as_ref().map_or("-".to_string(), ToString::to_string);
-        writeln!(out, "  class: {}", g.class.as_deref().unwrap_or("-"))?;
-        writeln!(
-            out,
-            "  compression: {}",
-            g.compression.as_deref().unwrap_or("-")
-        )?;
-        writeln!(
-            out,
-            "  map: {}  voxel size: {:?}",
-            g.map.as_deref().unwrap_or("-"),
-            g.voxel_size
-        )?;
-        writeln!(out, "  background: {}", v(&g.background))?;
-        writeln!(out, "  index bbox: {:?}", g.index_bbox)?;
-        writeln!(out, "  world bbox: {:?}", g.world_bbox)?;
-        writeln!(
-            out,
-            "  active voxels: {}  leaves: {}  active tiles: {}",
-            g.active_voxels.unwrap_or(0),
-            g.leaf_count.unwrap_or(0),
-            v(&g.tiles)
-        )?;
-        writeln!(
-            out,
-            "  {} range: [{}, {}]  sum: {}  NaN: {}  Inf: {}",
-            g.value_stats_of,
-            v(&g.value_min),
-            v(&g.value_max),
-            g.value_sum.unwrap_or(0.0),
-            g.nan_count.unwrap_or(0),
-            g.inf_count.unwrap_or(0)
-        )?;
-        if let Some(p) = &g.precision_loss {
-            writeln!(
-                out,
-                "  double -> float: {} values, max relative rounding {:.2e}, {} overflowed, {} underflowed",
-                p.values, p.max_relative_error, p.overflowed, p.underflowed
-            )?;
-        }
-        writeln!(
-            out,
-            "  memory: {} bytes (OpenVDB file_mem_bytes: {})",
-            g.memory_bytes.unwrap_or(0),
-            g.file_mem_bytes.map_or("-".to_string(), |b| b.to_string())
-        )?;
+        print_grid(out, g)?;
     }
     Ok(())
+}
+
+fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
+    writeln!(
+        out,
+        "\n{} ({}{})",
+        g.name,
+        g.value_type,
+        if g.saved_as_half { ", half" } else { "" }
+    )?;
+    if let Some(e) = &g.error {
+        writeln!(out, "  error: {e}")?;
+        return Ok(());
+    }
+    writeln!(out, "  class: {}", g.class.as_deref().unwrap_or("-"))?;
+    writeln!(
+        out,
+        "  compression: {}",
+        g.compression.as_deref().unwrap_or("-")
+    )?;
+    writeln!(
+        out,
+        "  map: {}  voxel size: {}",
+        g.map.as_deref().unwrap_or("-"),
+        g.voxel_size.map_or("-".into(), vec3)
+    )?;
+    if let Some(m) = g.world_from_index {
+        for row in &m[..3] {
+            writeln!(
+                out,
+                "    [{:>12} {:>12} {:>12} {:>12}]",
+                num(row[0]),
+                num(row[1]),
+                num(row[2]),
+                num(row[3])
+            )?;
+        }
+    }
+    writeln!(out, "  background: {}", val(&g.background))?;
+    writeln!(out, "  index bbox: {}", bbox(g.index_bbox))?;
+    writeln!(
+        out,
+        "  world bbox: {}",
+        g.world_bbox.map_or("empty".into(), |[lo, hi]| format!(
+            "{} -> {}",
+            vec3f(lo),
+            vec3f(hi)
+        ))
+    )?;
+    writeln!(
+        out,
+        "  active voxels: {}  leaves: {}  active tiles: {}",
+        g.active_voxels.unwrap_or(0),
+        g.leaf_count.unwrap_or(0),
+        tiles(&g.tiles)
+    )?;
+    writeln!(
+        out,
+        "  {} range: [{}, {}]  sum: {}  NaN: {}  Inf: {}",
+        g.value_stats_of,
+        val(&g.value_min),
+        val(&g.value_max),
+        num(g.value_sum.unwrap_or(0.0)),
+        g.nan_count.unwrap_or(0),
+        g.inf_count.unwrap_or(0)
+    )?;
+    if let Some(p) = &g.precision_loss {
+        writeln!(
+            out,
+            "  double -> float: {} values, max relative rounding {:.2e}, {} overflowed, {} underflowed",
+            p.values, p.max_relative_error, p.overflowed, p.underflowed
+        )?;
+    }
+    writeln!(
+        out,
+        "  memory: {} bytes (OpenVDB file_mem_bytes: {})",
+        g.memory_bytes.unwrap_or(0),
+        g.file_mem_bytes.map_or("-".to_string(), |b| b.to_string())
+    )?;
+    Ok(())
+}
+
+fn vec3f(v: [f64; 3]) -> String {
+    format!("({}, {}, {})", num(v[0]), num(v[1]), num(v[2]))
+}
+
+/// Tile counts per level as `key n` pairs.
+fn tiles(t: &Option<Value>) -> String {
+    match t {
+        Some(Value::Object(m)) => m
+            .iter()
+            .map(|(k, v)| format!("{k} {}", val(&Some(v.clone()))))
+            .collect::<Vec<_>>()
+            .join(", "),
+        other => val(other),
+    }
 }

@@ -35,16 +35,17 @@ pub struct QueryArgs {
     /// Point light position X,Y,Z: trace the segment from --at to it.
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     light_pos: Option<[f64; 3]>,
-    /// CSV of segments (header `ox,oy,oz,ex,ey,ez`, one segment per line), or `-` for stdin.
-    /// Answers come in input order; a bad line is reported on its own output line and makes
-    /// the exit code 2 once every other line is answered.
+    /// CSV of segments, one per line: `ox,oy,oz,ex,ey,ez` (with that header in any column
+    /// order, or without a header in that order), or `-` for stdin. Answers come in input order;
+    /// a bad line is reported on its own output line and makes the exit code 3 once every other
+    /// line is answered.
     #[arg(long)]
     rays: Option<PathBuf>,
     /// How the density between voxel centres is defined.
     #[arg(long, value_enum, default_value = "trilinear")]
     interp: InterpArg,
     /// mu_t = S x value, per world unit.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     density_scale: f64,
     /// One JSON object per query on stdout.
     #[arg(long)]
@@ -151,24 +152,35 @@ fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
     } else {
         path.display().to_string()
     };
-    let mut lines = text
+    let lines = text
         .lines()
         .enumerate()
         .map(|(n, l)| (n + 1, l.trim()))
         .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
-    let Some((hline, header)) = lines.next() else {
-        bail!("{name}: no header line (expected ox,oy,oz,ex,ey,ez)");
-    };
-    let cols: Vec<&str> = header.split(',').map(str::trim).collect();
     let want = ["ox", "oy", "oz", "ex", "ey", "ez"];
-    let idx: Vec<usize> = want
-        .iter()
-        .map(|w| cols.iter().position(|c| c == w))
-        .collect::<Option<_>>()
-        .filter(|_| cols.len() == want.len())
-        .ok_or_else(|| {
-            anyhow!("{name}:{hline}: header '{header}' is not the six columns ox,oy,oz,ex,ey,ez")
-        })?;
+    let mut lines = lines.peekable();
+    let Some(&(hline, first)) = lines.peek() else {
+        bail!("{name}: no segments (expected lines ox,oy,oz,ex,ey,ez)");
+    };
+    let first_cols: Vec<&str> = first.split(',').map(str::trim).collect();
+    // A first line of six numbers is data: the columns are then ox,oy,oz,ex,ey,ez in order.
+    let headerless = first_cols.len() == 6 && first_cols.iter().all(|c| c.parse::<f64>().is_ok());
+    let idx: Vec<usize> = if headerless {
+        (0..6).collect()
+    } else {
+        let header = first;
+        lines.next();
+        want.iter()
+            .map(|w| first_cols.iter().position(|c| c == w))
+            .collect::<Option<_>>()
+            .filter(|_| first_cols.len() == want.len())
+            .ok_or_else(|| {
+                anyhow!(
+                    "{name}:{hline}: '{header}' is neither the header ox,oy,oz,ex,ey,ez nor \
+                     six numbers"
+                )
+            })?
+    };
     Ok(lines
         .map(|(n, l)| {
             let parse = || -> Result<Ray, String> {
@@ -222,7 +234,9 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                     }
                     writeln!(out, "{v}")?;
                 } else {
-                    let tau = e.tau.map_or(String::new(), |t| format!(", tau = {t:.9}"));
+                    let tau = e
+                        .tau
+                        .map_or(String::new(), |t| format!(", tau = {}", full(t)));
                     let err = if e.std_err > 0.0 {
                         format!(" +- {:.2e}", e.std_err)
                     } else {
@@ -230,8 +244,8 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                     };
                     writeln!(
                         out,
-                        "{at}T = {:.9}{err}{tau} ({est}, {interp:?}, {} samples, length {:.6}, {} lookups)",
-                        e.value, e.samples, ray.t_max(), e.lookups
+                        "{at}T = {}{err}{tau} ({est}, {interp:?}, {} samples, length {}, {} lookups)",
+                        full(e.value), e.samples, full(ray.t_max()), e.lookups
                     )?;
                 }
             }
@@ -255,7 +269,18 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
             failed.len(),
             answers.len()
         );
-        return Ok(ExitCode::from(2));
+        return Ok(ExitCode::from(3));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// A value printed so that it can be read back: nine decimals in `[1e-4, 1e6)` (and for 0),
+/// otherwise scientific notation with every significant digit (`6.3e-18`, not `0.000000000`).
+fn full(v: f64) -> String {
+    let a = v.abs();
+    if v == 0.0 || (1e-4..1e6).contains(&a) {
+        format!("{v:.9}")
+    } else {
+        format!("{v:e}")
+    }
 }

@@ -82,7 +82,7 @@ pub struct ParamArgs {
     /// Ray-marching step in voxels (riemann, mc, jittered; default 1).
     #[arg(long, allow_negative_numbers = true)]
     pub step: Option<f64>,
-    /// Kernel width in world units (collision; default 0.01).
+    /// Kernel width in voxels (collision; default 1).
     #[arg(long, allow_negative_numbers = true)]
     pub kernel: Option<f64>,
     /// Points per optical-depth estimate (jackknife; default 10).

@@ -13,14 +13,24 @@ mod plot;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
-use std::path::PathBuf;
 use std::process::ExitCode;
+
+/// Exit codes, the same for every command (also in the README).
+const EXIT_CODES: &str = "Exit codes (every command):
+  0    success
+  1    error: bad input, file or I/O; one line on stderr starting 'umbra: error:' naming the file or flag
+  2    usage error: unknown flag, missing or malformed argument (clap's message)
+  3    partial failure: some of many items failed (batch tasks, query lines, info grids or files,
+       compare stress rows); the others were still answered
+  130  interrupted by SIGINT: no temporary or partial output is left behind
+  143  interrupted by SIGTERM: the same";
 
 #[derive(Parser, Debug)]
 #[command(
     name = "umbra",
     version,
-    about = "How much light gets through this OpenVDB cloud?"
+    about = "How much light gets through this OpenVDB cloud?",
+    after_help = EXIT_CODES
 )]
 struct Cli {
     #[command(subcommand)]
@@ -29,17 +39,8 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Describe every grid of a .vdb file: type, transform, bounding boxes, statistics.
-    Info {
-        /// The .vdb file.
-        file: PathBuf,
-        /// Print JSON instead of text.
-        #[arg(long)]
-        json: bool,
-        /// Only this grid (display name such as `density[1]`, or the stored name).
-        #[arg(long)]
-        grid: Option<String>,
-    },
+    /// Describe the grids of .vdb files: one line per grid (-v: everything), or JSON.
+    Info(cmd_info::InfoArgs),
     /// Optical depth and transmittance along world-space segments.
     Query(cmd_query::QueryArgs),
     /// Bake a transmittance (shadow) map seen from a light into an OpenEXR file.
@@ -56,8 +57,28 @@ enum Command {
     },
 }
 
+/// On SIGINT or SIGTERM: delete every temporary output (waiting for a commit in progress, so a
+/// group of outputs is never half renamed), then exit 128 + the signal.
+fn handle_signals() {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
+        return;
+    };
+    std::thread::spawn(move || {
+        if let Some(sig) = signals.forever().next() {
+            umbra::output::remove_temporaries();
+            eprintln!(
+                "umbra: interrupted ({}); no partial output left",
+                if sig == SIGINT { "SIGINT" } else { "SIGTERM" }
+            );
+            std::process::exit(128 + sig);
+        }
+    });
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    handle_signals();
     match run(cli) {
         Ok(code) => code,
         Err(e) => {
@@ -76,7 +97,7 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<ExitCode> {
     match cli.command {
-        Command::Info { file, json, grid } => cmd_info::run(&file, json, grid.as_deref()),
+        Command::Info(args) => cmd_info::run(&args),
         Command::Query(args) => cmd_query::run(&args),
         Command::Bake(args) => cmd_bake::run(&args),
         Command::Batch(args) => cmd_batch::run(&args),
