@@ -646,8 +646,9 @@ fn interrupted_bakes_leave_no_temporary_or_partial_files() {
         let wait_ms = 30 + rand() % 1500;
         std::thread::sleep(std::time::Duration::from_millis(wait_ms));
         let sig = if k % 2 == 0 { "-INT" } else { "-TERM" };
-        let _ = Command::new("kill")
-            .args([sig, &child.id().to_string()])
+        // The shell's built-in kill: no procps needed on a fresh machine.
+        let _ = Command::new("sh")
+            .args(["-c", &format!("kill {sig} {}", child.id())])
             .status();
         let out = child.wait_with_output().unwrap();
         let files: Vec<String> = std::fs::read_dir(dir.path())

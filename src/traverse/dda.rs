@@ -41,8 +41,9 @@ pub(crate) struct Dda {
 
 impl Dda {
     /// Start the walk of `q + t d` at `t0`, in the cell holding `q + t0 d` clamped to
-    /// `[lo, hi]`.
-    #[inline]
+    /// `[lo, hi]`. Always inlined: as a call (LLVM's choice once the HDDA's recursion grew) it
+    /// cost the bare HDDA walk 17 % (perf: 11 % of the time in this function).
+    #[inline(always)]
     pub(crate) fn new(q: [f64; 3], d: [f64; 3], t0: f64, lo: [i64; 3], hi: [i64; 3]) -> Self {
         let mut s = Self {
             t0,
@@ -65,7 +66,7 @@ impl Dda {
     }
 
     /// The axis whose boundary comes first (ties go to the lower axis).
-    #[inline]
+    #[inline(always)]
     pub(crate) fn axis(&self) -> usize {
         let t = &self.t_next;
         let a = usize::from(t[1] < t[0]);
@@ -78,7 +79,7 @@ impl Dda {
     }
 
     /// Step along `axis`; false when the walk leaves `[lo, hi]` or cannot move.
-    #[inline]
+    #[inline(always)]
     pub(crate) fn advance(
         &mut self,
         axis: usize,
