@@ -179,6 +179,25 @@ impl<F: Fn(f64) -> f64> Tracker for Delta<F> {
     }
 }
 
+/// Run delta tracking (`decompose`: through the residual above the minorant, whose
+/// transmittance is taken in closed form) and score the first real collision with `score`.
+fn delta(
+    segs: &[Segment],
+    m: &mut RayMedium<'_>,
+    rng: &mut Rng,
+    cap: &mut Cap,
+    decompose: bool,
+    score: impl Fn(f64) -> f64,
+) -> f64 {
+    let mut tr = Delta {
+        decompose,
+        w: 1.0,
+        hit: None,
+        score,
+    };
+    free_flight(segs, m, rng, cap, &mut tr)
+}
+
 /// Delta tracking with the track-length estimator.
 pub(crate) fn track_length(
     segs: &[Segment],
@@ -186,13 +205,7 @@ pub(crate) fn track_length(
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
-    let mut tr = Delta {
-        decompose: false,
-        w: 1.0,
-        hit: None,
-        score: |_| 0.0,
-    };
-    free_flight(segs, m, rng, cap, &mut tr)
+    delta(segs, m, rng, cap, false, |_| 0.0)
 }
 
 /// Delta tracking scored with a ramp kernel of width `h` before the end.
@@ -206,19 +219,13 @@ pub(crate) fn collision(
     let Some(end) = segs.last().map(|s| s.t_max) else {
         return 1.0;
     };
-    let mut tr = Delta {
-        decompose: false,
-        w: 1.0,
-        hit: None,
-        score: |t: f64| {
-            if h > 0.0 {
-                ((t - (end - h)) / h).clamp(0.0, 1.0)
-            } else {
-                0.0
-            }
-        },
-    };
-    free_flight(segs, m, rng, cap, &mut tr)
+    delta(segs, m, rng, cap, false, |t| {
+        if h > 0.0 {
+            ((t - (end - h)) / h).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    })
 }
 
 /// Decomposition tracking with the minorant as the control medium.
@@ -228,13 +235,7 @@ pub(crate) fn decomposition(
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
-    let mut tr = Delta {
-        decompose: true,
-        w: 1.0,
-        hit: None,
-        score: |_| 0.0,
-    };
-    free_flight(segs, m, rng, cap, &mut tr)
+    delta(segs, m, rng, cap, true, |_| 0.0)
 }
 
 /// (Residual) ratio tracking: weight `prod (1 - (mu - mu_c) / r)` times the closed-form control
