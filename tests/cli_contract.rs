@@ -752,3 +752,23 @@ fn readme_tables_match_help() {
         );
     }
 }
+
+#[test]
+fn csv_with_a_byte_order_mark_and_control_characters_in_names() {
+    let dir = workdir();
+    std::fs::write(
+        dir.path().join("bom.csv"),
+        "\u{feff}ox,oy,oz,ex,ey,ez\n-2,1.5,0,2,1.5,0\n",
+    )
+    .unwrap();
+    let o = run_in(dir.path(), &["query", &cloud(), "--rays", "bom.csv"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    // A file name with ESC and BEL is printed escaped by info.
+    let weird = dir.path().join("a\u{1b}[2J\u{7}.vdb");
+    std::fs::copy(root().join("data/cloud.vdb"), &weird).unwrap();
+    let o = run_in(dir.path(), &["info", weird.to_str().unwrap()]);
+    assert!(o.status.success());
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(!out.contains('\u{1b}') && !out.contains('\u{7}'), "{out:?}");
+    assert!(out.contains("\\x1b[2J\\x07"), "{out}");
+}

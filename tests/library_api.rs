@@ -384,3 +384,88 @@ fn cameras_rebuild_from_their_spec_and_refuse_bad_ones() {
         assert!(Camera::from_spec(&bad).is_err(), "no pixels");
     }
 }
+
+/// Hostile job files are refused with the key named, never a panic, an overflow or a hang.
+#[test]
+fn hostile_job_files_are_refused_by_key() {
+    let path = std::path::Path::new("/tmp/job.toml");
+    let job = |output: &str, input: &str, lights: &str| {
+        format!("output = \"{output}\"\n[[inputs]]\n{input}\n{lights}\n")
+    };
+    let sun = "[[lights]]\nname = \"sun\"\ndir = [0, -1, 0]";
+    let two =
+        "[[lights]]\nname = \"a\"\ndir = [0, -1, 0]\n[[lights]]\nname = \"b\"\ndir = [1, -1, 0]";
+    let hashes = format!(
+        "pattern = \"c.{}.vdb\"\nframes = [1, 2]",
+        "#".repeat(65_536)
+    );
+    let cases: Vec<(String, &str)> = vec![
+        (
+            job(
+                "o.{frame:065536}.exr",
+                "pattern = \"c.####.vdb\"\nframes = [1, 2]",
+                sun,
+            ),
+            "output",
+        ),
+        (
+            job(
+                "o.exr",
+                "pattern = \"c.$F999999999.vdb\"\nframes = [1, 2]",
+                sun,
+            ),
+            "inputs[0].pattern",
+        ),
+        (job("o.{frame}.exr", &hashes, sun), "inputs[0].pattern"),
+        (
+            job(
+                "o.{frame}.exr",
+                "pattern = \"c.####.vdb\"\nframes = [0, 9223372036854775807]",
+                sun,
+            ),
+            "inputs[0].frames",
+        ),
+        (
+            job("out2/{light}/../{stem}.exr", "file = \"c.vdb\"", two),
+            "output",
+        ),
+        (
+            job(
+                "o_{light}.exr",
+                "file = \"c.vdb\"",
+                "[[lights]]\nname = \"..\"\ndir = [0, -1, 0]",
+            ),
+            "lights[0].name",
+        ),
+        (
+            job(
+                "o_{light}.exr",
+                "file = \"c.vdb\"",
+                "[[lights]]\nname = \"a\\u001b[2J\"\ndir = [0, -1, 0]",
+            ),
+            "lights[0].name",
+        ),
+    ];
+    for (text, key) in cases {
+        match parse_job(path, &text) {
+            Err(BatchError::Invalid { key: k, .. }) => assert_eq!(k, key, "{text}"),
+            other => panic!("{key}: {other:?}"),
+        }
+    }
+    // Frames up to i64::MAX expand without overflowing the counter.
+    let near_max = job(
+        "o.{frame}.exr",
+        "pattern = \"c.####.vdb\"\nframes = [9223372036854775800, 9223372036854775807]\nstep = 3",
+        sun,
+    );
+    let j = parse_job(path, &near_max).unwrap();
+    let frames: Vec<i64> = j.tasks.iter().filter_map(|t| t.frame).collect();
+    assert_eq!(
+        frames,
+        [
+            9223372036854775800,
+            9223372036854775803,
+            9223372036854775806
+        ]
+    );
+}

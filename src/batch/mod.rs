@@ -303,7 +303,11 @@ fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> BatchError {
 #[must_use]
 pub fn expand_pattern(pattern: &str, frame: i64) -> Option<String> {
     if let Some(start) = pattern.find('#') {
-        let n = pattern[start..].chars().take_while(|&c| c == '#').count();
+        let n = pattern[start..]
+            .chars()
+            .take_while(|&c| c == '#')
+            .count()
+            .min(MAX_FRAME_PAD);
         return Some(format!(
             "{}{frame:0n$}{}",
             &pattern[..start],
@@ -315,12 +319,35 @@ pub fn expand_pattern(pattern: &str, frame: i64) -> Option<String> {
         .chars()
         .take_while(char::is_ascii_digit)
         .collect();
-    let n: usize = digits.parse().unwrap_or(0);
+    let n: usize = digits.parse::<usize>().unwrap_or(0).min(MAX_FRAME_PAD);
     Some(format!(
         "{}{frame:0n$}{}",
         &pattern[..start],
         &pattern[start + 2 + digits.len()..]
     ))
+}
+
+/// Widest frame-number padding accepted (`####`, `$FN`, `{frame:0N}`).
+pub const MAX_FRAME_PAD: usize = 32;
+/// Most frames one `[[inputs]]` sequence may expand to.
+pub const MAX_FRAMES: i64 = 1_000_000;
+
+/// The padding a sequence pattern asks for: the number of `#`, or `N` of `$FN` (`None` without
+/// a frame token; a huge `N` saturates).
+fn pattern_pad(pattern: &str) -> Option<usize> {
+    if let Some(start) = pattern.find('#') {
+        return Some(pattern[start..].chars().take_while(|&c| c == '#').count());
+    }
+    let start = pattern.find("$F")?;
+    let digits: String = pattern[start + 2..]
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect();
+    Some(if digits.is_empty() {
+        0
+    } else {
+        digits.parse::<usize>().unwrap_or(usize::MAX)
+    })
 }
 
 /// Fill an output pattern: `{light}`, `{stem}`, `{frame}`, `{frame:0N}`.
@@ -353,7 +380,13 @@ pub fn fill_output(
                     None => 0,
                     Some(w) => w
                         .parse::<usize>()
-                        .map_err(|_| format!("'{{{key}}}': expected {{frame:04}}"))?,
+                        .ok()
+                        .filter(|&w| w <= MAX_FRAME_PAD)
+                        .ok_or_else(|| {
+                            format!(
+                                "'{{{key}}}': expected {{frame:0N}} with N at most {MAX_FRAME_PAD}"
+                            )
+                        })?,
                 };
                 out.push_str(&format!("{f:0width$}"));
             }
@@ -492,11 +525,16 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let mut names = std::collections::HashSet::new();
     for (i, l) in file.lights.iter().enumerate() {
         let key = |k: &str| format!("lights[{i}].{k}");
-        if l.name.is_empty() || l.name.contains(['/', '\\']) {
+        if l.name.is_empty()
+            || l.name == "."
+            || l.name == ".."
+            || l.name.contains(['/', '\\'])
+            || l.name.chars().any(char::is_control)
+        {
             return Err(err(
                 &path,
                 &key("name"),
-                "must be a non-empty name without slashes",
+                "must be a non-empty name without slashes or control characters, not . or ..",
             ));
         }
         if !names.insert(l.name.as_str()) {
@@ -565,18 +603,39 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 if last < first {
                     return Err(err(&path, &key("frames"), "last frame before the first"));
                 }
-                if expand_pattern(p, first).is_none() {
+                match pattern_pad(p) {
+                    None => {
+                        return Err(err(
+                            &path,
+                            &key("pattern"),
+                            format!("'{p}' has no frame token (#### or $F4)"),
+                        ))
+                    }
+                    Some(n) if n > MAX_FRAME_PAD => {
+                        return Err(err(
+                            &path,
+                            &key("pattern"),
+                            format!("pads frames to {n} digits; at most {MAX_FRAME_PAD}"),
+                        ))
+                    }
+                    Some(_) => {}
+                }
+                let count = (i128::from(last) - i128::from(first)) / i128::from(step) + 1;
+                if count > i128::from(MAX_FRAMES) {
                     return Err(err(
                         &path,
-                        &key("pattern"),
-                        format!("'{p}' has no frame token (#### or $F4)"),
+                        &key("frames"),
+                        format!("{count} frames; at most {MAX_FRAMES} per sequence"),
                     ));
                 }
                 let mut f = first;
-                while f <= last {
+                loop {
                     let name = expand_pattern(p, f).unwrap_or_default();
                     inputs.push((resolve(&name), Some(f)));
-                    f += step;
+                    match f.checked_add(step) {
+                        Some(next) if next <= last => f = next,
+                        _ => break,
+                    }
                 }
             }
             _ => {
@@ -605,12 +664,12 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         for l in &file.lights {
             let out = fill_output(&file.output, &l.name, &stem, *frame)
                 .map_err(|e| err(&path, "output", e))?;
-            let output = resolve(&out);
+            let output = normalise(&resolve(&out));
             let preview = match &b.preview {
-                Some(p) => Some(resolve(
+                Some(p) => Some(normalise(&resolve(
                     &fill_output(p, &l.name, &stem, *frame)
                         .map_err(|e| err(&path, "bake.preview", e))?,
-                )),
+                ))),
                 None => None,
             };
             if preview.as_ref() == Some(&output) {
@@ -658,6 +717,25 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         ortho: b.ortho,
         density_scale: b.density_scale,
     })
+}
+
+/// `p` with `.` and `name/..` components removed lexically (no file system access), so two
+/// spellings of one output path compare equal.
+fn normalise(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                if !out.pop() {
+                    out.push("..");
+                }
+            }
+            other => out.push(other.as_os_str()),
+        }
+    }
+    out
 }
 
 /// Read, parse and validate a job file.

@@ -70,7 +70,7 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
             f.grids.iter().filter_map(move |g| {
                 g.error
                     .as_ref()
-                    .map(|e| format!("{}: grid '{}': {e}", f.path, g.name))
+                    .map(|e| format!("{}: grid '{}': {}", esc(&f.path), esc(&g.name), esc(e)))
             })
         })
         .chain(file_errors)
@@ -86,6 +86,20 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
         return Ok(ExitCode::from(if failed.len() < total { 3 } else { 1 }));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `s` with control characters (ESC, BEL, newlines...) written as `\xNN`, so a name from a
+/// file cannot drive the terminal.
+fn esc(s: &str) -> String {
+    s.chars()
+        .map(|c| {
+            if c.is_control() {
+                format!("\\x{:02x}", u32::from(c))
+            } else {
+                c.to_string()
+            }
+        })
+        .collect()
 }
 
 /// A number as a person reads it: integers plainly, others with 6 significant digits
@@ -152,7 +166,7 @@ fn count(n: u64) -> String {
 
 /// One line per grid: name, type, class, voxel size, active voxels, index bbox, value range.
 fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
-    writeln!(out, "{}:", info.path)?;
+    writeln!(out, "{}:", esc(&info.path))?;
     for g in &info.grids {
         let ty = format!(
             "{}{}",
@@ -160,14 +174,14 @@ fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
             if g.saved_as_half { " (half)" } else { "" }
         );
         if let Some(e) = &g.error {
-            writeln!(out, "  {:<16} {ty:<12} error: {e}", g.name)?;
+            writeln!(out, "  {:<16} {ty:<12} error: {}", esc(&g.name), esc(e))?;
             continue;
         }
         writeln!(
             out,
             "  {:<16} {ty:<12} {:<10} voxel {:<10} {:>8} active  {}  [{}, {}]",
-            g.name,
-            g.class.as_deref().unwrap_or("-"),
+            esc(&g.name),
+            esc(g.class.as_deref().unwrap_or("-")),
             g.voxel_size.map_or("-".into(), vec3),
             count(g.active_voxels.unwrap_or(0)),
             bbox(g.index_bbox),
@@ -182,7 +196,7 @@ fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
     writeln!(
         out,
         "{}: VDB format {}, library {}, {} bytes, {} grid(s)",
-        info.path,
+        esc(&info.path),
         info.file_version,
         info.library_version,
         info.file_bytes,
@@ -198,15 +212,15 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
     writeln!(
         out,
         "\n{} ({}{})",
-        g.name,
+        esc(&g.name),
         g.value_type,
         if g.saved_as_half { ", half" } else { "" }
     )?;
     if let Some(e) = &g.error {
-        writeln!(out, "  error: {e}")?;
+        writeln!(out, "  error: {}", esc(e))?;
         return Ok(());
     }
-    writeln!(out, "  class: {}", g.class.as_deref().unwrap_or("-"))?;
+    writeln!(out, "  class: {}", esc(g.class.as_deref().unwrap_or("-")))?;
     writeln!(
         out,
         "  compression: {}",

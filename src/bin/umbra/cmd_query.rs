@@ -152,7 +152,9 @@ fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
     } else {
         path.display().to_string()
     };
+    // A UTF-8 byte-order mark (spreadsheets write one) is not part of the header.
     let lines = text
+        .trim_start_matches('\u{feff}')
         .lines()
         .enumerate()
         .map(|(n, l)| (n + 1, l.trim()))
