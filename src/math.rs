@@ -34,6 +34,16 @@ pub fn scaled(scale: f64, v: f64) -> f64 {
     }
 }
 
+/// A number for a message: plain when moderate, `1e308` rather than 309 digits otherwise.
+#[must_use]
+pub fn short(v: f64) -> String {
+    if v.is_finite() && v != 0.0 && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

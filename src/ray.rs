@@ -43,7 +43,16 @@ impl Ray {
                 "non-finite origin {origin} or direction {direction}"
             )));
         }
-        let len = direction.length();
+        // A huge (1e308) or tiny finite direction whose length over- or underflows is scaled by
+        // its largest component first; ordinary ones are normalised as they are (bit for bit).
+        let mut len = direction.length();
+        let direction = if len.is_finite() && len > 1e-150 {
+            direction
+        } else {
+            let d = direction / direction.abs().max_element().max(f64::MIN_POSITIVE);
+            len = d.length();
+            d
+        };
         if len == 0.0 || !len.is_finite() {
             return Err(bad(format!("direction {direction} has no length")));
         }

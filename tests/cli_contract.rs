@@ -772,3 +772,104 @@ fn csv_with_a_byte_order_mark_and_control_characters_in_names() {
     assert!(!out.contains('\u{1b}') && !out.contains('\u{7}'), "{out:?}");
     assert!(out.contains("\\x1b[2J\\x07"), "{out}");
 }
+
+#[test]
+fn extreme_numbers_get_sensible_answers_and_messages() {
+    let dir = workdir();
+    let c = cloud();
+    // A light direction of 1e308 has a direction; a light at 1e300 is not "at the centre".
+    let o = run_in(
+        dir.path(),
+        &[
+            "query",
+            &c,
+            "--at",
+            "0,1.5,0",
+            "--light-dir=-1e308,-1e308,0",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let a = String::from_utf8_lossy(&o.stdout).to_string();
+    let o = run_in(
+        dir.path(),
+        &["query", &c, "--at", "0,1.5,0", "--light-dir=-1,-1,0"],
+    );
+    assert_eq!(
+        a,
+        String::from_utf8_lossy(&o.stdout),
+        "same direction, same answer"
+    );
+    let o = run_in(
+        dir.path(),
+        &[
+            "bake",
+            &c,
+            "--light-pos=1e300,1e300,0",
+            "--ortho",
+            "--res",
+            "8",
+            "-o",
+            "far.exr",
+            "-q",
+        ],
+    );
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!err.contains("centre"), "{err}");
+    // --fov 1e308: a short number in the message, not 309 digits.
+    let o = run_in(
+        dir.path(),
+        &[
+            "bake",
+            &c,
+            "--light-pos=3,3,3",
+            "--fov",
+            "1e308",
+            "-o",
+            "f.exr",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("1e308") && err.len() < 200, "{err}");
+    // --threads beyond any machine: refused at once with the limit.
+    let o = run_in(
+        dir.path(),
+        &[
+            "bake",
+            &c,
+            "--light-dir=1,0,0",
+            "--threads",
+            "100000",
+            "-o",
+            "t.exr",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("at most 1024"));
+    // A 100 kB CSV field is not echoed in full.
+    let long = "9".repeat(100_000);
+    std::fs::write(dir.path().join("long.csv"), format!("0,0,0,1,1,x{long}\n")).unwrap();
+    let o = run_in(dir.path(), &["query", &c, "--rays", "long.csv"]);
+    assert!(
+        o.stdout.len() + o.stderr.len() < 2_000,
+        "echoed {} bytes",
+        o.stdout.len()
+    );
+    // JSON tau: "inf" through an opaque voxel is not the null of an estimator without tau.
+    let o = run_in(
+        dir.path(),
+        &[
+            "query",
+            &c,
+            "--from",
+            "-2,1.5,0",
+            "--to",
+            "2,1.5,0",
+            "--json",
+            "--estimator",
+            "ratio",
+        ],
+    );
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["tau"].is_null());
+}

@@ -289,9 +289,15 @@ impl Camera {
     }
 }
 
-/// `v / |v|`, or `None` for a zero or non-finite vector.
+/// `v / |v|`, or `None` for a zero or non-finite vector. Scaled by its largest component first,
+/// so a vector like `(1e308, 0, 0)` (whose length overflows) still has a direction.
 pub(crate) fn normalise(v: DVec3) -> Option<DVec3> {
-    v.try_normalize()
+    v.try_normalize().or_else(|| {
+        let m = v.abs().max_element();
+        (m > 0.0 && m.is_finite())
+            .then(|| (v / m).try_normalize())
+            .flatten()
+    })
 }
 
 /// `+ 0.0` turns -0 into +0, so headers and JSON never show "-0".
@@ -483,7 +489,10 @@ impl Camera {
         let (w, h, s) = match view.fov_deg {
             Some(fov) => {
                 if !(fov > 0.0 && fov < 180.0) {
-                    return Err(bad("fov", format!("{fov} is not in (0, 180) degrees")));
+                    return Err(bad(
+                        "fov",
+                        format!("{} is not in (0, 180) degrees", crate::math::short(fov)),
+                    ));
                 }
                 let (w, h) = Resolution::size(view.res, 1.0, 1.0);
                 let s = 2.0 * (0.5 * fov.to_radians()).tan() / f64::from(w.max(h));

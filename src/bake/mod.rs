@@ -12,6 +12,7 @@
 //! settings, never on the thread count or the tile order.
 
 mod camera;
+pub(crate) use camera::normalise;
 mod matrix;
 mod output;
 mod pipeline;
@@ -23,4 +24,6 @@ pub use camera::{
 };
 pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
-pub use render::{bake, BakeSettings, BakeStats, Depths, Map, MAX_BATCHES, MAX_SLICES};
+pub use render::{
+    bake, check_threads, BakeSettings, BakeStats, Depths, Map, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
+};

@@ -28,6 +28,24 @@ pub enum Depths {
     At(Vec<f64>),
 }
 
+/// Most worker threads accepted (`--threads`): far more than any machine has cores, far fewer
+/// than make thread creation fail.
+pub const MAX_THREADS: usize = 1024;
+
+/// Check a thread count: 0 (all cores) to [`MAX_THREADS`].
+///
+/// # Errors
+/// [`Error::InvalidArgument`] naming `threads`, with the largest accepted value.
+pub fn check_threads(threads: usize) -> Result<()> {
+    if threads <= MAX_THREADS {
+        return Ok(());
+    }
+    Err(bad(
+        "threads",
+        format!("{threads} threads; at most {MAX_THREADS} (0 uses every core)"),
+    ))
+}
+
 /// How to bake.
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct BakeSettings {
@@ -73,6 +91,7 @@ impl BakeSettings {
                 return Err(bad("target-error", format!("{e} is not a positive number")));
             }
         }
+        check_threads(self.threads)?;
         if self.max_spp == 0 {
             return Err(bad("max-spp", "must be at least 1".into()));
         }

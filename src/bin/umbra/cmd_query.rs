@@ -178,8 +178,8 @@ fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
             .filter(|_| first_cols.len() == want.len())
             .ok_or_else(|| {
                 anyhow!(
-                    "{name}:{hline}: '{header}' is neither the header ox,oy,oz,ex,ey,ez nor \
-                     six numbers"
+                    "{name}:{hline}: '{}' is neither the header ox,oy,oz,ex,ey,ez nor six numbers",
+                    clip(header)
                 )
             })?
     };
@@ -195,7 +195,7 @@ fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
                     .zip(want)
                     .map(|(&i, w)| match f[i].parse::<f64>() {
                         Ok(x) if x.is_finite() => Ok(x),
-                        _ => Err(format!("{w} = '{}' is not a finite number", f[i])),
+                        _ => Err(format!("{w} = '{}' is not a finite number", clip(f[i]))),
                     })
                     .collect::<Result<_, _>>()?;
                 Ray::between([v[0], v[1], v[2]], [v[3], v[4], v[5]]).map_err(|e| e.to_string())
@@ -226,7 +226,7 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                 violations += e.majorant_violations;
                 if json {
                     let mut v = serde_json::json!({
-                        "T": e.value, "std_err": e.std_err, "tau": e.tau, "lookups": e.lookups,
+                        "T": e.value, "std_err": e.std_err, "tau": tau_json(e.tau), "lookups": e.lookups,
                         "estimator": est, "samples": e.samples, "interp": interp,
                         "length": ray.t_max(), "segments": e.segments, "capped": e.capped,
                         "seconds": seconds,
@@ -285,4 +285,24 @@ fn full(v: f64) -> String {
     } else {
         format!("{v:e}")
     }
+}
+
+/// `tau` in JSON: a number, `"inf"` through opaque voxels, `null` when the estimator does not
+/// compute it (only regular tracking is exact).
+fn tau_json(tau: Option<f64>) -> serde_json::Value {
+    match tau {
+        Some(t) if t.is_finite() => serde_json::json!(t),
+        Some(t) if t > 0.0 => serde_json::json!("inf"),
+        Some(_) => serde_json::json!("nan"),
+        None => serde_json::Value::Null,
+    }
+}
+
+/// A field from a file, cut to 40 characters for a message.
+fn clip(s: &str) -> String {
+    if s.chars().count() <= 40 {
+        return s.to_string();
+    }
+    let head: String = s.chars().take(40).collect();
+    format!("{head}... ({} bytes)", s.len())
 }

@@ -184,6 +184,7 @@ pub fn load_volume(file: &Path, grid: &str, density_scale: f64) -> Result<Volume
 
 /// A rayon pool of `threads` workers (0: as many as cores).
 pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
+    umbra::bake::check_threads(threads).map_err(flag_error)?;
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
         .build()
