@@ -129,6 +129,7 @@ pub fn stage(
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .ok_or_else(|| output_err(path, "not a file name"))?;
+    remove_stale(&dir, &name);
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let n = COUNTER.fetch_add(1, Ordering::Relaxed);
     let tmp = dir.join(format!(".{name}.umbra-{}-{n}.tmp", std::process::id()));
@@ -163,6 +164,32 @@ pub fn stage(
     file.sync_all()
         .map_err(|e| output_err(path, format!("writing: {e}")))?;
     Ok(staged)
+}
+
+/// Remove temporary files `.NAME.umbra-PID-N.tmp` for this target left by a process that no
+/// longer runs (a SIGKILL cannot be handled): Linux only (`/proc/PID`); elsewhere nothing is
+/// removed.
+fn remove_stale(dir: &Path, name: &str) {
+    let prefix = format!(".{name}.umbra-");
+    if !Path::new("/proc/self").exists() {
+        return;
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let file = e.file_name();
+        let Some(f) = file.to_str() else { continue };
+        let Some(rest) = f.strip_prefix(&prefix).and_then(|r| r.strip_suffix(".tmp")) else {
+            continue;
+        };
+        let Some(pid) = rest.split('-').next().and_then(|p| p.parse::<u32>().ok()) else {
+            continue;
+        };
+        if pid != std::process::id() && !Path::new(&format!("/proc/{pid}")).exists() {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
 }
 
 /// Write `path` atomically: [`stage`] then [`Staged::commit`].

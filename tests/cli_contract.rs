@@ -873,3 +873,38 @@ fn extreme_numbers_get_sensible_answers_and_messages() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(v["tau"].is_null());
 }
+
+#[test]
+fn stale_temporaries_of_killed_runs_are_removed_and_log_dirs_are_not_invented() {
+    let dir = workdir();
+    // What a SIGKILLed run leaves: its pid (beyond any pid_max) no longer runs.
+    let stale = dir.path().join(".m.exr.umbra-999999999-0.tmp");
+    std::fs::write(&stale, b"half a map").unwrap();
+    let o = run_in(
+        dir.path(),
+        &[
+            "bake",
+            &cloud(),
+            "--light-dir=1,0,0",
+            "--res",
+            "8",
+            "-o",
+            "m.exr",
+            "-q",
+        ],
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!stale.exists(), "the stale temporary is still there");
+    let o = run_in(
+        dir.path(),
+        &[
+            "batch",
+            "job.toml",
+            "--log",
+            "/nonexistent-umbra/dir/x.jsonl",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(1));
+    assert!(!Path::new("/nonexistent-umbra").exists());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("--log"));
+}

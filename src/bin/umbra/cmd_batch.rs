@@ -80,6 +80,19 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         (None, None) => job.tasks.iter().collect(),
     };
     let log_path = a.log.clone().unwrap_or_else(|| job.log.clone());
+    // An explicit --log goes into an existing directory (a typo must not create /nonexistent);
+    // the job's own log sits beside its outputs, whose directories the job creates.
+    if let Some(d) = a
+        .log
+        .as_ref()
+        .and_then(|l| l.parent())
+        .filter(|d| !d.as_os_str().is_empty() && !d.is_dir())
+    {
+        bail!(
+            "invalid argument '--log': no directory {} (create it first)",
+            d.display()
+        );
+    }
     if let Some(d) = log_path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
     }
