@@ -266,6 +266,22 @@ pub fn check_target(path: &Path, overwrite: bool) -> Result<()> {
     Ok(())
 }
 
+/// Whether two paths name the same file (compared after resolving the directory, so `a.exr`,
+/// `./a.exr` and an absolute spelling match).
+#[must_use]
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    let canon = |p: &Path| {
+        let dir = match p.parent().filter(|d| !d.as_os_str().is_empty()) {
+            Some(d) => d.to_path_buf(),
+            None => PathBuf::from("."),
+        };
+        std::fs::canonicalize(&dir)
+            .ok()
+            .map(|d| d.join(p.file_name().unwrap_or_default()))
+    };
+    a == b || matches!((canon(a), canon(b)), (Some(x), Some(y)) if x == y)
+}
+
 /// Check, before a long computation, that `path` can be created: [`check_target`] plus a probe
 /// file created and removed in its directory (what catches read-only mounts, `/sys`, missing
 /// permissions for other users).

@@ -95,7 +95,7 @@ pub fn write_map(
     prov: &Provenance,
     overwrite: bool,
 ) -> Result<()> {
-    if png.is_some_and(|p| super::pipeline::same_file(p, exr)) {
+    if png.is_some_and(|p| crate::output::same_file(p, exr)) {
         return Err(output_err(exr, "the preview and the map are the same file"));
     }
     let bytes = encode_exr(map, prov).map_err(|e| output_err(exr, e))?;

@@ -196,7 +196,7 @@ impl BakeJob {
         if let Some(p) = &self.preview {
             check_writable(p, self.overwrite)?;
             check_extension(p, "png", "preview", "the preview is written as PNG")?;
-            if same_file(p, &self.output) {
+            if crate::output::same_file(p, &self.output) {
                 return Err(Error::Output {
                     path: p.clone(),
                     reason: "the preview and the map are the same file".into(),
@@ -212,11 +212,22 @@ impl BakeJob {
     /// # Errors
     /// Output, load, framing, settings and write errors; nothing is written on error.
     pub fn run(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<BakeReport> {
+        let (vol, camera) = self.prepare()?;
+        self.run_on(vol, camera, progress)
+    }
+
+    /// Everything before the bake, in the order that fails fastest: check the outputs and the
+    /// settings, load the grid, frame the camera. [`BakeJob::run`] is `prepare` then
+    /// [`BakeJob::run_on`]; callers that want the pixel count first (a progress bar) split it.
+    ///
+    /// # Errors
+    /// Output, settings, load and framing errors.
+    pub fn prepare(&self) -> Result<(Volume, Camera)> {
         self.check_outputs()?;
         self.settings.validate()?;
         let vol = Volume::load(&self.input, &self.grid, self.density_scale)?;
         let camera = Camera::frame(&self.view, &vol.box_corners()?)?;
-        self.run_on(vol, camera, progress)
+        Ok((vol, camera))
     }
 
     /// [`BakeJob::run`] on a volume already loaded and a camera already framed (`input`,
@@ -291,19 +302,4 @@ fn check_extension(path: &std::path::Path, ext: &str, flag: &str, what: &str) ->
             path.display()
         ),
     })
-}
-
-/// Whether two paths name the same file (compared after resolving the directory, so
-/// `a.exr` and `./a.exr` or an absolute spelling match).
-pub(crate) fn same_file(a: &std::path::Path, b: &std::path::Path) -> bool {
-    let canon = |p: &std::path::Path| {
-        let dir = match p.parent().filter(|d| !d.as_os_str().is_empty()) {
-            Some(d) => d.to_path_buf(),
-            None => std::path::PathBuf::from("."),
-        };
-        std::fs::canonicalize(&dir)
-            .ok()
-            .map(|d| d.join(p.file_name().unwrap_or_default()))
-    };
-    a == b || matches!((canon(a), canon(b)), (Some(x), Some(y)) if x == y)
 }

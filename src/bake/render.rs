@@ -76,15 +76,10 @@ impl BakeSettings {
     /// # Errors
     /// [`Error::InvalidArgument`] naming the setting.
     pub fn validate(&self) -> Result<()> {
-        self.options.validate().map_err(|_| {
-            bad(
-                if self.options.samples == 0 {
-                    "spp"
-                } else {
-                    "max-collisions"
-                },
-                "must be at least 1".into(),
-            )
+        // A bake calls the samples per pixel `spp`.
+        self.options.validate().map_err(|e| match e {
+            Error::InvalidArgument { name, reason } if name == "samples" => bad("spp", reason),
+            other => other,
         })?;
         if let Some(e) = self.target_error {
             if !(e.is_finite() && e > 0.0) {

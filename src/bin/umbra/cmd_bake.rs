@@ -164,12 +164,12 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         preview: a.preview.clone(),
         overwrite: a.force,
     };
-    job.check_outputs().map_err(crate::common::flag_error)?;
-    job.settings.validate().map_err(crate::common::flag_error)?;
-    let vol = umbra::Volume::load(&job.input, &job.grid, job.density_scale)
-        .with_context(|| format!("loading grid '{}'", job.grid))?;
-    let camera = umbra::bake::Camera::frame(&job.view, &vol.box_corners()?)
-        .map_err(crate::common::flag_error)?;
+    let (vol, camera) = job.prepare().map_err(|e| match e {
+        umbra::Error::Output { .. } | umbra::Error::InvalidArgument { .. } => {
+            anyhow::Error::from(crate::common::flag_error(e))
+        }
+        other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
+    })?;
     let bar = progress_bar(
         a.quiet,
         "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
