@@ -45,7 +45,7 @@ pub enum Error {
         what: String,
     },
     /// The requested grid is not in the file.
-    #[error("{}: no grid named '{name}' (available: {})", path.display(), if available.is_empty() { "none".to_string() } else { available.join(", ") })]
+    #[error("{}: no grid named '{}' (available: {})", path.display(), crate::text::escape(name), if available.is_empty() { "none".to_string() } else { available.iter().map(|a| crate::text::escape(a)).collect::<Vec<_>>().join(", ") })]
     GridNotFound {
         /// File concerned.
         path: PathBuf,
@@ -77,8 +77,15 @@ pub enum Error {
 /// [`DecodeError::at`] attaches the file name at the module boundary.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub(crate) enum DecodeError {
-    /// The data ran out before a field was complete.
-    Truncated(String),
+    /// The data ran out before a field was complete. `need` is the absolute file offset one
+    /// past the last byte the field needs, so a reader over a window of the file knows how far
+    /// to grow it, or that no file of this length can hold the field.
+    Truncated {
+        /// What ran out, where.
+        msg: String,
+        /// Absolute end offset the field needs (saturating).
+        need: u64,
+    },
     /// The data is corrupt.
     Invalid(String),
     /// The data uses an unsupported feature.
@@ -95,7 +102,7 @@ impl DecodeError {
     /// Attach the file path, turning this into a public [`Error`].
     pub(crate) fn at(self, path: &std::path::Path) -> Error {
         match self {
-            Self::Invalid(reason) | Self::Truncated(reason) => Error::Invalid {
+            Self::Invalid(reason) | Self::Truncated { msg: reason, .. } => Error::Invalid {
                 path: path.to_path_buf(),
                 reason,
             },

@@ -65,6 +65,7 @@ pub mod output;
 pub mod ray;
 pub mod regular;
 pub mod rng;
+pub mod text;
 pub mod traverse;
 pub mod tree;
 pub mod vdb;

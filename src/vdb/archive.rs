@@ -121,28 +121,55 @@ pub(crate) fn read_window(file: &mut File, offset: u64, len: u64, path: &Path) -
     Ok(buf)
 }
 
-/// Parse with a window at `offset` that doubles until the parser stops running out of bytes or
-/// the window reaches the end of the file.
-fn parse_window<T>(
+/// Parse the bytes `[offset, limit)` of `file` through a window that starts at `first` bytes
+/// and grows (at least fourfold, or to what the parser asked for) while the parser runs out of
+/// bytes. A field that needs bytes past `limit` fails at once, before anything that size is
+/// read: no corrupt length makes umbra read more of a file than the region it belongs to, and
+/// what it reads is what the parser consumed (within a factor of four). `region` names the
+/// limit in the error ("the file", "grid 'density'").
+pub(crate) fn parse_window<T>(
     file: &mut File,
-    file_len: u64,
-    offset: u64,
+    (offset, limit): (u64, u64),
+    first: u64,
+    region: &str,
     path: &Path,
     mut parse: impl FnMut(&mut ByteReader<'_>) -> DecodeResult<T>,
 ) -> Result<(T, u64)> {
-    let mut len: u64 = 1 << 16;
+    let mut len = first.min(limit.saturating_sub(offset));
     loop {
         let buf = read_window(file, offset, len, path)?;
         let mut r = ByteReader::new(&buf, offset);
         match parse(&mut r) {
             Ok(v) => return Ok((v, r.offset())),
-            Err(DecodeError::Truncated(_)) if offset.saturating_add(len) < file_len => {
-                len = len.saturating_mul(4);
+            Err(DecodeError::Truncated { msg, need }) => {
+                if need > limit {
+                    return Err(DecodeError::invalid(format!(
+                        "{msg}, past the end of {region} at offset {limit}"
+                    ))
+                    .at(path));
+                }
+                if (buf.len() as u64) < len {
+                    return Err(DecodeError::invalid(format!(
+                        "{msg}, but the file ends at offset {}",
+                        offset + buf.len() as u64
+                    ))
+                    .at(path));
+                }
+                len = len.saturating_mul(4).max(need - offset).min(limit - offset);
             }
             Err(e) => return Err(e.at(path)),
         }
     }
 }
+
+/// The smallest grid descriptor: three empty strings (u32 lengths) and three i64 offsets.
+const MIN_DESCRIPTOR_BYTES: u64 = 3 * 4 + 3 * 8;
+/// The smallest grid: compression flags and an empty metadata map (u32 each), then at least a
+/// transform type name's length.
+const MIN_GRID_BYTES: u64 = 3 * 4;
+/// First window for a descriptor: names are short, and a file of many tiny grids must not cost
+/// a large read per grid.
+const DESCRIPTOR_WINDOW: u64 = 512;
 
 impl Archive {
     /// Open `path` and read its header and grid directory.
@@ -176,7 +203,14 @@ impl Archive {
         if head[..] != VDB_MAGIC {
             return Err(not_vdb("bad magic number"));
         }
-        let (header, mut pos) = parse_window(&mut file, file_len, 8, path, read_header)?;
+        let (header, mut pos) = parse_window(
+            &mut file,
+            (8, file_len),
+            1 << 16,
+            "the file",
+            path,
+            read_header,
+        )?;
         let Header {
             file_version,
             library_version,
@@ -191,16 +225,27 @@ impl Archive {
                 what: "VDB stream without grid offsets".into(),
             });
         }
+        // Every grid takes at least a descriptor and a minimal grid, so a count the rest of the
+        // file cannot hold is refused before anything is allocated or read.
+        let room = (file_len - pos) / (MIN_DESCRIPTOR_BYTES + MIN_GRID_BYTES);
+        if u64::from(count) > room {
+            return Err(DecodeError::invalid(format!(
+                "the header says {count} grids, but the {} bytes after it can hold at most {room}",
+                file_len - pos
+            ))
+            .at(path));
+        }
         let mut grids = Vec::new();
         for i in 0..count {
-            if pos >= file_len {
-                return Err(DecodeError::invalid(format!(
-                    "grid descriptor {i} of {count} starts at offset {pos}, past the end of the file ({file_len} bytes)"
-                ))
-                .at(path));
-            }
-            let (gd, _) = parse_window(&mut file, file_len, pos, path, read_descriptor)?;
-            validate_offsets(&gd, i, file_len).map_err(|e| e.at(path))?;
+            let (gd, desc_end) = parse_window(
+                &mut file,
+                (pos, file_len),
+                DESCRIPTOR_WINDOW,
+                "the file",
+                path,
+                read_descriptor,
+            )?;
+            validate_offsets(&gd, i, count, desc_end, file_len).map_err(|e| e.at(path))?;
             pos = gd.end_pos;
             grids.push(gd);
         }
@@ -304,11 +349,35 @@ fn read_descriptor(r: &mut ByteReader<'_>) -> DecodeResult<GridDescriptor> {
     })
 }
 
-fn validate_offsets(gd: &GridDescriptor, index: u32, file_len: u64) -> DecodeResult<()> {
-    if !(gd.grid_pos <= gd.block_pos && gd.block_pos <= gd.end_pos && gd.end_pos <= file_len) {
+/// A grid's offsets must follow its descriptor in order (`desc_end <= grid_pos <= block_pos <=
+/// end_pos <= file length`, with room for a minimal grid), so the descriptor chain only moves
+/// forward: it cannot point back at itself or loop, and its length is bounded by the file's.
+fn validate_offsets(
+    gd: &GridDescriptor,
+    index: u32,
+    count: u32,
+    desc_end: u64,
+    file_len: u64,
+) -> DecodeResult<()> {
+    let name = crate::text::escape(&gd.display_name);
+    let (g, b, e) = (gd.grid_pos, gd.block_pos, gd.end_pos);
+    if g < desc_end {
         return Err(DecodeError::invalid(format!(
-            "grid {index} ('{}') has offsets grid {} / block {} / end {} outside the file ({file_len} bytes)",
-            gd.display_name, gd.grid_pos, gd.block_pos, gd.end_pos
+            "grid {index} of {count} ('{name}') starts at offset {g}, inside or before its own \
+             descriptor (which ends at {desc_end}): the grid descriptors loop"
+        )));
+    }
+    if !(g <= b && b <= e && e <= file_len) {
+        return Err(DecodeError::invalid(format!(
+            "grid {index} of {count} ('{name}') has offsets grid {g} / block {b} / end {e} out of \
+             order or outside the file ({file_len} bytes)"
+        )));
+    }
+    if b - g < MIN_GRID_BYTES {
+        return Err(DecodeError::invalid(format!(
+            "grid {index} of {count} ('{name}') spans {} bytes (offsets {g} to {b}), too few for \
+             its compression flags, metadata and transform",
+            b - g
         )));
     }
     Ok(())

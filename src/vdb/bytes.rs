@@ -32,11 +32,13 @@ impl<'a> ByteReader<'a> {
     /// Take the next `n` bytes, or fail with a truncation error naming `what`.
     pub(crate) fn take(&mut self, n: usize, what: &str) -> DecodeResult<&'a [u8]> {
         if n > self.remaining() {
-            return Err(DecodeError::Truncated(format!(
-                "truncated: {what} needs {n} bytes at offset {} but only {} remain",
-                self.offset(),
-                self.remaining()
-            )));
+            return Err(DecodeError::Truncated {
+                msg: format!(
+                    "truncated: {what} needs {n} bytes at offset {}",
+                    self.offset()
+                ),
+                need: self.offset().saturating_add(n as u64),
+            });
         }
         let s = &self.data[self.pos..self.pos + n];
         self.pos += n;
@@ -109,8 +111,9 @@ mod tests {
         assert_eq!(r.offset(), 104);
         let err = r.u32("field b").err();
         match err {
-            Some(DecodeError::Truncated(m)) => {
-                assert!(m.contains("field b") && m.contains("offset 104"), "{m}")
+            Some(DecodeError::Truncated { msg: m, need }) => {
+                assert!(m.contains("field b") && m.contains("offset 104"), "{m}");
+                assert_eq!(need, 108);
             }
             other => panic!("unexpected {other:?}"),
         }

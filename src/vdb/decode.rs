@@ -50,7 +50,16 @@ impl<'f> BufferWindow<'f> {
                     self.used = usize::try_from(r.offset() - self.base).unwrap_or(usize::MAX);
                     return Ok(v);
                 }
-                Err(DecodeError::Truncated(_)) if self.loaded_end() < self.end => self.refill()?,
+                Err(DecodeError::Truncated { msg, need }) => {
+                    if need > self.end {
+                        return Err(DecodeError::invalid(format!(
+                            "{msg}, past the end of the grid's leaf buffers at offset {}",
+                            self.end
+                        ))
+                        .at(self.path));
+                    }
+                    self.refill(need)?;
+                }
                 Err(e) => return Err(e.at(self.path)),
             }
         }
@@ -61,14 +70,15 @@ impl<'f> BufferWindow<'f> {
     }
 
     /// Drop the decoded bytes, then read at least a window (or twice what is left undecoded,
-    /// for a buffer larger than a window) up to the end of the region.
-    fn refill(&mut self) -> Result<()> {
+    /// or up to `need`, the offset the decoder asked for) up to the end of the region.
+    fn refill(&mut self, need: u64) -> Result<()> {
         self.buf.drain(..self.used);
         self.base += self.used as u64;
         self.used = 0;
         let at = self.loaded_end();
         let want = (WINDOW as u64)
             .max(2 * self.buf.len() as u64)
+            .max(need.saturating_sub(at))
             .min(self.end - at);
         let io = |err| Error::Io {
             path: self.path.to_path_buf(),
@@ -94,28 +104,44 @@ impl<'f> BufferWindow<'f> {
     }
 }
 
-/// Decode topology (from `r`, which must hold exactly the bytes up to `block_pos`, where the
-/// descriptor says the buffers start) then the leaf buffers (from `buffers`).
-pub(crate) fn decode_tree(
+/// A grid's topology, decoded: the tree without leaf values, the leaves' origins and masks in
+/// buffer order, and the stream settings the buffers are decoded with.
+pub(crate) struct Topology {
+    tree: Tree,
+    leaves: Vec<LeafTopology>,
+    stream: StreamInfo,
+}
+
+/// Decode the topology from `r`, which must end exactly at `block_pos`, where the descriptor
+/// says the buffers start. A truncation is returned as such (with the offset it needs), so a
+/// windowed reader can grow its window; past `block_pos` it is the caller's error to report.
+pub(crate) fn read_topology(
     r: &mut ByteReader<'_>,
     kind: ValueKind,
     half: bool,
     compression: super::Compression,
     block_pos: u64,
+) -> DecodeResult<Topology> {
+    let (tree, leaves, stream) = decode_topology(r, kind, half, compression, block_pos)?;
+    Ok(Topology {
+        tree,
+        leaves,
+        stream,
+    })
+}
+
+/// Read the leaf buffers of `topo` from `buffers` and finish the tree (bounds).
+pub(crate) fn decode_buffers(
+    topo: Topology,
     buffers: &mut BufferWindow<'_>,
 ) -> Result<(Tree, Option<PrecisionLoss>)> {
-    let path = buffers.path;
-    let (mut tree, leaf_topo, s) = decode_topology(r, kind, half, compression, block_pos)
-        .map_err(|e| match e {
-            DecodeError::Truncated(m) => DecodeError::invalid(format!(
-                "{m}: the topology runs past offset {block_pos}, where the grid descriptor puts \
-                 the leaf buffers"
-            )),
-            other => other,
-        })
-        .map_err(|e| e.at(path))?;
-    tree.leaves.reserve_exact(leaf_topo.len());
-    for (origin, value_mask) in leaf_topo {
+    let Topology {
+        mut tree,
+        leaves,
+        stream: s,
+    } = topo;
+    tree.leaves.reserve_exact(leaves.len());
+    for (origin, value_mask) in leaves {
         tree.leaves.push(Leaf {
             origin,
             value_mask,
@@ -128,7 +154,7 @@ pub(crate) fn decode_tree(
         }
     }
     tree.compute_bounds();
-    let precision = (kind == ValueKind::Double && !half).then(|| s.precision.get());
+    let precision = (s.kind == ValueKind::Double && !s.half).then(|| s.precision.get());
     Ok((tree, precision))
 }
 

@@ -17,8 +17,8 @@ pub use transform::{FrustumParams, Transform};
 pub use values::{PrecisionLoss, ValueKind};
 
 use crate::error::{DecodeError, Error, Result};
+use crate::text;
 use crate::tree::Tree;
-use bytes::ByteReader;
 use std::path::Path;
 
 /// One decoded grid: its identity, transform, metadata and tree.
@@ -72,89 +72,150 @@ pub fn load_grid(path: impl AsRef<Path>, name: &str) -> Result<Grid> {
     archive.load(&gd)
 }
 
+/// First window for a grid's head (metadata, transform, topology): most topologies fit.
+const HEAD_WINDOW: u64 = 1 << 16;
+
+/// A grid's head: what precedes its leaf buffers.
+struct Head {
+    compression: Compression,
+    metadata: MetaMap,
+    transform: Transform,
+    topology: Option<decode::Topology>,
+}
+
 impl Archive {
     /// Decode the grid described by `gd` (which must come from this archive). Reads only the
-    /// bytes between the grid's offsets (and its instance parent's, for instanced grids).
+    /// bytes between the grid's offsets (and its instance parent's, for instanced grids), and
+    /// of those only what the decoder consumes: the head through a growing window, the leaf
+    /// buffers streamed.
     ///
     /// # Errors
-    /// [`Error::Io`], [`Error::Invalid`] or [`Error::Unsupported`], naming the file.
+    /// [`Error::Io`], [`Error::Invalid`] or [`Error::Unsupported`], naming the file; an
+    /// instanced grid whose parent is missing, is itself, is an instance or has another tree
+    /// type is [`Error::Invalid`].
     pub fn load(&self, gd: &GridDescriptor) -> Result<Grid> {
         let path = &self.path;
         let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(path))?;
-        let bytes = self.grid_head(gd)?;
-        let mut r = ByteReader::new(&bytes, gd.grid_pos);
-        let compression =
-            Compression::from_flags(r.u32("compression flags").map_err(|e| e.at(path))?);
-        let metadata = metadata::read_meta_map(&mut r).map_err(|e| e.at(path))?;
-        let transform = transform::read_transform(&mut r).map_err(|e| e.at(path))?;
-        let (tree, precision_loss) = if gd.instance_parent.is_empty() {
-            let mut file = std::fs::File::open(path).map_err(|err| Error::Io {
-                path: path.clone(),
-                err,
-            })?;
-            let mut buffers = decode::BufferWindow::new(&mut file, path, gd.block_pos, gd.end_pos);
-            decode::decode_tree(
-                &mut r,
-                kind,
-                gd.saved_as_half,
-                compression,
-                gd.block_pos,
-                &mut buffers,
-            )?
+        let parent = if gd.instance_parent.is_empty() {
+            None
         } else {
-            let parent = self.instance_parent(gd)?;
-            (parent.tree, parent.precision_loss)
+            Some(self.instance_parent(gd)?)
         };
+        let mut file = std::fs::File::open(path).map_err(|err| Error::Io {
+            path: path.clone(),
+            err,
+        })?;
+        let region = format!("grid '{}'", text::escape(&gd.display_name));
+        let (head, _) = archive::parse_window(
+            &mut file,
+            (gd.grid_pos, gd.block_pos),
+            HEAD_WINDOW,
+            &region,
+            path,
+            |r| {
+                let compression = Compression::from_flags(r.u32("compression flags")?);
+                let metadata = metadata::read_meta_map(r)?;
+                let transform = transform::read_transform(r)?;
+                let topology = if parent.is_none() {
+                    let t = decode::read_topology(
+                        r,
+                        kind,
+                        gd.saved_as_half,
+                        compression,
+                        gd.block_pos,
+                    )?;
+                    Some(t)
+                } else {
+                    None
+                };
+                Ok(Head {
+                    compression,
+                    metadata,
+                    transform,
+                    topology,
+                })
+            },
+        )?;
+        let (tree, precision_loss) = match (head.topology, parent) {
+            (Some(topology), _) => {
+                let mut buffers =
+                    decode::BufferWindow::new(&mut file, path, gd.block_pos, gd.end_pos);
+                decode::decode_buffers(topology, &mut buffers)?
+            }
+            (None, Some(parent)) => {
+                let p = self.load(parent)?;
+                (p.tree, p.precision_loss)
+            }
+            (None, None) => unreachable_head(path)?,
+        };
+        let metadata = head.metadata;
         let class = metadata::meta_string(&metadata, "class").map(str::to_string);
         Ok(Grid {
             name: gd.display_name.clone(),
             stored_name: gd.stored_name.clone(),
             value_type: kind,
             class,
-            transform,
+            transform: head.transform,
             metadata,
-            compression,
+            compression: head.compression,
             saved_as_half: gd.saved_as_half,
             tree,
             precision_loss,
         })
     }
 
-    /// The grid's bytes before its leaf buffers: metadata, transform and topology
-    /// (`[grid_pos, block_pos)`; the buffers are streamed by the decoder).
-    fn grid_head(&self, gd: &GridDescriptor) -> Result<Vec<u8>> {
-        let mut file = std::fs::File::open(&self.path).map_err(|err| Error::Io {
-            path: self.path.clone(),
-            err,
-        })?;
-        let len = gd.block_pos - gd.grid_pos;
-        let bytes = archive::read_window(&mut file, gd.grid_pos, len, &self.path)?;
-        if bytes.len() as u64 != len {
-            return Err(DecodeError::invalid(format!(
-                "grid '{}' topology ends at offset {} but the file has only {} bytes",
-                gd.display_name,
-                gd.block_pos,
-                gd.grid_pos + bytes.len() as u64
-            ))
-            .at(&self.path));
+    /// The grid whose tree an instanced grid shares (OpenVDB grid instancing). OpenVDB writes
+    /// the first grid that holds a tree in full and later grids sharing it as instances naming
+    /// it, so the parent must be another grid of this file, not itself an instance (no
+    /// chains, no cycles), with the same tree type (a float grid cannot share a vec3s tree;
+    /// OpenVDB refuses such a file too).
+    fn instance_parent(&self, gd: &GridDescriptor) -> Result<&GridDescriptor> {
+        let bad = |reason: String| DecodeError::invalid(reason).at(&self.path);
+        let name = text::escape(&gd.display_name);
+        if gd.instance_parent == gd.stored_name {
+            return Err(bad(format!(
+                "grid '{name}' is an instance of itself: the file has no tree for it"
+            )));
         }
-        Ok(bytes)
-    }
-
-    /// An instanced grid shares its parent's tree (OpenVDB grid instancing).
-    fn instance_parent(&self, gd: &GridDescriptor) -> Result<Grid> {
+        let parent_name = display_name(&gd.instance_parent);
+        let parent_name = text::escape(&parent_name);
         let parent = self
             .grids
             .iter()
-            .find(|g| g.stored_name == gd.instance_parent && g.instance_parent.is_empty())
+            .find(|g| g.stored_name == gd.instance_parent)
             .ok_or_else(|| {
-                DecodeError::invalid(format!(
-                    "grid '{}' is an instance of '{}', which is not in the file",
-                    gd.display_name,
-                    display_name(&gd.instance_parent)
+                bad(format!(
+                    "grid '{name}' is an instance of '{parent_name}', which is not in the file"
                 ))
-                .at(&self.path)
             })?;
-        self.load(parent)
+        if !parent.instance_parent.is_empty() {
+            return Err(bad(format!(
+                "grid '{name}' is an instance of '{parent_name}', which is itself an instance \
+                 (of '{}'); OpenVDB instances always name the grid that holds the tree",
+                text::escape(&display_name(&parent.instance_parent))
+            )));
+        }
+        if parent.tree_type != gd.tree_type || parent.saved_as_half != gd.saved_as_half {
+            let t = |g: &GridDescriptor| {
+                format!(
+                    "{}{}",
+                    text::escape(&g.tree_type),
+                    if g.saved_as_half { " (half)" } else { "" }
+                )
+            };
+            return Err(bad(format!(
+                "grid '{name}' of type {} is an instance of '{parent_name}' of type {}: an \
+                 instance must share its parent's tree type",
+                t(gd),
+                t(parent)
+            )));
+        }
+        Ok(parent)
     }
+}
+
+/// A grid with neither topology nor parent cannot be reached (`load` reads a topology exactly
+/// when there is no parent); reported as corrupt rather than asserted.
+fn unreachable_head<T>(path: &Path) -> Result<T> {
+    Err(DecodeError::invalid("grid has neither a tree nor an instance parent").at(path))
 }

@@ -241,7 +241,7 @@ pub(crate) fn read_data<'x, 'a: 'x>(
     };
     match out {
         Ok(()) => Ok(&scratch[..nbytes]),
-        Err(DecodeError::Invalid(m) | DecodeError::Truncated(m)) => {
+        Err(DecodeError::Invalid(m) | DecodeError::Truncated { msg: m, .. }) => {
             Err(DecodeError::invalid(format!("{m} (block at offset {at})")))
         }
         Err(other) => Err(other),
