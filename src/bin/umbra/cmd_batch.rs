@@ -171,9 +171,10 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
                         failed.fetch_add(1, Ordering::Relaxed);
                         bar.suspend(|| {
                             eprintln!(
-                                "umbra: task {} ({}) failed: {e}",
+                                "umbra: task {} ({}) failed: {}",
                                 t.index,
-                                t.input.display()
+                                t.input.display(),
+                                umbra::text::escape(&e.to_string())
                             );
                         });
                         record(&job, t, "failed", secs, 0.0, Some(e.to_string()))

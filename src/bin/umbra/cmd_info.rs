@@ -79,8 +79,9 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
         reports.iter().map(|f| f.grids.len()).sum::<usize>() + a.files.len() - reports.len();
     if let Some(first) = failed.first() {
         eprintln!(
-            "umbra: error: {} of {total} grids or files could not be read (first: {first})",
-            failed.len()
+            "umbra: error: {} of {total} grids or files could not be read (first: {})",
+            failed.len(),
+            umbra::text::escape(first)
         );
         // Partial failure (3) when something was described; nothing readable is an error (1).
         return Ok(ExitCode::from(if failed.len() < total { 3 } else { 1 }));
@@ -91,15 +92,7 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
 /// `s` with control characters (ESC, BEL, newlines...) written as `\xNN`, so a name from a
 /// file cannot drive the terminal.
 fn esc(s: &str) -> String {
-    s.chars()
-        .map(|c| {
-            if c.is_control() {
-                format!("\\x{:02x}", u32::from(c))
-            } else {
-                c.to_string()
-            }
-        })
-        .collect()
+    umbra::text::escape(s).into_owned()
 }
 
 /// A number as a person reads it: integers plainly, others with 6 significant digits

@@ -267,9 +267,10 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
     }
     if let Some(first) = failed.first() {
         eprintln!(
-            "umbra: error: {} of {} queries failed (first: {first})",
+            "umbra: error: {} of {} queries failed (first: {})",
             failed.len(),
-            answers.len()
+            answers.len(),
+            umbra::text::escape(first)
         );
         return Ok(ExitCode::from(3));
     }

@@ -176,7 +176,7 @@ pub fn load_volume(file: &Path, grid: &str, density_scale: f64) -> Result<Volume
         eprintln!(
             "umbra: warning: {}: grid '{}': {w}",
             file.display(),
-            vol.name()
+            umbra::text::escape(vol.name())
         );
     }
     Ok(vol)

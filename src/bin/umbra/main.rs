@@ -89,7 +89,8 @@ fn main() -> ExitCode {
             }) {
                 return ExitCode::SUCCESS;
             }
-            eprintln!("umbra: error: {e:#}");
+            // One line, whatever names from files or arguments the message carries.
+            eprintln!("umbra: error: {}", umbra::text::escape(&format!("{e:#}")));
             ExitCode::FAILURE
         }
     }
