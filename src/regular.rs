@@ -180,7 +180,7 @@ fn leaf_integral(
                     src.blocks[k] = match nb.map(|n| n[k - 1]) {
                         Some(Neighbour::Leaf(i)) => Block::Leaf(&tree.leaves[i as usize].values),
                         Some(Neighbour::Const(c)) => Block::Const(c),
-                        _ => acc.block([0, 1, 2].map(|a| (o[a] + 8 * bits[a] as i64) as i32)),
+                        _ => acc.block_at([0, 1, 2].map(|a| o[a] + 8 * bits[a] as i64)),
                     };
                 }
             }
@@ -211,10 +211,10 @@ impl CornerSource for AccSource<'_, '_> {
     #[inline]
     fn get(&mut self, k: usize) -> f32 {
         let c = self.cell;
-        self.acc.value([
-            (c[0] + (k >> 2) as i64) as i32,
-            (c[1] + ((k >> 1) & 1) as i64) as i32,
-            (c[2] + (k & 1) as i64) as i32,
+        self.acc.value_at([
+            c[0] + (k >> 2) as i64,
+            c[1] + ((k >> 1) & 1) as i64,
+            c[2] + (k & 1) as i64,
         ])
     }
 }

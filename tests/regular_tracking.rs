@@ -330,3 +330,56 @@ proptest! {
         prop_assert!(close(t, bt, 1e-6), "trilinear {t} vs brute {bt}");
     }
 }
+
+/// Optical depth and a few sampled estimators along `+z` through a full leaf of ones at `o`
+/// (plus, optionally, a second leaf at the opposite corner of the `i32` range, which a wrapped
+/// or clamped coordinate would read).
+fn edge_leaf_tau(o: [i32; 3], opposite: bool, interp: Interp) -> f64 {
+    let mut b = TreeBuilder::new(0.0);
+    for x in 0..8 {
+        for y in 0..8 {
+            for z in 0..8 {
+                b.set([o[0] + x, o[1] + y, o[2] + z], 1.0);
+                if opposite {
+                    b.set([i32::MAX - x, i32::MAX - y, i32::MAX - z], 1.0);
+                }
+            }
+        }
+    }
+    let m = [
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+    ];
+    let vol = Volume::from_tree("edge".into(), b.build(), m, 1.0).unwrap();
+    let c = [
+        f64::from(o[0]) + 3.3,
+        f64::from(o[1]) + 4.1,
+        f64::from(o[2]) - 5.0,
+    ];
+    let ray = Ray::new(c, [0.0, 0.0, 1.0], 0.0, 20.0).unwrap();
+    optical_depth(&vol, &ray, interp).unwrap().tau
+}
+
+/// A leaf at the minimum `i32` corner integrates exactly like the same leaf at the origin:
+/// trilinear lookups there read one voxel below the range, which is background (it used to be
+/// dropped with its root cell, giving 7.5 instead of 8, or to wrap to the far corner).
+#[test]
+fn leaves_at_the_edges_of_the_i32_range_integrate_like_at_the_origin() {
+    for interp in [Interp::Nearest, Interp::Trilinear] {
+        let at_origin = edge_leaf_tau([0; 3], false, interp);
+        assert!((at_origin - 8.0).abs() < 1e-12, "{interp:?}: {at_origin}");
+        for (o, opposite) in [
+            ([i32::MIN; 3], false),
+            ([i32::MIN; 3], true),
+            ([i32::MAX - 7; 3], false),
+            ([i32::MIN, 0, i32::MAX - 7], false),
+        ] {
+            let tau = edge_leaf_tau(o, opposite, interp);
+            assert!(
+                (tau - at_origin).abs() < 1e-9,
+                "{interp:?} leaf at {o:?} (opposite corner filled: {opposite}): {tau} vs {at_origin}"
+            );
+        }
+    }
+}

@@ -44,7 +44,7 @@ impl<'v> RayMedium<'v> {
         let p = [0, 1, 2].map(|a| self.q[a] + self.d[a] * t);
         let v = match self.interp {
             // In lookup space the nearest voxel is floor(q).
-            Interp::Nearest => self.acc.value(p.map(|c| c.floor() as i32)),
+            Interp::Nearest => self.acc.value_at(p.map(crate::math::floor_i64)),
             Interp::Trilinear => self.acc.trilinear(p),
         };
         scaled(self.scale, f64::from(v))
@@ -79,12 +79,11 @@ impl<'v> RayMedium<'v> {
         let acc = &mut self.acc;
         let mut reads = 0;
         let _ = dda(q, d, (s.t_min, s.t_max), &grid, |c, ta, tb| {
-            let ijk = c.map(|v| v as i32);
             let (mut mn, mut mx) = (f32::INFINITY, f32::NEG_INFINITY);
             let corners = if interp == Interp::Nearest { 1 } else { 8 };
             for n in 0..corners {
-                let o = [(n >> 2) & 1, (n >> 1) & 1, n & 1];
-                let v = acc.value([ijk[0] + o[0], ijk[1] + o[1], ijk[2] + o[2]]);
+                let o = [(n >> 2) & 1, (n >> 1) & 1, n & 1].map(i64::from);
+                let v = acc.value_at([c[0] + o[0], c[1] + o[1], c[2] + o[2]]);
                 mn = mn.min(v);
                 mx = mx.max(v);
             }

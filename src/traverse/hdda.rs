@@ -135,13 +135,16 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         let vol = self.vol;
         let sparse_factor = self.sparse_factor;
         let mut root_cell = |c: [i64; 3], ta: f64, tb: f64| {
-            let Some(origin) = to_i32(c.map(|v| v * 4096)) else {
-                return ControlFlow::Continue(());
+            let wide = c.map(|v| v * 4096);
+            let Some(origin) = to_i32(wide) else {
+                // Below the i32 range: background, but trilinear lookups there read the
+                // range's first voxels.
+                return self.tile(self.bg, None, wide, 4096, 3, ta, tb);
             };
             match self.vol.tree().root_find(origin) {
-                None => self.tile(self.bg, None, origin, 4096, 3, ta, tb),
+                None => self.tile(self.bg, None, wide, 4096, 3, ta, tb),
                 Some(r) => match self.vol.tree().root[r].slot {
-                    RootSlot::Tile { value, .. } => self.tile(value, None, origin, 4096, 3, ta, tb),
+                    RootSlot::Tile { value, .. } => self.tile(value, None, wide, 4096, 3, ta, tb),
                     RootSlot::Child(u) => self.upper(u, ta, tb),
                 },
             }
@@ -215,7 +218,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             if node.has_child(slot) {
                 child(self, node.slots[slot], ta, tb)
             } else {
-                let origin = c.map(|v| (v * child_dim) as i32);
+                let origin = c.map(|v| v * child_dim);
                 let halo = Some(node.tile_halo_of(slot));
                 self.tile(
                     node.tile_value(slot),
@@ -257,7 +260,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         &mut self,
         v: f32,
         halo: Option<Bounds>,
-        origin: [i32; 3],
+        origin: [i64; 3],
         dim: i64,
         level: u8,
         t0: f64,
@@ -270,7 +273,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             let v = f64::from(v);
             return self.segment(v, v, level, t0, t1);
         }
-        let h = halo.unwrap_or_else(|| self.vol.tree().halo_bounds(origin, dim));
+        let h = halo.unwrap_or_else(|| self.vol.tree().halo_bounds_wide(origin, dim));
         if h.min == h.max {
             if h.min == self.bg {
                 return ControlFlow::Continue(());
@@ -279,7 +282,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             return self.segment(c, c, level, t0, t1);
         }
         // Split off the inner box where every trilinear lookup reads only this tile.
-        let inner_lo = origin.map(f64::from);
+        let inner_lo = origin.map(|c| c as f64);
         let inner_hi = inner_lo.map(|c| c + (dim - 1) as f64);
         let (hmin, hmax) = (f64::from(h.min), f64::from(h.max));
         match clip_box(self.q, self.d, inner_lo, inner_hi) {

@@ -60,6 +60,31 @@ impl<'t> Accessor<'t> {
         self.tree.value_of(found)
     }
 
+    /// The value at voxel `ijk` of the unbounded index space: voxels outside the `i32` range a
+    /// VDB tree can hold are background (a trilinear lookup at the edge of the range reads one
+    /// voxel beyond it; wrapping or clamping the coordinate would read a voxel at the far end
+    /// of the range, or the edge voxel twice).
+    #[inline]
+    pub fn value_at(&mut self, ijk: [i64; 3]) -> f32 {
+        match to_voxel(ijk) {
+            Some(v) => self.value(v),
+            None => {
+                self.lookups += 1;
+                self.tree.background
+            }
+        }
+    }
+
+    /// [`Accessor::block`] for a voxel of the unbounded index space (background outside the
+    /// `i32` range).
+    #[inline]
+    pub(crate) fn block_at(&mut self, ijk: [i64; 3]) -> Block<'t> {
+        match to_voxel(ijk) {
+            Some(v) => self.block(v),
+            None => Block::Const(self.tree.background),
+        }
+    }
+
     /// The 8^3 block holding voxel `ijk`: a leaf's values, or the one value of the tile or
     /// background covering it. Not counted as a lookup (the caller counts its reads).
     #[inline]
@@ -114,21 +139,18 @@ impl<'t> Accessor<'t> {
     /// zero, as OpenVDB's `PointSampler` (`::round`).
     #[inline]
     pub fn nearest(&mut self, p: [f64; 3]) -> f32 {
-        self.value(p.map(|c| c.round() as i32))
+        self.value_at(p.map(|c| crate::math::floor_i64(c.round())))
     }
 
     /// Trilinear sample at index-space point `p` (OpenVDB `BoxSampler`): interpolates the 8
     /// voxels `floor(p) + {0,1}^3`, z first, then y, then x, as OpenVDB does.
     #[inline]
     pub fn trilinear(&mut self, p: [f64; 3]) -> f32 {
-        let i = p.map(floor_to_voxel);
-        let u = [
-            p[0] - f64::from(i[0]),
-            p[1] - f64::from(i[1]),
-            p[2] - f64::from(i[2]),
-        ];
+        let w = p.map(crate::math::floor_i64);
+        let u = [0, 1, 2].map(|a| p[a] - w[a] as f64);
         let mut v = [[[0f32; 2]; 2]; 2];
-        if i.iter().all(|&c| c & 7 != 7) {
+        let inner = to_voxel(w).filter(|i| i.iter().all(|&c| c & 7 != 7));
+        if let Some(i) = inner {
             // All 8 voxels in one 8^3 block: one cached descent, then direct reads.
             self.lookups += 8;
             let b = self.block(i);
@@ -144,7 +166,7 @@ impl<'t> Accessor<'t> {
             for (dx, vx) in v.iter_mut().enumerate() {
                 for (dy, vy) in vx.iter_mut().enumerate() {
                     for (dz, vz) in vy.iter_mut().enumerate() {
-                        *vz = self.value([i[0] + dx as i32, i[1] + dy as i32, i[2] + dz as i32]);
+                        *vz = self.value_at([w[0] + dx as i64, w[1] + dy as i64, w[2] + dz as i64]);
                     }
                 }
             }
@@ -193,8 +215,12 @@ impl Block<'_> {
     }
 }
 
-/// `floor(c)` as an index coordinate, saturating at the i32 range (NaN maps to 0).
+/// `ijk` as a voxel coordinate of a VDB tree, if it is inside the `i32` range.
 #[inline]
-fn floor_to_voxel(c: f64) -> i32 {
-    crate::math::floor_i64(c).clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32
+fn to_voxel(ijk: [i64; 3]) -> Option<[i32; 3]> {
+    Some([
+        i32::try_from(ijk[0]).ok()?,
+        i32::try_from(ijk[1]).ok()?,
+        i32::try_from(ijk[2]).ok()?,
+    ])
 }

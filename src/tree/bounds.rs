@@ -419,6 +419,24 @@ impl Tree {
         self.halo_at(origin, level, own)
     }
 
+    /// [`Tree::halo_bounds`] for a block of the unbounded index space: a root cell just below
+    /// the `i32` range (which trilinear lookups reach) has background values and reads the
+    /// first voxels of the range on its + faces.
+    #[must_use]
+    pub fn halo_bounds_wide(&self, origin: [i64; 3], dim: i64) -> Bounds {
+        match [0, 1, 2].map(|a| i32::try_from(origin[a]).ok()) {
+            [Some(x), Some(y), Some(z)] => self.halo_bounds([x, y, z], dim),
+            _ => {
+                let mut b = self.box_bounds(VoxelBox {
+                    lo: origin,
+                    hi: origin.map(|c| c + dim),
+                });
+                b.include(self.background);
+                b
+            }
+        }
+    }
+
     /// Bounds of the values of the `dim`^3 block at `origin`, without halo.
     #[must_use]
     pub fn region_bounds(&self, origin: [i32; 3], dim: i64) -> Bounds {
