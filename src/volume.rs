@@ -108,14 +108,18 @@ impl Volume {
                     "grid '{}' is a level set (signed distance to a surface, not a density): \
                      tracing it as fog would give meaningless transmittance; convert it to a \
                      fog volume first (OpenVDB sdfToFogVolume, Houdini VDB Convert)",
-                    grid.name
+                    crate::text::escape(&grid.name)
                 ),
             });
         }
         if !grid.transform.is_affine() {
             return Err(Error::Unsupported {
                 path: path.to_path_buf(),
-                what: format!("{} (grid '{}')", grid.transform.map, grid.name),
+                what: format!(
+                    "{} (grid '{}')",
+                    crate::text::escape(&grid.transform.map),
+                    crate::text::escape(&grid.name)
+                ),
             });
         }
         if !grid.value_type.is_scalar_real() {
@@ -124,17 +128,18 @@ impl Volume {
                 what: format!(
                     "tracing a {} grid ('{}'); density must be a float or double grid",
                     grid.value_type.name(),
-                    grid.name
+                    crate::text::escape(&grid.name)
                 ),
             });
         }
         let m = grid.transform.world_from_index;
+        let shown = crate::text::escape(&grid.name).into_owned();
         Self::from_tree(grid.name, grid.tree, [m[0], m[1], m[2]], density_scale).map_err(
             |e| match e {
                 Error::InvalidArgument { name, reason } if name == "transform" => {
                     Error::Unsupported {
                         path: path.to_path_buf(),
-                        what: format!("grid '{name}' transform: {reason}"),
+                        what: format!("grid '{shown}' cannot be traced: its transform: {reason}"),
                     }
                 }
                 other => other,
@@ -156,7 +161,6 @@ impl Volume {
         density_scale: f64,
     ) -> Result<Self> {
         check_density_scale(density_scale)?;
-        let (world_from_index, index_from_world) = invert_affine(&world_from_index)?;
         let mut s = Sanitized::default();
         sanitize(&mut tree.background, &mut s);
         for e in &mut tree.root {
@@ -180,6 +184,8 @@ impl Volume {
             tree.compute_bounds();
         }
         let value_box = value_box(&tree);
+        let grown = value_box.map(|[lo, hi]| [lo.map(|c| c - 1), hi.map(|c| c + 1)]);
+        let (world_from_index, index_from_world) = invert_affine(&world_from_index, grown)?;
         Ok(Self {
             name,
             tree,
@@ -371,7 +377,28 @@ fn check_density_scale(density_scale: f64) -> Result<()> {
 
 /// The affine map of row-major 3x4 rows (column vectors) and its inverse, or an error when
 /// it has no finite inverse.
-fn invert_affine(m: &[[f64; 4]; 3]) -> Result<(DAffine3, DAffine3)> {
+/// Voxel edge lengths umbra traces, in world units: far below `1e-30` the determinant of the
+/// map underflows (a `1e-150` voxel has determinant `1e-450`, i.e. 0 in `f64`), far above
+/// `1e30` optical depths overflow for any density.
+pub const VOXEL_SIZE_RANGE: (f64, f64) = (1e-30, 1e30);
+/// The smallest voxel, relative to the largest world coordinate of the grid's box, that `f64`
+/// resolves: `2^-36` leaves `2^16` representable values per voxel (52-bit mantissa), so ray
+/// positions inside a voxel are exact to `1.5e-5` voxels. A unit voxel at `1e17` (where
+/// consecutive doubles are 16 apart) is refused; a 1 mm voxel at 10 km is fine.
+pub const MIN_VOXEL_PER_COORDINATE: f64 = 1.0 / (1u64 << 36) as f64;
+/// `|det|` of the map with its columns normalised (the volume of a voxel relative to the
+/// cube of its edges) below which the voxel axes are taken as parallel.
+const MIN_NORMALISED_DETERMINANT: f64 = 1e-9;
+
+/// Check `world = M index` for tracing and invert it: finite, each voxel edge (column length)
+/// in [`VOXEL_SIZE_RANGE`], axes not (nearly) parallel, and voxels resolvable by `f64` at the
+/// world coordinates of `index_box` (the volume box, `[lo, hi]` in index space). The inverse is
+/// computed as `M^-1 = S^-1 N^-1` with `N = M S^-1` (`S` the edge lengths), which stays finite
+/// where the determinant of `M` itself would underflow.
+fn invert_affine(
+    m: &[[f64; 4]; 3],
+    index_box: Option<[[i64; 3]; 2]>,
+) -> Result<(DAffine3, DAffine3)> {
     let bad = |reason: String| Error::InvalidArgument {
         name: "transform".into(),
         reason,
@@ -384,12 +411,63 @@ fn invert_affine(m: &[[f64; 4]; 3]) -> Result<(DAffine3, DAffine3)> {
         matrix3: DMat3::from_cols(col(0), col(1), col(2)),
         translation: col(3),
     };
-    let det = fwd.matrix3.determinant();
-    let inv = fwd.inverse();
-    if det == 0.0 || !det.is_finite() || !inv.is_finite() {
+    let edges = [0, 1, 2].map(|c| col(c).length());
+    let (lo, hi) = VOXEL_SIZE_RANGE;
+    for (axis, &e) in ["x", "y", "z"].iter().zip(&edges) {
+        if !(lo..=hi).contains(&e) {
+            return Err(bad(format!(
+                "voxel size {} along index {axis} is outside the range umbra traces ({lo:e} to \
+                 {hi:e} world units){}",
+                crate::math::short(e),
+                if e == 0.0 {
+                    ": the voxels have no volume"
+                } else {
+                    ""
+                }
+            )));
+        }
+    }
+    let n = DMat3::from_cols(col(0) / edges[0], col(1) / edges[1], col(2) / edges[2]);
+    let det_n = n.determinant();
+    if det_n.is_nan() || det_n.abs() < MIN_NORMALISED_DETERMINANT {
         return Err(bad(format!(
-            "not invertible (determinant {det:e}): the voxels have no volume"
+            "the voxel axes are (nearly) parallel (normalised determinant {}): the voxels have \
+             no volume and the map cannot be inverted",
+            crate::math::short(det_n)
         )));
+    }
+    let inv_n = n.inverse();
+    let s_inv = DMat3::from_diagonal(DVec3::from(edges.map(|e| 1.0 / e)));
+    let inv_m = s_inv * inv_n;
+    let inv = DAffine3 {
+        matrix3: inv_m,
+        translation: -(inv_m * fwd.translation),
+    };
+    if !inv.is_finite() {
+        return Err(bad("the inverse map is not finite".into()));
+    }
+    if let Some([blo, bhi]) = index_box {
+        let mut far = fwd.translation.abs().max_element();
+        for k in 0..8 {
+            let p = DVec3::new(
+                if k & 4 == 0 { blo[0] } else { bhi[0] + 1 } as f64,
+                if k & 2 == 0 { blo[1] } else { bhi[1] + 1 } as f64,
+                if k & 1 == 0 { blo[2] } else { bhi[2] + 1 } as f64,
+            );
+            far = far.max(fwd.transform_point3(p).abs().max_element());
+        }
+        let voxel = edges[0].min(edges[1]).min(edges[2]);
+        let need = far * MIN_VOXEL_PER_COORDINATE;
+        if voxel < need {
+            return Err(bad(format!(
+                "voxel size {} is too small for f64 to resolve at world coordinates up to {}: \
+                 there a voxel must be at least {} (move the grid nearer the origin or use \
+                 larger voxels)",
+                crate::math::short(voxel),
+                crate::math::short(far),
+                crate::math::short(need)
+            )));
+        }
     }
     Ok((fwd, inv))
 }
@@ -405,14 +483,48 @@ mod tests {
             [0.0, 1.0, 0.0, 0.0],
             [0.0, 0.0, 0.0, 0.0],
         ];
-        assert!(invert_affine(&m).is_err());
+        assert!(invert_affine(&m, None).is_err());
         m[2][2] = 5e-324;
         assert!(
-            invert_affine(&m).is_err(),
+            invert_affine(&m, None).is_err(),
             "subnormal scale: inverse overflows"
         );
         m[2][2] = f64::NAN;
-        assert!(invert_affine(&m).is_err());
+        assert!(invert_affine(&m, None).is_err());
+    }
+
+    fn reason(m: &[[f64; 4]; 3], index_box: Option<[[i64; 3]; 2]>) -> String {
+        match invert_affine(m, index_box) {
+            Err(Error::InvalidArgument { reason, .. }) => reason,
+            other => panic!("expected a refusal, got {other:?}"),
+        }
+    }
+
+    #[test]
+    fn ill_conditioned_maps_say_which_condition() {
+        let diag = |h: f64, t: f64| [[h, 0.0, 0.0, t], [0.0, h, 0.0, t], [0.0, 0.0, h, t]];
+        let unit_box = Some([[0; 3], [7; 3]]);
+        let r = reason(&diag(1e-150, 0.0), unit_box);
+        assert!(
+            r.contains("voxel size 1e-150") && !r.contains("determinant"),
+            "{r}"
+        );
+        assert!(reason(&diag(1e31, 0.0), unit_box).contains("voxel size 1e31"));
+        let r = reason(&diag(1.0, 1e17), unit_box);
+        assert!(r.contains("too small for f64") && r.contains("1e17"), "{r}");
+        let mut parallel = diag(1.0, 0.0);
+        parallel[0][1] = 1.0;
+        parallel[1][1] = 1e-12;
+        parallel[2][2] = 1.0;
+        assert!(reason(&parallel, unit_box).contains("parallel"));
+        // Resolvable: 1 mm voxels 10 km away, unit voxels over the whole i32 range, and tiny
+        // voxels near the origin (the inverse is finite even where det M underflows).
+        assert!(invert_affine(&diag(1e-3, 1e4), unit_box).is_ok());
+        assert!(
+            invert_affine(&diag(1.0, 0.0), Some([[-(1 << 31); 3], [(1 << 31) - 1; 3]])).is_ok()
+        );
+        let (_, inv) = invert_affine(&diag(1e-29, 0.0), unit_box).expect("tiny voxels");
+        assert!((inv.matrix3.x_axis.x - 1e29).abs() < 1e15);
     }
 
     #[test]
@@ -422,7 +534,7 @@ mod tests {
             [-0.03, 0.2, 0.01, -1.0],
             [0.0, 0.05, 0.3, 7.0],
         ];
-        let (fwd, inv) = invert_affine(&m).expect("invertible");
+        let (fwd, inv) = invert_affine(&m, None).expect("invertible");
         let p = DVec3::new(1.5, -2.0, 9.0);
         let w = DVec3::from_array(
             [0, 1, 2].map(|r| m[r][0] * p.x + m[r][1] * p.y + m[r][2] * p.z + m[r][3]),
