@@ -63,6 +63,16 @@ pub enum Error {
         /// Why it was not written.
         reason: String,
     },
+    /// A computation produced NaN where a number was due (a transmittance, an optical depth).
+    /// Reported instead of returned, so no NaN or null ever reaches a map or a pipeline with
+    /// success; it means an input outside what umbra resolves, or a bug.
+    #[error("the {what} is not a number (NaN){context}")]
+    NotANumber {
+        /// What came out as NaN (`transmittance estimate`, `optical depth`).
+        what: String,
+        /// Where: the ray, or empty.
+        context: String,
+    },
     /// A caller-supplied argument is out of its domain.
     #[error("invalid argument '{name}': {reason}")]
     InvalidArgument {

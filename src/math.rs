@@ -44,9 +44,45 @@ pub fn short(v: f64) -> String {
     }
 }
 
+/// A computed number for a message: four significant digits, scientific outside
+/// `[1e-3, 1e6)` (`143.8`, `2.413e12`), trailing zeros dropped.
+#[must_use]
+pub fn approx(v: f64) -> String {
+    if !v.is_finite() || v == 0.0 {
+        return format!("{v}");
+    }
+    let trim = |s: String| -> String {
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s
+        }
+    };
+    if (1e-3..1e6).contains(&v.abs()) {
+        let decimals = (3 - v.abs().log10().floor() as i32).max(0) as usize;
+        trim(format!("{v:.decimals$}"))
+    } else {
+        let s = format!("{v:.3e}");
+        match s.split_once('e') {
+            Some((m, e)) => format!("{}e{e}", trim(m.to_string())),
+            None => s,
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn approx_keeps_four_significant_digits() {
+        assert_eq!(approx(143.819_331_106_774_37), "143.8");
+        assert_eq!(approx(2.412_904_760_169_872_6e12), "2.413e12");
+        assert_eq!(approx(0.140_589), "0.1406");
+        assert_eq!(approx(16.0), "16");
+        assert_eq!(approx(1.5e-5), "1.5e-5");
+        assert_eq!(approx(0.0), "0");
+    }
 
     #[test]
     fn fast_floor_matches_floor() {

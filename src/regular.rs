@@ -75,6 +75,16 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
     if mu_bg != 0.0 && gap > 0.0 {
         tau += mu_bg * gap;
     }
+    if tau.is_nan() {
+        return Err(crate::Error::NotANumber {
+            what: "optical depth".into(),
+            context: format!(
+                " on the ray from {} along {}",
+                ray.origin(),
+                ray.direction()
+            ),
+        });
+    }
     Ok(OpticalDepth {
         tau,
         lookups: n.reads,

@@ -69,6 +69,7 @@ pub struct Volume {
     index_from_world: DAffine3,
     density_scale: f64,
     value_box: Option<[[i64; 3]; 2]>,
+    data_reach: f64,
     sanitized: Sanitized,
 }
 
@@ -186,7 +187,9 @@ impl Volume {
         let value_box = value_box(&tree);
         let grown = value_box.map(|[lo, hi]| [lo.map(|c| c - 1), hi.map(|c| c + 1)]);
         let (world_from_index, index_from_world) = invert_affine(&world_from_index, grown)?;
+        let data_reach = data_reach(&tree, value_box);
         Ok(Self {
+            data_reach,
             name,
             tree,
             world_from_index,
@@ -252,6 +255,16 @@ impl Volume {
     #[must_use]
     pub fn value_box(&self) -> Option<[[i64; 3]; 2]> {
         self.value_box
+    }
+
+    /// An upper bound on the index-space length (in voxels) a ray can spend where lookups may
+    /// read anything but the background: the smaller of the volume box's diagonal and
+    /// `sqrt(3) (dim + 2)` summed over leaves and non-background tiles (each node's diagonal
+    /// with its trilinear halo). What the work budget charges ray marching for
+    /// ([`crate::estimate::budget`]).
+    #[must_use]
+    pub fn data_reach(&self) -> f64 {
+        self.data_reach
     }
 
     /// What the bad-voxel policy changed.
@@ -325,6 +338,37 @@ impl Volume {
     pub fn bounds(&self) -> Bounds {
         self.tree.bounds
     }
+}
+
+/// See [`Volume::data_reach`].
+fn data_reach(tree: &Tree, value_box: Option<[[i64; 3]; 2]>) -> f64 {
+    let Some([lo, hi]) = value_box else {
+        return 0.0;
+    };
+    let diagonal = (0..3)
+        .map(|a| ((hi[a] - lo[a] + 3) as f64).powi(2))
+        .sum::<f64>()
+        .sqrt();
+    let bg = tree.background;
+    let tiles = |nodes: &[crate::tree::Internal]| -> f64 {
+        nodes
+            .iter()
+            .map(|n| {
+                (0..n.slots.len())
+                    .filter(|&i| !n.has_child(i) && n.tile_value(i) != bg)
+                    .count() as f64
+            })
+            .sum()
+    };
+    let root_tiles = tree
+        .root
+        .iter()
+        .filter(|e| matches!(e.slot, RootSlot::Tile { value, .. } if value != bg))
+        .count() as f64;
+    let sides = (tree.leaves.len() as f64 + tiles(&tree.lowers)) * 10.0
+        + tiles(&tree.uppers) * 130.0
+        + root_tiles * 4098.0;
+    diagonal.min(sides * 3f64.sqrt())
 }
 
 fn value_box(tree: &Tree) -> Option<[[i64; 3]; 2]> {

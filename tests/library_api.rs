@@ -469,3 +469,95 @@ fn hostile_job_files_are_refused_by_key() {
         ]
     );
 }
+
+fn reason_of(e: Error) -> (String, String) {
+    match e {
+        Error::InvalidArgument { name, reason } => (name, reason),
+        other => panic!("expected InvalidArgument, got {other:?}"),
+    }
+}
+
+/// The work budget refuses, before tracing, what no job needs, naming the option and the
+/// largest accepted value; the values at the budget itself are accepted.
+#[test]
+fn work_budget_refuses_with_the_largest_accepted_value() {
+    use umbra::estimate::budget::{
+        check_job, check_ray, MAX_LOOKUPS_PER_RAY, MAX_SAMPLES_PER_JOB, MAX_SAMPLES_PER_RAY,
+    };
+    let v = slab();
+    let ratio = Estimator::from_name("ratio").unwrap();
+    let ray = Ray::between([0.0, 0.5, 0.5], [16.0, 0.5, 0.5]).unwrap();
+    // Samples per ray: through estimate() itself (so every caller gets it).
+    for samples in [MAX_SAMPLES_PER_RAY + 1, u32::MAX] {
+        let opts = Options {
+            samples,
+            ..Options::default()
+        };
+        let (name, reason) = reason_of(estimate(&v, &ray, 0, &ratio, &opts).unwrap_err());
+        assert_eq!(name, "samples");
+        assert!(reason.contains("at most 16777216"), "{reason}");
+    }
+    assert!(check_ray(&v, &ratio, MAX_SAMPLES_PER_RAY).is_ok());
+    // Samples per job: a 4096^2 map at 4096 spp is the budget; one more sample is not.
+    let pixels = 4096 * 4096;
+    assert!(check_job(&v, &ratio, pixels, MAX_SAMPLES_PER_JOB / pixels, "spp").is_ok());
+    let (name, reason) = reason_of(check_job(&v, &ratio, pixels, 4097, "spp").unwrap_err());
+    assert_eq!(name, "spp");
+    assert!(reason.contains("at most 4096 samples per ray"), "{reason}");
+    // Deterministic estimators are charged one sample whatever --samples says.
+    assert!(check_job(&v, &Estimator::REGULAR, pixels, 1 << 24, "spp").is_ok());
+    // Marching: the slab's leaves span 16 x 8 x 8 voxels (reach: their diagonal), so a 0.001-voxel step
+    // costs ~1.7e4 lookups per sample: 2^24 samples of it are over the per-ray budget, and
+    // the suggested step is accepted.
+    let jit = Estimator::with_params("jittered", &[("step", 0.001)]).unwrap();
+    let reach = v.data_reach();
+    assert!(reach > 16.0 && reach < 25.0, "reach {reach}");
+    let (name, reason) = reason_of(check_ray(&v, &jit, MAX_SAMPLES_PER_RAY).unwrap_err());
+    assert_eq!(name, "step");
+    let at_least: f64 = reason
+        .rsplit("at least ")
+        .next()
+        .and_then(|r| r.split(' ').next())
+        .and_then(|n| n.parse().ok())
+        .unwrap_or_else(|| panic!("no step in {reason}"));
+    let ok = Estimator::with_params("jittered", &[("step", at_least)]).unwrap();
+    assert!(check_ray(&v, &ok, MAX_SAMPLES_PER_RAY).is_ok(), "{reason}");
+    assert!(f64::from(MAX_SAMPLES_PER_RAY) * (reach / at_least) <= MAX_LOOKUPS_PER_RAY * 1.01);
+    // A bake applies it up front (adaptive: max-spp is what a pixel may take).
+    let view = View {
+        projection: Projection::Ortho,
+        light_dir: Some([0.0, 0.0, -1.0]),
+        light_pos: None,
+        fov_deg: None,
+        res: Some(umbra::bake::Resolution::Exact(4096, 4096)),
+    };
+    let cam = Camera::frame(&view, &v.box_corners().unwrap()).unwrap();
+    let s = BakeSettings {
+        target_error: Some(1e-3),
+        max_spp: 1 << 20,
+        ..BakeSettings::new(ratio, Options::default())
+    };
+    let started = std::time::Instant::now();
+    let (name, reason) = reason_of(bake(&v, &cam, &s, &|_| {}).unwrap_err());
+    assert_eq!(name, "max-spp");
+    assert!(reason.contains("at most 4096"), "{reason}");
+    assert!(started.elapsed().as_secs() < 5, "refused before tracing");
+}
+
+/// A far-apart sparse grid is charged for its data, not for the index space between.
+#[test]
+fn data_reach_counts_nodes_not_empty_space() {
+    let mut b = TreeBuilder::new(0.0);
+    b.set([i32::MIN, i32::MIN, i32::MIN], 1.0);
+    b.set([i32::MAX, i32::MAX, i32::MAX], 1.0);
+    let v = Volume::from_tree("far".into(), b.build(), UNIT, 1.0).unwrap();
+    // Two leaves: 2 x sqrt(3) x (8 + 2) voxels, not the 7.4e9-voxel diagonal.
+    assert!(
+        (v.data_reach() - 20.0 * 3f64.sqrt()).abs() < 1e-9,
+        "{}",
+        v.data_reach()
+    );
+    let empty =
+        Volume::from_tree("empty".into(), TreeBuilder::new(0.0).build(), UNIT, 1.0).unwrap();
+    assert_eq!(empty.data_reach(), 0.0);
+}

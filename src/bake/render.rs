@@ -90,6 +90,7 @@ impl BakeSettings {
         if self.max_spp == 0 {
             return Err(bad("max-spp", "must be at least 1".into()));
         }
+        crate::estimate::budget::check_samples("max-spp", u64::from(self.max_spp))?;
         match &self.depths {
             Depths::Slices(k) if *k == 0 || *k > MAX_SLICES => {
                 Err(bad("slices", format!("{k} is not in 1..={MAX_SLICES}")))
@@ -353,6 +354,18 @@ pub fn bake(
             ),
         ));
     }
+    // The work budget: every pixel may take up to max-spp samples when adaptive.
+    let (samples, name) = match settings.target_error {
+        Some(_) => (settings.max_spp.max(settings.options.samples), "max-spp"),
+        None => (settings.options.samples, "spp"),
+    };
+    crate::estimate::budget::check_job(
+        vol,
+        &settings.estimator,
+        camera.pixels(),
+        u64::from(samples),
+        name,
+    )?;
     let run = || render(vol, camera, settings, &depths, progress);
     if settings.threads == 0 {
         return run();

@@ -24,6 +24,7 @@
 //! exceed [`REFINE_NULL_COLLISIONS`] is split into per-cell segments with exact cell bounds
 //! before sampling, so a single 1e6 spike in a near-empty leaf costs a few lookups, not 1e6.
 
+pub mod budget;
 mod marching;
 mod medium;
 mod null_collision;
@@ -83,6 +84,7 @@ impl Options {
                 reason: "must be at least 1".into(),
             });
         }
+        budget::check_samples("samples", u64::from(self.samples))?;
         if self.max_collisions == 0 {
             return Err(crate::Error::InvalidArgument {
                 name: "max-collisions".into(),
@@ -257,7 +259,30 @@ pub fn estimate(
     est: &Estimator,
     opts: &Options,
 ) -> Result<Estimate> {
+    let e = estimate_unchecked(vol, ray, ray_id, est, opts)?;
+    if e.value.is_nan() || e.std_err.is_nan() {
+        return Err(crate::Error::NotANumber {
+            what: format!("{} transmittance estimate", est.name()),
+            context: format!(
+                " on the ray from {} along {}",
+                ray.origin(),
+                ray.direction()
+            ),
+        });
+    }
+    Ok(e)
+}
+
+/// [`estimate`] before its NaN check.
+fn estimate_unchecked(
+    vol: &Volume,
+    ray: &Ray,
+    ray_id: u64,
+    est: &Estimator,
+    opts: &Options,
+) -> Result<Estimate> {
     opts.validate()?;
+    budget::check_ray(vol, est, opts.samples)?;
     let mut medium = RayMedium::new(vol, ray, opts.interp);
     if est.algo().0 == Algo::Regular {
         let od = crate::regular::optical_depth(vol, ray, opts.interp)?;

@@ -177,7 +177,10 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
     );
     let result = job.run_on(vol, camera, &|n| bar.inc(n));
     bar.finish_and_clear();
-    let done = result?;
+    let done = result.map_err(|e| match e {
+        umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
+        other => other,
+    })?;
     report(
         a,
         &done.map,

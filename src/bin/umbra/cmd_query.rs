@@ -1,7 +1,7 @@
 //! `umbra query`: what does the cloud attenuate along a segment, toward a light, or along
 //! thousands of segments from a CSV file?
 
-use crate::common::{load_volume, parse_vec3, thread_pool, EstimatorArgs, InterpArg};
+use crate::common::{flag_error, load_volume, parse_vec3, thread_pool, EstimatorArgs, InterpArg};
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use std::io::{Read, Write};
@@ -100,6 +100,11 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
     let vol = load_volume(&a.file, &a.grid, a.density_scale)?;
     let interp: Interp = a.interp.into();
     let (est, opts) = a.est.resolve(interp)?;
+    // The work budget, up front: per ray, then for every ray of the batch together.
+    let rays = batch.as_ref().map_or(1, Vec::len) as u64;
+    umbra::estimate::budget::check_ray(&vol, &est, opts.samples).map_err(flag_error)?;
+    umbra::estimate::budget::check_job(&vol, &est, rays, u64::from(opts.samples), "samples")
+        .map_err(flag_error)?;
     let answers: Vec<Answer> = if let Some(rows) = batch {
         let one = |(n, (line, seg)): (usize, &(usize, Result<Ray, String>))| Answer {
             line: Some(*line),
