@@ -75,7 +75,12 @@ impl Resolution {
     pub fn check(self) -> Result<()> {
         match self {
             Self::Exact(w, h) => check_res(w, h),
-            Self::LongSide(n) => check_res(n, 1),
+            Self::LongSide(0) => Err(bad("res", "a long side of 0 pixels has no pixels".into())),
+            Self::LongSide(n) if n > MAX_SIDE => Err(bad(
+                "res",
+                format!("a long side of {n} pixels is too large: at most {MAX_SIDE}"),
+            )),
+            Self::LongSide(_) => Ok(()),
         }
     }
 

@@ -75,7 +75,8 @@ pub struct GridDescriptor {
     pub instance_parent: String,
     /// Byte offset of the grid (compression flags, metadata, transform, topology).
     pub grid_pos: u64,
-    /// Byte offset of the leaf buffers.
+    /// Byte offset of the leaf buffers (for an instanced grid, which has none, the end
+    /// offset: OpenVDB stores 0 there).
     pub block_pos: u64,
     /// Byte offset one past the grid.
     pub end_pos: u64,
@@ -335,8 +336,13 @@ fn read_descriptor(r: &mut ByteReader<'_>) -> DecodeResult<GridDescriptor> {
         u64::try_from(v).map_err(|_| DecodeError::invalid(format!("negative {what} {v}")))
     };
     let grid_pos = pos("grid position")?;
-    let block_pos = pos("block position")?;
+    let mut block_pos = pos("block position")?;
     let end_pos = pos("end position")?;
+    // OpenVDB writes block position 0 for an instanced grid (it has no topology or buffers):
+    // its head (metadata and transform) runs to the end position.
+    if !instance_parent.is_empty() && block_pos == 0 {
+        block_pos = end_pos;
+    }
     Ok(GridDescriptor {
         display_name: display_name(&stored_name),
         stored_name,

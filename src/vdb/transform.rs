@@ -94,19 +94,6 @@ fn read_mat4_transposed(r: &mut ByteReader<'_>) -> DecodeResult<[[f64; 4]; 4]> {
     Ok(std::array::from_fn(|i| std::array::from_fn(|j| rows[j][i])))
 }
 
-fn check_affine(name: &str, m: &[[f64; 4]; 4]) -> DecodeResult<()> {
-    let finite = m.iter().flatten().all(|v| v.is_finite());
-    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
-        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
-        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
-    if !finite || det == 0.0 || !det.is_finite() {
-        return Err(DecodeError::invalid(format!(
-            "{name} is singular or not finite (determinant {det})"
-        )));
-    }
-    Ok(())
-}
-
 /// Read a transform: the map type name, then the map's parameters.
 pub(crate) fn read_transform(r: &mut ByteReader<'_>) -> DecodeResult<Transform> {
     let name = r.string("transform map type")?;
@@ -135,7 +122,8 @@ pub(crate) fn read_transform(r: &mut ByteReader<'_>) -> DecodeResult<Transform> 
             let second_name = r.string("frustum second map type")?;
             if second_name != "AffineMap" {
                 return Err(DecodeError::unsupported(format!(
-                    "NonlinearFrustumMap with a {second_name} secondary map"
+                    "NonlinearFrustumMap with a {} secondary map",
+                    crate::text::escape(&second_name)
                 )));
             }
             let second = read_mat4_transposed(r)?;
@@ -150,9 +138,15 @@ pub(crate) fn read_transform(r: &mut ByteReader<'_>) -> DecodeResult<Transform> 
                 }),
             }
         }
-        other => return Err(DecodeError::unsupported(format!("transform map '{other}'"))),
+        other => {
+            return Err(DecodeError::unsupported(format!(
+                "transform map '{}'",
+                crate::text::escape(other)
+            )))
+        }
     };
-    check_affine(&t.map, &t.world_from_index)?;
+    // Singular, non-finite or ill-conditioned maps are read as stored (`info` reports them);
+    // `Volume::from_tree` refuses them for tracing, saying which condition fails.
     Ok(t)
 }
 
@@ -193,12 +187,14 @@ mod tests {
     }
 
     #[test]
-    fn singular_maps_are_rejected() {
+    fn singular_maps_are_read_as_stored() {
+        // A zero scale is read (info reports it); tracing refuses it in `Volume::from_tree`.
         let mut bytes = Vec::new();
         let name = b"ScaleMap";
         bytes.extend_from_slice(&(name.len() as u32).to_le_bytes());
         bytes.extend_from_slice(name);
         bytes.extend_from_slice(&[0u8; 120]);
-        assert!(read_transform(&mut ByteReader::new(&bytes, 0)).is_err());
+        let t = read_transform(&mut ByteReader::new(&bytes, 0)).expect("read as stored");
+        assert_eq!(t.world_from_index[0][0], 0.0);
     }
 }
