@@ -12,9 +12,17 @@ use super::medium::RayMedium;
 use crate::rng::Rng;
 use crate::traverse::Segment;
 
+/// Relative slack when counting pieces: a segment of `8.000000000000002` steps (a leaf
+/// segment of 8 voxels after round-off in `t`) is 8 pieces that line up with the voxels, not 9
+/// that do not. Pieces may then exceed the step by this fraction.
+const PIECE_SLACK: f64 = 1e-9;
+
+/// `(n, L / n)`: the fewest equal pieces of segment `s` no longer than the step (within
+/// [`PIECE_SLACK`]), `n = ceil(L / h - slack)`, at least 1.
 fn pieces(s: &Segment, step_world: f64) -> (u64, f64) {
     let len = s.length();
-    let n = (len / step_world).ceil().max(1.0);
+    let x = len / step_world;
+    let n = (x - x * PIECE_SLACK).ceil().max(1.0);
     (n as u64, len / n)
 }
 
@@ -65,4 +73,32 @@ pub(crate) fn jittered(segs: &[Segment], m: &mut RayMedium<'_>, rng: &mut Rng, s
         }
     }
     (-tau).exp()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn seg(len: f64) -> Segment {
+        Segment {
+            t_min: 1.0,
+            t_max: 1.0 + len,
+            mu_min: 0.0,
+            mu_maj: 1.0,
+            level: 1,
+        }
+    }
+
+    #[test]
+    fn pieces_tolerate_round_off_but_not_real_excess() {
+        // 8 steps plus round-off: 8 pieces (used to be 9, off the voxel grid).
+        assert_eq!(pieces(&seg(8.000_000_000_000_002), 1.0).0, 8);
+        assert_eq!(pieces(&seg(8.0 * 0.1 * (1.0 + 1e-15)), 0.1).0, 8);
+        // A real excess still takes another piece; short segments take one.
+        assert_eq!(pieces(&seg(8.001), 1.0).0, 9);
+        assert_eq!(pieces(&seg(8.0), 1.0).0, 8);
+        assert_eq!(pieces(&seg(1e-3), 1.0).0, 1);
+        let (n, dt) = pieces(&seg(7.5), 0.5);
+        assert_eq!((n, dt), (15, 0.5));
+    }
 }
