@@ -1,19 +1,35 @@
 #!/usr/bin/env bash
 # Peer benchmark: the same orthographic transmittance view rendered by OpenVDB's vdb_render
 # (Debian libopenvdb-tools, ray marching at steps 0.5, 1, 2 voxels, -cutoff 0), by Blender's
-# Cycles (Debian blender, absorption-only volume, step rate 1 and 2, 1 and 4 spp) and by umbra
-# (exact regular tracking, trilinear; Riemann ray marching at steps 0.5-2; residual ratio
-# tracking and unbiased ray marching at 1 and 16 samples per pixel), same resolution, same
-# thread count, several runs each. Prints one Markdown table: median wall time of the whole
-# process (start-up, load, render, EXR write), median render time as each tool reports it,
-# peak RSS, RMSE against umbra's exact image, and wall time and RMSE as ratios to vdb_render at
-# step 1. Installs libopenvdb-tools and blender when they are missing (CYCLES=0 skips Cycles).
+# Cycles (Debian blender, absorption-only volume, step rate 1 and 2, 1 and 4 spp), by a NanoVDB
+# C++ ray marcher (bench/nanovdb_march.cpp on Debian libnanovdb-dev: HDDA empty-space skipping,
+# midpoint rule over merged leaf spans at steps 0.25, 0.5, 1 voxel, plus NanoVDB's own
+# SampleFromVoxels at step 0.5 as a baseline), by Mitsuba 3 (PyPI mitsuba, llvm_ad_mono: the
+# volpath integrator, delta tracking through an albedo-0 heterogeneous medium, 16 spp; and a
+# Dr.Jit vectorised midpoint march through an mi.Texture3f of the dense grid, step 0.5 voxel;
+# bench/mitsuba_transmittance.py) and by umbra (exact regular tracking, trilinear; Riemann ray
+# marching at steps 0.5-2; residual ratio tracking and unbiased ray marching at 1 and 16 samples
+# per pixel), same resolution, same thread count. Every renderer runs once as a warm-up, then
+# REPS rounds in which each runs once in turn (so slow drift of the machine hits all alike).
+# Prints one Markdown table: median wall time of the whole process (start-up, load, render, EXR
+# write), median render time as each tool reports it, peak RSS, RMSE against umbra's exact image,
+# and wall time and RMSE as ratios to vdb_render at step 1; its header gives the load average
+# before, during (highest 1-minute value at the start of a round) and after the runs, and the
+# share of the machine's CPU time that other processes took meanwhile (/proc/stat less this
+# script's children).
+# Installs what is missing: libopenvdb-tools; blender (CYCLES=0 skips Cycles); libnanovdb-dev and
+# libnanovdb-tools (NANOVDB=0 skips NanoVDB); python3-openvdb, libllvm19 and a venv with mitsuba
+# (MITSUBA=0 skips Mitsuba; Dr.Jit gets DRJIT_LIBLLVM_PATH = Debian's libLLVM.so.19 unless set).
+# NanoVDB keeps OpenVDB's voxel convention; Mitsuba's cell-centred grid is placed to match it
+# (bench/mitsuba_transmittance.py), so both are scored against umbra's exact image as they are.
 #
-#   bench/peer.sh                       # gen/cloud_fbm.vdb, 512x512, all cores, 3 runs
+#   bench/peer.sh                       # gen/cloud_fbm.vdb, 512x512, all cores, 3 rounds
 #   PRESET=cloud REPS=5 THREADS=1 RES=256x256 bench/peer.sh
+#   REPS=5 RES=512x512 THREADS=2 CYCLES=0 bench/peer.sh
 #
 # Environment: PRESET (cloud_fbm | cloud), RES (512x512), THREADS (nproc), REPS (3), CYCLES (1),
-# OUT (directory for images and the table, /tmp/umbra-peer). The view follows
+# NANOVDB (1), MITSUBA (1), VENV (bench/.venv, the Python environment with mitsuba), OUT
+# (directory for images, logs and the table, /tmp/umbra-peer). The view follows
 # ../shared/research/peers.md: vdb_render's -absorb is per voxel (= scale x voxel size), rays
 # start on the image plane through CENTER and run along DIR; T = 1 - alpha of its EXR.
 set -euo pipefail
@@ -24,6 +40,7 @@ RES=${RES:-512x512}
 THREADS=${THREADS:-$(nproc)}
 REPS=${REPS:-3}
 OUT=${OUT:-/tmp/umbra-peer}
+VENV=${VENV:-bench/.venv}
 mkdir -p "$OUT"
 
 case "$PRESET" in
@@ -41,11 +58,18 @@ cloud)
     ;;
 esac
 
-if ! command -v vdb_render >/dev/null; then
-    echo "installing libopenvdb-tools (vdb_render)..." >&2
-    if [ "$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi
-    $SUDO apt-get install -y libopenvdb-tools >&2
-fi
+if [ "$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi
+APT_UPDATED=0
+apt_install() {
+    echo "installing $* ..." >&2
+    if [ "$APT_UPDATED" = 0 ]; then
+        $SUDO apt-get update >&2 || true
+        APT_UPDATED=1
+    fi
+    $SUDO apt-get install -y "$@" >&2
+}
+
+command -v vdb_render >/dev/null || apt_install libopenvdb-tools
 cargo build --release --example ortho_view >&2
 UMBRA=target/release/examples/ortho_view
 
@@ -63,8 +87,9 @@ VIEW=(--scale "$SCALE" "--dir=$DIR" "--center=$CENTER" "--up=$UPV" --frame "$FRA
 # median of the numbers on stdin
 median() { sort -g | awk '{ a[NR] = $1 } END { print (NR % 2) ? a[(NR + 1) / 2] : (a[NR / 2] + a[NR / 2 + 1]) / 2 }'; }
 
-# The render time a run printed (umbra: "render_s", vdb_render -v: its ray-tracing step,
-# Cycles: bench/blender_transmittance.py's timer), or the wall time when it printed none.
+# The render time a run printed (umbra, NanoVDB, Mitsuba: "render_s" of their JSON line;
+# vdb_render -v: its ray-tracing step; Cycles: bench/blender_transmittance.py's timer), or the
+# wall time when it printed none.
 render_seconds() {
     local log=$1 wall=$2 s
     s=$(sed -nE 's/.*"render_s":([0-9.eE+-]+).*/\1/p' "$log" | head -1)
@@ -73,81 +98,177 @@ render_seconds() {
     echo "${s:-$wall}"
 }
 
-# run NAME CMD...: REPS timed runs of the whole process; prints "median_wall median_render peak_rss_kb".
-run() {
-    local name=$1
-    shift
-    : >"$OUT/$name.times"
-    : >"$OUT/$name.render"
-    local rss=0
-    for _ in $(seq "$REPS"); do
-        /usr/bin/time -f "%e %M" -o "$OUT/$name.time1" "$@" >"$OUT/$name.log" 2>&1
-        read -r wall kb <"$OUT/$name.time1"
-        echo "$wall" >>"$OUT/$name.times"
-        render_seconds "$OUT/$name.log" "$wall" >>"$OUT/$name.render"
-        [ "$kb" -gt "$rss" ] && rss=$kb
-    done
-    echo "$(median <"$OUT/$name.times") $(median <"$OUT/$name.render") $rss"
-}
-
 rmse() { "$UMBRA" --compare "$1" "$2" | sed -E 's/.*"rmse":([^,}]*).*/\1/'; }
 
-LOAD_BEFORE=$(cut -d' ' -f1-3 /proc/loadavg)
-declare -a ROWS
-add_row() { ROWS+=("$1|$2|$3|$4|$5|$6"); } # name|wall|render|rss_kb|rmse|note
+# The entries, in table order: entry NAME "LABEL" "NOTE" IMAGE:CHANNEL REFERENCE:CHANNEL CMD...
+declare -a E_NAME E_LABEL E_NOTE E_IMG E_REF E_CMD
+entry() {
+    E_NAME+=("$1")
+    E_LABEL+=("$2")
+    E_NOTE+=("$3")
+    E_IMG+=("$4")
+    E_REF+=("$5")
+    shift 5
+    E_CMD+=("$(printf '%q ' "$@")")
+}
+REF="$OUT/umbra_exact.exr:T"
 
 # umbra exact: the reference image of every row but Cycles'
-read -r wall render kb < <(run umbra_exact "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --out "$OUT/umbra_exact.exr")
-REF="$OUT/umbra_exact.exr:T"
-add_row "umbra exact (regular tracking, trilinear)" "$wall" "$render" "$kb" 0 "reference: exact"
-
+entry umbra_exact "umbra exact (regular tracking, trilinear)" "reference: exact" "$REF" "$REF" \
+    "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --out "$OUT/umbra_exact.exr"
 for step in 0.5 1 2; do
-    read -r wall render kb < <(run "vdb_render_$step" vdb_render "$FILE" "$OUT/vdb_render_$step.exr" -name density \
+    entry "vdb_render_$step" "vdb_render step $step" "-cutoff 0 -shadowstep 1e9" "$OUT/vdb_render_$step.exr:1-A" "$REF" \
+        vdb_render "$FILE" "$OUT/vdb_render_$step.exr" -name density \
         -camera ortho -frame "$FRAME" -res "$RES" -translate "$CENTER" -lookat "$LOOKAT" -up "$UPV" \
         -scatter 0,0,0 -absorb "$ABSORB,$ABSORB,$ABSORB" -cutoff 0 -step "$step" -shadowstep 1e9 \
-        -light "$(echo "$DIR" | awk -F, '{ printf "%s,%s,%s", -$1, -$2, -$3 }')" -cpus "$THREADS" -v)
-    add_row "vdb_render step $step" "$wall" "$render" "$kb" "$(rmse "$OUT/vdb_render_$step.exr:1-A" "$REF")" "-cutoff 0 -shadowstep 1e9"
+        -light "$(echo "$DIR" | awk -F, '{ printf "%s,%s,%s", -$1, -$2, -$3 }')" -cpus "$THREADS" -v
 done
 for step in 0.5 1 1.5 2; do
-    read -r wall render kb < <(run "umbra_riemann_$step" "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" \
-        --estimator riemann --step "$step" --out "$OUT/umbra_riemann_$step.exr")
-    add_row "umbra riemann step $step" "$wall" "$render" "$kb" "$(rmse "$OUT/umbra_riemann_$step.exr:T" "$REF")" "midpoint rule per HDDA segment, biased"
+    entry "umbra_riemann_$step" "umbra riemann step $step" "midpoint rule per HDDA segment, biased" \
+        "$OUT/umbra_riemann_$step.exr:T" "$REF" \
+        "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --estimator riemann --step "$step" --out "$OUT/umbra_riemann_$step.exr"
 done
 # The unbiased estimators: residual ratio tracking (minorant control) and unbiased ray marching,
 # the most efficient unbiased one on this cloud (1 / (MSE x time), docs/performance.md).
 for est in residual-ratio unbiased-raymarch; do
     for spp in 1 16; do
-        read -r wall render kb < <(run "umbra_${est}_$spp" "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" \
-            --estimator "$est" --spp "$spp" --out "$OUT/umbra_${est}_$spp.exr")
-        add_row "umbra $est, $spp spp" "$wall" "$render" "$kb" "$(rmse "$OUT/umbra_${est}_$spp.exr:T" "$REF")" "unbiased"
+        entry "umbra_${est}_$spp" "umbra $est, $spp spp" "unbiased" "$OUT/umbra_${est}_$spp.exr:T" "$REF" \
+            "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --estimator "$est" --spp "$spp" --out "$OUT/umbra_${est}_$spp.exr"
     done
 done
+
+# NanoVDB (NANOVDB=0 skips it): the grid converted once with nanovdb_convert (untimed), then
+# bench/nanovdb_march.cpp built with g++ -O3 -march=native. Same voxel convention as OpenVDB.
+if [ "${NANOVDB:-1}" = 1 ]; then
+    if ! command -v nanovdb_convert >/dev/null || [ ! -f /usr/include/nanovdb/NanoVDB.h ]; then
+        apt_install libnanovdb-dev libnanovdb-tools
+    fi
+    NANO="$OUT/nanovdb_march"
+    if [ ! -x "$NANO" ] || [ bench/nanovdb_march.cpp -nt "$NANO" ]; then
+        g++ -O3 -march=native -std=c++17 -pthread -o "$NANO" bench/nanovdb_march.cpp
+    fi
+    NVDB="$OUT/$PRESET.nvdb"
+    [ "$NVDB" -nt "$FILE" ] || nanovdb_convert -f -g density "$FILE" "$NVDB" >&2
+    for step in 0.25 0.5 1; do
+        entry "nanovdb_$step" "NanoVDB march step $step" "HDDA spans, midpoint rule, corners from the leaf" \
+            "$OUT/nanovdb_$step.exr:T" "$REF" \
+            "$NANO" "$NVDB" "${VIEW[@]}" --threads "$THREADS" --step "$step" --out "$OUT/nanovdb_$step.exr"
+    done
+    entry nanovdb_sfv_0.5 "NanoVDB march step 0.5, SampleFromVoxels" "same spans, nanovdb::SampleFromVoxels<acc, 1> lookups" \
+        "$OUT/nanovdb_sfv_0.5.exr:T" "$REF" \
+        "$NANO" "$NVDB" "${VIEW[@]}" --threads "$THREADS" --step 0.5 --sampler nanovdb --out "$OUT/nanovdb_sfv_0.5.exr"
+fi
+
+# Mitsuba 3 (MITSUBA=0 skips it): the grid copied once to a dense array with a zero margin
+# (bench/vdb_dense.py, pyopenvdb; untimed), placed with Mitsuba's cell-centred convention.
+if [ "${MITSUBA:-1}" = 1 ]; then
+    /usr/bin/python3 -c 'import pyopenvdb, numpy' 2>/dev/null || apt_install python3-openvdb python3-numpy
+    LIBLLVM=$(ls /usr/lib/*/libLLVM.so.19* 2>/dev/null | head -1 || true)
+    if [ -z "$LIBLLVM" ]; then
+        apt_install libllvm19
+        LIBLLVM=$(ls /usr/lib/*/libLLVM.so.19* | head -1)
+    fi
+    export DRJIT_LIBLLVM_PATH=${DRJIT_LIBLLVM_PATH:-$LIBLLVM}
+    if ! "$VENV/bin/python" -c 'import mitsuba' 2>/dev/null; then
+        echo "creating $VENV with mitsuba ..." >&2
+        python3 -m venv "$VENV" >&2 || { apt_install python3-venv && /usr/bin/python3 -m venv "$VENV" >&2; }
+        "$VENV/bin/pip" install --quiet mitsuba==3.9.1 numpy >&2
+    fi
+    DENSE="$OUT/${PRESET}_dense.npz"
+    [ "$DENSE" -nt "$FILE" ] || /usr/bin/python3 bench/vdb_dense.py "$FILE" density "$DENSE"
+    MITSUBA_PY=("$VENV/bin/python" bench/mitsuba_transmittance.py "$DENSE")
+    entry mitsuba_volpath_16 "Mitsuba 3 volpath, 16 spp" "llvm_ad_mono, albedo 0, delta tracking, global majorant, unbiased" \
+        "$OUT/mitsuba_volpath_16.exr:Y" "$REF" \
+        "${MITSUBA_PY[@]}" "$OUT/mitsuba_volpath_16.exr" --mode volpath --spp 16 "${VIEW[@]}" --threads "$THREADS"
+    entry drjit_march_0.5 "Dr.Jit march step 0.5 (Mitsuba Texture3f)" "llvm_ad_mono, dense box, no empty-space skipping" \
+        "$OUT/drjit_march_0.5.exr:Y" "$REF" \
+        "${MITSUBA_PY[@]}" "$OUT/drjit_march_0.5.exr" --mode march --step 0.5 "${VIEW[@]}" --threads "$THREADS"
+fi
 
 # Blender Cycles (CYCLES=0 skips it): an absorption-only volume in front of a white world. Cycles
 # puts voxel (i,j,k) at index (i,j,k)+0.5, so its images are scored against umbra's exact image of
 # the grid shifted by half a voxel (../shared/research/peers.md section 3).
 if [ "${CYCLES:-1}" = 1 ]; then
-    if ! command -v blender >/dev/null; then
-        echo "installing blender (Cycles)..." >&2
-        if [ "$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi
-        $SUDO apt-get install -y blender >&2
-    fi
+    command -v blender >/dev/null || apt_install blender
     "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --index-offset 0.5 --out "$OUT/umbra_exact_half.exr" >"$OUT/umbra_exact_half.log"
     for cfg in "1 1" "1 4" "2 1"; do
         read -r rate spp <<<"$cfg"
         name="cycles_rate${rate}_spp$spp"
-        read -r wall render kb < <(run "$name" blender -b --factory-startup -P bench/blender_transmittance.py -- \
-            "$FILE" "$OUT/$name.exr" "${VIEW[@]}" --step-rate "$rate" --spp "$spp" --threads "$THREADS")
-        add_row "Cycles step rate $rate, $spp spp" "$wall" "$render" "$kb" \
-            "$(rmse "$OUT/$name.exr:R" "$OUT/umbra_exact_half.exr:T")" "reference: exact, grid shifted +0.5 voxel"
+        entry "$name" "Cycles step rate $rate, $spp spp" "reference: exact, grid shifted +0.5 voxel" \
+            "$OUT/$name.exr:R" "$OUT/umbra_exact_half.exr:T" \
+            blender -b --factory-startup -P bench/blender_transmittance.py -- \
+            "$FILE" "$OUT/$name.exr" "${VIEW[@]}" --step-rate "$rate" --spp "$spp" --threads "$THREADS"
     done
 fi
+
+# run_once I: one timed run of entry I, appending to its wall, render and RSS lists.
+run_once() {
+    local i=$1 name=${E_NAME[$1]} wall kb
+    eval "/usr/bin/time -f '%e %M' -o \"\$OUT/\$name.time1\" ${E_CMD[$i]}" >"$OUT/$name.log" 2>&1 || {
+        echo "$name failed; its log, $OUT/$name.log, ends with:" >&2
+        tail -5 "$OUT/$name.log" >&2
+        exit 1
+    }
+    read -r wall kb <"$OUT/$name.time1"
+    echo "$wall" >>"$OUT/$name.times"
+    render_seconds "$OUT/$name.log" "$wall" >>"$OUT/$name.render"
+    echo "$kb" >>"$OUT/$name.rss"
+}
+
+# CPU time of the whole machine (busy and total jiffies, /proc/stat) and of this script's
+# children (bash's `times`), so that the header can say how much of the machine other
+# processes took while the renderers ran.
+cpu_jiffies() { awk '/^cpu / { b = $2 + $3 + $4 + $7 + $8 + $9; print b, b + $5 + $6 }' /proc/stat; }
+# (`times` must run in this shell, not in a pipeline's or a substitution's subshell.)
+children_seconds() {
+    times >"$OUT/times.txt"
+    awk 'NR == 2 { s = 0; for (i = 1; i <= 2; i++) { split($i, a, /[ms]/); s += a[1] * 60 + a[2] }; print s }' "$OUT/times.txt"
+}
+
+N=${#E_NAME[@]}
+LOAD_BEFORE=$(cut -d' ' -f1-3 /proc/loadavg)
+read -r BUSY0 TOTAL0 < <(cpu_jiffies)
+children_seconds >"$OUT/ours0.txt"
+OURS0=$(cat "$OUT/ours0.txt")
+echo "warm-up: $N renderers once each ..." >&2
+for i in $(seq 0 $((N - 1))); do
+    : >"$OUT/${E_NAME[$i]}.times"
+    : >"$OUT/${E_NAME[$i]}.render"
+    : >"$OUT/${E_NAME[$i]}.rss"
+    run_once "$i"
+    : >"$OUT/${E_NAME[$i]}.times"
+    : >"$OUT/${E_NAME[$i]}.render"
+    : >"$OUT/${E_NAME[$i]}.rss"
+done
+LOAD_MAX=0
+for rep in $(seq "$REPS"); do
+    l=$(cut -d' ' -f1 /proc/loadavg)
+    LOAD_MAX=$(awk -v a="$LOAD_MAX" -v b="$l" 'BEGIN { print (b > a) ? b : a }')
+    echo "round $rep of $REPS (load average $l) ..." >&2
+    for i in $(seq 0 $((N - 1))); do
+        run_once "$i"
+    done
+done
 LOAD_AFTER=$(cut -d' ' -f1-3 /proc/loadavg)
+read -r BUSY1 TOTAL1 < <(cpu_jiffies)
+children_seconds >"$OUT/ours1.txt"
+OTHERS=$(awk -v b0="$BUSY0" -v t0="$TOTAL0" -v b1="$BUSY1" -v t1="$TOTAL1" -v o0="$OURS0" -v o1="$(cat "$OUT/ours1.txt")" -v hz="$(getconf CLK_TCK)" \
+    'BEGIN { o = ((b1 - b0) / hz - (o1 - o0)) / ((t1 - t0) / hz) * 100; printf "%.0f", (o < 0) ? 0 : o }')
+
+declare -a ROWS
+for i in $(seq 0 $((N - 1))); do
+    name=${E_NAME[$i]}
+    wall=$(median <"$OUT/$name.times")
+    render=$(median <"$OUT/$name.render")
+    kb=$(sort -n "$OUT/$name.rss" | tail -1)
+    if [ "${E_IMG[$i]}" = "$REF" ]; then err=0; else err=$(rmse "${E_IMG[$i]}" "${E_REF[$i]}"); fi
+    ROWS+=("${E_LABEL[$i]}|$wall|$render|$kb|$err|${E_NOTE[$i]}")
+done
 
 # The vdb_render step 1 row is the yardstick of both ratios.
 base=$(printf '%s\n' "${ROWS[@]}" | awk -F'|' '$1 == "vdb_render step 1" { print $2, $5 }')
 {
-    echo "$(basename "$FILE"), $RES, $THREADS threads, median of $REPS runs; load average before: $LOAD_BEFORE, after: $LOAD_AFTER ($(nproc) cores)"
+    echo "$(basename "$FILE"), $RES, $THREADS threads, median of $REPS runs after a warm-up, renderers alternated run by run; load average before: $LOAD_BEFORE, highest at a round's start: $LOAD_MAX, after: $LOAD_AFTER ($(nproc) cores); other processes used $OTHERS % of the machine's CPU time during the runs"
     echo
     echo "| renderer | wall (s) | render (s) | peak RSS (MB) | RMSE | wall / vdb_render step 1 | RMSE / vdb_render step 1 | note |"
     echo "|---|---|---|---|---|---|---|---|"
