@@ -44,35 +44,60 @@ pub fn short(v: f64) -> String {
     }
 }
 
-/// A computed number for a message: four significant digits, scientific outside
-/// `[1e-3, 1e6)` (`143.8`, `2.413e12`), trailing zeros dropped.
-#[must_use]
-pub fn approx(v: f64) -> String {
-    if !v.is_finite() || v == 0.0 {
+/// `v` with `digits` significant digits: fixed-point for magnitudes `10^lo ..= 10^hi`
+/// (`floor(log10 |v|)` in `lo..=hi`), scientific otherwise; with `trim`, trailing zeros (and a
+/// trailing point) of the fixed or mantissa part dropped. Zero and non-finite values as `{v}`.
+fn significant(v: f64, digits: i32, (lo, hi): (i32, i32), trim: bool) -> String {
+    if v == 0.0 || !v.is_finite() {
         return format!("{v}");
     }
-    let trim = |s: String| -> String {
-        if s.contains('.') {
+    let trimmed = |s: String| -> String {
+        if trim && s.contains('.') {
             s.trim_end_matches('0').trim_end_matches('.').to_string()
         } else {
             s
         }
     };
-    if (1e-3..1e6).contains(&v.abs()) {
-        let decimals = (3 - v.abs().log10().floor() as i32).max(0) as usize;
-        trim(format!("{v:.decimals$}"))
+    let mag = v.abs().log10().floor() as i32;
+    if (lo..=hi).contains(&mag) {
+        let decimals = usize::try_from((digits - 1 - mag).max(0)).unwrap_or(0);
+        trimmed(format!("{v:.decimals$}"))
     } else {
-        let s = format!("{v:.3e}");
+        let decimals = usize::try_from(digits - 1).unwrap_or(0);
+        let s = format!("{v:.decimals$e}");
         match s.split_once('e') {
-            Some((m, e)) => format!("{}e{e}", trim(m.to_string())),
+            Some((m, e)) => format!("{}e{e}", trimmed(m.to_string())),
             None => s,
         }
     }
 }
 
+/// A computed number for a message: four significant digits, scientific outside
+/// `[1e-3, 1e6)` (`143.8`, `2.413e12`), trailing zeros dropped.
+#[must_use]
+pub fn approx(v: f64) -> String {
+    significant(v, 4, (-3, 5), true)
+}
+
+/// Three significant digits for report tables, scientific outside `[1e-5, 1e6)`: `0.000123`,
+/// `1.23`, `1.23e6`.
+#[must_use]
+pub fn sig3(v: f64) -> String {
+    significant(v, 3, (-5, 5), false)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn three_significant_digits() {
+        assert_eq!(sig3(0.000_123_4), "0.000123");
+        assert_eq!(sig3(0.045_67), "0.0457");
+        assert_eq!(sig3(1.234), "1.23");
+        assert_eq!(sig3(123.4), "123");
+        assert_eq!(sig3(1_234_567.0), "1.23e6");
+    }
 
     #[test]
     fn approx_keeps_four_significant_digits() {

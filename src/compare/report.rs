@@ -5,6 +5,7 @@
 
 use super::Row;
 use crate::error::Result;
+pub use crate::math::sig3;
 use crate::output::{commit_all, stage};
 use serde::Serialize;
 use std::collections::BTreeMap;
@@ -148,32 +149,4 @@ pub fn markdown(rows: &[Row], meta: &Meta) -> String {
         s.push('\n');
     }
     s
-}
-
-/// `v` with 3 significant digits (`0.000123`, `0.0457`, `1.23`, `123`, `1.23e6`).
-#[must_use]
-pub fn sig3(v: f64) -> String {
-    if v == 0.0 || !v.is_finite() {
-        return format!("{v}");
-    }
-    let mag = v.abs().log10().floor() as i32;
-    if !(-5..6).contains(&mag) {
-        return format!("{v:.2e}");
-    }
-    let decimals = usize::try_from((2 - mag).max(0)).unwrap_or(0);
-    format!("{v:.decimals$}")
-}
-
-#[cfg(test)]
-mod tests {
-    use super::sig3;
-
-    #[test]
-    fn three_significant_digits() {
-        assert_eq!(sig3(0.000_123_4), "0.000123");
-        assert_eq!(sig3(0.045_67), "0.0457");
-        assert_eq!(sig3(1.234), "1.23");
-        assert_eq!(sig3(123.4), "123");
-        assert_eq!(sig3(1_234_567.0), "1.23e6");
-    }
 }
