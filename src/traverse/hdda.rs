@@ -273,7 +273,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             let v = f64::from(v);
             return self.segment(v, v, level, t0, t1);
         }
-        let h = halo.unwrap_or_else(|| self.vol.tree().halo_bounds_wide(origin, dim));
+        let h = halo.unwrap_or_else(|| self.vol.tree().halo_bounds(origin, dim));
         if h.min == h.max {
             if h.min == self.bg {
                 return ControlFlow::Continue(());

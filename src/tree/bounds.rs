@@ -85,11 +85,10 @@ impl VoxelBox {
         }
     }
     /// The voxels trilinear lookups in the node's dual-grid region read: `[o, o + dim]`.
-    fn trilinear(origin: [i32; 3], dim: i64) -> Self {
-        let o = origin.map(i64::from);
+    fn trilinear(origin: [i64; 3], dim: i64) -> Self {
         Self {
-            lo: o,
-            hi: o.map(|v| v + dim),
+            lo: origin,
+            hi: origin.map(|v| v + dim),
         }
     }
     /// Range of child slots (each `child_dim` wide) of a node at `origin` that the box touches,
@@ -396,45 +395,35 @@ impl Tree {
     }
 
     /// Bounds of the values a trilinear lookup can read in the dual-grid region of the `dim`^3
-    /// block at `origin` (a tile, node, voxel, or empty root cell): voxels `[o, o + dim]`.
+    /// block at `origin` (a tile, node, voxel, or empty root cell): voxels `[o, o + dim]`. The
+    /// origin is in the unbounded index space: a root cell just below the `i32` range (which
+    /// trilinear lookups reach) holds the background and reads the range's first voxels on its
+    /// + faces.
     #[must_use]
-    pub fn halo_bounds(&self, origin: [i32; 3], dim: i64) -> Bounds {
+    pub fn halo_bounds(&self, origin: [i64; 3], dim: i64) -> Bounds {
+        let whole = VoxelBox::trilinear(origin, dim);
         let level = match dim {
             8 => 1,
             128 => 2,
             4096 => 3,
-            _ => return self.box_bounds(VoxelBox::trilinear(origin, dim)),
+            _ => return self.box_bounds(whole),
         };
-        if origin.iter().any(|&c| i64::from(c) % dim != 0)
-            || self.faces.leaves.len() != self.leaves.len()
-        {
-            return self.box_bounds(VoxelBox::trilinear(origin, dim));
-        }
-        let own = match self.block_at(origin.map(i64::from), level) {
+        let aligned = origin.iter().all(|&c| c % dim == 0);
+        let in_range = [0, 1, 2].map(|a| i32::try_from(origin[a]).ok());
+        let ([Some(x), Some(y), Some(z)], true, true) = (
+            in_range,
+            aligned,
+            self.faces.leaves.len() == self.leaves.len(),
+        ) else {
+            return self.box_bounds(whole);
+        };
+        let own = match self.block_at(origin, level) {
             Neighbour::Const(v) => Bounds::point(v),
             Neighbour::Leaf(i) => self.leaves[i as usize].bounds,
             Neighbour::Lower(i) => self.lowers[i as usize].bounds,
             Neighbour::Upper(i) => self.uppers[i as usize].bounds,
         };
-        self.halo_at(origin, level, own)
-    }
-
-    /// [`Tree::halo_bounds`] for a block of the unbounded index space: a root cell just below
-    /// the `i32` range (which trilinear lookups reach) has background values and reads the
-    /// first voxels of the range on its + faces.
-    #[must_use]
-    pub fn halo_bounds_wide(&self, origin: [i64; 3], dim: i64) -> Bounds {
-        match [0, 1, 2].map(|a| i32::try_from(origin[a]).ok()) {
-            [Some(x), Some(y), Some(z)] => self.halo_bounds([x, y, z], dim),
-            _ => {
-                let mut b = self.box_bounds(VoxelBox {
-                    lo: origin,
-                    hi: origin.map(|c| c + dim),
-                });
-                b.include(self.background);
-                b
-            }
-        }
+        self.halo_at([x, y, z], level, own)
     }
 
     /// Bounds of the values of the `dim`^3 block at `origin`, without halo.
@@ -665,30 +654,36 @@ mod tests {
             .tile([4096, 0, 0], 12, 6.0);
         let t = b.build();
         for l in &t.leaves {
-            assert_eq!(l.halo, t.box_bounds(VoxelBox::trilinear(l.origin, 8)));
+            assert_eq!(
+                l.halo,
+                t.box_bounds(VoxelBox::trilinear(l.origin.map(i64::from), 8))
+            );
         }
         for (nodes, side_log2, child_log2) in [(&t.lowers, 4u32, 3u32), (&t.uppers, 5, 7)] {
             for n in nodes {
                 let dim = 1i64 << (side_log2 + child_log2);
-                assert_eq!(n.halo, t.box_bounds(VoxelBox::trilinear(n.origin, dim)));
+                assert_eq!(
+                    n.halo,
+                    t.box_bounds(VoxelBox::trilinear(n.origin.map(i64::from), dim))
+                );
                 for s in 0..n.slots.len() {
                     if n.has_child(s) {
                         continue;
                     }
                     let o = slot_origin(n.origin, s, side_log2, child_log2).map(|c| c as i32);
-                    let want = t.box_bounds(VoxelBox::trilinear(o, 1 << child_log2));
+                    let want = t.box_bounds(VoxelBox::trilinear(o.map(i64::from), 1 << child_log2));
                     assert_eq!(n.tile_halo_of(s), want, "slot {s} at {o:?}");
                 }
             }
         }
         for e in &t.root {
-            let want = t.box_bounds(VoxelBox::trilinear(e.origin, 4096));
-            assert_eq!(t.halo_bounds(e.origin, 4096), want);
+            let want = t.box_bounds(VoxelBox::trilinear(e.origin.map(i64::from), 4096));
+            assert_eq!(t.halo_bounds(e.origin.map(i64::from), 4096), want);
         }
         for o in [[-4096, -4096, -4096], [8192, 0, 0], [0, 4096, 0]] {
             assert_eq!(
-                t.halo_bounds(o, 4096),
-                t.box_bounds(VoxelBox::trilinear(o, 4096))
+                t.halo_bounds(o.map(i64::from), 4096),
+                t.box_bounds(VoxelBox::trilinear(o.map(i64::from), 4096))
             );
         }
     }
