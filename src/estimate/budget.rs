@@ -73,12 +73,13 @@ pub fn check_ray(vol: &Volume, est: &Estimator, samples: u32) -> Result<()> {
 }
 
 /// Check a job of `rays` rays of up to `samples` samples each (`name`: the option that sets
-/// them, `spp` or `max-spp`).
+/// them, `samples`, `spp` or `max-spp`): each ray as [`check_ray`], then the job's totals.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] naming `name` or `step`, with the largest accepted value.
 pub fn check_job(vol: &Volume, est: &Estimator, rays: u64, samples: u64, name: &str) -> Result<()> {
     check_samples(name, samples)?;
+    check_ray(vol, est, u32::try_from(samples).unwrap_or(u32::MAX))?;
     let samples = if est.spec().deterministic { 1 } else { samples };
     let total = rays.saturating_mul(samples);
     if total > MAX_SAMPLES_PER_JOB {

@@ -100,9 +100,8 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
     let vol = load_volume(&a.file, &a.grid, a.density_scale)?;
     let interp: Interp = a.interp.into();
     let (est, opts) = a.est.resolve(interp)?;
-    // The work budget, up front: per ray, then for every ray of the batch together.
+    // The work budget, up front: per ray and for every ray of the batch together.
     let rays = batch.as_ref().map_or(1, Vec::len) as u64;
-    umbra::estimate::budget::check_ray(&vol, &est, opts.samples).map_err(flag_error)?;
     umbra::estimate::budget::check_job(&vol, &est, rays, u64::from(opts.samples), "samples")
         .map_err(flag_error)?;
     let answers: Vec<Answer> = if let Some(rows) = batch {
