@@ -146,7 +146,11 @@ impl Archive {
                 let p = self.load(parent)?;
                 (p.tree, p.precision_loss)
             }
-            (None, None) => unreachable_head(path)?,
+            // `load` reads a topology exactly when there is no parent.
+            (None, None) => {
+                let why = "grid has neither a tree nor an instance parent";
+                return Err(DecodeError::invalid(why).at(path));
+            }
         };
         let metadata = head.metadata;
         let class = metadata::meta_string(&metadata, "class").map(str::to_string);
@@ -212,10 +216,4 @@ impl Archive {
         }
         Ok(parent)
     }
-}
-
-/// A grid with neither topology nor parent cannot be reached (`load` reads a topology exactly
-/// when there is no parent); reported as corrupt rather than asserted.
-fn unreachable_head<T>(path: &Path) -> Result<T> {
-    Err(DecodeError::invalid("grid has neither a tree nor an instance parent").at(path))
 }
