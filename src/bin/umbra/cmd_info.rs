@@ -7,6 +7,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::info::{FileInfo, GridInfo};
+use umbra::text::escape;
 
 /// Arguments of `umbra info`.
 #[derive(Debug, clap::Args)]
@@ -70,7 +71,7 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
             f.grids.iter().filter_map(move |g| {
                 g.error
                     .as_ref()
-                    .map(|e| format!("{}: grid '{}': {}", esc(&f.path), esc(&g.name), esc(e)))
+                    .map(|e| format!("{}: grid '{}': {e}", f.path, g.name))
             })
         })
         .chain(file_errors)
@@ -81,18 +82,12 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
         eprintln!(
             "umbra: error: {} of {total} grids or files could not be read (first: {})",
             failed.len(),
-            umbra::text::escape(first)
+            escape(first)
         );
         // Partial failure (3) when something was described; nothing readable is an error (1).
         return Ok(ExitCode::from(if failed.len() < total { 3 } else { 1 }));
     }
     Ok(ExitCode::SUCCESS)
-}
-
-/// `s` with control characters (ESC, BEL, newlines...) written as `\xNN`, so a name from a
-/// file cannot drive the terminal.
-fn esc(s: &str) -> String {
-    umbra::text::escape(s).into_owned()
 }
 
 /// A number as a person reads it: integers plainly, others with 6 significant digits
@@ -159,7 +154,7 @@ fn count(n: u64) -> String {
 
 /// One line per grid: name, type, class, voxel size, active voxels, index bbox, value range.
 fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
-    writeln!(out, "{}:", esc(&info.path))?;
+    writeln!(out, "{}:", escape(&info.path))?;
     for g in &info.grids {
         let ty = format!(
             "{}{}",
@@ -167,14 +162,19 @@ fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
             if g.saved_as_half { " (half)" } else { "" }
         );
         if let Some(e) = &g.error {
-            writeln!(out, "  {:<16} {ty:<12} error: {}", esc(&g.name), esc(e))?;
+            writeln!(
+                out,
+                "  {:<16} {ty:<12} error: {}",
+                escape(&g.name),
+                escape(e)
+            )?;
             continue;
         }
         writeln!(
             out,
             "  {:<16} {ty:<12} {:<10} voxel {:<10} {:>8} active  {}  [{}, {}]",
-            esc(&g.name),
-            esc(g.class.as_deref().unwrap_or("-")),
+            escape(&g.name),
+            escape(g.class.as_deref().unwrap_or("-")),
             g.voxel_size.map_or("-".into(), vec3),
             count(g.active_voxels.unwrap_or(0)),
             bbox(g.index_bbox),
@@ -189,7 +189,7 @@ fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
     writeln!(
         out,
         "{}: VDB format {}, library {}, {} bytes, {} grid(s)",
-        esc(&info.path),
+        escape(&info.path),
         info.file_version,
         info.library_version,
         info.file_bytes,
@@ -205,15 +205,19 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
     writeln!(
         out,
         "\n{} ({}{})",
-        esc(&g.name),
+        escape(&g.name),
         g.value_type,
         if g.saved_as_half { ", half" } else { "" }
     )?;
     if let Some(e) = &g.error {
-        writeln!(out, "  error: {}", esc(e))?;
+        writeln!(out, "  error: {}", escape(e))?;
         return Ok(());
     }
-    writeln!(out, "  class: {}", esc(g.class.as_deref().unwrap_or("-")))?;
+    writeln!(
+        out,
+        "  class: {}",
+        escape(g.class.as_deref().unwrap_or("-"))
+    )?;
     writeln!(
         out,
         "  compression: {}",
