@@ -9,7 +9,8 @@
 //! cargo run --release --example ortho_view -- FILE --grid density --scale 5 \
 //!     --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res 512x512 \
 //!     [--estimator regular|riemann|NAME] [--step 1] [--spp 1] [--seed 0] \
-//!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--index-offset 0] [--out t.exr]
+//!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--index-offset 0] [--out t.exr] \
+//!     [--order auto|rays] [--check 1]
 //! cargo run --release --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
 //! ```
 //!
@@ -21,7 +22,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use std::time::Instant;
-use umbra::bake::{bake, write_exr, BakeSettings, Camera, CameraSpec, Projection, Provenance};
+use umbra::bake::{
+    bake, write_exr, BakeSettings, Camera, CameraSpec, Order, Projection, Provenance,
+};
 use umbra::estimate::{Estimator, Options};
 use umbra::{Interp, Volume};
 
@@ -214,6 +217,10 @@ fn main() {
         },
     );
     settings.threads = threads;
+    settings.order = match get("order", "auto").as_str() {
+        "rays" => Order::Rays,
+        _ => Order::Auto,
+    };
     let nthreads = if threads == 0 {
         rayon::current_num_threads()
     } else {
@@ -254,6 +261,22 @@ fn main() {
         };
         write_exr(std::path::Path::new(path), &map, &prov, true).unwrap();
     }
+    // `--check`: the same map traced ray by ray (`Order::Rays`); the largest difference of T
+    // between the two (the sweep's f32 cell arithmetic against the f64 ray path).
+    let check = opt.contains_key("check").then(|| {
+        let by_rays = BakeSettings {
+            order: Order::Rays,
+            ..settings.clone()
+        };
+        let rays = bake(&vol, &camera, &by_rays, &|_| {}).unwrap();
+        let max_abs = map
+            .t
+            .iter()
+            .zip(&rays.t)
+            .fold(0.0f64, |m, (a, b)| m.max(f64::from((a - b).abs())));
+        serde_json::json!({"max_abs_t": max_abs,
+            "lookups_per_ray_rays": rays.stats.lookups as f64 / (w * h) as f64})
+    });
     let lookups = map.stats.lookups;
     let rays = (w * h) as f64;
     println!(
@@ -267,6 +290,7 @@ fn main() {
             "tree_bytes": vol.tree().memory_bytes(), "file_mem_bytes": file_mem_bytes,
             "peak_rss_start": rss_start, "peak_rss_after_load": rss_loaded,
             "peak_rss_after_bake": rss_baked, "peak_rss": peak_rss(),
+            "order": get("order", "auto"), "check": check,
         })
     );
 }

@@ -95,9 +95,9 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
 
 /// Cells integrated and voxel values read.
 #[derive(Debug, Default, Clone, Copy)]
-struct Counts {
-    cells: u64,
-    reads: u64,
+pub(crate) struct Counts {
+    pub(crate) cells: u64,
+    pub(crate) reads: u64,
 }
 
 /// Integral of the (unscaled) density over `[t0, t1]`, cell by cell.
@@ -127,7 +127,7 @@ fn cell_range(q: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> ([i64; 3], [i64; 3]
 }
 
 /// Any segment, every voxel through the cached accessor.
-fn cells_integral(
+pub(crate) fn cells_integral(
     acc: &mut Accessor<'_>,
     q: [f64; 3],
     d: [f64; 3],
@@ -151,7 +151,7 @@ fn cells_integral(
 /// A leaf's segment: the cells are the leaf's (lookup cells `[o, o + 7]`), read straight from
 /// its values; trilinear corners on the + faces come from the neighbouring blocks.
 #[allow(clippy::too_many_arguments)]
-fn leaf_integral(
+pub(crate) fn leaf_integral(
     acc: &mut Accessor<'_>,
     leaf: u32,
     q: [f64; 3],

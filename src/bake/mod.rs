@@ -17,6 +17,7 @@ mod matrix;
 mod output;
 mod pipeline;
 mod render;
+mod sweep;
 
 pub use camera::{
     check_res, Camera, CameraSpec, Projection, Resolution, View, DEFAULT_LONG_SIDE, MAX_PIXELS,
@@ -25,5 +26,6 @@ pub use camera::{
 pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
 pub use render::{
-    bake, check_threads, BakeSettings, BakeStats, Depths, Map, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
+    bake, check_threads, BakeSettings, BakeStats, Depths, Map, Order, MAX_BATCHES, MAX_SLICES,
+    MAX_THREADS,
 };

@@ -67,6 +67,22 @@ pub struct BakeSettings {
     pub std_err: bool,
     /// Worker threads: 0 runs on the current rayon pool, `n` on a local pool of `n` threads.
     pub threads: usize,
+    /// How pixels are traced: [`Order::Auto`] lets exact orthographic maps use the object-order
+    /// sweep; [`Order::Rays`] traces every pixel's ray (the reference the sweep is tested
+    /// against).
+    pub order: Order,
+}
+
+/// The order in which a map is traced.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Order {
+    /// Object order (the sweep: each 8^3 block adds its exact integral to the pixels it covers)
+    /// for exact trilinear orthographic maps without slices; ray order for everything else.
+    #[default]
+    Auto,
+    /// One ray per pixel, walked down the tree.
+    Rays,
 }
 
 impl BakeSettings {
@@ -114,6 +130,7 @@ impl BakeSettings {
             depths: Depths::None,
             std_err: false,
             threads: 0,
+            order: Order::Auto,
         }
     }
 }
@@ -406,6 +423,11 @@ fn render(
     let k = depths.len();
     let len = npix as usize;
     let rows = band_rows(h, rayon::current_num_threads());
+    if s.order == Order::Auto && super::sweep::applies(camera, s, depths) {
+        if let Some(map) = super::sweep::render(vol, camera, s, rows, progress)? {
+            return Ok(map);
+        }
+    }
     // Bands of whole rows are contiguous in the row-major image, so every worker writes `T`
     // straight into its own part of the output; inside a band, pixels go tile by tile
     // (`TILE` columns at a time) so that neighbouring rays reuse the same cached nodes.

@@ -489,6 +489,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         depths,
         std_err: b.stderr,
         threads: 0,
+        order: crate::bake::Order::Auto,
     };
     settings.validate().map_err(|e| match e {
         crate::Error::InvalidArgument { name, reason } => {

@@ -70,9 +70,12 @@ pub fn walk(
     walk_nodes(vol, ray, interp, gran, |s, _| visit(s))
 }
 
-/// [`walk`], also telling the visitor which leaf (index into `Tree::leaves`) produced a segment
-/// (`None` for tiles, empty root cells and coarser nodes), so that regular tracking can read the
-/// leaf's voxels directly instead of descending the tree for every voxel.
+/// [`walk`], also telling the visitor which node of the requested granularity produced a
+/// segment: a leaf (index into `Tree::leaves`) at [`Granularity::Leaf`], a lower node (into
+/// `Tree::lowers`) at [`Granularity::Lower`], an upper node (into `Tree::uppers`) at
+/// [`Granularity::Upper`]; `None` for tiles and empty root cells. Regular tracking reads a
+/// leaf's voxels directly instead of descending the tree for every voxel; the object-order map
+/// renderer (`bake::sweep`) integrates lower nodes itself and walks rays only for the rest.
 pub(crate) fn walk_nodes(
     vol: &Volume,
     ray: &Ray,
@@ -174,7 +177,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         let tree = &self.vol.tree();
         let node = &tree.uppers[u as usize];
         if self.gran == Granularity::Upper {
-            return self.node_segment(self.pick(node.bounds, node.halo), 3, None, t0, t1);
+            return self.node_segment(self.pick(node.bounds, node.halo), 3, Some(u), t0, t1);
         }
         self.internal(node, 4096, 128, t0, t1, |w, child, ta, tb| {
             w.lower(child, ta, tb)
@@ -184,7 +187,7 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
     fn lower(&mut self, l: u32, t0: f64, t1: f64) -> ControlFlow<()> {
         let node = &self.vol.tree().lowers[l as usize];
         if self.gran == Granularity::Lower {
-            return self.node_segment(self.pick(node.bounds, node.halo), 2, None, t0, t1);
+            return self.node_segment(self.pick(node.bounds, node.halo), 2, Some(l), t0, t1);
         }
         self.internal(node, 128, 8, t0, t1, |w, l, ta, tb| {
             let leaf = &w.vol.tree().leaves[l as usize];

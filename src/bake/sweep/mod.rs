@@ -1,0 +1,708 @@
+//! The sweep: exact orthographic maps in object order.
+//!
+//! The rays of an orthographic map are parallel, and exact optical depth is additive along a
+//! ray: `tau(pixel) = sum over blocks B of int_{ray ∩ B} mu_t dt`. So instead of walking every
+//! ray down the tree, the sweep visits the tree's 8^3 blocks (leaves and tiles of lower nodes)
+//! once each and adds each block's exact contribution to every pixel its footprint covers:
+//!
+//! - **Blocks.** Every lower node the hierarchical DDA would enter (its trilinear halo is not
+//!   just the background) contributes its 4096 child blocks, in lookup space `[o, o + 8]^3`.
+//!   A block whose halo is one value `c` adds `mu(c) x chord` in closed form (the background's
+//!   `mu` for background blocks, so a non-zero background is counted once); any other block
+//!   adds the exact integral of its trilinear field, computed by the lane kernel
+//!   ([`kernel`]: the block's 9^3 corner values copied once into L1, 8 rays of a footprint row
+//!   at a time, f32 AVX2 cells summed in f64) or, for blocks whose values are infinite, huge or
+//!   subnormal, by the f64 per-ray code of [`crate::regular`].
+//! - **Everything above lower nodes** (tiles of upper nodes and root cells with a value or a
+//!   halo other than the background, and the background itself when its `mu` is not zero) is
+//!   what a ray walk at lower-node granularity emits outside lower nodes; it is traced per
+//!   pixel, and skipped when the tree has none of it.
+//! - **Footprints.** A block's pixels are found by projecting its 8 corners along the rays onto
+//!   the image (`[q_x q_y d]^-1 (p - q_0)`, where pixel `(i, j)`'s ray is
+//!   `q_0 + i q_x + j q_y + t d`), grown by a pixel; each pixel's ray is then clipped to the box
+//!   exactly, so the footprint test decides nothing.
+//! - **Order and threads.** Blocks are binned into bands of image rows; bands run in parallel,
+//!   each over its blocks in tree order. A pixel's sum is the rest walk first, then its blocks
+//!   in tree order: the same whatever the thread count.
+//!
+//! The result equals the ray path's ([`crate::regular::optical_depth`] per pixel) to within the
+//! kernel's f32 cell arithmetic (see [`kernel`]); `tests/bake.rs` holds it to `1e-6` relative on
+//! corpus files. Lookups are counted as the ray path counts them: 8 corner reads for the first
+//! dual cell of a block, 4 for each further one.
+
+mod kernel;
+
+use super::camera::{Camera, Projection};
+use super::render::{BakeSettings, BakeStats, Map};
+use crate::error::{Error, Result};
+use crate::estimate::Estimator;
+use crate::ray::Ray;
+use crate::regular::{cells_integral, leaf_integral, Counts};
+use crate::traverse::{lookup_ray, walk_nodes, Granularity};
+use crate::tree::{Accessor, Block, Neighbour, RootSlot, Tree};
+use crate::volume::{Interp, Volume};
+use glam::{DMat3, DVec3};
+use kernel::{Dir, Lanes, BLOCK, LANES, SIDE};
+use rayon::prelude::*;
+use std::ops::ControlFlow;
+
+/// Most values a block may hold in magnitude for the f32 kernel (no overflow in `h (f + f)`).
+const KERNEL_MAX: f64 = 1e20;
+/// Least non-zero magnitude for the f32 kernel (no subnormal products).
+const KERNEL_MIN: f64 = 1e-20;
+/// Range of a block's largest chord (world units) the f32 kernel accepts.
+const CHORD_RANGE: (f64, f64) = (1e-15, 1e15);
+
+/// True when the sweep renders this map: an orthographic camera, exact regular tracking with
+/// trilinear lookups, no depth slices.
+pub(crate) fn applies(camera: &Camera, s: &BakeSettings, depths: &[f64]) -> bool {
+    camera.kind == Projection::Ortho
+        && s.estimator == Estimator::REGULAR
+        && s.options.interp == Interp::Trilinear
+        && depths.is_empty()
+}
+
+/// The map's rays in lookup space: pixel `(i, j)` is `q0 + i qx + j qy + t d`, `t` in
+/// `[t_min, t_max]`.
+struct Rays {
+    q0: DVec3,
+    qx: DVec3,
+    qy: DVec3,
+    d: DVec3,
+    /// `1 / d` per axis (unused where `d` is zero).
+    inv_d: DVec3,
+    /// `[qx qy d]^-1`: lookup-space offsets from `q0` to `(i, j, t)`.
+    inv: DMat3,
+    t_min: f64,
+    t_max: f64,
+    /// The lookup-space box the ray walk clips rays to (the value box, grown by the reach of
+    /// trilinear lookups): outside it every ray has the background, which the rest walk adds.
+    clip_lo: [f64; 3],
+    clip_hi: [f64; 3],
+    width: u32,
+    height: u32,
+}
+
+impl Rays {
+    fn new(vol: &Volume, camera: &Camera) -> Result<Option<Self>> {
+        let r0 = camera.pixel_ray(0, 0)?;
+        let (q0, d) = lookup_ray(vol, &r0, Interp::Trilinear);
+        let qx = vol.to_index_dir(DVec3::from(camera.step_x));
+        let qy = vol.to_index_dir(DVec3::from(camera.step_y));
+        let m = DMat3::from_cols(qx, qy, DVec3::from(d));
+        let det = m.determinant();
+        if !(det.is_finite() && det != 0.0) {
+            return Ok(None);
+        }
+        // As `hdda::Walker::run`: lookup cells whose trilinear reads touch the value box.
+        let (clip_lo, clip_hi) = match vol.value_box() {
+            Some([lo, hi]) => (lo.map(|c| (c - 1) as f64), hi.map(|c| (c + 1) as f64)),
+            None => ([0.0; 3], [0.0; 3]),
+        };
+        Ok(Some(Self {
+            q0: DVec3::from(q0),
+            qx,
+            qy,
+            d: DVec3::from(d),
+            inv_d: DVec3::from(d).recip(),
+            inv: m.inverse(),
+            t_min: r0.t_min(),
+            t_max: r0.t_max(),
+            clip_lo,
+            clip_hi,
+            width: camera.width,
+            height: camera.height,
+        }))
+    }
+
+    #[inline]
+    fn q(&self, i: u32, j: u32) -> DVec3 {
+        self.q0 + self.qx * f64::from(i) + self.qy * f64::from(j)
+    }
+
+    /// The pixels `[i0, i1] x [j0, j1]` whose rays can cross the lookup-space box of side
+    /// `dim` at `o`, or `None`.
+    fn footprint(&self, o: [i64; 3], dim: i64) -> Option<[u32; 4]> {
+        let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+        for k in 0..8 {
+            let c = [0, 1, 2].map(|a| (o[a] + dim * ((k >> (2 - a)) & 1)) as f64);
+            let v = self.inv * (DVec3::from(c) - self.q0);
+            lo = lo.min(v);
+            hi = hi.max(v);
+        }
+        if hi.z < self.t_min || lo.z > self.t_max || !(lo.is_finite() && hi.is_finite()) {
+            return None;
+        }
+        let range = |a: f64, b: f64, n: u32| {
+            let (a, b) = ((a - 1.0).floor(), (b + 1.0).ceil());
+            (b >= 0.0 && a <= f64::from(n) - 1.0)
+                .then(|| (a.max(0.0) as u32, b.min(f64::from(n) - 1.0) as u32))
+        };
+        let (i0, i1) = range(lo.x, hi.x, self.width)?;
+        let (j0, j1) = range(lo.y, hi.y, self.height)?;
+        Some([i0, i1, j0, j1])
+    }
+
+    /// Pixel `(i, j)`'s ray clipped to the lookup box of side `dim` at `o`: `(q, t0, t1)`.
+    /// The slab test of [`crate::ray::clip_box`] with the direction's reciprocals and signs hoisted.
+    #[inline]
+    fn clip(&self, i: u32, j: u32, o: [i64; 3], dim: i64) -> Option<(DVec3, f64, f64)> {
+        let q = self.q(i, j);
+        let (mut a, mut b) = (self.t_min, self.t_max);
+        for k in 0..3 {
+            let lo = (o[k] as f64).max(self.clip_lo[k]);
+            let hi = ((o[k] + dim) as f64).min(self.clip_hi[k]);
+            if self.d[k] == 0.0 {
+                if q[k] < lo || q[k] > hi {
+                    return None;
+                }
+                continue;
+            }
+            let (u, v) = ((lo - q[k]) * self.inv_d[k], (hi - q[k]) * self.inv_d[k]);
+            let (near, far) = if self.d[k] > 0.0 { (u, v) } else { (v, u) };
+            if near > a {
+                a = near;
+            }
+            if far < b {
+                b = far;
+            }
+        }
+        (a < b).then_some((q, a, b))
+    }
+
+    /// The columns `[i0, i1]` of row `j` whose rays can cross the lookup box of side `dim` at
+    /// `o` (a superset, grown by a column: [`Rays::clip`] decides), or `None`. A ray crosses
+    /// the box when every slab's entry comes before every slab's exit and the range
+    /// `[t_min, t_max]`; along a row each entry and exit is linear in `i`, so each of these
+    /// conditions bounds `i` on one side.
+    fn row_span(&self, j: u32, o: [i64; 3], dim: i64, [i0, i1]: [u32; 2]) -> Option<[u32; 2]> {
+        let qj = self.q0 + self.qy * f64::from(j);
+        let (mut lo, mut hi) = (f64::from(i0), f64::from(i1));
+        // `alpha + beta i < 0` (strict or not: the margin below covers the difference).
+        let mut need = |alpha: f64, beta: f64| {
+            if beta > 0.0 {
+                hi = hi.min(-alpha / beta);
+            } else if beta < 0.0 {
+                lo = lo.max(-alpha / beta);
+            } else if alpha > 0.0 {
+                hi = f64::NEG_INFINITY;
+            }
+        };
+        // Entry and exit of each slab as `(alpha, beta)`: `t = alpha + beta i`.
+        let mut near = [(0.0, 0.0); 3];
+        let mut far = [(0.0, 0.0); 3];
+        let mut n = 0;
+        for k in 0..3 {
+            let b0 = (o[k] as f64).max(self.clip_lo[k]);
+            let b1 = ((o[k] + dim) as f64).min(self.clip_hi[k]);
+            if b0 > b1 {
+                return None;
+            }
+            if self.d[k] == 0.0 {
+                // b0 <= qj + i qx <= b1.
+                need(b0 - qj[k], -self.qx[k]);
+                need(qj[k] - b1, self.qx[k]);
+                continue;
+            }
+            let beta = -self.qx[k] * self.inv_d[k];
+            let u = (b0 - qj[k]) * self.inv_d[k];
+            let v = (b1 - qj[k]) * self.inv_d[k];
+            let (a, b) = if self.d[k] > 0.0 { (u, v) } else { (v, u) };
+            near[n] = (a, beta);
+            far[n] = (b, beta);
+            n += 1;
+        }
+        for x in &near[..n] {
+            need(x.0 - self.t_max, x.1);
+            for y in &far[..n] {
+                need(x.0 - y.0, x.1 - y.1);
+            }
+        }
+        for y in &far[..n] {
+            need(self.t_min - y.0, -y.1);
+        }
+        let (lo, hi) = (
+            (lo - 1.0).floor().max(f64::from(i0)),
+            (hi + 1.0).ceil().min(f64::from(i1)),
+        );
+        (lo <= hi).then_some([lo as u32, hi as u32])
+    }
+}
+
+/// What a block adds to the rays crossing it.
+#[derive(Debug, Clone, Copy)]
+enum Part {
+    /// `mu x chord`.
+    Const(f64),
+    /// The exact integral of a leaf's field (`fast`: on the f32 kernel).
+    Leaf { leaf: u32, fast: bool },
+    /// The exact integral of a lower node's tile slot with a varying halo.
+    Tile { lower: u32, slot: u32, fast: bool },
+    /// The exact integral of an 8^3 block outside every lower node (in a tile of an upper node
+    /// or an empty root cell) whose corners on its + faces read a lower node's values.
+    Shell { fast: bool },
+}
+
+/// One block of the sweep.
+#[derive(Debug, Clone, Copy)]
+struct Piece {
+    part: Part,
+    /// Lookup-space origin of its `[o, o + 8]^3` box.
+    origin: [i64; 3],
+    /// Pixels `[i0, i1] x [j0, j1]` it may cover.
+    rect: [u32; 4],
+}
+
+/// Whether a block with halo values up to `m` in magnitude goes on the f32 kernel.
+fn kernel_ok(min: f32, max: f32, chord: f64) -> bool {
+    let m = f64::from(min.abs().max(max.abs()));
+    m.is_finite()
+        && (KERNEL_MIN..=KERNEL_MAX).contains(&m)
+        && (CHORD_RANGE.0..=CHORD_RANGE.1).contains(&chord)
+}
+
+/// Every block of every lower node the ray walk would enter, in tree order; then, with
+/// `shells`, the blocks outside lower nodes whose trilinear corners read them (sorted by
+/// origin).
+fn pieces(vol: &Volume, rays: &Rays, shells: bool) -> Vec<Piece> {
+    let tree = vol.tree();
+    let entered: std::collections::HashSet<[i32; 3]> = tree
+        .lowers
+        .iter()
+        .filter(|n| !(n.halo.min == tree.background && n.halo.max == tree.background))
+        .map(|n| n.origin)
+        .collect();
+    let mut outside = std::collections::BTreeSet::new();
+    let bg = tree.background;
+    let scale = vol.density_scale();
+    let mu_bg = vol.mu_background();
+    // The longest world chord of an 8^3 block: its diagonal over the index length of a world unit.
+    let chord = 8.0 * 3f64.sqrt() / rays.d.length();
+    let mut out = Vec::new();
+    for (l, node) in tree.lowers.iter().enumerate() {
+        if node.halo.min == bg && node.halo.max == bg {
+            continue;
+        }
+        if rays.footprint(node.origin.map(i64::from), 128).is_none() {
+            continue;
+        }
+        let base = node.origin.map(i64::from);
+        for slot in 0..4096usize {
+            let local = [slot >> 8, (slot >> 4) & 15, slot & 15];
+            let origin = [0, 1, 2].map(|a| base[a] + 8 * local[a] as i64);
+            let (h, part) = if node.has_child(slot) {
+                let leaf = node.slots[slot];
+                let h = tree.leaves[leaf as usize].halo;
+                let fast = kernel_ok(h.min, h.max, chord);
+                (h, Part::Leaf { leaf, fast })
+            } else {
+                let h = node.tile_halo_of(slot);
+                let fast = kernel_ok(h.min, h.max, chord);
+                (
+                    h,
+                    Part::Tile {
+                        lower: l as u32,
+                        slot: slot as u32,
+                        fast,
+                    },
+                )
+            };
+            let part = if h.min == h.max {
+                let mu = if h.min == bg {
+                    mu_bg
+                } else {
+                    crate::math::scaled(scale, f64::from(h.min))
+                };
+                if mu == 0.0 {
+                    continue;
+                }
+                Part::Const(mu)
+            } else {
+                part
+            };
+            if let Some(rect) = rays.footprint(origin, 8) {
+                out.push(Piece { part, origin, rect });
+            }
+        }
+        if shells {
+            shell_blocks(&entered, base, &mut outside);
+        }
+    }
+    let mut acc = Accessor::new(tree);
+    let mut block = [0f32; BLOCK];
+    for origin in outside {
+        let probe = Piece {
+            part: Part::Shell { fast: false },
+            origin,
+            rect: [0; 4],
+        };
+        fill(&neighbourhood(tree, &mut acc, &probe), &mut block);
+        let (lo, hi) = block
+            .iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
+                (a.min(v), b.max(v))
+            });
+        if lo == hi && lo == bg {
+            continue;
+        }
+        if let Some(rect) = rays.footprint(origin, 8) {
+            let part = Part::Shell {
+                fast: kernel_ok(lo, hi, chord),
+            };
+            out.push(Piece { part, origin, rect });
+        }
+    }
+    out
+}
+
+/// The 8^3 blocks before lower node `base` (on its - sides: faces, edges, corner) that lie in
+/// no entered lower node: their dual cells on the + faces read `base`'s first voxels.
+fn shell_blocks(
+    entered: &std::collections::HashSet<[i32; 3]>,
+    base: [i64; 3],
+    out: &mut std::collections::BTreeSet<[i64; 3]>,
+) {
+    for bits in 1..8i64 {
+        let step = [bits >> 2, (bits >> 1) & 1, bits & 1];
+        let lower = [0, 1, 2].map(|a| base[a] - 128 * step[a]);
+        let inside = lower.map(i32::try_from).iter().all(Result::is_ok)
+            && entered.contains(&lower.map(|c| c as i32));
+        if inside {
+            continue;
+        }
+        // The blocks of that neighbour touching `base`: the last block on each stepped axis,
+        // every block on the others.
+        let span = |a: usize| if step[a] == 1 { 15..16 } else { 0..16 };
+        for x in span(0) {
+            for y in span(1) {
+                for z in span(2) {
+                    out.insert([lower[0] + 8 * x, lower[1] + 8 * y, lower[2] + 8 * z]);
+                }
+            }
+        }
+    }
+}
+
+/// True when a ray can meet a non-zero extinction outside lower nodes other than in the shell
+/// blocks ([`shell_blocks`]): a non-zero background, or a root or upper-node tile other than
+/// the background. Then the rays are walked for everything outside lower nodes (shells
+/// included) instead.
+fn needs_rest(vol: &Volume) -> bool {
+    let tree = vol.tree();
+    let bg = tree.background;
+    if vol.mu_background() != 0.0 {
+        return true;
+    }
+    let root_tile = tree
+        .root
+        .iter()
+        .any(|e| matches!(e.slot, RootSlot::Tile { value, .. } if value != bg));
+    let upper = tree
+        .uppers
+        .iter()
+        .any(|n| (0..n.slots.len()).any(|s| !n.has_child(s) && n.tile_value(s) != bg));
+    root_tile || upper
+}
+
+/// The optical depth of `ray` outside lower nodes (what [`needs_rest`] looks for).
+fn rest(vol: &Volume, ray: &Ray, acc: &mut Accessor<'_>, n: &mut Counts) -> f64 {
+    let (q, d) = lookup_ray(vol, ray, Interp::Trilinear);
+    let scale = vol.density_scale();
+    let mut tau = 0.0;
+    let w = walk_nodes(
+        vol,
+        ray,
+        Interp::Trilinear,
+        Granularity::Lower,
+        |s, node| {
+            if node.is_none() {
+                if s.is_constant() {
+                    tau += s.mu_min * s.length();
+                } else {
+                    tau +=
+                        scale * cells_integral(acc, q, d, s.t_min, s.t_max, Interp::Trilinear, n);
+                }
+            }
+            ControlFlow::Continue(())
+        },
+    );
+    let gap = w.length - w.covered;
+    let mu_bg = vol.mu_background();
+    if mu_bg != 0.0 && gap > 0.0 {
+        tau += mu_bg * gap;
+    }
+    tau
+}
+
+/// The 8 blocks whose values a block's trilinear corners read: itself (`k = 0`) and its + face,
+/// edge and corner neighbours (`k` = bits x, y, z).
+fn neighbourhood<'t>(tree: &'t Tree, acc: &mut Accessor<'t>, p: &Piece) -> [Block<'t>; 8] {
+    let mut b = [Block::Const(tree.background); 8];
+    let nb = match p.part {
+        Part::Leaf { leaf, .. } => {
+            b[0] = Block::Leaf(&tree.leaves[leaf as usize].values);
+            tree.neighbours.get(leaf as usize)
+        }
+        Part::Tile { lower, slot, .. } => {
+            b[0] = Block::Const(tree.lowers[lower as usize].tile_value(slot as usize));
+            None
+        }
+        Part::Const(_) | Part::Shell { .. } => {
+            b[0] = acc.block_at(p.origin);
+            None
+        }
+    };
+    for (k, block) in b.iter_mut().enumerate().skip(1) {
+        *block = match nb.map(|n| n[k - 1]) {
+            Some(Neighbour::Leaf(i)) => Block::Leaf(&tree.leaves[i as usize].values),
+            Some(Neighbour::Const(c)) => Block::Const(c),
+            _ => acc.block_at([0, 1, 2].map(|a| p.origin[a] + 8 * ((k >> (2 - a)) & 1) as i64)),
+        };
+    }
+    b
+}
+
+/// Copy a block's `9^3` corner values (`x * 81 + y * 9 + z`) into `out`.
+fn fill(src: &[Block<'_>; 8], out: &mut [f32; BLOCK]) {
+    for x in 0..SIDE {
+        for y in 0..SIDE {
+            let row = (x * SIDE + y) * SIDE;
+            let k = ((x >> 3) << 2) | ((y >> 3) << 1);
+            let n = ((x & 7) << 6) | ((y & 7) << 3);
+            match src[k] {
+                Block::Leaf(v) => out[row..row + 8].copy_from_slice(&v[n..n + 8]),
+                Block::Const(c) => out[row..row + 8].fill(c),
+            }
+            out[row + 8] = src[k | 1].get(n);
+        }
+    }
+}
+
+/// Per-band tallies.
+#[derive(Default)]
+struct Tally {
+    lookups: u64,
+}
+
+/// One band of rows `[y0, y0 + rows)`: every pixel's optical depth.
+#[allow(clippy::too_many_arguments)]
+fn band(
+    vol: &Volume,
+    camera: &Camera,
+    rays: &Rays,
+    pieces: &[Piece],
+    ids: &[u32],
+    rest_needed: bool,
+    y0: u32,
+    tau: &mut [f64],
+    tally: &mut Tally,
+) -> Result<()> {
+    let tree = vol.tree();
+    let w = rays.width;
+    let y1 = y0 + (tau.len() / w as usize) as u32 - 1;
+    let scale = vol.density_scale();
+    let mut acc = Accessor::new(tree);
+    let mut n = Counts::default();
+    if rest_needed {
+        for j in y0..=y1 {
+            for i in 0..w {
+                let ray = camera.pixel_ray(i, j)?;
+                tau[((j - y0) * w + i) as usize] = rest(vol, &ray, &mut acc, &mut n);
+            }
+        }
+    }
+    let dir = Dir::new(rays.d.to_array());
+    let mut block = [0f32; BLOCK];
+    for &id in ids {
+        let p = &pieces[id as usize];
+        let [i0, i1, j0, j1] = p.rect;
+        let (ja, jb) = (j0.max(y0), j1.min(y1));
+        match p.part {
+            Part::Const(mu) => {
+                for j in ja..=jb {
+                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                        continue;
+                    };
+                    for i in i0..=i1 {
+                        if let Some((_, a, b)) = rays.clip(i, j, p.origin, 8) {
+                            tau[((j - y0) * w + i) as usize] += mu * (b - a);
+                        }
+                    }
+                }
+            }
+            Part::Leaf { fast: true, .. }
+            | Part::Tile { fast: true, .. }
+            | Part::Shell { fast: true } => {
+                fill(&neighbourhood(tree, &mut acc, p), &mut block);
+                let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
+                // The rays that cross the block, 8 at a time (lanes packed across rows).
+                let mut lanes = Lanes::default();
+                let mut at = [0usize; LANES];
+                let mut used = 0;
+                let mut flush = |lanes: &mut Lanes, at: &[usize; LANES], used: &mut usize| {
+                    let sums = kernel::integrate(&block, &dir, lanes);
+                    for l in 0..*used {
+                        if sums.cells[l] > 0 {
+                            tau[at[l]] += scale * sums.tau[l];
+                            tally.lookups += 4 + 4 * u64::from(sums.cells[l]);
+                        }
+                    }
+                    *lanes = Lanes::default();
+                    *used = 0;
+                };
+                for j in ja..=jb {
+                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                        continue;
+                    };
+                    for i in i0..=i1 {
+                        if let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) {
+                            let e = (q - centre) + rays.d * a;
+                            for k in 0..3 {
+                                let hi = e[k] as f32;
+                                lanes.e[k][used] = hi;
+                                lanes.e_lo[k][used] = (e[k] - f64::from(hi)) as f32;
+                            }
+                            lanes.len[used] = (b - a) as f32;
+                            at[used] = ((j - y0) * w + i) as usize;
+                            used += 1;
+                            if used == LANES {
+                                flush(&mut lanes, &at, &mut used);
+                            }
+                        }
+                    }
+                }
+                if used > 0 {
+                    flush(&mut lanes, &at, &mut used);
+                }
+            }
+            Part::Leaf { leaf, fast: false } => {
+                for j in ja..=jb {
+                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                        continue;
+                    };
+                    for i in i0..=i1 {
+                        if let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) {
+                            let (q, d) = (q.to_array(), rays.d.to_array());
+                            let v = leaf_integral(
+                                &mut acc,
+                                leaf,
+                                q,
+                                d,
+                                a,
+                                b,
+                                Interp::Trilinear,
+                                &mut n,
+                            );
+                            tau[((j - y0) * w + i) as usize] += scale * v;
+                        }
+                    }
+                }
+            }
+            Part::Tile { fast: false, .. } | Part::Shell { fast: false } => {
+                for j in ja..=jb {
+                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                        continue;
+                    };
+                    for i in i0..=i1 {
+                        if let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) {
+                            let (q, d) = (q.to_array(), rays.d.to_array());
+                            let v = cells_integral(&mut acc, q, d, a, b, Interp::Trilinear, &mut n);
+                            tau[((j - y0) * w + i) as usize] += scale * v;
+                        }
+                    }
+                }
+            }
+        }
+    }
+    tally.lookups += n.reads;
+    Ok(())
+}
+
+/// The pieces of each band of `rows` rows, in piece order.
+fn bins(pieces: &[Piece], rows: u32, height: u32) -> Vec<Vec<u32>> {
+    let mut bins: Vec<Vec<u32>> = vec![Vec::new(); height.div_ceil(rows) as usize];
+    for (id, p) in pieces.iter().enumerate() {
+        for b in (p.rect[2] / rows)..=(p.rect[3] / rows) {
+            bins[b as usize].push(id as u32);
+        }
+    }
+    bins
+}
+
+/// Render `camera`'s map of `vol` in object order; `None` when the rays' frame is degenerate in
+/// index space (the caller traces rays instead).
+pub(crate) fn render(
+    vol: &Volume,
+    camera: &Camera,
+    s: &BakeSettings,
+    rows: u32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Option<Map>> {
+    let start = std::time::Instant::now();
+    let Some(rays) = Rays::new(vol, camera)? else {
+        return Ok(None);
+    };
+    let rest_needed = needs_rest(vol);
+    let pieces = pieces(vol, &rays, !rest_needed);
+    let bins = bins(&pieces, rows, camera.height);
+    let w = camera.width;
+    let npix = camera.pixels();
+    let mut t_image = vec![0.0f32; npix as usize];
+    let tallies: Vec<Tally> = t_image
+        .par_chunks_mut(rows as usize * w as usize)
+        .enumerate()
+        .map(|(b, t_band)| {
+            let y0 = b as u32 * rows;
+            let mut tau = vec![0.0f64; t_band.len()];
+            let mut tally = Tally::default();
+            band(
+                vol,
+                camera,
+                &rays,
+                &pieces,
+                &bins[b],
+                rest_needed,
+                y0,
+                &mut tau,
+                &mut tally,
+            )?;
+            for (n, (t, &x)) in t_band.iter_mut().zip(&tau).enumerate() {
+                if x.is_nan() {
+                    let (i, j) = (n as u32 % w, y0 + n as u32 / w);
+                    let ray = camera.pixel_ray(i, j)?;
+                    return Err(Error::NotANumber {
+                        what: "optical depth".into(),
+                        context: format!(
+                            " on the ray from {} along {}",
+                            ray.origin(),
+                            ray.direction()
+                        ),
+                    });
+                }
+                *t = (-x).exp() as f32;
+            }
+            progress(t_band.len() as u64);
+            Ok(tally)
+        })
+        .collect::<Result<_>>()?;
+    let lookups = tallies.iter().map(|t| t.lookups).sum();
+    let len = npix as usize;
+    Ok(Some(Map {
+        camera: *camera,
+        settings: s.clone(),
+        t: t_image,
+        std_err: s.std_err.then(|| vec![0.0; len]),
+        depths: Vec::new(),
+        slices: Vec::new(),
+        stats: BakeStats {
+            rays: npix,
+            samples: npix,
+            lookups,
+            seconds: start.elapsed().as_secs_f64(),
+            ..BakeStats::default()
+        },
+    }))
+}
+
+#[cfg(test)]
+mod tests;
