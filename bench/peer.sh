@@ -114,8 +114,11 @@ entry() {
 REF="$OUT/umbra_exact.exr:T"
 
 # umbra exact: the reference image of every row but Cycles'
-entry umbra_exact "umbra exact (regular tracking, trilinear)" "reference: exact" "$REF" "$REF" \
+entry umbra_exact "umbra exact (regular tracking, trilinear)" "reference: exact, object-order sweep" "$REF" "$REF" \
     "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --out "$OUT/umbra_exact.exr"
+entry umbra_exact_rays "umbra exact, ray order" "exact, one HDDA walk per pixel (before the sweep)" \
+    "$OUT/umbra_exact_rays.exr:T" "$REF" \
+    "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --order rays --out "$OUT/umbra_exact_rays.exr"
 for step in 0.5 1 2; do
     entry "vdb_render_$step" "vdb_render step $step" "-cutoff 0 -shadowstep 1e9" "$OUT/vdb_render_$step.exr:1-A" "$REF" \
         vdb_render "$FILE" "$OUT/vdb_render_$step.exr" -name density \

@@ -10,6 +10,11 @@
 //! `umbra query --ray-id p`); adaptive batch `b >= 1` uses ray id `b N + p` and depth slice `k`
 //! ray id `(64 + k) N + p`, with `N = W H`. So a pixel's value depends only on the seed and the
 //! settings, never on the thread count or the tile order.
+//!
+//! **Order.** Exact orthographic maps (regular tracking, trilinear, no slices) are traced in
+//! object order by the sweep: each 8^3 block of the tree adds its exact integral to every pixel
+//! it covers (`sweep`, see ARCHITECTURE.md); everything else, and any map with
+//! [`BakeSettings::order`] = [`Order::Rays`], traces one ray per pixel.
 
 mod camera;
 pub(crate) use camera::normalise;
