@@ -254,8 +254,8 @@ mod avx2 {
         let step = dir.step.map(|x| _mm256_set1_ps(x));
         let delta = dir.delta.map(|x| _mm256_set1_ps(x));
         let stride = [0, 1, 2].map(|a| _mm256_set1_epi32(dir.step[a] as i32 * STRIDE[a]));
-        let pair = [0, 2, 4, 6].map(|k| _mm256_set1_epi32(CORNERS[k]));
-        let base: *const f64 = block.as_ptr().cast();
+        let pair = [0, 2, 4, 6].map(|k| CORNERS[k]);
+        let base: *const f32 = block.as_ptr();
         let (lo, hi) = (_mm256_set1_ps(-4.0), _mm256_set1_ps(3.0));
         let half = _mm256_set1_ps(0.5);
         let inf = _mm256_set1_ps(f32::INFINITY);
@@ -280,28 +280,27 @@ mod avx2 {
                 um[a] = _mm256_fmadd_ps(d[a], hm, us);
                 up[a] = _mm256_fmadd_ps(d[a], hp, us);
             }
-            // Corners come in z pairs (`v[2k]`, `v[2k + 1]` adjacent in the block), so each
-            // pair is one 64-bit gather element: 4 gathers of 4 pairs per half of the lanes.
-            // Inactive lanes read pair 0 (their index is masked to 0).
+            // Corners come in z pairs (`v[2k]`, `v[2k + 1]` adjacent in the block): each lane
+            // loads its 4 pairs as 64-bit scalars (AVX2 gathers are slow on some cores; plain
+            // loads run 2-3 a cycle everywhere). Inactive lanes read pair 0 (index masked to 0).
             let at = _mm256_and_si256(idx, _mm256_castps_si256(active));
+            let mut ix = [0i32; LANES];
+            // SAFETY: a store of 8 i32 into an array of 8.
+            unsafe { _mm256_storeu_si256(ix.as_mut_ptr().cast(), at) };
             let v = pair.map(|k| {
-                let i = _mm256_add_epi32(at, k);
                 // SAFETY: an active lane's cell is in -4..=3 on every axis (checked when it
-                // steps), so `i + 1 <= 637 + 90 + 1 < BLOCK`; inactive lanes read index 0..1.
-                let (lo, hi) = unsafe {
-                    (
-                        _mm256_i32gather_pd::<4>(base, _mm256_castsi256_si128(i)),
-                        _mm256_i32gather_pd::<4>(base, _mm256_extracti128_si256::<1>(i)),
-                    )
+                // steps), so `ix + k + 1 <= 637 + 90 + 1 < BLOCK`; inactive lanes read 0..1.
+                let at = |l: usize| unsafe { base.add((ix[l] + k) as usize).cast::<f64>() };
+                let q = |a: usize| unsafe {
+                    _mm_loadh_pd(_mm_loadl_pd(_mm_setzero_pd(), at(a)), at(a + 1))
                 };
-                // [a0 b0 a1 b1 | a2 b2 a3 b3], [a4 b4 ..]: evens and odds, lanes in order.
-                let (lo, hi) = (_mm256_castpd_ps(lo), _mm256_castpd_ps(hi));
-                let fix = |x: __m256| {
-                    _mm256_castpd_ps(_mm256_permute4x64_pd::<0xD8>(_mm256_castps_pd(x)))
-                };
+                // [a0 b0 a1 b1 | a4 b4 a5 b5] and [a2 b2 a3 b3 | a6 b6 a7 b7]: one in-lane
+                // shuffle each gives the evens and the odds with the lanes in order.
+                let lo = _mm256_castpd_ps(_mm256_set_m128d(q(4), q(0)));
+                let hi = _mm256_castpd_ps(_mm256_set_m128d(q(6), q(2)));
                 (
-                    fix(_mm256_shuffle_ps::<0x88>(lo, hi)),
-                    fix(_mm256_shuffle_ps::<0xDD>(lo, hi)),
+                    _mm256_shuffle_ps::<0x88>(lo, hi),
+                    _mm256_shuffle_ps::<0xDD>(lo, hi),
                 )
             });
             let v = [
