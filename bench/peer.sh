@@ -27,7 +27,9 @@
 #   PRESET=cloud REPS=5 THREADS=1 RES=256x256 bench/peer.sh
 #   REPS=5 RES=512x512 THREADS=2 CYCLES=0 bench/peer.sh
 #
-# Environment: PRESET (cloud_fbm | cloud), RES (512x512), THREADS (nproc), REPS (3), CYCLES (1),
+# Environment: PRESET (cloud_fbm | cloud | smoke), ONLY (a regex of entry names to run, e.g.
+# 'umbra_exact_rays|nanovdb_1$|vdb_render_1$|cycles_rate1_spp1'; the exact references always
+# run), RES (512x512), THREADS (nproc), REPS (3), CYCLES (1),
 # NANOVDB (1), MITSUBA (1), VENV (bench/.venv, the Python environment with mitsuba), OUT
 # (directory for images, logs and the table, /tmp/umbra-peer). The view follows
 # ../shared/research/peers.md: vdb_render's -absorb is per voxel (= scale x voxel size), rays
@@ -52,8 +54,13 @@ cloud)
     FILE=data/cloud.vdb
     SCALE=4 VOXEL=0.05 DIR=0.6,-0.35,-1 CENTER=-2.514,3.1125,4.0815 UP=0,1,0 FRAME=6
     ;;
+smoke)
+    # A real Houdini smoke (1.0 M active voxels in a 111x222x112 box, half floats).
+    FILE=../shared/corpus/real/openvdb_smoke1_houdini_v222.vdb
+    SCALE=0.3 VOXEL=0.47619 DIR=0.6,-0.35,-1 CENTER=-34.35,56.21,45.43 UP=0,1,0 FRAME=130
+    ;;
 *)
-    echo "unknown PRESET $PRESET (cloud_fbm | cloud)" >&2
+    echo "unknown PRESET $PRESET (cloud_fbm | cloud | smoke)" >&2
     exit 2
     ;;
 esac
@@ -202,6 +209,19 @@ if [ "${CYCLES:-1}" = 1 ]; then
             blender -b --factory-startup -P bench/blender_transmittance.py -- \
             "$FILE" "$OUT/$name.exr" "${VIEW[@]}" --step-rate "$rate" --spp "$spp" --threads "$THREADS"
     done
+fi
+
+# ONLY=REGEX keeps the entries whose name matches (plus the exact images they are scored against).
+if [ -n "${ONLY:-}" ]; then
+    declare -a K_NAME K_LABEL K_NOTE K_IMG K_REF K_CMD
+    for i in "${!E_NAME[@]}"; do
+        if [[ ${E_NAME[$i]} =~ ^umbra_exact(_half)?$ || ${E_NAME[$i]} =~ $ONLY ]]; then
+            K_NAME+=("${E_NAME[$i]}") K_LABEL+=("${E_LABEL[$i]}") K_NOTE+=("${E_NOTE[$i]}")
+            K_IMG+=("${E_IMG[$i]}") K_REF+=("${E_REF[$i]}") K_CMD+=("${E_CMD[$i]}")
+        fi
+    done
+    E_NAME=("${K_NAME[@]}") E_LABEL=("${K_LABEL[@]}") E_NOTE=("${K_NOTE[@]}")
+    E_IMG=("${K_IMG[@]}") E_REF=("${K_REF[@]}") E_CMD=("${K_CMD[@]}")
 fi
 
 # run_once I: one timed run of entry I, appending to its wall, render and RSS lists.
