@@ -170,6 +170,37 @@ impl Rays {
         (a < b).then_some((q, a, b))
     }
 
+    /// Row `j`'s rays against the lookup box of side `dim` at `o`, as linear functions of the
+    /// column (see [`RowClip`]).
+    fn row_clip(&self, j: u32, o: [i64; 3], dim: i64) -> RowClip {
+        let q = self.q0 + self.qy * f64::from(j);
+        let mut r = RowClip {
+            q,
+            qx: self.qx,
+            near: [f64::NEG_INFINITY; 3],
+            far: [f64::INFINITY; 3],
+            beta: [0.0; 3],
+            lo: [0.0; 3],
+            hi: [0.0; 3],
+            flat: [false; 3],
+            t_min: self.t_min,
+            t_max: self.t_max,
+        };
+        for k in 0..3 {
+            let lo = (o[k] as f64).max(self.clip_lo[k]);
+            let hi = ((o[k] + dim) as f64).min(self.clip_hi[k]);
+            (r.lo[k], r.hi[k]) = (lo, hi);
+            if self.d[k] == 0.0 {
+                r.flat[k] = true;
+                continue;
+            }
+            let (u, v) = ((lo - q[k]) * self.inv_d[k], (hi - q[k]) * self.inv_d[k]);
+            (r.near[k], r.far[k]) = if self.d[k] > 0.0 { (u, v) } else { (v, u) };
+            r.beta[k] = -self.qx[k] * self.inv_d[k];
+        }
+        r
+    }
+
     /// The columns `[i0, i1]` of row `j` whose rays can cross the lookup box of side `dim` at
     /// `o` (a superset, grown by a column: [`Rays::clip`] decides), or `None`. A ray crosses
     /// the box when every slab's entry comes before every slab's exit and the range
@@ -226,6 +257,50 @@ impl Rays {
             (hi + 1.0).ceil().min(f64::from(i1)),
         );
         (lo <= hi).then_some([lo as u32, hi as u32])
+    }
+}
+
+/// One row of rays against one box: slab `k`'s entry and exit are `near[k] + beta[k] i` and
+/// `far[k] + beta[k] i` for column `i` (a slab the rays run parallel to, `flat[k]`, has
+/// `near = -inf`, `far = inf`, and its bounds `lo..=hi` checked on the ray's coordinate).
+/// The same slab test as [`Rays::clip`] with the divisions hoisted out of the row.
+struct RowClip {
+    q: DVec3,
+    qx: DVec3,
+    near: [f64; 3],
+    far: [f64; 3],
+    beta: [f64; 3],
+    lo: [f64; 3],
+    hi: [f64; 3],
+    /// Per axis: the rays run parallel to this slab.
+    flat: [bool; 3],
+    t_min: f64,
+    t_max: f64,
+}
+
+impl RowClip {
+    /// Column `i`'s ray: its lookup-space origin and `[t0, t1]` inside the box, or `None`.
+    #[inline]
+    fn at(&self, i: u32) -> Option<(DVec3, f64, f64)> {
+        let x = f64::from(i);
+        let q = self.q + self.qx * x;
+        if (0..3).any(|k| self.flat[k] && !(self.lo[k]..=self.hi[k]).contains(&q[k])) {
+            return None;
+        }
+        let (mut a, mut b) = (self.t_min, self.t_max);
+        for k in 0..3 {
+            let (n, f) = (
+                self.near[k] + self.beta[k] * x,
+                self.far[k] + self.beta[k] * x,
+            );
+            if n > a {
+                a = n;
+            }
+            if f < b {
+                b = f;
+            }
+        }
+        (a < b).then_some((q, a, b))
     }
 }
 
@@ -554,8 +629,9 @@ fn band(
                     let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
                         continue;
                     };
+                    let row = rays.row_clip(j, p.origin, 8);
                     for i in i0..=i1 {
-                        if let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) {
+                        if let Some((q, a, b)) = row.at(i) {
                             let e = (q - centre) + rays.d * a;
                             for k in 0..3 {
                                 let hi = e[k] as f32;
