@@ -295,6 +295,8 @@ base=$(printf '%s\n' "${ROWS[@]}" | awk -F'|' '$1 == "vdb_render step 1" { print
     echo
     echo "| renderer | wall (s) | render (s) | peak RSS (MB) | RMSE | wall / vdb_render step 1 | RMSE / vdb_render step 1 | note |"
     echo "|---|---|---|---|---|---|---|---|"
-    printf '%s\n' "${ROWS[@]}" | awk -F'|' -v base="$base" 'BEGIN { split(base, B, " ") } {
-        printf "| %s | %.3f | %.3f | %.1f | %.2e | %.3f | %.3f | %s |\n", $1, $2, $3, $4 / 1024, $5, $2 / B[1], $5 / B[2], $6 }'
+    # Without a vdb_render step 1 row (ONLY=...), the ratio columns are "-".
+    printf '%s\n' "${ROWS[@]}" | awk -F'|' -v base="$base" 'BEGIN { n = split(base, B, " ") } {
+        if (n == 2 && B[1] > 0 && B[2] > 0) { w = sprintf("%.3f", $2 / B[1]); r = sprintf("%.3f", $5 / B[2]) } else { w = "-"; r = "-" }
+        printf "| %s | %.3f | %.3f | %.1f | %.2e | %s | %s | %s |\n", $1, $2, $3, $4 / 1024, $5, w, r, $6 }'
 } | tee "$OUT/peer.md"

@@ -1,14 +1,16 @@
 //! Full bakes through the library (`umbra::bake::bake`): a 256x256 orthographic transmittance
 //! map of the sample cloud (`data/cloud.vdb`, density scale 4, light along (0.6, -0.35, -1)),
-//! exact regular tracking (trilinear) and ray marching (Riemann, 1 voxel), on 1 thread and on
-//! every core. The parallel speed-up is the ratio of the two; criterion reports maps/s.
+//! exact regular tracking (trilinear) in object order (the sweep, what a bake uses) and in ray
+//! order (`Order::Rays`, one HDDA walk per pixel), and ray marching (Riemann, 1 voxel), on 1
+//! thread and on every core. The parallel speed-up is the ratio of the two; criterion reports
+//! maps/s.
 //! Run: `cargo bench --bench bake`.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::path::PathBuf;
 use std::time::Duration;
-use umbra::bake::{bake, BakeSettings, Camera, Projection, View};
+use umbra::bake::{bake, BakeSettings, Camera, Order, Projection, View};
 use umbra::estimate::{Estimator, Options};
 use umbra::Volume;
 
@@ -28,16 +30,19 @@ fn bench_bake(c: &mut Criterion) {
     g.sample_size(10)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(4));
-    for (name, est) in [
-        ("regular", Estimator::REGULAR),
+    for (name, est, order) in [
+        ("regular", Estimator::REGULAR, Order::Auto),
+        ("regular_rays", Estimator::REGULAR, Order::Rays),
         (
             "riemann_1vox",
             Estimator::with_params("riemann", &[("step", 1.0)]).unwrap(),
+            Order::Auto,
         ),
     ] {
         for threads in [1, cores] {
             let mut s = BakeSettings::new(est, Options::default());
             s.threads = threads;
+            s.order = order;
             g.bench_function(format!("{name}/{threads}_threads"), |b| {
                 b.iter(|| bake(&vol, &camera, &s, &|_| {}).unwrap().stats.lookups);
             });

@@ -154,6 +154,8 @@ pub struct BakeStats {
     pub max_std_err: f64,
     /// Wall time of the render, seconds.
     pub seconds: f64,
+    /// The map was traced in object order (the sweep) rather than one ray per pixel.
+    pub sweep: bool,
 }
 
 /// A baked map: row-major channels, row 0 at the top, pixel `(i, j)` at index `j W + i`.

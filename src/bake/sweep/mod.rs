@@ -775,6 +775,7 @@ pub(crate) fn render(
             samples: npix,
             lookups,
             seconds: start.elapsed().as_secs_f64(),
+            sweep: true,
             ..BakeStats::default()
         },
     }))

@@ -232,6 +232,7 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
             "seconds": st.seconds, "total_seconds": total, "rays": st.rays,
             "rays_per_second": rays_per_second, "mean_spp": mean_spp, "lookups": st.lookups,
             "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
+            "order": if st.sweep { "sweep" } else { "rays" },
             "capped": st.capped, "majorant_violations": st.majorant_violations,
             "unconverged": st.unconverged, "max_std_err": st.max_std_err,
             "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
