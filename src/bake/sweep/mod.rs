@@ -559,139 +559,139 @@ struct Tally {
     lookups: u64,
 }
 
-/// One band of rows `[y0, y0 + rows)`: every pixel's optical depth.
-#[allow(clippy::too_many_arguments)]
-fn band(
-    vol: &Volume,
-    camera: &Camera,
-    rays: &Rays,
-    pieces: &[Piece],
-    ids: &[u32],
+/// A planned sweep: the map's rays, its pieces binned by band, and whether the rays also need
+/// the walk above lower nodes.
+struct Sweep<'a> {
+    vol: &'a Volume,
+    camera: &'a Camera,
+    rays: Rays,
+    pieces: Vec<Piece>,
+    bins: Vec<Vec<u32>>,
     rest_needed: bool,
-    y0: u32,
-    tau: &mut [f64],
-    tally: &mut Tally,
-) -> Result<()> {
-    let tree = vol.tree();
-    let w = rays.width;
-    let y1 = y0 + (tau.len() / w as usize) as u32 - 1;
-    let scale = vol.density_scale();
-    let mut acc = Accessor::new(tree);
-    let mut n = Counts::default();
-    if rest_needed {
-        for j in y0..=y1 {
-            for i in 0..w {
-                let ray = camera.pixel_ray(i, j)?;
-                tau[((j - y0) * w + i) as usize] = rest(vol, &ray, &mut acc, &mut n);
-            }
-        }
+    rows: u32,
+}
+
+impl<'a> Sweep<'a> {
+    /// Plan the sweep of `camera`'s map in bands of `rows` rows; `None` when the rays' frame is
+    /// degenerate in index space.
+    fn new(vol: &'a Volume, camera: &'a Camera, rows: u32) -> Result<Option<Self>> {
+        let Some(rays) = Rays::new(vol, camera)? else {
+            return Ok(None);
+        };
+        let rest_needed = needs_rest(vol);
+        let pieces = pieces(vol, &rays, !rest_needed);
+        let bins = bins(&pieces, rows, camera.height);
+        Ok(Some(Self {
+            vol,
+            camera,
+            rays,
+            pieces,
+            bins,
+            rest_needed,
+            rows,
+        }))
     }
-    let dir = Dir::new(rays.d.to_array());
-    let mut block = [0f32; BLOCK];
-    for &id in ids {
-        let p = &pieces[id as usize];
-        let [i0, i1, j0, j1] = p.rect;
-        let (ja, jb) = (j0.max(y0), j1.min(y1));
-        match p.part {
-            Part::Const(mu) => {
-                for j in ja..=jb {
-                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
-                        continue;
-                    };
-                    for i in i0..=i1 {
-                        if let Some((_, a, b)) = rays.clip(i, j, p.origin, 8) {
-                            tau[((j - y0) * w + i) as usize] += mu * (b - a);
-                        }
-                    }
-                }
-            }
-            Part::Leaf { fast: true, .. }
-            | Part::Tile { fast: true, .. }
-            | Part::Shell { fast: true } => {
-                fill(&neighbourhood(tree, &mut acc, p), &mut block);
-                let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
-                // The rays that cross the block, 8 at a time (lanes packed across rows).
-                let mut lanes = Lanes::default();
-                let mut at = [0usize; LANES];
-                let mut used = 0;
-                let mut flush = |lanes: &mut Lanes, at: &[usize; LANES], used: &mut usize| {
-                    let sums = kernel::integrate(&block, &dir, lanes);
-                    for l in 0..*used {
-                        if sums.cells[l] > 0 {
-                            tau[at[l]] += scale * sums.tau[l];
-                            tally.lookups += 4 + 4 * u64::from(sums.cells[l]);
-                        }
-                    }
-                    *lanes = Lanes::default();
-                    *used = 0;
-                };
-                for j in ja..=jb {
-                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
-                        continue;
-                    };
-                    let row = rays.row_clip(j, p.origin, 8);
-                    for i in i0..=i1 {
-                        if let Some((q, a, b)) = row.at(i) {
-                            let e = (q - centre) + rays.d * a;
-                            for k in 0..3 {
-                                let hi = e[k] as f32;
-                                lanes.e[k][used] = hi;
-                                lanes.e_lo[k][used] = (e[k] - f64::from(hi)) as f32;
-                            }
-                            lanes.len[used] = (b - a) as f32;
-                            at[used] = ((j - y0) * w + i) as usize;
-                            used += 1;
-                            if used == LANES {
-                                flush(&mut lanes, &at, &mut used);
-                            }
-                        }
-                    }
-                }
-                if used > 0 {
-                    flush(&mut lanes, &at, &mut used);
-                }
-            }
-            Part::Leaf { leaf, fast: false } => {
-                for j in ja..=jb {
-                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
-                        continue;
-                    };
-                    for i in i0..=i1 {
-                        if let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) {
-                            let (q, d) = (q.to_array(), rays.d.to_array());
-                            let v = leaf_integral(
-                                &mut acc,
-                                leaf,
-                                q,
-                                d,
-                                a,
-                                b,
-                                Interp::Trilinear,
-                                &mut n,
-                            );
-                            tau[((j - y0) * w + i) as usize] += scale * v;
-                        }
-                    }
-                }
-            }
-            Part::Tile { fast: false, .. } | Part::Shell { fast: false } => {
-                for j in ja..=jb {
-                    let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
-                        continue;
-                    };
-                    for i in i0..=i1 {
-                        if let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) {
-                            let (q, d) = (q.to_array(), rays.d.to_array());
-                            let v = cells_integral(&mut acc, q, d, a, b, Interp::Trilinear, &mut n);
-                            tau[((j - y0) * w + i) as usize] += scale * v;
-                        }
-                    }
+
+    /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth into `tau`.
+    fn band(&self, b: usize, tau: &mut [f64], tally: &mut Tally) -> Result<()> {
+        let (vol, camera, rays) = (self.vol, self.camera, &self.rays);
+        let (pieces, ids, y0) = (&self.pieces, &self.bins[b], b as u32 * self.rows);
+        let tree = vol.tree();
+        let w = rays.width;
+        let y1 = y0 + (tau.len() / w as usize) as u32 - 1;
+        let scale = vol.density_scale();
+        let mut acc = Accessor::new(tree);
+        let mut n = Counts::default();
+        if self.rest_needed {
+            for j in y0..=y1 {
+                for i in 0..w {
+                    let ray = camera.pixel_ray(i, j)?;
+                    tau[((j - y0) * w + i) as usize] = rest(vol, &ray, &mut acc, &mut n);
                 }
             }
         }
+        let dir = Dir::new(rays.d.to_array());
+        let mut block = [0f32; BLOCK];
+        for &id in ids {
+            let p = &pieces[id as usize];
+            let [i0, i1, j0, j1] = p.rect;
+            let (ja, jb) = (j0.max(y0), j1.min(y1));
+            match p.part {
+                Part::Leaf { fast: true, .. }
+                | Part::Tile { fast: true, .. }
+                | Part::Shell { fast: true } => {
+                    fill(&neighbourhood(tree, &mut acc, p), &mut block);
+                    let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
+                    // The rays that cross the block, 8 at a time (lanes packed across rows).
+                    let mut lanes = Lanes::default();
+                    let mut at = [0usize; LANES];
+                    let mut used = 0;
+                    let mut flush = |lanes: &mut Lanes, at: &[usize; LANES], used: &mut usize| {
+                        let sums = kernel::integrate(&block, &dir, lanes);
+                        for l in 0..*used {
+                            if sums.cells[l] > 0 {
+                                tau[at[l]] += scale * sums.tau[l];
+                                tally.lookups += 4 + 4 * u64::from(sums.cells[l]);
+                            }
+                        }
+                        *lanes = Lanes::default();
+                        *used = 0;
+                    };
+                    for j in ja..=jb {
+                        let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                            continue;
+                        };
+                        let row = rays.row_clip(j, p.origin, 8);
+                        for i in i0..=i1 {
+                            if let Some((q, a, b)) = row.at(i) {
+                                let e = (q - centre) + rays.d * a;
+                                for k in 0..3 {
+                                    let hi = e[k] as f32;
+                                    lanes.e[k][used] = hi;
+                                    lanes.e_lo[k][used] = (e[k] - f64::from(hi)) as f32;
+                                }
+                                lanes.len[used] = (b - a) as f32;
+                                at[used] = ((j - y0) * w + i) as usize;
+                                used += 1;
+                                if used == LANES {
+                                    flush(&mut lanes, &at, &mut used);
+                                }
+                            }
+                        }
+                    }
+                    if used > 0 {
+                        flush(&mut lanes, &at, &mut used);
+                    }
+                }
+                // Closed form, or the f64 ray code: pixel by pixel.
+                Part::Const(_)
+                | Part::Leaf { fast: false, .. }
+                | Part::Tile { fast: false, .. }
+                | Part::Shell { fast: false } => {
+                    for j in ja..=jb {
+                        let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                            continue;
+                        };
+                        for i in i0..=i1 {
+                            let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) else {
+                                continue;
+                            };
+                            let (q, d, lin) = (q.to_array(), rays.d.to_array(), Interp::Trilinear);
+                            tau[((j - y0) * w + i) as usize] += match p.part {
+                                Part::Const(mu) => mu * (b - a),
+                                Part::Leaf { leaf, .. } => {
+                                    scale * leaf_integral(&mut acc, leaf, q, d, a, b, lin, &mut n)
+                                }
+                                _ => scale * cells_integral(&mut acc, q, d, a, b, lin, &mut n),
+                            };
+                        }
+                    }
+                }
+            }
+        }
+        tally.lookups += n.reads;
+        Ok(())
     }
-    tally.lookups += n.reads;
-    Ok(())
 }
 
 /// The pieces of each band of `rows` rows, in piece order.
@@ -715,12 +715,9 @@ pub(crate) fn render(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<Map>> {
     let start = std::time::Instant::now();
-    let Some(rays) = Rays::new(vol, camera)? else {
+    let Some(sweep) = Sweep::new(vol, camera, rows)? else {
         return Ok(None);
     };
-    let rest_needed = needs_rest(vol);
-    let pieces = pieces(vol, &rays, !rest_needed);
-    let bins = bins(&pieces, rows, camera.height);
     let w = camera.width;
     let npix = camera.pixels();
     let mut t_image = vec![0.0f32; npix as usize];
@@ -731,17 +728,7 @@ pub(crate) fn render(
             let y0 = b as u32 * rows;
             let mut tau = vec![0.0f64; t_band.len()];
             let mut tally = Tally::default();
-            band(
-                vol,
-                camera,
-                &rays,
-                &pieces,
-                &bins[b],
-                rest_needed,
-                y0,
-                &mut tau,
-                &mut tally,
-            )?;
+            sweep.band(b, &mut tau, &mut tally)?;
             for (n, (t, &x)) in t_band.iter_mut().zip(&tau).enumerate() {
                 if x.is_nan() {
                     let (i, j) = (n as u32 % w, y0 + n as u32 / w);

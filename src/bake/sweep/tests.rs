@@ -6,28 +6,14 @@ use crate::tree::TreeBuilder;
 
 /// The sweep's optical depth of every pixel (bands run one after the other).
 fn sweep_taus(vol: &Volume, camera: &Camera) -> Vec<f64> {
-    let rays = Rays::new(vol, camera).expect("rays").expect("frame");
-    let rest_needed = needs_rest(vol);
-    let pieces = pieces(vol, &rays, !rest_needed);
     let rows = 16;
-    let bins = bins(&pieces, rows, camera.height);
-    let w = camera.width as usize;
+    let sweep = Sweep::new(vol, camera, rows).expect("plan").expect("frame");
     let mut tau = vec![0.0; camera.pixels() as usize];
-    for (b, chunk) in tau.chunks_mut(rows as usize * w).enumerate() {
-        let mut tally = Tally::default();
-        let y0 = b as u32 * rows;
-        band(
-            vol,
-            camera,
-            &rays,
-            &pieces,
-            &bins[b],
-            rest_needed,
-            y0,
-            chunk,
-            &mut tally,
-        )
-        .expect("band");
+    for (b, chunk) in tau
+        .chunks_mut(rows as usize * camera.width as usize)
+        .enumerate()
+    {
+        sweep.band(b, chunk, &mut Tally::default()).expect("band");
     }
     tau
 }
