@@ -10,7 +10,7 @@
 //!     --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res 512x512 \
 //!     [--estimator regular|riemann|NAME] [--step 1] [--spp 1] [--seed 0] \
 //!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--index-offset 0] [--out t.exr] \
-//!     [--order auto|rays] [--check 1]
+//!     [--order auto|rays] [--check 1] [--slices K]
 //! cargo run --release --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
 //! ```
 //!
@@ -217,6 +217,9 @@ fn main() {
         },
     );
     settings.threads = threads;
+    if let Some(k) = opt.get("slices") {
+        settings.depths = umbra::bake::Depths::Slices(k.parse().unwrap());
+    }
     settings.order = match get("order", "auto").as_str() {
         "rays" => Order::Rays,
         _ => Order::Auto,

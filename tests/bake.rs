@@ -316,8 +316,9 @@ fn standard_matrices_map_pixel_rays_to_their_pixels() {
 
 /// The object-order sweep (what `Order::Auto` picks for an exact orthographic map) against the
 /// ray path on the sample cloud and a corpus cloud, several directions: every pixel's T within
-/// 5e-7 (the sweep's optical depth is within ~1e-6 relative; T is f32), the same bytes on 1 and
-/// 2 threads, and perspective maps left to the ray path (bit-identical).
+/// 5e-7 (the sweep's optical depth is within ~1e-6 relative; T is f32), depth slices (evenly
+/// spaced and explicit, one past the volume) likewise, the same bytes on 1 and 2 threads, and
+/// perspective maps left to the ray path (bit-identical).
 #[test]
 fn sweep_matches_the_ray_path_and_the_thread_count() {
     let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gen/cloud_fbm.vdb");
@@ -345,6 +346,36 @@ fn sweep_matches_the_ray_path_and_the_thread_count() {
                 r.t.iter().any(|&t| t < 0.9),
                 "{path:?} {dir:?}: the view misses the cloud"
             );
+            // Depth slices: each block's chord split at the slice depths it straddles.
+            for depths in [Depths::Slices(5), Depths::At(vec![0.5, 2.0, 2.25, 40.0])] {
+                let sa = BakeSettings {
+                    depths: depths.clone(),
+                    ..auto.clone()
+                };
+                let sr = BakeSettings {
+                    depths: depths.clone(),
+                    ..rays.clone()
+                };
+                let a = bake(&vol, &cam, &sa, &|_| {}).unwrap();
+                let r = bake(&vol, &cam, &sr, &|_| {}).unwrap();
+                assert!(a.stats.sweep && !r.stats.sweep);
+                assert_eq!(
+                    (a.depths.len(), a.slices.len()),
+                    (r.depths.len(), r.slices.len())
+                );
+                assert_eq!(a.depths, r.depths);
+                for (k, (x, y)) in a.slices.iter().zip(&r.slices).enumerate() {
+                    let worst = x
+                        .iter()
+                        .zip(y)
+                        .fold(0.0f32, |m, (p, q)| m.max((p - q).abs()));
+                    assert!(
+                        worst <= 5e-7,
+                        "{path:?} {dir:?} {depths:?} slice {k}: {worst}"
+                    );
+                }
+                assert_eq!(a.t, bake(&vol, &cam, &auto, &|_| {}).unwrap().t);
+            }
             let one = BakeSettings {
                 threads: 1,
                 ..auto.clone()

@@ -11,7 +11,7 @@
 //! ray id `(64 + k) N + p`, with `N = W H`. So a pixel's value depends only on the seed and the
 //! settings, never on the thread count or the tile order.
 //!
-//! **Order.** Exact orthographic maps (regular tracking, trilinear, no slices) are traced in
+//! **Order.** Exact orthographic maps (regular tracking, trilinear, slices included) are traced in
 //! object order by the sweep: each 8^3 block of the tree adds its exact integral to every pixel
 //! it covers (`sweep`, see ARCHITECTURE.md); everything else, and any map with
 //! [`BakeSettings::order`] = [`Order::Rays`], traces one ray per pixel.

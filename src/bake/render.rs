@@ -78,7 +78,7 @@ pub struct BakeSettings {
 #[serde(rename_all = "lowercase")]
 pub enum Order {
     /// Object order (the sweep: each 8^3 block adds its exact integral to the pixels it covers)
-    /// for exact trilinear orthographic maps without slices; ray order for everything else.
+    /// for exact trilinear orthographic maps (slices included); ray order for everything else.
     #[default]
     Auto,
     /// One ray per pixel, walked down the tree.
@@ -425,8 +425,8 @@ fn render(
     let k = depths.len();
     let len = npix as usize;
     let rows = band_rows(h, rayon::current_num_threads());
-    if s.order == Order::Auto && super::sweep::applies(camera, s, depths) {
-        if let Some(map) = super::sweep::render(vol, camera, s, rows, progress)? {
+    if s.order == Order::Auto && super::sweep::applies(camera, s) {
+        if let Some(map) = super::sweep::render(vol, camera, s, depths, rows, progress)? {
             return Ok(map);
         }
     }

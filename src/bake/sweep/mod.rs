@@ -21,6 +21,9 @@
 //!   the image (`[q_x q_y d]^-1 (p - q_0)`, where pixel `(i, j)`'s ray is
 //!   `q_0 + i q_x + j q_y + t d`), grown by a pixel; each pixel's ray is then clipped to the box
 //!   exactly, so the footprint test decides nothing.
+//! - **Slices.** Slice `k` (depth `t_k`) is the optical depth of `[0, t_k]`: a block's chord
+//!   `[a, b]` counts whole when `b <= t_k`, and a chord that straddles `t_k` adds one more lane
+//!   integrating `[a, t_k]`.
 //! - **Order and threads.** Blocks are binned into bands of image rows; bands run in parallel,
 //!   each over its blocks in tree order. A pixel's sum is the rest walk first, then its blocks
 //!   in tree order: the same whatever the thread count.
@@ -53,13 +56,12 @@ const KERNEL_MIN: f64 = 1e-20;
 /// Range of a block's largest chord (world units) the f32 kernel accepts.
 const CHORD_RANGE: (f64, f64) = (1e-15, 1e15);
 
-/// True when the sweep renders this map: an orthographic camera, exact regular tracking with
-/// trilinear lookups, no depth slices.
-pub(crate) fn applies(camera: &Camera, s: &BakeSettings, depths: &[f64]) -> bool {
+/// True when the sweep renders this map: an orthographic camera and exact regular tracking
+/// with trilinear lookups (depth slices included).
+pub(crate) fn applies(camera: &Camera, s: &BakeSettings) -> bool {
     camera.kind == Projection::Ortho
         && s.estimator == Estimator::REGULAR
         && s.options.interp == Interp::Trilinear
-        && depths.is_empty()
 }
 
 /// The map's rays in lookup space: pixel `(i, j)` is `q0 + i qx + j qy + t d`, `t` in
@@ -569,12 +571,14 @@ struct Sweep<'a> {
     bins: Vec<Vec<u32>>,
     rest_needed: bool,
     rows: u32,
+    /// Slice depths `t_k` (world distance along each ray), increasing.
+    depths: Vec<f64>,
 }
 
 impl<'a> Sweep<'a> {
     /// Plan the sweep of `camera`'s map in bands of `rows` rows; `None` when the rays' frame is
     /// degenerate in index space.
-    fn new(vol: &'a Volume, camera: &'a Camera, rows: u32) -> Result<Option<Self>> {
+    fn new(vol: &'a Volume, camera: &'a Camera, rows: u32, depths: &[f64]) -> Result<Option<Self>> {
         let Some(rays) = Rays::new(vol, camera)? else {
             return Ok(None);
         };
@@ -589,16 +593,46 @@ impl<'a> Sweep<'a> {
             bins,
             rest_needed,
             rows,
+            depths: depths.to_vec(),
         }))
     }
 
-    /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth into `tau`.
+    /// Values per pixel in a band's buffer: the full optical depth, then one per slice.
+    fn stride(&self) -> usize {
+        1 + self.depths.len()
+    }
+
+    /// Add a piece's contribution to pixel `n`'s full optical depth and to every slice whose
+    /// depth is past the chord's end `b`; the slices the chord straddles (`a < t_k < b`) are
+    /// `partial(t_k)`, the contribution of `[a, t_k]`.
+    fn add(
+        &self,
+        buf: &mut [f64],
+        n: usize,
+        (a, b): (f64, f64),
+        full: f64,
+        mut partial: impl FnMut(f64) -> f64,
+    ) {
+        let s = self.stride();
+        buf[n * s] += full;
+        for (k, &t) in self.depths.iter().enumerate() {
+            if t >= b {
+                buf[n * s + 1 + k] += full;
+            } else if t > a {
+                buf[n * s + 1 + k] += partial(t);
+            }
+        }
+    }
+
+    /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth into `tau`,
+    /// [`Sweep::stride`] values a pixel (the full ray, then each slice `[0, t_k]`).
     fn band(&self, b: usize, tau: &mut [f64], tally: &mut Tally) -> Result<()> {
         let (vol, camera, rays) = (self.vol, self.camera, &self.rays);
         let (pieces, ids, y0) = (&self.pieces, &self.bins[b], b as u32 * self.rows);
         let tree = vol.tree();
         let w = rays.width;
-        let y1 = y0 + (tau.len() / w as usize) as u32 - 1;
+        let stride = self.stride();
+        let y1 = y0 + (tau.len() / stride / w as usize) as u32 - 1;
         let scale = vol.density_scale();
         let mut acc = Accessor::new(tree);
         let mut n = Counts::default();
@@ -606,7 +640,11 @@ impl<'a> Sweep<'a> {
             for j in y0..=y1 {
                 for i in 0..w {
                     let ray = camera.pixel_ray(i, j)?;
-                    tau[((j - y0) * w + i) as usize] = rest(vol, &ray, &mut acc, &mut n);
+                    let at = ((j - y0) * w + i) as usize * stride;
+                    tau[at] = rest(vol, &ray, &mut acc, &mut n);
+                    for (k, &t) in self.depths.iter().enumerate() {
+                        tau[at + 1 + k] = rest(vol, &ray.with_range(0.0, t)?, &mut acc, &mut n);
+                    }
                 }
             }
         }
@@ -622,36 +660,62 @@ impl<'a> Sweep<'a> {
                 | Part::Shell { fast: true } => {
                     fill(&neighbourhood(tree, &mut acc, p), &mut block);
                     let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
-                    // The rays that cross the block, 8 at a time (lanes packed across rows).
+                    // The rays that cross the block, 8 at a time (lanes packed across rows); a
+                    // slice depth inside a chord adds a lane for the chord up to it.
                     let mut lanes = Lanes::default();
-                    let mut at = [0usize; LANES];
+                    // Per lane: the pixel, 0 (the whole chord) or 1 + k (slice k's part), and
+                    // the chord's end.
+                    let mut at = [(0usize, 0usize, 0.0f64); LANES];
                     let mut used = 0;
-                    let mut flush = |lanes: &mut Lanes, at: &[usize; LANES], used: &mut usize| {
-                        let sums = kernel::integrate(&block, &dir, lanes);
-                        for l in 0..*used {
-                            if sums.cells[l] > 0 {
-                                tau[at[l]] += scale * sums.tau[l];
+                    let mut flush =
+                        |lanes: &mut Lanes, at: &[(usize, usize, f64); LANES], used: &mut usize| {
+                            let sums = kernel::integrate(&block, &dir, lanes);
+                            for (l, &(px, slot, end)) in at.iter().enumerate().take(*used) {
+                                if sums.cells[l] == 0 {
+                                    continue;
+                                }
+                                let v = scale * sums.tau[l];
                                 tally.lookups += 4 + 4 * u64::from(sums.cells[l]);
+                                if slot > 0 {
+                                    tau[px * stride + slot] += v;
+                                    continue;
+                                }
+                                tau[px * stride] += v;
+                                for (k, &t) in self.depths.iter().enumerate() {
+                                    if t >= end {
+                                        tau[px * stride + 1 + k] += v;
+                                    }
+                                }
                             }
-                        }
-                        *lanes = Lanes::default();
-                        *used = 0;
-                    };
+                            *lanes = Lanes::default();
+                            *used = 0;
+                        };
                     for j in ja..=jb {
                         let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
                             continue;
                         };
                         let row = rays.row_clip(j, p.origin, 8);
                         for i in i0..=i1 {
-                            if let Some((q, a, b)) = row.at(i) {
-                                let e = (q - centre) + rays.d * a;
+                            let Some((q, a, b)) = row.at(i) else {
+                                continue;
+                            };
+                            let e = (q - centre) + rays.d * a;
+                            let px = ((j - y0) * w + i) as usize;
+                            let cuts = self
+                                .depths
+                                .iter()
+                                .enumerate()
+                                .filter(|(_, &t)| t > a && t < b);
+                            for (slot, end) in
+                                std::iter::once((0, b)).chain(cuts.map(|(k, &t)| (1 + k, t)))
+                            {
                                 for k in 0..3 {
                                     let hi = e[k] as f32;
                                     lanes.e[k][used] = hi;
                                     lanes.e_lo[k][used] = (e[k] - f64::from(hi)) as f32;
                                 }
-                                lanes.len[used] = (b - a) as f32;
-                                at[used] = ((j - y0) * w + i) as usize;
+                                lanes.len[used] = (end - a) as f32;
+                                at[used] = (px, slot, b);
                                 used += 1;
                                 if used == LANES {
                                     flush(&mut lanes, &at, &mut used);
@@ -677,13 +741,16 @@ impl<'a> Sweep<'a> {
                                 continue;
                             };
                             let (q, d, lin) = (q.to_array(), rays.d.to_array(), Interp::Trilinear);
-                            tau[((j - y0) * w + i) as usize] += match p.part {
-                                Part::Const(mu) => mu * (b - a),
+                            let mut part = |t1: f64| match p.part {
+                                Part::Const(mu) => mu * (t1 - a),
                                 Part::Leaf { leaf, .. } => {
-                                    scale * leaf_integral(&mut acc, leaf, q, d, a, b, lin, &mut n)
+                                    scale * leaf_integral(&mut acc, leaf, q, d, a, t1, lin, &mut n)
                                 }
-                                _ => scale * cells_integral(&mut acc, q, d, a, b, lin, &mut n),
+                                _ => scale * cells_integral(&mut acc, q, d, a, t1, lin, &mut n),
                             };
+                            let full = part(b);
+                            let px = ((j - y0) * w + i) as usize;
+                            self.add(tau, px, (a, b), full, part);
                         }
                     }
                 }
@@ -711,26 +778,29 @@ pub(crate) fn render(
     vol: &Volume,
     camera: &Camera,
     s: &BakeSettings,
+    depths: &[f64],
     rows: u32,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<Map>> {
     let start = std::time::Instant::now();
-    let Some(sweep) = Sweep::new(vol, camera, rows)? else {
+    let Some(sweep) = Sweep::new(vol, camera, rows, depths)? else {
         return Ok(None);
     };
-    let w = camera.width;
+    let (w, stride, k) = (camera.width, sweep.stride(), depths.len());
     let npix = camera.pixels();
     let mut t_image = vec![0.0f32; npix as usize];
-    let tallies: Vec<Tally> = t_image
+    let bands: Vec<(Tally, Vec<f32>)> = t_image
         .par_chunks_mut(rows as usize * w as usize)
         .enumerate()
         .map(|(b, t_band)| {
             let y0 = b as u32 * rows;
-            let mut tau = vec![0.0f64; t_band.len()];
+            let mut tau = vec![0.0f64; t_band.len() * stride];
             let mut tally = Tally::default();
             sweep.band(b, &mut tau, &mut tally)?;
-            for (n, (t, &x)) in t_band.iter_mut().zip(&tau).enumerate() {
-                if x.is_nan() {
+            // Slice k of the band's pixel n at `slices[n k + c]`, as the ray renderer keeps them.
+            let mut slices = Vec::with_capacity(t_band.len() * k);
+            for (n, px) in tau.chunks(stride).enumerate() {
+                if px.iter().any(|x| x.is_nan()) {
                     let (i, j) = (n as u32 % w, y0 + n as u32 / w);
                     let ray = camera.pixel_ray(i, j)?;
                     return Err(Error::NotANumber {
@@ -742,12 +812,20 @@ pub(crate) fn render(
                         ),
                     });
                 }
-                *t = (-x).exp() as f32;
+                t_band[n] = (-px[0]).exp() as f32;
+                slices.extend(px[1..].iter().map(|x| (-x).exp() as f32));
             }
             progress(t_band.len() as u64);
-            Ok(tally)
+            Ok((tally, slices))
         })
         .collect::<Result<_>>()?;
+    let mut slices = vec![Vec::with_capacity(npix as usize); k];
+    for (_, band) in &bands {
+        for (c, slice) in slices.iter_mut().enumerate() {
+            slice.extend(band.iter().skip(c).step_by(k.max(1)));
+        }
+    }
+    let tallies: Vec<Tally> = bands.into_iter().map(|(t, _)| t).collect();
     let lookups = tallies.iter().map(|t| t.lookups).sum();
     let len = npix as usize;
     Ok(Some(Map {
@@ -755,8 +833,8 @@ pub(crate) fn render(
         settings: s.clone(),
         t: t_image,
         std_err: s.std_err.then(|| vec![0.0; len]),
-        depths: Vec::new(),
-        slices: Vec::new(),
+        depths: depths.to_vec(),
+        slices,
         stats: BakeStats {
             rays: npix,
             samples: npix,

@@ -7,7 +7,9 @@ use crate::tree::TreeBuilder;
 /// The sweep's optical depth of every pixel (bands run one after the other).
 fn sweep_taus(vol: &Volume, camera: &Camera) -> Vec<f64> {
     let rows = 16;
-    let sweep = Sweep::new(vol, camera, rows).expect("plan").expect("frame");
+    let sweep = Sweep::new(vol, camera, rows, &[])
+        .expect("plan")
+        .expect("frame");
     let mut tau = vec![0.0; camera.pixels() as usize];
     for (b, chunk) in tau
         .chunks_mut(rows as usize * camera.width as usize)
@@ -229,5 +231,69 @@ fn footprints_cover_what_the_rays_cross() {
                 }
             }
         }
+    }
+}
+
+/// Slices: pixel `n`'s slice `k` is the optical depth of `[0, t_k]`, including a depth inside
+/// the volume, one before it and one past it, with and without the rest walk (a non-zero
+/// background).
+#[test]
+fn slices_match_prefix_optical_depths() {
+    let mut cases = Vec::new();
+    let mut b = TreeBuilder::new(0.2);
+    for k in 0..17 * 17 * 17 {
+        b.set(
+            [k % 17 - 12, (k / 17) % 17 - 5, k / 289 + 3],
+            (k % 11) as f32 * 0.1,
+        );
+    }
+    let m = [
+        [0.5, 0.0, 0.0, 0.0],
+        [0.0, 0.5, 0.0, 0.0],
+        [0.0, 0.0, 0.5, 0.0],
+    ];
+    cases.push(Volume::from_tree("bg".into(), b.build(), m, 0.7).expect("bg"));
+    let fbm =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gen/cloud_fbm.vdb");
+    cases.push(Volume::load(&fbm, "density", 5.0).expect("cloud_fbm"));
+    for vol in &cases {
+        let camera = ortho(vol, DIRS[0], 32);
+        let mid = 0.5 * (camera.t_near + camera.t_max);
+        let depths = [0.25 * camera.t_near, mid, mid + 0.01, 2.0 * camera.t_max];
+        let rows = 16;
+        let sweep = Sweep::new(vol, &camera, rows, &depths)
+            .expect("plan")
+            .expect("frame");
+        let s = sweep.stride();
+        let mut buf = vec![0.0; camera.pixels() as usize * s];
+        for (b, chunk) in buf
+            .chunks_mut(rows as usize * camera.width as usize * s)
+            .enumerate()
+        {
+            sweep.band(b, chunk, &mut Tally::default()).expect("band");
+        }
+        let mut straddled = 0;
+        for n in 0..camera.pixels() as usize {
+            let (i, j) = (n as u32 % camera.width, n as u32 / camera.width);
+            let ray = camera.pixel_ray(i, j).expect("ray");
+            for (k, &t) in depths.iter().enumerate() {
+                let seg = ray.with_range(0.0, t).expect("range");
+                let want = crate::regular::optical_depth(vol, &seg, Interp::Trilinear)
+                    .expect("tau")
+                    .tau;
+                let got = buf[n * s + 1 + k];
+                assert!(
+                    (got - want).abs() <= 1e-6 * want + 1e-7,
+                    "{}: pixel {n} slice {k}: {got} vs {want}",
+                    vol.name()
+                );
+                straddled += usize::from(k == 1 && want > 0.0 && want < buf[n * s] * 0.99);
+            }
+        }
+        assert!(
+            straddled > 10,
+            "{}: the middle slice cut too few rays",
+            vol.name()
+        );
     }
 }
