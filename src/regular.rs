@@ -54,27 +54,17 @@ const GAUSS: f64 = 0.577_350_269_189_625_8; // 1 / sqrt(3)
 /// None at present; the `Result` leaves room for per-query validation.
 pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalDepth> {
     let mut acc = Accessor::new(vol.tree());
+    let mut n = Counts::default();
     let (q, d) = lookup_ray(vol, ray, interp);
     let scale = vol.density_scale();
-    let mut tau = 0.0f64;
-    let mut n = Counts::default();
-    let w = walk_nodes(vol, ray, interp, Granularity::Leaf, |s: Segment, leaf| {
+    let leaf = |acc: &mut Accessor<'_>, s: Segment, leaf: u32, n: &mut Counts| {
         if s.is_constant() {
-            tau += s.mu_min * s.length();
+            s.mu_min * s.length()
         } else {
-            let part = match leaf {
-                Some(l) => leaf_integral(&mut acc, l, q, d, s.t_min, s.t_max, interp, &mut n),
-                None => cells_integral(&mut acc, q, d, s.t_min, s.t_max, interp, &mut n),
-            };
-            tau += scale * part;
+            scale * leaf_integral(acc, leaf, q, d, s.t_min, s.t_max, interp, n)
         }
-        ControlFlow::Continue(())
-    });
-    let gap = w.length - w.covered;
-    let mu_bg = vol.mu_background();
-    if mu_bg != 0.0 && gap > 0.0 {
-        tau += mu_bg * gap;
-    }
+    };
+    let (tau, w) = walk_tau(vol, ray, interp, Granularity::Leaf, &mut acc, &mut n, leaf);
     if tau.is_nan() {
         return Err(crate::Error::NotANumber {
             what: "optical depth".into(),
@@ -91,6 +81,59 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
         segments: w.segments,
         cells: n.cells,
     })
+}
+
+/// The optical depth of `ray` outside lower nodes: what a walk at lower-node granularity emits
+/// for tiles of upper nodes, root cells and the background, lower nodes left out (the sweep
+/// integrates those itself).
+pub(crate) fn optical_depth_above_lowers(
+    vol: &Volume,
+    ray: &Ray,
+    acc: &mut Accessor<'_>,
+    n: &mut Counts,
+) -> f64 {
+    walk_tau(
+        vol,
+        ray,
+        Interp::Trilinear,
+        Granularity::Lower,
+        acc,
+        n,
+        |_, _, _, _| 0.0,
+    )
+    .0
+}
+
+/// The optical depth of a walk at granularity `gran`: a node's segment by `node` (its optical
+/// depth), the other segments in closed form where constant and cell by cell otherwise, the
+/// gaps at the background's extinction.
+#[allow(clippy::too_many_arguments)]
+fn walk_tau<'t>(
+    vol: &Volume,
+    ray: &Ray,
+    interp: Interp,
+    gran: Granularity,
+    acc: &mut Accessor<'t>,
+    n: &mut Counts,
+    mut node: impl FnMut(&mut Accessor<'t>, Segment, u32, &mut Counts) -> f64,
+) -> (f64, crate::traverse::Walk) {
+    let (q, d) = lookup_ray(vol, ray, interp);
+    let scale = vol.density_scale();
+    let mut tau = 0.0f64;
+    let w = walk_nodes(vol, ray, interp, gran, |s: Segment, id| {
+        tau += match id {
+            Some(id) => node(acc, s, id, n),
+            None if s.is_constant() => s.mu_min * s.length(),
+            None => scale * cells_integral(acc, q, d, s.t_min, s.t_max, interp, n),
+        };
+        ControlFlow::Continue(())
+    });
+    let gap = w.length - w.covered;
+    let mu_bg = vol.mu_background();
+    if mu_bg != 0.0 && gap > 0.0 {
+        tau += mu_bg * gap;
+    }
+    (tau, w)
 }
 
 /// Cells integrated and voxel values read.

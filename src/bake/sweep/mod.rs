@@ -39,15 +39,13 @@ use super::camera::{Camera, Projection};
 use super::render::{BakeSettings, BakeStats, Map};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
-use crate::ray::Ray;
-use crate::regular::{cells_integral, leaf_integral, Counts};
-use crate::traverse::{lookup_ray, walk_nodes, Granularity};
+use crate::regular::{cells_integral, leaf_integral, optical_depth_above_lowers, Counts};
+use crate::traverse::lookup_ray;
 use crate::tree::{Accessor, Block, Neighbour, RootSlot, Tree};
 use crate::volume::{Interp, Volume};
 use glam::{DMat3, DVec3};
 use kernel::{Dir, Lanes, BLOCK, LANES, SIDE};
 use rayon::prelude::*;
-use std::ops::ControlFlow;
 
 /// Most values a block may hold in magnitude for the f32 kernel (no overflow in `h (f + f)`).
 const KERNEL_MAX: f64 = 1e20;
@@ -117,11 +115,6 @@ impl Rays {
         }))
     }
 
-    #[inline]
-    fn q(&self, i: u32, j: u32) -> DVec3 {
-        self.q0 + self.qx * f64::from(i) + self.qy * f64::from(j)
-    }
-
     /// The pixels `[i0, i1] x [j0, j1]` whose rays can cross the lookup-space box of side
     /// `dim` at `o`, or `None`.
     fn footprint(&self, o: [i64; 3], dim: i64) -> Option<[u32; 4]> {
@@ -143,33 +136,6 @@ impl Rays {
         let (i0, i1) = range(lo.x, hi.x, self.width)?;
         let (j0, j1) = range(lo.y, hi.y, self.height)?;
         Some([i0, i1, j0, j1])
-    }
-
-    /// Pixel `(i, j)`'s ray clipped to the lookup box of side `dim` at `o`: `(q, t0, t1)`.
-    /// The slab test of [`crate::ray::clip_box`] with the direction's reciprocals and signs hoisted.
-    #[inline]
-    fn clip(&self, i: u32, j: u32, o: [i64; 3], dim: i64) -> Option<(DVec3, f64, f64)> {
-        let q = self.q(i, j);
-        let (mut a, mut b) = (self.t_min, self.t_max);
-        for k in 0..3 {
-            let lo = (o[k] as f64).max(self.clip_lo[k]);
-            let hi = ((o[k] + dim) as f64).min(self.clip_hi[k]);
-            if self.d[k] == 0.0 {
-                if q[k] < lo || q[k] > hi {
-                    return None;
-                }
-                continue;
-            }
-            let (u, v) = ((lo - q[k]) * self.inv_d[k], (hi - q[k]) * self.inv_d[k]);
-            let (near, far) = if self.d[k] > 0.0 { (u, v) } else { (v, u) };
-            if near > a {
-                a = near;
-            }
-            if far < b {
-                b = far;
-            }
-        }
-        (a < b).then_some((q, a, b))
     }
 
     /// Row `j`'s rays against the lookup box of side `dim` at `o`, as linear functions of the
@@ -202,70 +168,13 @@ impl Rays {
         }
         r
     }
-
-    /// The columns `[i0, i1]` of row `j` whose rays can cross the lookup box of side `dim` at
-    /// `o` (a superset, grown by a column: [`Rays::clip`] decides), or `None`. A ray crosses
-    /// the box when every slab's entry comes before every slab's exit and the range
-    /// `[t_min, t_max]`; along a row each entry and exit is linear in `i`, so each of these
-    /// conditions bounds `i` on one side.
-    fn row_span(&self, j: u32, o: [i64; 3], dim: i64, [i0, i1]: [u32; 2]) -> Option<[u32; 2]> {
-        let qj = self.q0 + self.qy * f64::from(j);
-        let (mut lo, mut hi) = (f64::from(i0), f64::from(i1));
-        // `alpha + beta i < 0` (strict or not: the margin below covers the difference).
-        let mut need = |alpha: f64, beta: f64| {
-            if beta > 0.0 {
-                hi = hi.min(-alpha / beta);
-            } else if beta < 0.0 {
-                lo = lo.max(-alpha / beta);
-            } else if alpha > 0.0 {
-                hi = f64::NEG_INFINITY;
-            }
-        };
-        // Entry and exit of each slab as `(alpha, beta)`: `t = alpha + beta i`.
-        let mut near = [(0.0, 0.0); 3];
-        let mut far = [(0.0, 0.0); 3];
-        let mut n = 0;
-        for k in 0..3 {
-            let b0 = (o[k] as f64).max(self.clip_lo[k]);
-            let b1 = ((o[k] + dim) as f64).min(self.clip_hi[k]);
-            if b0 > b1 {
-                return None;
-            }
-            if self.d[k] == 0.0 {
-                // b0 <= qj + i qx <= b1.
-                need(b0 - qj[k], -self.qx[k]);
-                need(qj[k] - b1, self.qx[k]);
-                continue;
-            }
-            let beta = -self.qx[k] * self.inv_d[k];
-            let u = (b0 - qj[k]) * self.inv_d[k];
-            let v = (b1 - qj[k]) * self.inv_d[k];
-            let (a, b) = if self.d[k] > 0.0 { (u, v) } else { (v, u) };
-            near[n] = (a, beta);
-            far[n] = (b, beta);
-            n += 1;
-        }
-        for x in &near[..n] {
-            need(x.0 - self.t_max, x.1);
-            for y in &far[..n] {
-                need(x.0 - y.0, x.1 - y.1);
-            }
-        }
-        for y in &far[..n] {
-            need(self.t_min - y.0, -y.1);
-        }
-        let (lo, hi) = (
-            (lo - 1.0).floor().max(f64::from(i0)),
-            (hi + 1.0).ceil().min(f64::from(i1)),
-        );
-        (lo <= hi).then_some([lo as u32, hi as u32])
-    }
 }
 
 /// One row of rays against one box: slab `k`'s entry and exit are `near[k] + beta[k] i` and
 /// `far[k] + beta[k] i` for column `i` (a slab the rays run parallel to, `flat[k]`, has
 /// `near = -inf`, `far = inf`, and its bounds `lo..=hi` checked on the ray's coordinate).
-/// The same slab test as [`Rays::clip`] with the divisions hoisted out of the row.
+/// The slab test of [`crate::ray::clip_box`] (intersected with `[t_min, t_max]` and the
+/// walk's clip box) with the divisions hoisted out of the row.
 struct RowClip {
     q: DVec3,
     qx: DVec3,
@@ -281,6 +190,44 @@ struct RowClip {
 }
 
 impl RowClip {
+    /// The columns of `[i0, i1]` whose rays can cross the box (a superset, grown by a column:
+    /// [`RowClip::at`] decides), or `None`. A ray crosses the box when every slab's entry comes
+    /// before every slab's exit and before `t_max`, every exit after `t_min`, and it lies
+    /// between the bounds of the slabs it runs parallel to; each of these is linear in `i`, so
+    /// each bounds `i` on one side.
+    fn span(&self, [i0, i1]: [u32; 2]) -> Option<[u32; 2]> {
+        let (mut lo, mut hi) = (f64::from(i0), f64::from(i1));
+        // `alpha + beta i < 0` (strict or not: the margin below covers the difference).
+        let mut need = |alpha: f64, beta: f64| {
+            if beta > 0.0 {
+                hi = hi.min(-alpha / beta);
+            } else if beta < 0.0 {
+                lo = lo.max(-alpha / beta);
+            } else if alpha > 0.0 {
+                hi = f64::NEG_INFINITY;
+            }
+        };
+        let slabs: Vec<usize> = (0..3).filter(|&k| !self.flat[k]).collect();
+        for k in 0..3 {
+            if self.flat[k] {
+                // lo <= q + i qx <= hi.
+                need(self.lo[k] - self.q[k], -self.qx[k]);
+                need(self.q[k] - self.hi[k], self.qx[k]);
+                continue;
+            }
+            need(self.near[k] - self.t_max, self.beta[k]);
+            need(self.t_min - self.far[k], -self.beta[k]);
+            for &m in &slabs {
+                need(self.near[k] - self.far[m], self.beta[k] - self.beta[m]);
+            }
+        }
+        let (lo, hi) = (
+            (lo - 1.0).floor().max(f64::from(i0)),
+            (hi + 1.0).ceil().min(f64::from(i1)),
+        );
+        (lo <= hi).then_some([lo as u32, hi as u32])
+    }
+
     /// Column `i`'s ray: its lookup-space origin and `[t0, t1]` inside the box, or `None`.
     #[inline]
     fn at(&self, i: u32) -> Option<(DVec3, f64, f64)> {
@@ -367,22 +314,10 @@ fn pieces(vol: &Volume, rays: &Rays, shells: bool) -> Vec<Piece> {
         for slot in 0..4096usize {
             let local = [slot >> 8, (slot >> 4) & 15, slot & 15];
             let origin = [0, 1, 2].map(|a| base[a] + 8 * local[a] as i64);
-            let (h, part) = if node.has_child(slot) {
-                let leaf = node.slots[slot];
-                let h = tree.leaves[leaf as usize].halo;
-                let fast = kernel_ok(h.min, h.max, chord);
-                (h, Part::Leaf { leaf, fast })
-            } else {
-                let h = node.tile_halo_of(slot);
-                let fast = kernel_ok(h.min, h.max, chord);
-                (
-                    h,
-                    Part::Tile {
-                        lower: l as u32,
-                        slot: slot as u32,
-                        fast,
-                    },
-                )
+            let child = node.has_child(slot).then(|| node.slots[slot]);
+            let h = match child {
+                Some(leaf) => tree.leaves[leaf as usize].halo,
+                None => node.tile_halo_of(slot),
             };
             let part = if h.min == h.max {
                 let mu = if h.min == bg {
@@ -395,7 +330,15 @@ fn pieces(vol: &Volume, rays: &Rays, shells: bool) -> Vec<Piece> {
                 }
                 Part::Const(mu)
             } else {
-                part
+                let fast = kernel_ok(h.min, h.max, chord);
+                match child {
+                    Some(leaf) => Part::Leaf { leaf, fast },
+                    None => Part::Tile {
+                        lower: l as u32,
+                        slot: slot as u32,
+                        fast,
+                    },
+                }
             };
             if let Some(rect) = rays.footprint(origin, 8) {
                 out.push(Piece { part, origin, rect });
@@ -481,36 +424,6 @@ fn needs_rest(vol: &Volume) -> bool {
     root_tile || upper
 }
 
-/// The optical depth of `ray` outside lower nodes (what [`needs_rest`] looks for).
-fn rest(vol: &Volume, ray: &Ray, acc: &mut Accessor<'_>, n: &mut Counts) -> f64 {
-    let (q, d) = lookup_ray(vol, ray, Interp::Trilinear);
-    let scale = vol.density_scale();
-    let mut tau = 0.0;
-    let w = walk_nodes(
-        vol,
-        ray,
-        Interp::Trilinear,
-        Granularity::Lower,
-        |s, node| {
-            if node.is_none() {
-                if s.is_constant() {
-                    tau += s.mu_min * s.length();
-                } else {
-                    tau +=
-                        scale * cells_integral(acc, q, d, s.t_min, s.t_max, Interp::Trilinear, n);
-                }
-            }
-            ControlFlow::Continue(())
-        },
-    );
-    let gap = w.length - w.covered;
-    let mu_bg = vol.mu_background();
-    if mu_bg != 0.0 && gap > 0.0 {
-        tau += mu_bg * gap;
-    }
-    tau
-}
-
 /// The 8 blocks whose values a block's trilinear corners read: itself (`k = 0`) and its + face,
 /// edge and corner neighbours (`k` = bits x, y, z).
 fn neighbourhood<'t>(tree: &'t Tree, acc: &mut Accessor<'t>, p: &Piece) -> [Block<'t>; 8] {
@@ -553,12 +466,6 @@ fn fill(src: &[Block<'_>; 8], out: &mut [f32; BLOCK]) {
             out[row + 8] = src[k | 1].get(n);
         }
     }
-}
-
-/// Per-band tallies.
-#[derive(Default)]
-struct Tally {
-    lookups: u64,
 }
 
 /// A planned sweep: the map's rays, its pieces binned by band, and whether the rays also need
@@ -626,7 +533,7 @@ impl<'a> Sweep<'a> {
 
     /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth into `tau`,
     /// [`Sweep::stride`] values a pixel (the full ray, then each slice `[0, t_k]`).
-    fn band(&self, b: usize, tau: &mut [f64], tally: &mut Tally) -> Result<()> {
+    fn band(&self, b: usize, tau: &mut [f64], lookups: &mut u64) -> Result<()> {
         let (vol, camera, rays) = (self.vol, self.camera, &self.rays);
         let (pieces, ids, y0) = (&self.pieces, &self.bins[b], b as u32 * self.rows);
         let tree = vol.tree();
@@ -641,9 +548,14 @@ impl<'a> Sweep<'a> {
                 for i in 0..w {
                     let ray = camera.pixel_ray(i, j)?;
                     let at = ((j - y0) * w + i) as usize * stride;
-                    tau[at] = rest(vol, &ray, &mut acc, &mut n);
+                    tau[at] = optical_depth_above_lowers(vol, &ray, &mut acc, &mut n);
                     for (k, &t) in self.depths.iter().enumerate() {
-                        tau[at + 1 + k] = rest(vol, &ray.with_range(0.0, t)?, &mut acc, &mut n);
+                        tau[at + 1 + k] = optical_depth_above_lowers(
+                            vol,
+                            &ray.with_range(0.0, t)?,
+                            &mut acc,
+                            &mut n,
+                        );
                     }
                 }
             }
@@ -675,7 +587,7 @@ impl<'a> Sweep<'a> {
                                     continue;
                                 }
                                 let v = scale * sums.tau[l];
-                                tally.lookups += 4 + 4 * u64::from(sums.cells[l]);
+                                *lookups += 4 + 4 * u64::from(sums.cells[l]);
                                 if slot > 0 {
                                     tau[px * stride + slot] += v;
                                     continue;
@@ -691,10 +603,10 @@ impl<'a> Sweep<'a> {
                             *used = 0;
                         };
                     for j in ja..=jb {
-                        let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                        let row = rays.row_clip(j, p.origin, 8);
+                        let Some([i0, i1]) = row.span([i0, i1]) else {
                             continue;
                         };
-                        let row = rays.row_clip(j, p.origin, 8);
                         for i in i0..=i1 {
                             let Some((q, a, b)) = row.at(i) else {
                                 continue;
@@ -733,11 +645,12 @@ impl<'a> Sweep<'a> {
                 | Part::Tile { fast: false, .. }
                 | Part::Shell { fast: false } => {
                     for j in ja..=jb {
-                        let Some([i0, i1]) = rays.row_span(j, p.origin, 8, [i0, i1]) else {
+                        let row = rays.row_clip(j, p.origin, 8);
+                        let Some([i0, i1]) = row.span([i0, i1]) else {
                             continue;
                         };
                         for i in i0..=i1 {
-                            let Some((q, a, b)) = rays.clip(i, j, p.origin, 8) else {
+                            let Some((q, a, b)) = row.at(i) else {
                                 continue;
                             };
                             let (q, d, lin) = (q.to_array(), rays.d.to_array(), Interp::Trilinear);
@@ -756,7 +669,7 @@ impl<'a> Sweep<'a> {
                 }
             }
         }
-        tally.lookups += n.reads;
+        *lookups += n.reads;
         Ok(())
     }
 }
@@ -789,14 +702,14 @@ pub(crate) fn render(
     let (w, stride, k) = (camera.width, sweep.stride(), depths.len());
     let npix = camera.pixels();
     let mut t_image = vec![0.0f32; npix as usize];
-    let bands: Vec<(Tally, Vec<f32>)> = t_image
+    let bands: Vec<(u64, Vec<f32>)> = t_image
         .par_chunks_mut(rows as usize * w as usize)
         .enumerate()
         .map(|(b, t_band)| {
             let y0 = b as u32 * rows;
             let mut tau = vec![0.0f64; t_band.len() * stride];
-            let mut tally = Tally::default();
-            sweep.band(b, &mut tau, &mut tally)?;
+            let mut lookups = 0;
+            sweep.band(b, &mut tau, &mut lookups)?;
             // Slice k of the band's pixel n at `slices[n k + c]`, as the ray renderer keeps them.
             let mut slices = Vec::with_capacity(t_band.len() * k);
             for (n, px) in tau.chunks(stride).enumerate() {
@@ -816,7 +729,7 @@ pub(crate) fn render(
                 slices.extend(px[1..].iter().map(|x| (-x).exp() as f32));
             }
             progress(t_band.len() as u64);
-            Ok((tally, slices))
+            Ok((lookups, slices))
         })
         .collect::<Result<_>>()?;
     let mut slices = vec![Vec::with_capacity(npix as usize); k];
@@ -825,8 +738,7 @@ pub(crate) fn render(
             slice.extend(band.iter().skip(c).step_by(k.max(1)));
         }
     }
-    let tallies: Vec<Tally> = bands.into_iter().map(|(t, _)| t).collect();
-    let lookups = tallies.iter().map(|t| t.lookups).sum();
+    let lookups = bands.iter().map(|(l, _)| l).sum();
     let len = npix as usize;
     Ok(Some(Map {
         camera: *camera,

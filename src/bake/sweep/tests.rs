@@ -2,7 +2,9 @@
 
 use super::*;
 use crate::bake::{Resolution, View};
+use crate::traverse::Granularity;
 use crate::tree::TreeBuilder;
+use std::ops::ControlFlow;
 
 /// The sweep's optical depth of every pixel (bands run one after the other).
 fn sweep_taus(vol: &Volume, camera: &Camera) -> Vec<f64> {
@@ -15,7 +17,7 @@ fn sweep_taus(vol: &Volume, camera: &Camera) -> Vec<f64> {
         .chunks_mut(rows as usize * camera.width as usize)
         .enumerate()
     {
-        sweep.band(b, chunk, &mut Tally::default()).expect("band");
+        sweep.band(b, chunk, &mut 0).expect("band");
     }
     tau
 }
@@ -221,13 +223,18 @@ fn footprints_cover_what_the_rays_cross() {
             for i in 0..camera.width {
                 let inside =
                     (p.rect[0]..=p.rect[1]).contains(&i) && (p.rect[2]..=p.rect[3]).contains(&j);
-                let span = rays.row_span(j, p.origin, 8, [0, camera.width - 1]);
+                let row = rays.row_clip(j, p.origin, 8);
+                let span = row.span([0, camera.width - 1]);
                 let in_span = span.is_some_and(|[a, b]| (a..=b).contains(&i));
+                // The independent slab test, on the block clipped to the walk's box.
+                let q = rays.q0 + rays.qx * f64::from(i) + rays.qy * f64::from(j);
+                let lo = [0, 1, 2].map(|a| (p.origin[a] as f64).max(rays.clip_lo[a]));
+                let hi = [0, 1, 2].map(|a| ((p.origin[a] + 8) as f64).min(rays.clip_hi[a]));
+                let hit = crate::ray::clip_box(q, rays.d, lo, hi)
+                    .is_some_and(|(a, b)| a.max(rays.t_min) < b.min(rays.t_max));
+                assert_eq!(row.at(i).is_some(), hit, "{p:?} at ({i}, {j})");
                 if !(inside && in_span) {
-                    assert!(
-                        rays.clip(i, j, p.origin, 8).is_none(),
-                        "{p:?} misses ({i}, {j})"
-                    );
+                    assert!(!hit, "{p:?} misses ({i}, {j})");
                 }
             }
         }
@@ -270,7 +277,7 @@ fn slices_match_prefix_optical_depths() {
             .chunks_mut(rows as usize * camera.width as usize * s)
             .enumerate()
         {
-            sweep.band(b, chunk, &mut Tally::default()).expect("band");
+            sweep.band(b, chunk, &mut 0).expect("band");
         }
         let mut straddled = 0;
         for n in 0..camera.pixels() as usize {
