@@ -16,32 +16,15 @@
 # reference rendered with the grid shifted by half a voxel (ortho_view --index-offset 0.5).
 # Prints "CYCLES_RENDER_SECONDS <s>": the render alone, without Blender's start-up and load.
 import math
+import os
 import sys
 import time
 
 import bpy
 from mathutils import Matrix, Vector
 
-
-def parse(argv):
-    args = argv[argv.index("--") + 1:] if "--" in argv else []
-    pos, opt = [], {}
-    i = 0
-    while i < len(args):
-        a = args[i]
-        if a.startswith("--"):
-            if "=" in a:
-                k, v = a[2:].split("=", 1)
-            else:
-                k, v = a[2:], args[i + 1]
-                i += 1
-            opt[k] = v
-        else:
-            pos.append(a)
-        i += 1
-    if len(pos) != 2:
-        sys.exit("usage: blender -b --factory-startup -P blender_transmittance.py -- VOL.vdb OUT.exr [options]")
-    return pos[0], pos[1], opt
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_args import parse  # noqa: E402
 
 
 def vec(s):
@@ -49,7 +32,11 @@ def vec(s):
 
 
 def main():
-    vdb, out, opt = parse(sys.argv)
+    args = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    vdb, out, opt = parse(
+        args,
+        "usage: blender -b --factory-startup -P blender_transmittance.py -- VOL.vdb OUT.exr [options]",
+    )
     grid = opt.get("grid", "density")
     scale = float(opt.get("scale", "1"))
     d = vec(opt.get("dir", "0,0,-1")).normalized()

@@ -41,25 +41,8 @@ import time
 
 import numpy as np
 
-
-def parse(argv):
-    pos, opt = [], {}
-    i = 0
-    while i < len(argv):
-        a = argv[i]
-        if a.startswith("--"):
-            if "=" in a:
-                k, v = a[2:].split("=", 1)
-            else:
-                k, v = a[2:], argv[i + 1]
-                i += 1
-            opt[k] = v
-        else:
-            pos.append(a)
-        i += 1
-    if len(pos) != 2:
-        sys.exit("usage: mitsuba_transmittance.py DENSE.npz OUT.exr --mode volpath|march [options]")
-    return pos[0], pos[1], opt
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from bench_args import parse  # noqa: E402
 
 
 def vec(s):
@@ -70,7 +53,9 @@ def vec(s):
 
 
 def main():
-    npz, out, opt = parse(sys.argv[1:])
+    npz, out, opt = parse(
+        sys.argv[1:], "usage: mitsuba_transmittance.py DENSE.npz OUT.exr --mode volpath|march [options]"
+    )
     mode = opt.get("mode", "march")
     scale = float(opt.get("scale", "1"))
     d = vec(opt.get("dir", "0,0,-1"))

@@ -84,6 +84,19 @@ alignas(64) const float kZeros[512] = {};    // the values of an empty 8^3 block
 
 // What the tree holds at one 8^3 block, memoised per thread (neighbouring rays and the trilinear
 // stencils of neighbouring samples ask about the same blocks again and again).
+// Insert the interval [a, b] into the n intervals [lo[i], hi[i]] kept sorted by start.
+inline void insertByStart(float* lo, float* hi, int& n, float a, float b)
+{
+    int i = n++;
+    while (i > 0 && lo[i - 1] > a) {
+        lo[i] = lo[i - 1];
+        hi[i] = hi[i - 1];
+        --i;
+    }
+    lo[i] = a;
+    hi[i] = b;
+}
+
 struct Block {
     int32_t x = std::numeric_limits<int32_t>::min(), y = 0, z = 0;
     uint32_t dim = 0;            // 8 inside a lower node, else the empty / tile node's size (128, 4096)
@@ -249,16 +262,8 @@ private:
                     a = std::max(a, lo[k]);
                     b = std::min(b, hi[k]);
                 }
-            if (b > a) { // insertion by start
-                int i = n++;
-                while (i > 0 && sa[i - 1] > a) {
-                    sa[i] = sa[i - 1];
-                    sb[i] = sb[i - 1];
-                    --i;
-                }
-                sa[i] = a;
-                sb[i] = b;
-            }
+            if (b > a)
+                insertByStart(sa, sb, n, a, b);
         }
         for (int i = 0; i < n; ++i)
             emit(sa[i], sb[i]);
@@ -280,16 +285,8 @@ private:
             if (std::max(pa[a], pb[a]) > top) {
                 float l, h;
                 above(a, top, ta, tb, l, h);
-                if (h > l) {
-                    int i = n++;
-                    while (i > 0 && lo[i - 1] > l) {
-                        lo[i] = lo[i - 1];
-                        hi[i] = hi[i - 1];
-                        --i;
-                    }
-                    lo[i] = l;
-                    hi[i] = h;
-                }
+                if (h > l)
+                    insertByStart(lo, hi, n, l, h);
             }
         }
         // walk the union of the strips block by block
