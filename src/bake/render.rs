@@ -425,7 +425,7 @@ fn render(
     let k = depths.len();
     let len = npix as usize;
     let rows = band_rows(h, rayon::current_num_threads());
-    if s.order == Order::Auto && super::sweep::applies(camera, s) {
+    if s.order == Order::Auto && super::sweep::applies(s) {
         if let Some(map) = super::sweep::render(vol, camera, s, depths, rows, progress)? {
             return Ok(map);
         }

@@ -1,13 +1,14 @@
 //! The lane kernel of the sweep: the exact integral of the trilinear field of one 8^3 block of
-//! dual cells along up to [`LANES`] parallel rays at once.
+//! dual cells along up to [`LANES`] rays at once (parallel ones for an orthographic map, rays
+//! from one point for a perspective map: each lane carries its own direction).
 //!
 //! **Block.** The lookup cells `[o, o + 7]^3` of a leaf or tile and the corners they read, the
 //! values at `o + (x, y, z)`, `x, y, z in 0..=8`, copied into a padded `9^3` array
 //! (`x * 81 + y * 9 + z`) that stays in L1 while every ray of the footprint crosses it.
 //!
 //! **Per lane.** A ray enters the block at `e` (block-centred coordinates: lookup space minus
-//! `o + 4`, so `|e| <= 4`) and runs along the common direction `d` (lookup units per world unit)
-//! for `len` world units. A DDA over the unit cells cuts `[0, len]` into pieces `[s, s']`, one
+//! `o + 4`, so `|e| <= 4`) and runs along its direction `d` (lookup units per world unit) for
+//! `len` world units. A DDA over the unit cells cuts `[0, len]` into pieces `[s, s']`, one
 //! per dual cell `c`; inside one the field is the trilinear interpolation of the cell's 8
 //! corners, a cubic in `t`, integrated exactly by two-point Gauss-Legendre:
 //! `int_s^s' f = h (f(m - h / sqrt3) + f(m + h / sqrt3))`, `m = (s + s') / 2`, `h = (s' - s) / 2`,
@@ -23,7 +24,7 @@
 //! back to the f64 per-ray code otherwise. The bench `ortho_view --check` reports the largest
 //! relative difference of optical depth against the f64 ray path.
 //!
-//! **Dispatch.** [`integrate`] runs the AVX2 + FMA version where the CPU has it and a portable
+//! **Dispatch.** [`Kernel::integrate`] runs the AVX2 + FMA version where the CPU has it and a portable
 //! version elsewhere. Both do the same f32 operations in the same order, with fused
 //! multiply-adds at the same places (`f32::mul_add` in the portable one), so they agree bit for
 //! bit (checked by a unit test on machines with AVX2).
@@ -44,52 +45,36 @@ const GAUSS: f32 = 0.577_350_26;
 /// per axis that would leave the block early (round-off) and ends that axis instead.
 const MAX_STEPS: usize = 25;
 
-/// What every lane shares: the rays' direction in lookup space.
+/// Which version of the kernel runs.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Dir {
-    d: [f32; 3],
-    /// `d - d as f32`: the rest of the f64 direction.
-    d_lo: [f32; 3],
-    /// `+1`, `-1` or `0` (the sign of `d`, as the cell step).
-    step: [f32; 3],
-    /// `|1 / d|` per axis (`inf` where `d = 0`): the `t` between two faces.
-    delta: [f32; 3],
+pub(crate) struct Kernel {
     /// Run the AVX2 + FMA version.
     simd: bool,
 }
 
-impl Dir {
-    /// The direction `d` (lookup units per world unit, not all zero).
-    pub(crate) fn new(d64: [f64; 3]) -> Self {
-        let d = d64.map(|c| c as f32);
+impl Kernel {
+    /// The fastest version this CPU runs.
+    pub(crate) fn new() -> Self {
         Self {
-            d,
-            d_lo: [0, 1, 2].map(|a| (d64[a] - f64::from(d[a])) as f32),
-            step: d.map(|c| {
-                if c > 0.0 {
-                    1.0
-                } else if c < 0.0 {
-                    -1.0
-                } else {
-                    0.0
-                }
-            }),
-            delta: d.map(|c| {
-                if c == 0.0 {
-                    f32::INFINITY
-                } else {
-                    (1.0 / c).abs()
-                }
-            }),
             simd: simd_available(),
         }
     }
 
-    /// The same direction, always on the portable version (tests compare the two).
+    /// The portable version (tests compare the two).
     #[cfg(test)]
-    pub(crate) fn portable(mut self) -> Self {
-        self.simd = false;
-        self
+    pub(crate) fn portable() -> Self {
+        Self { simd: false }
+    }
+
+    /// Integrate the block's field along every used lane.
+    pub(crate) fn integrate(self, block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
+        #[cfg(target_arch = "x86_64")]
+        if self.simd {
+            // SAFETY: `simd` is set only when the CPU reports AVX2 and FMA.
+            #[allow(unsafe_code)]
+            return unsafe { avx2::integrate(block, lanes) };
+        }
+        portable(block, lanes)
     }
 }
 
@@ -106,12 +91,32 @@ fn simd_available() -> bool {
 /// Up to [`LANES`] rays through one block. A lane with `len <= 0` is unused.
 #[derive(Debug, Clone, Copy, Default)]
 pub(crate) struct Lanes {
+    /// Directions (lookup units per world unit, not all zero), per axis.
+    pub(crate) d: [[f32; LANES]; 3],
+    /// `d - d as f32` of the f64 directions.
+    pub(crate) d_lo: [[f32; LANES]; 3],
     /// Entry points, block-centred (lookup space minus `o + 4`), per axis.
     pub(crate) e: [[f32; LANES]; 3],
     /// `e - e as f32` of the f64 entry points (`e + e_lo` is the entry to ~1e-14 voxels).
     pub(crate) e_lo: [[f32; LANES]; 3],
     /// World length of each ray inside the block.
     pub(crate) len: [f32; LANES],
+}
+
+impl Lanes {
+    /// Set lane `l`: the ray from `e` (block-centred, f64) along `d` (lookup space) for `len`
+    /// world units, each split into an f32 and the f32 of its rest.
+    #[inline]
+    pub(crate) fn set(&mut self, l: usize, e: [f64; 3], d: [f64; 3], len: f64) {
+        for k in 0..3 {
+            let (hi, dhi) = (e[k] as f32, d[k] as f32);
+            self.e[k][l] = hi;
+            self.e_lo[k][l] = (e[k] - f64::from(hi)) as f32;
+            self.d[k][l] = dhi;
+            self.d_lo[k][l] = (d[k] - f64::from(dhi)) as f32;
+        }
+        self.len[l] = len as f32;
+    }
 }
 
 /// Per lane: the integral of the (unscaled) field and the dual cells it crossed.
@@ -121,36 +126,25 @@ pub(crate) struct Sums {
     pub(crate) cells: [u32; LANES],
 }
 
-/// Integrate the block's field along every used lane.
-pub(crate) fn integrate(block: &[f32; BLOCK], dir: &Dir, lanes: &Lanes) -> Sums {
-    #[cfg(target_arch = "x86_64")]
-    if dir.simd {
-        // SAFETY: `dir.simd` is set only when the CPU reports AVX2 and FMA.
-        #[allow(unsafe_code)]
-        return unsafe { avx2::integrate(block, dir, lanes) };
-    }
-    portable(block, dir, lanes)
-}
-
 /// The first cell of a lane (block-centred, `-4..=3` per axis), its padded-block index and the
 /// `t` of the next face per axis.
 #[inline]
-fn start(e: [f32; 3], dir: &Dir) -> ([f32; 3], i32, [f32; 3]) {
+fn start(e: [f32; 3], d: [f32; 3]) -> ([f32; 3], i32, [f32; 3]) {
     let c = e.map(|x| x.floor().clamp(-4.0, 3.0));
     let idx = (0..3).fold(0, |acc, a| acc + (c[a] + 4.0) as i32 * STRIDE[a]);
     let tn = [0, 1, 2].map(|a| {
-        if dir.d[a] == 0.0 {
+        if d[a] == 0.0 {
             f32::INFINITY
         } else {
-            let face = if dir.d[a] > 0.0 { c[a] + 1.0 } else { c[a] };
-            (face - e[a]) / dir.d[a]
+            let face = if d[a] > 0.0 { c[a] + 1.0 } else { c[a] };
+            (face - e[a]) / d[a]
         }
     });
     (c, idx, tn)
 }
 
 /// The portable version: one lane after the other, the AVX2 version's operations in order.
-fn portable(block: &[f32; BLOCK], dir: &Dir, lanes: &Lanes) -> Sums {
+fn portable(block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
     let mut out = Sums::default();
     for l in 0..LANES {
         let len = lanes.len[l];
@@ -159,7 +153,20 @@ fn portable(block: &[f32; BLOCK], dir: &Dir, lanes: &Lanes) -> Sums {
         }
         let e = [lanes.e[0][l], lanes.e[1][l], lanes.e[2][l]];
         let e_lo = [lanes.e_lo[0][l], lanes.e_lo[1][l], lanes.e_lo[2][l]];
-        let (mut c, mut idx, mut tn) = start(e, dir);
+        let d = [lanes.d[0][l], lanes.d[1][l], lanes.d[2][l]];
+        let d_lo = [lanes.d_lo[0][l], lanes.d_lo[1][l], lanes.d_lo[2][l]];
+        let step = d.map(|c| {
+            if c > 0.0 {
+                1.0f32
+            } else if c < 0.0 {
+                -1.0
+            } else {
+                0.0
+            }
+        });
+        // `|1 / d|`, infinite where `d = 0`: the `t` between two faces.
+        let delta = d.map(|c| (1.0 / c).abs());
+        let (mut c, mut idx, mut tn) = start(e, d);
         let (mut s, mut acc, mut n) = (0.0f32, 0.0f64, 0u32);
         for _ in 0..MAX_STEPS {
             let tm = tn[0].min(tn[1].min(tn[2]));
@@ -169,10 +176,10 @@ fn portable(block: &[f32; BLOCK], dir: &Dir, lanes: &Lanes) -> Sums {
             let mut um = [0.0f32; 3];
             let mut up = [0.0f32; 3];
             for a in 0..3 {
-                let us = dir.d[a].mul_add(s, (e[a] - c[a]) + e_lo[a]);
-                let us = dir.d_lo[a].mul_add(s, us);
-                um[a] = dir.d[a].mul_add(hm, us);
-                up[a] = dir.d[a].mul_add(hp, us);
+                let us = d[a].mul_add(s, (e[a] - c[a]) + e_lo[a]);
+                let us = d_lo[a].mul_add(s, us);
+                um[a] = d[a].mul_add(hm, us);
+                up[a] = d[a].mul_add(hp, us);
             }
             let v = CORNERS.map(|k| block[(idx + k) as usize]);
             // `a (1 - w) + b w`: no cancellation for values of one sign, so the error stays
@@ -198,11 +205,11 @@ fn portable(block: &[f32; BLOCK], dir: &Dir, lanes: &Lanes) -> Sums {
             };
             // A step out of the block before `len` is round-off in the face times: the rest
             // of the chord stays in this cell, and that axis is done.
-            let next = c[axis] + dir.step[axis];
+            let next = c[axis] + step[axis];
             if (-4.0..=3.0).contains(&next) {
                 c[axis] = next;
-                tn[axis] += dir.delta[axis];
-                idx += dir.step[axis] as i32 * STRIDE[axis];
+                tn[axis] += delta[axis];
+                idx += step[axis] as i32 * STRIDE[axis];
             } else {
                 tn[axis] = f32::INFINITY;
             }
@@ -217,7 +224,7 @@ fn portable(block: &[f32; BLOCK], dir: &Dir, lanes: &Lanes) -> Sums {
 #[cfg(target_arch = "x86_64")]
 #[allow(unsafe_code)]
 mod avx2 {
-    use super::{start, Dir, Lanes, Sums, BLOCK, CORNERS, GAUSS, LANES, MAX_STEPS, STRIDE};
+    use super::{start, Lanes, Sums, BLOCK, CORNERS, GAUSS, LANES, MAX_STEPS, STRIDE};
     use std::arch::x86_64::*;
 
     /// The AVX2 + FMA version: the 8 lanes in one register each.
@@ -225,14 +232,17 @@ mod avx2 {
     /// # Safety
     /// The CPU must support AVX2 and FMA.
     #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn integrate(block: &[f32; BLOCK], dir: &Dir, lanes: &Lanes) -> Sums {
+    pub(super) unsafe fn integrate(block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
         let mut cx = [0f32; LANES];
         let mut cy = [0f32; LANES];
         let mut cz = [0f32; LANES];
         let mut ix = [0i32; LANES];
         let mut t = [[0f32; LANES]; 3];
         for l in 0..LANES {
-            let (c, idx, tn) = start([lanes.e[0][l], lanes.e[1][l], lanes.e[2][l]], dir);
+            let (c, idx, tn) = start(
+                [lanes.e[0][l], lanes.e[1][l], lanes.e[2][l]],
+                [lanes.d[0][l], lanes.d[1][l], lanes.d[2][l]],
+            );
             (cx[l], cy[l], cz[l], ix[l]) = (c[0], c[1], c[2], idx);
             for a in 0..3 {
                 t[a][l] = tn[a];
@@ -248,12 +258,27 @@ mod avx2 {
         let mut c = [ld(&cx), ld(&cy), ld(&cz)];
         let mut tn = [ld(&t[0]), ld(&t[1]), ld(&t[2])];
         let mut idx = unsafe { _mm256_loadu_si256(ix.as_ptr().cast()) };
-        let d = dir.d.map(|x| _mm256_set1_ps(x));
-        let d_lo = dir.d_lo.map(|x| _mm256_set1_ps(x));
+        let d = [ld(&lanes.d[0]), ld(&lanes.d[1]), ld(&lanes.d[2])];
+        let d_lo = [ld(&lanes.d_lo[0]), ld(&lanes.d_lo[1]), ld(&lanes.d_lo[2])];
         let (gm, gp) = (_mm256_set1_ps(1.0 - GAUSS), _mm256_set1_ps(1.0 + GAUSS));
-        let step = dir.step.map(|x| _mm256_set1_ps(x));
-        let delta = dir.delta.map(|x| _mm256_set1_ps(x));
-        let stride = [0, 1, 2].map(|a| _mm256_set1_epi32(dir.step[a] as i32 * STRIDE[a]));
+        // Per lane and axis: the cell step (the sign of `d`: +1, -1 or 0), the `t` between two
+        // faces `|1 / d|` (infinite where `d = 0`) and the step's offset in the block.
+        let (one, neg_one) = (_mm256_set1_ps(1.0), _mm256_set1_ps(-1.0));
+        let sign_bit = _mm256_set1_ps(-0.0);
+        let mut step = [zero; 3];
+        let mut delta = [zero; 3];
+        let mut stride = [_mm256_setzero_si256(); 3];
+        for a in 0..3 {
+            let pos = _mm256_cmp_ps::<_CMP_GT_OQ>(d[a], zero);
+            let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(d[a], zero);
+            step[a] = _mm256_or_ps(_mm256_and_ps(pos, one), _mm256_and_ps(neg, neg_one));
+            delta[a] = _mm256_andnot_ps(sign_bit, _mm256_div_ps(one, d[a]));
+            let (up, down) = (_mm256_set1_epi32(STRIDE[a]), _mm256_set1_epi32(-STRIDE[a]));
+            stride[a] = _mm256_or_si256(
+                _mm256_and_si256(_mm256_castps_si256(pos), up),
+                _mm256_and_si256(_mm256_castps_si256(neg), down),
+            );
+        }
         let pair = [0, 2, 4, 6].map(|k| CORNERS[k]);
         let base: *const f32 = block.as_ptr();
         let (lo, hi) = (_mm256_set1_ps(-4.0), _mm256_set1_ps(3.0));
@@ -306,7 +331,6 @@ mod avx2 {
             let v = [
                 v[0].0, v[0].1, v[1].0, v[1].1, v[2].0, v[2].1, v[3].0, v[3].1,
             ];
-            let one = _mm256_set1_ps(1.0);
             let f = |w: [__m256; 3]| {
                 let lerp = |a: __m256, b: __m256, w: __m256| {
                     _mm256_fmadd_ps(b, w, _mm256_mul_ps(a, _mm256_sub_ps(one, w)))
@@ -390,25 +414,31 @@ mod tests {
             for v in &mut block {
                 *v = (lcg(&mut st) * 3.0) as f32;
             }
-            let raw = [0; 3].map(|_| lcg(&mut st) - 0.5);
-            let n = raw.iter().map(|x| x * x).sum::<f64>().sqrt();
-            let speed = 0.5 + 2.0 * lcg(&mut st);
-            let d64 = raw.map(|x| x / n * speed);
-            let dir = Dir::new(d64);
+            // Odd rounds: one direction for every lane (an orthographic map); even rounds: one
+            // per lane (a perspective map), an axis-parallel one among them.
+            let shared = lcg(&mut st) < 0.5;
+            let random_dir = |st: &mut u64| {
+                let raw = [0; 3].map(|_| lcg(st) - 0.5);
+                let n = raw.iter().map(|x| x * x).sum::<f64>().sqrt();
+                let speed = 0.5 + 2.0 * lcg(st);
+                raw.map(|x| x / n * speed)
+            };
+            let first = random_dir(&mut st);
             let mut lanes = Lanes::default();
-            for l in 0..LANES {
+            let mut dirs = [[0.0f64; 3]; LANES];
+            for (l, d) in dirs.iter_mut().enumerate() {
+                *d = if shared { first } else { random_dir(&mut st) };
+                if !shared && l == 2 {
+                    *d = [0.0, -1.5, 0.0];
+                }
                 // A random point inside, traced back and forth to the block's faces.
                 let p = [0; 3].map(|_| (lcg(&mut st) - 0.5) * 7.9);
-                let (a, b) = crate::ray::clip_box(p, d64, [-4.0; 3], [4.0; 3]).expect("inside");
-                let e = [0, 1, 2].map(|k| p[k] + d64[k] * a);
-                for (k, &x) in e.iter().enumerate() {
-                    lanes.e[k][l] = x as f32;
-                    lanes.e_lo[k][l] = (x - f64::from(x as f32)) as f32;
-                }
-                lanes.len[l] = if l == 5 { 0.0 } else { (b - a) as f32 };
+                let (a, b) = crate::ray::clip_box(p, *d, [-4.0; 3], [4.0; 3]).expect("inside");
+                let e = [0, 1, 2].map(|k| p[k] + d[k] * a);
+                lanes.set(l, e, *d, if l == 5 { 0.0 } else { b - a });
             }
-            let got = integrate(&block, &dir, &lanes);
-            let portable = integrate(&block, &dir.portable(), &lanes);
+            let got = Kernel::new().integrate(&block, &lanes);
+            let portable = Kernel::portable().integrate(&block, &lanes);
             assert_eq!(got, portable, "AVX2 and portable differ");
             for l in 0..LANES {
                 let len = f64::from(lanes.len[l]);
@@ -418,7 +448,7 @@ mod tests {
                 let want: f64 = (0..steps)
                     .map(|i| {
                         let t = (f64::from(i) + 0.5) * dt;
-                        field(&block, [0, 1, 2].map(|k| e[k] + d64[k] * t)) * dt
+                        field(&block, [0, 1, 2].map(|k| e[k] + dirs[l][k] * t)) * dt
                     })
                     .sum();
                 let tol = 1e-5 * (1.0 + want.abs());
@@ -443,13 +473,12 @@ mod tests {
         for (i, v) in block.iter_mut().enumerate() {
             *v = (i % 9) as f32; // the value is the z coordinate: f = z + 4 block-centred
         }
-        let dir = Dir::new([0.0, 0.0, -2.0]);
-        let lanes = Lanes {
-            e: [[0.25; LANES], [-1.5; LANES], [4.0; LANES]],
-            len: [4.0; LANES], // 8 voxels at 2 voxels per unit t
-            ..Lanes::default()
-        };
-        let got = integrate(&block, &dir, &lanes);
+        let mut lanes = Lanes::default();
+        for l in 0..LANES {
+            // 8 voxels at 2 voxels per unit t.
+            lanes.set(l, [0.25, -1.5, 4.0], [0.0, 0.0, -2.0], 4.0);
+        }
+        let got = Kernel::new().integrate(&block, &lanes);
         // int_0^4 (8 - 2 t) dt = 16.
         for l in 0..LANES {
             assert!((got.tau[l] - 16.0).abs() < 1e-5, "{}", got.tau[l]);

@@ -44,7 +44,7 @@ use crate::traverse::lookup_ray;
 use crate::tree::{Accessor, Block, Neighbour, RootSlot, Tree};
 use crate::volume::{Interp, Volume};
 use glam::{DMat3, DVec3};
-use kernel::{Dir, Lanes, BLOCK, LANES, SIDE};
+use kernel::{Kernel, Lanes, BLOCK, LANES, SIDE};
 use rayon::prelude::*;
 
 /// Most values a block may hold in magnitude for the f32 kernel (no overflow in `h (f + f)`).
@@ -56,23 +56,39 @@ const CHORD_RANGE: (f64, f64) = (1e-15, 1e15);
 
 /// True when the sweep renders this map: an orthographic camera and exact regular tracking
 /// with trilinear lookups (depth slices included).
-pub(crate) fn applies(camera: &Camera, s: &BakeSettings) -> bool {
-    camera.kind == Projection::Ortho
-        && s.estimator == Estimator::REGULAR
+pub(crate) fn applies(s: &BakeSettings) -> bool {
+    s.estimator == Estimator::REGULAR
         && s.options.interp == Interp::Trilinear
 }
 
-/// The map's rays in lookup space: pixel `(i, j)` is `q0 + i qx + j qy + t d`, `t` in
-/// `[t_min, t_max]`.
-struct Rays {
+/// Orthographic rays in lookup space: pixel `(i, j)`'s is `q0 + i qx + j qy + t d`;
+/// `inv = [qx qy d]^-1` maps offsets from `q0` to `(i, j, t)`.
+#[derive(Clone, Copy)]
+struct Parallel {
     q0: DVec3,
     qx: DVec3,
     qy: DVec3,
     d: DVec3,
     /// `1 / d` per axis (unused where `d` is zero).
     inv_d: DVec3,
-    /// `[qx qy d]^-1`: lookup-space offsets from `q0` to `(i, j, t)`.
     inv: DMat3,
+}
+
+/// How pixel `(i, j)`'s ray runs in lookup space.
+enum Layout {
+    /// Orthographic.
+    Parallel(Parallel),
+    /// Perspective: `p + t d(i, j)`, `d(i, j)` the lookup-space image of the unit world
+    /// direction through pixel `(i, j)`. `inv = [D sx sy]^-1` (the lookup-space images of the
+    /// camera's `direction`, `step_x`, `step_y`) maps `c - p` to `(v0, v0 i, v0 j)`: point `c`
+    /// lies on the ray of (fractional) pixel `(v1 / v0, v2 / v0)`, in front of the pinhole when
+    /// `v0 > 0`.
+    Pinhole { p: DVec3, inv: DMat3 },
+}
+
+/// The map's rays in lookup space, `t` in `[t_min, t_max]` (world units along each ray).
+struct Rays {
+    layout: Layout,
     t_min: f64,
     t_max: f64,
     /// The lookup-space box the ray walk clips rays to (the value box, grown by the reach of
@@ -84,28 +100,59 @@ struct Rays {
 }
 
 impl Rays {
+    /// The rays of `camera`, or `None` when the sweep cannot take them: a degenerate frame in
+    /// index space, or a pinhole that is not strictly behind the whole clip box (then some
+    /// block's footprint is unbounded and the rays are traced instead).
     fn new(vol: &Volume, camera: &Camera) -> Result<Option<Self>> {
         let r0 = camera.pixel_ray(0, 0)?;
         let (q0, d) = lookup_ray(vol, &r0, Interp::Trilinear);
+        let (q0, d) = (DVec3::from(q0), DVec3::from(d));
         let qx = vol.to_index_dir(DVec3::from(camera.step_x));
         let qy = vol.to_index_dir(DVec3::from(camera.step_y));
-        let m = DMat3::from_cols(qx, qy, DVec3::from(d));
-        let det = m.determinant();
-        if !(det.is_finite() && det != 0.0) {
-            return Ok(None);
-        }
         // As `hdda::Walker::run`: lookup cells whose trilinear reads touch the value box.
         let (clip_lo, clip_hi) = match vol.value_box() {
             Some([lo, hi]) => (lo.map(|c| (c - 1) as f64), hi.map(|c| (c + 1) as f64)),
             None => ([0.0; 3], [0.0; 3]),
         };
+        let m = match camera.kind {
+            Projection::Ortho => DMat3::from_cols(qx, qy, d),
+            Projection::Perspective => {
+                DMat3::from_cols(vol.to_index_dir(DVec3::from(camera.direction)), qx, qy)
+            }
+        };
+        let det = m.determinant();
+        if !(det.is_finite() && det != 0.0) {
+            return Ok(None);
+        }
+        let inv = m.inverse();
+        let layout = match camera.kind {
+            Projection::Ortho => Layout::Parallel(Parallel {
+                q0,
+                qx,
+                qy,
+                d,
+                inv_d: d.recip(),
+                inv,
+            }),
+            Projection::Perspective => {
+                let in_front = (0..8).all(|k| {
+                    let c = [0, 1, 2].map(|a| {
+                        if (k >> (2 - a)) & 1 == 1 {
+                            clip_hi[a]
+                        } else {
+                            clip_lo[a]
+                        }
+                    });
+                    (inv * (DVec3::from(c) - q0)).x > 0.0
+                });
+                if !in_front {
+                    return Ok(None);
+                }
+                Layout::Pinhole { p: q0, inv }
+            }
+        };
         Ok(Some(Self {
-            q0: DVec3::from(q0),
-            qx,
-            qy,
-            d: DVec3::from(d),
-            inv_d: DVec3::from(d).recip(),
-            inv: m.inverse(),
+            layout,
             t_min: r0.t_min(),
             t_max: r0.t_max(),
             clip_lo,
@@ -115,17 +162,43 @@ impl Rays {
         }))
     }
 
+    /// The box of side `dim` at `o` clipped to the walk's clip box, or `None` when they do not
+    /// overlap.
+    fn clipped(&self, o: [i64; 3], dim: i64) -> Option<([f64; 3], [f64; 3])> {
+        let lo = [0, 1, 2].map(|k| (o[k] as f64).max(self.clip_lo[k]));
+        let hi = [0, 1, 2].map(|k| ((o[k] + dim) as f64).min(self.clip_hi[k]));
+        (0..3).all(|k| lo[k] <= hi[k]).then_some((lo, hi))
+    }
+
     /// The pixels `[i0, i1] x [j0, j1]` whose rays can cross the lookup-space box of side
-    /// `dim` at `o`, or `None`.
+    /// `dim` at `o` (within the clip box), or `None`: its corners projected onto the image
+    /// (along the rays, or through the pinhole), grown by a pixel.
     fn footprint(&self, o: [i64; 3], dim: i64) -> Option<[u32; 4]> {
+        let (blo, bhi) = self.clipped(o, dim)?;
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for k in 0..8 {
-            let c = [0, 1, 2].map(|a| (o[a] + dim * ((k >> (2 - a)) & 1)) as f64);
-            let v = self.inv * (DVec3::from(c) - self.q0);
+            let c = DVec3::from([0, 1, 2].map(|a| {
+                if (k >> (2 - a)) & 1 == 1 {
+                    bhi[a]
+                } else {
+                    blo[a]
+                }
+            }));
+            // (column, row, t) of the corner; `t` only for parallel rays.
+            let v = match &self.layout {
+                Layout::Parallel(par) => par.inv * (c - par.q0),
+                &Layout::Pinhole { p, inv } => {
+                    // `v0 > 0`: the clip box is in front of the pinhole (`Rays::new`).
+                    let v = inv * (c - p);
+                    DVec3::new(v.y / v.x, v.z / v.x, 0.0)
+                }
+            };
             lo = lo.min(v);
             hi = hi.max(v);
         }
-        if hi.z < self.t_min || lo.z > self.t_max || !(lo.is_finite() && hi.is_finite()) {
+        let behind = matches!(self.layout, Layout::Parallel(_))
+            && (hi.z < self.t_min || lo.z > self.t_max);
+        if behind || !(lo.is_finite() && hi.is_finite()) {
             return None;
         }
         let range = |a: f64, b: f64, n: u32| {
@@ -138,13 +211,16 @@ impl Rays {
         Some([i0, i1, j0, j1])
     }
 
-    /// Row `j`'s rays against the lookup box of side `dim` at `o`, as linear functions of the
-    /// column (see [`RowClip`]).
-    fn row_clip(&self, j: u32, o: [i64; 3], dim: i64) -> RowClip {
-        let q = self.q0 + self.qy * f64::from(j);
+    /// Row `j`'s parallel rays against the lookup box of side `dim` at `o`, as linear functions
+    /// of the column (see [`RowClip`]).
+    fn row_clip(&self, par: &Parallel, j: u32, o: [i64; 3], dim: i64) -> RowClip {
+        let Parallel {
+            q0, qx, qy, d, inv_d, ..
+        } = *par;
+        let q = q0 + qy * f64::from(j);
         let mut r = RowClip {
             q,
-            qx: self.qx,
+            qx,
             near: [f64::NEG_INFINITY; 3],
             far: [f64::INFINITY; 3],
             beta: [0.0; 3],
@@ -158,15 +234,43 @@ impl Rays {
             let lo = (o[k] as f64).max(self.clip_lo[k]);
             let hi = ((o[k] + dim) as f64).min(self.clip_hi[k]);
             (r.lo[k], r.hi[k]) = (lo, hi);
-            if self.d[k] == 0.0 {
+            if d[k] == 0.0 {
                 r.flat[k] = true;
                 continue;
             }
-            let (u, v) = ((lo - q[k]) * self.inv_d[k], (hi - q[k]) * self.inv_d[k]);
-            (r.near[k], r.far[k]) = if self.d[k] > 0.0 { (u, v) } else { (v, u) };
-            r.beta[k] = -self.qx[k] * self.inv_d[k];
+            let (u, v) = ((lo - q[k]) * inv_d[k], (hi - q[k]) * inv_d[k]);
+            (r.near[k], r.far[k]) = if d[k] > 0.0 { (u, v) } else { (v, u) };
+            r.beta[k] = -qx[k] * inv_d[k];
         }
         r
+    }
+}
+
+/// One perspective pixel's ray in lookup space: its direction and `1 / d` per axis.
+#[derive(Debug, Clone, Copy)]
+struct PixelDir {
+    d: DVec3,
+    inv_d: DVec3,
+}
+
+impl PixelDir {
+    /// `[t0, t1]` of the ray `p + t d` inside `[lo, hi]` and `[t_min, t_max]` (the slab test of
+    /// [`crate::ray::clip_box`] with the divisions done once per pixel), or `None`.
+    #[inline]
+    fn clip(&self, p: DVec3, (lo, hi): ([f64; 3], [f64; 3]), t_min: f64, t_max: f64) -> Option<(f64, f64)> {
+        let (mut a, mut b) = (t_min, t_max);
+        for k in 0..3 {
+            if self.d[k] == 0.0 {
+                if p[k] < lo[k] || p[k] > hi[k] {
+                    return None;
+                }
+                continue;
+            }
+            let (u, v) = ((lo[k] - p[k]) * self.inv_d[k], (hi[k] - p[k]) * self.inv_d[k]);
+            a = a.max(u.min(v));
+            b = b.min(u.max(v));
+        }
+        (a < b).then_some((a, b))
     }
 }
 
@@ -277,6 +381,20 @@ struct Piece {
     rect: [u32; 4],
 }
 
+/// An upper bound on the world length of a ray inside an 8^3 block: its diagonal `8 sqrt3`
+/// index units times the largest world length of an index unit, `||W||_2 <= ||W||_F` for the
+/// linear part `W` of world-from-index.
+fn max_chord(vol: &Volume) -> f64 {
+    let m = DMat3::from_cols(
+        vol.to_index_dir(DVec3::X),
+        vol.to_index_dir(DVec3::Y),
+        vol.to_index_dir(DVec3::Z),
+    );
+    let w = m.inverse();
+    let frobenius = (w.x_axis.length_squared() + w.y_axis.length_squared() + w.z_axis.length_squared()).sqrt();
+    8.0 * 3f64.sqrt() * frobenius
+}
+
 /// Whether a block with halo values up to `m` in magnitude goes on the f32 kernel.
 fn kernel_ok(min: f32, max: f32, chord: f64) -> bool {
     let m = f64::from(min.abs().max(max.abs()));
@@ -300,8 +418,7 @@ fn pieces(vol: &Volume, rays: &Rays, shells: bool) -> Vec<Piece> {
     let bg = tree.background;
     let scale = vol.density_scale();
     let mu_bg = vol.mu_background();
-    // The longest world chord of an 8^3 block: its diagonal over the index length of a world unit.
-    let chord = 8.0 * 3f64.sqrt() / rays.d.length();
+    let chord = max_chord(vol);
     let mut out = Vec::new();
     for (l, node) in tree.lowers.iter().enumerate() {
         if node.halo.min == bg && node.halo.max == bg {
@@ -531,6 +648,49 @@ impl<'a> Sweep<'a> {
         }
     }
 
+    /// Every ray of rows `ja..=jb` (band rows from `y0`) that crosses piece `p`:
+    /// `f(n, q, d, a, b)` with its pixel's index in the band, its lookup-space origin and
+    /// direction, and its chord `[a, b]` inside the block (and the walk's clip box).
+    fn chords(
+        &self,
+        p: &Piece,
+        (ja, jb, y0): (u32, u32, u32),
+        dirs: &[PixelDir],
+        mut f: impl FnMut(usize, DVec3, DVec3, f64, f64),
+    ) {
+        let rays = &self.rays;
+        let (w, [i0, i1, ..]) = (rays.width, p.rect);
+        match &rays.layout {
+            Layout::Parallel(par) => {
+                for j in ja..=jb {
+                    let row = rays.row_clip(par, j, p.origin, 8);
+                    let Some([i0, i1]) = row.span([i0, i1]) else {
+                        continue;
+                    };
+                    for i in i0..=i1 {
+                        if let Some((q, a, b)) = row.at(i) {
+                            f(((j - y0) * w + i) as usize, q, par.d, a, b);
+                        }
+                    }
+                }
+            }
+            &Layout::Pinhole { p: q, .. } => {
+                let Some(bx) = rays.clipped(p.origin, 8) else {
+                    return;
+                };
+                for j in ja..=jb {
+                    for i in i0..=i1 {
+                        let n = ((j - y0) * w + i) as usize;
+                        let pd = &dirs[n];
+                        if let Some((a, b)) = pd.clip(q, bx, rays.t_min, rays.t_max) {
+                            f(n, q, pd.d, a, b);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth into `tau`,
     /// [`Sweep::stride`] values a pixel (the full ray, then each slice `[0, t_k]`).
     fn band(&self, b: usize, tau: &mut [f64], lookups: &mut u64) -> Result<()> {
@@ -543,6 +703,18 @@ impl<'a> Sweep<'a> {
         let scale = vol.density_scale();
         let mut acc = Accessor::new(tree);
         let mut n = Counts::default();
+        // Perspective: each pixel's lookup-space direction, as the ray path computes it.
+        let mut dirs = Vec::new();
+        if matches!(rays.layout, Layout::Pinhole { .. }) {
+            dirs.reserve(((y1 - y0 + 1) * w) as usize);
+            for j in y0..=y1 {
+                for i in 0..w {
+                    let (_, d) = lookup_ray(vol, &camera.pixel_ray(i, j)?, Interp::Trilinear);
+                    let d = DVec3::from(d);
+                    dirs.push(PixelDir { d, inv_d: d.recip() });
+                }
+            }
+        }
         if self.rest_needed {
             for j in y0..=y1 {
                 for i in 0..w {
@@ -560,12 +732,12 @@ impl<'a> Sweep<'a> {
                 }
             }
         }
-        let dir = Dir::new(rays.d.to_array());
+        let kernel = Kernel::new();
         let mut block = [0f32; BLOCK];
         for &id in ids {
             let p = &pieces[id as usize];
-            let [i0, i1, j0, j1] = p.rect;
-            let (ja, jb) = (j0.max(y0), j1.min(y1));
+            let [_, _, j0, j1] = p.rect;
+            let rows = (j0.max(y0), j1.min(y1), y0);
             match p.part {
                 Part::Leaf { fast: true, .. }
                 | Part::Tile { fast: true, .. }
@@ -581,7 +753,7 @@ impl<'a> Sweep<'a> {
                     let mut used = 0;
                     let mut flush =
                         |lanes: &mut Lanes, at: &[(usize, usize, f64); LANES], used: &mut usize| {
-                            let sums = kernel::integrate(&block, &dir, lanes);
+                            let sums = kernel.integrate(&block, lanes);
                             for (l, &(px, slot, end)) in at.iter().enumerate().take(*used) {
                                 if sums.cells[l] == 0 {
                                     continue;
@@ -602,39 +774,24 @@ impl<'a> Sweep<'a> {
                             *lanes = Lanes::default();
                             *used = 0;
                         };
-                    for j in ja..=jb {
-                        let row = rays.row_clip(j, p.origin, 8);
-                        let Some([i0, i1]) = row.span([i0, i1]) else {
-                            continue;
-                        };
-                        for i in i0..=i1 {
-                            let Some((q, a, b)) = row.at(i) else {
-                                continue;
-                            };
-                            let e = (q - centre) + rays.d * a;
-                            let px = ((j - y0) * w + i) as usize;
-                            let cuts = self
-                                .depths
-                                .iter()
-                                .enumerate()
-                                .filter(|(_, &t)| t > a && t < b);
-                            for (slot, end) in
-                                std::iter::once((0, b)).chain(cuts.map(|(k, &t)| (1 + k, t)))
-                            {
-                                for k in 0..3 {
-                                    let hi = e[k] as f32;
-                                    lanes.e[k][used] = hi;
-                                    lanes.e_lo[k][used] = (e[k] - f64::from(hi)) as f32;
-                                }
-                                lanes.len[used] = (end - a) as f32;
-                                at[used] = (px, slot, b);
-                                used += 1;
-                                if used == LANES {
-                                    flush(&mut lanes, &at, &mut used);
-                                }
+                    self.chords(p, rows, &dirs, |px, q, d, a, b| {
+                        let e = ((q - centre) + d * a).to_array();
+                        let cuts = self
+                            .depths
+                            .iter()
+                            .enumerate()
+                            .filter(|(_, &t)| t > a && t < b);
+                        for (slot, end) in
+                            std::iter::once((0, b)).chain(cuts.map(|(k, &t)| (1 + k, t)))
+                        {
+                            lanes.set(used, e, d.to_array(), end - a);
+                            at[used] = (px, slot, b);
+                            used += 1;
+                            if used == LANES {
+                                flush(&mut lanes, &at, &mut used);
                             }
                         }
-                    }
+                    });
                     if used > 0 {
                         flush(&mut lanes, &at, &mut used);
                     }
@@ -644,28 +801,18 @@ impl<'a> Sweep<'a> {
                 | Part::Leaf { fast: false, .. }
                 | Part::Tile { fast: false, .. }
                 | Part::Shell { fast: false } => {
-                    for j in ja..=jb {
-                        let row = rays.row_clip(j, p.origin, 8);
-                        let Some([i0, i1]) = row.span([i0, i1]) else {
-                            continue;
+                    self.chords(p, rows, &dirs, |px, q, d, a, b| {
+                        let (q, d, lin) = (q.to_array(), d.to_array(), Interp::Trilinear);
+                        let mut part = |t1: f64| match p.part {
+                            Part::Const(mu) => mu * (t1 - a),
+                            Part::Leaf { leaf, .. } => {
+                                scale * leaf_integral(&mut acc, leaf, q, d, a, t1, lin, &mut n)
+                            }
+                            _ => scale * cells_integral(&mut acc, q, d, a, t1, lin, &mut n),
                         };
-                        for i in i0..=i1 {
-                            let Some((q, a, b)) = row.at(i) else {
-                                continue;
-                            };
-                            let (q, d, lin) = (q.to_array(), rays.d.to_array(), Interp::Trilinear);
-                            let mut part = |t1: f64| match p.part {
-                                Part::Const(mu) => mu * (t1 - a),
-                                Part::Leaf { leaf, .. } => {
-                                    scale * leaf_integral(&mut acc, leaf, q, d, a, t1, lin, &mut n)
-                                }
-                                _ => scale * cells_integral(&mut acc, q, d, a, t1, lin, &mut n),
-                            };
-                            let full = part(b);
-                            let px = ((j - y0) * w + i) as usize;
-                            self.add(tau, px, (a, b), full, part);
-                        }
-                    }
+                        let full = part(b);
+                        self.add(tau, px, (a, b), full, part);
+                    });
                 }
             }
         }
