@@ -10,14 +10,16 @@
 //!     --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res 512x512 \
 //!     [--estimator regular|riemann|NAME] [--step 1] [--spp 1] [--seed 0] \
 //!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--index-offset 0] [--out t.exr] \
-//!     [--order auto|rays] [--check 1] [--slices K]
+//!     [--order auto|rays] [--check 1] [--slices K] [--pinhole DIST]
 //! cargo run --release --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
 //! ```
 //!
 //! Camera (OpenVDB `OrthographicCamera`): `d = normalise(dir)`, `u = normalise(up - (up.d) d)`,
 //! `r = d x u`; pixel `(i, j)` (row 0 at the top) starts at
 //! `center + r (2 (i + .5) / W - 1) frame / 2 + u (1 - 2 (j + .5) / H) (frame / 2) H / W`
-//! and runs along `d` for `t` in `[0, inf)`. Prints one JSON line: load and render seconds
+//! and runs along `d` for `t` in `[0, inf)`. `--pinhole DIST` makes it a perspective view of
+//! the same frame instead: every ray starts at `center - DIST d` and passes through that
+//! pixel's point on the plane through `center`. Prints one JSON line: load and render seconds
 //! (median of `--reps`), rays/s, cells and lookups per ray, peak resident memory.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
@@ -196,17 +198,38 @@ fn main() {
     let corners = vol.box_corners().unwrap();
     let depth = |p: &glam::DVec3| (0..3).map(|a| (p[a] - center[a]) * dir[a]).sum::<f64>();
     let t_max = corners.iter().map(depth).fold(0.0, f64::max);
-    let camera = Camera::from_spec(&CameraSpec {
-        kind: Projection::Ortho,
-        width: w as u32,
-        height: h as u32,
-        origin,
-        step_x: r.map(|c| c * s),
-        step_y: u.map(|c| -c * s),
-        direction: dir,
-        t_max,
-    })
-    .unwrap();
+    let spec = match opt.get("pinhole") {
+        None => CameraSpec {
+            kind: Projection::Ortho,
+            width: w as u32,
+            height: h as u32,
+            origin,
+            step_x: r.map(|c| c * s),
+            step_y: u.map(|c| -c * s),
+            direction: dir,
+            t_max,
+        },
+        Some(dist) => {
+            // The plane at distance 1 from the pinhole is the frame scaled by 1 / dist.
+            let dist: f64 = dist.parse().unwrap();
+            let p = [0, 1, 2].map(|a| center[a] - dist * dir[a]);
+            let far = corners
+                .iter()
+                .map(|c| (0..3).map(|a| (c[a] - p[a]).powi(2)).sum::<f64>().sqrt())
+                .fold(0.0, f64::max);
+            CameraSpec {
+                kind: Projection::Perspective,
+                width: w as u32,
+                height: h as u32,
+                origin: p,
+                step_x: r.map(|c| c * s / dist),
+                step_y: u.map(|c| -c * s / dist),
+                direction: [0, 1, 2].map(|a| dir[a] + (origin[a] - center[a]) / dist),
+                t_max: far,
+            }
+        }
+    };
+    let camera = Camera::from_spec(&spec).unwrap();
     let mut settings = BakeSettings::new(
         est,
         Options {
@@ -260,7 +283,7 @@ fn main() {
             grid: grid.clone(),
             density_scale: scale,
             light_dir: Some(dir),
-            light_pos: None,
+            light_pos: (spec.kind == Projection::Perspective).then_some(spec.origin),
         };
         write_exr(std::path::Path::new(path), &map, &prov, true).unwrap();
     }

@@ -7,6 +7,7 @@
 mod bake_support;
 
 use bake_support::{box_volume, ortho, prov, read_exr, regular, Exr};
+use glam::DVec3;
 use std::path::Path;
 use umbra::bake::{bake, write_exr, BakeSettings, Camera, Depths, Map, Order, Projection, View};
 use umbra::estimate::{Estimator, Options};
@@ -314,19 +315,37 @@ fn standard_matrices_map_pixel_rays_to_their_pixels() {
     }
 }
 
-/// The object-order sweep (what `Order::Auto` picks for an exact orthographic map) against the
-/// ray path on the sample cloud and a corpus cloud, several directions: every pixel's T within
-/// 5e-7 (the sweep's optical depth is within ~1e-6 relative; T is f32), depth slices (evenly
-/// spaced and explicit, one past the volume) likewise, the same bytes on 1 and 2 threads, and
-/// perspective maps left to the ray path (bit-identical).
+/// The object-order sweep (what `Order::Auto` picks for an exact map) against the ray path on
+/// the sample cloud and a corpus cloud, several directions, orthographic and perspective: every
+/// pixel's T within 5e-7 (the sweep's optical depth is within ~1e-6 relative; T is f32), depth
+/// slices (evenly spaced and explicit, one past the volume) likewise, the same bytes on 1 and 2
+/// threads; a light inside the box leaves the map to the ray path (bit-identical).
 #[test]
 fn sweep_matches_the_ray_path_and_the_thread_count() {
     let corpus = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gen/cloud_fbm.vdb");
     let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb");
     for (path, scale) in [(data, 4.0), (corpus, 5.0)] {
         let vol = Volume::load(&path, "density", scale).unwrap();
+        let corners = vol.box_corners().unwrap();
+        let (lo, hi) = corners.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(a, b), &c| (a.min(c), b.max(c)),
+        );
+        let centre = 0.5 * (lo + hi);
+        let mut cams = Vec::new();
         for dir in [[0.6, -0.35, -1.0], [0.0, -1.0, 0.0], [-1.0, 0.5, 0.25]] {
-            let cam = Camera::frame(&ortho(dir, 96, 80), &vol.box_corners().unwrap()).unwrap();
+            cams.push((dir, Camera::frame(&ortho(dir, 96, 80), &corners).unwrap()));
+            let pos = centre - DVec3::from(dir).normalize() * 1.5 * (hi - lo).length();
+            let persp = View {
+                projection: Projection::Perspective,
+                light_dir: Some(dir),
+                light_pos: Some(pos.to_array()),
+                fov_deg: None,
+                res: Some(umbra::bake::Resolution::Exact(80, 64)),
+            };
+            cams.push((dir, Camera::frame(&persp, &corners).unwrap()));
+        }
+        for (dir, cam) in cams {
             let auto = BakeSettings {
                 threads: 2,
                 ..regular(Interp::Trilinear)
@@ -388,20 +407,24 @@ fn sweep_matches_the_ray_path_and_the_thread_count() {
                 "{path:?} {dir:?}: 1 and 2 threads differ"
             );
         }
-        let persp = View {
+        let inside = View {
             projection: Projection::Perspective,
-            light_dir: None,
-            light_pos: Some([0.5, 6.0, 0.25]),
-            fov_deg: None,
+            light_dir: Some([0.0, -1.0, 0.0]),
+            light_pos: Some(centre.to_array()),
+            fov_deg: Some(90.0),
             res: Some(umbra::bake::Resolution::Exact(48, 48)),
         };
-        let cam = Camera::frame(&persp, &vol.box_corners().unwrap()).unwrap();
+        let cam = Camera::frame(&inside, &corners).unwrap();
         let rays = BakeSettings {
             order: Order::Rays,
             ..regular(Interp::Trilinear)
         };
         let a = bake(&vol, &cam, &regular(Interp::Trilinear), &|_| {}).unwrap();
         let r = bake(&vol, &cam, &rays, &|_| {}).unwrap();
-        assert_eq!(a.t, r.t, "{path:?}: perspective maps take the ray path");
+        assert!(!a.stats.sweep, "{path:?}: a light inside the box");
+        assert_eq!(
+            a.t, r.t,
+            "{path:?}: a light inside the box takes the ray path"
+        );
     }
 }

@@ -67,8 +67,12 @@ fn header_attributes_rebuild_rays_that_query_reproduces() {
         let common = ["--density-scale", "2", "--interp", "trilinear"];
         let summary = bake(dir.path(), name, &[args, &common[..], est].concat());
         let exr = read_exr(&dir.path().join(name));
-        // Exact orthographic maps are traced in object order, the rest ray by ray.
-        let order = if name == "ortho.exr" { "sweep" } else { "rays" };
+        // Exact maps are traced in object order, the rest ray by ray.
+        let order = if name == "ortho.exr" || name == "persp.exr" {
+            "sweep"
+        } else {
+            "rays"
+        };
         assert_eq!(summary["order"], order, "{name}");
         // The JSON camera object is exactly the six keys, equal to the attributes.
         let cam = &summary["camera"];

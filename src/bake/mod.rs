@@ -11,8 +11,8 @@
 //! ray id `(64 + k) N + p`, with `N = W H`. So a pixel's value depends only on the seed and the
 //! settings, never on the thread count or the tile order.
 //!
-//! **Order.** Exact orthographic maps (regular tracking, trilinear, slices included) are traced in
-//! object order by the sweep: each 8^3 block of the tree adds its exact integral to every pixel
+//! **Order.** Exact maps (regular tracking, trilinear, slices included; orthographic, and
+//! perspective with the light outside the volume) are traced in object order by the sweep: each 8^3 block of the tree adds its exact integral to every pixel
 //! it covers (`sweep`, see ARCHITECTURE.md); everything else, and any map with
 //! [`BakeSettings::order`] = [`Order::Rays`], traces one ray per pixel.
 

@@ -67,8 +67,7 @@ pub struct BakeSettings {
     pub std_err: bool,
     /// Worker threads: 0 runs on the current rayon pool, `n` on a local pool of `n` threads.
     pub threads: usize,
-    /// How pixels are traced: [`Order::Auto`] lets exact orthographic maps use the object-order
-    /// sweep; [`Order::Rays`] traces every pixel's ray (the reference the sweep is tested
+    /// How pixels are traced: [`Order::Auto`] lets exact maps use the object-order sweep; [`Order::Rays`] traces every pixel's ray (the reference the sweep is tested
     /// against).
     pub order: Order,
 }
@@ -78,7 +77,8 @@ pub struct BakeSettings {
 #[serde(rename_all = "lowercase")]
 pub enum Order {
     /// Object order (the sweep: each 8^3 block adds its exact integral to the pixels it covers)
-    /// for exact trilinear orthographic maps (slices included); ray order for everything else.
+    /// for exact trilinear maps (slices included; orthographic, or perspective with the light
+    /// outside the volume's clip box); ray order for everything else.
     #[default]
     Auto,
     /// One ray per pixel, walked down the tree.

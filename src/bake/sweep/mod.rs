@@ -1,9 +1,11 @@
-//! The sweep: exact orthographic maps in object order.
+//! The sweep: exact maps in object order.
 //!
-//! The rays of an orthographic map are parallel, and exact optical depth is additive along a
-//! ray: `tau(pixel) = sum over blocks B of int_{ray ∩ B} mu_t dt`. So instead of walking every
-//! ray down the tree, the sweep visits the tree's 8^3 blocks (leaves and tiles of lower nodes)
-//! once each and adds each block's exact contribution to every pixel its footprint covers:
+//! Exact optical depth is additive along a ray: `tau(pixel) = sum over blocks B of
+//! int_{ray ∩ B} mu_t dt`. So instead of walking every ray down the tree, the sweep visits the
+//! tree's 8^3 blocks (leaves and tiles of lower nodes) once each (per band of rows) and adds
+//! each block's exact contribution to every pixel its footprint covers. The rays of an
+//! orthographic map are parallel; those of a perspective map share the pinhole, so the rays
+//! that cross one block are still neighbours in the image and stay coherent through it:
 //!
 //! - **Blocks.** Every lower node the hierarchical DDA would enter (its trilinear halo is not
 //!   just the background) contributes its 4096 child blocks, in lookup space `[o, o + 8]^3`.
@@ -17,10 +19,16 @@
 //!   halo other than the background, and the background itself when its `mu` is not zero) is
 //!   what a ray walk at lower-node granularity emits outside lower nodes; it is traced per
 //!   pixel, and skipped when the tree has none of it.
-//! - **Footprints.** A block's pixels are found by projecting its 8 corners along the rays onto
-//!   the image (`[q_x q_y d]^-1 (p - q_0)`, where pixel `(i, j)`'s ray is
-//!   `q_0 + i q_x + j q_y + t d`), grown by a pixel; each pixel's ray is then clipped to the box
-//!   exactly, so the footprint test decides nothing.
+//! - **Footprints.** A block's pixels are found by projecting its 8 corners (of the block
+//!   clipped to the walk's clip box) onto the image, grown by a pixel: along the rays for an
+//!   orthographic map (`[q_x q_y d]^-1 (p - q_0)`, where pixel `(i, j)`'s ray is
+//!   `q_0 + i q_x + j q_y + t d`), through the pinhole for a perspective one (`v = [D s_x
+//!   s_y]^-1 (p - P)` gives pixel `(v_1 / v_0, v_2 / v_0)`, where pixel `(i, j)`'s ray runs
+//!   from `P` through `D + i s_x + j s_y`). Each row narrows that to a column span (linear in
+//!   the column for parallel rays; for a pinhole, where the row's plane cuts the box's edges),
+//!   and each pixel's ray is then clipped to the box exactly, so the footprint decides nothing.
+//!   A pinhole not strictly behind the whole clip box (a light inside or beside the volume)
+//!   would give unbounded footprints: such maps trace rays.
 //! - **Slices.** Slice `k` (depth `t_k`) is the optical depth of `[0, t_k]`: a block's chord
 //!   `[a, b]` counts whole when `b <= t_k`, and a chord that straddles `t_k` adds one more lane
 //!   integrating `[a, t_k]`.
@@ -54,11 +62,11 @@ const KERNEL_MIN: f64 = 1e-20;
 /// Range of a block's largest chord (world units) the f32 kernel accepts.
 const CHORD_RANGE: (f64, f64) = (1e-15, 1e15);
 
-/// True when the sweep renders this map: an orthographic camera and exact regular tracking
-/// with trilinear lookups (depth slices included).
+/// True when the sweep renders maps with these settings: exact regular tracking with trilinear
+/// lookups (depth slices included), orthographic or perspective ([`render`] still declines a
+/// map whose pinhole is inside the clip box or whose frame is degenerate).
 pub(crate) fn applies(s: &BakeSettings) -> bool {
-    s.estimator == Estimator::REGULAR
-        && s.options.interp == Interp::Trilinear
+    s.estimator == Estimator::REGULAR && s.options.interp == Interp::Trilinear
 }
 
 /// Orthographic rays in lookup space: pixel `(i, j)`'s is `q0 + i qx + j qy + t d`;
@@ -135,16 +143,9 @@ impl Rays {
                 inv,
             }),
             Projection::Perspective => {
-                let in_front = (0..8).all(|k| {
-                    let c = [0, 1, 2].map(|a| {
-                        if (k >> (2 - a)) & 1 == 1 {
-                            clip_hi[a]
-                        } else {
-                            clip_lo[a]
-                        }
-                    });
-                    (inv * (DVec3::from(c) - q0)).x > 0.0
-                });
+                let in_front = box_corners((clip_lo, clip_hi))
+                    .iter()
+                    .all(|&c| (inv * (c - q0)).x > 0.0);
                 if !in_front {
                     return Ok(None);
                 }
@@ -176,14 +177,7 @@ impl Rays {
     fn footprint(&self, o: [i64; 3], dim: i64) -> Option<[u32; 4]> {
         let (blo, bhi) = self.clipped(o, dim)?;
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        for k in 0..8 {
-            let c = DVec3::from([0, 1, 2].map(|a| {
-                if (k >> (2 - a)) & 1 == 1 {
-                    bhi[a]
-                } else {
-                    blo[a]
-                }
-            }));
+        for c in box_corners((blo, bhi)) {
             // (column, row, t) of the corner; `t` only for parallel rays.
             let v = match &self.layout {
                 Layout::Parallel(par) => par.inv * (c - par.q0),
@@ -196,8 +190,8 @@ impl Rays {
             lo = lo.min(v);
             hi = hi.max(v);
         }
-        let behind = matches!(self.layout, Layout::Parallel(_))
-            && (hi.z < self.t_min || lo.z > self.t_max);
+        let behind =
+            matches!(self.layout, Layout::Parallel(_)) && (hi.z < self.t_min || lo.z > self.t_max);
         if behind || !(lo.is_finite() && hi.is_finite()) {
             return None;
         }
@@ -215,7 +209,12 @@ impl Rays {
     /// of the column (see [`RowClip`]).
     fn row_clip(&self, par: &Parallel, j: u32, o: [i64; 3], dim: i64) -> RowClip {
         let Parallel {
-            q0, qx, qy, d, inv_d, ..
+            q0,
+            qx,
+            qy,
+            d,
+            inv_d,
+            ..
         } = *par;
         let q = q0 + qy * f64::from(j);
         let mut r = RowClip {
@@ -246,6 +245,54 @@ impl Rays {
     }
 }
 
+/// The 8 corners of the box `[lo, hi]`, corner `k` taking `hi` on axis `a` where bit `2 - a`
+/// of `k` is set.
+fn box_corners((lo, hi): ([f64; 3], [f64; 3])) -> [DVec3; 8] {
+    std::array::from_fn(|k| {
+        DVec3::from([0, 1, 2].map(|a| {
+            if (k >> (2 - a)) & 1 == 1 {
+                hi[a]
+            } else {
+                lo[a]
+            }
+        }))
+    })
+}
+
+/// The columns of `[i0, i1]` whose rays in row `j` can cross a box in front of a pinhole,
+/// given its corners as `v = [D sx sy]^-1 (c - p)` (see [`Layout::Pinhole`]; every `v0 > 0`):
+/// row `j`'s rays fill the plane `g(v) = v2 - j v0 = 0`, which cuts the box in a convex polygon
+/// whose vertices lie on the box's edges; their columns `v1 / v0` bound the span, grown by a
+/// column ([`PixelDir::clip`] decides), or `None` when the plane misses the box.
+fn pinhole_span(corners: &[DVec3; 8], j: u32, [i0, i1]: [u32; 2]) -> Option<[u32; 2]> {
+    let y = f64::from(j);
+    let g = corners.map(|v| v.z - y * v.x);
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    let mut take = |v: DVec3| {
+        let i = v.y / v.x;
+        lo = lo.min(i);
+        hi = hi.max(i);
+    };
+    for k in 0..8 {
+        if g[k] == 0.0 {
+            take(corners[k]);
+        }
+        // The edges from corner k along each axis (k without that bit to k with it).
+        for bit in [1, 2, 4] {
+            let m = k | bit;
+            if m != k && g[k] * g[m] < 0.0 {
+                let w = g[k] / (g[k] - g[m]);
+                take(corners[k] + (corners[m] - corners[k]) * w);
+            }
+        }
+    }
+    let (lo, hi) = (
+        (lo - 1.0).floor().max(f64::from(i0)),
+        (hi + 1.0).ceil().min(f64::from(i1)),
+    );
+    (lo <= hi).then_some([lo as u32, hi as u32])
+}
+
 /// One perspective pixel's ray in lookup space: its direction and `1 / d` per axis.
 #[derive(Debug, Clone, Copy)]
 struct PixelDir {
@@ -257,7 +304,13 @@ impl PixelDir {
     /// `[t0, t1]` of the ray `p + t d` inside `[lo, hi]` and `[t_min, t_max]` (the slab test of
     /// [`crate::ray::clip_box`] with the divisions done once per pixel), or `None`.
     #[inline]
-    fn clip(&self, p: DVec3, (lo, hi): ([f64; 3], [f64; 3]), t_min: f64, t_max: f64) -> Option<(f64, f64)> {
+    fn clip(
+        &self,
+        p: DVec3,
+        (lo, hi): ([f64; 3], [f64; 3]),
+        t_min: f64,
+        t_max: f64,
+    ) -> Option<(f64, f64)> {
         let (mut a, mut b) = (t_min, t_max);
         for k in 0..3 {
             if self.d[k] == 0.0 {
@@ -266,7 +319,10 @@ impl PixelDir {
                 }
                 continue;
             }
-            let (u, v) = ((lo[k] - p[k]) * self.inv_d[k], (hi[k] - p[k]) * self.inv_d[k]);
+            let (u, v) = (
+                (lo[k] - p[k]) * self.inv_d[k],
+                (hi[k] - p[k]) * self.inv_d[k],
+            );
             a = a.max(u.min(v));
             b = b.min(u.max(v));
         }
@@ -391,7 +447,8 @@ fn max_chord(vol: &Volume) -> f64 {
         vol.to_index_dir(DVec3::Z),
     );
     let w = m.inverse();
-    let frobenius = (w.x_axis.length_squared() + w.y_axis.length_squared() + w.z_axis.length_squared()).sqrt();
+    let frobenius =
+        (w.x_axis.length_squared() + w.y_axis.length_squared() + w.z_axis.length_squared()).sqrt();
     8.0 * 3f64.sqrt() * frobenius
 }
 
@@ -600,8 +657,8 @@ struct Sweep<'a> {
 }
 
 impl<'a> Sweep<'a> {
-    /// Plan the sweep of `camera`'s map in bands of `rows` rows; `None` when the rays' frame is
-    /// degenerate in index space.
+    /// Plan the sweep of `camera`'s map in bands of `rows` rows; `None` when the sweep cannot
+    /// take its rays ([`Rays::new`]).
     fn new(vol: &'a Volume, camera: &'a Camera, rows: u32, depths: &[f64]) -> Result<Option<Self>> {
         let Some(rays) = Rays::new(vol, camera)? else {
             return Ok(None);
@@ -674,11 +731,15 @@ impl<'a> Sweep<'a> {
                     }
                 }
             }
-            &Layout::Pinhole { p: q, .. } => {
+            &Layout::Pinhole { p: q, inv } => {
                 let Some(bx) = rays.clipped(p.origin, 8) else {
                     return;
                 };
+                let corners = box_corners(bx).map(|c| inv * (c - q));
                 for j in ja..=jb {
+                    let Some([i0, i1]) = pinhole_span(&corners, j, [i0, i1]) else {
+                        continue;
+                    };
                     for i in i0..=i1 {
                         let n = ((j - y0) * w + i) as usize;
                         let pd = &dirs[n];
@@ -711,7 +772,10 @@ impl<'a> Sweep<'a> {
                 for i in 0..w {
                     let (_, d) = lookup_ray(vol, &camera.pixel_ray(i, j)?, Interp::Trilinear);
                     let d = DVec3::from(d);
-                    dirs.push(PixelDir { d, inv_d: d.recip() });
+                    dirs.push(PixelDir {
+                        d,
+                        inv_d: d.recip(),
+                    });
                 }
             }
         }
@@ -832,8 +896,9 @@ fn bins(pieces: &[Piece], rows: u32, height: u32) -> Vec<Vec<u32>> {
     bins
 }
 
-/// Render `camera`'s map of `vol` in object order; `None` when the rays' frame is degenerate in
-/// index space (the caller traces rays instead).
+/// Render `camera`'s map of `vol` in object order; `None` when the sweep cannot take its rays
+/// (a degenerate frame in index space, or a pinhole inside the clip box): the caller traces
+/// rays instead.
 pub(crate) fn render(
     vol: &Volume,
     camera: &Camera,
