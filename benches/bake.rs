@@ -23,6 +23,8 @@ fn bench_bake(c: &mut Criterion) {
         light_pos: None,
         fov_deg: None,
         res: Some(umbra::bake::Resolution::Exact(256, 256)),
+        up: None,
+        frame_box: None,
     };
     let camera = Camera::frame(&view, &vol.box_corners().unwrap()).unwrap();
     let cores = rayon::current_num_threads();

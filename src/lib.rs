@@ -41,6 +41,7 @@
 //!     light_pos: None,
 //!     fov_deg: None,
 //!     res: Some(Resolution::Exact(32, 32)),
+//!     ..View::default()
 //! };
 //! let camera = Camera::frame(&view, &vol.box_corners()?)?;
 //! let map = bake(&vol, &camera, &BakeSettings::new(Estimator::REGULAR, Options::default()), &|_| {})?;

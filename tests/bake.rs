@@ -46,6 +46,8 @@ fn analytic_box_ortho_and_perspective_pixel_by_pixel() {
         light_pos: Some([9.0, 14.0, -6.0]),
         fov_deg: None,
         res: Some(umbra::bake::Resolution::Exact(40, 30)),
+        up: None,
+        frame_box: None,
     };
     for (n, view) in [ortho([0.3, -1.0, 0.45], 64, 48), persp].iter().enumerate() {
         let cam = Camera::frame(view, &corners).unwrap();
@@ -279,6 +281,8 @@ fn standard_matrices_map_pixel_rays_to_their_pixels() {
         light_pos: Some([9.0, 14.0, -6.0]),
         fov_deg: Some(50.0),
         res: Some(umbra::bake::Resolution::Exact(20, 12)),
+        up: None,
+        frame_box: None,
     };
     for (n, view) in [ortho([1.0, 0.2, -0.3], 20, 12), persp].iter().enumerate() {
         let cam = Camera::frame(view, &corners).unwrap();
@@ -342,6 +346,8 @@ fn sweep_matches_the_ray_path_and_the_thread_count() {
                 light_pos: Some(pos.to_array()),
                 fov_deg: None,
                 res: Some(umbra::bake::Resolution::Exact(80, 64)),
+                up: None,
+                frame_box: None,
             };
             cams.push((dir, Camera::frame(&persp, &corners).unwrap()));
         }
@@ -413,6 +419,8 @@ fn sweep_matches_the_ray_path_and_the_thread_count() {
             light_pos: Some(centre.to_array()),
             fov_deg: Some(90.0),
             res: Some(umbra::bake::Resolution::Exact(48, 48)),
+            up: None,
+            frame_box: None,
         };
         let cam = Camera::frame(&inside, &corners).unwrap();
         let rays = BakeSettings {

@@ -218,6 +218,8 @@ fn bake_settings_and_cameras_validate() {
         light_pos: None,
         fov_deg: None,
         res: Some(umbra::bake::Resolution::Exact(8, 8)),
+        up: None,
+        frame_box: None,
     };
     let cam = Camera::frame(&view, &v.box_corners().unwrap()).unwrap();
     let base = BakeSettings::new(Estimator::REGULAR, Options::default());
@@ -347,6 +349,8 @@ fn cameras_rebuild_from_their_spec_and_refuse_bad_ones() {
             light_pos: None,
             fov_deg: None,
             res: Some(umbra::bake::Resolution::Exact(9, 7)),
+            up: None,
+            frame_box: None,
         },
         View {
             projection: Projection::Perspective,
@@ -354,6 +358,8 @@ fn cameras_rebuild_from_their_spec_and_refuse_bad_ones() {
             light_pos: Some([8.0, 30.0, 5.0]),
             fov_deg: None,
             res: Some(umbra::bake::Resolution::Exact(9, 7)),
+            up: None,
+            frame_box: None,
         },
     ] {
         let cam = Camera::frame(&view, &corners).unwrap();
@@ -530,6 +536,8 @@ fn work_budget_refuses_with_the_largest_accepted_value() {
         light_pos: None,
         fov_deg: None,
         res: Some(umbra::bake::Resolution::Exact(4096, 4096)),
+        up: None,
+        frame_box: None,
     };
     let cam = Camera::frame(&view, &v.box_corners().unwrap()).unwrap();
     let s = BakeSettings {

@@ -2059,6 +2059,8 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         light_pos: None,
         fov_deg: None,
         res: Some(Resolution::Exact(8, 8)),
+        up: None,
+        frame_box: None,
     };
     let est = Estimator::from_name("ratio").unwrap();
     let mut settings = BakeSettings::new(
@@ -2094,6 +2096,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         grid: name.to_string(),
         density_scale: 1.0,
         view,
+        camera: None,
         settings,
         output: out.join("map.exr"),
         preview: Some(out.join("map.png")),

@@ -2,9 +2,12 @@
 //!
 //! Notation: `W x H` pixels, pixel `(i, j)` is column `i`, row `j`, row 0 at the top. The camera
 //! basis is `f` (forward, where the rays go), `r` (image right) and `u` (image up), unit and
-//! orthogonal, with `r = normalise(f x a)` and `u = r x f` for the reference axis `a = +Y` (or `-Z`
-//! when `|f . Y| > 0.999`, so a light straight above gives `+X` right and `-Z` up, like a top
-//! view). `(r, u, f)` is left-handed in a right-handed world: OpenEXR's camera space.
+//! orthogonal, with `r = normalise(f x a)` and `u = r x f` for the reference axis `a`: the
+//! requested up direction ([`View::up`], default `+Y`), or, when that is within 2.6 degrees of
+//! the light (`|f . a| > 0.999`), the default's fallback: `+Y`, or `-Z` when `|f . Y| > 0.999`,
+//! so a light straight above gives `+X` right and `-Z` up, like a top view. So `u` is the part
+//! of `a` across the light, and `a` reads as up in the map. `(r, u, f)` is left-handed in a
+//! right-handed world: OpenEXR's camera space.
 //!
 //! - **Orthographic** (`kind = "ortho"`): every pixel starts on the image plane and runs along
 //!   `f = direction`:
@@ -54,6 +57,26 @@ pub struct View {
     /// The image size; default [`DEFAULT_LONG_SIDE`] on the long side with the framed box's
     /// aspect.
     pub res: Option<Resolution>,
+    /// The world direction that is up in the map (default `+Y`; see the module docs for the
+    /// fallback when it is parallel to the light).
+    pub up: Option<[f64; 3]>,
+    /// Frame this world box `[lo, hi]` instead of the volume box.
+    pub frame_box: Option<[[f64; 3]; 2]>,
+}
+
+impl Default for View {
+    /// An orthographic view with nothing set: give it a light.
+    fn default() -> Self {
+        Self {
+            projection: Projection::Ortho,
+            light_dir: None,
+            light_pos: None,
+            fov_deg: None,
+            res: None,
+            up: None,
+            frame_box: None,
+        }
+    }
 }
 
 /// How large a map is.
@@ -280,7 +303,12 @@ impl Camera {
             origin: c.origin,
             step_x: c.step_x,
             step_y: c.step_y,
+            // An ortho direction that is already unit (an earlier map's) is kept bit for bit,
+            // so a reused camera writes the same attributes.
             direction: match c.kind {
+                Projection::Ortho if (dir.length() - 1.0).abs() <= 4.0 * f64::EPSILON => {
+                    c.direction
+                }
                 Projection::Ortho => clean(f),
                 Projection::Perspective => c.direction,
             },
@@ -317,15 +345,25 @@ fn bad(name: &str, reason: String) -> Error {
     }
 }
 
-/// The camera basis `(r, u)` for forward `f` (see the module docs).
-fn basis(f: DVec3) -> (DVec3, DVec3) {
-    let a = if f.y.abs() > 0.999 {
-        DVec3::NEG_Z
-    } else {
-        DVec3::Y
+/// The camera basis `(r, u)` for forward `f` and the unit up direction `up` (see the module
+/// docs).
+fn basis(f: DVec3, up: Option<DVec3>) -> (DVec3, DVec3) {
+    let a = match up {
+        Some(a) if f.dot(a).abs() <= 0.999 => a,
+        _ if f.y.abs() > 0.999 => DVec3::NEG_Z,
+        _ => DVec3::Y,
     };
     let r = normalise(f.cross(a)).unwrap_or(DVec3::X);
     (r, r.cross(f))
+}
+
+/// The 8 corners of the world box `[lo, hi]`, corner `n` taking `hi` on axis `a` when bit
+/// `2 - a` of `n` is set (as [`crate::Volume::box_corners`]).
+#[must_use]
+pub fn world_box_corners([lo, hi]: [[f64; 3]; 2]) -> [DVec3; 8] {
+    std::array::from_fn(|n| {
+        DVec3::from_array([0, 1, 2].map(|a| if n >> (2 - a) & 1 == 1 { hi[a] } else { lo[a] }))
+    })
 }
 
 /// Check a resolution: both sides in `1..=MAX_SIDE`, at most [`MAX_PIXELS`] pixels.
@@ -364,7 +402,10 @@ fn default_res(ex: f64, ey: f64, long: u32) -> (u32, u32) {
 }
 
 impl Camera {
-    /// Frame `corners` (the volume box, see [`crate::Volume::box_corners`]) as `view` asks.
+    /// Frame `corners` (the volume box, see [`crate::Volume::box_corners`]) as `view` asks:
+    /// the window holds `view.frame_box` instead when it is given, while the depth range (the
+    /// ortho image plane, `t_near`, `t_max`) still covers the volume box as well. The basis
+    /// follows `view.up` (module docs).
     ///
     /// Ortho: the corners project to `x = c . r`, `y = c . u`, `z = c . f`; the window is their
     /// `[x] x [y]` range, the pixel size `s = max(ex / W, ey / H)` (square pixels, the box
@@ -378,13 +419,48 @@ impl Camera {
     /// ray has left the box.
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] for a zero light direction, a missing light, a resolution out
-    /// of range, a field of view outside `(0, 180)`, an ortho light inside or beside the box, or
+    /// [`Error::InvalidArgument`] for a zero light direction or up direction, an empty or
+    /// non-finite frame box, a missing light, a resolution out of range, a field of view outside `(0, 180)`, an ortho light inside or beside the box, or
     /// a perspective light inside the box without a field of view.
     pub fn frame(view: &View, corners: &[DVec3; 8]) -> Result<Self> {
         if let Some(r) = view.res {
             r.check()?;
         }
+        let volume = corners;
+        let boxed;
+        let corners = match view.frame_box {
+            Some(b) => {
+                let ok =
+                    (0..3).all(|a| b[0][a].is_finite() && b[1][a].is_finite() && b[0][a] < b[1][a]);
+                if !ok {
+                    return Err(bad(
+                        "frame-box",
+                        format!(
+                            "{:?}: give X0,Y0,Z0,X1,Y1,Z1 with finite values and X0 < X1, Y0 < Y1, \
+                             Z0 < Z1",
+                            [b[0], b[1]].concat()
+                        ),
+                    ));
+                }
+                boxed = world_box_corners(b);
+                &boxed
+            }
+            None => corners,
+        };
+        // Depth (the image plane, `t_max`) covers the volume too, so a framed region still
+        // sees all the density in front of and behind it.
+        let depth: Vec<DVec3> = corners.iter().chain(volume).copied().collect();
+        let up = match view.up {
+            Some(u) => Some(normalise(DVec3::from_array(u)).ok_or_else(|| {
+                bad(
+                    "up",
+                    format!(
+                        "{u:?} has no direction; give the world direction that is up in the map"
+                    ),
+                )
+            })?),
+            None => None,
+        };
         let dir = match view.light_dir {
             Some(d) => Some(normalise(DVec3::from_array(d)).ok_or_else(|| {
                 bad(
@@ -416,7 +492,7 @@ impl Camera {
                         ))
                     }
                 };
-                Self::ortho(f, view, corners)
+                Self::ortho(f, up, view, corners, &depth)
             }
             Projection::Perspective => {
                 let p = DVec3::from_array(view.light_pos.ok_or_else(|| {
@@ -429,22 +505,29 @@ impl Camera {
                     Some(d) => d,
                     None => towards_centre(p)?,
                 };
-                Self::perspective(p, f, view, corners)
+                Self::perspective(p, f, up, view, corners, &depth)
             }
         }
     }
 
-    fn ortho(f: DVec3, view: &View, corners: &[DVec3; 8]) -> Result<Self> {
-        let (r, u) = basis(f);
-        let range = |axis: DVec3| {
-            corners
+    fn ortho(
+        f: DVec3,
+        up: Option<DVec3>,
+        view: &View,
+        corners: &[DVec3; 8],
+        depth: &[DVec3],
+    ) -> Result<Self> {
+        let (r, u) = basis(f, up);
+        let range = |points: &[DVec3], axis: DVec3| {
+            points
                 .iter()
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &c| {
                     let v = c.dot(axis);
                     (lo.min(v), hi.max(v))
                 })
         };
-        let ((x0, x1), (y0, y1), (z0, z1)) = (range(r), range(u), range(f));
+        let ((x0, x1), (y0, y1), (z0, z1)) =
+            (range(corners, r), range(corners, u), range(depth, f));
         let plane = match view.light_pos {
             Some(p) => {
                 let zp = DVec3::from_array(p).dot(f);
@@ -486,11 +569,22 @@ impl Camera {
         })
     }
 
-    fn perspective(p: DVec3, f: DVec3, view: &View, corners: &[DVec3; 8]) -> Result<Self> {
-        let (r, u) = basis(f);
+    fn perspective(
+        p: DVec3,
+        f: DVec3,
+        up: Option<DVec3>,
+        view: &View,
+        corners: &[DVec3; 8],
+        depth: &[DVec3],
+    ) -> Result<Self> {
+        let (r, u) = basis(f, up);
         let rel: Vec<DVec3> = corners.iter().map(|&c| c - p).collect();
         let z_min = rel.iter().map(|&v| v.dot(f)).fold(f64::INFINITY, f64::min);
-        let t_max = rel.iter().map(|&v| v.dot(v).sqrt()).fold(0.0, f64::max);
+        let t_max = depth.iter().map(|&c| (c - p).length()).fold(0.0, f64::max);
+        let z_near = depth
+            .iter()
+            .map(|&c| (c - p).dot(f))
+            .fold(f64::INFINITY, f64::min);
         let (w, h, s) = match view.fov_deg {
             Some(fov) => {
                 if !(fov > 0.0 && fov < 180.0) {
@@ -535,12 +629,50 @@ impl Camera {
             step_y: clean(u * -s),
             direction: clean(direction),
             t_max,
-            t_near: z_min.max(0.0),
+            t_near: z_near.max(0.0),
             forward: clean(f),
             right: clean(r),
             up: clean(u),
             pixel_size: s,
         })
+    }
+
+    /// The same view at another resolution: the window (its centre, basis and extent
+    /// `W s x H s`) is kept and the new pixels are square, `s' = max(W s / W', H s / H')`, so
+    /// the old window fits the new image, centred, when the aspect differs (`res = N` keeps the
+    /// aspect). The ray start (`origin` for ortho) or pixel (0, 0)'s direction (perspective) is
+    /// `centre - r s' (W' - 1) / 2 + u s' (H' - 1) / 2`. The same size gives the camera back
+    /// unchanged.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `res` for a size out of range.
+    pub fn with_resolution(&self, res: Resolution) -> Result<Self> {
+        res.check()?;
+        let s = self.pixel_size;
+        let (ex, ey) = (f64::from(self.width) * s, f64::from(self.height) * s);
+        let (w, h) = Resolution::size(Some(res), ex, ey);
+        if (w, h) == (self.width, self.height) {
+            return Ok(*self);
+        }
+        let v = DVec3::from_array;
+        let (r, u) = (v(self.right), v(self.up));
+        let anchor = match self.kind {
+            Projection::Ortho => v(self.origin),
+            Projection::Perspective => v(self.direction),
+        };
+        let half = |n: u32| 0.5 * (f64::from(n) - 1.0);
+        let centre =
+            anchor + v(self.step_x) * half(self.width) + v(self.step_y) * half(self.height);
+        let s2 = (ex / f64::from(w)).max(ey / f64::from(h));
+        let moved = centre - r * (s2 * half(w)) + u * (s2 * half(h));
+        let mut c = *self;
+        (c.width, c.height, c.pixel_size) = (w, h, s2);
+        (c.step_x, c.step_y) = (clean(r * s2), clean(u * -s2));
+        match self.kind {
+            Projection::Ortho => c.origin = clean(moved),
+            Projection::Perspective => c.direction = clean(moved),
+        }
+        Ok(c)
     }
 
     /// Pixel count `W x H`.

@@ -17,6 +17,7 @@
 //! [`BakeSettings::order`] = [`Order::Rays`], traces one ray per pixel.
 
 mod camera;
+mod camera_file;
 pub(crate) use camera::normalise;
 mod matrix;
 mod output;
@@ -25,9 +26,10 @@ mod render;
 mod sweep;
 
 pub use camera::{
-    check_res, Camera, CameraSpec, Projection, Resolution, View, DEFAULT_LONG_SIDE, MAX_PIXELS,
-    MAX_SIDE,
+    check_res, world_box_corners, Camera, CameraSpec, Projection, Resolution, View,
+    DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE,
 };
+pub use camera_file::read_camera;
 pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
 pub use render::{

@@ -19,6 +19,9 @@ pub struct BakeJob {
     pub density_scale: f64,
     /// Camera request.
     pub view: View,
+    /// A fixed camera (an earlier map's, or one shared by a sequence): used as it is instead
+    /// of framing `view` on the volume box.
+    pub camera: Option<Camera>,
     /// Sampling settings.
     pub settings: BakeSettings,
     /// The OpenEXR map.
@@ -226,7 +229,10 @@ impl BakeJob {
         self.check_outputs()?;
         self.settings.validate()?;
         let vol = Volume::load(&self.input, &self.grid, self.density_scale)?;
-        let camera = Camera::frame(&self.view, &vol.box_corners()?)?;
+        let camera = match self.camera {
+            Some(c) => c,
+            None => Camera::frame(&self.view, &vol.box_corners()?)?,
+        };
         Ok((vol, camera))
     }
 
@@ -252,12 +258,20 @@ impl BakeJob {
             f64::from(vol.bounds().max),
             diagonal,
         ));
+        // The light as given; for a fixed camera without one, the light its rays come from.
+        let (mut light_dir, mut light_pos) = (self.view.light_dir, self.view.light_pos);
+        if light_dir.is_none() && light_pos.is_none() {
+            match camera.kind() {
+                super::Projection::Ortho => light_dir = Some(camera.direction()),
+                super::Projection::Perspective => light_pos = Some(camera.origin()),
+            }
+        }
         let provenance = Provenance {
             source_file: self.input.display().to_string(),
             grid: vol.name().to_string(),
             density_scale: self.density_scale,
-            light_dir: self.view.light_dir,
-            light_pos: self.view.light_pos,
+            light_dir,
+            light_pos,
         };
         drop(vol);
         write_map(

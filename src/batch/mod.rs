@@ -803,7 +803,10 @@ impl Job {
                     None
                 },
                 res: self.res,
+                up: None,
+                frame_box: None,
             },
+            camera: None,
             settings: BakeSettings {
                 threads,
                 ..self.settings.clone()

@@ -118,6 +118,8 @@ pub fn ortho(dir: [f64; 3], w: u32, h: u32) -> View {
         light_pos: None,
         fov_deg: None,
         res: Some(umbra::bake::Resolution::Exact(w, h)),
+        up: None,
+        frame_box: None,
     }
 }
 

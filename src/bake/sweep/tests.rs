@@ -68,6 +68,8 @@ fn ortho(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
         light_pos: None,
         fov_deg: None,
         res: Some(Resolution::Exact(res, res)),
+        up: None,
+        frame_box: None,
     };
     Camera::frame(&view, &vol.box_corners().expect("box")).expect("camera")
 }
@@ -88,6 +90,8 @@ fn persp(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
         light_pos: Some(pos.to_array()),
         fov_deg: None,
         res: Some(Resolution::Exact(res, res)),
+        up: None,
+        frame_box: None,
     };
     Camera::frame(&view, &corners).expect("camera")
 }
@@ -295,6 +299,8 @@ fn a_light_inside_the_box_traces_rays() {
         light_pos: Some(centre.to_array()),
         fov_deg: Some(60.0),
         res: Some(Resolution::Exact(16, 16)),
+        up: None,
+        frame_box: None,
     };
     let camera = Camera::frame(&view, &corners).expect("camera");
     assert!(Sweep::new(&vol, &camera, 16, &[]).expect("plan").is_none());

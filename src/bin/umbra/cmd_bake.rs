@@ -33,6 +33,19 @@ pub struct BakeArgs {
     /// the volume box).
     #[arg(long, allow_negative_numbers = true)]
     fov: Option<f64>,
+    /// The world direction that is up in the map, X,Y,Z (default 0,1,0; when it is parallel to
+    /// the light, the default's rule applies).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    up: Option<[f64; 3]>,
+    /// Frame this world box instead of the volume box: X0,Y0,Z0,X1,Y1,Z1 (the rays still cover
+    /// the whole volume in depth).
+    #[arg(long, allow_hyphen_values = true)]
+    frame_box: Option<String>,
+    /// Reuse exactly the camera of an earlier umbra map (.exr) or of a JSON file holding the
+    /// `camera` object `bake --json` prints; its resolution unless --res is given (then the
+    /// same window at that size).
+    #[arg(long, conflicts_with_all = ["light_dir", "light_pos", "ortho", "fov", "up", "frame_box"])]
+    camera: Option<PathBuf>,
     /// Output OpenEXR file (.exr; written atomically, together with the preview).
     #[arg(short, long)]
     output: PathBuf,
@@ -114,8 +127,31 @@ fn parse_depths(s: &str) -> Result<Vec<f64>> {
         .collect()
 }
 
+/// Parse `X0,Y0,Z0,X1,Y1,Z1`.
+fn parse_box(s: &str) -> Result<[[f64; 3]; 2]> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .ok()
+        .filter(|v: &Vec<f64>| v.len() == 6)
+        .with_context(|| {
+            format!(
+                "invalid argument '--frame-box': '{s}': expected X0,Y0,Z0,X1,Y1,Z1 (six numbers)"
+            )
+        })?;
+    Ok([[v[0], v[1], v[2]], [v[3], v[4], v[5]]])
+}
+
 /// The camera request the arguments make.
 fn view(a: &BakeArgs) -> Result<View> {
+    let res = a.res.as_deref().map(parse_res).transpose()?;
+    if a.camera.is_some() {
+        return Ok(View {
+            res,
+            ..View::default()
+        });
+    }
     let projection = match (a.light_dir, a.light_pos) {
         (None, None) => bail!(
             "give --light-dir DX,DY,DZ (orthographic map) or --light-pos X,Y,Z (perspective map)"
@@ -131,7 +167,9 @@ fn view(a: &BakeArgs) -> Result<View> {
         light_dir: a.light_dir,
         light_pos: a.light_pos,
         fov_deg: a.fov,
-        res: a.res.as_deref().map(parse_res).transpose()?,
+        res,
+        up: a.up,
+        frame_box: a.frame_box.as_deref().map(parse_box).transpose()?,
     })
 }
 
@@ -147,11 +185,18 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
     };
     let interp: Interp = a.interp.into();
     let (estimator, options) = a.est.resolve(interp)?;
+    let camera = match &a.camera {
+        Some(path) => {
+            Some(umbra::bake::read_camera(path, view.res).map_err(crate::common::flag_error)?)
+        }
+        None => None,
+    };
     let job = BakeJob {
         input: a.file.clone(),
         grid: a.grid.clone(),
         density_scale: a.density_scale,
         view,
+        camera,
         settings: BakeSettings {
             target_error: a.target_error,
             max_spp: a.max_spp,
