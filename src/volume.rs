@@ -318,12 +318,43 @@ impl Volume {
                 self.name
             ),
         })?;
-        Ok(std::array::from_fn(|n| {
-            let p =
+        Ok(box_corners(lo, hi, |p| self.to_world(p)))
+    }
+
+    /// The world corners of the volume box [`Volume::box_corners`] would give for grid `grid`
+    /// of `path`, read from the file's header and the grid's topology without decoding any
+    /// voxel value (what framing a whole sequence needs); `None` when the grid holds only its
+    /// background.
+    ///
+    /// # Errors
+    /// Opening and decoding errors, [`Error::GridNotFound`], and [`Error::Unsupported`] for a
+    /// grid whose transform is not affine.
+    pub fn read_box_corners(
+        path: impl AsRef<std::path::Path>,
+        grid: &str,
+    ) -> Result<Option<[DVec3; 8]>> {
+        let path = path.as_ref();
+        let archive = crate::vdb::open(path)?;
+        let gd = archive.find_grid(grid)?.clone();
+        let extent = archive.extent(&gd)?;
+        if !extent.transform.is_affine() {
+            return Err(Error::Unsupported {
+                path: path.to_path_buf(),
+                what: format!(
+                    "{} (grid '{}')",
+                    crate::text::escape(&extent.transform.map),
+                    crate::text::escape(&gd.display_name)
+                ),
+            });
+        }
+        let m = extent.transform.world_from_index;
+        Ok(extent.value_box.map(|[lo, hi]| {
+            let (lo, hi) = (lo.map(|v| (v - 1) as f64), hi.map(|v| (v + 1) as f64));
+            box_corners(DVec3::from(lo), DVec3::from(hi), |p| {
                 DVec3::from_array(
-                    [0, 1, 2].map(|a| if n >> (2 - a) & 1 == 1 { hi[a] } else { lo[a] }),
-                );
-            self.to_world(p)
+                    [0, 1, 2].map(|r| m[r][0] * p.x + m[r][1] * p.y + m[r][2] * p.z + m[r][3]),
+                )
+            })
         }))
     }
 
@@ -371,7 +402,30 @@ fn data_reach(tree: &Tree, value_box: Option<[[i64; 3]; 2]>) -> f64 {
     diagonal.min(sides * 3f64.sqrt())
 }
 
+/// The images under `to_world` of the 8 corners of the index box `[lo, hi]`, corner `n`
+/// taking `hi` on axis `a` when bit `2 - a` of `n` is set.
+fn box_corners(lo: DVec3, hi: DVec3, to_world: impl Fn(DVec3) -> DVec3) -> [DVec3; 8] {
+    std::array::from_fn(|n| {
+        to_world(DVec3::from_array([0, 1, 2].map(|a| {
+            if n >> (2 - a) & 1 == 1 {
+                hi[a]
+            } else {
+                lo[a]
+            }
+        })))
+    })
+}
+
 fn value_box(tree: &Tree) -> Option<[[i64; 3]; 2]> {
+    value_box_of(tree, tree.leaves.iter().map(|l| l.origin))
+}
+
+/// The index box of every leaf (origins `leaves`) and every tile of `tree` whose value differs
+/// from the background.
+pub(crate) fn value_box_of(
+    tree: &Tree,
+    leaves: impl Iterator<Item = [i32; 3]>,
+) -> Option<[[i64; 3]; 2]> {
     let mut b: Option<[[i64; 3]; 2]> = None;
     let mut add = |o: [i32; 3], dim: i64| {
         let lo = o.map(i64::from);
@@ -403,8 +457,8 @@ fn value_box(tree: &Tree) -> Option<[[i64; 3]; 2]> {
             }
         }
     }
-    for l in &tree.leaves {
-        add(l.origin, 8);
+    for origin in leaves {
+        add(origin, 8);
     }
     b
 }

@@ -373,3 +373,163 @@ preview = "out/{stem}_{light}.png"
         r#"{"name":"jittered","step":0.5}"#
     );
 }
+
+/// Frames of different size (the sample cloud and cloud_fbm, both `density`): by default every
+/// map of a light has one camera, framing both boxes (every corner of either inside the image),
+/// and the union is found without decoding voxels; `framing = "per-frame"` frames each on its
+/// own; `up`, `frame_box` and `camera` work in job files; a missing frame fails the job before
+/// any task runs.
+#[test]
+fn sequence_of_different_sizes_shares_one_camera() {
+    use bake_support::read_exr;
+    let fbm = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gen/cloud_fbm.vdb");
+    let camera_of = |p: &Path| {
+        let e = read_exr(p);
+        let attrs: Vec<String> = [
+            "camera_origin",
+            "camera_step_x",
+            "camera_step_y",
+            "camera_direction",
+        ]
+        .iter()
+        .map(|k| format!("{:?}", e.v3d(k)))
+        .collect();
+        (attrs, e.w, e.h)
+    };
+    for (framing, shared) in [("", true), ("framing = \"per-frame\"", false)] {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let job = setup(d, "");
+        std::fs::copy(&fbm, d.join("cloud.0002.vdb")).unwrap();
+        let text = std::fs::read_to_string(&job).unwrap();
+        std::fs::write(
+            &job,
+            text.replace("[bake]\n", &format!("[bake]\n{framing}\n")),
+        )
+        .unwrap();
+        let out = batch(&job, &[]);
+        assert!(out.status.success(), "{out:?}");
+        for light in ["sun", "lamp"] {
+            let cams: Vec<_> = (1..=3)
+                .map(|f| camera_of(&d.join(format!("out/shadow_{light}.{f:04}.exr"))))
+                .collect();
+            assert_eq!(
+                cams[0], cams[2],
+                "{light}: frames 1 and 3 are the same file"
+            );
+            assert_eq!(cams[0] == cams[1], shared, "{light} {framing:?}");
+            if shared {
+                // Every corner of both volumes lands inside the shared image.
+                let e = read_exr(&d.join(format!("out/shadow_{light}.0002.exr")));
+                let c =
+                    umbra::bake::read_camera(&d.join(format!("out/shadow_{light}.0002.exr")), None)
+                        .unwrap();
+                for file in [data("cloud.vdb"), fbm.clone()] {
+                    let v = umbra::Volume::load(&file, "density", 1.0).unwrap();
+                    for p in v.box_corners().unwrap() {
+                        let (i, j) = pixel_of(&c, p);
+                        let (w, h) = (e.w as f64, e.h as f64);
+                        assert!(
+                            (-0.5 - 1e-9..=w - 0.5 + 1e-9).contains(&i)
+                                && (-0.5 - 1e-9..=h - 0.5 + 1e-9).contains(&j),
+                            "{light}: corner at pixel ({i}, {j}) of {w}x{h}"
+                        );
+                    }
+                }
+            }
+        }
+    }
+    // up and frame_box in the job file give the maps umbra bake gives with --up/--frame-box
+    // (per-frame framing: the same view as the command line).
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let job = setup(d, "");
+    let text = std::fs::read_to_string(&job).unwrap();
+    std::fs::write(
+        &job,
+        text.replace(
+            "[bake]\n",
+            "[bake]\nframing = \"per-frame\"\nup = [0.0, 0.0, 1.0]\nframe_box = [[-1.0, 0.0, -1.0], [1.0, 2.0, 1.0]]\n",
+        ),
+    )
+    .unwrap();
+    assert!(batch(&job, &[]).status.success());
+    let cli = d.join("cli.exr");
+    let o = umbra(&[
+        "bake",
+        d.join("cloud.0001.vdb").to_str().unwrap(),
+        "--light-dir=0.3,-1,0.2",
+        "--res",
+        "32x32",
+        "--up",
+        "0,0,1",
+        "--frame-box=-1,0,-1,1,2,1",
+        "--estimator",
+        "ratio",
+        "--spp",
+        "4",
+        "--seed",
+        "7",
+        "--density-scale",
+        "2",
+        "-q",
+        "-o",
+        cli.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{o:?}");
+    assert_eq!(
+        camera_of(&cli),
+        camera_of(&d.join("out/shadow_sun.0001.exr"))
+    );
+    // camera = an earlier map: every task uses it as it is.
+    let job2 = d.join("job2.toml");
+    std::fs::write(
+        &job2,
+        "grid = \"density\"\noutput = \"again/{frame:04}.exr\"\n[[inputs]]\npattern = \"cloud.####.vdb\"\nframes = [1, 2]\n[[lights]]\nname = \"sun\"\ndir = [1.0, 0.0, 0.0]\n[bake]\ncamera = \"cli.exr\"\n",
+    )
+    .unwrap();
+    let out = batch(&job2, &[]);
+    assert!(out.status.success(), "{out:?}");
+    for f in 1..=2 {
+        assert_eq!(
+            camera_of(&d.join(format!("again/{f:04}.exr"))),
+            camera_of(&cli)
+        );
+    }
+    // A missing frame: an error naming it before any task runs (exit 1, nothing written).
+    std::fs::remove_file(d.join("cloud.0002.vdb")).unwrap();
+    std::fs::remove_dir_all(d.join("again")).unwrap();
+    let out = batch(&job2.with_file_name("job.toml"), &["--force"]);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let text = std::fs::read_to_string(&job).unwrap();
+    std::fs::write(&job, text.replace("framing = \"per-frame\"\n", "")).unwrap();
+    let before = names(d);
+    let out = batch(&job, &["--force"]);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("cloud.0002.vdb"),
+        "{out:?}"
+    );
+    assert_eq!(names(d), before);
+}
+
+/// Column and row (fractional) of world point `p` in a camera's image.
+fn pixel_of(c: &umbra::bake::Camera, p: glam::DVec3) -> (f64, f64) {
+    use glam::DVec3;
+    let (sx, sy) = (DVec3::from(c.step_x()), DVec3::from(c.step_y()));
+    let s2 = c.pixel_size().powi(2);
+    match c.kind() {
+        umbra::bake::Projection::Ortho => {
+            let v = p - DVec3::from(c.origin());
+            (v.dot(sx) / s2, v.dot(sy) / s2)
+        }
+        umbra::bake::Projection::Perspective => {
+            // p - P = z (D + i sx + j sy) with D . sx = D . sy = 0 up to the pixel offsets.
+            let v = p - DVec3::from(c.origin());
+            let f = DVec3::from(c.forward());
+            let z = v.dot(f);
+            let q = v / z - DVec3::from(c.direction());
+            (q.dot(sx) / s2, q.dot(sy) / s2)
+        }
+    }
+}

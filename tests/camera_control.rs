@@ -327,3 +327,38 @@ fn camera_reuse_from_exr_and_json_is_exact() {
         assert!(!out.exists());
     }
 }
+
+/// The volume box read from the header and topology alone equals the loaded volume's, on the
+/// corpus (tiles at every level, instanced grids, rotated and scaled transforms).
+#[test]
+fn box_from_topology_equals_the_loaded_box() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus");
+    let mut checked = 0;
+    for dir in ["gen", "real"] {
+        let Ok(entries) = std::fs::read_dir(root.join(dir)) else {
+            continue;
+        };
+        let mut files: Vec<_> = entries.flatten().map(|e| e.path()).collect();
+        files.sort();
+        for path in files
+            .iter()
+            .filter(|p| p.extension().is_some_and(|e| e == "vdb"))
+        {
+            let Ok(archive) = umbra::vdb::open(path) else {
+                continue;
+            };
+            for gd in &archive.grids {
+                let Ok(vol) = umbra::Volume::load(path, &gd.display_name, 1.0) else {
+                    continue;
+                };
+                let read = umbra::Volume::read_box_corners(path, &gd.display_name).unwrap();
+                assert_eq!(read, vol.box_corners().ok(), "{path:?} {}", gd.display_name);
+                checked += 1;
+            }
+        }
+    }
+    assert!(
+        checked >= 20,
+        "only {checked} grids: is ../shared/corpus there?"
+    );
+}

@@ -402,7 +402,8 @@ fn default_res(ex: f64, ey: f64, long: u32) -> (u32, u32) {
 }
 
 impl Camera {
-    /// Frame `corners` (the volume box, see [`crate::Volume::box_corners`]) as `view` asks:
+    /// Frame `corners` (the volume box, see [`crate::Volume::box_corners`], or the corners of
+    /// several boxes: what a shared camera frames) as `view` asks:
     /// the window holds `view.frame_box` instead when it is given, while the depth range (the
     /// ortho image plane, `t_near`, `t_max`) still covers the volume box as well. The basis
     /// follows `view.up` (module docs).
@@ -422,7 +423,10 @@ impl Camera {
     /// [`Error::InvalidArgument`] for a zero light direction or up direction, an empty or
     /// non-finite frame box, a missing light, a resolution out of range, a field of view outside `(0, 180)`, an ortho light inside or beside the box, or
     /// a perspective light inside the box without a field of view.
-    pub fn frame(view: &View, corners: &[DVec3; 8]) -> Result<Self> {
+    pub fn frame(view: &View, corners: &[DVec3]) -> Result<Self> {
+        if corners.is_empty() || !corners.iter().all(|c| c.is_finite()) {
+            return Err(bad("grid", "no finite volume box to frame".into()));
+        }
         if let Some(r) = view.res {
             r.check()?;
         }
@@ -443,7 +447,7 @@ impl Camera {
                     ));
                 }
                 boxed = world_box_corners(b);
-                &boxed
+                &boxed[..]
             }
             None => corners,
         };
@@ -470,7 +474,12 @@ impl Camera {
             })?),
             None => None,
         };
-        let centre = corners.iter().fold(DVec3::ZERO, |a, &c| a + c) * 0.125;
+        // The centre of the points' bounding box (a box's own centre, by its symmetry).
+        let (lo, hi) = corners.iter().fold(
+            (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+            |(lo, hi), &c| (lo.min(c), hi.max(c)),
+        );
+        let centre = (lo + hi) * 0.5;
         let towards_centre = |p: DVec3| {
             normalise(centre - p).ok_or_else(|| {
                 bad(
@@ -514,7 +523,7 @@ impl Camera {
         f: DVec3,
         up: Option<DVec3>,
         view: &View,
-        corners: &[DVec3; 8],
+        corners: &[DVec3],
         depth: &[DVec3],
     ) -> Result<Self> {
         let (r, u) = basis(f, up);
@@ -574,7 +583,7 @@ impl Camera {
         f: DVec3,
         up: Option<DVec3>,
         view: &View,
-        corners: &[DVec3; 8],
+        corners: &[DVec3],
         depth: &[DVec3],
     ) -> Result<Self> {
         let (r, u) = basis(f, up);

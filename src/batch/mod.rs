@@ -33,8 +33,16 @@
 //! interp = "trilinear"
 //! # preview = "out/shadow_{light}.{frame:04}.png", slices = 4 (or depths = [1.0, 2.0]),
 //! # stderr = true, target_error = 0.01, max_spp = 4096, fov = 30.0, ortho = true,
-//! # granularity = "leaf", global_majorant = false
+//! # granularity = "leaf", global_majorant = false,
+//! # up = [0.0, 0.0, 1.0], frame_box = [[-1.0, 0.0, -1.0], [1.0, 2.0, 1.0]],
+//! # camera = "earlier_map.exr" (one light only), framing = "shared" | "per-frame"
 //! ```
+//!
+//! **Framing.** By default (`framing = "shared"`) every map of one light uses one camera,
+//! framed on the union of all the job's inputs' volume boxes (read from headers and topology,
+//! no voxel values), so a sequence of maps does not swim; [`Job::share_cameras`] computes them
+//! before any task runs. `framing = "per-frame"` frames each input on its own box. `camera`
+//! fixes the camera outright.
 //!
 //! **Tasks.** Input-major: every input in file order (a sequence in frame order), then every
 //! light in file order; task `i` is the `i`-th pair (0-based). Shard `I/N` runs the tasks with
@@ -43,7 +51,9 @@
 //! **Resume.** A task is up to date when its output exists and its modification time is not
 //! older than its input's; outputs are written atomically, so an existing output is complete.
 
-use crate::bake::{BakeJob, BakeReport, BakeSettings, Depths, Projection, Resolution, View};
+use crate::bake::{
+    BakeJob, BakeReport, BakeSettings, Camera, Depths, Projection, Resolution, View,
+};
 use crate::estimate::{Estimator, Options};
 use crate::traverse::Granularity;
 use crate::Interp;
@@ -193,6 +203,14 @@ pub struct BakeSpec {
     pub ortho: bool,
     /// PNG preview path pattern (same placeholders as `output`).
     pub preview: Option<String>,
+    /// The world direction that is up in the maps.
+    pub up: Option<[f64; 3]>,
+    /// Frame this world box `[lo, hi]` instead of the volume boxes.
+    pub frame_box: Option<[[f64; 3]; 2]>,
+    /// Reuse the camera of an earlier map (`.exr`) or `bake --json` summary (one light only).
+    pub camera: Option<String>,
+    /// `shared` (one camera per light for all inputs) or `per-frame`.
+    pub framing: String,
 }
 
 impl Default for BakeSpec {
@@ -217,8 +235,22 @@ impl Default for BakeSpec {
             fov: None,
             ortho: false,
             preview: None,
+            up: None,
+            frame_box: None,
+            camera: None,
+            framing: "shared".into(),
         }
     }
+}
+
+/// How the maps of a job are framed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Framing {
+    /// One camera per light, framing the union of every input's volume box.
+    Shared,
+    /// Each input framed on its own volume box.
+    PerFrame,
 }
 
 /// A validated job.
@@ -242,6 +274,16 @@ pub struct Job {
     pub ortho: bool,
     /// Density scale.
     pub density_scale: f64,
+    /// The world direction that is up in the maps.
+    pub up: Option<[f64; 3]>,
+    /// The world box framed instead of the volume boxes.
+    pub frame_box: Option<[[f64; 3]; 2]>,
+    /// How maps are framed.
+    pub framing: Framing,
+    /// A fixed camera for every task (`bake.camera`).
+    pub camera: Option<Camera>,
+    /// The shared camera of each light (by name), once [`Job::share_cameras`] has run.
+    pub shared: std::sync::OnceLock<std::collections::BTreeMap<String, Camera>>,
 }
 
 /// One bake: an input under one light.
@@ -517,6 +559,54 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     if let Some(r) = b.res {
         r.check().map_err(|e| err(&path, "bake.res", e))?;
     }
+    let framing = match b.framing.as_str() {
+        "shared" => Framing::Shared,
+        "per-frame" => Framing::PerFrame,
+        other => {
+            return Err(err(
+                &path,
+                "bake.framing",
+                format!("'{other}': expected \"shared\" or \"per-frame\""),
+            ))
+        }
+    };
+    if let Some(u) = b.up {
+        if !u.iter().all(|c| c.is_finite()) || u.iter().all(|&c| c == 0.0) {
+            return Err(err(&path, "bake.up", "must be finite and non-zero"));
+        }
+    }
+    if let Some(fb) = b.frame_box {
+        if !(0..3).all(|a| fb[0][a].is_finite() && fb[1][a].is_finite() && fb[0][a] < fb[1][a]) {
+            return Err(err(
+                &path,
+                "bake.frame_box",
+                "must be [[x0, y0, z0], [x1, y1, z1]], finite, with x0 < x1, y0 < y1, z0 < z1",
+            ));
+        }
+    }
+    let camera = match &b.camera {
+        Some(c) => {
+            if file.lights.len() > 1 {
+                return Err(err(
+                    &path,
+                    "bake.camera",
+                    "a fixed camera is one view: give one [[lights]] entry (it names the outputs)",
+                ));
+            }
+            if b.up.is_some() || b.frame_box.is_some() || b.fov.is_some() || b.ortho {
+                return Err(err(
+                    &path,
+                    "bake.camera",
+                    "fixes the whole camera: drop up, frame_box, fov and ortho",
+                ));
+            }
+            Some(
+                crate::bake::read_camera(&resolve(c), b.res)
+                    .map_err(|e| err(&path, "bake.camera", e))?,
+            )
+        }
+        None => None,
+    };
     if file.grid.is_empty() {
         return Err(err(&path, "grid", "must not be empty"));
     }
@@ -717,6 +807,11 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         fov_deg: b.fov,
         ortho: b.ortho,
         density_scale: b.density_scale,
+        up: b.up,
+        frame_box: b.frame_box,
+        framing,
+        camera,
+        shared: std::sync::OnceLock::new(),
     })
 }
 
@@ -786,27 +881,13 @@ impl Job {
     #[must_use]
     pub fn bake_job(&self, task: &Task, threads: usize) -> BakeJob {
         BakeJob {
+            view: self.view(task),
+            camera: self
+                .camera
+                .or_else(|| self.shared.get().and_then(|m| m.get(&task.light)).copied()),
             input: task.input.clone(),
             grid: self.grid.clone(),
             density_scale: self.density_scale,
-            view: View {
-                projection: if task.pos.is_some() && !self.ortho {
-                    Projection::Perspective
-                } else {
-                    Projection::Ortho
-                },
-                light_dir: task.dir,
-                light_pos: task.pos,
-                fov_deg: if task.pos.is_some() && !self.ortho {
-                    self.fov_deg
-                } else {
-                    None
-                },
-                res: self.res,
-                up: None,
-                frame_box: None,
-            },
-            camera: None,
             settings: BakeSettings {
                 threads,
                 ..self.settings.clone()
@@ -815,6 +896,90 @@ impl Job {
             preview: task.preview.clone(),
             overwrite: true,
         }
+    }
+
+    /// The camera request of a task's light (framing its own input, or the shared box).
+    fn view(&self, task: &Task) -> View {
+        let perspective = task.pos.is_some() && !self.ortho;
+        View {
+            projection: if perspective {
+                Projection::Perspective
+            } else {
+                Projection::Ortho
+            },
+            light_dir: task.dir,
+            light_pos: task.pos,
+            fov_deg: if perspective { self.fov_deg } else { None },
+            res: self.res,
+            up: self.up,
+            frame_box: self.frame_box,
+        }
+    }
+
+    /// Check every input of the job before any task runs: the file exists and holds the job's
+    /// grid (its header and grid list only). A file that is there but cannot be parsed is left
+    /// to its own task, which fails alone.
+    ///
+    /// # Errors
+    /// [`BatchError::Task`] with [`crate::Error::Io`] or [`crate::Error::GridNotFound`],
+    /// naming the first input that fails.
+    pub fn check_inputs(&self) -> Result<(), BatchError> {
+        let mut inputs: Vec<&Path> = self.tasks.iter().map(|t| t.input.as_path()).collect();
+        inputs.dedup();
+        for input in inputs {
+            if let Err(e @ (crate::Error::Io { .. } | crate::Error::GridNotFound { .. })) =
+                crate::vdb::open(input).and_then(|a| a.find_grid(&self.grid).map(|_| ()))
+            {
+                return Err(e.into());
+            }
+        }
+        Ok(())
+    }
+
+    /// With `framing = "shared"` (and no fixed camera): frame one camera per light on the
+    /// union of every input's volume box, so all maps of a light line up. The boxes come from
+    /// each file's header and topology (no voxel values; [`crate::Volume::read_box_corners`]);
+    /// the camera frames all their corners together (a single input: exactly its own box). Inputs whose grid holds only its
+    /// background add nothing, nor do inputs that cannot be decoded (their tasks then fail
+    /// alone, as without sharing). Runs before any task, so a missing input or grid fails the
+    /// whole job up front.
+    ///
+    /// # Errors
+    /// [`BatchError::Task`] naming the input that cannot be read, or a light that cannot frame
+    /// the union (for example a light inside it).
+    pub fn share_cameras(&self) -> Result<(), BatchError> {
+        if self.framing != Framing::Shared || self.camera.is_some() {
+            return Ok(());
+        }
+        let mut inputs: Vec<&Path> = self.tasks.iter().map(|t| t.input.as_path()).collect();
+        inputs.dedup();
+        let mut union = Vec::new();
+        for input in inputs {
+            let corners = match crate::Volume::read_box_corners(input, &self.grid) {
+                Ok(Some(c)) => c,
+                Ok(None) => continue,
+                // A missing file or grid fails the job before any task runs.
+                Err(e @ (crate::Error::Io { .. } | crate::Error::GridNotFound { .. })) => {
+                    return Err(e.into())
+                }
+                // A corrupt or unsupported frame adds nothing here and fails as its own task.
+                Err(_) => continue,
+            };
+            union.extend(corners);
+        }
+        if union.is_empty() {
+            return Ok(()); // nothing to frame anywhere: each task reports it
+        }
+        let mut shared = std::collections::BTreeMap::new();
+        for t in &self.tasks {
+            if !shared.contains_key(&t.light) {
+                let camera = Camera::frame(&self.view(t), &union)?;
+                shared.insert(t.light.clone(), camera);
+            }
+        }
+        // A second call finds the same cameras (same files), so a set map stays.
+        let _ = self.shared.set(shared);
+        Ok(())
     }
 
     /// Bake one task through the shared pipeline ([`BakeJob::run`]) and write its outputs

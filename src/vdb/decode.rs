@@ -130,6 +130,14 @@ pub(crate) fn read_topology(
     })
 }
 
+impl Topology {
+    /// The index box of every leaf and every non-background tile (as
+    /// [`crate::Volume::value_box`]), without the leaf values.
+    pub(crate) fn value_box(&self) -> Option<[[i64; 3]; 2]> {
+        crate::volume::value_box_of(&self.tree, self.leaves.iter().map(|(o, _)| *o))
+    }
+}
+
 /// Read the leaf buffers of `topo` from `buffers` and finish the tree (bounds).
 pub(crate) fn decode_buffers(
     topo: Topology,

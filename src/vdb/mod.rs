@@ -72,6 +72,16 @@ pub fn load_grid(path: impl AsRef<Path>, name: &str) -> Result<Grid> {
     archive.load(&gd)
 }
 
+/// A grid's transform and index box, read without its voxel values ([`Archive::extent`]).
+#[derive(Debug, Clone)]
+pub struct GridExtent {
+    /// Index-to-world transform.
+    pub transform: Transform,
+    /// Inclusive index box of every leaf and every non-background tile; `None` when the grid
+    /// holds only its background.
+    pub value_box: Option<[[i64; 3]; 2]>,
+}
+
 /// First window for a grid's head (metadata, transform, topology): most topologies fit.
 const HEAD_WINDOW: u64 = 1 << 16;
 
@@ -101,41 +111,7 @@ impl Archive {
         } else {
             Some(self.instance_parent(gd)?)
         };
-        let mut file = std::fs::File::open(path).map_err(|err| Error::Io {
-            path: path.clone(),
-            err,
-        })?;
-        let region = format!("grid '{}'", text::escape(&gd.display_name));
-        let (head, _) = archive::parse_window(
-            &mut file,
-            (gd.grid_pos, gd.block_pos),
-            HEAD_WINDOW,
-            &region,
-            path,
-            |r| {
-                let compression = Compression::from_flags(r.u32("compression flags")?);
-                let metadata = metadata::read_meta_map(r)?;
-                let transform = transform::read_transform(r)?;
-                let topology = if parent.is_none() {
-                    let t = decode::read_topology(
-                        r,
-                        kind,
-                        gd.saved_as_half,
-                        compression,
-                        gd.block_pos,
-                    )?;
-                    Some(t)
-                } else {
-                    None
-                };
-                Ok(Head {
-                    compression,
-                    metadata,
-                    transform,
-                    topology,
-                })
-            },
-        )?;
+        let (head, mut file) = self.head(gd, kind, parent.is_none())?;
         let (tree, precision_loss) = match (head.topology, parent) {
             (Some(topology), _) => {
                 let mut buffers =
@@ -165,6 +141,82 @@ impl Archive {
             saved_as_half: gd.saved_as_half,
             tree,
             precision_loss,
+        })
+    }
+
+    /// Parse a grid's head (compression, metadata, transform, and with `topology` its tree
+    /// without leaf values) through a growing window; returns the open file for the buffers.
+    fn head(
+        &self,
+        gd: &GridDescriptor,
+        kind: ValueKind,
+        topology: bool,
+    ) -> Result<(Head, std::fs::File)> {
+        let path = &self.path;
+        let mut file = std::fs::File::open(path).map_err(|err| Error::Io {
+            path: path.clone(),
+            err,
+        })?;
+        let region = format!("grid '{}'", text::escape(&gd.display_name));
+        let (head, _) = archive::parse_window(
+            &mut file,
+            (gd.grid_pos, gd.block_pos),
+            HEAD_WINDOW,
+            &region,
+            path,
+            |r| {
+                let compression = Compression::from_flags(r.u32("compression flags")?);
+                let metadata = metadata::read_meta_map(r)?;
+                let transform = transform::read_transform(r)?;
+                let topology = if topology {
+                    let t = decode::read_topology(
+                        r,
+                        kind,
+                        gd.saved_as_half,
+                        compression,
+                        gd.block_pos,
+                    )?;
+                    Some(t)
+                } else {
+                    None
+                };
+                Ok(Head {
+                    compression,
+                    metadata,
+                    transform,
+                    topology,
+                })
+            },
+        )?;
+        Ok((head, file))
+    }
+
+    /// What framing needs of the grid `gd` (from this archive), read without its leaf values:
+    /// its transform and the index box [`crate::Volume::value_box`] would give (every leaf and
+    /// every tile whose value differs from the background; an instance takes its parent's
+    /// tree).
+    ///
+    /// # Errors
+    /// As [`Archive::load`].
+    pub fn extent(&self, gd: &GridDescriptor) -> Result<GridExtent> {
+        let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(&self.path))?;
+        let parent = if gd.instance_parent.is_empty() {
+            None
+        } else {
+            Some(self.instance_parent(gd)?)
+        };
+        let (head, _) = self.head(gd, kind, parent.is_none())?;
+        let value_box = match (head.topology, parent) {
+            (Some(t), _) => t.value_box(),
+            (None, Some(p)) => self.extent(p)?.value_box,
+            (None, None) => {
+                let why = "grid has neither a tree nor an instance parent";
+                return Err(DecodeError::invalid(why).at(&self.path));
+            }
+        };
+        Ok(GridExtent {
+            transform: head.transform,
+            value_box,
         })
     }
 

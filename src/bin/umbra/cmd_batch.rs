@@ -110,6 +110,12 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     );
     let (todo, skipped): (Vec<&Task>, Vec<&Task>) =
         selected.iter().partition(|t| a.force || !up_to_date(t));
+    if !todo.is_empty() {
+        // Missing frames and grids fail the job up front; then one camera per light over every
+        // input (not just this shard's), so shards agree.
+        job.check_inputs()?;
+        job.share_cameras()?;
+    }
     for t in &skipped {
         write_record(&log, &record(&job, t, "skipped", 0.0, 0.0, None))?;
     }
