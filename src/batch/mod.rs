@@ -38,9 +38,9 @@
 //! # camera = "earlier_map.exr" (one light only), framing = "shared" | "per-frame"
 //! ```
 //!
-//! **Framing.** By default (`framing = "shared"`) every map of one light uses one camera,
-//! framed on the union of all the job's inputs' volume boxes (read from headers and topology,
-//! no voxel values), so a sequence of maps does not swim; [`Job::share_cameras`] computes them
+//! **Framing.** By default (`framing = "shared"`) every map of one light across one sequence (an
+//! `[[inputs]]` entry) uses one camera, framed on the union of the sequence's volume boxes
+//! (read from headers and topology, no voxel values), so a sequence of maps does not swim; [`Job::share_cameras`] computes them
 //! before any task runs. `framing = "per-frame"` frames each input on its own box. `camera`
 //! fixes the camera outright.
 //!
@@ -282,8 +282,9 @@ pub struct Job {
     pub framing: Framing,
     /// A fixed camera for every task (`bake.camera`).
     pub camera: Option<Camera>,
-    /// The shared camera of each light (by name), once [`Job::share_cameras`] has run.
-    pub shared: std::sync::OnceLock<std::collections::BTreeMap<String, Camera>>,
+    /// The shared camera of each (`[[inputs]]` entry, light name), once
+    /// [`Job::share_cameras`] has run.
+    pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
 }
 
 /// One bake: an input under one light.
@@ -291,6 +292,8 @@ pub struct Job {
 pub struct Task {
     /// Index in the job (0-based).
     pub index: usize,
+    /// Index of its `[[inputs]]` entry (the sequence it belongs to).
+    pub sequence: usize,
     /// Input file.
     pub input: PathBuf,
     /// Frame number for sequence inputs.
@@ -665,7 +668,8 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     if file.inputs.is_empty() {
         return Err(err(&path, "inputs", "give at least one [[inputs]] entry"));
     }
-    let mut inputs: Vec<(PathBuf, Option<i64>)> = Vec::new();
+    // (file, frame, index of its [[inputs]] entry)
+    let mut inputs: Vec<(PathBuf, Option<i64>, usize)> = Vec::new();
     for (i, inp) in file.inputs.iter().enumerate() {
         let key = |k: &str| format!("inputs[{i}].{k}");
         match (&inp.file, &inp.pattern) {
@@ -677,7 +681,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                         "frames/step go with pattern, not file",
                     ));
                 }
-                inputs.push((resolve(f), None));
+                inputs.push((resolve(f), None, i));
             }
             (None, Some(p)) => {
                 let [first, last] = inp.frames.ok_or_else(|| {
@@ -722,7 +726,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 let mut f = first;
                 loop {
                     let name = expand_pattern(p, f).unwrap_or_default();
-                    inputs.push((resolve(&name), Some(f)));
+                    inputs.push((resolve(&name), Some(f), i));
                     match f.checked_add(step) {
                         Some(next) if next <= last => f = next,
                         _ => break,
@@ -747,7 +751,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     }
     let mut tasks = Vec::new();
     let mut seen = std::collections::HashMap::new();
-    for (input, frame) in &inputs {
+    for (input, frame, sequence) in &inputs {
         let stem = input
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -779,6 +783,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             }
             tasks.push(Task {
                 index,
+                sequence: *sequence,
                 input: input.clone(),
                 frame: *frame,
                 light: l.name.clone(),
@@ -882,9 +887,12 @@ impl Job {
     pub fn bake_job(&self, task: &Task, threads: usize) -> BakeJob {
         BakeJob {
             view: self.view(task),
-            camera: self
-                .camera
-                .or_else(|| self.shared.get().and_then(|m| m.get(&task.light)).copied()),
+            camera: self.camera.or_else(|| {
+                self.shared
+                    .get()
+                    .and_then(|m| m.get(&(task.sequence, task.light.clone())))
+                    .copied()
+            }),
             input: task.input.clone(),
             grid: self.grid.clone(),
             density_scale: self.density_scale,
@@ -936,8 +944,9 @@ impl Job {
         Ok(())
     }
 
-    /// With `framing = "shared"` (and no fixed camera): frame one camera per light on the
-    /// union of every input's volume box, so all maps of a light line up. The boxes come from
+    /// With `framing = "shared"` (and no fixed camera): frame one camera per sequence (one
+    /// `[[inputs]]` entry) and light on the union of the sequence's volume boxes, so all maps
+    /// of a light across the sequence line up. The boxes come from
     /// each file's header and topology (no voxel values; [`crate::Volume::read_box_corners`]);
     /// the camera frames all their corners together (a single input: exactly its own box). Inputs whose grid holds only its
     /// background add nothing, nor do inputs that cannot be decoded (their tasks then fail
@@ -951,30 +960,39 @@ impl Job {
         if self.framing != Framing::Shared || self.camera.is_some() {
             return Ok(());
         }
-        let mut inputs: Vec<&Path> = self.tasks.iter().map(|t| t.input.as_path()).collect();
-        inputs.dedup();
-        let mut union = Vec::new();
-        for input in inputs {
-            let corners = match crate::Volume::read_box_corners(input, &self.grid) {
-                Ok(Some(c)) => c,
-                Ok(None) => continue,
-                // A missing file or grid fails the job before any task runs.
-                Err(e @ (crate::Error::Io { .. } | crate::Error::GridNotFound { .. })) => {
-                    return Err(e.into())
-                }
-                // A corrupt or unsupported frame adds nothing here and fails as its own task.
-                Err(_) => continue,
-            };
-            union.extend(corners);
-        }
-        if union.is_empty() {
-            return Ok(()); // nothing to frame anywhere: each task reports it
-        }
         let mut shared = std::collections::BTreeMap::new();
-        for t in &self.tasks {
-            if !shared.contains_key(&t.light) {
-                let camera = Camera::frame(&self.view(t), &union)?;
-                shared.insert(t.light.clone(), camera);
+        let sequences = self.tasks.last().map_or(0, |t| t.sequence + 1);
+        for sequence in 0..sequences {
+            let tasks: Vec<&Task> = self
+                .tasks
+                .iter()
+                .filter(|t| t.sequence == sequence)
+                .collect();
+            let mut inputs: Vec<&Path> = tasks.iter().map(|t| t.input.as_path()).collect();
+            inputs.dedup();
+            let mut union = Vec::new();
+            for input in inputs {
+                let corners = match crate::Volume::read_box_corners(input, &self.grid) {
+                    Ok(Some(c)) => c,
+                    Ok(None) => continue,
+                    // A missing file or grid fails the job before any task runs.
+                    Err(e @ (crate::Error::Io { .. } | crate::Error::GridNotFound { .. })) => {
+                        return Err(e.into())
+                    }
+                    // A corrupt or unsupported frame adds nothing here and fails alone.
+                    Err(_) => continue,
+                };
+                union.extend(corners);
+            }
+            if union.is_empty() {
+                continue; // nothing to frame anywhere: each task reports it
+            }
+            for t in tasks {
+                if let std::collections::btree_map::Entry::Vacant(e) =
+                    shared.entry((sequence, t.light.clone()))
+                {
+                    e.insert(Camera::frame(&self.view(t), &union)?);
+                }
             }
         }
         // A second call finds the same cameras (same files), so a set map stays.
