@@ -279,6 +279,7 @@ fn main() {
     let rss_baked = peak_rss();
     if let Some(path) = &out {
         let prov = Provenance {
+            xform: None,
             source_file: file.clone(),
             grid: grid.clone(),
             density_scale: scale,

@@ -71,6 +71,7 @@ pub mod traverse;
 pub mod tree;
 pub mod vdb;
 pub mod volume;
+pub mod xform;
 
 pub use error::{Error, Result};
 pub use glam;

@@ -71,6 +71,8 @@ pub struct Volume {
     value_box: Option<[[i64; 3]; 2]>,
     data_reach: f64,
     sanitized: Sanitized,
+    /// The object transform applied on top of the grid's own, if any.
+    xform: Option<crate::xform::Xform>,
 }
 
 fn sanitize(v: &mut f32, s: &mut Sanitized) {
@@ -197,6 +199,7 @@ impl Volume {
             density_scale,
             value_box,
             sanitized: s,
+            xform: None,
         })
     }
 
@@ -358,6 +361,51 @@ impl Volume {
         }))
     }
 
+    /// The volume placed in its shot by the object transform `x` (world-from-object): its
+    /// `world_from_index` becomes `x world_from_index`, so every world-space query, camera and
+    /// box sees it where `x` puts it. Transforms compose: applying `a` then `b` is applying
+    /// `b a`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `xform`) when the composed map fails the checks a
+    /// grid's own transform passes (voxel size range, (nearly) parallel voxel axes, an inverse
+    /// that is not finite, coordinates too large for the voxel size).
+    pub fn with_xform(mut self, x: &crate::xform::Xform) -> Result<Self> {
+        let w = self.world_from_index;
+        let rows: [[f64; 4]; 3] = std::array::from_fn(|r| {
+            [
+                w.matrix3.x_axis[r],
+                w.matrix3.y_axis[r],
+                w.matrix3.z_axis[r],
+                w.translation[r],
+            ]
+        });
+        let composed = x.after(&rows);
+        let grown = self
+            .value_box
+            .map(|[lo, hi]| [lo.map(|c| c - 1), hi.map(|c| c + 1)]);
+        let (fwd, inv) = invert_affine(&composed, grown).map_err(|e| match e {
+            Error::InvalidArgument { reason, .. } => Error::InvalidArgument {
+                name: "xform".into(),
+                reason: format!("the transformed grid cannot be traced: {reason}"),
+            },
+            other => other,
+        })?;
+        self.world_from_index = fwd;
+        self.index_from_world = inv;
+        self.xform = Some(match self.xform {
+            Some(prev) => crate::xform::Xform::new(compose(&x.rows(), &prev.rows()))?,
+            None => *x,
+        });
+        Ok(self)
+    }
+
+    /// The object transform applied by [`Volume::with_xform`] (composed), if any.
+    #[must_use]
+    pub fn xform(&self) -> Option<crate::xform::Xform> {
+        self.xform
+    }
+
     /// Extinction of the background, `density_scale * background`.
     #[must_use]
     pub fn mu_background(&self) -> f64 {
@@ -400,6 +448,11 @@ fn data_reach(tree: &Tree, value_box: Option<[[i64; 3]; 2]>) -> f64 {
         + tiles(&tree.uppers) * 130.0
         + root_tiles * 4098.0;
     diagonal.min(sides * 3f64.sqrt())
+}
+
+/// `a b` for 4x4 matrices.
+fn compose(a: &[[f64; 4]; 4], b: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
+    std::array::from_fn(|r| std::array::from_fn(|c| (0..4).map(|k| a[r][k] * b[k][c]).sum()))
 }
 
 /// The images under `to_world` of the 8 corners of the index box `[lo, hi]`, corner `n`

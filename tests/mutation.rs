@@ -2095,6 +2095,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         input: path.to_path_buf(),
         grid: name.to_string(),
         density_scale: 1.0,
+        xform: None,
         view,
         camera: None,
         settings,

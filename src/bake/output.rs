@@ -34,6 +34,8 @@ pub struct Provenance {
     pub light_dir: Option<[f64; 3]>,
     /// Light position as given.
     pub light_pos: Option<[f64; 3]>,
+    /// The object transform the volume was placed with (`--xform`), row-major.
+    pub xform: Option<[[f64; 4]; 4]>,
 }
 
 /// An EXR text attribute: characters outside Latin-1 become `?`.
@@ -68,7 +70,8 @@ pub fn slice_channel(k: usize) -> String {
 /// f32 channels `T`, `T.stderr` (if baked) and `sliceNN.T` per depth, the standard
 /// `worldToCamera` / `worldToNDC` matrices and `umbra:*` attributes: `camera_kind`,
 /// `camera_origin`, `camera_step_x`, `camera_step_y`, `camera_direction` (v3d), `camera_t_max`
-/// (double), `light_dir` / `light_pos` (v3d, as given), `fov_deg` (perspective), `estimator`,
+/// (double), `light_dir` / `light_pos` (v3d, as given), `xform` (text: the 16 numbers of
+/// `--xform`, row-major, round-tripping f64), `fov_deg` (perspective), `estimator`,
 /// `estimator_params` (JSON), `interp`, `spp`, `target_error`, `max_spp`, `mean_spp`, `seed`
 /// (decimal text), `density_scale`, `source_file`, `grid`, `depth.NN` (double per slice),
 /// `ray_ids`. Same map, same bytes.
@@ -157,6 +160,10 @@ fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, Stri
     ];
     if let Some(d) = prov.light_dir {
         attrs.push(("light_dir".into(), v3d(d)));
+    }
+    if let Some(x) = prov.xform {
+        let v: Vec<String> = x.iter().flatten().map(|c| format!("{c:?}")).collect();
+        attrs.push(("xform".into(), text(&v.join(","))));
     }
     if let Some(p) = prov.light_pos {
         attrs.push(("light_pos".into(), v3d(p)));

@@ -17,6 +17,8 @@ pub struct BakeJob {
     pub grid: String,
     /// `mu_t = density_scale x value`.
     pub density_scale: f64,
+    /// Where the volume sits in the shot (world-from-object), applied after loading.
+    pub xform: Option<crate::xform::Xform>,
     /// Camera request.
     pub view: View,
     /// A fixed camera (an earlier map's, or one shared by a sequence): used as it is instead
@@ -228,7 +230,10 @@ impl BakeJob {
     pub fn prepare(&self) -> Result<(Volume, Camera)> {
         self.check_outputs()?;
         self.settings.validate()?;
-        let vol = Volume::load(&self.input, &self.grid, self.density_scale)?;
+        let mut vol = Volume::load(&self.input, &self.grid, self.density_scale)?;
+        if let Some(x) = &self.xform {
+            vol = vol.with_xform(x)?;
+        }
         let camera = match self.camera {
             Some(c) => c,
             None => Camera::frame(&self.view, &vol.box_corners()?)?,
@@ -272,6 +277,7 @@ impl BakeJob {
             density_scale: self.density_scale,
             light_dir,
             light_pos,
+            xform: vol.xform().map(|x| x.rows()),
         };
         drop(vol);
         write_map(

@@ -211,6 +211,8 @@ pub struct BakeSpec {
     pub camera: Option<String>,
     /// `shared` (one camera per light for all inputs) or `per-frame`.
     pub framing: String,
+    /// World-from-object transform of every input: 16 numbers, row-major.
+    pub xform: Option<Vec<f64>>,
 }
 
 impl Default for BakeSpec {
@@ -239,6 +241,7 @@ impl Default for BakeSpec {
             frame_box: None,
             camera: None,
             framing: "shared".into(),
+            xform: None,
         }
     }
 }
@@ -282,6 +285,8 @@ pub struct Job {
     pub framing: Framing,
     /// A fixed camera for every task (`bake.camera`).
     pub camera: Option<Camera>,
+    /// Where every input sits in the shot (`bake.xform`).
+    pub xform: Option<crate::xform::Xform>,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
@@ -587,6 +592,13 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             ));
         }
     }
+    let xform = match &b.xform {
+        Some(v) => Some(crate::xform::Xform::from_row_major(v).map_err(|e| match e {
+            crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.xform", reason),
+            other => BatchError::Task(other),
+        })?),
+        None => None,
+    };
     let camera = match &b.camera {
         Some(c) => {
             if file.lights.len() > 1 {
@@ -816,6 +828,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         frame_box: b.frame_box,
         framing,
         camera,
+        xform,
         shared: std::sync::OnceLock::new(),
     })
 }
@@ -896,6 +909,7 @@ impl Job {
             input: task.input.clone(),
             grid: self.grid.clone(),
             density_scale: self.density_scale,
+            xform: self.xform,
             settings: BakeSettings {
                 threads,
                 ..self.settings.clone()
@@ -982,7 +996,10 @@ impl Job {
                     // A corrupt or unsupported frame adds nothing here and fails alone.
                     Err(_) => continue,
                 };
-                union.extend(corners);
+                match &self.xform {
+                    Some(x) => union.extend(corners.map(|c| x.point(c))),
+                    None => union.extend(corners),
+                }
             }
             if union.is_empty() {
                 continue; // nothing to frame anywhere: each task reports it

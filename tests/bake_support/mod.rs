@@ -93,6 +93,7 @@ impl Exr {
 
 pub fn prov(vol: &Volume) -> Provenance {
     Provenance {
+        xform: None,
         source_file: "memory".into(),
         grid: vol.name().to_string(),
         density_scale: vol.density_scale(),

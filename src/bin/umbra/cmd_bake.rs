@@ -41,6 +41,10 @@ pub struct BakeArgs {
     /// the whole volume in depth).
     #[arg(long, allow_hyphen_values = true)]
     frame_box: Option<String>,
+    /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 comma-separated numbers,
+    /// row-major, the translation in the last column.
+    #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
+    xform: Option<umbra::xform::Xform>,
     /// Reuse exactly the camera of an earlier umbra map (.exr) or of a JSON file holding the
     /// `camera` object `bake --json` prints; its resolution unless --res is given (then the
     /// same window at that size).
@@ -195,6 +199,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         input: a.file.clone(),
         grid: a.grid.clone(),
         density_scale: a.density_scale,
+        xform: a.xform,
         view,
         camera,
         settings: BakeSettings {

@@ -34,6 +34,10 @@ pub struct CompareArgs {
     /// mu_t = S x value, per world unit.
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     density_scale: f64,
+    /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 comma-separated numbers,
+    /// row-major, the translation in the last column (positions stay in world space).
+    #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
+    xform: Option<umbra::xform::Xform>,
     /// Lookup interpolation.
     #[arg(long, value_enum, default_value = "trilinear")]
     interp: InterpArg,
@@ -145,8 +149,11 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         }
     };
     if let Some(file) = &a.file {
-        let vol = Volume::load(file, &a.grid, a.density_scale)
+        let mut vol = Volume::load(file, &a.grid, a.density_scale)
             .with_context(|| format!("loading grid '{}'", a.grid))?;
+        if let Some(x) = &a.xform {
+            vol = vol.with_xform(x).map_err(crate::common::flag_error)?;
+        }
         let rays = compare::random_rays(&vol, a.rays, a.seed);
         if rays.is_empty() {
             anyhow::bail!(

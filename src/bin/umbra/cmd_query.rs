@@ -47,6 +47,10 @@ pub struct QueryArgs {
     /// mu_t = S x value, per world unit.
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     density_scale: f64,
+    /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 comma-separated numbers,
+    /// row-major, the translation in the last column (positions stay in world space).
+    #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
+    xform: Option<umbra::xform::Xform>,
     /// One JSON object per query on stdout.
     #[arg(long)]
     json: bool,
@@ -97,7 +101,7 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         Some(p) => Some(read_rays(p)?),
         None => None,
     };
-    let vol = load_volume(&a.file, &a.grid, a.density_scale)?;
+    let vol = load_volume(&a.file, &a.grid, a.density_scale, a.xform.as_ref())?;
     let interp: Interp = a.interp.into();
     let (est, opts) = a.est.resolve(interp)?;
     // The work budget, up front: per ray and for every ray of the batch together.

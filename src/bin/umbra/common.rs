@@ -168,10 +168,32 @@ pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     }
 }
 
-/// Load a grid for tracing, warning about voxels the bad-voxel policy changed.
-pub fn load_volume(file: &Path, grid: &str, density_scale: f64) -> Result<Volume> {
-    let vol = Volume::load(file, grid, density_scale)
+/// Parse `--xform`: 16 comma-separated numbers, row-major.
+pub fn parse_xform(s: &str) -> std::result::Result<umbra::xform::Xform, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| format!("'{s}': expected 16 comma-separated numbers"))?;
+    umbra::xform::Xform::from_row_major(&v).map_err(|e| match e {
+        umbra::Error::InvalidArgument { reason, .. } => reason,
+        other => other.to_string(),
+    })
+}
+
+/// Load a grid for tracing (placed by `xform`), warning about voxels the bad-voxel policy
+/// changed.
+pub fn load_volume(
+    file: &Path,
+    grid: &str,
+    density_scale: f64,
+    xform: Option<&umbra::xform::Xform>,
+) -> Result<Volume> {
+    let mut vol = Volume::load(file, grid, density_scale)
         .with_context(|| format!("loading grid '{grid}'"))?;
+    if let Some(x) = xform {
+        vol = vol.with_xform(x).map_err(flag_error)?;
+    }
     for w in volume_warnings(&vol.sanitized()) {
         eprintln!(
             "umbra: warning: {}: grid '{}': {w}",
