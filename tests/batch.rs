@@ -253,6 +253,15 @@ fn patterns_and_placeholders() {
     );
     assert_eq!(expand_pattern("cloud.$F.vdb", 12).unwrap(), "cloud.12.vdb");
     assert_eq!(expand_pattern("cloud.vdb", 1), None);
+    // printf's %04d and %d (the token Nuke, ffmpeg and most farm tools write).
+    assert_eq!(
+        expand_pattern("cache/cloud.%04d.vdb", 12).unwrap(),
+        "cache/cloud.0012.vdb"
+    );
+    assert_eq!(expand_pattern("cloud.%d.vdb", 5).unwrap(), "cloud.5.vdb");
+    assert_eq!(expand_pattern("100%.%03d.vdb", 7).unwrap(), "100%.007.vdb");
+    assert_eq!(expand_pattern("cloud.%4d.vdb", 1), None); // space padding: not a frame token
+    assert_eq!(expand_pattern("cloud.%s.vdb", 1), None);
     assert_eq!(
         fill_output(
             "s_{light}.{stem}.{frame:04}.{frame}.exr",

@@ -10,7 +10,7 @@
 //! output = "out/shadow_{light}.{frame:04}.exr"   # {light}, {frame}, {frame:0N}, {stem}
 //!
 //! [[inputs]]
-//! pattern = "cache/cloud.####.vdb"               # or cloud.$F4.vdb; frames inclusive
+//! pattern = "cache/cloud.####.vdb"               # or cloud.$F4.vdb, cloud.%04d.vdb; frames inclusive
 //! frames = [1, 100]
 //!
 //! [[inputs]]
@@ -140,7 +140,7 @@ fn default_grid() -> String {
 pub struct InputSpec {
     /// An explicit file.
     pub file: Option<String>,
-    /// A sequence pattern: `####` (padding = number of `#`) or `$F4` / `$F`.
+    /// A sequence pattern: `####` (padding = number of `#`), `$F4` / `$F`, or `%04d` / `%d`.
     pub pattern: Option<String>,
     /// Inclusive frame range `[first, last]` of a pattern.
     pub frames: Option<[i64; 2]>,
@@ -348,33 +348,54 @@ fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> BatchError {
     }
 }
 
-/// Expand a sequence pattern for one frame: `#...#` (zero-padded to the number of `#`) or
-/// `$F` / `$FN` (padded to N). `None` when the pattern has no frame token.
+/// Expand a sequence pattern for one frame: `#...#` (zero-padded to the number of `#`),
+/// `$F` / `$FN` (padded to N) or printf's `%d` / `%0Nd` (padded to N). `None` when the pattern
+/// has no frame token.
 #[must_use]
 pub fn expand_pattern(pattern: &str, frame: i64) -> Option<String> {
-    if let Some(start) = pattern.find('#') {
-        let n = pattern[start..]
-            .chars()
-            .take_while(|&c| c == '#')
-            .count()
-            .min(MAX_FRAME_PAD);
-        return Some(format!(
-            "{}{frame:0n$}{}",
-            &pattern[..start],
-            &pattern[start + n..]
-        ));
-    }
-    let start = pattern.find("$F")?;
-    let digits: String = pattern[start + 2..]
-        .chars()
-        .take_while(char::is_ascii_digit)
-        .collect();
-    let n: usize = digits.parse::<usize>().unwrap_or(0).min(MAX_FRAME_PAD);
+    let (start, len, pad) = frame_token(pattern)?;
+    let n = pad.min(MAX_FRAME_PAD);
     Some(format!(
         "{}{frame:0n$}{}",
         &pattern[..start],
-        &pattern[start + 2 + digits.len()..]
+        &pattern[start + len..]
     ))
+}
+
+/// The first frame token of a pattern: its byte offset, its length and the padding it asks
+/// for (a huge `N` saturates). `####` wins over `$F`, which wins over `%0Nd`.
+fn frame_token(pattern: &str) -> Option<(usize, usize, usize)> {
+    let digits_after = |at: usize| -> String {
+        pattern[at..]
+            .chars()
+            .take_while(char::is_ascii_digit)
+            .collect()
+    };
+    let pad_of = |d: &str| {
+        if d.is_empty() {
+            0
+        } else {
+            d.parse::<usize>().unwrap_or(usize::MAX)
+        }
+    };
+    if let Some(start) = pattern.find('#') {
+        let n = pattern[start..].chars().take_while(|&c| c == '#').count();
+        return Some((start, n, n));
+    }
+    if let Some(start) = pattern.find("$F") {
+        let d = digits_after(start + 2);
+        return Some((start, 2 + d.len(), pad_of(&d)));
+    }
+    let mut from = 0;
+    while let Some(off) = pattern[from..].find('%') {
+        let start = from + off;
+        let d = digits_after(start + 1);
+        if pattern[start + 1 + d.len()..].starts_with('d') && (d.is_empty() || d.starts_with('0')) {
+            return Some((start, 2 + d.len(), pad_of(&d)));
+        }
+        from = start + 1;
+    }
+    None
 }
 
 /// Widest frame-number padding accepted (`####`, `$FN`, `{frame:0N}`).
@@ -382,22 +403,10 @@ pub const MAX_FRAME_PAD: usize = 32;
 /// Most frames one `[[inputs]]` sequence may expand to.
 pub const MAX_FRAMES: i64 = 1_000_000;
 
-/// The padding a sequence pattern asks for: the number of `#`, or `N` of `$FN` (`None` without
-/// a frame token; a huge `N` saturates).
+/// The padding a sequence pattern asks for (`None` without a frame token; a huge `N`
+/// saturates).
 fn pattern_pad(pattern: &str) -> Option<usize> {
-    if let Some(start) = pattern.find('#') {
-        return Some(pattern[start..].chars().take_while(|&c| c == '#').count());
-    }
-    let start = pattern.find("$F")?;
-    let digits: String = pattern[start + 2..]
-        .chars()
-        .take_while(char::is_ascii_digit)
-        .collect();
-    Some(if digits.is_empty() {
-        0
-    } else {
-        digits.parse::<usize>().unwrap_or(usize::MAX)
-    })
+    frame_token(pattern).map(|(_, _, pad)| pad)
 }
 
 /// Fill an output pattern: `{light}`, `{stem}`, `{frame}`, `{frame:0N}`.
@@ -715,7 +724,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                         return Err(err(
                             &path,
                             &key("pattern"),
-                            format!("'{p}' has no frame token (#### or $F4)"),
+                            format!("'{p}' has no frame token (####, $F4 or %04d)"),
                         ))
                     }
                     Some(n) if n > MAX_FRAME_PAD => {
