@@ -182,6 +182,23 @@ fn cli_query_bake_and_compare_take_xform() {
         .fold(0.0f32, |m, (p, q)| m.max((p - q).abs()));
     assert!(worst < 1e-5, "moved map differs by {worst}");
     assert_eq!(m1.text("xform"), shift_csv);
+    let o = umbra()
+        .args([
+            "bake",
+            "data/cloud.vdb",
+            "--light-dir=-1,-1,0",
+            "--res",
+            "8",
+            "-q",
+            "--json",
+        ])
+        .arg(format!("--xform={shift_csv}"))
+        .arg("-o")
+        .arg(dir.path().join("j.exr"))
+        .output()
+        .unwrap();
+    let summary: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(summary["xform"], serde_json::json!(shift.rows()));
     let o0 = m0.v3d("camera_origin");
     let o1 = m1.v3d("camera_origin");
     assert!((o1[0] - o0[0] - 10.0).abs() < 1e-9 && (o1[1] - o0[1] + 4.0).abs() < 1e-9);

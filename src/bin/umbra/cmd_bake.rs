@@ -272,7 +272,7 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
                 "kind": c.kind(), "origin": c.origin(), "step_x": c.step_x(), "step_y": c.step_y(),
                 "direction": c.direction(), "t_max": c.t_max(),
             },
-            "light_dir": prov.light_dir, "light_pos": prov.light_pos,
+            "light_dir": prov.light_dir, "light_pos": prov.light_pos, "xform": prov.xform,
             "fov_deg": c.fov_deg().map(|f| [f.0, f.1]),
             "channels": channels, "depths": map.depths,
             "estimator": s.estimator.name(), "estimator_params": s.estimator,
