@@ -977,8 +977,8 @@ impl Job {
     /// whole job up front.
     ///
     /// # Errors
-    /// [`BatchError::Task`] naming the input that cannot be read, or a light that cannot frame
-    /// the union (for example a light inside it).
+    /// [`BatchError::Task`] naming the input that cannot be read; [`BatchError::Invalid`]
+    /// naming a light that cannot frame the union (for example a light inside it).
     pub fn share_cameras(&self) -> Result<(), BatchError> {
         if self.framing != Framing::Shared || self.camera.is_some() {
             return Ok(());
@@ -1017,7 +1017,14 @@ impl Job {
                 if let std::collections::btree_map::Entry::Vacant(e) =
                     shared.entry((sequence, t.light.clone()))
                 {
-                    e.insert(Camera::frame(&self.view(t), &union)?);
+                    let camera = Camera::frame(&self.view(t), &union).map_err(|e| {
+                        err(
+                            &self.path,
+                            &format!("lights '{}'", t.light),
+                            format!("cannot frame the shared camera of inputs[{sequence}]: {e}"),
+                        )
+                    })?;
+                    e.insert(camera);
                 }
             }
         }
