@@ -542,3 +542,28 @@ fn pixel_of(c: &umbra::bake::Camera, p: glam::DVec3) -> (f64, f64) {
         }
     }
 }
+
+/// A point light inside the sequence's union box cannot frame the shared camera: the job fails
+/// before any task, naming the job file and the light.
+#[test]
+fn a_light_inside_the_shared_box_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    for f in 1..=2 {
+        std::fs::copy(data("cloud.vdb"), d.join(format!("c.{f:04}.vdb"))).unwrap();
+    }
+    let job = d.join("j.toml");
+    std::fs::write(
+        &job,
+        "grid = \"density\"\noutput = \"o/{light}.{frame:04}.exr\"\n[[inputs]]\npattern = \"c.####.vdb\"\nframes = [1, 2]\n[[lights]]\nname = \"inside\"\npos = [0.0, 1.5, 0.0]\n[bake]\nres = [8, 8]\n",
+    )
+    .unwrap();
+    let out = batch(&job, &[]);
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("j.toml") && err.contains("lights 'inside'"),
+        "{err}"
+    );
+    assert!(!d.join("o/inside.0001.exr").exists());
+}
