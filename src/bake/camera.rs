@@ -420,9 +420,10 @@ impl Camera {
     /// ray has left the box.
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] for a zero light direction or up direction, an empty or
-    /// non-finite frame box, a missing light, a resolution out of range, a field of view outside `(0, 180)`, an ortho light inside or beside the box, or
-    /// a perspective light inside the box without a field of view.
+    /// [`Error::InvalidArgument`] for no corners or non-finite ones, a zero light direction or
+    /// up direction, an empty or non-finite frame box, a missing light, a resolution out of
+    /// range, a field of view outside `(0, 180)`, an ortho light inside or beside the box, or a
+    /// perspective light inside the box without a field of view.
     pub fn frame(view: &View, corners: &[DVec3]) -> Result<Self> {
         if corners.is_empty() || !corners.iter().all(|c| c.is_finite()) {
             return Err(bad("grid", "no finite volume box to frame".into()));
