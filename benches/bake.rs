@@ -2,8 +2,9 @@
 //! map of the sample cloud (`data/cloud.vdb`, density scale 4, light along (0.6, -0.35, -1)),
 //! exact regular tracking (trilinear) in object order (the sweep, what a bake uses) and in ray
 //! order (`Order::Rays`, one HDDA walk per pixel), and ray marching (Riemann, 1 voxel), on 1
-//! thread and on every core. The parallel speed-up is the ratio of the two; criterion reports
-//! maps/s.
+//! thread and on every core; and the same exact map seen from a point light at (6, 9, 8)
+//! (perspective), in object order and in ray order. The parallel speed-up is the ratio of the
+//! thread counts; criterion reports maps/s.
 //! Run: `cargo bench --bench bake`.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
@@ -27,18 +28,33 @@ fn bench_bake(c: &mut Criterion) {
         frame_box: None,
     };
     let camera = Camera::frame(&view, &vol.box_corners().unwrap()).unwrap();
+    let persp = View {
+        projection: Projection::Perspective,
+        light_dir: None,
+        light_pos: Some([6.0, 9.0, 8.0]),
+        ..view
+    };
+    let pinhole = Camera::frame(&persp, &vol.box_corners().unwrap()).unwrap();
     let cores = rayon::current_num_threads();
     let mut g = c.benchmark_group("bake_256x256");
     g.sample_size(10)
         .warm_up_time(Duration::from_millis(500))
         .measurement_time(Duration::from_secs(4));
-    for (name, est, order) in [
-        ("regular", Estimator::REGULAR, Order::Auto),
-        ("regular_rays", Estimator::REGULAR, Order::Rays),
+    for (name, est, order, camera) in [
+        ("regular", Estimator::REGULAR, Order::Auto, &camera),
+        ("regular_rays", Estimator::REGULAR, Order::Rays, &camera),
         (
             "riemann_1vox",
             Estimator::with_params("riemann", &[("step", 1.0)]).unwrap(),
             Order::Auto,
+            &camera,
+        ),
+        ("regular_persp", Estimator::REGULAR, Order::Auto, &pinhole),
+        (
+            "regular_persp_rays",
+            Estimator::REGULAR,
+            Order::Rays,
+            &pinhole,
         ),
     ] {
         for threads in [1, cores] {
@@ -46,7 +62,7 @@ fn bench_bake(c: &mut Criterion) {
             s.threads = threads;
             s.order = order;
             g.bench_function(format!("{name}/{threads}_threads"), |b| {
-                b.iter(|| bake(&vol, &camera, &s, &|_| {}).unwrap().stats.lookups);
+                b.iter(|| bake(&vol, camera, &s, &|_| {}).unwrap().stats.lookups);
             });
         }
     }
