@@ -567,3 +567,40 @@ fn a_light_inside_the_shared_box_is_named() {
     );
     assert!(!d.join("o/inside.0001.exr").exists());
 }
+
+/// The shared cameras are cached beside the log, so a farm's `--task` processes read the
+/// frames' topology once between them: a cache newer than the job file and every input, with
+/// the job's fingerprint, is used as it is (shown by editing a camera in it); an input newer
+/// than the cache, or a cache that does not parse, makes the cameras be computed again.
+#[test]
+fn shared_cameras_are_cached_for_farm_tasks() {
+    use bake_support::read_exr;
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let job = setup(d, "");
+    assert!(batch(&job, &["--task", "0"]).status.success());
+    let cache = d.join("out/umbra_batch.cameras.json");
+    let fresh = read_exr(&d.join("out/shadow_sun.0001.exr")).v3d("camera_origin");
+    let mut stored: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&cache).unwrap()).unwrap();
+    let cams = stored["cameras"].as_array_mut().unwrap();
+    assert_eq!(cams.len(), 2, "one camera per light of the one sequence");
+    let sun = cams.iter_mut().find(|c| c["light"] == "sun").unwrap();
+    let moved = [fresh[0] + 0.25, fresh[1], fresh[2]];
+    sun["camera"]["spec"]["origin"] = serde_json::json!(moved);
+    std::fs::write(&cache, serde_json::to_vec(&stored).unwrap()).unwrap();
+    let origin = || read_exr(&d.join("out/shadow_sun.0002.exr")).v3d("camera_origin");
+    // Task 2 is frame 2 under the sun: it takes the cached (edited) camera.
+    assert!(batch(&job, &["--task", "2", "--force"]).status.success());
+    assert_eq!(origin(), moved);
+    // An input newer than the cache: computed again (and the cache rewritten).
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    std::fs::copy(data("cloud.vdb"), d.join("cloud.0003.vdb")).unwrap();
+    assert!(batch(&job, &["--task", "2", "--force"]).status.success());
+    assert_eq!(origin(), fresh);
+    // A cache that does not parse is ignored.
+    std::fs::write(&cache, b"not json").unwrap();
+    assert!(batch(&job, &["--task", "2", "--force"]).status.success());
+    assert_eq!(origin(), fresh);
+    assert!(serde_json::from_slice::<serde_json::Value>(&std::fs::read(&cache).unwrap()).is_ok());
+}

@@ -322,6 +322,60 @@ impl Camera {
     }
 }
 
+/// Every field of a [`Camera`], as a cache stores it (see [`Camera::restore`]).
+#[derive(Debug, Clone, Copy, serde::Serialize, serde::Deserialize)]
+pub(crate) struct CameraParts {
+    spec: CameraSpec,
+    t_near: f64,
+    forward: [f64; 3],
+    right: [f64; 3],
+    up: [f64; 3],
+    pixel_size: f64,
+}
+
+impl Camera {
+    /// This camera's fields, for [`Camera::restore`].
+    pub(crate) fn parts(&self) -> CameraParts {
+        CameraParts {
+            spec: self.spec(),
+            t_near: self.t_near,
+            forward: self.forward,
+            right: self.right,
+            up: self.up,
+            pixel_size: self.pixel_size,
+        }
+    }
+
+    /// A camera stored by [`Camera::parts`], bit for bit: the spec passes
+    /// [`Camera::from_spec`], and the stored basis, pixel size and `t_near` must agree with
+    /// what it derives (to 1e-9 relative) and lie in `[0, t_max]`; then the stored values are
+    /// kept exactly, so the camera equals the one that was stored.
+    pub(crate) fn restore(p: &CameraParts) -> Result<Self> {
+        let derived = Self::from_spec(&p.spec)?;
+        let near = |a: [f64; 3], b: [f64; 3]| (0..3).all(|k| (a[k] - b[k]).abs() <= 1e-9);
+        let ok = near(p.forward, derived.forward)
+            && near(p.right, derived.right)
+            && near(p.up, derived.up)
+            && (p.pixel_size - derived.pixel_size).abs() <= 1e-9 * derived.pixel_size
+            && (0.0..=p.spec.t_max).contains(&p.t_near);
+        if !ok {
+            return Err(bad(
+                "camera",
+                "stored basis, pixel size or t_near disagree with the camera".into(),
+            ));
+        }
+        Ok(Self {
+            t_near: p.t_near,
+            forward: p.forward,
+            right: p.right,
+            up: p.up,
+            pixel_size: p.pixel_size,
+            direction: p.spec.direction,
+            ..derived
+        })
+    }
+}
+
 /// `v / |v|`, or `None` for a zero or non-finite vector. Scaled by its largest component first,
 /// so a vector like `(1e308, 0, 0)` (whose length overflows) still has a direction.
 pub(crate) fn normalise(v: DVec3) -> Option<DVec3> {

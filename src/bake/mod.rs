@@ -18,7 +18,7 @@
 
 mod camera;
 mod camera_file;
-pub(crate) use camera::normalise;
+pub(crate) use camera::{normalise, CameraParts};
 mod matrix;
 mod output;
 mod pipeline;

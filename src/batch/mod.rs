@@ -246,6 +246,21 @@ impl Default for BakeSpec {
     }
 }
 
+/// The shared cameras of a job as its cache file stores them.
+#[derive(Serialize, Deserialize)]
+struct CameraCache {
+    fingerprint: String,
+    cameras: Vec<CachedCamera>,
+}
+
+/// One shared camera: its sequence, light and fields.
+#[derive(Serialize, Deserialize)]
+struct CachedCamera {
+    sequence: usize,
+    light: String,
+    camera: crate::bake::CameraParts,
+}
+
 /// How the maps of a job are framed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -1031,6 +1046,100 @@ impl Job {
         // A second call finds the same cameras (same files), so a set map stays.
         let _ = self.shared.set(shared);
         Ok(())
+    }
+
+    /// [`Job::share_cameras`] through a cache file, so that the many processes of a farm job
+    /// (`--task`, `--shard`) read every frame's topology once between them rather than once
+    /// each. The cache (JSON: a fingerprint of everything framing depends on, and each
+    /// camera's fields) is used when its fingerprint matches and it is not older than the job
+    /// file or any input; otherwise the cameras are computed and the cache rewritten
+    /// atomically. A cache that cannot be read or written is only a lost shortcut: the cameras
+    /// are then computed as without it. Returns whether the cache was used.
+    ///
+    /// # Errors
+    /// As [`Job::share_cameras`].
+    pub fn share_cameras_cached(&self, cache: &Path) -> Result<bool, BatchError> {
+        if self.framing != Framing::Shared || self.camera.is_some() || self.shared.get().is_some() {
+            return Ok(false);
+        }
+        let fingerprint = self.framing_fingerprint();
+        if let Some(cameras) = self.read_camera_cache(cache, &fingerprint) {
+            let _ = self.shared.set(cameras);
+            return Ok(true);
+        }
+        self.share_cameras()?;
+        if let Some(cameras) = self.shared.get() {
+            let stored = CameraCache {
+                fingerprint,
+                cameras: cameras
+                    .iter()
+                    .map(|((sequence, light), c)| CachedCamera {
+                        sequence: *sequence,
+                        light: light.clone(),
+                        camera: c.parts(),
+                    })
+                    .collect(),
+            };
+            if let Ok(text) = serde_json::to_string_pretty(&stored) {
+                // Best effort: a farm node that cannot write beside the log still runs.
+                let _ = crate::output::write_atomic(cache, true, |w| {
+                    std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
+                });
+            }
+        }
+        Ok(false)
+    }
+
+    /// Everything the shared cameras depend on, as text.
+    fn framing_fingerprint(&self) -> String {
+        let tasks: Vec<_> = self
+            .tasks
+            .iter()
+            .map(|t| (t.sequence, &t.input, &t.light, t.dir, t.pos))
+            .collect();
+        serde_json::json!({
+            "version": 1,
+            "grid": self.grid,
+            "res": self.res,
+            "fov_deg": self.fov_deg,
+            "ortho": self.ortho,
+            "up": self.up,
+            "frame_box": self.frame_box,
+            "xform": self.xform.map(|x| x.rows()),
+            "tasks": tasks,
+        })
+        .to_string()
+    }
+
+    /// The cached cameras, when the cache is valid (see [`Job::share_cameras_cached`]).
+    fn read_camera_cache(
+        &self,
+        cache: &Path,
+        fingerprint: &str,
+    ) -> Option<std::collections::BTreeMap<(usize, String), Camera>> {
+        let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+        let at = modified(cache)?;
+        let sources = std::iter::once(self.path.as_path())
+            .chain(self.tasks.iter().map(|t| t.input.as_path()));
+        for p in sources {
+            if modified(p)? > at {
+                return None;
+            }
+        }
+        let stored: CameraCache = serde_json::from_slice(&std::fs::read(cache).ok()?).ok()?;
+        if stored.fingerprint != fingerprint {
+            return None;
+        }
+        stored
+            .cameras
+            .iter()
+            .map(|c| {
+                Some((
+                    (c.sequence, c.light.clone()),
+                    Camera::restore(&c.camera).ok()?,
+                ))
+            })
+            .collect()
     }
 
     /// Bake one task through the shared pipeline ([`BakeJob::run`]) and write its outputs

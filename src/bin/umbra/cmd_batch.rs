@@ -114,7 +114,11 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         // Missing frames and grids fail the job up front; then one camera per light over every
         // input (not just this shard's), so shards agree.
         job.check_inputs()?;
-        job.share_cameras()?;
+        let stem = log_path.file_stem().map_or_else(
+            || "umbra_batch".into(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
     }
     for t in &skipped {
         write_record(&log, &record(&job, t, "skipped", 0.0, 0.0, None))?;
