@@ -86,6 +86,17 @@ pub fn sig3(v: f64) -> String {
     significant(v, 3, (-5, 5), false)
 }
 
+/// The 8 corners of the box `[lo, hi]`, corner `n` taking `hi` on axis `a` when bit `2 - a`
+/// of `n` is set (the order of [`crate::Volume::box_corners`]).
+#[must_use]
+pub fn box_corners([lo, hi]: [[f64; 3]; 2]) -> [glam::DVec3; 8] {
+    std::array::from_fn(|n| {
+        glam::DVec3::from_array(
+            [0, 1, 2].map(|a| if n >> (2 - a) & 1 == 1 { hi[a] } else { lo[a] }),
+        )
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

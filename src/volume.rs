@@ -116,14 +116,7 @@ impl Volume {
             });
         }
         if !grid.transform.is_affine() {
-            return Err(Error::Unsupported {
-                path: path.to_path_buf(),
-                what: format!(
-                    "{} (grid '{}')",
-                    crate::text::escape(&grid.transform.map),
-                    crate::text::escape(&grid.name)
-                ),
-            });
+            return Err(non_affine(path, &grid.transform, &grid.name));
         }
         if !grid.value_type.is_scalar_real() {
             return Err(Error::Unsupported {
@@ -321,7 +314,7 @@ impl Volume {
                 self.name
             ),
         })?;
-        Ok(box_corners(lo, hi, |p| self.to_world(p)))
+        Ok(crate::math::box_corners([lo.to_array(), hi.to_array()]).map(|p| self.to_world(p)))
     }
 
     /// The world corners of the volume box [`Volume::box_corners`] would give for grid `grid`
@@ -341,19 +334,12 @@ impl Volume {
         let gd = archive.find_grid(grid)?.clone();
         let extent = archive.extent(&gd)?;
         if !extent.transform.is_affine() {
-            return Err(Error::Unsupported {
-                path: path.to_path_buf(),
-                what: format!(
-                    "{} (grid '{}')",
-                    crate::text::escape(&extent.transform.map),
-                    crate::text::escape(&gd.display_name)
-                ),
-            });
+            return Err(non_affine(path, &extent.transform, &gd.display_name));
         }
         let m = extent.transform.world_from_index;
         Ok(extent.value_box.map(|[lo, hi]| {
             let (lo, hi) = (lo.map(|v| (v - 1) as f64), hi.map(|v| (v + 1) as f64));
-            box_corners(DVec3::from(lo), DVec3::from(hi), |p| {
+            crate::math::box_corners([lo, hi]).map(|p| {
                 DVec3::from_array(
                     [0, 1, 2].map(|r| m[r][0] * p.x + m[r][1] * p.y + m[r][2] * p.z + m[r][3]),
                 )
@@ -455,18 +441,16 @@ fn compose(a: &[[f64; 4]; 4], b: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
     std::array::from_fn(|r| std::array::from_fn(|c| (0..4).map(|k| a[r][k] * b[k][c]).sum()))
 }
 
-/// The images under `to_world` of the 8 corners of the index box `[lo, hi]`, corner `n`
-/// taking `hi` on axis `a` when bit `2 - a` of `n` is set.
-fn box_corners(lo: DVec3, hi: DVec3, to_world: impl Fn(DVec3) -> DVec3) -> [DVec3; 8] {
-    std::array::from_fn(|n| {
-        to_world(DVec3::from_array([0, 1, 2].map(|a| {
-            if n >> (2 - a) & 1 == 1 {
-                hi[a]
-            } else {
-                lo[a]
-            }
-        })))
-    })
+/// A grid whose transform umbra cannot trace (a frustum map), named with its file.
+fn non_affine(path: &std::path::Path, t: &crate::vdb::Transform, grid: &str) -> Error {
+    Error::Unsupported {
+        path: path.to_path_buf(),
+        what: format!(
+            "{} (grid '{}')",
+            crate::text::escape(&t.map),
+            crate::text::escape(grid)
+        ),
+    }
 }
 
 fn value_box(tree: &Tree) -> Option<[[i64; 3]; 2]> {

@@ -411,14 +411,9 @@ fn basis(f: DVec3, up: Option<DVec3>) -> (DVec3, DVec3) {
     (r, r.cross(f))
 }
 
-/// The 8 corners of the world box `[lo, hi]`, corner `n` taking `hi` on axis `a` when bit
-/// `2 - a` of `n` is set (as [`crate::Volume::box_corners`]).
-#[must_use]
-pub fn world_box_corners([lo, hi]: [[f64; 3]; 2]) -> [DVec3; 8] {
-    std::array::from_fn(|n| {
-        DVec3::from_array([0, 1, 2].map(|a| if n >> (2 - a) & 1 == 1 { hi[a] } else { lo[a] }))
-    })
-}
+/// The 8 corners of the world box `[lo, hi]` (a frame box, a union of volume boxes), in the
+/// order of [`crate::Volume::box_corners`].
+pub use crate::math::box_corners as world_box_corners;
 
 /// Check a resolution: both sides in `1..=MAX_SIDE`, at most [`MAX_PIXELS`] pixels.
 ///
@@ -508,7 +503,10 @@ impl Camera {
         };
         // Depth (the image plane, `t_max`) covers the volume too, so a framed region still
         // sees all the density in front of and behind it.
-        let depth: Vec<DVec3> = corners.iter().chain(volume).copied().collect();
+        let depth: Vec<DVec3> = match view.frame_box {
+            Some(_) => corners.iter().chain(volume).copied().collect(),
+            None => volume.to_vec(),
+        };
         let up = match view.up {
             Some(u) => Some(normalise(DVec3::from_array(u)).ok_or_else(|| {
                 bad(

@@ -37,14 +37,18 @@ fn bad(path: &Path, reason: impl std::fmt::Display) -> Error {
 /// naming the file) when it holds no camera, or one that [`Camera::from_spec`] refuses, or a
 /// bare camera without a size and no `W x H` given; (name `res`) for a size out of range.
 pub fn read_camera(path: &Path, res: Option<Resolution>) -> Result<Camera> {
-    let bytes = std::fs::read(path).map_err(|err| Error::Io {
+    let io = |err| Error::Io {
         path: path.to_path_buf(),
         err,
-    })?;
-    let (spec, size) = if bytes.starts_with(&EXR_MAGIC) {
-        from_exr(path, &bytes)?
+    };
+    // The first 4 bytes tell an EXR map (whose header alone is read) from JSON.
+    let mut magic = [0u8; 4];
+    let mut file = std::fs::File::open(path).map_err(io)?;
+    let is_exr = std::io::Read::read_exact(&mut file, &mut magic).is_ok() && magic == EXR_MAGIC;
+    let (spec, size) = if is_exr {
+        from_exr(path)?
     } else {
-        from_json(path, &bytes)?
+        from_json(path, &std::fs::read(path).map_err(io)?)?
     };
     let with_size = |(width, height): (u32, u32)| {
         Camera::from_spec(&CameraSpec {
@@ -66,8 +70,8 @@ pub fn read_camera(path: &Path, res: Option<Resolution>) -> Result<Camera> {
 }
 
 /// The spec (its size still 0 x 0) and the size from an umbra EXR map's header.
-fn from_exr(path: &Path, bytes: &[u8]) -> Result<(CameraSpec, Option<(u32, u32)>)> {
-    let meta = exr::meta::MetaData::read_from_buffered(std::io::Cursor::new(bytes), false)
+fn from_exr(path: &Path) -> Result<(CameraSpec, Option<(u32, u32)>)> {
+    let meta = exr::meta::MetaData::read_from_file(path, false)
         .map_err(|e| bad(path, format!("not a readable OpenEXR file: {e}")))?;
     let header = meta
         .headers

@@ -47,6 +47,7 @@ use super::camera::{Camera, Projection};
 use super::render::{BakeSettings, BakeStats, Map};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
+use crate::math::box_corners;
 use crate::regular::{cells_integral, leaf_integral, optical_depth_above_lowers, Counts};
 use crate::traverse::lookup_ray;
 use crate::tree::{Accessor, Block, Neighbour, RootSlot, Tree};
@@ -143,7 +144,7 @@ impl Rays {
                 inv,
             }),
             Projection::Perspective => {
-                let in_front = box_corners((clip_lo, clip_hi))
+                let in_front = box_corners([clip_lo, clip_hi])
                     .iter()
                     .all(|&c| (inv * (c - q0)).x > 0.0);
                 if !in_front {
@@ -177,7 +178,7 @@ impl Rays {
     fn footprint(&self, o: [i64; 3], dim: i64) -> Option<[u32; 4]> {
         let (blo, bhi) = self.clipped(o, dim)?;
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-        for c in box_corners((blo, bhi)) {
+        for c in box_corners([blo, bhi]) {
             // (column, row, t) of the corner; `t` only for parallel rays.
             let v = match &self.layout {
                 Layout::Parallel(par) => par.inv * (c - par.q0),
@@ -243,20 +244,6 @@ impl Rays {
         }
         r
     }
-}
-
-/// The 8 corners of the box `[lo, hi]`, corner `k` taking `hi` on axis `a` where bit `2 - a`
-/// of `k` is set.
-fn box_corners((lo, hi): ([f64; 3], [f64; 3])) -> [DVec3; 8] {
-    std::array::from_fn(|k| {
-        DVec3::from([0, 1, 2].map(|a| {
-            if (k >> (2 - a)) & 1 == 1 {
-                hi[a]
-            } else {
-                lo[a]
-            }
-        }))
-    })
 }
 
 /// The columns of `[i0, i1]` whose rays in row `j` can cross a box in front of a pinhole,
@@ -735,7 +722,7 @@ impl<'a> Sweep<'a> {
                 let Some(bx) = rays.clipped(p.origin, 8) else {
                     return;
                 };
-                let corners = box_corners(bx).map(|c| inv * (c - q));
+                let corners = box_corners([bx.0, bx.1]).map(|c| inv * (c - q));
                 for j in ja..=jb {
                     let Some([i0, i1]) = pinhole_span(&corners, j, [i0, i1]) else {
                         continue;
