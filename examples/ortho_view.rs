@@ -280,6 +280,7 @@ fn main() {
     if let Some(path) = &out {
         let prov = Provenance {
             xform: None,
+            sigma_t: None,
             source_file: file.clone(),
             grid: grid.clone(),
             density_scale: scale,

@@ -73,6 +73,15 @@ pub enum Error {
         /// Where: the ray, or empty.
         context: String,
     },
+    /// A scene file (`.toml`) is malformed: bad TOML, an unknown key, an entry that makes no
+    /// sense. The reason names the line or the `[[volume]]` entry.
+    #[error("{}: {reason}", path.display())]
+    Scene {
+        /// The scene file.
+        path: PathBuf,
+        /// What is wrong, where.
+        reason: String,
+    },
     /// A caller-supplied argument is out of its domain.
     #[error("invalid argument '{name}': {reason}")]
     InvalidArgument {

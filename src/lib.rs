@@ -66,6 +66,8 @@ pub mod output;
 pub mod ray;
 pub mod regular;
 pub mod rng;
+pub mod scene;
+pub mod solid;
 pub mod text;
 pub mod traverse;
 pub mod tree;

@@ -29,6 +29,41 @@ impl Light {
     /// # Errors
     /// [`Error::InvalidArgument`] for a zero or non-finite direction or point.
     pub fn ray_from(&self, vol: &Volume, at: [f64; 3]) -> Result<Ray> {
+        self.ray_from_boxes(at, |back| {
+            vol.box_index()
+                .and_then(|(lo, hi)| clip_box(vol.to_index(at), vol.to_index_dir(back), lo, hi))
+                .map_or(0.0, |(_, t1)| t1.max(0.0))
+        })
+    }
+
+    /// The ray from `at` toward the light through a scene: for a directional light, until it
+    /// leaves every volume's box (fog volumes: their index boxes; solids: the world bounding
+    /// box of their corners).
+    ///
+    /// # Errors
+    /// As [`Light::ray_from`].
+    pub fn ray_from_scene(&self, scene: &crate::scene::Scene, at: [f64; 3]) -> Result<Ray> {
+        self.ray_from_boxes(at, |back| {
+            let p = glam::DVec3::from_array(at);
+            let fogs = scene.fogs().iter().map(|f| {
+                let vol = f.volume();
+                vol.box_index()
+                    .and_then(|(lo, hi)| clip_box(vol.to_index(p), vol.to_index_dir(back), lo, hi))
+                    .map_or(0.0, |(_, t1)| t1.max(0.0))
+            });
+            let solids = scene.solids().iter().map(|s| {
+                s.box_corners().ok().map_or(0.0, |c| {
+                    let lo = c.iter().fold(glam::DVec3::INFINITY, |a, b| a.min(*b));
+                    let hi = c.iter().fold(glam::DVec3::NEG_INFINITY, |a, b| a.max(*b));
+                    clip_box(p, back, lo, hi).map_or(0.0, |(_, t1)| t1.max(0.0))
+                })
+            });
+            fogs.chain(solids).fold(0.0, f64::max)
+        })
+    }
+
+    /// The ray from `at` toward the light; a directional light's ends at `exit(back)`.
+    fn ray_from_boxes(&self, at: [f64; 3], exit: impl Fn(glam::DVec3) -> f64) -> Result<Ray> {
         match *self {
             Self::Point { pos } => Ray::between(at, pos),
             Self::Directional { dir } => {
@@ -41,11 +76,7 @@ impl Light {
                         ),
                     })?;
                 let back = -glam::DVec3::from_array(d);
-                let t_exit = vol
-                    .box_index()
-                    .and_then(|(lo, hi)| clip_box(vol.to_index(at), vol.to_index_dir(back), lo, hi))
-                    .map_or(0.0, |(_, t1)| t1.max(0.0));
-                Ray::new(at, back, 0.0, t_exit)
+                Ray::new(at, back, 0.0, exit(back))
             }
         }
     }

@@ -179,6 +179,34 @@ impl Volume {
         if s.nan + s.negative > 0 {
             tree.compute_bounds();
         }
+        Self::assemble(name, tree, world_from_index, density_scale, s)
+    }
+
+    /// What [`Volume::from_tree`] does with density scale 1, but *without* the bad-voxel
+    /// policy: negative (and NaN, infinite) values are kept as they are. It exists only for
+    /// [`crate::solid::Solid`], whose level-set values are signed distances (negative inside)
+    /// and are never traced as fog; a volume made here breaks the non-negative extinction
+    /// invariant, which is why it is crate-private.
+    ///
+    /// # Errors
+    /// As [`Volume::from_tree`] for the map (name `transform`).
+    pub(crate) fn from_tree_raw(
+        name: String,
+        tree: Tree,
+        world_from_index: [[f64; 4]; 3],
+    ) -> Result<Self> {
+        Self::assemble(name, tree, world_from_index, 1.0, Sanitized::default())
+    }
+
+    /// The common tail of the tree constructors: value box, checked and inverted map, data
+    /// reach. `tree`'s bounds must already match its values.
+    fn assemble(
+        name: String,
+        tree: Tree,
+        world_from_index: [[f64; 4]; 3],
+        density_scale: f64,
+        sanitized: Sanitized,
+    ) -> Result<Self> {
         let value_box = value_box(&tree);
         let grown = value_box.map(|[lo, hi]| [lo.map(|c| c - 1), hi.map(|c| c + 1)]);
         let (world_from_index, index_from_world) = invert_affine(&world_from_index, grown)?;
@@ -191,7 +219,7 @@ impl Volume {
             index_from_world,
             density_scale,
             value_box,
-            sanitized: s,
+            sanitized,
             xform: None,
         })
     }
@@ -500,7 +528,7 @@ pub(crate) fn value_box_of(
     b
 }
 
-fn check_density_scale(density_scale: f64) -> Result<()> {
+pub(crate) fn check_density_scale(density_scale: f64) -> Result<()> {
     if density_scale.is_finite() && density_scale >= 0.0 {
         return Ok(());
     }

@@ -2096,6 +2096,8 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         grid: name.to_string(),
         density_scale: 1.0,
         xform: None,
+        sigma_t: None,
+        levelset_solid: false,
         view,
         camera: None,
         settings,
@@ -2104,7 +2106,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         overwrite: true,
     };
     stage.set("bake");
-    match job.run_on(vol, camera, &|_| {}) {
+    match job.run_on(umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {
         Ok(report) => {
             rep.bakes += 1;
             let m = &report.map;

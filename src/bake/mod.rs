@@ -23,6 +23,7 @@ mod matrix;
 mod output;
 mod pipeline;
 mod render;
+mod scene_map;
 mod sweep;
 
 pub use camera::{
@@ -33,6 +34,6 @@ pub use camera_file::read_camera;
 pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
 pub use render::{
-    bake, check_threads, BakeSettings, BakeStats, Depths, Map, Order, MAX_BATCHES, MAX_SLICES,
-    MAX_THREADS,
+    bake, bake_scene, check_threads, BakeSettings, BakeStats, Channel, Depths, Map, Order,
+    MAX_BATCHES, MAX_SLICES, MAX_THREADS,
 };

@@ -36,6 +36,8 @@ pub struct Provenance {
     pub light_pos: Option<[f64; 3]>,
     /// The object transform the volume was placed with (`--xform`), row-major.
     pub xform: Option<[[f64; 4]; 4]>,
+    /// The extinction colour given with the input (`--sigma-t`), if any.
+    pub sigma_t: Option<[f64; 3]>,
 }
 
 /// An EXR text attribute: characters outside Latin-1 become `?`.
@@ -67,7 +69,8 @@ pub fn slice_channel(k: usize) -> String {
 }
 
 /// Write `map` to `path` as a single-part scanline OpenEXR (ZIP, increasing line order) with
-/// f32 channels `T`, `T.stderr` (if baked) and `sliceNN.T` per depth, the standard
+/// f32 channels `T`, `T.stderr` (if baked) and `sliceNN.T` per depth (a colour map: `R`, `G`,
+/// `B`, `R.stderr`, ..., `sliceNN.R`, ...), the standard
 /// `worldToCamera` / `worldToNDC` matrices and `umbra:*` attributes: `camera_kind`,
 /// `camera_origin`, `camera_step_x`, `camera_step_y`, `camera_direction` (v3d), `camera_t_max`
 /// (double), `light_dir` / `light_pos` (v3d, as given), `xform` (text: the 16 numbers of
@@ -168,6 +171,9 @@ fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, Stri
     if let Some(p) = prov.light_pos {
         attrs.push(("light_pos".into(), v3d(p)));
     }
+    if let Some(s) = prov.sigma_t {
+        attrs.push(("sigma_t".into(), v3d(s)));
+    }
     if let Some((h, _)) = c.fov_deg() {
         attrs.push(("fov_deg".into(), AttributeValue::F64(h)));
     }
@@ -187,7 +193,7 @@ fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, Stri
     };
     let parallel = s.threads == 0;
     let mut buf = std::io::Cursor::new(Vec::new());
-    let encoded = if map.std_err.is_none() && map.slices.is_empty() {
+    let encoded = if map.std_err.is_none() && map.slices.is_empty() && map.color.is_none() {
         // The common single-channel map is read straight from `map.t` (no copy of the image).
         let width = size.0;
         let channels = SpecificChannels::build()
@@ -202,13 +208,23 @@ fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, Stri
         }
     } else {
         let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
-        list.push(AnyChannel::new("T", FlatSamples::F32(map.t.clone())));
-        if let Some(e) = &map.std_err {
-            list.push(AnyChannel::new("T.stderr", FlatSamples::F32(e.clone())));
-        }
-        for (k, s) in map.slices.iter().enumerate() {
-            let name = Text::new_or_none(slice_channel(k)).unwrap_or_default();
-            list.push(AnyChannel::new(name, FlatSamples::F32(s.clone())));
+        let names: &[&str] = if map.color.is_some() {
+            &["R", "G", "B"]
+        } else {
+            &["T"]
+        };
+        for (c, base) in names.iter().enumerate() {
+            let (t, err, slices) = map.channel(c);
+            list.push(AnyChannel::new(*base, FlatSamples::F32(t.to_vec())));
+            if let Some(e) = err {
+                let name = Text::new_or_none(format!("{base}.stderr")).unwrap_or_default();
+                list.push(AnyChannel::new(name, FlatSamples::F32(e.to_vec())));
+            }
+            for (k, s) in slices.iter().enumerate() {
+                let name = slice_channel(k).replace(".T", &format!(".{base}"));
+                let name = Text::new_or_none(name).unwrap_or_default();
+                list.push(AnyChannel::new(name, FlatSamples::F32(s.clone())));
+            }
         }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
         let writer = image.write();
@@ -270,8 +286,9 @@ fn clamp_i32(v: u64) -> i32 {
     i32::try_from(v).unwrap_or(i32::MAX)
 }
 
-/// Write `map.t` as an 8-bit grayscale PNG: `round(255 clamp(T, 0, 1))` per pixel (linear, no
-/// gamma; black is opaque, white fully transparent), row 0 at the top.
+/// Write `map.t` as an 8-bit grayscale PNG (an RGB PNG of `R`, `G`, `B` for a colour map):
+/// `round(255 clamp(T, 0, 1))` per pixel and channel (linear, no gamma; black is opaque, white
+/// fully transparent), row 0 at the top.
 ///
 /// # Errors
 /// [`Error::Output`] as [`write_atomic`], or if the encoder fails.
@@ -280,20 +297,31 @@ pub fn write_png(path: &Path, map: &Map, overwrite: bool) -> Result<()> {
     write_atomic(path, overwrite, |w| encode_png(w, map, &px))
 }
 
-/// The preview's 8-bit values.
+/// The preview's 8-bit values: grey, or interleaved R, G, B for a colour map.
 fn preview_pixels(map: &Map) -> Vec<u8> {
-    map.t
-        .iter()
-        .map(|&t| {
-            let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
-            (t * 255.0).round() as u8
-        })
-        .collect()
+    let q = |t: f32| {
+        let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) };
+        (t * 255.0).round() as u8
+    };
+    match &map.color {
+        None => map.t.iter().map(|&t| q(t)).collect(),
+        Some(gb) => map
+            .t
+            .iter()
+            .zip(&gb[0].t)
+            .zip(&gb[1].t)
+            .flat_map(|((&r, &g), &b)| [q(r), q(g), q(b)])
+            .collect(),
+    }
 }
 
 fn encode_png(w: &mut impl Write, map: &Map, bytes: &[u8]) -> std::result::Result<(), String> {
     let mut enc = png::Encoder::new(&mut *w, map.camera.width, map.camera.height);
-    enc.set_color(png::ColorType::Grayscale);
+    enc.set_color(if map.color.is_some() {
+        png::ColorType::Rgb
+    } else {
+        png::ColorType::Grayscale
+    });
     enc.set_depth(png::BitDepth::Eight);
     let mut pw = enc
         .write_header()

@@ -2,23 +2,29 @@
 //! outputs, load the grid, frame the camera, bake, write the map and its preview together, and
 //! report what a user should be warned about.
 
-use super::{bake, write_map, BakeSettings, Camera, Map, Provenance, View};
+use super::{bake_scene, write_map, BakeSettings, Camera, Map, Provenance, View};
 use crate::error::{Error, Result};
 use crate::output::check_writable;
-use crate::volume::{Sanitized, Volume};
+use crate::scene::{Scene, SceneOptions};
+use crate::volume::Sanitized;
 use std::path::PathBuf;
 
 /// One bake from a file to an EXR map (and optionally a PNG preview).
 #[derive(Debug, Clone, PartialEq)]
 pub struct BakeJob {
-    /// The `.vdb` file.
+    /// The `.vdb` file, or a `.toml` scene file ([`crate::scene::file`]).
     pub input: PathBuf,
-    /// Grid to trace.
+    /// Grid to trace (a `.vdb` input).
     pub grid: String,
-    /// `mu_t = density_scale x value`.
+    /// `mu_t = density_scale x value` (multiplies a scene's own scales).
     pub density_scale: f64,
-    /// Where the volume sits in the shot (world-from-object), applied after loading.
+    /// Where the volume sits in the shot (world-from-object), applied after loading (after a
+    /// scene's own transforms).
     pub xform: Option<crate::xform::Xform>,
+    /// Extinction colour: an RGB map with `mu_c = sigma_t[c] x density_scale x value`.
+    pub sigma_t: Option<[f64; 3]>,
+    /// Trace a level-set grid of a `.vdb` input as an opaque solid (`--levelset solid`).
+    pub levelset_solid: bool,
     /// Camera request.
     pub view: View,
     /// A fixed camera (an earlier map's, or one shared by a sequence): used as it is instead
@@ -227,42 +233,62 @@ impl BakeJob {
     ///
     /// # Errors
     /// Output, settings, load and framing errors.
-    pub fn prepare(&self) -> Result<(Volume, Camera)> {
+    pub fn prepare(&self) -> Result<(Scene, Camera)> {
         self.check_outputs()?;
         self.settings.validate()?;
-        let mut vol = Volume::load(&self.input, &self.grid, self.density_scale)?;
-        if let Some(x) = &self.xform {
-            vol = vol.with_xform(x)?;
-        }
+        let scene = crate::scene::load(&self.input, &self.scene_options())?;
         let camera = match self.camera {
             Some(c) => c,
-            None => Camera::frame(&self.view, &vol.box_corners()?)?,
+            None => Camera::frame(&self.view, &scene.box_corners()?)?,
         };
-        Ok((vol, camera))
+        Ok((scene, camera))
     }
 
-    /// [`BakeJob::run`] on a volume already loaded and a camera already framed (`input`,
-    /// `grid` and `density_scale` are then only recorded in the header). The volume is dropped
-    /// before writing, so peak memory is the tree plus the image.
+    /// How [`BakeJob::prepare`] reads the input.
+    #[must_use]
+    pub fn scene_options(&self) -> SceneOptions {
+        SceneOptions {
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            sigma_t: self.sigma_t,
+            xform: self.xform,
+            levelset_solid: self.levelset_solid,
+        }
+    }
+
+    /// [`BakeJob::run`] on a scene already loaded (a single volume: [`Scene::from_volume`])
+    /// and a camera already framed (`input`, `grid` and `density_scale` are then only recorded
+    /// in the header). The scene is dropped before writing, so peak memory is the trees plus
+    /// the image.
     ///
     /// # Errors
     /// As [`BakeJob::run`].
     pub fn run_on(
         &self,
-        vol: Volume,
+        scene: Scene,
         camera: Camera,
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<BakeReport> {
         self.check_outputs()?;
-        let map = bake(&vol, &camera, &self.settings, progress)?;
-        let mut warnings = volume_warnings(&vol.sanitized());
-        let diagonal = vol.box_corners().map_or(0.0, |c| (c[7] - c[0]).length());
-        warnings.extend(map_warnings(
-            &map,
-            self.density_scale,
-            f64::from(vol.bounds().max),
-            diagonal,
-        ));
+        let map = bake_scene(&scene, &camera, &self.settings, progress)?;
+        let mut warnings = volume_warnings(&scene.sanitized());
+        let diagonal = scene.box_corners().map_or(0.0, |c| {
+            let (lo, hi) = c.iter().fold(
+                (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),
+                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+            );
+            (hi - lo).length()
+        });
+        // The map warnings speak of the density scale: a scene's largest extinction is
+        // expressed per unit of it.
+        let v_max = if self.density_scale > 0.0 {
+            scene.mu_max() / self.density_scale
+        } else {
+            0.0
+        };
+        if scene.solids().is_empty() {
+            warnings.extend(map_warnings(&map, self.density_scale, v_max, diagonal));
+        }
         // The light as given; for a fixed camera without one, the light its rays come from.
         let (mut light_dir, mut light_pos) = (self.view.light_dir, self.view.light_pos);
         if light_dir.is_none() && light_pos.is_none() {
@@ -273,13 +299,14 @@ impl BakeJob {
         }
         let provenance = Provenance {
             source_file: self.input.display().to_string(),
-            grid: vol.name().to_string(),
+            grid: scene.grid_names(),
             density_scale: self.density_scale,
             light_dir,
             light_pos,
-            xform: vol.xform().map(|x| x.rows()),
+            xform: self.xform.map(|x| x.rows()),
+            sigma_t: self.sigma_t,
         };
-        drop(vol);
+        drop(scene);
         write_map(
             &self.output,
             self.preview.as_deref(),

@@ -4,6 +4,7 @@ use super::camera::{Camera, MAX_PIXELS};
 use crate::error::{Error, Result};
 use crate::estimate::{estimate, Estimate, Estimator, Options};
 use crate::ray::Ray;
+use crate::scene::{Scene, SceneEstimate};
 use crate::volume::Volume;
 use rayon::prelude::*;
 
@@ -173,8 +174,75 @@ pub struct Map {
     pub depths: Vec<f64>,
     /// Transmittance over `[0, depths[k]]`, one image per depth.
     pub slices: Vec<Vec<f32>>,
+    /// Green and blue of an RGB scene (`t`, `std_err` and `slices` then hold red).
+    pub color: Option<Box<[Channel; 2]>>,
     /// Cost.
     pub stats: BakeStats,
+}
+
+/// One colour channel of a map: its transmittance, standard error and slices, laid out as
+/// [`Map`]'s.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Channel {
+    /// Transmittance over `[0, t_max]`.
+    pub t: Vec<f32>,
+    /// Standard error of `t`, when asked for.
+    pub std_err: Option<Vec<f32>>,
+    /// Transmittance over `[0, depths[k]]`.
+    pub slices: Vec<Vec<f32>>,
+}
+
+impl Map {
+    /// 1 (grey) or 3 (R, G, B).
+    #[must_use]
+    pub fn channels(&self) -> usize {
+        if self.color.is_some() {
+            3
+        } else {
+            1
+        }
+    }
+
+    /// Channel `c` (0 = grey or red, 1 = green, 2 = blue) as `(t, std_err, slices)`.
+    #[must_use]
+    pub fn channel(&self, c: usize) -> (&[f32], Option<&[f32]>, &[Vec<f32>]) {
+        match (c, &self.color) {
+            (1 | 2, Some(gb)) => {
+                let ch = &gb[c - 1];
+                (&ch.t, ch.std_err.as_deref(), &ch.slices)
+            }
+            _ => (&self.t, self.std_err.as_deref(), &self.slices),
+        }
+    }
+}
+
+/// What a map traces: one volume (every single-grid path) or a scene.
+#[derive(Debug, Clone, Copy)]
+pub(crate) enum Source<'a> {
+    Volume(&'a Volume),
+    Scene(&'a Scene),
+}
+
+impl Source<'_> {
+    fn estimate(
+        &self,
+        ray: &Ray,
+        id: u64,
+        est: &Estimator,
+        opts: &Options,
+    ) -> Result<SceneEstimate> {
+        match self {
+            Self::Volume(v) => Ok(SceneEstimate::grey(&estimate(v, ray, id, est, opts)?)),
+            Self::Scene(s) => crate::scene::estimate(s, ray, id, est, opts),
+        }
+    }
+
+    fn channels(&self) -> usize {
+        match self {
+            Self::Volume(_) => 1,
+            Self::Scene(s) => s.channels(),
+        }
+    }
 }
 
 fn bad(name: &str, reason: String) -> Error {
@@ -217,8 +285,8 @@ fn resolve_depths(depths: &Depths, camera: &Camera) -> Result<Vec<f64>> {
 /// One pixel's results.
 #[derive(Debug, Clone, Copy, Default)]
 struct Px {
-    t: f64,
-    std_err: f64,
+    t: [f64; 3],
+    std_err: [f64; 3],
     samples: u64,
     lookups: u64,
     capped: u64,
@@ -234,7 +302,7 @@ impl Px {
             lookups: self.lookups,
             capped: self.capped,
             majorant_violations: self.violations,
-            max_std_err: self.std_err,
+            max_std_err: self.std_err.iter().copied().fold(0.0, f64::max),
             unconverged: u64::from(self.unconverged),
             ..BakeStats::default()
         }
@@ -267,8 +335,10 @@ fn merge(a: (f64, f64, u64), e: &Estimate) -> (f64, f64, u64) {
     )
 }
 
+/// One pixel: its estimate (adaptive batches included) and its slices
+/// (`slices_out[k * channels + c]`).
 fn pixel(
-    vol: &Volume,
+    src: Source<'_>,
     s: &BakeSettings,
     depths: &[f64],
     ray: &Ray,
@@ -276,7 +346,8 @@ fn pixel(
     npix: u64,
     slices_out: &mut [f32],
 ) -> Result<Px> {
-    let e = estimate(vol, ray, p, &s.estimator, &s.options)?;
+    let nc = src.channels();
+    let e = src.estimate(ray, p, &s.estimator, &s.options)?;
     let mut px = Px {
         t: e.value,
         std_err: e.std_err,
@@ -287,48 +358,60 @@ fn pixel(
         unconverged: false,
     };
     if let Some(target) = s.target_error {
-        let mut acc = merge((0.0, 0.0, 0), &e);
+        let mut acc = [(0.0, 0.0, 0); 3];
+        for (c, a) in acc.iter_mut().enumerate() {
+            *a = merge(*a, &e.channel(c));
+        }
         px.unconverged = e.samples > 1;
         let max = u64::from(s.max_spp);
         let mut b = 1u64;
-        // Stop on sqrt(s^2 + (sqrt(3) / n)^2) <= E: the second term is the rule-of-three
-        // bound on what n samples that all missed a rare event can hide (estimates in [0, 1]),
-        // so n samples that happen to agree (s = 0) do not stop a pixel early.
-        let err = |s: f64, n: u64| s.hypot(3f64.sqrt() / n as f64);
-        while err(px.std_err, acc.2) > target
-            && acc.2 < max
+        // Stop on sqrt(s^2 + (sqrt(3) / n)^2) <= E (the largest s of the channels): the second
+        // term is the rule-of-three bound on what n samples that all missed a rare event can
+        // hide (estimates in [0, 1]), so n samples that happen to agree (s = 0) do not stop a
+        // pixel early.
+        let err = |px: &Px, n: u64| {
+            px.std_err[..nc]
+                .iter()
+                .fold(0.0f64, |m, s| m.max(s.hypot(3f64.sqrt() / n as f64)))
+        };
+        while err(&px, acc[0].2) > target
+            && acc[0].2 < max
             && b < u64::from(MAX_BATCHES)
             && e.samples > 1
         {
-            let batch = acc.2.min(max - acc.2);
+            let batch = acc[0].2.min(max - acc[0].2);
             let opts = Options {
                 samples: u32::try_from(batch).unwrap_or(u32::MAX),
                 ..s.options
             };
-            let eb = estimate(vol, ray, b * npix + p, &s.estimator, &opts)?;
-            acc = merge(acc, &eb);
+            let eb = src.estimate(ray, b * npix + p, &s.estimator, &opts)?;
+            for (c, a) in acc.iter_mut().enumerate() {
+                *a = merge(*a, &eb.channel(c));
+                px.t[c] = a.0;
+                px.std_err[c] = (a.1 / (a.2 - 1) as f64 / a.2 as f64).sqrt();
+            }
             px.lookups += eb.lookups;
             px.capped += eb.capped;
             px.violations += eb.majorant_violations;
-            px.t = acc.0;
-            px.std_err = (acc.1 / (acc.2 - 1) as f64 / acc.2 as f64).sqrt();
-            px.samples = acc.2;
+            px.samples = acc[0].2;
             b += 1;
         }
-        px.unconverged &= err(px.std_err, acc.2) > target;
+        px.unconverged &= err(&px, acc[0].2) > target;
     }
     if depths.is_empty() {
         return Ok(px);
     }
     if s.estimator == Estimator::REGULAR {
         // Exact optical depth is additive: trace [t_{k-1}, t_k] once each.
-        let (mut tau, mut t0) = (0.0, 0.0);
+        let (mut tau, mut t0) = ([0.0f64; 3], 0.0);
         for (k, &d) in depths.iter().enumerate() {
             let seg = ray.with_range(t0, d)?;
-            let e = estimate(vol, &seg, p, &s.estimator, &s.options)?;
-            tau += e.tau.unwrap_or_else(|| -e.value.ln());
+            let e = src.estimate(&seg, p, &s.estimator, &s.options)?;
+            for c in 0..nc {
+                tau[c] += e.tau.map_or_else(|| -e.value[c].ln(), |t| t[c]);
+                slices_out[k * nc + c] = (-tau[c]).exp() as f32;
+            }
             px.lookups += e.lookups;
-            slices_out[k] = (-tau).exp() as f32;
             t0 = d;
         }
     } else {
@@ -338,11 +421,13 @@ fn pixel(
         };
         for (k, &d) in depths.iter().enumerate() {
             let seg = ray.with_range(0.0, d)?;
-            let e = estimate(vol, &seg, (64 + k as u64) * npix + p, &s.estimator, &opts)?;
+            let e = src.estimate(&seg, (64 + k as u64) * npix + p, &s.estimator, &opts)?;
             px.lookups += e.lookups;
             px.capped += e.capped;
             px.violations += e.majorant_violations;
-            slices_out[k] = e.value as f32;
+            for c in 0..nc {
+                slices_out[k * nc + c] = e.value[c] as f32;
+            }
         }
     }
     Ok(px)
@@ -360,10 +445,36 @@ pub fn bake(
     settings: &BakeSettings,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Map> {
+    bake_source(Source::Volume(vol), camera, settings, progress)
+}
+
+/// Bake a map of a scene (several volumes, colour, solids; see [`crate::scene`]): channels
+/// `R`, `G`, `B` for an RGB scene. A scene of one grey volume bakes exactly as [`bake`].
+///
+/// # Errors
+/// As [`bake`].
+pub fn bake_scene(
+    scene: &Scene,
+    camera: &Camera,
+    settings: &BakeSettings,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Map> {
+    match scene.single() {
+        Some(vol) => bake(vol, camera, settings, progress),
+        None => bake_source(Source::Scene(scene), camera, settings, progress),
+    }
+}
+
+fn bake_source(
+    src: Source<'_>,
+    camera: &Camera,
+    settings: &BakeSettings,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Map> {
     super::check_res(camera.width, camera.height)?;
     settings.validate()?;
     let depths = resolve_depths(&settings.depths, camera)?;
-    let channels = 1 + depths.len() as u64 + u64::from(settings.std_err);
+    let channels = (1 + depths.len() as u64 + u64::from(settings.std_err)) * src.channels() as u64;
     if camera.pixels() * channels > MAX_PIXELS {
         return Err(bad(
             "res",
@@ -378,14 +489,20 @@ pub fn bake(
         Some(_) => (settings.max_spp.max(settings.options.samples), "max-spp"),
         None => (settings.options.samples, "spp"),
     };
-    crate::estimate::budget::check_job(
-        vol,
-        &settings.estimator,
-        camera.pixels(),
-        u64::from(samples),
-        name,
-    )?;
-    let run = || render(vol, camera, settings, &depths, progress);
+    let vols: Vec<&Volume> = match src {
+        Source::Volume(v) => vec![v],
+        Source::Scene(s) => s.fogs().iter().map(crate::scene::Fog::volume).collect(),
+    };
+    for vol in vols {
+        crate::estimate::budget::check_job(
+            vol,
+            &settings.estimator,
+            camera.pixels(),
+            u64::from(samples),
+            name,
+        )?;
+    }
+    let run = || render(src, camera, settings, &depths, progress);
     if settings.threads == 0 {
         return run();
     }
@@ -399,21 +516,24 @@ pub fn bake(
 /// The optional channels of one finished band of rows (the main `T` is written in place) and
 /// its share of the statistics; per-pixel records are not kept.
 struct Band {
+    /// `std_err[n nc + c]`: channel `c` of the band's pixel `n`.
     std_err: Vec<f32>,
-    /// `slices[n k + c]`: slice `c` of the band's pixel `n` (band row-major).
+    /// Green and blue `T` of an RGB map, `gb[2 n + c - 1]`.
+    gb: Vec<f32>,
+    /// `slices[(n k + s) nc + c]`: slice `s`, channel `c` of the band's pixel `n`.
     slices: Vec<f32>,
     stats: BakeStats,
 }
 
 /// Rows per band: one tile high, fewer when the image has too few rows to give every worker
 /// about four bands.
-fn band_rows(height: u32, workers: usize) -> u32 {
+pub(crate) fn band_rows(height: u32, workers: usize) -> u32 {
     let per = u32::try_from(workers.max(1) * 4).unwrap_or(u32::MAX);
     TILE.min((height / per).max(1))
 }
 
 fn render(
-    vol: &Volume,
+    src: Source<'_>,
     camera: &Camera,
     s: &BakeSettings,
     depths: &[f64],
@@ -423,11 +543,19 @@ fn render(
     let (w, h) = (camera.width, camera.height);
     let npix = camera.pixels();
     let k = depths.len();
+    let nc = src.channels();
     let len = npix as usize;
     let rows = band_rows(h, rayon::current_num_threads());
     if s.order == Order::Auto && super::sweep::applies(s) {
-        if let Some(map) = super::sweep::render(vol, camera, s, depths, rows, progress)? {
-            return Ok(map);
+        match src {
+            Source::Volume(vol) => {
+                if let Some(map) = super::sweep::render(vol, camera, s, depths, rows, progress)? {
+                    return Ok(map);
+                }
+            }
+            Source::Scene(scene) => {
+                return super::scene_map::exact(scene, camera, s, depths, rows, progress);
+            }
         }
     }
     // Bands of whole rows are contiguous in the row-major image, so every worker writes `T`
@@ -442,8 +570,9 @@ fn render(
             let bh = (t_band.len() / w as usize) as u32;
             let n_band = t_band.len();
             let mut band = Band {
-                std_err: vec![0.0; if s.std_err { n_band } else { 0 }],
-                slices: vec![0.0; n_band * k],
+                std_err: vec![0.0; if s.std_err { n_band * nc } else { 0 }],
+                gb: vec![0.0; n_band * (nc - 1)],
+                slices: vec![0.0; n_band * k * nc],
                 stats: BakeStats::default(),
             };
             let mut x0 = 0;
@@ -454,11 +583,16 @@ fn render(
                         let n = (j - y0) as usize * w as usize + i as usize;
                         let ray = camera.pixel_ray(i, j)?;
                         let p = u64::from(j) * u64::from(w) + u64::from(i);
-                        let out = &mut band.slices[n * k..(n + 1) * k];
-                        let px = pixel(vol, s, depths, &ray, p, npix, out)?;
-                        t_band[n] = px.t as f32;
+                        let out = &mut band.slices[n * k * nc..(n + 1) * k * nc];
+                        let px = pixel(src, s, depths, &ray, p, npix, out)?;
+                        t_band[n] = px.t[0] as f32;
+                        for c in 1..nc {
+                            band.gb[n * 2 + c - 1] = px.t[c] as f32;
+                        }
                         if s.std_err {
-                            band.std_err[n] = px.std_err as f32;
+                            for c in 0..nc {
+                                band.std_err[n * nc + c] = px.std_err[c] as f32;
+                            }
                         }
                         band.stats.absorb(&px.stats());
                     }
@@ -469,28 +603,48 @@ fn render(
             Ok(band)
         })
         .collect::<Result<_>>()?;
-    let mut map = Map {
-        camera: *camera,
-        settings: s.clone(),
-        t: t_image,
-        std_err: s.std_err.then(|| Vec::with_capacity(len)),
-        depths: depths.to_vec(),
-        slices: vec![Vec::with_capacity(len); k],
-        stats: BakeStats {
-            rays: npix,
-            ..BakeStats::default()
-        },
+    let mut chans: Vec<Channel> = (0..nc)
+        .map(|_| Channel {
+            t: Vec::with_capacity(if nc > 1 { len } else { 0 }),
+            std_err: s.std_err.then(|| Vec::with_capacity(len)),
+            slices: vec![Vec::with_capacity(len); k],
+        })
+        .collect();
+    let mut stats = BakeStats {
+        rays: npix,
+        ..BakeStats::default()
     };
     // Bands are in image order, so their optional channels concatenate into whole images.
     for band in bands {
-        if let Some(e) = map.std_err.as_mut() {
-            e.extend_from_slice(&band.std_err);
+        for (c, ch) in chans.iter_mut().enumerate() {
+            if c > 0 {
+                ch.t.extend(band.gb.iter().skip(c - 1).step_by(2));
+            }
+            if let Some(e) = ch.std_err.as_mut() {
+                e.extend(band.std_err.iter().skip(c).step_by(nc));
+            }
+            for (sl, slice) in ch.slices.iter_mut().enumerate() {
+                slice.extend(band.slices.iter().skip(sl * nc + c).step_by(k.max(1) * nc));
+            }
         }
-        for (c, slice) in map.slices.iter_mut().enumerate() {
-            slice.extend(band.slices.iter().skip(c).step_by(k.max(1)));
-        }
-        map.stats.absorb(&band.stats);
+        stats.absorb(&band.stats);
     }
-    map.stats.seconds = start.elapsed().as_secs_f64();
-    Ok(map)
+    stats.seconds = start.elapsed().as_secs_f64();
+    let mut chans = chans.into_iter();
+    let red = chans.next().unwrap_or_default();
+    let color = (nc == 3).then(|| {
+        let g = chans.next().unwrap_or_default();
+        let b = chans.next().unwrap_or_default();
+        Box::new([g, b])
+    });
+    Ok(Map {
+        camera: *camera,
+        settings: s.clone(),
+        t: t_image,
+        std_err: red.std_err,
+        depths: depths.to_vec(),
+        slices: red.slices,
+        color,
+        stats,
+    })
 }

@@ -213,6 +213,10 @@ pub struct BakeSpec {
     pub framing: String,
     /// World-from-object transform of every input: 16 numbers, row-major.
     pub xform: Option<Vec<f64>>,
+    /// Extinction colour `[r, g, b]`: RGB maps (`R`, `G`, `B`).
+    pub sigma_t: Option<[f64; 3]>,
+    /// `"solid"`: a level-set grid is traced as an opaque solid (otherwise refused).
+    pub levelset: Option<String>,
 }
 
 impl Default for BakeSpec {
@@ -242,6 +246,8 @@ impl Default for BakeSpec {
             camera: None,
             framing: "shared".into(),
             xform: None,
+            sigma_t: None,
+            levelset: None,
         }
     }
 }
@@ -302,6 +308,10 @@ pub struct Job {
     pub camera: Option<Camera>,
     /// Where every input sits in the shot (`bake.xform`).
     pub xform: Option<crate::xform::Xform>,
+    /// Extinction colour (`bake.sigma_t`).
+    pub sigma_t: Option<[f64; 3]>,
+    /// Level sets traced as solids (`bake.levelset = "solid"`).
+    pub levelset_solid: bool,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
@@ -616,6 +626,27 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             ));
         }
     }
+    if let Some(s) = b.sigma_t {
+        crate::scene::check_sigma(s).map_err(|e| match e {
+            crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.sigma_t", reason),
+            other => BatchError::Task(other),
+        })?;
+    }
+    let sigma_t = b.sigma_t;
+    let levelset_solid = match b.levelset.as_deref() {
+        None => false,
+        Some("solid") => true,
+        Some(other) => {
+            return Err(err(
+                &path,
+                "bake.levelset",
+                format!(
+                    "'{}': the only choice is \"solid\" (trace level sets as opaque solids)",
+                    crate::text::escape(other)
+                ),
+            ))
+        }
+    };
     let xform = match &b.xform {
         Some(v) => Some(crate::xform::Xform::from_row_major(v).map_err(|e| match e {
             crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.xform", reason),
@@ -853,6 +884,8 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         framing,
         camera,
         xform,
+        sigma_t,
+        levelset_solid,
         shared: std::sync::OnceLock::new(),
     })
 }
@@ -934,6 +967,8 @@ impl Job {
             grid: self.grid.clone(),
             density_scale: self.density_scale,
             xform: self.xform,
+            sigma_t: self.sigma_t,
+            levelset_solid: self.levelset_solid,
             settings: BakeSettings {
                 threads,
                 ..self.settings.clone()
@@ -973,13 +1008,33 @@ impl Job {
         let mut inputs: Vec<&Path> = self.tasks.iter().map(|t| t.input.as_path()).collect();
         inputs.dedup();
         for input in inputs {
-            if let Err(e @ (crate::Error::Io { .. } | crate::Error::GridNotFound { .. })) =
+            let found = if crate::scene::is_scene_file(input) {
+                crate::scene::read_box_corners(input, &self.scene_options()).map(|_| ())
+            } else {
                 crate::vdb::open(input).and_then(|a| a.find_grid(&self.grid).map(|_| ()))
+            };
+            if let Err(
+                e @ (crate::Error::Io { .. }
+                | crate::Error::GridNotFound { .. }
+                | crate::Error::Scene { .. }),
+            ) = found
             {
                 return Err(e.into());
             }
         }
         Ok(())
+    }
+
+    /// How every task reads its input (grid, scale, colour, transform, level sets).
+    #[must_use]
+    pub fn scene_options(&self) -> crate::scene::SceneOptions {
+        crate::scene::SceneOptions {
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            sigma_t: self.sigma_t,
+            xform: self.xform,
+            levelset_solid: self.levelset_solid,
+        }
     }
 
     /// With `framing = "shared"` (and no fixed camera): frame one camera per sequence (one
@@ -1010,19 +1065,17 @@ impl Job {
             inputs.dedup();
             let mut union = Vec::new();
             for input in inputs {
-                let corners = match crate::Volume::read_box_corners(input, &self.grid) {
-                    Ok(Some(c)) => c,
-                    Ok(None) => continue,
-                    // A missing file or grid fails the job before any task runs.
-                    Err(e @ (crate::Error::Io { .. } | crate::Error::GridNotFound { .. })) => {
-                        return Err(e.into())
-                    }
+                match crate::scene::read_box_corners(input, &self.scene_options()) {
+                    Ok(c) => union.extend(c),
+                    // A missing file or grid, or a malformed scene, fails the job before any
+                    // task runs.
+                    Err(
+                        e @ (crate::Error::Io { .. }
+                        | crate::Error::GridNotFound { .. }
+                        | crate::Error::Scene { .. }),
+                    ) => return Err(e.into()),
                     // A corrupt or unsupported frame adds nothing here and fails alone.
-                    Err(_) => continue,
-                };
-                match &self.xform {
-                    Some(x) => union.extend(corners.map(|c| x.point(c))),
-                    None => union.extend(corners),
+                    Err(_) => {}
                 }
             }
             if union.is_empty() {

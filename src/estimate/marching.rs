@@ -9,7 +9,7 @@
 //! `exp(-tau_hat)` is biased upward for the random variants: `E[exp(-X)] >= exp(-E[X])`
 //! (Jensen), so they overestimate transmittance.
 
-use super::medium::RayMedium;
+use super::medium::Extinction;
 use crate::rng::Rng;
 use crate::traverse::Segment;
 
@@ -48,13 +48,13 @@ fn pieces(s: &Segment, step_world: f64) -> (u64, f64) {
     (n as u64, len / n)
 }
 
-fn step_world(m: &RayMedium<'_>, step_voxels: f64) -> f64 {
+fn step_world(m: &impl Extinction, step_voxels: f64) -> f64 {
     let v = m.voxels_per_world_unit();
     (step_voxels / v).max(f64::MIN_POSITIVE)
 }
 
 /// Midpoint-rule ray marching.
-pub(crate) fn riemann(segs: &[Segment], m: &mut RayMedium<'_>, step: f64) -> f64 {
+pub(crate) fn riemann(segs: &[Segment], m: &mut impl Extinction, step: f64) -> f64 {
     let h = step_world(m, step);
     let mut tau = 0.0;
     for s in spans(segs) {
@@ -69,7 +69,7 @@ pub(crate) fn riemann(segs: &[Segment], m: &mut RayMedium<'_>, step: f64) -> f64
 /// Monte Carlo optical depth from uniform random points.
 pub(crate) fn monte_carlo(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     step: f64,
 ) -> f64 {
@@ -85,7 +85,7 @@ pub(crate) fn monte_carlo(
 }
 
 /// Stratified (jittered) ray marching: one random point per piece.
-pub(crate) fn jittered(segs: &[Segment], m: &mut RayMedium<'_>, rng: &mut Rng, step: f64) -> f64 {
+pub(crate) fn jittered(segs: &[Segment], m: &mut impl Extinction, rng: &mut Rng, step: f64) -> f64 {
     let h = step_world(m, step);
     let mut tau = 0.0;
     for s in spans(segs) {

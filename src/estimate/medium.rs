@@ -9,6 +9,32 @@ use crate::tree::Accessor;
 use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
 
+/// What the estimators ask of the medium along one ray: the extinction at a world distance,
+/// its exact integral, and the lookup scale. [`RayMedium`] is one grid; a scene's medium
+/// ([`crate::scene`]) sums several, per colour channel.
+pub trait Extinction {
+    /// Extinction `mu_t(t)` at world distance `t` along the ray (one lookup per grid).
+    fn mu(&mut self, t: f64) -> f64;
+    /// Exact optical depth `integral of mu_t over [t0, t1]`.
+    fn exact(&mut self, t0: f64, t1: f64) -> f64;
+    /// Index-space length of one world unit along the ray (the finest grid's, for a scene):
+    /// converts marching steps given in voxels to world units.
+    fn voxels_per_world_unit(&self) -> f64;
+}
+
+impl Extinction for RayMedium<'_> {
+    #[inline]
+    fn mu(&mut self, t: f64) -> f64 {
+        RayMedium::mu(self, t)
+    }
+    fn exact(&mut self, t0: f64, t1: f64) -> f64 {
+        RayMedium::exact(self, t0, t1)
+    }
+    fn voxels_per_world_unit(&self) -> f64 {
+        RayMedium::voxels_per_world_unit(self)
+    }
+}
+
 /// Extinction along a ray with a cached accessor and a lookup counter.
 #[derive(Debug, Clone)]
 pub struct RayMedium<'v> {

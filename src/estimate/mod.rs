@@ -31,7 +31,7 @@ mod null_collision;
 mod power_series;
 pub mod registry;
 
-pub use medium::RayMedium;
+pub use medium::{Extinction, RayMedium};
 pub use null_collision::BOUND_TOLERANCE;
 use registry::Algo;
 pub use registry::{names, Estimator, Kind, Param, Spec, REGISTRY};
@@ -386,10 +386,10 @@ impl Cap {
 }
 
 /// One sample of the transmittance of the sampled segments (closed-form parts excluded).
-fn sample_once(
+pub(crate) fn sample_once(
     est: &Estimator,
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {

@@ -35,7 +35,7 @@
 //!   `exp(-int mu_min)` is exact; delta tracking only through the residual `mu - mu_min` with
 //!   rate `mu_maj - mu_min`. Lookups drop from `int mu_maj` to `int (mu_maj - mu_min)`.
 
-use super::medium::RayMedium;
+use super::medium::Extinction;
 use super::{Cap, Control};
 use crate::rng::Rng;
 use crate::traverse::Segment;
@@ -102,7 +102,7 @@ fn checked(mu: f64, s: &Segment, cap: &mut Cap) -> f64 {
 /// sample's value.
 pub(crate) fn free_flight(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
     tr: &mut impl Tracker,
@@ -183,7 +183,7 @@ impl<F: Fn(f64) -> f64> Tracker for Delta<F> {
 /// transmittance is taken in closed form) and score the first real collision with `score`.
 fn delta(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
     decompose: bool,
@@ -201,7 +201,7 @@ fn delta(
 /// Delta tracking with the track-length estimator.
 pub(crate) fn track_length(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
@@ -211,7 +211,7 @@ pub(crate) fn track_length(
 /// Delta tracking scored with a ramp kernel of width `h` before the end.
 pub(crate) fn collision(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
     h: f64,
@@ -231,7 +231,7 @@ pub(crate) fn collision(
 /// Decomposition tracking with the minorant as the control medium.
 pub(crate) fn decomposition(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
@@ -285,7 +285,12 @@ impl Tracker for RatioTracker {
 }
 
 /// Ratio tracking.
-pub(crate) fn ratio(segs: &[Segment], m: &mut RayMedium<'_>, rng: &mut Rng, cap: &mut Cap) -> f64 {
+pub(crate) fn ratio(
+    segs: &[Segment],
+    m: &mut impl Extinction,
+    rng: &mut Rng,
+    cap: &mut Cap,
+) -> f64 {
     let mut tr = RatioTracker {
         control: None,
         w: 1.0,
@@ -296,7 +301,7 @@ pub(crate) fn ratio(segs: &[Segment], m: &mut RayMedium<'_>, rng: &mut Rng, cap:
 /// Residual ratio tracking.
 pub(crate) fn residual_ratio(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
     control: Control,
@@ -350,7 +355,7 @@ impl Tracker for NextFlightTracker {
 /// Next-flight ratio tracking.
 pub(crate) fn next_flight(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     cap: &mut Cap,
 ) -> f64 {
@@ -367,6 +372,7 @@ pub(crate) fn next_flight(
 mod tests {
     use super::*;
     use crate::estimate::Cap;
+    use crate::estimate::RayMedium;
     use crate::ray::Ray;
     use crate::tree::TreeBuilder;
     use crate::volume::{Interp, Volume};

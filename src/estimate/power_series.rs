@@ -17,7 +17,7 @@
 //! `mu_maj - mu_min`); `T = cos(|X_1 - X_2| / 2) exp(-(X_1 + X_2) / 2)`, the UMVU estimate of
 //! `exp(-tau)` if the `X` are normal. Biased (slightly), fixed cost; clamped to `[0, 1]`.
 
-use super::medium::RayMedium;
+use super::medium::Extinction;
 use crate::rng::Rng;
 use crate::traverse::Segment;
 
@@ -26,7 +26,7 @@ use crate::traverse::Segment;
 /// `(mu - base) / weight * total / points`, plus the exact integral of `base`.
 fn comb(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     points: u32,
     base: impl Fn(&Segment) -> f64,
@@ -72,7 +72,7 @@ fn p_order_at_least(j: usize) -> f64 {
 }
 
 /// Kettunen et al. 2021 unbiased ray marching.
-pub(crate) fn unbiased_raymarch(segs: &[Segment], m: &mut RayMedium<'_>, rng: &mut Rng) -> f64 {
+pub(crate) fn unbiased_raymarch(segs: &[Segment], m: &mut impl Extinction, rng: &mut Rng) -> f64 {
     let control = |s: &Segment| 0.5 * (s.mu_min + s.mu_maj);
     let tau_c: f64 = segs.iter().map(|s| control(s) * s.length()).sum();
     let n_cmf = ((tau_c + 0.015) * (tau_c + 0.65) * (tau_c + 60.3))
@@ -128,7 +128,7 @@ pub(crate) fn unbiased_raymarch(segs: &[Segment], m: &mut RayMedium<'_>, rng: &m
 /// Peters 2025 jackknife transmittance.
 pub(crate) fn jackknife(
     segs: &[Segment],
-    m: &mut RayMedium<'_>,
+    m: &mut impl Extinction,
     rng: &mut Rng,
     points: u32,
 ) -> f64 {

@@ -94,6 +94,7 @@ impl Exr {
 pub fn prov(vol: &Volume) -> Provenance {
     Provenance {
         xform: None,
+        sigma_t: None,
         source_file: "memory".into(),
         grid: vol.name().to_string(),
         density_scale: vol.density_scale(),

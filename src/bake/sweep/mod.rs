@@ -946,6 +946,7 @@ pub(crate) fn render(
         std_err: s.std_err.then(|| vec![0.0; len]),
         depths: depths.to_vec(),
         slices,
+        color: None,
         stats: BakeStats {
             rays: npix,
             samples: npix,
@@ -955,6 +956,37 @@ pub(crate) fn render(
             ..BakeStats::default()
         },
     }))
+}
+
+/// The exact optical depth of every pixel of `camera`'s map of `vol`, in object order:
+/// `tau[n (1 + K) + s]` is pixel `n`'s full depth (`s = 0`) and slice `s - 1`'s; with the
+/// lookups spent. `None` when the sweep cannot take the rays (as [`render`]). `progress`
+/// receives finished pixel counts. What a scene's exact map adds per volume.
+pub(crate) fn tau_image(
+    vol: &Volume,
+    camera: &Camera,
+    depths: &[f64],
+    rows: u32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Option<(Vec<f64>, u64)>> {
+    let Some(sweep) = Sweep::new(vol, camera, rows, depths)? else {
+        return Ok(None);
+    };
+    let (w, stride) = (camera.width as usize, sweep.stride());
+    let mut tau = vec![0.0f64; camera.pixels() as usize * stride];
+    let lookups = tau
+        .par_chunks_mut(rows as usize * w * stride)
+        .enumerate()
+        .map(|(b, band)| {
+            let mut lookups = 0;
+            sweep.band(b, band, &mut lookups)?;
+            progress((band.len() / stride) as u64);
+            Ok(lookups)
+        })
+        .collect::<Result<Vec<u64>>>()?
+        .iter()
+        .sum();
+    Ok(Some((tau, lookups)))
 }
 
 #[cfg(test)]

@@ -13,7 +13,7 @@ use umbra::Interp;
 /// Arguments of `umbra bake`.
 #[derive(Debug, clap::Args)]
 pub struct BakeArgs {
-    /// The .vdb file.
+    /// The .vdb file, or a .toml scene file (several volumes, colour, solids).
     file: PathBuf,
     /// Grid to trace (display name such as `density[1]`, or the stored name).
     #[arg(long, default_value = "density")]
@@ -45,6 +45,14 @@ pub struct BakeArgs {
     /// row-major, the translation in the last column.
     #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
     xform: Option<umbra::xform::Xform>,
+    /// Extinction colour R,G,B: an RGB map (channels R, G, B) with
+    /// mu_c = sigma_t[c] x density-scale x value (multiplies a scene's own sigma_t).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    sigma_t: Option<[f64; 3]>,
+    /// `solid`: trace a level-set grid as an opaque solid (T = 0 from where a ray enters it)
+    /// instead of refusing it.
+    #[arg(long, value_enum)]
+    levelset: Option<crate::common::LevelSetArg>,
     /// Reuse exactly the camera of an earlier umbra map (.exr) or of a JSON file holding the
     /// `camera` object `bake --json` prints; its resolution unless --res is given (then the
     /// same window at that size).
@@ -200,6 +208,8 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         grid: a.grid.clone(),
         density_scale: a.density_scale,
         xform: a.xform,
+        sigma_t: a.sigma_t,
+        levelset_solid: a.levelset.is_some(),
         view,
         camera,
         settings: BakeSettings {
@@ -214,10 +224,12 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         preview: a.preview.clone(),
         overwrite: a.force,
     };
-    let (vol, camera) = job.prepare().map_err(|e| match e {
+    let scene_file = umbra::scene::is_scene_file(&job.input);
+    let (scene, camera) = job.prepare().map_err(|e| match e {
         umbra::Error::Output { .. } | umbra::Error::InvalidArgument { .. } => {
             anyhow::Error::from(crate::common::flag_error(e))
         }
+        other if scene_file => anyhow::Error::from(other).context("loading the scene"),
         other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
     })?;
     let bar = progress_bar(
@@ -225,7 +237,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
         camera.pixels(),
     );
-    let result = job.run_on(vol, camera, &|n| bar.inc(n));
+    let result = job.run_on(scene, camera, &|n| bar.inc(n));
     bar.finish_and_clear();
     let done = result.map_err(|e| match e {
         umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
@@ -252,11 +264,21 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
     let t_mean = map.t.iter().map(|&t| f64::from(t)).sum::<f64>() / n;
     let t_min = map.t.iter().copied().fold(f32::INFINITY, f32::min);
     let t_max = map.t.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let mut channels = vec!["T".to_string()];
-    if map.std_err.is_some() {
-        channels.push("T.stderr".into());
+    let names: &[&str] = if map.channels() == 3 {
+        &["R", "G", "B"]
+    } else {
+        &["T"]
+    };
+    let mut channels: Vec<String> = Vec::new();
+    for base in names {
+        channels.push((*base).to_string());
+        if map.std_err.is_some() {
+            channels.push(format!("{base}.stderr"));
+        }
+        channels.extend(
+            (0..map.slices.len()).map(|k| slice_channel(k).replace(".T", &format!(".{base}"))),
+        );
     }
-    channels.extend((0..map.slices.len()).map(slice_channel));
     let threads = if a.threads == 0 {
         rayon::current_num_threads()
     } else {

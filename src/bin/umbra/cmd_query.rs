@@ -1,20 +1,21 @@
 //! `umbra query`: what does the cloud attenuate along a segment, toward a light, or along
 //! thousands of segments from a CSV file?
 
-use crate::common::{flag_error, load_volume, parse_vec3, thread_pool, EstimatorArgs, InterpArg};
+use crate::common::{flag_error, load_scene, parse_vec3, thread_pool, EstimatorArgs, InterpArg};
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use umbra::bake::Warning;
-use umbra::estimate::{estimate, Estimate, Estimator, Options};
-use umbra::{Interp, Light, Ray, Volume};
+use umbra::estimate::{Estimator, Options};
+use umbra::scene::{Scene, SceneEstimate};
+use umbra::{Interp, Light, Ray};
 
 /// Arguments of `umbra query`.
 #[derive(Debug, clap::Args)]
 pub struct QueryArgs {
-    /// The .vdb file.
+    /// The .vdb file, or a .toml scene file (several volumes, colour, solids).
     file: PathBuf,
     /// Grid to trace (display name such as `density[1]`, or the stored name).
     #[arg(long, default_value = "density")]
@@ -51,6 +52,12 @@ pub struct QueryArgs {
     /// row-major, the translation in the last column (positions stay in world space).
     #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
     xform: Option<umbra::xform::Xform>,
+    /// Extinction colour R,G,B: T per channel, mu_c = sigma_t[c] x density-scale x value.
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    sigma_t: Option<[f64; 3]>,
+    /// `solid`: trace a level-set grid as an opaque solid instead of refusing it.
+    #[arg(long, value_enum)]
+    levelset: Option<crate::common::LevelSetArg>,
     /// One JSON object per query on stdout.
     #[arg(long)]
     json: bool,
@@ -68,7 +75,7 @@ pub struct QueryArgs {
 /// One answered (or failed) query.
 struct Answer {
     line: Option<usize>,
-    result: Result<(Ray, Estimate, f64), String>,
+    result: Result<(Ray, SceneEstimate, f64), String>,
 }
 
 /// Run the query and print the answer(s).
@@ -101,18 +108,36 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         Some(p) => Some(read_rays(p)?),
         None => None,
     };
-    let vol = load_volume(&a.file, &a.grid, a.density_scale, a.xform.as_ref())?;
+    let scene = load_scene(
+        &a.file,
+        &umbra::scene::SceneOptions {
+            grid: a.grid.clone(),
+            density_scale: a.density_scale,
+            sigma_t: a.sigma_t,
+            xform: a.xform,
+            levelset_solid: a.levelset.is_some(),
+        },
+    )?;
+    let vol = &scene;
     let interp: Interp = a.interp.into();
     let (est, opts) = a.est.resolve(interp)?;
     // The work budget, up front: per ray and for every ray of the batch together.
     let rays = batch.as_ref().map_or(1, Vec::len) as u64;
-    umbra::estimate::budget::check_job(&vol, &est, rays, u64::from(opts.samples), "samples")
+    for f in scene.fogs() {
+        umbra::estimate::budget::check_job(
+            f.volume(),
+            &est,
+            rays,
+            u64::from(opts.samples),
+            "samples",
+        )
         .map_err(flag_error)?;
+    }
     let answers: Vec<Answer> = if let Some(rows) = batch {
         let one = |(n, (line, seg)): (usize, &(usize, Result<Ray, String>))| Answer {
             line: Some(*line),
             result: seg.clone().and_then(|ray| {
-                answer(&vol, &ray, a.ray_id.wrapping_add(n as u64), &est, &opts)
+                answer(vol, &ray, a.ray_id.wrapping_add(n as u64), &est, &opts)
                     .map_err(|e| format!("{e:#}"))
             }),
         };
@@ -120,10 +145,10 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
     } else {
         let ray = match (single, a.at, light) {
             (Some((from, to)), _, _) => Ray::between(from, to)?,
-            (None, Some(at), Some(l)) => l.ray_from(&vol, at)?,
+            (None, Some(at), Some(l)) => l.ray_from_scene(vol, at)?,
             _ => bail!("nothing to query"),
         };
-        let r = answer(&vol, &ray, a.ray_id, &est, &opts)?;
+        let r = answer(vol, &ray, a.ray_id, &est, &opts)?;
         vec![Answer {
             line: None,
             result: Ok(r),
@@ -133,14 +158,14 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
 }
 
 fn answer(
-    vol: &Volume,
+    scene: &Scene,
     ray: &Ray,
     ray_id: u64,
     est: &Estimator,
     opts: &Options,
-) -> Result<(Ray, Estimate, f64)> {
+) -> Result<(Ray, SceneEstimate, f64)> {
     let start = std::time::Instant::now();
-    let e = estimate(vol, ray, ray_id, est, opts)?;
+    let e = umbra::scene::estimate(scene, ray, ray_id, est, opts)?;
     Ok((*ray, e, start.elapsed().as_secs_f64()))
 }
 
@@ -232,30 +257,54 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
             Ok((ray, e, seconds)) => {
                 capped += e.capped;
                 violations += e.majorant_violations;
+                let nc = e.channels;
                 if json {
+                    // Grey: numbers; RGB: [r, g, b] arrays.
+                    let per = |v: [f64; 3], f: &dyn Fn(f64) -> serde_json::Value| {
+                        if nc == 3 {
+                            serde_json::Value::Array(v.iter().map(|x| f(*x)).collect())
+                        } else {
+                            f(v[0])
+                        }
+                    };
+                    let num = |x: f64| serde_json::json!(x);
+                    let tau = match e.tau {
+                        Some(t) => per(t, &|x| tau_json(Some(x))),
+                        None => serde_json::Value::Null,
+                    };
                     let mut v = serde_json::json!({
-                        "T": e.value, "std_err": e.std_err, "tau": tau_json(e.tau), "lookups": e.lookups,
+                        "T": per(e.value, &num), "std_err": per(e.std_err, &num), "tau": tau,
+                        "lookups": e.lookups,
                         "estimator": est, "samples": e.samples, "interp": interp,
                         "length": ray.t_max(), "segments": e.segments, "capped": e.capped,
                         "seconds": seconds,
                     });
+                    if let Some(h) = e.hit {
+                        v["solid_hit"] = h.into();
+                    }
                     if let Some(n) = a.line {
                         v["line"] = n.into();
                     }
                     writeln!(out, "{v}")?;
                 } else {
-                    let tau = e
-                        .tau
-                        .map_or(String::new(), |t| format!(", tau = {}", full(t)));
-                    let err = if e.std_err > 0.0 {
-                        format!(" +- {:.2e}", e.std_err)
+                    let list = |v: [f64; 3], f: &dyn Fn(f64) -> String| {
+                        v[..nc].iter().map(|x| f(*x)).collect::<Vec<_>>().join(", ")
+                    };
+                    let tau = e.tau.map_or(String::new(), |t| {
+                        format!(", tau = {}", list(t, &|x| full(x)))
+                    });
+                    let err = if e.std_err.iter().any(|s| *s > 0.0) {
+                        format!(" +- {}", list(e.std_err, &|x| format!("{x:.2e}")))
                     } else {
                         String::new()
                     };
+                    let hit = e
+                        .hit
+                        .map_or(String::new(), |h| format!(", solid hit at {}", full(h)));
                     writeln!(
                         out,
-                        "{at}T = {}{err}{tau} ({est}, {interp:?}, {} samples, length {}, {} lookups)",
-                        full(e.value), e.samples, full(ray.t_max()), e.lookups
+                        "{at}T = {}{err}{tau}{hit} ({est}, {interp:?}, {} samples, length {}, {} lookups)",
+                        list(e.value, &|x| full(x)), e.samples, full(ray.t_max()), e.lookups
                     )?;
                 }
             }

@@ -6,7 +6,7 @@ use std::path::Path;
 use umbra::bake::volume_warnings;
 use umbra::estimate::{Estimator, Options};
 use umbra::traverse::Granularity;
-use umbra::{Interp, Volume};
+use umbra::Interp;
 
 /// Lookup interpolation, as the CLI spells it.
 #[derive(Debug, Clone, Copy, clap::ValueEnum)]
@@ -156,6 +156,13 @@ impl From<GranularityArg> for Granularity {
     }
 }
 
+/// `--levelset`: what to do with a level-set grid.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LevelSetArg {
+    /// An opaque occluder: T = 0 from where a ray first enters phi < 0.
+    Solid,
+}
+
 /// Parse `X,Y,Z` into three finite numbers.
 pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
     let v: Vec<f64> = s
@@ -181,27 +188,20 @@ pub fn parse_xform(s: &str) -> std::result::Result<umbra::xform::Xform, String> 
     })
 }
 
-/// Load a grid for tracing (placed by `xform`), warning about voxels the bad-voxel policy
-/// changed.
-pub fn load_volume(
-    file: &Path,
-    grid: &str,
-    density_scale: f64,
-    xform: Option<&umbra::xform::Xform>,
-) -> Result<Volume> {
-    let mut vol = Volume::load(file, grid, density_scale)
-        .with_context(|| format!("loading grid '{grid}'"))?;
-    if let Some(x) = xform {
-        vol = vol.with_xform(x).map_err(flag_error)?;
+/// Load a `.vdb` grid or a `.toml` scene for tracing, warning about voxels the bad-voxel
+/// policy changed.
+pub fn load_scene(file: &Path, opts: &umbra::scene::SceneOptions) -> Result<umbra::scene::Scene> {
+    let scene = umbra::scene::load(file, opts).map_err(|e| match e {
+        umbra::Error::InvalidArgument { .. } => anyhow::Error::from(flag_error(e)),
+        other if umbra::scene::is_scene_file(file) => {
+            anyhow::Error::from(other).context("loading the scene")
+        }
+        other => anyhow::Error::from(other).context(format!("loading grid '{}'", opts.grid)),
+    })?;
+    for w in volume_warnings(&scene.sanitized()) {
+        eprintln!("umbra: warning: {}: {w}", file.display());
     }
-    for w in volume_warnings(&vol.sanitized()) {
-        eprintln!(
-            "umbra: warning: {}: grid '{}': {w}",
-            file.display(),
-            umbra::text::escape(vol.name())
-        );
-    }
-    Ok(vol)
+    Ok(scene)
 }
 
 /// A rayon pool of `threads` workers (0: as many as cores).

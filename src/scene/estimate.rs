@@ -1,0 +1,448 @@
+//! Transmittance through a scene: several fog volumes (each with its own tree, transform,
+//! HDDA and halos), per-channel extinction, and opaque solids.
+//!
+//! **Exact.** Optical depth is additive across volumes as along a ray:
+//! `tau_c = sum_k sigma_{k,c} tau_k`, each `tau_k` by regular tracking in volume `k`'s own index
+//! space; one pass per volume, then one exponential per channel.
+//!
+//! **Stochastic.** Each volume's ray is prepared as for a single grid (closed-form parts into
+//! `tau_known_k`, the rest as majorant segments). The segments of all volumes are merged into
+//! elementary intervals, each with the set `K` of volumes sampled there and per-channel bounds
+//! `mu_min,c = sum_{k in K} sigma_{k,c} mu_min,k`, `mu_maj,c = sum_{k in K} sigma_{k,c} mu_maj,k`.
+//! The estimators run on these intervals with the *shared* majorant `max_c mu_maj,c` (a valid
+//! majorant of every channel) and the lookup `mu_c(t) = sum_{k in K(t)} sigma_{k,c} mu_k(t)`.
+//! The closed-form parts add `sum_k sigma_{k,c} tau_known_k`. Since `tau = known + sampled`
+//! exactly, every unbiased estimator stays unbiased on the union.
+//!
+//! **Colour (spectral tracking with a shared walk).** The three channels use the same random
+//! numbers (sample `i` of ray `r` draws `Rng::new(seed, r, i)` for every channel) and the same
+//! majorant, so their tentative collisions fall at the same distances: the first channel's
+//! lookups are recorded (all three channels' extinction at once, one tree lookup per volume)
+//! and the others replay them. Where a channel's walk leaves the shared path (a delta-tracking
+//! walk that stops at a different real collision, a channel-specific control), it looks the
+//! medium up itself; each channel is the single-channel estimator with a valid majorant, so
+//! each is unbiased (Kutz et al. 2017, "Spectral and decomposition tracking"; Miller et al.
+//! 2019, "A null-scattering path integral formulation": a majorant shared by all wavelengths).
+//!
+//! **Solids.** The first point of the ray inside any solid (`phi < 0`) cuts the ray: `T = 0`
+//! for every channel if it is within `[t_min, t_max]`.
+//!
+//! Allocation: the scene path allocates its merged intervals per ray (the single-volume path
+//! allocates nothing per ray).
+
+use super::Scene;
+use crate::error::{Error, Result};
+use crate::estimate::{
+    budget, estimate as estimate_one, prepare, sample_once, Cap, Estimate, Estimator, Extinction,
+    Options, RayMedium,
+};
+use crate::math::scaled;
+use crate::ray::Ray;
+use crate::rng::Rng;
+use crate::traverse::Segment;
+
+/// A scene's transmittance estimate, per channel (`channels` is 1 or 3; unused entries are
+/// copies of channel 0).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct SceneEstimate {
+    /// 1 (grey) or 3 (R, G, B).
+    pub channels: usize,
+    /// Mean of the per-sample estimates of `T_c`.
+    pub value: [f64; 3],
+    /// Standard error of each mean (0 for deterministic estimators or one sample).
+    pub std_err: [f64; 3],
+    /// Exact optical depth per channel (regular tracking; `inf` behind a solid).
+    pub tau: Option<[f64; 3]>,
+    /// Density lookups, all volumes and channels.
+    pub lookups: u64,
+    /// HDDA segments walked, all volumes.
+    pub segments: u64,
+    /// Samples averaged per channel.
+    pub samples: u32,
+    /// Samples stopped by the collision cap, all channels.
+    pub capped: u64,
+    /// Lookups outside their interval's bounds (a wrong majorant; see
+    /// [`Estimate::majorant_violations`]).
+    pub majorant_violations: u64,
+    /// Where the ray first enters a solid, if it does within its range.
+    pub hit: Option<f64>,
+}
+
+impl SceneEstimate {
+    /// Channel `c` as a single-grid [`Estimate`] (costs are the whole ray's).
+    #[must_use]
+    pub fn channel(&self, c: usize) -> Estimate {
+        let c = c.min(2);
+        Estimate {
+            value: self.value[c],
+            std_err: self.std_err[c],
+            lookups: self.lookups,
+            segments: self.segments,
+            samples: self.samples,
+            capped: self.capped,
+            majorant_violations: self.majorant_violations,
+            tau: self.tau.map(|t| t[c]),
+        }
+    }
+
+    pub(crate) fn grey(e: &Estimate) -> Self {
+        Self {
+            channels: 1,
+            value: [e.value; 3],
+            std_err: [e.std_err; 3],
+            tau: e.tau.map(|t| [t; 3]),
+            lookups: e.lookups,
+            segments: e.segments,
+            samples: e.samples,
+            capped: e.capped,
+            majorant_violations: e.majorant_violations,
+            hit: None,
+        }
+    }
+}
+
+/// Estimate the transmittance of `scene` along `ray` (see the module docs). A scene of one
+/// grey volume without solids gives exactly [`crate::estimate::estimate`]'s answer.
+///
+/// # Errors
+/// As [`crate::estimate::estimate`]: invalid options, a budget exceeded on any volume, NaN.
+pub fn estimate(
+    scene: &Scene,
+    ray: &Ray,
+    ray_id: u64,
+    est: &Estimator,
+    opts: &Options,
+) -> Result<SceneEstimate> {
+    opts.validate()?;
+    for f in &scene.fogs {
+        budget::check_ray(&f.volume, est, opts.samples)?;
+    }
+    let channels = scene.channels();
+    let hit = scene
+        .solids
+        .iter()
+        .filter_map(|s| s.first_hit(ray))
+        .min_by(f64::total_cmp);
+    if let Some(t) = hit {
+        return Ok(SceneEstimate {
+            channels,
+            value: [0.0; 3],
+            std_err: [0.0; 3],
+            tau: est.is_deterministic().then_some([f64::INFINITY; 3]),
+            lookups: 0,
+            segments: 0,
+            samples: 1,
+            capped: 0,
+            majorant_violations: 0,
+            hit: Some(t),
+        });
+    }
+    if let Some(vol) = scene.single() {
+        return Ok(SceneEstimate::grey(&estimate_one(
+            vol, ray, ray_id, est, opts,
+        )?));
+    }
+    let e = if *est == Estimator::REGULAR {
+        exact(scene, ray, opts)?
+    } else {
+        sampled(scene, ray, ray_id, est, opts)
+    };
+    let nan = e.value.iter().chain(&e.std_err).any(|v| v.is_nan());
+    if nan {
+        return Err(Error::NotANumber {
+            what: format!("{} transmittance estimate", est.name()),
+            context: format!(
+                " on the ray from {} along {}",
+                ray.origin(),
+                ray.direction()
+            ),
+        });
+    }
+    Ok(e)
+}
+
+/// Regular tracking in every volume, summed per channel.
+fn exact(scene: &Scene, ray: &Ray, opts: &Options) -> Result<SceneEstimate> {
+    let mut tau = [0.0f64; 3];
+    let (mut lookups, mut segments) = (0, 0);
+    for f in &scene.fogs {
+        let od = crate::regular::optical_depth(&f.volume, ray, opts.interp)?;
+        for (c, t) in tau.iter_mut().enumerate() {
+            *t += scaled(f.sigma[c], od.tau);
+        }
+        lookups += od.lookups;
+        segments += od.segments;
+    }
+    let value = tau.map(|t| (-t).exp());
+    Ok(SceneEstimate {
+        channels: scene.channels(),
+        value,
+        std_err: [0.0; 3],
+        tau: Some(tau),
+        lookups,
+        segments,
+        samples: 1,
+        capped: 0,
+        majorant_violations: 0,
+        hit: None,
+    })
+}
+
+/// An elementary interval of the merged segments: `[t0, t1]` and the volumes sampled there.
+#[derive(Debug, Clone, Copy)]
+struct Piece {
+    t0: f64,
+    t1: f64,
+    mask: u64,
+}
+
+/// Merge each volume's sampled segments into elementary intervals (every boundary of every
+/// volume's segments is a boundary), keeping those where at least one volume is sampled.
+/// Each volume's segments are in ray order and do not overlap.
+fn merge(per: &[Vec<Segment>]) -> Vec<Piece> {
+    let mut cuts: Vec<f64> = per
+        .iter()
+        .flatten()
+        .flat_map(|s| [s.t_min, s.t_max])
+        .collect();
+    cuts.sort_by(f64::total_cmp);
+    cuts.dedup();
+    let mut next = vec![0usize; per.len()];
+    let mut pieces = Vec::new();
+    for w in cuts.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let mut mask = 0u64;
+        for (k, segs) in per.iter().enumerate() {
+            while next[k] < segs.len() && segs[next[k]].t_max <= a {
+                next[k] += 1;
+            }
+            if segs
+                .get(next[k])
+                .is_some_and(|s| s.t_min <= a && s.t_max >= b)
+            {
+                mask |= 1 << k;
+            }
+        }
+        if mask != 0 {
+            pieces.push(Piece { t0: a, t1: b, mask });
+        }
+    }
+    pieces
+}
+
+/// The medium of a scene along one ray: the sum of the sampled volumes' extinction, per
+/// channel, with the first channel's lookups recorded for the others (see the module docs).
+struct SceneMedium<'v> {
+    media: Vec<RayMedium<'v>>,
+    sigma: Vec<[f64; 3]>,
+    pieces: Vec<Piece>,
+    cursor: usize,
+    channel: usize,
+    record: bool,
+    log: Vec<(f64, [f64; 3])>,
+    replay: usize,
+    voxels: f64,
+}
+
+impl SceneMedium<'_> {
+    /// The piece holding `t` (the cursor follows the walk; a jump back searches).
+    fn locate(&mut self, t: f64) -> Option<Piece> {
+        let n = self.pieces.len();
+        if n == 0 {
+            return None;
+        }
+        let mut i = self.cursor.min(n - 1);
+        if t < self.pieces[i].t0 || t > self.pieces[i].t1 {
+            i = self.pieces.partition_point(|p| p.t1 < t).min(n - 1);
+        }
+        self.cursor = i;
+        let p = self.pieces[i];
+        (p.t0 <= t && t <= p.t1).then_some(p)
+    }
+
+    /// Extinction of every channel at `t`: one lookup per sampled volume there.
+    fn lookup(&mut self, t: f64) -> [f64; 3] {
+        let Some(p) = self.locate(t) else {
+            return [0.0; 3];
+        };
+        let mut mu = [0.0; 3];
+        let mut m = p.mask;
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let v = self.media[k].mu(t);
+            for (c, x) in mu.iter_mut().enumerate() {
+                *x += scaled(self.sigma[k][c], v);
+            }
+        }
+        mu
+    }
+
+    /// Start channel `c`'s walk: channel 0 records, the others replay.
+    fn begin(&mut self, c: usize, record: bool) {
+        self.channel = c;
+        self.record = record;
+        self.replay = 0;
+        if record {
+            self.log.clear();
+        }
+    }
+
+    fn lookups(&self) -> u64 {
+        self.media.iter().map(RayMedium::lookups).sum()
+    }
+}
+
+impl Extinction for SceneMedium<'_> {
+    fn mu(&mut self, t: f64) -> f64 {
+        if !self.record {
+            if let Some(&(lt, v)) = self.log.get(self.replay) {
+                if lt.to_bits() == t.to_bits() {
+                    self.replay += 1;
+                    return v[self.channel];
+                }
+                self.replay = usize::MAX; // left the shared path: look up from here on
+            }
+        }
+        let v = self.lookup(t);
+        if self.record {
+            self.log.push((t, v));
+        }
+        v[self.channel]
+    }
+
+    fn exact(&mut self, t0: f64, t1: f64) -> f64 {
+        let c = self.channel;
+        let mut tau = 0.0;
+        for i in 0..self.pieces.len() {
+            let p = self.pieces[i];
+            let (a, b) = (p.t0.max(t0), p.t1.min(t1));
+            if a >= b {
+                continue;
+            }
+            let mut m = p.mask;
+            while m != 0 {
+                let k = m.trailing_zeros() as usize;
+                m &= m - 1;
+                tau += scaled(self.sigma[k][c], self.media[k].exact(a, b));
+            }
+        }
+        tau
+    }
+
+    fn voxels_per_world_unit(&self) -> f64 {
+        self.voxels
+    }
+}
+
+/// Every stochastic estimator on the merged intervals (see the module docs).
+fn sampled(
+    scene: &Scene,
+    ray: &Ray,
+    ray_id: u64,
+    est: &Estimator,
+    opts: &Options,
+) -> SceneEstimate {
+    let channels = scene.channels();
+    let mut media = Vec::with_capacity(scene.fogs.len());
+    let mut per = Vec::with_capacity(scene.fogs.len());
+    let mut known = [0.0f64; 3];
+    let mut segments = 0;
+    let mut voxels = 0.0f64;
+    for f in &scene.fogs {
+        let mut m = RayMedium::new(&f.volume, ray, opts.interp);
+        let p = prepare(&f.volume, ray, opts, &mut m);
+        for (c, k) in known.iter_mut().enumerate() {
+            *k += scaled(f.sigma[c], p.tau_known);
+        }
+        segments += p.walked;
+        voxels = voxels.max(m.voxels_per_world_unit());
+        per.push(p.segs);
+        media.push(m);
+    }
+    let pieces = merge(&per);
+    let sigma: Vec<[f64; 3]> = scene.fogs.iter().map(|f| f.sigma).collect();
+    // Per-channel segments over the pieces: summed bounds, the shared majorant.
+    let mut segs: [Vec<Segment>; 3] = Default::default();
+    let mut cursor = vec![0usize; per.len()];
+    for p in &pieces {
+        let (mut lo, mut hi) = ([0.0f64; 3], [0.0f64; 3]);
+        let mut level = 0;
+        let mut m = p.mask;
+        while m != 0 {
+            let k = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let list = &per[k];
+            while cursor[k] < list.len() && list[cursor[k]].t_max <= p.t0 {
+                cursor[k] += 1;
+            }
+            let s = list[cursor[k].min(list.len() - 1)];
+            level = level.max(s.level);
+            for c in 0..3 {
+                lo[c] += scaled(sigma[k][c], s.mu_min);
+                hi[c] += scaled(sigma[k][c], s.mu_maj);
+            }
+        }
+        let maj = hi[..channels].iter().copied().fold(0.0f64, f64::max);
+        for (c, list) in segs.iter_mut().enumerate().take(channels) {
+            list.push(Segment {
+                t_min: p.t0,
+                t_max: p.t1,
+                mu_min: lo[c],
+                mu_maj: maj,
+                level,
+            });
+        }
+    }
+    let mut medium = SceneMedium {
+        media,
+        sigma,
+        pieces,
+        cursor: 0,
+        channel: 0,
+        record: false,
+        log: Vec::new(),
+        replay: 0,
+        voxels,
+    };
+    let samples = if est.is_deterministic() || segs[0].is_empty() {
+        1
+    } else {
+        opts.samples.max(1)
+    };
+    let (mut mean, mut m2) = ([0.0f64; 3], [0.0f64; 3]);
+    let (mut capped, mut violations) = (0u64, 0u64);
+    for i in 0..samples {
+        for c in 0..channels {
+            let mut rng = Rng::new(opts.seed, ray_id, u64::from(i));
+            let mut cap = Cap::new(opts.max_collisions);
+            medium.begin(c, c == 0 && channels > 1);
+            let x = (-known[c]).exp() * sample_once(est, &segs[c], &mut medium, &mut rng, &mut cap);
+            capped += u64::from(cap.hit);
+            violations += cap.violations;
+            let delta = x - mean[c];
+            mean[c] += delta / f64::from(i + 1);
+            m2[c] += delta * (x - mean[c]);
+        }
+    }
+    let std_err = std::array::from_fn(|c| {
+        if samples > 1 && c < channels {
+            (m2[c] / f64::from(samples - 1) / f64::from(samples)).sqrt()
+        } else {
+            0.0
+        }
+    });
+    let fill = |v: [f64; 3]| if channels == 1 { [v[0]; 3] } else { v };
+    SceneEstimate {
+        channels,
+        value: fill(mean),
+        std_err: fill(std_err),
+        tau: None,
+        lookups: medium.lookups(),
+        segments,
+        samples,
+        capped,
+        majorant_violations: violations,
+        hit: None,
+    }
+}

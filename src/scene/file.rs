@@ -1,0 +1,368 @@
+//! Loading a scene: a `.vdb` file (one grid) or a `.toml` scene file.
+//!
+//! A scene file holds one or more `[[volume]]` tables:
+//!
+//! ```toml
+//! [[volume]]
+//! file = "cloud.vdb"            # relative to the scene file's directory
+//! grid = "density"              # or: grids = ["density", "flame"], weights = [1.0, 0.5]
+//! density_scale = 2.0           # default 1
+//! sigma_t = [0.9, 1.0, 1.2]     # per channel (an RGB scene), or one number (grey); default 1
+//! xform = [1,0,0,5, 0,1,0,0, 0,0,1,0, 0,0,0,1]   # world-from-object, row-major
+//! kind = "fog"                  # or "solid": a level set traced as an opaque occluder
+//! ```
+//!
+//! A fog volume's extinction is `mu_c = density_scale x sigma_t[c] x sum_g weight_g value_g`:
+//! each weighted grid is its own volume with scale `density_scale x weight_g` (the sum is
+//! exact, and each grid keeps its own tree and bounds). Options given with the scene
+//! ([`SceneOptions`], the command line's `--density-scale`, `--sigma-t`, `--xform`) apply on top
+//! of every volume's own: scales and colours multiply, the transform is applied after the
+//! volume's (`world = X_scene X_volume object`). Only the grids the scene names are decoded.
+
+use super::{check_sigma, Fog, Scene};
+use crate::error::{Error, Result};
+use crate::solid::Solid;
+use crate::volume::Volume;
+use crate::xform::Xform;
+use glam::DVec3;
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// How to read a scene, and what applies on top of it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SceneOptions {
+    /// Grid of a `.vdb` input (ignored by scene files, which name their grids).
+    pub grid: String,
+    /// Multiplies every volume's density scale.
+    pub density_scale: f64,
+    /// Multiplies every volume's extinction colour; makes the scene RGB.
+    pub sigma_t: Option<[f64; 3]>,
+    /// Applied after every volume's own transform.
+    pub xform: Option<Xform>,
+    /// A level-set grid of a `.vdb` input is traced as an opaque solid (`--levelset solid`)
+    /// instead of being refused.
+    pub levelset_solid: bool,
+}
+
+impl Default for SceneOptions {
+    fn default() -> Self {
+        Self {
+            grid: "density".into(),
+            density_scale: 1.0,
+            sigma_t: None,
+            xform: None,
+            levelset_solid: false,
+        }
+    }
+}
+
+/// Whether `path` names a scene file (extension `.toml`, any case).
+#[must_use]
+pub fn is_scene_file(path: &Path) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+}
+
+/// Load the scene at `path`: a scene file (`.toml`) or one grid of a `.vdb` file.
+///
+/// # Errors
+/// Every loading error of the files it names ([`Volume::load`], [`Solid::load`]), and
+/// [`Error::Scene`] naming the scene file and the `[[volume]]` entry for a malformed scene.
+pub fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
+    let path = path.as_ref();
+    crate::volume::check_density_scale(opts.density_scale)?;
+    if let Some(s) = opts.sigma_t {
+        check_sigma(s)?;
+    }
+    let rgb = opts.sigma_t.is_some();
+    if is_scene_file(path) {
+        return load_file(path, opts);
+    }
+    let grid = crate::vdb::load_grid(path, &opts.grid)?;
+    let (mut fogs, mut solids) = (Vec::new(), Vec::new());
+    if opts.levelset_solid && grid.class.as_deref() == Some("level set") {
+        let mut s = Solid::new(grid, path)?;
+        if let Some(x) = &opts.xform {
+            s = s.with_xform(x)?;
+        }
+        solids.push(s);
+    } else {
+        let mut v = Volume::new(grid, opts.density_scale, path)?;
+        if let Some(x) = &opts.xform {
+            v = v.with_xform(x)?;
+        }
+        fogs.push(Fog::new(v, opts.sigma_t.unwrap_or([1.0; 3]))?);
+    }
+    Scene::new(fogs, solids, rgb)
+}
+
+/// `sigma_t` in a scene file: one number (grey) or three (RGB).
+#[derive(Debug, Clone, Copy, Deserialize)]
+#[serde(untagged)]
+enum SigmaSpec {
+    Grey(f64),
+    Rgb([f64; 3]),
+}
+
+/// One `[[volume]]` table.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct VolumeSpec {
+    file: String,
+    grid: Option<String>,
+    grids: Option<Vec<String>>,
+    weights: Option<Vec<f64>>,
+    density_scale: Option<f64>,
+    sigma_t: Option<SigmaSpec>,
+    xform: Option<Vec<f64>>,
+    kind: Option<String>,
+}
+
+/// The scene file as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    volume: Vec<VolumeSpec>,
+}
+
+fn scene_err(path: &Path, reason: impl Into<String>) -> Error {
+    Error::Scene {
+        path: path.to_path_buf(),
+        reason: reason.into(),
+    }
+}
+
+/// One grid of a scene file, resolved: where it is, how it is scaled, coloured and placed.
+#[derive(Debug, Clone)]
+struct Entry {
+    file: PathBuf,
+    grid: String,
+    solid: bool,
+    /// Full density scale (scene option x volume x weight).
+    scale: f64,
+    sigma: [f64; 3],
+    /// Volume transform, then the scene option's.
+    xform: Option<Xform>,
+    /// `volume[i] (file)`, for messages.
+    at: String,
+}
+
+/// Parse a scene file into its grids (nothing is decoded) and whether it is RGB.
+fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
+    let text = std::fs::read_to_string(path).map_err(|err| Error::Io {
+        path: path.to_path_buf(),
+        err,
+    })?;
+    let file: SceneFile = toml::from_str(&text).map_err(|e| {
+        let msg = e.message().to_string();
+        match e.span() {
+            Some(span) => {
+                let line = text[..span.start.min(text.len())].matches('\n').count() + 1;
+                scene_err(path, format!("line {line}: {msg}"))
+            }
+            None => scene_err(path, msg),
+        }
+    })?;
+    if file.volume.is_empty() {
+        return Err(scene_err(path, "no [[volume]] tables"));
+    }
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut rgb = opts.sigma_t.is_some();
+    let mut entries = Vec::new();
+    for (i, v) in file.volume.iter().enumerate() {
+        let at = format!("volume[{i}] ({})", v.file);
+        let here = |what: &str, reason: String| scene_err(path, format!("{at}: {what}{reason}"));
+        let file_path = resolve(dir, &v.file);
+        let own = match &v.xform {
+            Some(m) => Some(Xform::from_row_major(m).map_err(|e| here("xform: ", reason(e)))?),
+            None => None,
+        };
+        let xform = match (own, &opts.xform) {
+            (Some(a), Some(b)) => Some(
+                Xform::new(compose(&b.rows(), &a.rows()))
+                    .map_err(|e| here("xform: ", reason(e)))?,
+            ),
+            (Some(a), None) => Some(a),
+            (None, b) => *b,
+        };
+        let entry = |grid: String, solid: bool, scale: f64, sigma: [f64; 3]| Entry {
+            file: file_path.clone(),
+            grid,
+            solid,
+            scale,
+            sigma,
+            xform,
+            at: at.clone(),
+        };
+        match v.kind.as_deref().unwrap_or("fog") {
+            "solid" => {
+                let extra = [
+                    ("grids", v.grids.is_some()),
+                    ("weights", v.weights.is_some()),
+                    ("density_scale", v.density_scale.is_some()),
+                    ("sigma_t", v.sigma_t.is_some()),
+                ];
+                if let Some((k, _)) = extra.iter().find(|(_, given)| *given) {
+                    return Err(here(
+                        "",
+                        format!("'{k}' has no meaning for a solid (kind = \"solid\" is opaque)"),
+                    ));
+                }
+                let grid = v.grid.clone().unwrap_or_else(|| "density".into());
+                entries.push(entry(grid, true, 1.0, [1.0; 3]));
+            }
+            "fog" => {
+                let grids = match (&v.grid, &v.grids) {
+                    (Some(_), Some(_)) => {
+                        return Err(here("", "give 'grid' or 'grids', not both".into()))
+                    }
+                    (Some(g), None) => vec![g.clone()],
+                    (None, Some(g)) if g.is_empty() => {
+                        return Err(here("grids: ", "an empty list".into()))
+                    }
+                    (None, Some(g)) => g.clone(),
+                    (None, None) => vec!["density".into()],
+                };
+                let weights = match &v.weights {
+                    None => vec![1.0; grids.len()],
+                    Some(w) if v.grids.is_none() => {
+                        return Err(here(
+                            "weights: ",
+                            format!("{w:?} given with 'grid'; weights go with 'grids'"),
+                        ))
+                    }
+                    Some(w) if w.len() != grids.len() => {
+                        return Err(here(
+                            "weights: ",
+                            format!("{} weights for {} grids", w.len(), grids.len()),
+                        ))
+                    }
+                    Some(w) => w.clone(),
+                };
+                if let Some(w) = weights.iter().find(|w| !(w.is_finite() && **w >= 0.0)) {
+                    return Err(here(
+                        "weights: ",
+                        format!("{w} is not a finite, non-negative number"),
+                    ));
+                }
+                let scale = v.density_scale.unwrap_or(1.0);
+                crate::volume::check_density_scale(scale)
+                    .map_err(|e| here("density_scale: ", reason(e)))?;
+                let sigma = match v.sigma_t {
+                    None => [1.0; 3],
+                    Some(SigmaSpec::Grey(s)) => [s; 3],
+                    Some(SigmaSpec::Rgb(s)) => {
+                        rgb = true;
+                        s
+                    }
+                };
+                check_sigma(sigma).map_err(|e| here("sigma_t: ", reason(e)))?;
+                let tint = opts.sigma_t.unwrap_or([1.0; 3]);
+                let sigma = std::array::from_fn(|c| sigma[c] * tint[c]);
+                for (g, w) in grids.iter().zip(&weights) {
+                    entries.push(entry(
+                        g.clone(),
+                        false,
+                        opts.density_scale * scale * w,
+                        sigma,
+                    ));
+                }
+            }
+            other => {
+                return Err(here(
+                    "kind: ",
+                    format!(
+                        "'{}' is not \"fog\" or \"solid\"",
+                        crate::text::escape(other)
+                    ),
+                ))
+            }
+        }
+    }
+    if entries.iter().filter(|e| !e.solid).count() > super::MAX_VOLUMES {
+        return Err(scene_err(
+            path,
+            format!("more than {} fog grids", super::MAX_VOLUMES),
+        ));
+    }
+    Ok((entries, rgb))
+}
+
+fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
+    let (entries, rgb) = parse(path, opts)?;
+    let (mut fogs, mut solids) = (Vec::new(), Vec::new());
+    for e in entries {
+        let placed = |err: Error| scene_err(path, format!("{}: xform: {}", e.at, reason(err)));
+        if e.solid {
+            let mut s = Solid::load(&e.file, &e.grid)?;
+            if let Some(x) = &e.xform {
+                s = s.with_xform(x).map_err(placed)?;
+            }
+            solids.push(s);
+        } else {
+            let mut vol = Volume::load(&e.file, &e.grid, e.scale)?;
+            if let Some(x) = &e.xform {
+                vol = vol.with_xform(x).map_err(placed)?;
+            }
+            fogs.push(Fog::new(vol, e.sigma)?);
+        }
+    }
+    Scene::new(fogs, solids, rgb).map_err(|e| scene_err(path, reason(e)))
+}
+
+/// The world corners of every grid box of the scene at `path` (a `.vdb` file: its grid's),
+/// read from headers and topology without decoding voxel values (what framing a sequence
+/// needs). Grids holding only their background add nothing.
+///
+/// # Errors
+/// As [`load`], for what reading topology can find.
+pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Vec<DVec3>> {
+    let path = path.as_ref();
+    let entries = if is_scene_file(path) {
+        parse(path, opts)?.0
+    } else {
+        vec![Entry {
+            file: path.to_path_buf(),
+            grid: opts.grid.clone(),
+            solid: false,
+            scale: 1.0,
+            sigma: [1.0; 3],
+            xform: opts.xform,
+            at: String::new(),
+        }]
+    };
+    let mut out = Vec::new();
+    for e in entries {
+        if let Some(c) = Volume::read_box_corners(&e.file, &e.grid)? {
+            match &e.xform {
+                Some(x) => out.extend(c.map(|p| x.point(p))),
+                None => out.extend(c),
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The reason of an argument error (its message otherwise).
+fn reason(e: Error) -> String {
+    match e {
+        Error::InvalidArgument { reason, .. } => reason,
+        other => other.to_string(),
+    }
+}
+
+/// A path in a scene file, relative to the scene file's directory unless absolute.
+fn resolve(dir: &Path, file: &str) -> PathBuf {
+    let p = Path::new(file);
+    if p.is_absolute() {
+        p.to_path_buf()
+    } else {
+        dir.join(p)
+    }
+}
+
+/// `a b` for row-major 4x4 affine matrices.
+fn compose(a: &[[f64; 4]; 4], b: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
+    std::array::from_fn(|r| std::array::from_fn(|c| (0..4).map(|k| a[r][k] * b[k][c]).sum()))
+}

@@ -1,0 +1,228 @@
+//! Scenes: what one map or query traces. A scene is one or more fog volumes (each its own grid,
+//! transform, density scale and extinction colour `sigma_t`) and any number of opaque solids
+//! (level sets). A `.vdb` file is a scene of one volume; a `.toml` scene file lists
+//! `[[volume]]` tables (see [`file`]).
+//!
+//! Extinction of channel `c` at a world point `x`:
+//! `mu_c(x) = sum_k sigma_{k,c} density_scale_k value_k(x)` over the fog volumes, `+inf` inside
+//! any solid. A grey scene has one channel (`sigma` only scales it); a scene with any RGB
+//! `sigma_t` has three (R, G, B).
+
+mod estimate;
+pub mod file;
+
+pub use estimate::{estimate, SceneEstimate};
+pub use file::{is_scene_file, load, read_box_corners, SceneOptions};
+
+use crate::error::{Error, Result};
+use crate::solid::Solid;
+use crate::volume::{Sanitized, Volume};
+use glam::DVec3;
+
+/// Most fog volumes in one scene (the sampled set of each interval is a 64-bit mask).
+pub const MAX_VOLUMES: usize = 64;
+
+/// One fog volume of a scene: `mu_c = sigma[c] x density_scale x value`.
+///
+/// Invariant (why the fields are private): `sigma` is finite and non-negative, so the
+/// per-channel bounds the estimators use are the volume's bounds scaled by `sigma`.
+#[derive(Debug, Clone)]
+pub struct Fog {
+    volume: Volume,
+    sigma: [f64; 3],
+}
+
+impl Fog {
+    /// A fog volume with extinction colour `sigma` (use `[1.0; 3]` for grey).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `sigma-t`) for a negative or non-finite entry.
+    pub fn new(volume: Volume, sigma: [f64; 3]) -> Result<Self> {
+        check_sigma(sigma)?;
+        Ok(Self { volume, sigma })
+    }
+
+    /// The volume.
+    #[must_use]
+    pub fn volume(&self) -> &Volume {
+        &self.volume
+    }
+
+    /// Extinction colour: channel `c` is scaled by `sigma[c]`.
+    #[must_use]
+    pub fn sigma(&self) -> [f64; 3] {
+        self.sigma
+    }
+}
+
+/// Check an extinction colour: finite, non-negative.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] named `sigma-t`.
+pub fn check_sigma(sigma: [f64; 3]) -> Result<()> {
+    if sigma.iter().all(|s| s.is_finite() && *s >= 0.0) {
+        return Ok(());
+    }
+    Err(Error::InvalidArgument {
+        name: "sigma-t".into(),
+        reason: format!(
+            "{},{},{}: every channel must be a finite, non-negative number",
+            sigma[0], sigma[1], sigma[2]
+        ),
+    })
+}
+
+/// What a map or a query traces (see the module docs).
+///
+/// Invariants: at least one fog volume or solid, at most [`MAX_VOLUMES`] fog volumes; a grey
+/// scene (`channels == 1`) has the same `sigma` in every channel.
+#[derive(Debug, Clone)]
+pub struct Scene {
+    fogs: Vec<Fog>,
+    solids: Vec<Solid>,
+    channels: usize,
+}
+
+impl Scene {
+    /// A scene of fog volumes and solids; `rgb` asks for three channels (otherwise every fog's
+    /// `sigma` must be grey: the same in all channels).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `scene`) for an empty scene, more than
+    /// [`MAX_VOLUMES`] fog volumes, or a coloured `sigma` in a grey scene.
+    pub fn new(fogs: Vec<Fog>, solids: Vec<Solid>, rgb: bool) -> Result<Self> {
+        let bad = |reason: String| Error::InvalidArgument {
+            name: "scene".into(),
+            reason,
+        };
+        if fogs.is_empty() && solids.is_empty() {
+            return Err(bad("a scene needs at least one volume".into()));
+        }
+        if fogs.len() > MAX_VOLUMES {
+            return Err(bad(format!(
+                "{} fog volumes; at most {MAX_VOLUMES}",
+                fogs.len()
+            )));
+        }
+        if !rgb
+            && fogs
+                .iter()
+                .any(|f| f.sigma[0] != f.sigma[1] || f.sigma[0] != f.sigma[2])
+        {
+            return Err(bad(
+                "a coloured sigma_t needs an RGB scene (three channels)".into(),
+            ));
+        }
+        Ok(Self {
+            fogs,
+            solids,
+            channels: if rgb { 3 } else { 1 },
+        })
+    }
+
+    /// The scene of one grey volume.
+    #[must_use]
+    pub fn from_volume(volume: Volume) -> Self {
+        Self {
+            fogs: vec![Fog {
+                volume,
+                sigma: [1.0; 3],
+            }],
+            solids: Vec::new(),
+            channels: 1,
+        }
+    }
+
+    /// The fog volumes.
+    #[must_use]
+    pub fn fogs(&self) -> &[Fog] {
+        &self.fogs
+    }
+
+    /// The solids.
+    #[must_use]
+    pub fn solids(&self) -> &[Solid] {
+        &self.solids
+    }
+
+    /// 1 (grey) or 3 (R, G, B).
+    #[must_use]
+    pub fn channels(&self) -> usize {
+        self.channels
+    }
+
+    /// The volume itself when the scene is one grey fog volume with `sigma = 1` and no solid:
+    /// every single-grid path (the sweep, the budget, the estimators) then applies unchanged.
+    #[must_use]
+    pub fn single(&self) -> Option<&Volume> {
+        match (&self.fogs[..], self.solids.is_empty(), self.channels) {
+            ([f], true, 1) if f.sigma == [1.0; 3] => Some(&f.volume),
+            _ => None,
+        }
+    }
+
+    /// The world corners of every volume's and solid's box (what a map frames).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `grid`) when no volume holds anything but its
+    /// background.
+    pub fn box_corners(&self) -> Result<Vec<DVec3>> {
+        let mut out = Vec::new();
+        let mut first_err = None;
+        let boxes = self
+            .fogs
+            .iter()
+            .map(|f| f.volume.box_corners())
+            .chain(self.solids.iter().map(Solid::box_corners));
+        for b in boxes {
+            match b {
+                Ok(c) => out.extend(c),
+                Err(e) => {
+                    first_err.get_or_insert(e);
+                }
+            }
+        }
+        match (out.is_empty(), first_err) {
+            (true, Some(e)) => Err(e),
+            _ => Ok(out),
+        }
+    }
+
+    /// What the bad-voxel policy changed, summed over the fog volumes.
+    #[must_use]
+    pub fn sanitized(&self) -> Sanitized {
+        let mut s = Sanitized::default();
+        for f in &self.fogs {
+            let v = f.volume.sanitized();
+            s.nan += v.nan;
+            s.negative += v.negative;
+            s.pos_inf += v.pos_inf;
+        }
+        s
+    }
+
+    /// Largest extinction any fog volume can reach (for warnings): `max_k max_c sigma_{k,c}
+    /// density_scale_k max value_k`.
+    #[must_use]
+    pub fn mu_max(&self) -> f64 {
+        self.fogs
+            .iter()
+            .map(|f| {
+                let s = f.sigma.iter().copied().fold(0.0f64, f64::max);
+                crate::math::scaled(
+                    s * f.volume.density_scale(),
+                    f64::from(f.volume.bounds().max),
+                )
+            })
+            .fold(0.0, f64::max)
+    }
+
+    /// The grids traced, as `file-less` names for headers: `density`, or
+    /// `density+flame+ship(solid)` for a scene.
+    #[must_use]
+    pub fn grid_names(&self) -> String {
+        let fogs = self.fogs.iter().map(|f| f.volume.name().to_string());
+        let solids = self.solids.iter().map(|s| format!("{}(solid)", s.name()));
+        fogs.chain(solids).collect::<Vec<_>>().join("+")
+    }
+}

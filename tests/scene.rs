@@ -1,0 +1,477 @@
+//! Scenes (several volumes, weighted grids, RGB extinction, solids) against exact answers:
+//! exact optical depth is the sum of each volume's, every unbiased estimator is within 4
+//! standard errors of it per channel, maps of scenes equal their rays.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+#[allow(unused_imports)]
+mod common;
+
+use std::path::{Path, PathBuf};
+use umbra::bake::{bake_scene, BakeSettings, Camera, Order, Projection, Resolution, View};
+use umbra::estimate::{estimate, Estimator, Kind, Options, REGISTRY};
+use umbra::regular::optical_depth;
+use umbra::scene::{self, Scene, SceneOptions};
+use umbra::{Interp, Ray, Volume};
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("data")
+        .join(name)
+}
+
+fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, text).unwrap();
+    p
+}
+
+const SHIFT: [f64; 16] = [
+    1.0, 0.0, 0.0, 0.4, 0.0, 1.0, 0.0, -0.3, 0.0, 0.0, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0,
+];
+
+fn shift() -> umbra::xform::Xform {
+    umbra::xform::Xform::from_row_major(&SHIFT).unwrap()
+}
+
+/// The sample cloud twice: as it is, and shifted at half density; `sigma` per volume.
+fn two_clouds(dir: &Path, sigma: Option<([f64; 3], [f64; 3])>) -> PathBuf {
+    let cloud = data("cloud.vdb");
+    let colour = |s: Option<[f64; 3]>| {
+        s.map_or(String::new(), |s| {
+            format!("sigma_t = [{}, {}, {}]\n", s[0], s[1], s[2])
+        })
+    };
+    let x: Vec<String> = SHIFT.iter().map(|v| format!("{v:?}")).collect();
+    let text = format!(
+        "[[volume]]\nfile = {:?}\ngrid = \"density\"\n{}\n[[volume]]\nfile = \"cloud.vdb\"\n\
+         density_scale = 0.5\nxform = [{}]\n{}",
+        cloud.display().to_string(),
+        colour(sigma.map(|s| s.0)),
+        x.join(", "),
+        colour(sigma.map(|s| s.1)),
+    );
+    std::fs::copy(&cloud, dir.join("cloud.vdb")).unwrap();
+    write(dir, "two.toml", &text)
+}
+
+/// Rays through the cloud's box from all sides (fixed, deterministic).
+fn rays(n: usize) -> Vec<Ray> {
+    (0..n)
+        .map(|i| {
+            let a = i as f64 * 2.399_963;
+            let h = (i as f64 / n as f64) * 1.6 - 0.8;
+            let from = [2.5 * a.cos(), h, 2.5 * a.sin()];
+            let to = [-2.0 * (a + 0.7).cos(), 0.4 - h, -2.0 * (a + 0.7).sin()];
+            Ray::between(from, to).unwrap()
+        })
+        .collect()
+}
+
+#[test]
+fn a_two_volume_scene_is_the_sum_of_the_volumes_exact_depths() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    assert_eq!(scene.fogs().len(), 2);
+    assert_eq!(scene.channels(), 1);
+    let a = Volume::load(data("cloud.vdb"), "density", 1.0).unwrap();
+    let b = Volume::load(data("cloud.vdb"), "density", 0.5)
+        .unwrap()
+        .with_xform(&shift())
+        .unwrap();
+    let mut informative = 0;
+    for (i, r) in rays(64).iter().enumerate() {
+        let ta = optical_depth(&a, r, Interp::Trilinear).unwrap().tau;
+        let tb = optical_depth(&b, r, Interp::Trilinear).unwrap().tau;
+        let e = scene::estimate(
+            &scene,
+            r,
+            i as u64,
+            &Estimator::REGULAR,
+            &Options::default(),
+        )
+        .unwrap();
+        let tau = e.tau.unwrap()[0];
+        assert!(
+            (tau - (ta + tb)).abs() <= 1e-12 * (ta + tb),
+            "ray {i}: {tau} vs {ta} + {tb}"
+        );
+        assert_eq!(e.value[0], (-tau).exp());
+        if ta > 0.05 && tb > 0.05 {
+            informative += 1;
+        }
+    }
+    assert!(informative > 10, "{informative} rays cross both volumes");
+}
+
+#[test]
+fn a_scene_of_one_grey_volume_is_the_volume() {
+    let vol = Volume::load(data("cloud.vdb"), "density", 1.0).unwrap();
+    let scene = Scene::from_volume(vol.clone());
+    let ratio = Estimator::from_name("ratio").unwrap();
+    let opts = Options {
+        samples: 16,
+        seed: 3,
+        ..Options::default()
+    };
+    for (i, r) in rays(16).iter().enumerate() {
+        for est in [&Estimator::REGULAR, &ratio] {
+            let a = estimate(&vol, r, i as u64, est, &opts).unwrap();
+            let b = scene::estimate(&scene, r, i as u64, est, &opts).unwrap();
+            assert_eq!(b.channel(0), a);
+        }
+    }
+}
+
+#[test]
+fn weighted_grids_add_with_their_weights() {
+    let Some(dir) = common::corpus_dir() else {
+        return;
+    };
+    let file = dir.join("real/blender_smoke_fluid_data_0050.vdb");
+    let tmp = tempfile::tempdir().unwrap();
+    let scene_path = write(
+        tmp.path(),
+        "fire.toml",
+        &format!(
+            "[[volume]]\nfile = {:?}\ngrids = [\"density\", \"flame\"]\nweights = [1.0, 0.5]\n\
+             density_scale = 20.0\n",
+            file.display().to_string()
+        ),
+    );
+    let scene = scene::load(&scene_path, &SceneOptions::default()).unwrap();
+    let d = Volume::load(&file, "density", 20.0).unwrap();
+    let f = Volume::load(&file, "flame", 10.0).unwrap();
+    let c = d.box_corners().unwrap();
+    let (lo, hi) = (c[0], c[7]);
+    let mut both = 0;
+    for i in 0..40 {
+        let u = (i as f64 + 0.5) / 40.0;
+        let from = lo + (hi - lo) * glam::DVec3::new(u, 0.0, 0.5 + 0.3 * (u - 0.5));
+        let to = lo + (hi - lo) * glam::DVec3::new(1.0 - u, 1.0, 0.5);
+        let r = Ray::between(from, to).unwrap();
+        let td = optical_depth(&d, &r, Interp::Trilinear).unwrap().tau;
+        let tf = optical_depth(&f, &r, Interp::Trilinear).unwrap().tau;
+        let e = scene::estimate(&scene, &r, 0, &Estimator::REGULAR, &Options::default()).unwrap();
+        let tau = e.tau.unwrap()[0];
+        assert!(
+            (tau - (td + tf)).abs() <= 1e-12 * (td + tf) + 1e-300,
+            "{tau} {td} {tf}"
+        );
+        if td > 1e-3 && tf > 1e-3 {
+            both += 1;
+        }
+    }
+    assert!(both > 5, "{both} rays see density and flame");
+}
+
+#[test]
+fn rgb_exact_is_sigma_times_tau_per_channel() {
+    let dir = tempfile::tempdir().unwrap();
+    let s1 = [0.5, 1.0, 2.0];
+    let s2 = [2.0, 1.0, 0.25];
+    let path = two_clouds(dir.path(), Some((s1, s2)));
+    let scene = scene::load(&path, &SceneOptions::default()).unwrap();
+    assert_eq!(scene.channels(), 3);
+    let a = Volume::load(data("cloud.vdb"), "density", 1.0).unwrap();
+    let b = Volume::load(data("cloud.vdb"), "density", 0.5)
+        .unwrap()
+        .with_xform(&shift())
+        .unwrap();
+    for (i, r) in rays(32).iter().enumerate() {
+        let ta = optical_depth(&a, r, Interp::Trilinear).unwrap().tau;
+        let tb = optical_depth(&b, r, Interp::Trilinear).unwrap().tau;
+        let e = scene::estimate(
+            &scene,
+            r,
+            i as u64,
+            &Estimator::REGULAR,
+            &Options::default(),
+        )
+        .unwrap();
+        for c in 0..3 {
+            let want = s1[c] * ta + s2[c] * tb;
+            let got = e.tau.unwrap()[c];
+            assert!((got - want).abs() <= 1e-12 * want, "ray {i} channel {c}");
+            assert_eq!(e.value[c], (-got).exp());
+        }
+    }
+    // --sigma-t on the command line multiplies each volume's colour.
+    let tinted = scene::load(
+        &path,
+        &SceneOptions {
+            sigma_t: Some([1.0, 2.0, 0.5]),
+            ..SceneOptions::default()
+        },
+    )
+    .unwrap();
+    let r = &rays(1)[0];
+    let e0 = scene::estimate(&scene, r, 0, &Estimator::REGULAR, &Options::default()).unwrap();
+    let e1 = scene::estimate(&tinted, r, 0, &Estimator::REGULAR, &Options::default()).unwrap();
+    for (c, k) in [1.0, 2.0, 0.5].iter().enumerate() {
+        let (t0, t1) = (e0.tau.unwrap()[c], e1.tau.unwrap()[c]);
+        assert!((t1 - k * t0).abs() <= 1e-12 * t1.abs().max(1e-300));
+    }
+}
+
+/// Every estimator the registry calls unbiased (signed ones included), at its defaults.
+fn unbiased() -> Vec<Estimator> {
+    REGISTRY
+        .iter()
+        .filter(|s| matches!(s.kind, Kind::Unbiased | Kind::Signed))
+        .map(|s| Estimator::from_name(s.name).unwrap())
+        .collect()
+}
+
+/// Check every unbiased estimator against exact on `scene`, per channel.
+fn check_unbiased(scene: &Scene, what: &str) {
+    let n = 3000;
+    let mut failures = Vec::new();
+    let (mut checks, mut informative) = (0, 0);
+    let ests = unbiased();
+    assert!(ests.len() >= 6, "{} unbiased estimators", ests.len());
+    for est in &ests {
+        let opts = Options {
+            samples: n,
+            seed: 77,
+            ..Options::default()
+        };
+        for (i, r) in rays(10).iter().enumerate() {
+            let exact = scene::estimate(scene, r, i as u64, &Estimator::REGULAR, &opts).unwrap();
+            let e = scene::estimate(scene, r, i as u64, est, &opts).unwrap();
+            assert_eq!(e.capped, 0);
+            assert_eq!(e.majorant_violations, 0, "{} ray {i}", est.name());
+            for c in 0..scene.channels() {
+                let t = exact.value[c];
+                let se = if e.std_err[c] > 0.0 {
+                    e.std_err[c]
+                } else {
+                    (t * (1.0 - t) / f64::from(n)).sqrt().max(1e-12)
+                };
+                checks += 1;
+                if se < 0.1 * t && t < 0.95 {
+                    informative += 1;
+                }
+                if (e.value[c] - t).abs() > 4.0 * se {
+                    failures.push(format!(
+                        "{what} {} ray {i} channel {c}: {} vs exact {t} (se {se:.2e}, {:.1} se)",
+                        est.name(),
+                        e.value[c],
+                        (e.value[c] - t).abs() / se
+                    ));
+                }
+            }
+        }
+    }
+    eprintln!("{what}: {checks} checks, {informative} informative");
+    assert!(
+        informative * 2 > checks,
+        "{informative} of {checks} informative"
+    );
+    // 4 sigma: about 6e-5 of checks fail by chance; allow none at these counts.
+    assert!(failures.is_empty(), "{}", failures.join("\n"));
+}
+
+#[test]
+fn unbiased_estimators_on_a_two_volume_scene_match_exact() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    check_unbiased(&scene, "grey scene");
+}
+
+#[test]
+fn unbiased_estimators_on_rgb_match_exact_per_channel() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_clouds(dir.path(), Some(([0.3, 1.0, 2.5], [1.5, 0.7, 0.1])));
+    let scene = scene::load(&path, &SceneOptions::default()).unwrap();
+    check_unbiased(&scene, "RGB scene");
+    // One volume in colour (the command line's --sigma-t on a .vdb).
+    let one = scene::load(
+        data("cloud.vdb"),
+        &SceneOptions {
+            sigma_t: Some([0.25, 1.0, 3.0]),
+            ..SceneOptions::default()
+        },
+    )
+    .unwrap();
+    check_unbiased(&one, "RGB volume");
+}
+
+#[test]
+fn the_shared_walk_looks_the_medium_up_once_for_all_channels() {
+    let grey = scene::load(data("cloud.vdb"), &SceneOptions::default()).unwrap();
+    let rgb = scene::load(
+        data("cloud.vdb"),
+        &SceneOptions {
+            sigma_t: Some([1.0, 1.0, 1.0]),
+            ..SceneOptions::default()
+        },
+    )
+    .unwrap();
+    let ratio = Estimator::from_name("ratio").unwrap();
+    let opts = Options {
+        samples: 200,
+        seed: 5,
+        ..Options::default()
+    };
+    for (i, r) in rays(8).iter().enumerate() {
+        let g = scene::estimate(&grey, r, i as u64, &ratio, &opts).unwrap();
+        let c = scene::estimate(&rgb, r, i as u64, &ratio, &opts).unwrap();
+        // Same walk, same numbers: three equal channels for the cost of one.
+        assert_eq!(c.value, [g.value[0]; 3]);
+        assert_eq!(c.lookups, g.lookups, "ray {i}");
+    }
+}
+
+fn camera(scene: &Scene, res: u32) -> Camera {
+    let view = View {
+        projection: Projection::Ortho,
+        light_dir: Some([-0.3, -1.0, 0.2]),
+        res: Some(Resolution::Exact(res, res)),
+        ..View::default()
+    };
+    Camera::frame(&view, &scene.box_corners().unwrap()).unwrap()
+}
+
+#[test]
+fn scene_maps_sweep_equals_rays_and_colour_is_per_channel() {
+    let dir = tempfile::tempdir().unwrap();
+    let s1 = [0.5, 1.0, 2.0];
+    let path = two_clouds(dir.path(), Some((s1, s1)));
+    let rgb = scene::load(&path, &SceneOptions::default()).unwrap();
+    let cam = camera(&rgb, 48);
+    let mut s = BakeSettings::new(Estimator::REGULAR, Options::default());
+    s.depths = umbra::bake::Depths::Slices(3);
+    let swept = bake_scene(&rgb, &cam, &s, &|_| {}).unwrap();
+    assert!(swept.stats.sweep);
+    assert_eq!(swept.channels(), 3);
+    s.order = Order::Rays;
+    let traced = bake_scene(&rgb, &cam, &s, &|_| {}).unwrap();
+    assert!(!traced.stats.sweep);
+    let mut dark = 0;
+    for c in 0..3 {
+        let (a, _, sa) = swept.channel(c);
+        let (b, _, sb) = traced.channel(c);
+        for (x, y) in a
+            .iter()
+            .zip(b)
+            .chain(sa.iter().flatten().zip(sb.iter().flatten()))
+        {
+            assert!((x - y).abs() <= 2e-6, "channel {c}: {x} vs {y}");
+        }
+        dark += a.iter().filter(|t| **t < 0.5).count();
+    }
+    assert!(dark > 100, "{dark} dark pixels");
+    // Grey: T_c = T_grey^sigma_c for a uniformly tinted scene.
+    let grey = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    s.order = Order::Auto;
+    let g = bake_scene(&grey, &cam, &s, &|_| {}).unwrap();
+    for (c, sigma) in s1.iter().enumerate() {
+        let (t, _, _) = swept.channel(c);
+        for (x, y) in t.iter().zip(&g.t) {
+            let want = f64::from(*y).powf(*sigma);
+            assert!((f64::from(*x) - want).abs() <= 1e-5, "{x} vs {want}");
+        }
+    }
+}
+
+#[test]
+fn stochastic_scene_maps_are_the_per_pixel_estimates() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_clouds(dir.path(), Some(([0.5, 1.0, 2.0], [1.0, 1.0, 1.0])));
+    let rgb = scene::load(&path, &SceneOptions::default()).unwrap();
+    let cam = camera(&rgb, 16);
+    let est = Estimator::from_name("ratio").unwrap();
+    let opts = Options {
+        samples: 8,
+        seed: 9,
+        ..Options::default()
+    };
+    let mut s = BakeSettings::new(est, opts);
+    s.std_err = true;
+    let one = BakeSettings {
+        threads: 1,
+        ..s.clone()
+    };
+    let map = bake_scene(&rgb, &cam, &s, &|_| {}).unwrap();
+    let map1 = bake_scene(&rgb, &cam, &one, &|_| {}).unwrap();
+    for c in 0..3 {
+        assert_eq!(
+            map.channel(c).0,
+            map1.channel(c).0,
+            "thread count changed channel {c}"
+        );
+    }
+    for j in 0..16 {
+        for i in 0..16 {
+            let ray = cam.pixel_ray(i, j).unwrap();
+            let p = u64::from(j * 16 + i);
+            let e = scene::estimate(&rgb, &ray, p, &est, &opts).unwrap();
+            for c in 0..3 {
+                let (t, err, _) = map.channel(c);
+                assert_eq!(t[p as usize], e.value[c] as f32);
+                assert_eq!(err.unwrap()[p as usize], e.std_err[c] as f32);
+            }
+        }
+    }
+}
+
+#[test]
+fn malformed_scenes_name_the_file_and_the_entry() {
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = data("cloud.vdb").display().to_string();
+    let cases = [
+        ("[[volume]]\nfile = \"nope.vdb\"\n", "nope.vdb"),
+        ("[[volume]]\nfile = 3\n", "line 2"),
+        ("[[volume]]\nfil = \"a.vdb\"\n", "unknown field"),
+        ("volume = []\n", "no [[volume]]"),
+        (
+            &format!("[[volume]]\nfile = {cloud:?}\ngrids = [\"density\"]\nweights = [1, 2]\n"),
+            "volume[0]",
+        ),
+        (
+            &format!("[[volume]]\nfile = {cloud:?}\nsigma_t = [1, -1, 1]\n"),
+            "sigma_t",
+        ),
+        (
+            &format!("[[volume]]\nfile = {cloud:?}\nkind = \"smoke\"\n"),
+            "kind",
+        ),
+        (
+            &format!("[[volume]]\nfile = {cloud:?}\nkind = \"solid\"\nsigma_t = 2\n"),
+            "no meaning for a solid",
+        ),
+        (
+            &format!("[[volume]]\nfile = {cloud:?}\ngrid = \"nope\"\n"),
+            "no grid named 'nope'",
+        ),
+        (
+            &format!("[[volume]]\nfile = {cloud:?}\nxform = [1, 2, 3]\n"),
+            "volume[0]",
+        ),
+    ];
+    for (i, (text, want)) in cases.iter().enumerate() {
+        let p = write(dir.path(), &format!("bad{i}.toml"), text);
+        let e = scene::load(&p, &SceneOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains(want), "case {i}: {e}");
+        if !want.contains("nope") {
+            assert!(e.contains(&format!("bad{i}.toml")), "case {i}: {e}");
+        }
+    }
+}
+
+#[test]
+fn scene_boxes_from_topology_equal_the_loaded_boxes() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_clouds(dir.path(), None);
+    let loaded = scene::load(&path, &SceneOptions::default())
+        .unwrap()
+        .box_corners()
+        .unwrap();
+    let read = scene::read_box_corners(&path, &SceneOptions::default()).unwrap();
+    assert_eq!(loaded.len(), 16);
+    for (a, b) in loaded.iter().zip(&read) {
+        assert!((*a - *b).length() < 1e-12, "{a} vs {b}");
+    }
+}
