@@ -475,3 +475,279 @@ fn scene_boxes_from_topology_equal_the_loaded_boxes() {
         assert!((*a - *b).length() < 1e-12, "{a} vs {b}");
     }
 }
+
+#[test]
+fn a_solid_in_a_scene_casts_the_analytic_shadow() {
+    let Some(corpus) = common::corpus_dir() else {
+        return;
+    };
+    // createLevelSetSphere(radius=1.0, center=(0.1,-0.2,0.3), voxelSize=0.02), scaled by 0.35
+    // and moved up by 0.1: centre c, radius 0.35, voxel 0.007.
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = data("cloud.vdb").display().to_string();
+    let sphere = corpus.join("gen/sphere_levelset.vdb").display().to_string();
+    let solid = format!(
+        "[[volume]]\nfile = {sphere:?}\ngrid = \"ls_sphere\"\nkind = \"solid\"\n\
+         xform = [0.35, 0, 0, 0, 0, 0.35, 0, 0.1, 0, 0, 0.35, 0, 0, 0, 0, 1]\n"
+    );
+    let fog = format!("[[volume]]\nfile = {cloud:?}\nsigma_t = [0.6, 0.9, 1.3]\n");
+    let with = scene::load(
+        write(dir.path(), "with.toml", &format!("{fog}\n{solid}")),
+        &SceneOptions::default(),
+    )
+    .unwrap();
+    let without = scene::load(
+        write(dir.path(), "without.toml", &fog),
+        &SceneOptions::default(),
+    )
+    .unwrap();
+    let c = glam::DVec3::new(0.035, -0.07 + 0.1, 0.105);
+    let (r, voxel) = (0.35, 0.007);
+    let cam = camera(&with, 160);
+    let s = BakeSettings::new(Estimator::REGULAR, Options::default());
+    let a = bake_scene(&with, &cam, &s, &|_| {}).unwrap();
+    let b = bake_scene(&without, &cam, &s, &|_| {}).unwrap();
+    let (mut inside, mut outside) = (0, 0);
+    for j in 0..cam.height() {
+        for i in 0..cam.width() {
+            let ray = cam.pixel_ray(i, j).unwrap();
+            let to_c = c - ray.origin();
+            let miss = (to_c - ray.direction() * to_c.dot(ray.direction())).length();
+            let n = (j * cam.width() + i) as usize;
+            for ch in 0..3 {
+                let (ta, tb) = (a.channel(ch).0[n], b.channel(ch).0[n]);
+                if miss < r - 1.5 * voxel {
+                    assert_eq!(ta, 0.0, "pixel ({i}, {j}) passes {miss} from the centre");
+                    inside += 1;
+                } else if miss > r + 1.5 * voxel {
+                    assert_eq!(ta, tb, "pixel ({i}, {j}) misses the sphere");
+                    outside += 1;
+                }
+            }
+        }
+    }
+    // The shadow's area against the disc's: pi r^2 / pixel area.
+    let px = cam.step_x().iter().map(|v| v * v).sum::<f64>().sqrt();
+    let disc = std::f64::consts::PI * r * r / (px * px);
+    let dark = a.t.iter().filter(|t| **t == 0.0).count() as f64;
+    assert!(
+        (dark - disc).abs() < 0.05 * disc,
+        "{dark} dark pixels, disc {disc}"
+    );
+    assert!(inside > 300 && outside > 3000, "{inside} {outside}");
+    // Queries: through the sphere T = 0 with the hit distance; a point inside it is dark.
+    let ray = Ray::between(c - glam::DVec3::X * 2.0, c + glam::DVec3::X * 2.0).unwrap();
+    let e = scene::estimate(&with, &ray, 0, &Estimator::REGULAR, &Options::default()).unwrap();
+    assert_eq!(e.value, [0.0; 3]);
+    assert!((e.hit.unwrap() - (2.0 - r)).abs() < voxel, "{:?}", e.hit);
+}
+
+fn umbra() -> assert_cmd::Command {
+    assert_cmd::Command::cargo_bin("umbra").unwrap()
+}
+
+#[test]
+fn the_cli_bakes_and_queries_scenes_in_colour() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_clouds(dir.path(), Some(([0.5, 1.0, 2.0], [0.5, 1.0, 2.0])));
+    let out = dir.path().join("rgb.exr");
+    let o = umbra()
+        .arg("bake")
+        .arg(&path)
+        .args([
+            "--light-dir=-1,-1,0",
+            "--res",
+            "40x30",
+            "--stderr",
+            "--slices",
+            "1",
+        ])
+        .args(["--estimator", "ratio", "--spp", "4", "--json", "-q", "-o"])
+        .arg(&out)
+        .assert()
+        .success();
+    let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
+    assert_eq!(
+        v["channels"],
+        serde_json::json!([
+            "R",
+            "R.stderr",
+            "slice00.R",
+            "G",
+            "G.stderr",
+            "slice00.G",
+            "B",
+            "B.stderr",
+            "slice00.B"
+        ])
+    );
+    assert_eq!(v["grid"], "density+density");
+    match std::process::Command::new("iinfo")
+        .arg("-v")
+        .arg(&out)
+        .output()
+    {
+        Ok(o) => {
+            let text = String::from_utf8_lossy(&o.stdout);
+            assert!(text.contains("9 channel, float openexr"), "{text}");
+            assert!(text.contains("channel list: R, G, B, B.stderr, G.stderr, R.stderr, slice00.R, slice00.G, slice00.B"), "{text}");
+            assert!(text.contains("umbra:grid: \"density+density\""), "{text}");
+        }
+        Err(_) => assert!(
+            std::env::var("UMBRA_SKIP_OIIO").as_deref() == Ok("1"),
+            "iinfo (Debian openimageio-tools) is not installed; set UMBRA_SKIP_OIIO=1 to skip"
+        ),
+    }
+    // query --json: T and tau per channel, equal to the library's.
+    let o = umbra()
+        .arg("query")
+        .arg(&path)
+        .args(["--from", "-2,0,0", "--to", "2,0.5,0", "--json"])
+        .assert()
+        .success();
+    let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
+    let scene = scene::load(&path, &SceneOptions::default()).unwrap();
+    let r = Ray::between([-2.0, 0.0, 0.0], [2.0, 0.5, 0.0]).unwrap();
+    let e = scene::estimate(&scene, &r, 0, &Estimator::REGULAR, &Options::default()).unwrap();
+    for c in 0..3 {
+        assert_eq!(v["T"][c].as_f64().unwrap(), e.value[c]);
+        assert_eq!(v["tau"][c].as_f64().unwrap(), e.tau.unwrap()[c]);
+    }
+    // --sigma-t on a .vdb; a bad one is a usage error naming the flag.
+    umbra()
+        .args([
+            "query",
+            "data/cloud.vdb",
+            "--from",
+            "-2,0,0",
+            "--to",
+            "2,0.5,0",
+        ])
+        .args(["--sigma-t", "1,2,3", "--json"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .assert()
+        .success();
+    let o = umbra()
+        .args([
+            "query",
+            "data/cloud.vdb",
+            "--from",
+            "-2,0,0",
+            "--to",
+            "2,0.5,0",
+        ])
+        .args(["--sigma-t", "1,-2,3"])
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .assert()
+        .code(1);
+    let err = String::from_utf8_lossy(&o.get_output().stderr);
+    assert!(err.contains("sigma-t"), "{err}");
+    // compare refuses a scene, saying why.
+    let o = umbra()
+        .arg("compare")
+        .arg(&path)
+        .arg("-o")
+        .arg(dir.path().join("cmp"))
+        .assert()
+        .code(1);
+    assert!(!dir.path().join("cmp").exists());
+    let err = String::from_utf8_lossy(&o.get_output().stderr);
+    assert!(err.contains("scenes (.toml) are traced by query"), "{err}");
+}
+
+#[test]
+fn the_cli_traces_a_level_set_as_a_solid_only_when_asked() {
+    let Some(corpus) = common::corpus_dir() else {
+        return;
+    };
+    let ls = corpus.join("gen/sphere_levelset.vdb");
+    let args = [
+        "--grid",
+        "ls_sphere",
+        "--from",
+        "-2,-0.2,0.3",
+        "--to",
+        "2,-0.2,0.3",
+    ];
+    let o = umbra().arg("query").arg(&ls).args(args).assert().code(1);
+    let err = String::from_utf8_lossy(&o.get_output().stderr);
+    assert!(err.contains("level set"), "{err}");
+    let o = umbra()
+        .arg("query")
+        .arg(&ls)
+        .args(args)
+        .args(["--levelset", "solid", "--json"])
+        .assert()
+        .success();
+    let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
+    assert_eq!(v["T"], 0.0);
+    // Centre (0.1, -0.2, 0.3), radius 1: entered at x = -0.9, 1.1 from the start.
+    let hit = v["solid_hit"].as_f64().unwrap();
+    assert!((hit - 1.1).abs() < 0.02, "{hit}");
+}
+
+#[test]
+fn batch_jobs_take_colour_and_scene_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = two_clouds(dir.path(), None);
+    let job = dir.path().join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "output = \"{}/{{stem}}_{{light}}.exr\"\n[[inputs]]\nfile = {:?}\n\
+             [[lights]]\nname = \"sun\"\ndir = [-1, -1, 0]\n[bake]\nres = 24\n\
+             sigma_t = [0.5, 1, 2]\n",
+            dir.path().display(),
+            path.display().to_string()
+        ),
+    )
+    .unwrap();
+    umbra().arg("batch").arg(&job).arg("-q").assert().success();
+    let out = dir.path().join("two_sun.exr");
+    assert!(out.exists());
+    // The same map as bake with --sigma-t.
+    let bake_out = dir.path().join("bake.exr");
+    umbra()
+        .arg("bake")
+        .arg(&path)
+        .args([
+            "--light-dir=-1,-1,0",
+            "--res",
+            "24",
+            "--sigma-t",
+            "0.5,1,2",
+            "-q",
+            "-o",
+        ])
+        .arg(&bake_out)
+        .assert()
+        .success();
+    let a = exr::prelude::read_all_flat_layers_from_file(&out).unwrap();
+    let b = exr::prelude::read_all_flat_layers_from_file(&bake_out).unwrap();
+    let names = |i: &exr::prelude::FlatImage| -> Vec<String> {
+        i.layer_data[0]
+            .channel_data
+            .list
+            .iter()
+            .map(|c| c.name.to_string())
+            .collect()
+    };
+    assert_eq!(names(&a), ["B", "G", "R"]);
+    for (x, y) in a.layer_data[0]
+        .channel_data
+        .list
+        .iter()
+        .zip(&b.layer_data[0].channel_data.list)
+    {
+        assert_eq!(x.sample_data, y.sample_data);
+    }
+    // A bad key value is named.
+    std::fs::write(
+        &job,
+        std::fs::read_to_string(&job).unwrap() + "levelset = \"maybe\"\n",
+    )
+    .unwrap();
+    let o = umbra().arg("batch").arg(&job).arg("-q").assert().code(1);
+    let err = String::from_utf8_lossy(&o.get_output().stderr);
+    assert!(err.contains("bake.levelset"), "{err}");
+}

@@ -149,6 +149,13 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         }
     };
     if let Some(file) = &a.file {
+        if umbra::scene::is_scene_file(file) {
+            anyhow::bail!(
+                "{}: compare takes one grid of a .vdb file; scenes (.toml) are traced by query \
+                 and bake",
+                file.display()
+            );
+        }
         let mut vol = Volume::load(file, &a.grid, a.density_scale)
             .with_context(|| format!("loading grid '{}'", a.grid))?;
         if let Some(x) = &a.xform {

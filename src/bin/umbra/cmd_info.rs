@@ -33,6 +33,16 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
     let mut file_errors = Vec::new();
     for file in &a.files {
         let one = || -> umbra::Result<FileInfo> {
+            if umbra::scene::is_scene_file(file) {
+                return Err(umbra::Error::InvalidArgument {
+                    name: "files".into(),
+                    reason: format!(
+                        "{} is a scene file; info reports on .vdb files (run it on the files \
+                         the scene names)",
+                        file.display()
+                    ),
+                });
+            }
             let archive = umbra::vdb::open(file)?;
             let mut info = FileInfo::from_archive(&archive);
             if let Some(name) = &a.grid {
