@@ -92,6 +92,21 @@ pub enum Error {
     },
 }
 
+impl Error {
+    /// [`Error::NotANumber`] for `what` (`optical depth`, `... transmittance estimate`) on
+    /// `ray`, naming its origin and direction.
+    pub(crate) fn nan_on_ray(what: impl Into<String>, ray: &crate::ray::Ray) -> Self {
+        Self::NotANumber {
+            what: what.into(),
+            context: format!(
+                " on the ray from {} along {}",
+                ray.origin(),
+                ray.direction()
+            ),
+        }
+    }
+}
+
 /// A decoding error without a path: the byte reader and decoders produce these, and
 /// [`DecodeError::at`] attaches the file name at the module boundary.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -66,14 +66,7 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
     };
     let (tau, w) = walk_tau(vol, ray, interp, Granularity::Leaf, &mut acc, &mut n, leaf);
     if tau.is_nan() {
-        return Err(crate::Error::NotANumber {
-            what: "optical depth".into(),
-            context: format!(
-                " on the ray from {} along {}",
-                ray.origin(),
-                ray.direction()
-            ),
-        });
+        return Err(crate::Error::nan_on_ray("optical depth", ray));
     }
     Ok(OpticalDepth {
         tau,
@@ -161,7 +154,7 @@ pub(crate) fn integrate_cells(
 
 /// The lookup cells the part `[t0, t1]` of the line can touch: `floor` of its end points.
 #[inline]
-fn cell_range(q: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> ([i64; 3], [i64; 3]) {
+pub(crate) fn cell_range(q: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> ([i64; 3], [i64; 3]) {
     let p0 = [0, 1, 2].map(|a| q[a] + d[a] * t0);
     let p1 = [0, 1, 2].map(|a| q[a] + d[a] * t1);
     let lo = [0, 1, 2].map(|a| floor_i64(p0[a].min(p1[a])));

@@ -85,15 +85,7 @@ impl Solid {
     /// cannot be traced (the checks of [`Volume::from_tree`]).
     pub fn new(grid: Grid, path: &Path) -> Result<Self> {
         if !grid.transform.is_affine() {
-            // The wording of `volume::non_affine`.
-            return Err(Error::Unsupported {
-                path: path.to_path_buf(),
-                what: format!(
-                    "{} (grid '{}')",
-                    crate::text::escape(&grid.transform.map),
-                    crate::text::escape(&grid.name)
-                ),
-            });
+            return Err(crate::volume::non_affine(path, &grid.transform, &grid.name));
         }
         if !grid.value_type.is_scalar_real() {
             return Err(Error::Unsupported {
@@ -234,15 +226,6 @@ fn phi_at(acc: &mut Accessor<'_>, p: [f64; 3]) -> f64 {
     trilinear(&v, [0, 1, 2].map(|a| p[a] - c[a] as f64))
 }
 
-/// The dual cells `[t0, t1]` of the line can touch: `floor` of its end points.
-fn cell_range(q: [f64; 3], d: [f64; 3], t0: f64, t1: f64) -> ([i64; 3], [i64; 3]) {
-    let p0 = [0, 1, 2].map(|a| q[a] + d[a] * t0);
-    let p1 = [0, 1, 2].map(|a| q[a] + d[a] * t1);
-    let lo = [0, 1, 2].map(|a| floor_i64(p0[a].min(p1[a])));
-    let hi = [0, 1, 2].map(|a| floor_i64(p0[a].max(p1[a])));
-    (lo, hi)
-}
-
 /// The first hit in `[t0, t1]`, dual cell by dual cell.
 fn cells_hit(
     acc: &mut Accessor<'_>,
@@ -252,7 +235,7 @@ fn cells_hit(
     t1: f64,
     index_speed: f64,
 ) -> Option<f64> {
-    let (lo, hi) = cell_range(q, d, t0, t1);
+    let (lo, hi) = crate::regular::cell_range(q, d, t0, t1);
     let cells = Cells { size: 1.0, lo, hi };
     let mut hit = None;
     let _ = dda(q, d, (t0, t1), &cells, |c, ta, tb| {

@@ -470,7 +470,7 @@ fn compose(a: &[[f64; 4]; 4], b: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
 }
 
 /// A grid whose transform umbra cannot trace (a frustum map), named with its file.
-fn non_affine(path: &std::path::Path, t: &crate::vdb::Transform, grid: &str) -> Error {
+pub(crate) fn non_affine(path: &std::path::Path, t: &crate::vdb::Transform, grid: &str) -> Error {
     Error::Unsupported {
         path: path.to_path_buf(),
         what: format!(

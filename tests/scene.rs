@@ -54,6 +54,16 @@ fn two_clouds(dir: &Path, sigma: Option<([f64; 3], [f64; 3])>) -> PathBuf {
     write(dir, "two.toml", &text)
 }
 
+/// The two volumes of [`two_clouds`], loaded on their own.
+fn two_volumes() -> (Volume, Volume) {
+    let a = Volume::load(data("cloud.vdb"), "density", 1.0).unwrap();
+    let b = Volume::load(data("cloud.vdb"), "density", 0.5)
+        .unwrap()
+        .with_xform(&shift())
+        .unwrap();
+    (a, b)
+}
+
 /// Rays through the cloud's box from all sides (fixed, deterministic).
 fn rays(n: usize) -> Vec<Ray> {
     (0..n)
@@ -73,11 +83,7 @@ fn a_two_volume_scene_is_the_sum_of_the_volumes_exact_depths() {
     let scene = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
     assert_eq!(scene.fogs().len(), 2);
     assert_eq!(scene.channels(), 1);
-    let a = Volume::load(data("cloud.vdb"), "density", 1.0).unwrap();
-    let b = Volume::load(data("cloud.vdb"), "density", 0.5)
-        .unwrap()
-        .with_xform(&shift())
-        .unwrap();
+    let (a, b) = two_volumes();
     let mut informative = 0;
     for (i, r) in rays(64).iter().enumerate() {
         let ta = optical_depth(&a, r, Interp::Trilinear).unwrap().tau;
@@ -172,11 +178,7 @@ fn rgb_exact_is_sigma_times_tau_per_channel() {
     let path = two_clouds(dir.path(), Some((s1, s2)));
     let scene = scene::load(&path, &SceneOptions::default()).unwrap();
     assert_eq!(scene.channels(), 3);
-    let a = Volume::load(data("cloud.vdb"), "density", 1.0).unwrap();
-    let b = Volume::load(data("cloud.vdb"), "density", 0.5)
-        .unwrap()
-        .with_xform(&shift())
-        .unwrap();
+    let (a, b) = two_volumes();
     for (i, r) in rays(32).iter().enumerate() {
         let ta = optical_depth(&a, r, Interp::Trilinear).unwrap().tau;
         let tb = optical_depth(&b, r, Interp::Trilinear).unwrap().tau;

@@ -192,6 +192,17 @@ pub struct Channel {
     pub slices: Vec<Vec<f32>>,
 }
 
+/// Split per-channel images (1 or 3) into [`Map`]'s red-or-grey channel and its `color`.
+pub(crate) fn split_channels(chans: Vec<Channel>) -> (Channel, Option<Box<[Channel; 2]>>) {
+    let mut it = chans.into_iter();
+    let red = it.next().unwrap_or_default();
+    let color = match (it.next(), it.next()) {
+        (Some(g), Some(b)) => Some(Box::new([g, b])),
+        _ => None,
+    };
+    (red, color)
+}
+
 impl Map {
     /// 1 (grey) or 3 (R, G, B).
     #[must_use]
@@ -630,13 +641,7 @@ fn render(
         stats.absorb(&band.stats);
     }
     stats.seconds = start.elapsed().as_secs_f64();
-    let mut chans = chans.into_iter();
-    let red = chans.next().unwrap_or_default();
-    let color = (nc == 3).then(|| {
-        let g = chans.next().unwrap_or_default();
-        let b = chans.next().unwrap_or_default();
-        Box::new([g, b])
-    });
+    let (red, color) = split_channels(chans);
     Ok(Map {
         camera: *camera,
         settings: s.clone(),

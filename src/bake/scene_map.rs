@@ -157,16 +157,9 @@ pub(crate) fn exact(
             (n % camera.width as usize) as u32,
             (n / camera.width as usize) as u32,
         )?;
-        return Err(Error::NotANumber {
-            what: "optical depth".into(),
-            context: format!(
-                " on the ray from {} along {}",
-                ray.origin(),
-                ray.direction()
-            ),
-        });
+        return Err(crate::Error::nan_on_ray("optical depth", &ray));
     }
-    let mut chans = tau.iter().map(|t| {
+    let chans = tau.iter().map(|t| {
         let value = |n: usize, k: usize| -> f32 {
             // Slice k (0 = the whole ray, t_max) ends at this depth.
             let end = if k == 0 { f64::INFINITY } else { depths[k - 1] };
@@ -183,12 +176,7 @@ pub(crate) fn exact(
                 .collect(),
         }
     });
-    let red = chans.next().unwrap_or_default();
-    let color = (nc == 3).then(|| {
-        let g = chans.next().unwrap_or_default();
-        let b = chans.next().unwrap_or_default();
-        Box::new([g, b])
-    });
+    let (red, color) = super::render::split_channels(chans.collect());
     Ok(Map {
         camera: *camera,
         settings: s.clone(),

@@ -261,14 +261,10 @@ pub fn estimate(
 ) -> Result<Estimate> {
     let e = estimate_unchecked(vol, ray, ray_id, est, opts)?;
     if e.value.is_nan() || e.std_err.is_nan() {
-        return Err(crate::Error::NotANumber {
-            what: format!("{} transmittance estimate", est.name()),
-            context: format!(
-                " on the ray from {} along {}",
-                ray.origin(),
-                ray.direction()
-            ),
-        });
+        return Err(crate::Error::nan_on_ray(
+            format!("{} transmittance estimate", est.name()),
+            ray,
+        ));
     }
     Ok(e)
 }

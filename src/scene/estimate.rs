@@ -31,7 +31,7 @@
 //! allocates nothing per ray).
 
 use super::Scene;
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::estimate::{
     budget, estimate as estimate_one, prepare, sample_once, Cap, Estimate, Estimator, Extinction,
     Options, RayMedium,
@@ -149,14 +149,10 @@ pub fn estimate(
     };
     let nan = e.value.iter().chain(&e.std_err).any(|v| v.is_nan());
     if nan {
-        return Err(Error::NotANumber {
-            what: format!("{} transmittance estimate", est.name()),
-            context: format!(
-                " on the ray from {} along {}",
-                ray.origin(),
-                ray.direction()
-            ),
-        });
+        return Err(crate::Error::nan_on_ray(
+            format!("{} transmittance estimate", est.name()),
+            ray,
+        ));
     }
     Ok(e)
 }
@@ -197,9 +193,15 @@ struct Piece {
 }
 
 /// Merge each volume's sampled segments into elementary intervals (every boundary of every
-/// volume's segments is a boundary), keeping those where at least one volume is sampled.
-/// Each volume's segments are in ray order and do not overlap.
-fn merge(per: &[Vec<Segment>]) -> Vec<Piece> {
+/// volume's segments is a boundary), keeping those where at least one volume is sampled:
+/// the pieces (with their masks) and, per channel `c < channels`, their segments with
+/// `mu_min,c = sum_k sigma_k,c mu_min,k` and the shared majorant `max_c sum_k sigma_k,c
+/// mu_maj,k`. Each volume's segments are in ray order and do not overlap.
+fn merge(
+    per: &[Vec<Segment>],
+    sigma: &[[f64; 3]],
+    channels: usize,
+) -> (Vec<Piece>, [Vec<Segment>; 3]) {
     let mut cuts: Vec<f64> = per
         .iter()
         .flatten()
@@ -209,25 +211,41 @@ fn merge(per: &[Vec<Segment>]) -> Vec<Piece> {
     cuts.dedup();
     let mut next = vec![0usize; per.len()];
     let mut pieces = Vec::new();
+    let mut segs: [Vec<Segment>; 3] = Default::default();
     for w in cuts.windows(2) {
         let (a, b) = (w[0], w[1]);
         let mut mask = 0u64;
-        for (k, segs) in per.iter().enumerate() {
-            while next[k] < segs.len() && segs[next[k]].t_max <= a {
+        let (mut lo, mut hi, mut level) = ([0.0f64; 3], [0.0f64; 3], 0);
+        for (k, list) in per.iter().enumerate() {
+            while next[k] < list.len() && list[next[k]].t_max <= a {
                 next[k] += 1;
             }
-            if segs
-                .get(next[k])
-                .is_some_and(|s| s.t_min <= a && s.t_max >= b)
-            {
-                mask |= 1 << k;
+            let Some(s) = list.get(next[k]).filter(|s| s.t_min <= a && s.t_max >= b) else {
+                continue;
+            };
+            mask |= 1 << k;
+            level = level.max(s.level);
+            for c in 0..channels {
+                lo[c] += scaled(sigma[k][c], s.mu_min);
+                hi[c] += scaled(sigma[k][c], s.mu_maj);
             }
         }
-        if mask != 0 {
-            pieces.push(Piece { t0: a, t1: b, mask });
+        if mask == 0 {
+            continue;
+        }
+        pieces.push(Piece { t0: a, t1: b, mask });
+        let maj = hi[..channels].iter().copied().fold(0.0f64, f64::max);
+        for (c, list) in segs.iter_mut().enumerate().take(channels) {
+            list.push(Segment {
+                t_min: a,
+                t_max: b,
+                mu_min: lo[c],
+                mu_maj: maj,
+                level,
+            });
         }
     }
-    pieces
+    (pieces, segs)
 }
 
 /// The medium of a scene along one ray: the sum of the sampled volumes' extinction, per
@@ -360,40 +378,8 @@ fn sampled(
         per.push(p.segs);
         media.push(m);
     }
-    let pieces = merge(&per);
     let sigma: Vec<[f64; 3]> = scene.fogs.iter().map(|f| f.sigma).collect();
-    // Per-channel segments over the pieces: summed bounds, the shared majorant.
-    let mut segs: [Vec<Segment>; 3] = Default::default();
-    let mut cursor = vec![0usize; per.len()];
-    for p in &pieces {
-        let (mut lo, mut hi) = ([0.0f64; 3], [0.0f64; 3]);
-        let mut level = 0;
-        let mut m = p.mask;
-        while m != 0 {
-            let k = m.trailing_zeros() as usize;
-            m &= m - 1;
-            let list = &per[k];
-            while cursor[k] < list.len() && list[cursor[k]].t_max <= p.t0 {
-                cursor[k] += 1;
-            }
-            let s = list[cursor[k].min(list.len() - 1)];
-            level = level.max(s.level);
-            for c in 0..3 {
-                lo[c] += scaled(sigma[k][c], s.mu_min);
-                hi[c] += scaled(sigma[k][c], s.mu_maj);
-            }
-        }
-        let maj = hi[..channels].iter().copied().fold(0.0f64, f64::max);
-        for (c, list) in segs.iter_mut().enumerate().take(channels) {
-            list.push(Segment {
-                t_min: p.t0,
-                t_max: p.t1,
-                mu_min: lo[c],
-                mu_maj: maj,
-                level,
-            });
-        }
-    }
+    let (pieces, segs) = merge(&per, &sigma, channels);
     let mut medium = SceneMedium {
         media,
         sigma,

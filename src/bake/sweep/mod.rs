@@ -45,7 +45,7 @@ mod kernel;
 
 use super::camera::{Camera, Projection};
 use super::render::{BakeSettings, BakeStats, Map};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::estimate::Estimator;
 use crate::math::box_corners;
 use crate::regular::{cells_integral, leaf_integral, optical_depth_above_lowers, Counts};
@@ -915,14 +915,7 @@ pub(crate) fn render(
                 if px.iter().any(|x| x.is_nan()) {
                     let (i, j) = (n as u32 % w, y0 + n as u32 / w);
                     let ray = camera.pixel_ray(i, j)?;
-                    return Err(Error::NotANumber {
-                        what: "optical depth".into(),
-                        context: format!(
-                            " on the ray from {} along {}",
-                            ray.origin(),
-                            ray.direction()
-                        ),
-                    });
+                    return Err(crate::Error::nan_on_ray("optical depth", &ray));
                 }
                 t_band[n] = (-px[0]).exp() as f32;
                 slices.extend(px[1..].iter().map(|x| (-x).exp() as f32));

@@ -45,14 +45,8 @@ pub struct BakeArgs {
     /// row-major, the translation in the last column.
     #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
     xform: Option<umbra::xform::Xform>,
-    /// Extinction colour R,G,B: an RGB map (channels R, G, B) with
-    /// mu_c = sigma_t[c] x density-scale x value (multiplies a scene's own sigma_t).
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    sigma_t: Option<[f64; 3]>,
-    /// `solid`: trace a level-set grid as an opaque solid (T = 0 from where a ray enters it)
-    /// instead of refusing it.
-    #[arg(long, value_enum)]
-    levelset: Option<crate::common::LevelSetArg>,
+    #[command(flatten)]
+    trace: crate::common::TraceArgs,
     /// Reuse exactly the camera of an earlier umbra map (.exr) or of a JSON file holding the
     /// `camera` object `bake --json` prints; its resolution unless --res is given (then the
     /// same window at that size).
@@ -208,8 +202,8 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         grid: a.grid.clone(),
         density_scale: a.density_scale,
         xform: a.xform,
-        sigma_t: a.sigma_t,
-        levelset_solid: a.levelset.is_some(),
+        sigma_t: a.trace.sigma_t,
+        levelset_solid: a.trace.levelset.is_some(),
         view,
         camera,
         settings: BakeSettings {

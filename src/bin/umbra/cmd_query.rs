@@ -52,12 +52,8 @@ pub struct QueryArgs {
     /// row-major, the translation in the last column (positions stay in world space).
     #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
     xform: Option<umbra::xform::Xform>,
-    /// Extinction colour R,G,B: T per channel, mu_c = sigma_t[c] x density-scale x value.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    sigma_t: Option<[f64; 3]>,
-    /// `solid`: trace a level-set grid as an opaque solid instead of refusing it.
-    #[arg(long, value_enum)]
-    levelset: Option<crate::common::LevelSetArg>,
+    #[command(flatten)]
+    trace: crate::common::TraceArgs,
     /// One JSON object per query on stdout.
     #[arg(long)]
     json: bool,
@@ -113,9 +109,9 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         &umbra::scene::SceneOptions {
             grid: a.grid.clone(),
             density_scale: a.density_scale,
-            sigma_t: a.sigma_t,
+            sigma_t: a.trace.sigma_t,
             xform: a.xform,
-            levelset_solid: a.levelset.is_some(),
+            levelset_solid: a.trace.levelset.is_some(),
         },
     )?;
     let vol = &scene;

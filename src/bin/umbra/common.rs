@@ -156,6 +156,19 @@ impl From<GranularityArg> for Granularity {
     }
 }
 
+/// What `query` and `bake` trace besides the grid: colour and level sets.
+#[derive(Debug, Clone, clap::Args)]
+pub struct TraceArgs {
+    /// Extinction colour R,G,B: T per channel (an RGB map), mu_c = sigma_t[c] x density-scale
+    /// x value (multiplies a scene's own sigma_t).
+    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
+    pub sigma_t: Option<[f64; 3]>,
+    /// `solid`: trace a level-set grid as an opaque solid (T = 0 from where a ray enters it)
+    /// instead of refusing it.
+    #[arg(long, value_enum)]
+    pub levelset: Option<LevelSetArg>,
+}
+
 /// `--levelset`: what to do with a level-set grid.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum LevelSetArg {
