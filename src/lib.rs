@@ -57,6 +57,7 @@
 pub mod bake;
 pub mod batch;
 pub mod compare;
+pub mod demand;
 pub mod error;
 pub mod estimate;
 pub mod info;

@@ -126,6 +126,10 @@ fn walk_tau<'t>(
     if mu_bg != 0.0 && gap > 0.0 {
         tau += mu_bg * gap;
     }
+    if w.unloaded {
+        // A partial load that missed this ray's leaves (a bug): refused as NaN, never a number.
+        tau = f64::NAN;
+    }
     (tau, w)
 }
 
@@ -206,7 +210,7 @@ pub(crate) fn leaf_integral(
     let (lo, hi) = (o, o.map(|c| c + 7));
     let w = Dda::new(q, d, t0, lo, hi);
     let mut src = LeafSource {
-        values: &l.values,
+        values: tree.values_of(l),
         blocks: [Block::Const(f32::NAN); 8],
         base: 0,
         interior: true,
@@ -217,14 +221,14 @@ pub(crate) fn leaf_integral(
             // Block `k` (bits x, y, z) is the 8^3 block at `o + 8 * bits`; only those the
             // corners can reach are resolved: on axis `a` the cells reach the + face only if
             // the ray moves up `a` or starts on that face.
-            src.blocks[0] = Block::Leaf(&l.values);
+            src.blocks[0] = Block::Leaf(tree.values_of(l));
             let reach = [0, 1, 2].map(|a| usize::from(d[a] > 0.0 || w.cell[a] == hi[a]));
             let nb = tree.neighbours.get(leaf as usize);
             for k in 1..8usize {
                 let bits = [k >> 2, (k >> 1) & 1, k & 1];
                 if (0..3).all(|a| bits[a] <= reach[a]) {
                     src.blocks[k] = match nb.map(|n| n[k - 1]) {
-                        Some(Neighbour::Leaf(i)) => Block::Leaf(&tree.leaves[i as usize].values),
+                        Some(Neighbour::Leaf(i)) => Block::Leaf(tree.leaf_values(i)),
                         Some(Neighbour::Const(c)) => Block::Const(c),
                         _ => acc.block_at([0, 1, 2].map(|a| o[a] + 8 * bits[a] as i64)),
                     };

@@ -12,6 +12,7 @@ use crate::error::{Error, Result};
 use crate::tree::{Bounds, RootSlot, Tree};
 use crate::vdb::Grid;
 use glam::{DAffine3, DMat3, DVec3};
+use rayon::prelude::*;
 
 /// How the density between voxel centres is defined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
@@ -58,7 +59,7 @@ pub struct Sanitized {
 /// ```compile_fail
 /// fn scale_a_leaf(vol: &mut umbra::Volume) {
 ///     // Would leave the majorants stale: does not compile.
-///     vol.tree.leaves[0].values[0] *= 2.0;
+///     vol.tree.values[0][0] *= 2.0;
 /// }
 /// ```
 #[derive(Debug, Clone)]
@@ -173,10 +174,29 @@ impl Volume {
                 }
             }
         }
-        for l in &mut tree.leaves {
-            l.values.iter_mut().for_each(|v| sanitize(v, &mut s));
-        }
-        if s.nan + s.negative > 0 {
+        // Leaf values in parallel; a block that is all finite and non-negative (the usual
+        // case) is passed over by one vectorised test.
+        let leaves = tree
+            .values
+            .par_iter_mut()
+            .filter(|v| {
+                v.iter()
+                    .fold(false, |bad, &x| bad | !(0.0..f32::INFINITY).contains(&x))
+            })
+            .map(|v| {
+                let mut s = Sanitized::default();
+                v.iter_mut().for_each(|v| sanitize(v, &mut s));
+                s
+            })
+            .reduce(Sanitized::default, |a, b| Sanitized {
+                nan: a.nan + b.nan,
+                negative: a.negative + b.negative,
+                pos_inf: a.pos_inf + b.pos_inf,
+            });
+        s.nan += leaves.nan;
+        s.negative += leaves.negative;
+        s.pos_inf += leaves.pos_inf;
+        if s.nan + s.negative > 0 && !tree.shell {
             tree.compute_bounds();
         }
         Self::assemble(name, tree, world_from_index, density_scale, s)

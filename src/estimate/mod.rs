@@ -201,7 +201,8 @@ fn prepare_into(
         _ => (f64::INFINITY, f64::NEG_INFINITY),
     };
     p.segs.clear();
-    p.tau_known = 0.0;
+    // A partial load that missed this ray's leaves (a bug): refused as NaN, never a number.
+    p.tau_known = if w.unloaded { f64::NAN } else { 0.0 };
     p.walked = w.segments;
     p.lookups = 0;
     let mut covered_outside = 0.0;

@@ -75,11 +75,63 @@ pub fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
     }
-    let rgb = opts.sigma_t.is_some();
     if is_scene_file(path) {
         return load_file(path, opts);
     }
     let grid = crate::vdb::load_grid(path, &opts.grid)?;
+    scene_of_grid(grid, path, opts)
+}
+
+/// [`load`] for a job whose rays are known before it traces: a `.vdb` input is opened lazily
+/// ([`crate::vdb::LazyGrid`]), `rays` makes the job's rays from a shell scene (topology and
+/// boxes right, values unloaded: tracing it gives no number), and only the leaves those rays
+/// touch under `interp` at `gran` are decoded ([`crate::demand::leaves_touched`]). Answers
+/// on those rays equal an eager [`load`]'s bit for bit. Scene files and level sets traced as
+/// solids are loaded whole. A caller whose rays cannot be made keeps its own error and returns
+/// no rays (nothing is then decoded).
+///
+/// # Errors
+/// As [`load`], and decoding errors of the touched leaves (naming the file, the leaf and the
+/// byte offset of its buffer).
+pub fn load_for_rays(
+    path: impl AsRef<Path>,
+    opts: &SceneOptions,
+    interp: crate::volume::Interp,
+    gran: crate::traverse::Granularity,
+    rays: impl FnOnce(&Scene) -> Vec<crate::ray::Ray>,
+) -> Result<(Scene, Vec<crate::ray::Ray>)> {
+    let path = path.as_ref();
+    crate::volume::check_density_scale(opts.density_scale)?;
+    if let Some(s) = opts.sigma_t {
+        check_sigma(s)?;
+    }
+    if is_scene_file(path) {
+        let scene = load_file(path, opts)?;
+        let r = rays(&scene);
+        return Ok((scene, r));
+    }
+    let archive = crate::vdb::open(path)?;
+    let lazy = archive.open_lazy(archive.find_grid(&opts.grid)?)?;
+    let solid = opts.levelset_solid && lazy.shell().class.as_deref() == Some("level set");
+    if solid {
+        let scene = scene_of_grid(lazy.load_all()?, path, opts)?;
+        let r = rays(&scene);
+        return Ok((scene, r));
+    }
+    let shell = scene_of_grid(lazy.shell().clone(), path, opts)?;
+    let r = rays(&shell);
+    let leaves = match shell.fogs().first() {
+        Some(f) => crate::demand::leaves_touched(f.volume(), &r, interp, gran),
+        None => Vec::new(),
+    };
+    drop(shell);
+    let scene = scene_of_grid(lazy.into_partial(&leaves)?, path, opts)?;
+    Ok((scene, r))
+}
+
+/// The scene of one grid of a `.vdb` file, with `opts` applied.
+fn scene_of_grid(grid: crate::vdb::Grid, path: &Path, opts: &SceneOptions) -> Result<Scene> {
+    let rgb = opts.sigma_t.is_some();
     let (mut fogs, mut solids) = (Vec::new(), Vec::new());
     if opts.levelset_solid && grid.class.as_deref() == Some("level set") {
         let mut s = Solid::new(grid, path)?;

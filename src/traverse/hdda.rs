@@ -40,6 +40,9 @@ pub struct Walk {
     pub segments: u64,
     /// True if the visitor stopped the walk early.
     pub stopped: bool,
+    /// True if the walk met a node whose values a partial load did not read
+    /// ([`crate::tree::Bounds::UNKNOWN`]); it stopped there, and its segments are incomplete.
+    pub unloaded: bool,
 }
 
 struct Walker<'v, F> {
@@ -55,6 +58,10 @@ struct Walker<'v, F> {
     segments: u64,
     /// [`SPARSE_ROOT_FACTOR`], or another value in tests to force either root walk.
     sparse_factor: usize,
+    /// Touch mode ([`touched_blocks`]): every block the walk visits at the requested
+    /// granularity, as (origin, edge), instead of segments.
+    touch: Option<&'v mut dyn FnMut([i64; 3], i64)>,
+    unloaded: bool,
 }
 
 /// Walk `ray` through `vol`, calling `visit` for every segment where the density can differ
@@ -97,14 +104,51 @@ pub(crate) fn walk_nodes(
         covered: 0.0,
         segments: 0,
         sparse_factor: SPARSE_ROOT_FACTOR,
+        touch: None,
+        unloaded: false,
     };
     let stopped = w.run(ray).is_break();
     Walk {
         length,
         covered: w.covered,
         segments: w.segments,
-        stopped,
+        stopped: stopped && !w.unloaded,
+        unloaded: w.unloaded,
     }
+}
+
+/// Every block a [`walk`] of `ray` visits at granularity `gran`, as `(origin, edge)` in index
+/// voxels: leaves and tiles (edge 8, 128 or 4096), empty root cells next to data, or whole
+/// lower/upper nodes at the coarser granularities. The walk's path depends only on the
+/// topology (root table, child masks, the value box), never on values, so this works on a tree
+/// whose leaves are not loaded; every value a walk or a lookup along the ray reads, and every
+/// bound it uses, lies in the closed box `[origin, origin + edge]` of a visited block (the
+/// block's own voxels plus the one-voxel halo trilinear lookups and halo bounds read). That is
+/// what a partial load reads ([`crate::vdb::LazyGrid`]).
+pub(crate) fn touched_blocks(
+    vol: &Volume,
+    ray: &Ray,
+    interp: Interp,
+    gran: Granularity,
+    mut touch: impl FnMut([i64; 3], i64),
+) {
+    let (q, d) = lookup_ray(vol, ray, interp);
+    let mut w = Walker {
+        vol,
+        interp,
+        gran,
+        q,
+        d,
+        scale: vol.density_scale(),
+        bg: vol.tree().background,
+        visit: |_: Segment, _: Option<u32>| ControlFlow::Continue(()),
+        covered: 0.0,
+        segments: 0,
+        sparse_factor: SPARSE_ROOT_FACTOR,
+        touch: Some(&mut touch),
+        unloaded: false,
+    };
+    let _ = w.run(ray);
 }
 
 impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
@@ -112,6 +156,10 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         let Some([lo, hi]) = self.vol.value_box() else {
             return ControlFlow::Continue(());
         };
+        if self.vol.tree().shell && self.touch.is_none() {
+            self.unloaded = true;
+            return ControlFlow::Break(());
+        }
         // Lookup cells whose reads can touch the value box.
         let grow_lo = match self.interp {
             Interp::Nearest => 0,
@@ -251,6 +299,21 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         t0: f64,
         t1: f64,
     ) -> ControlFlow<()> {
+        if let Some(touch) = self.touch.as_mut() {
+            let tree = self.vol.tree();
+            let i = leaf.unwrap_or(0) as usize;
+            let (origin, dim) = match level {
+                1 => (tree.leaves[i].origin, 8),
+                2 => (tree.lowers[i].origin, 128),
+                _ => (tree.uppers[i].origin, 4096),
+            };
+            touch(origin.map(i64::from), dim);
+            return ControlFlow::Continue(());
+        }
+        if b.is_unknown() {
+            self.unloaded = true;
+            return ControlFlow::Break(());
+        }
         if b.min == self.bg && b.max == self.bg {
             return ControlFlow::Continue(());
         }
@@ -269,6 +332,10 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
         t0: f64,
         t1: f64,
     ) -> ControlFlow<()> {
+        if let Some(touch) = self.touch.as_mut() {
+            touch(origin, dim);
+            return ControlFlow::Continue(());
+        }
         if self.interp == Interp::Nearest {
             if v == self.bg {
                 return ControlFlow::Continue(());
@@ -277,6 +344,10 @@ impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
             return self.segment(v, v, level, t0, t1);
         }
         let h = halo.unwrap_or_else(|| self.vol.tree().halo_bounds(origin, dim));
+        if h.is_unknown() {
+            self.unloaded = true;
+            return ControlFlow::Break(());
+        }
         if h.min == h.max {
             if h.min == self.bg {
                 return ControlFlow::Continue(());
@@ -429,6 +500,8 @@ mod tests {
             covered: 0.0,
             segments: 0,
             sparse_factor: factor,
+            touch: None,
+            unloaded: false,
         };
         let _ = w.run(ray);
         out

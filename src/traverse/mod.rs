@@ -7,8 +7,8 @@ mod hdda;
 
 pub(crate) use dda::Dda;
 pub use dda::{dda, Cells};
-pub(crate) use hdda::walk_nodes;
 pub use hdda::{lookup_ray, walk, Granularity, Walk};
+pub(crate) use hdda::{touched_blocks, walk_nodes};
 
 /// A piece of a ray `[t_min, t_max]` (world units) inside one node or tile, with bounds on the
 /// extinction `mu_t = scale * value` any lookup of the chosen interpolation can return there.

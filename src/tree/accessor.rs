@@ -14,6 +14,8 @@ pub struct Accessor<'t> {
     tree: &'t Tree,
     leaf_key: [i32; 3],
     leaf: u32,
+    /// The cached leaf's values.
+    leaf_values: &'t [f32; 512],
     lower_key: [i32; 3],
     lower: u32,
     upper_key: [i32; 3],
@@ -29,6 +31,7 @@ impl<'t> Accessor<'t> {
             tree,
             leaf_key: [0; 3],
             leaf: NONE,
+            leaf_values: &super::UNLOADED_VALUES,
             lower_key: [0; 3],
             lower: NONE,
             upper_key: [0; 3],
@@ -54,7 +57,7 @@ impl<'t> Accessor<'t> {
     pub fn value(&mut self, ijk: [i32; 3]) -> f32 {
         self.lookups += 1;
         if self.leaf != NONE && node_origin(ijk, LEAF_LOG2) == self.leaf_key {
-            return self.tree.leaves[self.leaf as usize].values[leaf_offset(ijk)];
+            return self.leaf_values[leaf_offset(ijk)];
         }
         let found = self.locate(ijk);
         self.tree.value_of(found)
@@ -90,10 +93,10 @@ impl<'t> Accessor<'t> {
     #[inline]
     pub(crate) fn block(&mut self, ijk: [i32; 3]) -> Block<'t> {
         if self.leaf != NONE && node_origin(ijk, LEAF_LOG2) == self.leaf_key {
-            return Block::Leaf(&self.tree.leaves[self.leaf as usize].values);
+            return Block::Leaf(self.leaf_values);
         }
         match self.locate(ijk) {
-            Found::Voxel { node, .. } => Block::Leaf(&self.tree.leaves[node as usize].values),
+            Found::Voxel { node, .. } => Block::Leaf(self.tree.leaf_values(node)),
             f => Block::Const(self.tree.value_of(f)),
         }
     }
@@ -120,6 +123,7 @@ impl<'t> Accessor<'t> {
         };
         if let Found::Voxel { node, .. } = found {
             self.leaf = node;
+            self.leaf_values = self.tree.leaf_values(node);
             self.leaf_key = node_origin(ijk, LEAF_LOG2);
         }
         found

@@ -11,6 +11,7 @@
 use super::{
     level_dim, lower_offset, upper_offset, Faces, Internal, Leaf, Neighbour, RootSlot, Tree,
 };
+use rayon::prelude::*;
 
 /// Bounds of the 7 low faces of a block, `[k - 1]` for face `k` (see [`Tree::face`]).
 pub(crate) type FaceBounds = [Bounds; 7];
@@ -61,11 +62,37 @@ impl Bounds {
         self.max = if o.max > self.max { o.max } else { self.max };
     }
 
+    /// The whole real line: the bounds of a leaf whose values a partial load did not read, and
+    /// of everything that depends on it. Sanitised values are never negative, so `min = -inf`
+    /// tells unknown data apart from real data; a walk over a partial tree checks it.
+    pub const UNKNOWN: Self = Self {
+        min: f32::NEG_INFINITY,
+        max: f32::INFINITY,
+    };
+
+    /// True for [`Bounds::UNKNOWN`] (and anything unioned with it).
+    #[inline]
+    #[must_use]
+    pub fn is_unknown(&self) -> bool {
+        self.min == f32::NEG_INFINITY && self.max == f32::INFINITY
+    }
+
     /// True if no value was included.
     #[must_use]
     pub fn is_empty(&self) -> bool {
         self.min > self.max
     }
+}
+
+/// An upper node's halo and its tile-slot halo exceptions.
+type UpperHalos = (Bounds, Box<[(u32, Bounds)]>);
+
+/// What [`Tree::lower_halos`] finds for one lower node.
+struct LowerHalos {
+    halo: Bounds,
+    tile_halo: Box<[Bounds]>,
+    /// `(leaf, halo, + neighbours)` of each child leaf.
+    leaves: Vec<(u32, Bounds, [Neighbour; 7])>,
 }
 
 /// An inclusive box of voxels in i64 (so `origin - 1` never overflows).
@@ -125,13 +152,20 @@ impl Tree {
     /// tile-slot halos that differ from their own value, found from the child slots and the
     /// node's + faces.
     pub(crate) fn compute_bounds(&mut self) {
-        // 1. Nearest bounds and low faces, bottom-up.
-        let mut leaf_faces = Vec::with_capacity(self.leaves.len());
-        for leaf in &mut self.leaves {
-            let (b, f) = leaf_stats(&leaf.values);
-            leaf.bounds = b;
-            leaf_faces.push(f);
-        }
+        // 1. Nearest bounds and low faces, bottom-up (leaves and nodes in parallel).
+        let values = &self.values;
+        let leaf_faces: Vec<FaceBounds> = self
+            .leaves
+            .par_iter_mut()
+            .map(|leaf| {
+                let (b, f) = match values.get(leaf.data as usize) {
+                    Some(v) => leaf_stats(v),
+                    None => (Bounds::UNKNOWN, [Bounds::UNKNOWN; 7]),
+                };
+                leaf.bounds = b;
+                f
+            })
+            .collect();
         let child_bounds: Vec<Bounds> = self.leaves.iter().map(|l| l.bounds).collect();
         let lower_faces = internal_stats(&mut self.lowers, 4, &child_bounds, &leaf_faces);
         let child_bounds: Vec<Bounds> = self.lowers.iter().map(|n| n.bounds).collect();
@@ -150,56 +184,34 @@ impl Tree {
             uppers: upper_faces,
         };
 
-        // 2. Neighbours and halos: they read the neighbours' faces, so they come second.
+        // 2. Neighbours and halos: they read the neighbours' faces, so they come second. Each
+        // lower node (its tile slots and its leaves) is independent: in parallel.
+        let lower_halos: Vec<LowerHalos> = self
+            .lowers
+            .par_iter()
+            .map(|n| self.lower_halos(n))
+            .collect();
+        let upper_halos: Vec<UpperHalos> = self
+            .uppers
+            .par_iter()
+            .map(|n| {
+                let around = self.around(n.origin, 3);
+                (
+                    self.halo_from(n.bounds, &around),
+                    self.upper_exceptions(n, &around),
+                )
+            })
+            .collect();
         let mut nbrs = Vec::with_capacity(self.leaves.len());
         nbrs.resize(self.leaves.len(), [Neighbour::Const(self.background); 7]);
-        let mut leaf_halos = vec![Bounds::EMPTY; self.leaves.len()];
-        let mut lower_halos = Vec::with_capacity(self.lowers.len());
-        for n in &self.lowers {
-            let around = self.around(n.origin, 2);
-            let mut tile_halo = vec![Bounds::EMPTY; n.slots.len()];
-            for (slot, th) in tile_halo.iter_mut().enumerate() {
-                let l = [slot >> 8, (slot >> 4) & 15, slot & 15];
-                if !n.has_child(slot) && l.iter().all(|&c| c < 15) {
-                    // Inside the node, a tile whose 7 + neighbours are tiles of the same value
-                    // (bit for bit) has a constant halo.
-                    let v = n.slots[slot];
-                    let plain = [1, 16, 17, 256, 257, 272, 273]
-                        .iter()
-                        .all(|&d| !n.has_child(slot + d) && n.slots[slot + d] == v);
-                    if plain {
-                        *th = Bounds::point(f32::from_bits(v));
-                        continue;
-                    }
-                }
-                let nb: [Neighbour; 7] =
-                    std::array::from_fn(|k| self.slot_neighbour(n, 4, slot, k + 1, &around));
-                if n.has_child(slot) {
-                    let l = n.slots[slot] as usize;
-                    leaf_halos[l] = self.halo_from(self.leaves[l].bounds, &nb);
-                    nbrs[l] = nb;
-                } else {
-                    *th = self.halo_from(Bounds::point(n.tile_value(slot)), &nb);
-                }
-            }
-            let halo = self.halo_from(n.bounds, &around);
-            lower_halos.push((halo, tile_halo.into_boxed_slice()));
-        }
-        let mut upper_halos = Vec::with_capacity(self.uppers.len());
-        for n in &self.uppers {
-            let around = self.around(n.origin, 3);
-            upper_halos.push((
-                self.halo_from(n.bounds, &around),
-                self.upper_exceptions(n, &around),
-            ));
-        }
-        for (l, h) in self.leaves.iter_mut().zip(leaf_halos) {
-            l.halo = h;
-        }
-        for (n, (h, t)) in self.lowers.iter_mut().zip(lower_halos) {
-            n.halo = h;
-            n.tile_halo = t;
+        for (n, h) in self.lowers.iter_mut().zip(lower_halos) {
+            n.halo = h.halo;
+            n.tile_halo = h.tile_halo;
             n.halo_exceptions = Box::new([]);
+            for (l, halo, nb) in h.leaves {
+                self.leaves[l as usize].halo = halo;
+                nbrs[l as usize] = nb;
+            }
         }
         for (n, (h, e)) in self.uppers.iter_mut().zip(upper_halos) {
             n.halo = h;
@@ -207,6 +219,41 @@ impl Tree {
             n.halo_exceptions = e;
         }
         self.neighbours = nbrs;
+    }
+
+    /// A lower node's halo, its tile slots' halos, and its leaves' halos and neighbours.
+    fn lower_halos(&self, n: &Internal) -> LowerHalos {
+        let around = self.around(n.origin, 2);
+        let mut tile_halo = vec![Bounds::EMPTY; n.slots.len()];
+        let mut leaves = Vec::new();
+        for (slot, th) in tile_halo.iter_mut().enumerate() {
+            let l = [slot >> 8, (slot >> 4) & 15, slot & 15];
+            if !n.has_child(slot) && l.iter().all(|&c| c < 15) {
+                // Inside the node, a tile whose 7 + neighbours are tiles of the same value
+                // (bit for bit) has a constant halo.
+                let v = n.slots[slot];
+                let plain = [1, 16, 17, 256, 257, 272, 273]
+                    .iter()
+                    .all(|&d| !n.has_child(slot + d) && n.slots[slot + d] == v);
+                if plain {
+                    *th = Bounds::point(f32::from_bits(v));
+                    continue;
+                }
+            }
+            let nb: [Neighbour; 7] =
+                std::array::from_fn(|k| self.slot_neighbour(n, 4, slot, k + 1, &around));
+            if n.has_child(slot) {
+                let l = n.slots[slot];
+                leaves.push((l, self.halo_from(self.leaves[l as usize].bounds, &nb), nb));
+            } else {
+                *th = self.halo_from(Bounds::point(n.tile_value(slot)), &nb);
+            }
+        }
+        LowerHalos {
+            halo: self.halo_from(n.bounds, &around),
+            tile_halo: tile_halo.into_boxed_slice(),
+            leaves,
+        }
     }
 
     /// The tile slots of upper node `n` whose halo is not `point(tile value)`: among those
@@ -426,6 +473,35 @@ impl Tree {
         self.halo_at([x, y, z], level, own)
     }
 
+    /// Call `f` with every leaf holding a voxel of the inclusive index box `[lo, hi]` (each
+    /// once, in tree order per upper node). Reads topology only.
+    pub(crate) fn leaves_in_box(&self, lo: [i64; 3], hi: [i64; 3], f: &mut dyn FnMut(u32)) {
+        let bx = VoxelBox { lo, hi };
+        let each = |node: &Internal, dim: i64, child_dim: i64, f: &mut dyn FnMut(u32)| {
+            let Some(r) = bx.slot_range(node.origin, dim, child_dim) else {
+                return;
+            };
+            let side = dim / child_dim;
+            for x in r[0].0..=r[0].1 {
+                for y in r[1].0..=r[1].1 {
+                    for z in r[2].0..=r[2].1 {
+                        let n = ((x * side + y) * side + z) as usize;
+                        if node.has_child(n) {
+                            f(node.slots[n]);
+                        }
+                    }
+                }
+            }
+        };
+        for e in &self.root {
+            if let RootSlot::Child(u) = e.slot {
+                each(&self.uppers[u as usize], 4096, 128, &mut |l| {
+                    each(&self.lowers[l as usize], 128, 8, f);
+                });
+            }
+        }
+    }
+
     /// Bounds of the values of the `dim`^3 block at `origin`, without halo.
     #[must_use]
     pub fn region_bounds(&self, origin: [i32; 3], dim: i64) -> Bounds {
@@ -464,7 +540,7 @@ impl Tree {
 
     fn lower_box(&self, node: &Internal, bx: VoxelBox) -> Bounds {
         self.internal_box(node, 128, 8, bx, &|l, bx| {
-            leaf_box(&self.leaves[l as usize], bx)
+            leaf_box(&self.leaves[l as usize], self.leaf_values(l), bx)
         })
     }
 
@@ -500,9 +576,12 @@ impl Tree {
     }
 }
 
-fn leaf_box(leaf: &Leaf, bx: VoxelBox) -> Bounds {
+fn leaf_box(leaf: &Leaf, values: &[f32; 512], bx: VoxelBox) -> Bounds {
     if bx.contains_node(leaf.origin, 8) {
         return leaf.bounds;
+    }
+    if leaf.data == super::UNLOADED {
+        return Bounds::UNKNOWN;
     }
     let Some(r) = bx.slot_range(leaf.origin, 8, 1) else {
         return Bounds::EMPTY;
@@ -511,7 +590,7 @@ fn leaf_box(leaf: &Leaf, bx: VoxelBox) -> Bounds {
     for x in r[0].0..=r[0].1 {
         for y in r[1].0..=r[1].1 {
             for z in r[2].0..=r[2].1 {
-                b.include(leaf.values[((x << 6) | (y << 3) | z) as usize]);
+                b.include(values[((x << 6) | (y << 3) | z) as usize]);
             }
         }
     }

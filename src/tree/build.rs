@@ -111,10 +111,11 @@ impl TreeBuilder {
             tree.leaves.push(Leaf {
                 origin: o,
                 value_mask: leaf.0,
-                values: leaf.1,
                 bounds: Bounds::EMPTY,
                 halo: Bounds::EMPTY,
+                data: tree.values.len() as u32,
             });
+            tree.values.push(leaf.1);
         }
         for (o, mut lo) in lowers {
             let uo = node_origin(o, UPPER_LOG2);

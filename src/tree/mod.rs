@@ -72,21 +72,32 @@ pub fn node_origin(ijk: [i32; 3], log2: u32) -> [i32; 3] {
     [ijk[0] & m, ijk[1] & m, ijk[2] & m]
 }
 
-/// A leaf: 8^3 voxel values and their active mask.
+/// A leaf: its active mask, bounds, and where its 8^3 voxel values are
+/// ([`Tree::leaf_values`]).
 #[derive(Debug, Clone)]
 pub struct Leaf {
     /// Index coordinate of voxel (0,0,0) of the leaf.
     pub origin: [i32; 3],
     /// Active-voxel mask, bit `leaf_offset(ijk)`.
     pub value_mask: [u64; 8],
-    /// All 512 values (inactive ones too), x-major.
-    pub values: [f32; 512],
-    /// min/max of every value a nearest lookup can return inside the leaf.
+    /// min/max of every value a nearest lookup can return inside the leaf
+    /// ([`Bounds::UNKNOWN`] while its values are not loaded).
     pub bounds: Bounds,
     /// min/max of what trilinear lookups in the leaf's dual-grid region read (voxels
     /// `[o, o + 8]`: the leaf plus a one-voxel halo on its + faces).
     pub halo: Bounds,
+    /// Index of the leaf's 512 values in `Tree::values`, or [`UNLOADED`].
+    pub(crate) data: u32,
 }
+
+/// `Leaf::data` of a leaf whose values were not read (a partial load, see
+/// [`crate::vdb::LazyGrid`]).
+pub(crate) const UNLOADED: u32 = u32::MAX;
+
+/// What reading an unloaded leaf returns: NaN, which every answer refuses
+/// ([`crate::Error::NotANumber`]) instead of returning a wrong number. Partial loads read every
+/// leaf a job's rays touch, so no correct caller sees these.
+pub(crate) static UNLOADED_VALUES: [f32; 512] = [f32::NAN; 512];
 
 /// An internal node with `N` slots (`N` = 4096 for lower, 32768 for upper).
 #[derive(Debug, Clone)]
@@ -206,12 +217,17 @@ pub struct Tree {
     pub(crate) lowers: Vec<Internal>,
     /// Leaves (8^3 voxels).
     pub(crate) leaves: Vec<Leaf>,
+    /// The loaded leaves' values, all 512 (inactive ones too), x-major: `values[leaf.data]`.
+    pub(crate) values: Vec<[f32; 512]>,
     /// min/max of every value a nearest lookup anywhere can return, background included.
     pub(crate) bounds: Bounds,
     /// Per leaf: its 7 + neighbour blocks, `[k - 1]` for the block at `origin + 8 * (k >> 2,
     /// k >> 1 & 1, k & 1)` (what a trilinear lookup on the leaf's + faces reads).
     pub(crate) neighbours: Vec<[Neighbour; 7]>,
     pub(crate) faces: Faces,
+    /// Topology only: no leaf loaded and no bounds computed ([`crate::vdb::LazyGrid::shell`]).
+    /// Every walk over it stops at once as unloaded; only topology walks read it.
+    pub(crate) shell: bool,
 }
 
 impl Tree {
@@ -240,10 +256,33 @@ impl Tree {
     pub fn leaves(&self) -> &[Leaf] {
         &self.leaves
     }
-    /// min/max of every value a nearest lookup anywhere can return, background included.
+    /// min/max of every value a nearest lookup anywhere can return, background included
+    /// ([`Bounds::UNKNOWN`] in a partial tree).
     #[must_use]
     pub fn bounds(&self) -> Bounds {
         self.bounds
+    }
+    /// The 512 values of leaf `leaf` (x-major, inactive ones too, index [`leaf_offset`]). A
+    /// leaf a partial load did not read gives NaNs.
+    ///
+    /// # Panics
+    /// If `leaf` is not an index into [`Tree::leaves`].
+    #[inline]
+    #[must_use]
+    pub fn leaf_values(&self, leaf: u32) -> &[f32; 512] {
+        self.values_of(&self.leaves[leaf as usize])
+    }
+    /// The values of `leaf`, a leaf of this tree.
+    #[inline]
+    pub(crate) fn values_of(&self, leaf: &Leaf) -> &[f32; 512] {
+        self.values
+            .get(leaf.data as usize)
+            .unwrap_or(&UNLOADED_VALUES)
+    }
+    /// Whether every leaf's values are loaded (false for a partial load).
+    #[must_use]
+    pub fn is_complete(&self) -> bool {
+        self.values.len() == self.leaves.len()
     }
     /// Per leaf: its 7 + neighbour blocks (see the field docs in the source).
     #[must_use]
@@ -339,7 +378,7 @@ impl Tree {
             },
             Found::UpperTile { node, slot } => self.uppers[node as usize].tile_value(slot),
             Found::LowerTile { node, slot } => self.lowers[node as usize].tile_value(slot),
-            Found::Voxel { node, offset } => self.leaves[node as usize].values[offset],
+            Found::Voxel { node, offset } => self.leaf_values(node)[offset],
         }
     }
 
@@ -380,6 +419,7 @@ impl Tree {
             + internal(&self.uppers)
             + internal(&self.lowers)
             + self.leaves.capacity() * std::mem::size_of::<Leaf>()
+            + self.values.capacity() * std::mem::size_of::<[f32; 512]>()
             + self.neighbours.capacity() * std::mem::size_of::<[Neighbour; 7]>()
             + (self.faces.leaves.capacity()
                 + self.faces.lowers.capacity()

@@ -2,7 +2,11 @@
 //! they cover), active bounding box, value range and sum of active values, NaN/Inf counts.
 
 use super::{bit, Bounds, Internal, RootSlot, Tree};
+use rayon::prelude::*;
 use serde::Serialize;
+
+/// Leaves per statistics chunk (a fixed size, so sums do not depend on the thread count).
+const LEAF_CHUNK: usize = 4096;
 
 /// Statistics over the active values of a tree.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
@@ -64,6 +68,38 @@ impl Acc {
         let d = (1i32 << log2) - 1;
         self.bbox(origin, origin.map(|c| c.saturating_add(d)));
     }
+    fn leaf(&mut self, leaf: &super::Leaf, values: &[f32; 512]) {
+        let mut lo = [i32::MAX; 3];
+        let mut hi = [i32::MIN; 3];
+        for (w, &word) in leaf.value_mask.iter().enumerate() {
+            let mut bits = word;
+            while bits != 0 {
+                let n = w * 64 + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                self.add(values[n], 1);
+                let l = [(n >> 6) as i32, ((n >> 3) & 7) as i32, (n & 7) as i32];
+                for a in 0..3 {
+                    lo[a] = lo[a].min(leaf.origin[a] + l[a]);
+                    hi[a] = hi[a].max(leaf.origin[a] + l[a]);
+                }
+                self.s.active_leaf_voxels += 1;
+            }
+        }
+        if lo[0] <= hi[0] {
+            self.bbox(lo, hi);
+        }
+    }
+    /// Fold in the leaf statistics of another part of the tree.
+    fn merge(&mut self, o: Self) {
+        self.s.nan_count += o.s.nan_count;
+        self.s.inf_count += o.s.inf_count;
+        self.s.value_sum += o.s.value_sum;
+        self.s.active_leaf_voxels += o.s.active_leaf_voxels;
+        self.range.union(o.range);
+        if let Some([lo, hi]) = o.s.index_bbox {
+            self.bbox(lo, hi);
+        }
+    }
     fn internal(&mut self, node: &Internal, side_log2: u32, child_log2: u32) -> u64 {
         let mut tiles = 0;
         for n in 0..node.slots.len() {
@@ -104,26 +140,24 @@ impl Tree {
             acc.s.lower_tiles += acc.internal(l, 4, 3);
         }
         acc.s.leaf_count = self.leaves.len() as u64;
-        for leaf in &self.leaves {
-            let mut lo = [i32::MAX; 3];
-            let mut hi = [i32::MIN; 3];
-            for (w, &word) in leaf.value_mask.iter().enumerate() {
-                let mut bits = word;
-                while bits != 0 {
-                    let n = w * 64 + bits.trailing_zeros() as usize;
-                    bits &= bits - 1;
-                    acc.add(leaf.values[n], 1);
-                    let l = [(n >> 6) as i32, ((n >> 3) & 7) as i32, (n & 7) as i32];
-                    for a in 0..3 {
-                        lo[a] = lo[a].min(leaf.origin[a] + l[a]);
-                        hi[a] = hi[a].max(leaf.origin[a] + l[a]);
-                    }
-                    acc.s.active_leaf_voxels += 1;
+        // Leaves in fixed chunks, in parallel; the chunks' sums are added in order, so the
+        // result does not depend on the thread count.
+        let parts: Vec<Acc> = self
+            .leaves
+            .par_chunks(LEAF_CHUNK)
+            .map(|chunk| {
+                let mut acc = Acc {
+                    range: Bounds::EMPTY,
+                    ..Acc::default()
+                };
+                for leaf in chunk {
+                    acc.leaf(leaf, self.values_of(leaf));
                 }
-            }
-            if lo[0] <= hi[0] {
-                acc.bbox(lo, hi);
-            }
+                acc
+            })
+            .collect();
+        for p in parts {
+            acc.merge(p);
         }
         acc.s.active_voxels += acc.s.active_leaf_voxels;
         acc.s.value_range = (!acc.range.is_empty()).then_some((acc.range.min, acc.range.max));

@@ -5,9 +5,11 @@
 //! a time), so a load never holds the whole compressed grid next to the decoded tree.
 
 use super::bytes::ByteReader;
-use super::values::{read_compressed_values, PrecisionLoss, StreamInfo, ValueKind};
+use super::values::{
+    read_compressed_values, skip_compressed_values, PrecisionLoss, StreamInfo, ValueKind,
+};
 use crate::error::{DecodeError, DecodeResult, Error, Result};
-use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree};
+use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree, UNLOADED};
 use std::io::{Read, Seek, SeekFrom};
 use std::path::Path;
 
@@ -63,6 +65,11 @@ impl<'f> BufferWindow<'f> {
                 Err(e) => return Err(e.at(self.path)),
             }
         }
+    }
+
+    /// The file offset of the next undecoded byte.
+    pub(crate) fn position(&self) -> u64 {
+        self.base + self.used as u64
     }
 
     fn loaded_end(&self) -> u64 {
@@ -138,32 +145,269 @@ impl Topology {
     }
 }
 
-/// Read the leaf buffers of `topo` from `buffers` and finish the tree (bounds).
-pub(crate) fn decode_buffers(
-    topo: Topology,
+impl Topology {
+    /// The tree with every leaf present and unloaded (no values), the stream settings, and
+    /// the leaves' masks in buffer order (leaf `i` of the tree is buffer `i`).
+    pub(crate) fn into_parts(self) -> (Tree, StreamInfo) {
+        let Topology {
+            mut tree,
+            leaves,
+            stream,
+        } = self;
+        tree.leaves.reserve_exact(leaves.len());
+        tree.leaves
+            .extend(leaves.into_iter().map(|(origin, value_mask)| Leaf {
+                origin,
+                value_mask,
+                bounds: Bounds::EMPTY,
+                halo: Bounds::EMPTY,
+                data: UNLOADED,
+            }));
+        (tree, stream)
+    }
+}
+
+/// Find where every leaf's buffer starts, without decoding any: `offsets[i]` for leaf `i` of
+/// `tree` (buffer order), then the end of the last one. Each buffer's header is parsed (value
+/// mask, metadata byte, inactive values, selection mask, the size prefix of its value run) and
+/// its values are stepped over. The value mask must match the topology's.
+pub(crate) fn locate_buffers(
+    tree: &Tree,
+    s: &StreamInfo,
     buffers: &mut BufferWindow<'_>,
-) -> Result<(Tree, Option<PrecisionLoss>)> {
-    let Topology {
-        mut tree,
-        leaves,
-        stream: s,
-    } = topo;
-    tree.leaves.reserve_exact(leaves.len());
-    for (origin, value_mask) in leaves {
-        tree.leaves.push(Leaf {
-            origin,
-            value_mask,
-            values: [0.0; 512],
-            bounds: Bounds::EMPTY,
-            halo: Bounds::EMPTY,
-        });
-        if let Some(leaf) = tree.leaves.last_mut() {
-            buffers.read(|r| read_leaf_buffer(r, &s, leaf))?;
+) -> Result<Vec<u64>> {
+    let mut offsets = Vec::with_capacity(tree.leaves.len() + 1);
+    for leaf in &tree.leaves {
+        let at = buffers.read(|r| {
+            let at = r.offset();
+            let mask = read_buffer_mask(r, leaf)?;
+            if s.kind == ValueKind::Bool {
+                r.skip(12 + 64, "bool leaf origin and values")?;
+            } else {
+                skip_compressed_values(r, s, &mask)?;
+            }
+            Ok(at)
+        })?;
+        offsets.push(at);
+    }
+    offsets.push(buffers.position());
+    Ok(offsets)
+}
+
+/// Where every leaf's buffer starts, from OpenVDB's `file_delayed_load` table instead of a
+/// pass over the buffers: the table holds, per leaf, its metadata byte (which inactive values
+/// and selection mask follow the value mask) and the byte size of its value run (size prefix
+/// included). A buffer is then `64` (value mask) `+ 1 + inactive values + selection mask + run`
+/// bytes. `None` when the table is malformed, is for another leaf count, the grid is not
+/// compressed, or the sizes do not add up to exactly the grid's buffer region `[start, end)`:
+/// the caller then scans ([`locate_buffers`]).
+pub(crate) fn offsets_from_table(
+    table: &[u8],
+    tree: &Tree,
+    s: &StreamInfo,
+    start: u64,
+    end: u64,
+) -> Option<Vec<u64>> {
+    if s.kind == ValueKind::Bool || !(s.compression.blosc || s.compression.zip) {
+        return None;
+    }
+    let n = tree.leaves.len();
+    let mut r = ByteReader::new(table, 0);
+    let count = r.u32("delayed-load count").ok()? as usize;
+    if count != n {
+        return None;
+    }
+    let section = |r: &mut ByteReader<'_>, width: usize| -> Option<Vec<u8>> {
+        let bytes = r.u32("delayed-load section size").ok()?;
+        let mut out = vec![0u8; n.checked_mul(width)?];
+        if bytes == u32::MAX {
+            return None;
+        }
+        if bytes > 0 {
+            let src = r.take(bytes as usize, "delayed-load section").ok()?;
+            super::blosc::decompress_into(src, &mut out).ok()?;
+        } else {
+            let len = out.len();
+            out.copy_from_slice(r.take(len, "delayed-load section").ok()?);
+        }
+        Some(out)
+    };
+    let metas = section(&mut r, 1)?;
+    let sizes = section(&mut r, 8)?;
+    let value = s.kind.size() as u64;
+    let mut offsets = Vec::with_capacity(n + 1);
+    let mut at = start;
+    for (k, &meta) in metas.iter().enumerate() {
+        offsets.push(at);
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&sizes[8 * k..8 * k + 8]);
+        let run = u64::try_from(i64::from_le_bytes(b)).ok()?;
+        let (inactive, selection) = match meta {
+            0 | 1 | 6 => (0, 0),
+            2 => (1, 0),
+            3 => (0, 64),
+            4 => (1, 64),
+            5 => (2, 64),
+            _ => return None,
+        };
+        at = at
+            .checked_add(64 + 1 + inactive * value + selection)?
+            .checked_add(run)?;
+    }
+    offsets.push(at);
+    (at == end).then_some(offsets)
+}
+
+/// Bytes of leaf buffers one decoding task reads at a time (one positioned read).
+const TASK_BYTES: u64 = 1 << 20;
+/// Below this many leaves a load decodes on the calling thread.
+const PARALLEL_LEAVES: usize = 2048;
+
+/// Decode the buffers of the leaves `ids` (increasing) of `tree` into `out` (one block per
+/// id), reading `file` by positioned reads (runs of consecutive leaves, up to about 1 MiB per
+/// read), on all of rayon's threads when there are many. Errors name the file, the leaf and
+/// the byte offset of its buffer.
+pub(crate) fn decode_leaves(
+    file: &std::fs::File,
+    path: &Path,
+    stream: Stream,
+    tree: &Tree,
+    offsets: &[u64],
+    ids: &[u32],
+    out: &mut [[f32; 512]],
+) -> Result<Option<PrecisionLoss>> {
+    debug_assert_eq!(ids.len(), out.len());
+    // Runs of consecutive leaves, each with its slice of `out`.
+    let mut tasks = Vec::new();
+    let mut rest = out;
+    let mut i = 0;
+    while i < ids.len() {
+        let mut j = i + 1;
+        while j < ids.len()
+            && ids[j] == ids[j - 1] + 1
+            && offsets[ids[j] as usize + 1] - offsets[ids[i] as usize] <= TASK_BYTES
+        {
+            j += 1;
+        }
+        let (head, tail) = std::mem::take(&mut rest).split_at_mut(j - i);
+        tasks.push((&ids[i..j], head));
+        rest = tail;
+        i = j;
+    }
+    let run = |(run, dest): (&[u32], &mut [[f32; 512]])| -> Result<PrecisionLoss> {
+        let s = stream.info();
+        let (a, b) = (
+            offsets[run[0] as usize],
+            offsets[run[run.len() - 1] as usize + 1],
+        );
+        READ_BUFFER.with_borrow_mut(|bytes| -> Result<PrecisionLoss> {
+            read_at(file, path, a, b - a, bytes)?;
+            for (&l, d) in run.iter().zip(dest.iter_mut()) {
+                let leaf = &tree.leaves[l as usize];
+                let at = offsets[l as usize];
+                let end = offsets[l as usize + 1];
+                let lo = usize::try_from(at - a).unwrap_or(usize::MAX);
+                let hi = usize::try_from(end - a).unwrap_or(usize::MAX);
+                let mut r = ByteReader::new(&bytes[lo..hi], at);
+                read_leaf_buffer(&mut r, &s, leaf, d).map_err(|e| {
+                    let why = match e {
+                        DecodeError::Invalid(m) | DecodeError::Truncated { msg: m, .. } => m,
+                        DecodeError::Unsupported(m) => m,
+                    };
+                    DecodeError::invalid(format!(
+                        "leaf at {:?} (buffer at byte offset {at}): {why}",
+                        leaf.origin
+                    ))
+                    .at(path)
+                })?;
+            }
+            Ok(s.precision.get())
+        })
+    };
+    let parts: Vec<PrecisionLoss> = if ids.len() >= PARALLEL_LEAVES {
+        use rayon::prelude::*;
+        tasks.into_par_iter().map(run).collect::<Result<_>>()?
+    } else {
+        tasks.into_iter().map(run).collect::<Result<_>>()?
+    };
+    if stream.kind != ValueKind::Double || stream.half {
+        return Ok(None);
+    }
+    let mut p = PrecisionLoss::default();
+    for q in parts {
+        p.merge(q);
+    }
+    Ok(Some(p))
+}
+
+thread_local! {
+    /// Each decoding thread's read buffer, reused from run to run (a fresh megabyte per run
+    /// was a megabyte of page faults per run).
+    static READ_BUFFER: std::cell::RefCell<Vec<u8>> = const { std::cell::RefCell::new(Vec::new()) };
+}
+
+/// Read `len` bytes of `file` from byte `at` into `buf` (a positioned read: no shared cursor,
+/// so any number of threads read one file at once).
+fn read_at(file: &std::fs::File, path: &Path, at: u64, len: u64, buf: &mut Vec<u8>) -> Result<()> {
+    let n = usize::try_from(len).map_err(|_| {
+        DecodeError::invalid(format!("a leaf buffer run of {len} bytes at offset {at}")).at(path)
+    })?;
+    buf.resize(n, 0);
+    positioned_read(file, buf, at).map_err(|err| Error::Io {
+        path: path.to_path_buf(),
+        err,
+    })
+}
+
+#[cfg(unix)]
+fn positioned_read(file: &std::fs::File, buf: &mut [u8], at: u64) -> std::io::Result<()> {
+    std::os::unix::fs::FileExt::read_exact_at(file, buf, at)
+}
+
+#[cfg(windows)]
+fn positioned_read(file: &std::fs::File, mut buf: &mut [u8], mut at: u64) -> std::io::Result<()> {
+    while !buf.is_empty() {
+        let n = std::os::windows::fs::FileExt::seek_read(file, buf, at)?;
+        if n == 0 {
+            return Err(std::io::ErrorKind::UnexpectedEof.into());
+        }
+        buf = &mut buf[n..];
+        at += n as u64;
+    }
+    Ok(())
+}
+
+/// The settings a leaf decoder needs, without the per-thread scratch of [`StreamInfo`] (so
+/// that decoding tasks on several threads can each make their own).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Stream {
+    pub(crate) kind: ValueKind,
+    pub(crate) half: bool,
+    pub(crate) compression: super::Compression,
+    pub(crate) background: f32,
+}
+
+impl Stream {
+    /// The settings of `s`.
+    pub(crate) fn of(s: &StreamInfo) -> Self {
+        Self {
+            kind: s.kind,
+            half: s.half,
+            compression: s.compression,
+            background: s.background,
         }
     }
-    tree.compute_bounds();
-    let precision = (s.kind == ValueKind::Double && !s.half).then(|| s.precision.get());
-    Ok((tree, precision))
+    /// A fresh decoder state (no precision tracked yet, empty scratch).
+    pub(crate) fn info(self) -> StreamInfo {
+        StreamInfo {
+            kind: self.kind,
+            half: self.half,
+            compression: self.compression,
+            background: self.background,
+            precision: std::cell::Cell::default(),
+            scratch: std::cell::RefCell::default(),
+        }
+    }
 }
 
 /// The topology: the tree without leaf values, the leaves' origins and masks, and the stream
@@ -332,9 +576,8 @@ fn read_leaf_topology(
     Ok(index)
 }
 
-/// `LeafNode::readBuffers`: the value mask again, then the values (bool leaves: origin and a
-/// value bit mask instead).
-fn read_leaf_buffer(r: &mut ByteReader<'_>, s: &StreamInfo, leaf: &mut Leaf) -> DecodeResult<()> {
+/// The value mask at the start of a leaf's buffer, which must equal the topology's.
+fn read_buffer_mask(r: &mut ByteReader<'_>, leaf: &Leaf) -> DecodeResult<[u64; 8]> {
     let at = r.offset();
     let mut mask = [0u64; 8];
     r.u64_words(&mut mask, "leaf buffer value mask")?;
@@ -344,14 +587,26 @@ fn read_leaf_buffer(r: &mut ByteReader<'_>, s: &StreamInfo, leaf: &mut Leaf) -> 
             leaf.origin
         )));
     }
+    Ok(mask)
+}
+
+/// `LeafNode::readBuffers`: the value mask again, then the values (bool leaves: origin and a
+/// value bit mask instead), into `out`.
+fn read_leaf_buffer(
+    r: &mut ByteReader<'_>,
+    s: &StreamInfo,
+    leaf: &Leaf,
+    out: &mut [f32; 512],
+) -> DecodeResult<()> {
+    let mask = read_buffer_mask(r, leaf)?;
     if s.kind == ValueKind::Bool {
         r.skip(12, "bool leaf origin")?;
         let mut bits = [0u64; 8];
         r.u64_words(&mut bits, "bool leaf values")?;
-        for (i, v) in leaf.values.iter_mut().enumerate() {
+        for (i, v) in out.iter_mut().enumerate() {
             *v = f32::from(u8::from(crate::tree::bit(&bits, i)));
         }
         return Ok(());
     }
-    read_compressed_values(r, s, &mask, &mut leaf.values)
+    read_compressed_values(r, s, &mask, out)
 }

@@ -36,16 +36,31 @@ pub type MetaMap = Vec<(String, MetaValue)>;
 
 /// Read a `MetaMap`.
 pub(crate) fn read_meta_map(r: &mut ByteReader<'_>) -> DecodeResult<MetaMap> {
+    read_grid_meta_map(r).map(|(m, _)| m)
+}
+
+/// OpenVDB's type name of the per-leaf table it writes as `file_delayed_load`.
+pub(crate) const DELAYED_LOAD_TYPE: &str = "__delayedload";
+
+/// Read a grid's `MetaMap`, and the raw value of its `__delayedload` entry if it has one
+/// (OpenVDB >= 6.1 writes per-leaf compressed sizes there; see `decode::offsets_from_table`).
+pub(crate) fn read_grid_meta_map(
+    r: &mut ByteReader<'_>,
+) -> DecodeResult<(MetaMap, Option<Vec<u8>>)> {
     let count = r.u32("metadata count")?;
     let mut out = Vec::new();
+    let mut delayed = None;
     for _ in 0..count {
         let name = r.string("metadata name")?;
         let type_name = r.string("metadata type")?;
         let size = r.u32("metadata size")? as usize;
         let bytes = r.take(size, "metadata value")?;
+        if type_name == DELAYED_LOAD_TYPE {
+            delayed = Some(bytes.to_vec());
+        }
         out.push((name, decode_value(&type_name, bytes)));
     }
-    Ok(out)
+    Ok((out, delayed))
 }
 
 fn decode_value(type_name: &str, b: &[u8]) -> MetaValue {

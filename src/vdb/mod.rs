@@ -7,11 +7,13 @@ mod archive;
 mod blosc;
 mod bytes;
 mod decode;
+mod lazy;
 mod metadata;
 mod transform;
 mod values;
 
 pub use archive::{display_name, Archive, Compression, GridDescriptor, NAME_SEPARATOR};
+pub use lazy::LazyGrid;
 pub use metadata::{MetaMap, MetaValue};
 pub use transform::{FrustumParams, Transform};
 pub use values::{PrecisionLoss, ValueKind};
@@ -89,6 +91,8 @@ const HEAD_WINDOW: u64 = 1 << 16;
 struct Head {
     compression: Compression,
     metadata: MetaMap,
+    /// The raw `file_delayed_load` table, if the writer stored one.
+    delayed_load: Option<Vec<u8>>,
     transform: Transform,
     topology: Option<decode::Topology>,
 }
@@ -104,44 +108,7 @@ impl Archive {
     /// instanced grid whose parent is missing, is itself, is an instance or has another tree
     /// type is [`Error::Invalid`].
     pub fn load(&self, gd: &GridDescriptor) -> Result<Grid> {
-        let path = &self.path;
-        let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(path))?;
-        let parent = if gd.instance_parent.is_empty() {
-            None
-        } else {
-            Some(self.instance_parent(gd)?)
-        };
-        let (head, mut file) = self.head(gd, kind, parent.is_none())?;
-        let (tree, precision_loss) = match (head.topology, parent) {
-            (Some(topology), _) => {
-                let mut buffers =
-                    decode::BufferWindow::new(&mut file, path, gd.block_pos, gd.end_pos);
-                decode::decode_buffers(topology, &mut buffers)?
-            }
-            (None, Some(parent)) => {
-                let p = self.load(parent)?;
-                (p.tree, p.precision_loss)
-            }
-            // `load` reads a topology exactly when there is no parent.
-            (None, None) => {
-                let why = "grid has neither a tree nor an instance parent";
-                return Err(DecodeError::invalid(why).at(path));
-            }
-        };
-        let metadata = head.metadata;
-        let class = metadata::meta_string(&metadata, "class").map(str::to_string);
-        Ok(Grid {
-            name: gd.display_name.clone(),
-            stored_name: gd.stored_name.clone(),
-            value_type: kind,
-            class,
-            transform: head.transform,
-            metadata,
-            compression: head.compression,
-            saved_as_half: gd.saved_as_half,
-            tree,
-            precision_loss,
-        })
+        self.open_lazy(gd)?.load_all()
     }
 
     /// Parse a grid's head (compression, metadata, transform, and with `topology` its tree
@@ -166,7 +133,7 @@ impl Archive {
             path,
             |r| {
                 let compression = Compression::from_flags(r.u32("compression flags")?);
-                let metadata = metadata::read_meta_map(r)?;
+                let (metadata, delayed_load) = metadata::read_grid_meta_map(r)?;
                 let transform = transform::read_transform(r)?;
                 let topology = if topology {
                     let t = decode::read_topology(
@@ -183,6 +150,7 @@ impl Archive {
                 Ok(Head {
                     compression,
                     metadata,
+                    delayed_load,
                     transform,
                     topology,
                 })

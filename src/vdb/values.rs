@@ -161,6 +161,14 @@ pub struct PrecisionLoss {
 }
 
 impl PrecisionLoss {
+    /// Fold in what another part of the same grid cost.
+    pub(crate) fn merge(&mut self, o: Self) {
+        self.values += o.values;
+        self.max_relative_error = self.max_relative_error.max(o.max_relative_error);
+        self.overflowed += o.overflowed;
+        self.underflowed += o.underflowed;
+    }
+
     fn add(&mut self, v: f64) {
         self.values += 1;
         let f = v as f32;
@@ -382,6 +390,67 @@ pub(crate) fn read_compressed_values(
         }
     }
     Ok(())
+}
+
+/// Step over what [`read_compressed_values`] would read for a node with value mask `mask`,
+/// without decompressing: the metadata byte, inactive values, selection mask, then the value
+/// run (its size prefix says how long a compressed run is). This is how a leaf's buffer is found
+/// without decoding the ones before it.
+pub(crate) fn skip_compressed_values(
+    r: &mut ByteReader<'_>,
+    s: &StreamInfo,
+    mask: &[u64],
+) -> DecodeResult<()> {
+    let meta = r.u8("node metadata")?;
+    if meta > NO_MASK_AND_ALL_VALS {
+        return Err(DecodeError::invalid(format!(
+            "node metadata byte {meta} at offset {} is not 0..=6",
+            r.offset() - 1
+        )));
+    }
+    if matches!(
+        meta,
+        NO_MASK_AND_ONE_INACTIVE_VAL | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
+    ) {
+        r.skip(s.kind.size(), "inactive value")?;
+        if meta == MASK_AND_TWO_INACTIVE_VALS {
+            r.skip(s.kind.size(), "inactive value")?;
+        }
+    }
+    if matches!(
+        meta,
+        MASK_AND_NO_INACTIVE_VALS | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
+    ) {
+        r.skip(8 * mask.len(), "selection mask")?;
+    }
+    let only_active = s.compression.active_mask && meta != NO_MASK_AND_ALL_VALS;
+    let count = if only_active {
+        mask.iter().map(|w| w.count_ones() as usize).sum()
+    } else {
+        64 * mask.len()
+    };
+    if s.half && s.kind.is_real() && count == 0 {
+        return Ok(());
+    }
+    let nbytes = count * s.kind.array_size(s.half);
+    if !(s.compression.blosc || s.compression.zip) {
+        return r.skip(nbytes, "uncompressed values");
+    }
+    let n = r.i64("compressed size")?;
+    if n <= 0 {
+        if n.unsigned_abs() != nbytes as u64 {
+            return Err(DecodeError::invalid(format!(
+                "compressed block at offset {} stores {} raw bytes, expected {nbytes}",
+                r.offset(),
+                n.unsigned_abs()
+            )));
+        }
+        return r.skip(nbytes, "values");
+    }
+    r.skip(
+        usize::try_from(n).unwrap_or(usize::MAX),
+        "compressed values",
+    )
 }
 
 /// Decode a value array (`out.len()` elements of `data`) into `out`, with the common types'

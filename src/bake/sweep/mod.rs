@@ -591,7 +591,7 @@ fn neighbourhood<'t>(tree: &'t Tree, acc: &mut Accessor<'t>, p: &Piece) -> [Bloc
     let mut b = [Block::Const(tree.background); 8];
     let nb = match p.part {
         Part::Leaf { leaf, .. } => {
-            b[0] = Block::Leaf(&tree.leaves[leaf as usize].values);
+            b[0] = Block::Leaf(tree.leaf_values(leaf));
             tree.neighbours.get(leaf as usize)
         }
         Part::Tile { lower, slot, .. } => {
@@ -605,7 +605,7 @@ fn neighbourhood<'t>(tree: &'t Tree, acc: &mut Accessor<'t>, p: &Piece) -> [Bloc
     };
     for (k, block) in b.iter_mut().enumerate().skip(1) {
         *block = match nb.map(|n| n[k - 1]) {
-            Some(Neighbour::Leaf(i)) => Block::Leaf(&tree.leaves[i as usize].values),
+            Some(Neighbour::Leaf(i)) => Block::Leaf(tree.leaf_values(i)),
             Some(Neighbour::Const(c)) => Block::Const(c),
             _ => acc.block_at([0, 1, 2].map(|a| p.origin[a] + 8 * ((k >> (2 - a)) & 1) as i64)),
         };

@@ -1,7 +1,9 @@
 //! `umbra query`: what does the cloud attenuate along a segment, toward a light, or along
 //! thousands of segments from a CSV file?
 
-use crate::common::{flag_error, load_scene, parse_vec3, thread_pool, EstimatorArgs, InterpArg};
+use crate::common::{
+    flag_error, load_scene, load_scene_for, parse_vec3, thread_pool, EstimatorArgs, InterpArg,
+};
 use anyhow::{anyhow, bail, Context, Result};
 use rayon::prelude::*;
 use std::io::{Read, Write};
@@ -61,9 +63,13 @@ pub struct QueryArgs {
     /// Pixel (i, j) of a bake is ray id j*W+i.
     #[arg(long, default_value_t = 0)]
     ray_id: u64,
-    /// Worker threads for --rays (0: all cores).
+    /// Worker threads for --rays and for decoding (0: all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Decode the whole grid. By default a query on a `.vdb` reads its topology and decodes
+    /// only the leaves its rays touch (the answers are the same, bit for bit).
+    #[arg(long)]
+    eager: bool,
     #[command(flatten)]
     est: EstimatorArgs,
 }
@@ -104,26 +110,54 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         Some(p) => Some(read_rays(p)?),
         None => None,
     };
-    let scene = load_scene(
-        &a.file,
-        &umbra::scene::SceneOptions {
-            grid: a.grid.clone(),
-            density_scale: a.density_scale,
-            sigma_t: a.trace.sigma_t,
-            xform: a.xform,
-            levelset_solid: a.trace.levelset.is_some(),
-        },
-    )?;
-    let vol = &scene;
     let interp: Interp = a.interp.into();
     let (est, opts) = a.est.resolve(interp)?;
+    let scene_opts = umbra::scene::SceneOptions {
+        grid: a.grid.clone(),
+        density_scale: a.density_scale,
+        sigma_t: a.trace.sigma_t,
+        xform: a.xform,
+        levelset_solid: a.trace.levelset.is_some(),
+    };
+    let pool = thread_pool(a.threads)?;
+    // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray
+    // that cannot be made keeps its error here and asks for nothing to be decoded.
+    let mut ray_error = None;
+    let mut make_rays = |scene: &Scene| -> Vec<Ray> {
+        if let Some(rows) = &batch {
+            return rows
+                .iter()
+                .filter_map(|(_, r)| r.as_ref().ok().copied())
+                .collect();
+        }
+        let ray = match (single, a.at, light) {
+            (Some((from, to)), _, _) => Ray::between(from, to),
+            (None, Some(at), Some(l)) => l.ray_from_scene(scene, at),
+            _ => return Vec::new(),
+        };
+        ray.map_err(|e| ray_error = Some(e)).into_iter().collect()
+    };
+    let (scene, rays) = pool.install(|| {
+        if a.eager {
+            load_scene(&a.file, &scene_opts).map(|s| {
+                let r = make_rays(&s);
+                (s, r)
+            })
+        } else {
+            load_scene_for(&a.file, &scene_opts, interp, opts.granularity, make_rays)
+        }
+    })?;
+    if let Some(e) = ray_error {
+        return Err(e.into());
+    }
+    let vol = &scene;
     // The work budget, up front: per ray and for every ray of the batch together.
-    let rays = batch.as_ref().map_or(1, Vec::len) as u64;
+    let n_rays = batch.as_ref().map_or(1, Vec::len) as u64;
     for f in scene.fogs() {
         umbra::estimate::budget::check_job(
             f.volume(),
             &est,
-            rays,
+            n_rays,
             u64::from(opts.samples),
             "samples",
         )
@@ -137,14 +171,12 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
                     .map_err(|e| format!("{e:#}"))
             }),
         };
-        thread_pool(a.threads)?.install(|| rows.par_iter().enumerate().map(one).collect())
+        pool.install(|| rows.par_iter().enumerate().map(one).collect())
     } else {
-        let ray = match (single, a.at, light) {
-            (Some((from, to)), _, _) => Ray::between(from, to)?,
-            (None, Some(at), Some(l)) => l.ray_from_scene(vol, at)?,
-            _ => bail!("nothing to query"),
+        let Some(ray) = rays.first() else {
+            bail!("nothing to query");
         };
-        let r = answer(vol, &ray, a.ray_id, &est, &opts)?;
+        let r = answer(vol, ray, a.ray_id, &est, &opts)?;
         vec![Answer {
             line: None,
             result: Ok(r),

@@ -204,17 +204,40 @@ pub fn parse_xform(s: &str) -> std::result::Result<umbra::xform::Xform, String> 
 /// Load a `.vdb` grid or a `.toml` scene for tracing, warning about voxels the bad-voxel
 /// policy changed.
 pub fn load_scene(file: &Path, opts: &umbra::scene::SceneOptions) -> Result<umbra::scene::Scene> {
-    let scene = umbra::scene::load(file, opts).map_err(|e| match e {
+    let scene = umbra::scene::load(file, opts).map_err(|e| load_error(e, file, opts))?;
+    warn_sanitized(file, &scene);
+    Ok(scene)
+}
+
+/// [`load_scene`] for a job whose rays `rays` makes from the scene's boxes: a `.vdb` is read
+/// lazily and only the leaves those rays touch are decoded (`umbra::scene::file::load_for_rays`).
+pub fn load_scene_for(
+    file: &Path,
+    opts: &umbra::scene::SceneOptions,
+    interp: umbra::Interp,
+    gran: umbra::traverse::Granularity,
+    rays: impl FnOnce(&umbra::scene::Scene) -> Vec<umbra::Ray>,
+) -> Result<(umbra::scene::Scene, Vec<umbra::Ray>)> {
+    let (scene, r) = umbra::scene::file::load_for_rays(file, opts, interp, gran, rays)
+        .map_err(|e| load_error(e, file, opts))?;
+    warn_sanitized(file, &scene);
+    Ok((scene, r))
+}
+
+fn load_error(e: umbra::Error, file: &Path, opts: &umbra::scene::SceneOptions) -> anyhow::Error {
+    match e {
         umbra::Error::InvalidArgument { .. } => anyhow::Error::from(flag_error(e)),
         other if umbra::scene::is_scene_file(file) => {
             anyhow::Error::from(other).context("loading the scene")
         }
         other => anyhow::Error::from(other).context(format!("loading grid '{}'", opts.grid)),
-    })?;
+    }
+}
+
+fn warn_sanitized(file: &Path, scene: &umbra::scene::Scene) {
     for w in volume_warnings(&scene.sanitized()) {
         eprintln!("umbra: warning: {}: {w}", file.display());
     }
-    Ok(scene)
 }
 
 /// A rayon pool of `threads` workers (0: as many as cores).

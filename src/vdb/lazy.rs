@@ -1,0 +1,221 @@
+//! Partial loads: open a grid by reading its topology and finding where each leaf's buffer
+//! starts, then decode only the leaves a job touches, by positioned reads, on all cores.
+//!
+//! OpenVDB writes a grid as its topology (root table, internal nodes with their tiles, leaf
+//! value masks) followed by the leaf buffers in the same depth-first order. A buffer's length
+//! is not stored anywhere in the topology, so [`Archive::open_lazy`] walks the buffers once,
+//! reading each header (value mask, metadata byte, inactive values, selection mask, the size
+//! prefix of the value run) and stepping over the values: no decompression. After that,
+//! leaf `i`'s bytes are `offsets[i]..offsets[i + 1]`, and any set of leaves decodes
+//! independently ([`LazyGrid::load`]).
+
+use super::decode::{self, Stream};
+use super::{Archive, GridDescriptor, ValueKind};
+use crate::error::{DecodeError, Result};
+use crate::vdb::Grid;
+use std::path::PathBuf;
+
+/// A grid opened for partial reads: its identity, transform and topology, and where every
+/// leaf's buffer is in the file (which stays open).
+#[derive(Debug)]
+pub struct LazyGrid {
+    path: PathBuf,
+    file: std::fs::File,
+    /// The grid with every leaf present but unloaded (bounds [`crate::tree::Bounds::UNKNOWN`]).
+    shell: Grid,
+    stream: Stream,
+    offsets: Vec<u64>,
+}
+
+impl Archive {
+    /// Open the grid `gd` (from this archive) for partial reads: read its head and topology
+    /// and locate every leaf buffer, decoding no values. An instanced grid shares its
+    /// parent's tree and buffers.
+    ///
+    /// # Errors
+    /// As [`Archive::load`], for the head, the topology and the buffer headers; corrupt
+    /// values are found only by the load that decodes them.
+    pub fn open_lazy(&self, gd: &GridDescriptor) -> Result<LazyGrid> {
+        let path = &self.path;
+        let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(path))?;
+        let parent = if gd.instance_parent.is_empty() {
+            None
+        } else {
+            Some(self.instance_parent(gd)?)
+        };
+        let (head, mut file) = self.head(gd, kind, parent.is_none())?;
+        let class = super::metadata::meta_string(&head.metadata, "class").map(str::to_string);
+        let identity = |tree| Grid {
+            name: gd.display_name.clone(),
+            stored_name: gd.stored_name.clone(),
+            value_type: kind,
+            class: class.clone(),
+            transform: head.transform.clone(),
+            metadata: head.metadata.clone(),
+            compression: head.compression,
+            saved_as_half: gd.saved_as_half,
+            tree,
+            precision_loss: None,
+        };
+        match (head.topology, parent) {
+            (Some(topology), _) => {
+                let (mut tree, stream) = topology.into_parts();
+                let table = head.delayed_load.as_deref().and_then(|t| {
+                    decode::offsets_from_table(t, &tree, &stream, gd.block_pos, gd.end_pos)
+                });
+                let offsets = match table {
+                    Some(o) => o,
+                    None => {
+                        let mut buffers =
+                            decode::BufferWindow::new(&mut file, path, gd.block_pos, gd.end_pos);
+                        decode::locate_buffers(&tree, &stream, &mut buffers)?
+                    }
+                };
+                tree.shell = true;
+                tree.bounds = crate::tree::Bounds::UNKNOWN;
+                Ok(LazyGrid {
+                    path: path.clone(),
+                    file,
+                    stream: Stream::of(&stream),
+                    offsets,
+                    shell: identity(tree),
+                })
+            }
+            (None, Some(parent)) => {
+                let mut p = self.open_lazy(parent)?;
+                let tree = std::mem::take(&mut p.shell.tree);
+                p.shell = identity(tree);
+                Ok(p)
+            }
+            (None, None) => {
+                let why = "grid has neither a tree nor an instance parent";
+                Err(DecodeError::invalid(why).at(path))
+            }
+        }
+    }
+}
+
+impl LazyGrid {
+    /// The grid without values: identity, metadata, transform and the full topology, every
+    /// leaf unloaded (its values read as NaN, its bounds are not computed, and every walk over
+    /// it stops as unloaded, so nothing traced through it returns a number). What a job plans
+    /// its rays with before it loads.
+    #[must_use]
+    pub fn shell(&self) -> &Grid {
+        &self.shell
+    }
+
+    /// The file it reads.
+    #[must_use]
+    pub fn path(&self) -> &std::path::Path {
+        &self.path
+    }
+
+    /// Number of leaves in the grid.
+    #[must_use]
+    pub fn leaf_count(&self) -> usize {
+        self.shell.tree.leaves.len()
+    }
+
+    /// Bytes of leaf buffers in the file (compressed).
+    #[must_use]
+    pub fn buffer_bytes(&self) -> u64 {
+        match (self.offsets.first(), self.offsets.last()) {
+            (Some(a), Some(b)) => b - a,
+            _ => 0,
+        }
+    }
+
+    /// The grid with the values of `leaves` (indices into the topology's leaves, any order,
+    /// repeats allowed) decoded and every other leaf unloaded. Bounds are recomputed: those of
+    /// loaded leaves, and of everything whose halo reads only loaded leaves, are exact; the
+    /// rest are unknown. Rays whose walks stay on loaded leaves give exactly what an eager
+    /// load gives (`Volume::load_for` picks the leaves).
+    ///
+    /// # Errors
+    /// [`crate::Error::Io`] if the file cannot be read, [`crate::Error::Invalid`] naming the
+    /// file, the leaf and the byte offset of its buffer when its data is corrupt;
+    /// [`crate::Error::InvalidArgument`] for an index past the leaf count.
+    pub fn load(&self, leaves: &[u32]) -> Result<Grid> {
+        let ids = self.check_leaves(leaves)?;
+        self.decode(&ids, self.shell.tree.clone())
+    }
+
+    /// [`LazyGrid::load`], giving up the lazy grid (its topology becomes the grid's tree
+    /// instead of being copied).
+    ///
+    /// # Errors
+    /// As [`LazyGrid::load`].
+    pub fn into_partial(mut self, leaves: &[u32]) -> Result<Grid> {
+        let ids = self.check_leaves(leaves)?;
+        let tree = std::mem::take(&mut self.shell.tree);
+        self.decode(&ids, tree)
+    }
+
+    /// `leaves` sorted, without repeats, each checked against the leaf count.
+    fn check_leaves(&self, leaves: &[u32]) -> Result<Vec<u32>> {
+        let n = self.leaf_count();
+        let mut ids = leaves.to_vec();
+        ids.sort_unstable();
+        ids.dedup();
+        if let Some(&l) = ids.last().filter(|&&l| l as usize >= n) {
+            return Err(crate::Error::InvalidArgument {
+                name: "leaves".into(),
+                reason: format!("leaf {l} of a grid with {n} leaves"),
+            });
+        }
+        Ok(ids)
+    }
+
+    /// The whole grid, every leaf decoded (on all of rayon's threads for large grids): what
+    /// [`Archive::load`] returns.
+    ///
+    /// # Errors
+    /// As [`LazyGrid::load`].
+    pub fn load_all(mut self) -> Result<Grid> {
+        let ids: Vec<u32> = (0..self.leaf_count() as u32).collect();
+        let tree = std::mem::take(&mut self.shell.tree);
+        self.decode(&ids, tree)
+    }
+
+    fn decode(&self, ids: &[u32], mut tree: crate::tree::Tree) -> Result<Grid> {
+        let mut values = vec![[0f32; 512]; ids.len()];
+        let precision = decode::decode_leaves(
+            &self.file,
+            &self.path,
+            self.stream,
+            &tree,
+            &self.offsets,
+            ids,
+            &mut values,
+        )?;
+        for (k, &l) in ids.iter().enumerate() {
+            tree.leaves[l as usize].data = k as u32;
+        }
+        tree.values = values;
+        tree.shell = false;
+        tree.compute_bounds();
+        let mut grid = self.shell.clone_without_tree();
+        grid.tree = tree;
+        grid.precision_loss = precision;
+        Ok(grid)
+    }
+}
+
+impl Grid {
+    /// Everything but the tree (and the precision report, which belongs to a decode).
+    fn clone_without_tree(&self) -> Self {
+        Self {
+            name: self.name.clone(),
+            stored_name: self.stored_name.clone(),
+            value_type: self.value_type,
+            class: self.class.clone(),
+            transform: self.transform.clone(),
+            metadata: self.metadata.clone(),
+            compression: self.compression,
+            saved_as_half: self.saved_as_half,
+            tree: crate::tree::Tree::default(),
+            precision_loss: None,
+        }
+    }
+}
