@@ -2046,8 +2046,73 @@ fn trace_grid(
             }
         }
     }
+    lazy_matches(path, &name, &vol, probe, &ratio, &opts, stage, rep);
     bake_grid(path, vol, &name, out, stage, rep);
     true
+}
+
+/// The same grid opened lazily: the leaves the probe rays touch, decoded alone, must load
+/// (the whole grid did) and answer exactly as the eager volume `vol` does.
+#[allow(clippy::too_many_arguments)]
+fn lazy_matches(
+    path: &Path,
+    name: &str,
+    vol: &Volume,
+    probe: Option<[f64; 3]>,
+    est: &Estimator,
+    opts: &Options,
+    stage: &Stage,
+    rep: &mut Report,
+) {
+    stage.set("lazy: open");
+    let lazy = umbra::vdb::open(path)
+        .and_then(|a| a.find_grid(name).cloned().and_then(|gd| a.open_lazy(&gd)));
+    let lazy = match lazy {
+        Ok(l) => l,
+        Err(e) => {
+            rep.problems
+                .push(format!("grid '{name}': loads eagerly but not lazily: {e}"));
+            return;
+        }
+    };
+    let rays: Vec<Ray> = probe_rays(vol, probe).into_iter().flatten().collect();
+    stage.set("lazy: touched leaves");
+    let Ok(shell) = Volume::new(lazy.shell().clone(), 1.0, path) else {
+        rep.problems
+            .push(format!("grid '{name}': its shell is not a volume"));
+        return;
+    };
+    let leaves = umbra::demand::leaves_touched(
+        &shell,
+        &rays,
+        Interp::Trilinear,
+        umbra::traverse::Granularity::Leaf,
+    );
+    stage.set("lazy: partial load");
+    let part = match lazy.load(&leaves).and_then(|g| Volume::new(g, 1.0, path)) {
+        Ok(v) => v,
+        Err(e) => {
+            rep.problems
+                .push(format!("grid '{name}': partial load failed: {e}"));
+            return;
+        }
+    };
+    stage.set("lazy: answers");
+    for (r, ray) in rays.iter().enumerate() {
+        let same = match (
+            estimate(vol, ray, r as u64, est, opts),
+            estimate(&part, ray, r as u64, est, opts),
+        ) {
+            (Ok(a), Ok(b)) => a.value.to_bits() == b.value.to_bits() && a.lookups == b.lookups,
+            (Err(a), Err(b)) => a.to_string() == b.to_string(),
+            _ => false,
+        };
+        if !same {
+            rep.problems.push(format!(
+                "grid '{name}' ray {r}: the partial load answers differently"
+            ));
+        }
+    }
 }
 
 /// An 8x8 ortho map of `vol` through the bake pipeline (`BakeJob::run_on`: bake, warnings, EXR

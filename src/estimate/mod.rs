@@ -202,7 +202,13 @@ fn prepare_into(
     };
     p.segs.clear();
     // A partial load that missed this ray's leaves (a bug): refused as NaN, never a number.
-    p.tau_known = if w.unloaded { f64::NAN } else { 0.0 };
+    // The grid-wide majorant needs every leaf: a partial tree refuses it the same way.
+    let partial_global = opts.global_majorant && !vol.tree().is_complete();
+    p.tau_known = if w.unloaded || partial_global {
+        f64::NAN
+    } else {
+        0.0
+    };
     p.walked = w.segments;
     p.lookups = 0;
     let mut covered_outside = 0.0;

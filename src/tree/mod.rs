@@ -279,6 +279,11 @@ impl Tree {
             .get(leaf.data as usize)
             .unwrap_or(&UNLOADED_VALUES)
     }
+    /// Number of leaves whose values are loaded (all of them but after a partial load).
+    #[must_use]
+    pub fn loaded_leaf_count(&self) -> usize {
+        self.values.len()
+    }
     /// Whether every leaf's values are loaded (false for a partial load).
     #[must_use]
     pub fn is_complete(&self) -> bool {

@@ -212,6 +212,10 @@ pub(crate) fn offsets_from_table(
         return None;
     }
     let n = tree.leaves.len();
+    if n == 0 {
+        // OpenVDB writes an empty table for a grid without leaves.
+        return (start == end).then(|| vec![start]);
+    }
     let mut r = ByteReader::new(table, 0);
     let count = r.u32("delayed-load count").ok()? as usize;
     if count != n {
@@ -224,8 +228,17 @@ pub(crate) fn offsets_from_table(
             return None;
         }
         if bytes > 0 {
+            // OpenVDB pads short buffers before compressing them (to 128 bytes): the chunk
+            // may hold more than the table needs; its own header says how much.
             let src = r.take(bytes as usize, "delayed-load section").ok()?;
-            super::blosc::decompress_into(src, &mut out).ok()?;
+            let held = u32::from_le_bytes(src.get(4..8)?.try_into().ok()?) as usize;
+            if held < out.len() || held > out.len() + TABLE_PAD {
+                return None;
+            }
+            let mut all = vec![0u8; held];
+            super::blosc::decompress_into(src, &mut all).ok()?;
+            let len = out.len();
+            out.copy_from_slice(&all[..len]);
         } else {
             let len = out.len();
             out.copy_from_slice(r.take(len, "delayed-load section").ok()?);
@@ -257,6 +270,9 @@ pub(crate) fn offsets_from_table(
     offsets.push(at);
     (at == end).then_some(offsets)
 }
+
+/// Most padding a `file_delayed_load` section may carry past the bytes it describes.
+const TABLE_PAD: usize = 4096;
 
 /// Bytes of leaf buffers one decoding task reads at a time (one positioned read).
 const TASK_BYTES: u64 = 1 << 20;

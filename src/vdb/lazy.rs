@@ -117,6 +117,14 @@ impl LazyGrid {
         self.shell.tree.leaves.len()
     }
 
+    /// Where leaf `leaf`'s buffer (value mask, flags, compressed values) is in the file, as a
+    /// byte range; `None` past the leaf count.
+    #[must_use]
+    pub fn buffer_range(&self, leaf: u32) -> Option<std::ops::Range<u64>> {
+        let l = leaf as usize;
+        Some(*self.offsets.get(l)?..*self.offsets.get(l + 1)?)
+    }
+
     /// Bytes of leaf buffers in the file (compressed).
     #[must_use]
     pub fn buffer_bytes(&self) -> u64 {
@@ -217,5 +225,95 @@ impl Grid {
             tree: crate::tree::Tree::default(),
             precision_loss: None,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every `.vdb` of `data/` and the shared corpus (where present).
+    fn files() -> Vec<PathBuf> {
+        let root = PathBuf::from(env!("CARGO_MANIFEST_DIR"));
+        let mut out = Vec::new();
+        for dir in [
+            root.join("data"),
+            root.join("../shared/corpus/gen"),
+            root.join("../shared/corpus/real"),
+        ] {
+            let Ok(entries) = std::fs::read_dir(&dir) else {
+                continue;
+            };
+            for e in entries.flatten() {
+                if e.path().extension().is_some_and(|x| x == "vdb") {
+                    out.push(e.path());
+                }
+            }
+        }
+        out.sort();
+        out
+    }
+
+    #[test]
+    fn the_delayed_load_table_gives_the_offsets_the_scan_finds() {
+        let mut with_table = 0;
+        for path in files() {
+            let Ok(archive) = Archive::open(&path) else {
+                continue;
+            };
+            for gd in &archive.grids {
+                let Ok(kind) = ValueKind::from_tree_type(&gd.tree_type) else {
+                    continue;
+                };
+                if !gd.instance_parent.is_empty() {
+                    continue;
+                }
+                let (head, mut file) = archive.head(gd, kind, true).unwrap();
+                let (tree, stream) = head.topology.unwrap().into_parts();
+                let mut buffers =
+                    decode::BufferWindow::new(&mut file, &path, gd.block_pos, gd.end_pos);
+                let scanned = decode::locate_buffers(&tree, &stream, &mut buffers).unwrap();
+                assert_eq!(scanned.last(), Some(&gd.end_pos), "{}", path.display());
+                let Some(table) = head.delayed_load else {
+                    continue;
+                };
+                let from_table =
+                    decode::offsets_from_table(&table, &tree, &stream, gd.block_pos, gd.end_pos);
+                if kind != ValueKind::Bool && (stream.compression.blosc || stream.compression.zip) {
+                    assert_eq!(
+                        from_table.as_ref(),
+                        Some(&scanned),
+                        "{} grid {}",
+                        path.display(),
+                        gd.display_name
+                    );
+                    with_table += 1;
+                } else {
+                    assert!(from_table.is_none());
+                }
+            }
+        }
+        assert!(with_table >= 10, "only {with_table} grids with a table");
+    }
+
+    #[test]
+    fn a_table_that_does_not_add_up_is_not_used() {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb");
+        let archive = Archive::open(&path).unwrap();
+        let gd = archive.find_grid("density").unwrap();
+        let kind = ValueKind::from_tree_type(&gd.tree_type).unwrap();
+        let (head, _) = archive.head(gd, kind, true).unwrap();
+        let (tree, stream) = head.topology.unwrap().into_parts();
+        let table = head.delayed_load.unwrap();
+        let (a, b) = (gd.block_pos, gd.end_pos);
+        assert!(decode::offsets_from_table(&table, &tree, &stream, a, b).is_some());
+        assert!(decode::offsets_from_table(&table, &tree, &stream, a, b + 1).is_none());
+        assert!(
+            decode::offsets_from_table(&table[..table.len() - 1], &tree, &stream, a, b).is_none()
+        );
+        let mut other = table.clone();
+        other[0] ^= 1; // another leaf count
+        assert!(decode::offsets_from_table(&other, &tree, &stream, a, b).is_none());
+        assert!(decode::offsets_from_table(&[], &tree, &stream, a, b).is_none());
     }
 }

@@ -138,7 +138,8 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         ray.map_err(|e| ray_error = Some(e)).into_iter().collect()
     };
     let (scene, rays) = pool.install(|| {
-        if a.eager {
+        // The grid-wide majorant is every leaf's bound: it needs the whole grid.
+        if a.eager || opts.global_majorant {
             load_scene(&a.file, &scene_opts).map(|s| {
                 let r = make_rays(&s);
                 (s, r)

@@ -1,0 +1,413 @@
+//! Partial loads (issue 18): a grid opened lazily decodes only the leaves a job's rays touch,
+//! and every answer on those rays equals an eager load's bit for bit, for every estimator,
+//! interpolation and granularity; what it did not read can never become a number; corrupt leaf
+//! data is found by the load that touches it, naming the file and the byte offset; a full
+//! parallel decode does not depend on the thread count.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+#[allow(unused_imports)]
+mod common;
+
+use rand::{Rng, SeedableRng};
+use std::path::PathBuf;
+use umbra::estimate::{Estimator, Options};
+use umbra::scene::{self, SceneOptions};
+use umbra::traverse::Granularity;
+use umbra::{Interp, Ray, Volume};
+
+fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("data")
+        .join(name)
+}
+
+fn corpus(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus")
+        .join(name)
+}
+
+/// `n` random segments (seeded) between points in the volume's world box grown by a fifth,
+/// plus one ray from inside to infinity.
+fn rays(vol: &Volume, n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    let (lo, hi) = vol.box_index().unwrap();
+    let pad = (hi - lo) * 0.2;
+    let (lo, hi) = (lo - pad, hi + pad);
+    let mut point = || {
+        let t = glam::DVec3::new(rng.gen(), rng.gen(), rng.gen());
+        vol.to_world(lo + (hi - lo) * t).to_array()
+    };
+    let mut out: Vec<Ray> = (0..n)
+        .filter_map(|_| Ray::between(point(), point()).ok())
+        .collect();
+    let c = vol.to_world((lo + hi) * 0.5).to_array();
+    out.push(Ray::new(c, [0.3, -1.0, 0.2], 0.0, f64::INFINITY).unwrap());
+    out
+}
+
+fn opts(grid: &str) -> SceneOptions {
+    SceneOptions {
+        grid: grid.into(),
+        ..SceneOptions::default()
+    }
+}
+
+/// Every answer of `est` on `rays` from a partial load equals the eager load's, bit for bit.
+fn same_answers(
+    eager: &scene::Scene,
+    lazy: &scene::Scene,
+    rays: &[Ray],
+    est: &Estimator,
+    o: &Options,
+    what: &str,
+) {
+    for (i, r) in rays.iter().enumerate() {
+        let a = scene::estimate(eager, r, i as u64, est, o);
+        let b = scene::estimate(lazy, r, i as u64, est, o);
+        match (a, b) {
+            (Ok(a), Ok(b)) => {
+                let bits = |e: &scene::SceneEstimate| {
+                    (
+                        e.value.map(f64::to_bits),
+                        e.std_err.map(f64::to_bits),
+                        e.tau.map(|t| t.map(f64::to_bits)),
+                        e.lookups,
+                        e.segments,
+                    )
+                };
+                assert_eq!(bits(&a), bits(&b), "{what}, ray {i}: {a:?} vs {b:?}");
+            }
+            (Err(a), Err(b)) => assert_eq!(a.to_string(), b.to_string(), "{what}, ray {i}"),
+            (a, b) => panic!("{what}, ray {i}: eager {a:?}, lazy {b:?}"),
+        }
+    }
+}
+
+#[test]
+fn partial_loads_answer_like_eager_loads_bit_for_bit() {
+    let files = [
+        (data("cloud.vdb"), "density"),
+        (data("cloud_half.vdb"), "density"),
+        (data("box_tiles.vdb"), "density"),
+        (data("bg_multi.vdb"), "density"),
+        (corpus("gen/cloud_fbm.vdb"), "density"),
+        (corpus("gen/negative_coords.vdb"), "density"),
+        (corpus("gen/extreme_nan_inf.vdb"), "density"),
+        (corpus("gen/fog_nonzero_background.vdb"), "density"),
+        (corpus("gen/puff_none.vdb"), "density"),
+        (corpus("gen/puff_blosc_nomask.vdb"), "density"),
+        (corpus("real/blender_smoke_fluid_data_0050.vdb"), "density"),
+    ];
+    let stochastic = [
+        "ratio",
+        "track-length",
+        "residual-ratio",
+        "unbiased-raymarch",
+        "riemann",
+    ];
+    let mut partial_somewhere = false;
+    for (path, grid) in &files {
+        let eager = scene::load(path, &opts(grid)).unwrap();
+        let vol = eager.fogs()[0].volume();
+        let all = vol.tree().leaves().len();
+        for (k, (interp, gran)) in [
+            (Interp::Trilinear, Granularity::Leaf),
+            (Interp::Nearest, Granularity::Leaf),
+            (Interp::Trilinear, Granularity::Lower),
+            (Interp::Trilinear, Granularity::Upper),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            let r = rays(vol, 24, 7 + k as u64);
+            let (lazy, got) =
+                scene::file::load_for_rays(path, &opts(grid), interp, gran, |_| r.clone()).unwrap();
+            assert_eq!(got.len(), r.len());
+            let loaded = lazy.fogs()[0].volume().tree().loaded_leaf_count();
+            assert!(loaded <= all);
+            // One ray reads a small part of a many-leaf grid.
+            if k == 0 && all > 100 {
+                let one = &r[..1];
+                let (single, _) =
+                    scene::file::load_for_rays(path, &opts(grid), interp, gran, |_| one.to_vec())
+                        .unwrap();
+                let n = single.fogs()[0].volume().tree().loaded_leaf_count();
+                assert!(
+                    n < all / 2,
+                    "{}: one ray loaded {n} of {all} leaves",
+                    path.display()
+                );
+                partial_somewhere = true;
+                same_answers(
+                    &eager,
+                    &single,
+                    one,
+                    &Estimator::from_name("regular").unwrap(),
+                    &Options {
+                        interp,
+                        granularity: gran,
+                        ..Options::default()
+                    },
+                    "one ray",
+                );
+            }
+            let what = format!("{} {interp:?} {gran:?}", path.display());
+            let o = Options {
+                interp,
+                granularity: gran,
+                samples: 16,
+                seed: 3,
+                ..Options::default()
+            };
+            same_answers(
+                &eager,
+                &lazy,
+                &r,
+                &Estimator::from_name("regular").unwrap(),
+                &o,
+                &what,
+            );
+            for name in stochastic {
+                let est = Estimator::from_name(name).unwrap();
+                same_answers(&eager, &lazy, &r, &est, &o, &format!("{what} {name}"));
+            }
+        }
+    }
+    assert!(partial_somewhere);
+}
+
+#[test]
+fn rgb_and_xform_partial_loads_equal_eager_ones() {
+    let o = SceneOptions {
+        sigma_t: Some([0.5, 1.0, 2.0]),
+        xform: Some(
+            umbra::xform::Xform::from_row_major(&[
+                0.0, -2.0, 0.0, 1.0, 2.0, 0.0, 0.0, -0.5, 0.0, 0.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0,
+            ])
+            .unwrap(),
+        ),
+        ..SceneOptions::default()
+    };
+    let path = data("cloud.vdb");
+    let eager = scene::load(&path, &o).unwrap();
+    let r = rays(eager.fogs()[0].volume(), 30, 11);
+    let (lazy, _) =
+        scene::file::load_for_rays(&path, &o, Interp::Trilinear, Granularity::Leaf, |_| {
+            r.clone()
+        })
+        .unwrap();
+    let opts = Options {
+        samples: 8,
+        ..Options::default()
+    };
+    for name in ["regular", "ratio", "next-flight"] {
+        let est = Estimator::from_name(name).unwrap();
+        same_answers(&eager, &lazy, &r, &est, &opts, name);
+    }
+}
+
+#[test]
+fn what_a_partial_load_did_not_read_never_becomes_a_number() {
+    let path = data("cloud.vdb");
+    let archive = umbra::vdb::open(&path).unwrap();
+    let lazy = archive
+        .open_lazy(archive.find_grid("density").unwrap())
+        .unwrap();
+    assert!(lazy.leaf_count() > 100);
+    let shell = Volume::new(lazy.shell().clone(), 1.0, &path).unwrap();
+    let eager = Volume::load(&path, "density", 1.0).unwrap();
+    let through = Ray::between([-2.0, 0.5, 0.0], [2.0, 0.5, 0.0]).unwrap();
+    assert!(
+        umbra::regular::optical_depth(&eager, &through, Interp::Trilinear)
+            .unwrap()
+            .tau
+            > 0.1
+    );
+    // The shell: values unread, bounds never computed.
+    let o = Options {
+        samples: 4,
+        ..Options::default()
+    };
+    for name in ["regular", "ratio", "track-length"] {
+        let est = Estimator::from_name(name).unwrap();
+        let e = umbra::estimate::estimate(&shell, &through, 0, &est, &o);
+        assert!(e.is_err(), "{name} on the shell gave {e:?}");
+    }
+    // A partial load of other leaves than the ray's.
+    let far = Ray::between([-2.0, 1.9, 1.9], [2.0, 1.9, 1.9]).unwrap();
+    let leaves =
+        umbra::demand::leaves_touched(&shell, &[far], Interp::Trilinear, Granularity::Leaf);
+    let part = Volume::new(lazy.load(&leaves).unwrap(), 1.0, &path).unwrap();
+    assert!(part.tree().loaded_leaf_count() < lazy.leaf_count());
+    for name in ["regular", "ratio", "track-length", "riemann"] {
+        let est = Estimator::from_name(name).unwrap();
+        let e = umbra::estimate::estimate(&part, &through, 0, &est, &o);
+        assert!(
+            matches!(e, Err(umbra::Error::NotANumber { .. })),
+            "{name} through unread leaves gave {e:?}"
+        );
+    }
+    assert!(umbra::regular::optical_depth(&part, &through, Interp::Nearest).is_err());
+    // The grid-wide majorant needs every leaf.
+    let global = Options {
+        global_majorant: true,
+        ..o
+    };
+    let ratio = Estimator::from_name("ratio").unwrap();
+    assert!(umbra::estimate::estimate(&part, &far, 0, &ratio, &global).is_err());
+    assert!(umbra::estimate::estimate(&eager, &far, 0, &ratio, &global).is_ok());
+    // Index checks.
+    assert!(matches!(
+        lazy.load(&[u32::MAX]),
+        Err(umbra::Error::InvalidArgument { .. })
+    ));
+}
+
+/// A copy of `src` whose leaf `leaf` has a blosc chunk that claims another size.
+fn corrupt_leaf(src: &std::path::Path, dir: &std::path::Path, leaf: u32) -> (PathBuf, u64) {
+    let archive = umbra::vdb::open(src).unwrap();
+    let lazy = archive
+        .open_lazy(archive.find_grid("density").unwrap())
+        .unwrap();
+    let range = lazy.buffer_range(leaf).unwrap();
+    let mut bytes = std::fs::read(src).unwrap();
+    let at = range.start as usize;
+    let meta = bytes[at + 64];
+    let skip = match meta {
+        2 => 4,
+        3 => 64,
+        4 => 4 + 64,
+        5 => 8 + 64,
+        _ => 0,
+    };
+    let chunk = at + 64 + 1 + skip + 8;
+    // The blosc header's uncompressed size (bytes 4..8).
+    bytes[chunk + 4..chunk + 8].copy_from_slice(&7u32.to_le_bytes());
+    let out = dir.join("corrupt.vdb");
+    std::fs::write(&out, bytes).unwrap();
+    (out, range.start)
+}
+
+#[test]
+fn corrupt_leaf_data_is_found_by_the_load_that_touches_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = data("cloud.vdb");
+    let (path, offset) = corrupt_leaf(&src, dir.path(), 5);
+    let archive = umbra::vdb::open(&path).unwrap();
+    let gd = archive.find_grid("density").unwrap();
+    // Opening reads no values; an eager load meets the corrupt leaf.
+    let lazy = archive.open_lazy(gd).unwrap();
+    let e = archive.load(gd).unwrap_err();
+    let msg = e.to_string();
+    assert!(matches!(e, umbra::Error::Invalid { .. }), "{e:?}");
+    assert!(msg.contains(&path.display().to_string()), "{msg}");
+    assert!(msg.contains(&format!("byte offset {offset}")), "{msg}");
+    // Leaves other than the corrupt one load; the corrupt one is named.
+    let others: Vec<u32> = (0..lazy.leaf_count() as u32).filter(|&l| l != 5).collect();
+    assert!(lazy.load(&others).is_ok());
+    let e = lazy.load(&[5]).unwrap_err();
+    assert!(
+        e.to_string().contains(&format!("byte offset {offset}")),
+        "{e}"
+    );
+    // Through the CLI: a query whose ray touches the leaf fails (exit 1, one line naming the
+    // file and the offset); one that does not succeeds.
+    let shell = Volume::new(lazy.shell().clone(), 1.0, &path).unwrap();
+    let origin = lazy.shell().tree.leaves()[5]
+        .origin
+        .map(|c| f64::from(c) + 4.0);
+    let p = shell.to_world(glam::DVec3::from_array(origin)).to_array();
+    let at = format!("{},{},{}", p[0], p[1], p[2]);
+    let o = assert_cmd::Command::cargo_bin("umbra")
+        .unwrap()
+        .args([
+            "query",
+            path.to_str().unwrap(),
+            "--at",
+            &at,
+            "--light-dir",
+            "0,-1,0",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.starts_with("umbra: error: "), "{err}");
+    assert!(
+        err.contains("corrupt.vdb") && err.contains(&format!("byte offset {offset}")),
+        "{err}"
+    );
+    let o = assert_cmd::Command::cargo_bin("umbra")
+        .unwrap()
+        .args([
+            "query",
+            path.to_str().unwrap(),
+            "--from",
+            "-9,-9,-9",
+            "--to",
+            "-9,-9,9",
+        ])
+        .output()
+        .unwrap();
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+#[test]
+fn a_query_decodes_what_it_needs_and_answers_like_eager() {
+    let path = data("cloud.vdb");
+    let run = |extra: &[&str]| {
+        let o = assert_cmd::Command::cargo_bin("umbra")
+            .unwrap()
+            .args(["query", path.to_str().unwrap(), "--at", "0.1,0.2,0.3"])
+            .args([
+                "--light-dir",
+                "0.2,-1,0.1",
+                "--estimator",
+                "ratio",
+                "--samples",
+                "64",
+            ])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8(o.stdout).unwrap()
+    };
+    assert_eq!(run(&[]), run(&["--eager"]));
+    // JSON, without the timing.
+    let json = |extra: &[&str]| {
+        let mut v: serde_json::Value = serde_json::from_str(&run(extra)).unwrap();
+        v.as_object_mut().unwrap().remove("seconds");
+        v
+    };
+    assert_eq!(json(&["--json"]), json(&["--json", "--eager"]));
+}
+
+#[test]
+fn a_full_parallel_decode_does_not_depend_on_the_thread_count() {
+    let path = corpus("real/blender_smoke_fluid_data_0050.vdb");
+    let load = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| Volume::load(&path, "density", 1.0).unwrap())
+    };
+    let (a, b) = (load(1), load(2));
+    let (ta, tb) = (a.tree(), b.tree());
+    assert!(ta.is_complete() && tb.is_complete());
+    assert_eq!(ta.leaves().len(), tb.leaves().len());
+    for l in 0..ta.leaves().len() as u32 {
+        let (x, y) = (ta.leaf_values(l), tb.leaf_values(l));
+        assert!(x.iter().zip(y).all(|(p, q)| p.to_bits() == q.to_bits()));
+        let (la, lb) = (&ta.leaves()[l as usize], &tb.leaves()[l as usize]);
+        assert_eq!((la.bounds, la.halo), (lb.bounds, lb.halo));
+    }
+    assert_eq!(ta.stats(), tb.stats());
+}
