@@ -1,6 +1,6 @@
 //! `umbra info`: what a `.vdb` file holds, grid by grid, as a serializable report.
 
-use crate::vdb::{Archive, Grid, ValueKind};
+use crate::vdb::{Archive, Grid, LazyGrid, ValueKind};
 use serde::Serialize;
 use serde_json::{json, Value};
 
@@ -79,7 +79,28 @@ impl GridInfo {
     /// Report on a decoded grid.
     #[must_use]
     pub fn from_grid(grid: &Grid, tree_type: &str) -> Self {
-        let s = grid.tree.stats();
+        let mut info = Self::describe(grid, tree_type, &grid.tree.stats());
+        info.memory_bytes = Some(grid.tree.memory_bytes());
+        info.precision_loss = grid.precision_loss;
+        info
+    }
+
+    /// Report on a lazily opened grid: the same report as [`GridInfo::from_grid`] of its full
+    /// load (`memory_bytes` from the topology, see [`LazyGrid::loaded_memory_bytes`]), with
+    /// the values streamed chunk by chunk ([`LazyGrid::stats`]) instead of held.
+    ///
+    /// # Errors
+    /// Decoding errors of the leaf values.
+    pub fn from_lazy(lazy: &LazyGrid, tree_type: &str) -> crate::Result<Self> {
+        let (stats, precision) = lazy.stats()?;
+        let mut info = Self::describe(lazy.shell(), tree_type, &stats);
+        info.memory_bytes = Some(lazy.loaded_memory_bytes());
+        info.precision_loss = precision;
+        Ok(info)
+    }
+
+    /// Everything but the memory and precision figures.
+    fn describe(grid: &Grid, tree_type: &str, s: &crate::tree::TreeStats) -> Self {
         let t = &grid.transform;
         let world_bbox = s.index_bbox.filter(|_| t.is_affine()).map(|b| {
             let mut lo = [f64::INFINITY; 3];
@@ -123,9 +144,9 @@ impl GridInfo {
             nan_count: Some(s.nan_count),
             inf_count: Some(s.inf_count),
             value_stats_of: if vector { "vector length" } else { "value" },
-            memory_bytes: Some(grid.tree.memory_bytes()),
+            memory_bytes: None,
             file_mem_bytes: grid.file_mem_bytes(),
-            precision_loss: grid.precision_loss,
+            precision_loss: None,
             error: None,
         }
     }
@@ -187,21 +208,27 @@ pub struct FileInfo {
 }
 
 impl FileInfo {
-    /// Decode every grid of `archive` and report on it.
+    /// Decode every grid of `archive` and report on it (streaming each grid's values, see
+    /// [`GridInfo::from_lazy`]).
     #[must_use]
     pub fn from_archive(archive: &Archive) -> Self {
         let grids = archive
             .grids
             .iter()
-            .map(|gd| match archive.load(gd) {
-                Ok(g) => GridInfo::from_grid(&g, &gd.tree_type),
-                Err(e) => GridInfo::failed(
-                    &gd.display_name,
-                    &gd.stored_name,
-                    &gd.tree_type,
-                    gd.saved_as_half,
-                    e.to_string(),
-                ),
+            .map(|gd| {
+                match archive
+                    .open_lazy(gd)
+                    .and_then(|lazy| GridInfo::from_lazy(&lazy, &gd.tree_type))
+                {
+                    Ok(info) => info,
+                    Err(e) => GridInfo::failed(
+                        &gd.display_name,
+                        &gd.stored_name,
+                        &gd.tree_type,
+                        gd.saved_as_half,
+                        e.to_string(),
+                    ),
+                }
             })
             .collect();
         Self {

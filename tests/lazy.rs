@@ -411,3 +411,45 @@ fn a_full_parallel_decode_does_not_depend_on_the_thread_count() {
     }
     assert_eq!(ta.stats(), tb.stats());
 }
+
+#[test]
+fn streamed_info_equals_the_report_of_a_full_load() {
+    let mut files: Vec<PathBuf> = ["data", "../shared/corpus/gen", "../shared/corpus/real"]
+        .iter()
+        .flat_map(|d| {
+            std::fs::read_dir(PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(d))
+                .into_iter()
+                .flatten()
+                .flatten()
+                .map(|e| e.path())
+        })
+        .filter(|p| p.extension().is_some_and(|x| x == "vdb"))
+        .collect();
+    files.sort();
+    let mut grids = 0;
+    for path in files {
+        let Ok(archive) = umbra::vdb::open(&path) else {
+            continue;
+        };
+        for gd in &archive.grids {
+            let Ok(grid) = archive.load(gd) else {
+                assert!(archive.open_lazy(gd).and_then(|l| l.stats()).is_err());
+                continue;
+            };
+            let eager = umbra::info::GridInfo::from_grid(&grid, &gd.tree_type);
+            let lazy = archive.open_lazy(gd).unwrap();
+            let streamed = umbra::info::GridInfo::from_lazy(&lazy, &gd.tree_type).unwrap();
+            let json = |g: &umbra::info::GridInfo| {
+                let mut v = serde_json::to_value(g).unwrap();
+                v.as_object_mut().unwrap().remove("memory_bytes");
+                v
+            };
+            let what = format!("{} {}", path.display(), gd.display_name);
+            assert_eq!(json(&eager), json(&streamed), "{what}");
+            let (a, b) = (eager.memory_bytes.unwrap(), streamed.memory_bytes.unwrap());
+            assert!(b <= a && a - b <= a / 100 + 4096, "{what}: {a} vs {b}");
+            grids += 1;
+        }
+    }
+    assert!(grids >= 30, "{grids}");
+}

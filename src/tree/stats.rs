@@ -1,12 +1,12 @@
 //! Whole-tree statistics as OpenVDB reports them: active voxel count (tiles count as the voxels
 //! they cover), active bounding box, value range and sum of active values, NaN/Inf counts.
 
-use super::{bit, Bounds, Internal, RootSlot, Tree};
+use super::{bit, Bounds, Internal, Leaf, RootSlot, Tree};
 use rayon::prelude::*;
 use serde::Serialize;
 
 /// Leaves per statistics chunk (a fixed size, so sums do not depend on the thread count).
-const LEAF_CHUNK: usize = 4096;
+pub(crate) const LEAF_CHUNK: usize = 4096;
 
 /// Statistics over the active values of a tree.
 #[derive(Debug, Clone, Default, PartialEq, Serialize)]
@@ -68,7 +68,7 @@ impl Acc {
         let d = (1i32 << log2) - 1;
         self.bbox(origin, origin.map(|c| c.saturating_add(d)));
     }
-    fn leaf(&mut self, leaf: &super::Leaf, values: &[f32; 512]) {
+    fn leaf(&mut self, leaf: &Leaf, values: &[f32; 512]) {
         let mut lo = [i32::MAX; 3];
         let mut hi = [i32::MIN; 3];
         for (w, &word) in leaf.value_mask.iter().enumerate() {
@@ -119,6 +119,30 @@ impl Tree {
     /// Compute [`TreeStats`] in one pass over the nodes.
     #[must_use]
     pub fn stats(&self) -> TreeStats {
+        let loaded = |range: std::ops::Range<usize>, f: &mut dyn FnMut(&Leaf, &[f32; 512])| {
+            for leaf in &self.leaves[range] {
+                f(leaf, self.values_of(leaf));
+            }
+            Ok::<(), std::convert::Infallible>(())
+        };
+        match self.stats_by(loaded) {
+            Ok(s) => s,
+            Err(never) => match never {},
+        }
+    }
+
+    /// [`Tree::stats`] with the leaf values handed out by `chunk`, which calls its callback
+    /// with every leaf of a range of leaf indices and that leaf's values (chunks of
+    /// `LEAF_CHUNK` leaves, in parallel): a lazily opened grid streams them from the file
+    /// without holding the decoded grid.
+    ///
+    /// # Errors
+    /// What `chunk` returns.
+    pub(crate) fn stats_by<E: Send>(
+        &self,
+        chunk: impl Fn(std::ops::Range<usize>, &mut dyn FnMut(&Leaf, &[f32; 512])) -> Result<(), E>
+            + Sync,
+    ) -> Result<TreeStats, E> {
         let mut acc = Acc {
             range: Bounds::EMPTY,
             ..Acc::default()
@@ -141,26 +165,24 @@ impl Tree {
         }
         acc.s.leaf_count = self.leaves.len() as u64;
         // Leaves in fixed chunks, in parallel; the chunks' sums are added in order, so the
-        // result does not depend on the thread count.
-        let parts: Vec<Acc> = self
-            .leaves
-            .par_chunks(LEAF_CHUNK)
-            .map(|chunk| {
+        // result does not depend on the thread count (nor on where the values come from).
+        let parts: Vec<Result<Acc, E>> = (0..self.leaves.len().div_ceil(LEAF_CHUNK))
+            .into_par_iter()
+            .map(|c| {
                 let mut acc = Acc {
                     range: Bounds::EMPTY,
                     ..Acc::default()
                 };
-                for leaf in chunk {
-                    acc.leaf(leaf, self.values_of(leaf));
-                }
-                acc
+                let range = c * LEAF_CHUNK..((c + 1) * LEAF_CHUNK).min(self.leaves.len());
+                chunk(range, &mut |leaf, values| acc.leaf(leaf, values))?;
+                Ok(acc)
             })
             .collect();
         for p in parts {
-            acc.merge(p);
+            acc.merge(p?);
         }
         acc.s.active_voxels += acc.s.active_leaf_voxels;
         acc.s.value_range = (!acc.range.is_empty()).then_some((acc.range.min, acc.range.max));
-        acc.s
+        Ok(acc.s)
     }
 }

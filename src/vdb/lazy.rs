@@ -25,6 +25,8 @@ pub struct LazyGrid {
     shell: Grid,
     stream: Stream,
     offsets: Vec<u64>,
+    /// What converting the topology's doubles (background, tiles) to `f32` cost.
+    topology_precision: crate::vdb::PrecisionLoss,
 }
 
 impl Archive {
@@ -76,6 +78,7 @@ impl Archive {
                 Ok(LazyGrid {
                     path: path.clone(),
                     file,
+                    topology_precision: stream.precision.get(),
                     stream: Stream::of(&stream),
                     offsets,
                     shell: identity(tree),
@@ -132,6 +135,61 @@ impl LazyGrid {
             (Some(a), Some(b)) => b - a,
             _ => 0,
         }
+    }
+
+    /// The statistics of the whole grid ([`crate::tree::Tree::stats`] of an eager load, equal
+    /// to the bit) and the double-to-float cost, streamed: chunks of leaves are decoded on all
+    /// cores, summarised and dropped, so memory holds the topology and a few chunks, never the
+    /// decoded grid. What `umbra info` reports.
+    ///
+    /// # Errors
+    /// As [`LazyGrid::load`].
+    pub fn stats(&self) -> Result<(crate::tree::TreeStats, Option<crate::vdb::PrecisionLoss>)> {
+        let tree = &self.shell.tree;
+        let precision = std::sync::Mutex::new(None::<crate::vdb::PrecisionLoss>);
+        let stats = tree.stats_by(|range, f| -> Result<()> {
+            let ids: Vec<u32> = (range.start as u32..range.end as u32).collect();
+            let mut values = vec![[0f32; 512]; ids.len()];
+            let p = decode::decode_leaves(
+                &self.file,
+                &self.path,
+                self.stream,
+                tree,
+                &self.offsets,
+                &ids,
+                &mut values,
+            )?;
+            if let Some(p) = p {
+                let mut all = precision
+                    .lock()
+                    .unwrap_or_else(std::sync::PoisonError::into_inner);
+                all.get_or_insert_with(Default::default).merge(p);
+            }
+            for (&l, v) in ids.iter().zip(&values) {
+                f(&tree.leaves[l as usize], v);
+            }
+            Ok(())
+        })?;
+        let p = precision
+            .into_inner()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        Ok((stats, self.with_topology_precision(p)))
+    }
+
+    /// Bytes the decoded grid's tree takes ([`crate::tree::Tree::memory_bytes`] after a full
+    /// load), from the topology: the shell's nodes, plus per leaf its values, neighbour table
+    /// and faces, plus the lower nodes' tile-slot halos and every node's faces. Upper nodes'
+    /// halo exceptions (a few tile slots next to data) are not counted.
+    #[must_use]
+    pub fn loaded_memory_bytes(&self) -> u64 {
+        let t = &self.shell.tree;
+        let faces = std::mem::size_of::<[crate::tree::Bounds; 7]>();
+        let per_leaf = std::mem::size_of::<[f32; 512]>()
+            + std::mem::size_of::<[crate::tree::Neighbour; 7]>()
+            + faces;
+        let lower = 4096 * std::mem::size_of::<crate::tree::Bounds>() + faces;
+        t.memory_bytes()
+            + (t.leaves.len() * per_leaf + t.lowers.len() * lower + t.uppers.len() * faces) as u64
     }
 
     /// The grid with the values of `leaves` (indices into the topology's leaves, any order,
@@ -205,8 +263,23 @@ impl LazyGrid {
         tree.compute_bounds();
         let mut grid = self.shell.clone_without_tree();
         grid.tree = tree;
-        grid.precision_loss = precision;
+        grid.precision_loss = self.with_topology_precision(precision);
         Ok(grid)
+    }
+
+    /// The leaves' double-to-float cost and the topology's together (double grids only).
+    fn with_topology_precision(
+        &self,
+        leaves: Option<crate::vdb::PrecisionLoss>,
+    ) -> Option<crate::vdb::PrecisionLoss> {
+        if self.stream.kind != ValueKind::Double || self.stream.half {
+            return None;
+        }
+        let mut p = self.topology_precision;
+        if let Some(l) = leaves {
+            p.merge(l);
+        }
+        Some(p)
     }
 }
 

@@ -162,7 +162,7 @@ pub struct PrecisionLoss {
 
 impl PrecisionLoss {
     /// Fold in what another part of the same grid cost.
-    pub(crate) fn merge(&mut self, o: Self) {
+    pub fn merge(&mut self, o: Self) {
         self.values += o.values;
         self.max_relative_error = self.max_relative_error.max(o.max_relative_error);
         self.overflowed += o.overflowed;
