@@ -122,7 +122,8 @@ fn partial_loads_answer_like_eager_loads_bit_for_bit() {
         {
             let r = rays(vol, 24, 7 + k as u64);
             let (lazy, got) =
-                scene::file::load_for_rays(path, &opts(grid), interp, gran, |_| r.clone()).unwrap();
+                scene::file::load_partial_for_rays(path, &opts(grid), interp, gran, |_| r.clone())
+                    .unwrap();
             assert_eq!(got.len(), r.len());
             let loaded = lazy.fogs()[0].volume().tree().loaded_leaf_count();
             assert!(loaded <= all);
@@ -130,8 +131,10 @@ fn partial_loads_answer_like_eager_loads_bit_for_bit() {
             if k == 0 && all > 100 {
                 let one = &r[..1];
                 let (single, _) =
-                    scene::file::load_for_rays(path, &opts(grid), interp, gran, |_| one.to_vec())
-                        .unwrap();
+                    scene::file::load_partial_for_rays(path, &opts(grid), interp, gran, |_| {
+                        one.to_vec()
+                    })
+                    .unwrap();
                 let n = single.fogs()[0].volume().tree().loaded_leaf_count();
                 assert!(
                     n < all / 2,
@@ -193,7 +196,7 @@ fn rgb_and_xform_partial_loads_equal_eager_ones() {
     let eager = scene::load(&path, &o).unwrap();
     let r = rays(eager.fogs()[0].volume(), 30, 11);
     let (lazy, _) =
-        scene::file::load_for_rays(&path, &o, Interp::Trilinear, Granularity::Leaf, |_| {
+        scene::file::load_partial_for_rays(&path, &o, Interp::Trilinear, Granularity::Leaf, |_| {
             r.clone()
         })
         .unwrap();
@@ -328,6 +331,8 @@ fn corrupt_leaf_data_is_found_by_the_load_that_touches_it() {
             &at,
             "--light-dir",
             "0,-1,0",
+            "--load",
+            "lazy",
         ])
         .output()
         .unwrap();
@@ -347,6 +352,8 @@ fn corrupt_leaf_data_is_found_by_the_load_that_touches_it() {
             "-9,-9,-9",
             "--to",
             "-9,-9,9",
+            "--load",
+            "lazy",
         ])
         .output()
         .unwrap();
@@ -379,14 +386,18 @@ fn a_query_decodes_what_it_needs_and_answers_like_eager() {
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         String::from_utf8(o.stdout).unwrap()
     };
-    assert_eq!(run(&[]), run(&["--eager"]));
+    assert_eq!(run(&["--load", "lazy"]), run(&["--load", "eager"]));
+    assert_eq!(run(&[]), run(&["--load", "eager"]));
     // JSON, without the timing.
     let json = |extra: &[&str]| {
         let mut v: serde_json::Value = serde_json::from_str(&run(extra)).unwrap();
         v.as_object_mut().unwrap().remove("seconds");
         v
     };
-    assert_eq!(json(&["--json"]), json(&["--json", "--eager"]));
+    assert_eq!(
+        json(&["--json", "--load", "lazy"]),
+        json(&["--json", "--load", "eager"])
+    );
 }
 
 #[test]

@@ -66,12 +66,24 @@ pub struct QueryArgs {
     /// Worker threads for --rays and for decoding (0: all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
-    /// Decode the whole grid. By default a query on a `.vdb` reads its topology and decodes
-    /// only the leaves its rays touch (the answers are the same, bit for bit).
-    #[arg(long)]
-    eager: bool,
+    /// How much of a `.vdb` grid to decode: `lazy` reads its topology and decodes only the
+    /// leaves the query's rays touch, `eager` the whole grid, `auto` (the default) is lazy for
+    /// grids with 16 MiB of leaf data or more. The answers are the same, bit for bit.
+    #[arg(long, value_enum, default_value_t = LoadMode::Auto)]
+    load: LoadMode,
     #[command(flatten)]
     est: EstimatorArgs,
+}
+
+/// `--load`: how much of a grid a query decodes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LoadMode {
+    /// Lazy for large grids, whole for small ones.
+    Auto,
+    /// Only the leaves the rays touch.
+    Lazy,
+    /// The whole grid.
+    Eager,
 }
 
 /// One answered (or failed) query.
@@ -139,13 +151,21 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
     };
     let (scene, rays) = pool.install(|| {
         // The grid-wide majorant is every leaf's bound: it needs the whole grid.
-        if a.eager || opts.global_majorant {
+        if a.load == LoadMode::Eager || opts.global_majorant {
             load_scene(&a.file, &scene_opts).map(|s| {
                 let r = make_rays(&s);
                 (s, r)
             })
         } else {
-            load_scene_for(&a.file, &scene_opts, interp, opts.granularity, make_rays)
+            let always = a.load == LoadMode::Lazy;
+            load_scene_for(
+                &a.file,
+                &scene_opts,
+                interp,
+                opts.granularity,
+                always,
+                make_rays,
+            )
         }
     })?;
     if let Some(e) = ray_error {

@@ -210,16 +210,22 @@ pub fn load_scene(file: &Path, opts: &umbra::scene::SceneOptions) -> Result<umbr
 }
 
 /// [`load_scene`] for a job whose rays `rays` makes from the scene's boxes: a `.vdb` is read
-/// lazily and only the leaves those rays touch are decoded (`umbra::scene::file::load_for_rays`).
+/// lazily and only the leaves those rays touch are decoded (`umbra::scene::file::load_for_rays`;
+/// `always`: however small the grid).
 pub fn load_scene_for(
     file: &Path,
     opts: &umbra::scene::SceneOptions,
     interp: umbra::Interp,
     gran: umbra::traverse::Granularity,
+    always: bool,
     rays: impl FnOnce(&umbra::scene::Scene) -> Vec<umbra::Ray>,
 ) -> Result<(umbra::scene::Scene, Vec<umbra::Ray>)> {
-    let (scene, r) = umbra::scene::file::load_for_rays(file, opts, interp, gran, rays)
-        .map_err(|e| load_error(e, file, opts))?;
+    let loaded = if always {
+        umbra::scene::file::load_partial_for_rays(file, opts, interp, gran, rays)
+    } else {
+        umbra::scene::file::load_for_rays(file, opts, interp, gran, rays)
+    };
+    let (scene, r) = loaded.map_err(|e| load_error(e, file, opts))?;
     warn_sanitized(file, &scene);
     Ok((scene, r))
 }
