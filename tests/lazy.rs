@@ -8,18 +8,13 @@
 #[allow(unused_imports)]
 mod common;
 
+use common::data;
 use rand::{Rng, SeedableRng};
 use std::path::PathBuf;
 use umbra::estimate::{Estimator, Options};
 use umbra::scene::{self, SceneOptions};
 use umbra::traverse::Granularity;
 use umbra::{Interp, Ray, Volume};
-
-fn data(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("data")
-        .join(name)
-}
 
 fn corpus(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -122,7 +117,7 @@ fn partial_loads_answer_like_eager_loads_bit_for_bit() {
         {
             let r = rays(vol, 24, 7 + k as u64);
             let (lazy, got) =
-                scene::file::load_partial_for_rays(path, &opts(grid), interp, gran, |_| r.clone())
+                scene::file::load_for_rays(path, &opts(grid), interp, gran, 0, |_| r.clone())
                     .unwrap();
             assert_eq!(got.len(), r.len());
             let loaded = lazy.fogs()[0].volume().tree().loaded_leaf_count();
@@ -131,7 +126,7 @@ fn partial_loads_answer_like_eager_loads_bit_for_bit() {
             if k == 0 && all > 100 {
                 let one = &r[..1];
                 let (single, _) =
-                    scene::file::load_partial_for_rays(path, &opts(grid), interp, gran, |_| {
+                    scene::file::load_for_rays(path, &opts(grid), interp, gran, 0, |_| {
                         one.to_vec()
                     })
                     .unwrap();
@@ -196,7 +191,7 @@ fn rgb_and_xform_partial_loads_equal_eager_ones() {
     let eager = scene::load(&path, &o).unwrap();
     let r = rays(eager.fogs()[0].volume(), 30, 11);
     let (lazy, _) =
-        scene::file::load_partial_for_rays(&path, &o, Interp::Trilinear, Granularity::Leaf, |_| {
+        scene::file::load_for_rays(&path, &o, Interp::Trilinear, Granularity::Leaf, 0, |_| {
             r.clone()
         })
         .unwrap();

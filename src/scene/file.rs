@@ -82,13 +82,14 @@ pub fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
     scene_of_grid(grid, path, opts)
 }
 
-/// [`load`] for a job whose rays are known before it traces: a `.vdb` input is opened lazily
-/// ([`crate::vdb::LazyGrid`]), `rays` makes the job's rays from a shell scene (topology and
-/// boxes right, values unloaded: tracing it gives no number), and only the leaves those rays
-/// touch under `interp` at `gran` are decoded ([`crate::demand::leaves_touched`]). Answers
-/// on those rays equal an eager [`load`]'s bit for bit. Scene files, level sets traced as
-/// solids and grids with under [`LAZY_MIN_BYTES`] of leaf buffers are loaded whole. A caller whose rays cannot be made keeps its own error and returns
-/// no rays (nothing is then decoded).
+/// [`load`] for a job whose rays are known before it traces: a `.vdb` input with at least
+/// `lazy_from` bytes of leaf data (0: any; [`LAZY_MIN_BYTES`]: what `umbra query` does by
+/// default) is opened lazily ([`crate::vdb::LazyGrid`]), `rays` makes the job's rays from a
+/// shell scene (topology and boxes right, values unloaded: tracing it gives no number), and
+/// only the leaves those rays touch under `interp` at `gran` are decoded
+/// ([`crate::demand::leaves_touched`]). Answers on those rays equal an eager [`load`]'s bit for
+/// bit. Scene files, level sets traced as solids and smaller grids are loaded whole. A caller
+/// whose rays cannot be made keeps its own error and returns no rays (nothing is then decoded).
 ///
 /// # Errors
 /// As [`load`], and decoding errors of the touched leaves (naming the file, the leaf and the
@@ -98,34 +99,10 @@ pub fn load_for_rays(
     opts: &SceneOptions,
     interp: crate::volume::Interp,
     gran: crate::traverse::Granularity,
+    lazy_from: u64,
     rays: impl FnOnce(&Scene) -> Vec<crate::ray::Ray>,
 ) -> Result<(Scene, Vec<crate::ray::Ray>)> {
-    load_rays_lazily(path.as_ref(), opts, interp, gran, LAZY_MIN_BYTES, rays)
-}
-
-/// [`load_for_rays`] for a grid of any size: a `.vdb` grid (not a solid) is always read
-/// lazily, however small.
-///
-/// # Errors
-/// As [`load_for_rays`].
-pub fn load_partial_for_rays(
-    path: impl AsRef<Path>,
-    opts: &SceneOptions,
-    interp: crate::volume::Interp,
-    gran: crate::traverse::Granularity,
-    rays: impl FnOnce(&Scene) -> Vec<crate::ray::Ray>,
-) -> Result<(Scene, Vec<crate::ray::Ray>)> {
-    load_rays_lazily(path.as_ref(), opts, interp, gran, 0, rays)
-}
-
-fn load_rays_lazily(
-    path: &Path,
-    opts: &SceneOptions,
-    interp: crate::volume::Interp,
-    gran: crate::traverse::Granularity,
-    min_bytes: u64,
-    rays: impl FnOnce(&Scene) -> Vec<crate::ray::Ray>,
-) -> Result<(Scene, Vec<crate::ray::Ray>)> {
+    let path = path.as_ref();
     crate::volume::check_density_scale(opts.density_scale)?;
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
@@ -139,7 +116,7 @@ fn load_rays_lazily(
     let lazy = archive.open_lazy(archive.find_grid(&opts.grid)?)?;
     let solid = opts.levelset_solid && lazy.shell().class.as_deref() == Some("level set");
     // A small grid decodes faster whole than its rays can be planned: the same answers.
-    if solid || lazy.buffer_bytes() < min_bytes {
+    if solid || lazy.buffer_bytes() < lazy_from {
         let scene = scene_of_grid(lazy.load_all()?, path, opts)?;
         let r = rays(&scene);
         return Ok((scene, r));
@@ -155,9 +132,10 @@ fn load_rays_lazily(
     Ok((scene, r))
 }
 
-/// Grids with fewer bytes of leaf buffers than this are loaded whole by [`load_for_rays`]:
-/// decoding 16 MiB takes about as long as planning many rays (measured: 20 000 rays through
-/// the 0.5 MB sample cloud took 0.07 s planned against 0.05 s whole).
+/// Grids with fewer bytes of leaf buffers than this are loaded whole by `umbra query`
+/// ([`load_for_rays`]): below it a whole decode costs about 0.05 s on 2 cores (the 0.96 GB
+/// hero cache decodes in 2.9 s), no more than planning a batch of rays does (20 000 rays
+/// through the 0.5 MB sample cloud: 0.07 s planned, 0.05 s whole).
 pub const LAZY_MIN_BYTES: u64 = 16 << 20;
 
 /// The scene of one grid of a `.vdb` file, with `opts` applied.

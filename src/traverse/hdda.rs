@@ -91,22 +91,7 @@ pub(crate) fn walk_nodes(
     visit: impl FnMut(Segment, Option<u32>) -> ControlFlow<()>,
 ) -> Walk {
     let length = ray.t_max() - ray.t_min();
-    let (q, d) = lookup_ray(vol, ray, interp);
-    let mut w = Walker {
-        vol,
-        interp,
-        gran,
-        q,
-        d,
-        scale: vol.density_scale(),
-        bg: vol.tree().background,
-        visit,
-        covered: 0.0,
-        segments: 0,
-        sparse_factor: SPARSE_ROOT_FACTOR,
-        touch: None,
-        unloaded: false,
-    };
+    let mut w = Walker::new(vol, ray, interp, gran, visit, None);
     let stopped = w.run(ray).is_break();
     Walk {
         length,
@@ -132,26 +117,40 @@ pub(crate) fn touched_blocks(
     gran: Granularity,
     mut touch: impl FnMut([i64; 3], i64),
 ) {
-    let (q, d) = lookup_ray(vol, ray, interp);
-    let mut w = Walker {
-        vol,
-        interp,
-        gran,
-        q,
-        d,
-        scale: vol.density_scale(),
-        bg: vol.tree().background,
-        visit: |_: Segment, _: Option<u32>| ControlFlow::Continue(()),
-        covered: 0.0,
-        segments: 0,
-        sparse_factor: SPARSE_ROOT_FACTOR,
-        touch: Some(&mut touch),
-        unloaded: false,
-    };
+    let skip = |_: Segment, _: Option<u32>| ControlFlow::Continue(());
+    let mut w = Walker::new(vol, ray, interp, gran, skip, Some(&mut touch));
     let _ = w.run(ray);
 }
 
-impl<F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'_, F> {
+impl<'v, F: FnMut(Segment, Option<u32>) -> ControlFlow<()>> Walker<'v, F> {
+    /// A walker of `ray` through `vol`, emitting segments to `visit`, or in touch mode
+    /// reporting blocks to `touch`.
+    fn new(
+        vol: &'v Volume,
+        ray: &Ray,
+        interp: Interp,
+        gran: Granularity,
+        visit: F,
+        touch: Option<&'v mut dyn FnMut([i64; 3], i64)>,
+    ) -> Self {
+        let (q, d) = lookup_ray(vol, ray, interp);
+        Self {
+            vol,
+            interp,
+            gran,
+            q,
+            d,
+            scale: vol.density_scale(),
+            bg: vol.tree().background,
+            visit,
+            covered: 0.0,
+            segments: 0,
+            sparse_factor: SPARSE_ROOT_FACTOR,
+            touch,
+            unloaded: false,
+        }
+    }
+
     fn run(&mut self, ray: &Ray) -> ControlFlow<()> {
         let Some([lo, hi]) = self.vol.value_box() else {
             return ControlFlow::Continue(());
@@ -483,26 +482,13 @@ mod tests {
 
     /// Segments of one walk with the root walk forced sparse (`factor` 0) or dense.
     fn segments(vol: &Volume, ray: &Ray, interp: Interp, factor: usize) -> Vec<Segment> {
-        let (q, d) = lookup_ray(vol, ray, interp);
         let mut out = Vec::new();
-        let mut w = Walker {
-            vol,
-            interp,
-            gran: Granularity::Leaf,
-            q,
-            d,
-            scale: vol.density_scale(),
-            bg: vol.tree().background,
-            visit: |s: Segment, _| {
-                out.push(s);
-                ControlFlow::Continue(())
-            },
-            covered: 0.0,
-            segments: 0,
-            sparse_factor: factor,
-            touch: None,
-            unloaded: false,
+        let visit = |s: Segment, _| {
+            out.push(s);
+            ControlFlow::Continue(())
         };
+        let mut w = Walker::new(vol, ray, interp, Granularity::Leaf, visit, None);
+        w.sparse_factor = factor;
         let _ = w.run(ray);
         out
     }

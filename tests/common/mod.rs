@@ -20,6 +20,13 @@ pub fn corpus_dir() -> Option<PathBuf> {
     None
 }
 
+/// A sample of the crate's `data/` directory.
+pub fn data(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("data")
+        .join(name)
+}
+
 /// The parsed `manifest.json` of the corpus.
 pub fn manifest(dir: &std::path::Path) -> serde_json::Value {
     let text = std::fs::read_to_string(dir.join("manifest.json")).expect("read manifest.json");

@@ -220,12 +220,13 @@ pub fn load_scene_for(
     always: bool,
     rays: impl FnOnce(&umbra::scene::Scene) -> Vec<umbra::Ray>,
 ) -> Result<(umbra::scene::Scene, Vec<umbra::Ray>)> {
-    let loaded = if always {
-        umbra::scene::file::load_partial_for_rays(file, opts, interp, gran, rays)
+    let from = if always {
+        0
     } else {
-        umbra::scene::file::load_for_rays(file, opts, interp, gran, rays)
+        umbra::scene::file::LAZY_MIN_BYTES
     };
-    let (scene, r) = loaded.map_err(|e| load_error(e, file, opts))?;
+    let (scene, r) = umbra::scene::file::load_for_rays(file, opts, interp, gran, from, rays)
+        .map_err(|e| load_error(e, file, opts))?;
     warn_sanitized(file, &scene);
     Ok((scene, r))
 }
