@@ -212,9 +212,19 @@ impl FileInfo {
     /// [`GridInfo::from_lazy`]).
     #[must_use]
     pub fn from_archive(archive: &Archive) -> Self {
+        Self::from_archive_grids(archive, |_| true)
+    }
+
+    /// [`FileInfo::from_archive`] for the grids `wanted` accepts; the others are not read.
+    #[must_use]
+    pub fn from_archive_grids(
+        archive: &Archive,
+        wanted: impl Fn(&crate::vdb::GridDescriptor) -> bool,
+    ) -> Self {
         let grids = archive
             .grids
             .iter()
+            .filter(|gd| wanted(gd))
             .map(|gd| {
                 match archive
                     .open_lazy(gd)

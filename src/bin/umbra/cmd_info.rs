@@ -44,12 +44,14 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
                 });
             }
             let archive = umbra::vdb::open(file)?;
-            let mut info = FileInfo::from_archive(&archive);
-            if let Some(name) = &a.grid {
-                let gd = archive.find_grid(name)?;
-                info.grids.retain(|g| g.stored_name == gd.stored_name);
-            }
-            Ok(info)
+            // With --grid, only that grid is read.
+            let only = match &a.grid {
+                Some(name) => Some(archive.find_grid(name)?.stored_name.clone()),
+                None => None,
+            };
+            Ok(FileInfo::from_archive_grids(&archive, |gd| {
+                only.as_ref().is_none_or(|s| *s == gd.stored_name)
+            }))
         };
         match one() {
             Ok(info) => reports.push(info),
