@@ -50,7 +50,7 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
                 None => None,
             };
             Ok(FileInfo::from_archive_grids(&archive, |gd| {
-                only.as_ref().is_none_or(|s| *s == gd.stored_name)
+                only.as_ref().map_or(true, |s| *s == gd.stored_name)
             }))
         };
         match one() {
