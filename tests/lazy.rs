@@ -459,3 +459,145 @@ fn streamed_info_equals_the_report_of_a_full_load() {
     }
     assert!(grids >= 30, "{grids}");
 }
+
+/// A bake job of `path` with an exact trilinear map, 3 slices.
+fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> umbra::bake::BakeJob {
+    use umbra::bake::{BakeJob, BakeSettings, Depths, Projection, Resolution, View};
+    let mut settings =
+        BakeSettings::new(Estimator::from_name("regular").unwrap(), Options::default());
+    settings.depths = Depths::Slices(3);
+    BakeJob {
+        input: path.to_path_buf(),
+        grid: "density".into(),
+        density_scale: 1.0,
+        xform: None,
+        sigma_t: None,
+        levelset_solid: false,
+        view: View {
+            projection: Projection::Ortho,
+            light_dir: Some([0.3, -1.0, 0.2]),
+            light_pos: None,
+            fov_deg: None,
+            res: Some(Resolution::Exact(300, 200)),
+            up: None,
+            frame_box: None,
+        },
+        camera: None,
+        settings,
+        output: out,
+        preview: None,
+        overwrite: true,
+        max_memory,
+    }
+}
+
+/// A cache of 3 x 3 x 3 copies of the sample cloud (`tools/make_hero.py`, pyopenvdb): big
+/// enough that a bake in parts needs less than a whole one.
+fn tiled_cloud(dir: &std::path::Path) -> PathBuf {
+    let out = dir.join("tiled.vdb");
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tools/make_hero.py");
+    let o = std::process::Command::new("/usr/bin/python3")
+        .arg(&script)
+        .arg(&out)
+        .args(["--copies", "3", "3", "3"])
+        .output()
+        .expect("python3-openvdb (Debian) makes the test cache");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    out
+}
+
+#[test]
+fn bakes_in_parts_equal_whole_bakes_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = tiled_cloud(dir.path());
+    let whole = bake_job(&path, dir.path().join("whole.exr"), None)
+        .run(&|_| {})
+        .unwrap();
+    assert_eq!(whole.map.stats.parts, 0);
+    // The least budget the plan accepts, read from its refusal.
+    let least = match bake_job(&path, dir.path().join("p.exr"), Some(1 << 20)).plan_bounded() {
+        Err(umbra::Error::InvalidArgument { name, reason }) => {
+            assert_eq!(name, "max-memory");
+            let at_least = reason.split("at least ").nth(1).unwrap();
+            let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
+            (mib * f64::from(1 << 20)) as u64
+        }
+        other => panic!("{other:?}"),
+    };
+    let mut parts = Vec::new();
+    for budget in [least + (1 << 20), least + (4 << 20), least + (12 << 20)] {
+        let out = dir.path().join("parts.exr");
+        let r = bake_job(&path, out.clone(), Some(budget))
+            .run(&|_| {})
+            .unwrap();
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&r.map.t), bits(&whole.map.t), "budget {budget}");
+        assert_eq!(r.map.slices.len(), 3);
+        for (a, b) in r.map.slices.iter().zip(&whole.map.slices) {
+            assert_eq!(bits(a), bits(b), "slices, budget {budget}");
+        }
+        assert_eq!(r.map.stats.lookups, whole.map.stats.lookups);
+        let written = std::fs::read(&out).unwrap();
+        let reference = std::fs::read(dir.path().join("whole.exr")).unwrap();
+        assert!(
+            written == reference,
+            "budget {budget}: the EXR files differ"
+        );
+        parts.push(r.map.stats.parts);
+    }
+    // Smaller budgets take more parts.
+    assert!(parts[0] > parts[2] && parts[2] >= 2, "{parts:?}");
+}
+
+#[test]
+fn bakes_that_cannot_go_in_parts_are_refused_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    // Tiles above lower nodes: the rays walk them whole.
+    let out = dir.path().join("t.exr");
+    let job = bake_job(&corpus("gen/tiles_mixed.vdb"), out.clone(), Some(1 << 20));
+    let e = job.plan_bounded().unwrap_err();
+    assert!(e.to_string().contains("cannot be baked in parts"), "{e}");
+    assert!(!out.exists());
+    // A stochastic map does not stream.
+    let mut job = bake_job(&corpus("gen/cloud_fbm.vdb"), out.clone(), Some(1 << 20));
+    job.settings.estimator = Estimator::from_name("ratio").unwrap();
+    let e = job.plan_bounded().unwrap_err();
+    assert!(e.to_string().contains("only exact trilinear maps"), "{e}");
+    // A budget the whole grid fits in bakes as usual.
+    let job = bake_job(&corpus("gen/cloud_fbm.vdb"), out.clone(), Some(1 << 30));
+    assert!(job.plan_bounded().unwrap().is_none());
+    assert_eq!(job.run(&|_| {}).unwrap().map.stats.parts, 0);
+    // The CLI names the flag and writes nothing.
+    let o = assert_cmd::Command::cargo_bin("umbra")
+        .unwrap()
+        .args(["bake", corpus("gen/cloud_fbm.vdb").to_str().unwrap()])
+        .args([
+            "--light-dir",
+            "0,-1,0",
+            "-o",
+            dir.path().join("c.exr").to_str().unwrap(),
+        ])
+        .args(["--max-memory", "1M"])
+        .output()
+        .unwrap();
+    assert_ne!(o.status.code(), Some(0));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--max-memory") && err.contains("at least"),
+        "{err}"
+    );
+    assert!(!dir.path().join("c.exr").exists());
+    let o = assert_cmd::Command::cargo_bin("umbra")
+        .unwrap()
+        .args(["bake", corpus("gen/cloud_fbm.vdb").to_str().unwrap()])
+        .args([
+            "--light-dir",
+            "0,-1,0",
+            "-o",
+            dir.path().join("c.exr").to_str().unwrap(),
+        ])
+        .args(["--max-memory", "lots"])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(2));
+}

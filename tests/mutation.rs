@@ -2169,6 +2169,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         output: out.join("map.exr"),
         preview: Some(out.join("map.png")),
         overwrite: true,
+        max_memory: None,
     };
     stage.set("bake");
     match job.run_on(umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {

@@ -38,6 +38,10 @@ pub struct BakeJob {
     pub preview: Option<PathBuf>,
     /// Replace existing outputs.
     pub overwrite: bool,
+    /// A memory budget in bytes (`--max-memory`): when the decoded grid and the image would
+    /// not fit in it, an exact map is swept a part of the grid at a time
+    /// ([`BakeJob::plan_bounded`]); `None`: load the whole grid.
+    pub max_memory: Option<u64>,
 }
 
 /// Something a finished bake wants its user to know.
@@ -223,8 +227,177 @@ impl BakeJob {
     /// # Errors
     /// Output, load, framing, settings and write errors; nothing is written on error.
     pub fn run(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<BakeReport> {
+        if let Some(plan) = self.plan_bounded()? {
+            return self.run_bounded(plan, progress);
+        }
         let (vol, camera) = self.prepare()?;
         self.run_on(vol, camera, progress)
+    }
+
+    /// With a memory budget ([`BakeJob::max_memory`]) that the whole decoded grid and the
+    /// image would exceed: the plan of a bake in parts (the grid opened lazily, the camera
+    /// framed from its topology, how many leaves a part may hold). `None` without a budget or
+    /// when everything fits: [`BakeJob::prepare`] and [`BakeJob::run_on`] then bake as usual.
+    ///
+    /// The budget counts the topology (kept while the parts come and go), one part's copy of
+    /// the tree with its neighbour tables and faces, the image, and the part's leaf values
+    /// (2 KiB each); the process's own code and stacks are outside it.
+    ///
+    /// # Errors
+    /// Output and settings errors; [`Error::InvalidArgument`] (name `max-memory`) when the
+    /// budget is below the least a part needs, or when the map cannot be baked in parts (only
+    /// exact trilinear maps of one `.vdb` grid, without extinction outside lower nodes, can);
+    /// loading errors of the topology.
+    pub fn plan_bounded(&self) -> Result<Option<BoundedPlan>> {
+        let Some(budget) = self.max_memory else {
+            return Ok(None);
+        };
+        self.check_outputs()?;
+        self.settings.validate()?;
+        let refuse = |reason: String| Error::InvalidArgument {
+            name: "max-memory".into(),
+            reason,
+        };
+        if crate::scene::is_scene_file(&self.input) || self.sigma_t.is_some() {
+            // Scenes and colour maps load whole; fine if they fit, refused otherwise below.
+            return Ok(None);
+        }
+        let archive = crate::vdb::open(&self.input)?;
+        let mut lazy = archive.open_lazy(archive.find_grid(&self.grid)?)?;
+        // The topology is kept once, in the shell volume; parts are decoded onto copies of it.
+        let loaded = lazy.loaded_memory_bytes();
+        let leaves = lazy.leaf_count() as u64;
+        let topology = lazy.shell().tree.memory_bytes();
+        let shell = Scene::from_volume(self.volume_of(lazy.take_shell())?);
+        let camera = match self.camera {
+            Some(c) => c,
+            None => Camera::frame(&self.view, &shell.box_corners()?)?,
+        };
+        let depth_images = match &self.settings.depths {
+            super::Depths::None => 0,
+            super::Depths::Slices(k) => *k as u64,
+            super::Depths::At(d) => d.len() as u64,
+        };
+        // T (f32) and the f64 optical depth of every pixel, per slice too.
+        let image = camera.pixels() * (1 + depth_images) * 12;
+        // The whole grid, the image and the process itself.
+        let whole = loaded + image + PROCESS_SLACK;
+        let mib = |b: u64| format!("{:.1} MiB", b as f64 / f64::from(1 << 20));
+        if whole <= budget {
+            return Ok(None);
+        }
+        let leaf = std::mem::size_of::<[f32; 512]>() as u64;
+        // Held throughout: the topology (in the shell volume). Per part: a copy of the tree
+        // with neighbour tables, faces and halos, and what computing its bounds holds for a
+        // moment (per leaf a halo, its neighbours and its bounds).
+        let tree_copy = loaded - leaves * leaf;
+        let transient = leaves * BOUNDS_SCRATCH_PER_LEAF;
+        let fixed = topology + tree_copy + transient + image + PROCESS_SLACK;
+        let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR
+            && self.settings.options.interp == crate::volume::Interp::Trilinear
+            && !self.levelset_solid;
+        if !exact {
+            return Err(refuse(format!(
+                "the whole grid and the image need {} and only exact trilinear maps (estimator \
+                 regular, interp trilinear) are baked in parts",
+                mib(whole)
+            )));
+        }
+        if let Some(f) = shell.fogs().first() {
+            if !super::sweep::streams(f.volume(), &camera)? {
+                return Err(refuse(format!(
+                    "the whole grid and the image need {} and this map cannot be baked in \
+                     parts (a light inside the volume, a non-zero background or tiles above \
+                     128^3 nodes)",
+                    mib(whole)
+                )));
+            }
+        }
+        // The least part: the lower node with the most leaves in its `[o, o + 128]` box.
+        let Some(topo) = shell.fogs().first().map(|f| f.volume().tree()) else {
+            return Ok(None);
+        };
+        let widest = topo
+            .lowers()
+            .iter()
+            .map(|n| {
+                let o = n.origin.map(i64::from);
+                let mut k = 0u64;
+                topo.leaves_in_box(o, o.map(|c| c + 128), &mut |_| k += 1);
+                k
+            })
+            .max()
+            .unwrap_or(0);
+        let least = (fixed + widest * leaf).min(whole);
+        if budget < least {
+            return Err(refuse(format!(
+                "{} is below what baking {} needs: at least {} in parts (its topology, a \
+                 part's copy of the tree, the image and the largest part's {widest} leaves; \
+                 the whole grid and the image need {})",
+                mib(budget),
+                self.input.display(),
+                mib(least),
+                mib(whole)
+            )));
+        }
+        let group_leaves = usize::try_from((budget - fixed) / leaf).unwrap_or(usize::MAX);
+        Ok(Some(BoundedPlan {
+            lazy,
+            shell,
+            camera,
+            group_leaves,
+        }))
+    }
+
+    /// Bake a [`BoundedPlan`]: the map the whole-grid bake would make, bit for bit, holding a
+    /// part of the grid at a time. Bad-voxel counts are not reported in this mode (the parts
+    /// overlap; each part's policy is the whole grid's).
+    ///
+    /// # Errors
+    /// As [`BakeJob::run`]; [`Error::InvalidArgument`] (name `max-memory`) when the map cannot
+    /// be swept in parts (a pinhole inside the volume, a non-zero background or tiles above
+    /// lower nodes).
+    pub fn run_bounded(
+        &self,
+        plan: BoundedPlan,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<BakeReport> {
+        let volume_of = |g: crate::vdb::Grid| self.volume_of(g);
+        let Some(shell) = plan.shell.fogs().first().map(crate::scene::Fog::volume) else {
+            return Err(Error::Invalid {
+                path: self.input.clone(),
+                reason: "the grid's shell is not a fog volume".into(),
+            });
+        };
+        let baked = super::render::bake_streamed(
+            &plan.lazy,
+            shell,
+            &volume_of,
+            &plan.camera,
+            &self.settings,
+            plan.group_leaves,
+            progress,
+        )?;
+        let Some((map, _)) = baked else {
+            return Err(Error::InvalidArgument {
+                name: "max-memory".into(),
+                reason: format!(
+                    "{} does not fit and this map cannot be baked in parts (a light inside the \
+                     volume, a non-zero background or tiles above 128^3 nodes)",
+                    self.input.display()
+                ),
+            });
+        };
+        self.finish(map, plan.shell, plan.camera)
+    }
+
+    /// The grid `g` of the input as this job traces it (density scale, transform).
+    fn volume_of(&self, g: crate::vdb::Grid) -> Result<crate::Volume> {
+        let mut v = crate::Volume::new(g, self.density_scale, &self.input)?;
+        if let Some(x) = &self.xform {
+            v = v.with_xform(x)?;
+        }
+        Ok(v)
     }
 
     /// Everything before the bake, in the order that fails fastest: check the outputs and the
@@ -271,6 +444,11 @@ impl BakeJob {
     ) -> Result<BakeReport> {
         self.check_outputs()?;
         let map = bake_scene(&scene, &camera, &self.settings, progress)?;
+        self.finish(map, scene, camera)
+    }
+
+    /// Warnings, provenance and the written map: the common tail of every bake.
+    fn finish(&self, map: Map, scene: Scene, camera: Camera) -> Result<BakeReport> {
         let mut warnings = volume_warnings(&scene.sanitized());
         let diagonal = scene.box_corners().map_or(0.0, |c| {
             let (lo, hi) = c.iter().fold(
@@ -329,6 +507,31 @@ impl BakeJob {
             provenance,
             warnings,
         })
+    }
+}
+
+/// Bytes per leaf that computing a tree's bounds holds for a moment (a leaf's halo with its
+/// neighbour table, its bounds, its faces on the way), counted against `--max-memory`.
+const BOUNDS_SCRATCH_PER_LEAF: u64 = 96;
+/// What the process takes besides its data (code, thread stacks, allocator), counted against
+/// `--max-memory`.
+const PROCESS_SLACK: u64 = 24 << 20;
+
+/// A bake in parts, planned by [`BakeJob::plan_bounded`].
+#[derive(Debug)]
+pub struct BoundedPlan {
+    lazy: crate::vdb::LazyGrid,
+    /// The grid's shell as a scene: boxes and names for framing and the header.
+    shell: Scene,
+    camera: Camera,
+    group_leaves: usize,
+}
+
+impl BoundedPlan {
+    /// The camera the map is baked with.
+    #[must_use]
+    pub fn camera(&self) -> &Camera {
+        &self.camera
     }
 }
 

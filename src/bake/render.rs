@@ -157,6 +157,9 @@ pub struct BakeStats {
     pub seconds: f64,
     /// The map was traced in object order (the sweep) rather than one ray per pixel.
     pub sweep: bool,
+    /// Parts of the grid decoded one after another to stay within `--max-memory` (0: the
+    /// whole grid was in memory).
+    pub parts: u64,
 }
 
 /// A baked map: row-major channels, row 0 at the top, pixel `(i, j)` at index `j W + i`.
@@ -514,6 +517,53 @@ fn bake_source(
         )?;
     }
     let run = || render(src, camera, settings, &depths, progress);
+    if settings.threads == 0 {
+        return run();
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(settings.threads)
+        .build()
+        .map_err(|e| bad("threads", e.to_string()))?
+        .install(run)
+}
+
+/// [`bake`] of a lazily opened grid in bounded memory, by the sweep in groups of lower nodes
+/// of at most about `group_leaves` leaves ([`super::sweep::render_streamed`]): the same map,
+/// bit for bit. `volume_of` makes a volume of each decoded part (density scale, transform).
+/// `None` when this map cannot be swept in parts (not an exact trilinear map, a pinhole inside
+/// the volume, extinction outside lower nodes).
+///
+/// # Errors
+/// As [`bake`], and decoding errors of the leaves.
+pub(crate) fn bake_streamed(
+    lazy: &crate::vdb::LazyGrid,
+    shell: &Volume,
+    volume_of: &(dyn Fn(crate::vdb::Grid) -> Result<Volume> + Sync),
+    camera: &Camera,
+    settings: &BakeSettings,
+    group_leaves: usize,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Option<(Map, super::sweep::Streamed)>> {
+    super::check_res(camera.width, camera.height)?;
+    settings.validate()?;
+    if settings.order != Order::Auto || !super::sweep::applies(settings) {
+        return Ok(None);
+    }
+    let depths = resolve_depths(&settings.depths, camera)?;
+    let run = || {
+        let rows = band_rows(camera.height, rayon::current_num_threads());
+        super::sweep::render_streamed(
+            lazy,
+            shell,
+            volume_of,
+            camera,
+            settings,
+            &depths,
+            rows,
+            group_leaves,
+            progress,
+        )
+    };
     if settings.threads == 0 {
         return run();
     }

@@ -976,6 +976,7 @@ impl Job {
             output: task.output.clone(),
             preview: task.preview.clone(),
             overwrite: true,
+            max_memory: None,
         }
     }
 

@@ -207,6 +207,35 @@ impl LazyGrid {
         self.decode(&ids, self.shell.tree.clone())
     }
 
+    /// Move the shell out (the lazy grid keeps its identity but no topology: only
+    /// [`LazyGrid::load_from`] loads after this). For callers that keep the topology in a
+    /// volume of their own instead of twice.
+    pub(crate) fn take_shell(&mut self) -> Grid {
+        let tree = std::mem::take(&mut self.shell.tree);
+        let mut g = self.shell.clone_without_tree();
+        g.tree = tree;
+        g
+    }
+
+    /// [`LazyGrid::load`] onto a copy of `topology`, this grid's topology as a shell volume
+    /// holds it (after [`LazyGrid::take_shell`]).
+    pub(crate) fn load_from(&self, topology: &crate::tree::Tree, leaves: &[u32]) -> Result<Grid> {
+        let n = topology.leaves.len();
+        let mut ids = leaves.to_vec();
+        ids.sort_unstable();
+        ids.dedup();
+        if ids.last().is_some_and(|&l| l as usize >= n) || n + 1 != self.offsets.len() {
+            return Err(crate::Error::InvalidArgument {
+                name: "leaves".into(),
+                reason: format!(
+                    "not leaves of this grid's {} leaves",
+                    self.offsets.len() - 1
+                ),
+            });
+        }
+        self.decode(&ids, topology.clone())
+    }
+
     /// [`LazyGrid::load`], giving up the lazy grid (its topology becomes the grid's tree
     /// instead of being copied).
     ///

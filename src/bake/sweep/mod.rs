@@ -452,66 +452,101 @@ fn kernel_ok(min: f32, max: f32, chord: f64) -> bool {
 /// origin).
 fn pieces(vol: &Volume, rays: &Rays, shells: bool) -> Vec<Piece> {
     let tree = vol.tree();
-    let entered: std::collections::HashSet<[i32; 3]> = tree
-        .lowers
-        .iter()
-        .filter(|n| !(n.halo.min == tree.background && n.halo.max == tree.background))
-        .map(|n| n.origin)
-        .collect();
+    let entered = entered_lowers(tree, 0..tree.lowers.len());
+    let mut out = Vec::new();
     let mut outside = std::collections::BTreeSet::new();
+    for l in 0..tree.lowers.len() {
+        if lower_pieces(vol, rays, l, &mut out) && shells {
+            shell_blocks(&entered, tree.lowers[l].origin.map(i64::from), &mut outside);
+        }
+    }
+    if shells {
+        shell_pieces(vol, rays, &outside, &mut out);
+    }
+    out
+}
+
+/// The origins of the lower nodes among `lowers` a ray walk would enter (halo not just the
+/// background).
+fn entered_lowers(
+    tree: &Tree,
+    lowers: impl Iterator<Item = usize>,
+) -> std::collections::HashSet<[i32; 3]> {
     let bg = tree.background;
+    lowers
+        .map(|l| &tree.lowers[l])
+        .filter(|n| !(n.halo.min == bg && n.halo.max == bg))
+        .map(|n| n.origin)
+        .collect()
+}
+
+/// The pieces of lower node `l` (every child block whose halo is not a zero extinction, and
+/// whose footprint meets the image) appended to `out`, in slot order; false when the walk
+/// would not enter the node or the map does not see it.
+fn lower_pieces(vol: &Volume, rays: &Rays, l: usize, out: &mut Vec<Piece>) -> bool {
+    let tree = vol.tree();
+    let node = &tree.lowers[l];
+    let bg = tree.background;
+    if node.halo.min == bg && node.halo.max == bg {
+        return false;
+    }
+    if rays.footprint(node.origin.map(i64::from), 128).is_none() {
+        return false;
+    }
     let scale = vol.density_scale();
     let mu_bg = vol.mu_background();
     let chord = max_chord(vol);
-    let mut out = Vec::new();
-    for (l, node) in tree.lowers.iter().enumerate() {
-        if node.halo.min == bg && node.halo.max == bg {
-            continue;
-        }
-        if rays.footprint(node.origin.map(i64::from), 128).is_none() {
-            continue;
-        }
-        let base = node.origin.map(i64::from);
-        for slot in 0..4096usize {
-            let local = [slot >> 8, (slot >> 4) & 15, slot & 15];
-            let origin = [0, 1, 2].map(|a| base[a] + 8 * local[a] as i64);
-            let child = node.has_child(slot).then(|| node.slots[slot]);
-            let h = match child {
-                Some(leaf) => tree.leaves[leaf as usize].halo,
-                None => node.tile_halo_of(slot),
-            };
-            let part = if h.min == h.max {
-                let mu = if h.min == bg {
-                    mu_bg
-                } else {
-                    crate::math::scaled(scale, f64::from(h.min))
-                };
-                if mu == 0.0 {
-                    continue;
-                }
-                Part::Const(mu)
+    let base = node.origin.map(i64::from);
+    for slot in 0..4096usize {
+        let local = [slot >> 8, (slot >> 4) & 15, slot & 15];
+        let origin = [0, 1, 2].map(|a| base[a] + 8 * local[a] as i64);
+        let child = node.has_child(slot).then(|| node.slots[slot]);
+        let h = match child {
+            Some(leaf) => tree.leaves[leaf as usize].halo,
+            None => node.tile_halo_of(slot),
+        };
+        let part = if h.min == h.max {
+            let mu = if h.min == bg {
+                mu_bg
             } else {
-                let fast = kernel_ok(h.min, h.max, chord);
-                match child {
-                    Some(leaf) => Part::Leaf { leaf, fast },
-                    None => Part::Tile {
-                        lower: l as u32,
-                        slot: slot as u32,
-                        fast,
-                    },
-                }
+                crate::math::scaled(scale, f64::from(h.min))
             };
-            if let Some(rect) = rays.footprint(origin, 8) {
-                out.push(Piece { part, origin, rect });
+            if mu == 0.0 {
+                continue;
             }
-        }
-        if shells {
-            shell_blocks(&entered, base, &mut outside);
+            Part::Const(mu)
+        } else {
+            let fast = kernel_ok(h.min, h.max, chord);
+            match child {
+                Some(leaf) => Part::Leaf { leaf, fast },
+                None => Part::Tile {
+                    lower: l as u32,
+                    slot: slot as u32,
+                    fast,
+                },
+            }
+        };
+        if let Some(rect) = rays.footprint(origin, 8) {
+            out.push(Piece { part, origin, rect });
         }
     }
+    true
+}
+
+/// The shell blocks `outside` (see [`shell_blocks`]) that hold something other than the
+/// background and meet the image, appended to `out` in their (sorted) order.
+fn shell_pieces(
+    vol: &Volume,
+    rays: &Rays,
+    outside: &std::collections::BTreeSet<[i64; 3]>,
+    out: &mut Vec<Piece>,
+) {
+    let tree = vol.tree();
+    let bg = tree.background;
+    let chord = max_chord(vol);
     let mut acc = Accessor::new(tree);
     let mut block = [0f32; BLOCK];
-    for origin in outside {
+    for &origin in outside {
         let probe = Piece {
             part: Part::Shell { fast: false },
             origin,
@@ -533,7 +568,6 @@ fn pieces(vol: &Volume, rays: &Rays, shells: bool) -> Vec<Piece> {
             out.push(Piece { part, origin, rect });
         }
     }
-    out
 }
 
 /// The 8^3 blocks before lower node `base` (on its - sides: faces, edges, corner) that lie in
@@ -652,8 +686,29 @@ impl<'a> Sweep<'a> {
         };
         let rest_needed = needs_rest(vol);
         let pieces = pieces(vol, &rays, !rest_needed);
+        Ok(Some(Self::from_pieces(
+            vol,
+            camera,
+            rays,
+            pieces,
+            rest_needed,
+            rows,
+            depths,
+        )))
+    }
+
+    /// A sweep of the given pieces (in their order).
+    fn from_pieces(
+        vol: &'a Volume,
+        camera: &'a Camera,
+        rays: Rays,
+        pieces: Vec<Piece>,
+        rest_needed: bool,
+        rows: u32,
+        depths: &[f64],
+    ) -> Self {
         let bins = bins(&pieces, rows, camera.height);
-        Ok(Some(Self {
+        Self {
             vol,
             camera,
             rays,
@@ -662,7 +717,24 @@ impl<'a> Sweep<'a> {
             rest_needed,
             rows,
             depths: depths.to_vec(),
-        }))
+        }
+    }
+
+    /// Add every band's pieces to `tau` (the whole image, [`Sweep::stride`] values a pixel);
+    /// the lookups spent.
+    fn add_all(&self, tau: &mut [f64]) -> Result<u64> {
+        let band = self.rows as usize * self.rays.width as usize * self.stride();
+        Ok(tau
+            .par_chunks_mut(band)
+            .enumerate()
+            .map(|(b, band)| {
+                let mut lookups = 0;
+                self.band(b, band, &mut lookups)?;
+                Ok(lookups)
+            })
+            .collect::<Result<Vec<u64>>>()?
+            .iter()
+            .sum())
     }
 
     /// Values per pixel in a band's buffer: the full optical depth, then one per slice.
@@ -898,41 +970,66 @@ pub(crate) fn render(
     let Some(sweep) = Sweep::new(vol, camera, rows, depths)? else {
         return Ok(None);
     };
-    let (w, stride, k) = (camera.width, sweep.stride(), depths.len());
-    let npix = camera.pixels();
-    let mut t_image = vec![0.0f32; npix as usize];
+    let (w, stride) = (camera.width, sweep.stride());
+    let mut t_image = vec![0.0f32; camera.pixels() as usize];
     let bands: Vec<(u64, Vec<f32>)> = t_image
         .par_chunks_mut(rows as usize * w as usize)
         .enumerate()
         .map(|(b, t_band)| {
-            let y0 = b as u32 * rows;
             let mut tau = vec![0.0f64; t_band.len() * stride];
             let mut lookups = 0;
             sweep.band(b, &mut tau, &mut lookups)?;
-            // Slice k of the band's pixel n at `slices[n k + c]`, as the ray renderer keeps them.
-            let mut slices = Vec::with_capacity(t_band.len() * k);
-            for (n, px) in tau.chunks(stride).enumerate() {
-                if px.iter().any(|x| x.is_nan()) {
-                    let (i, j) = (n as u32 % w, y0 + n as u32 / w);
-                    let ray = camera.pixel_ray(i, j)?;
-                    return Err(crate::Error::nan_on_ray("optical depth", &ray));
-                }
-                t_band[n] = (-px[0]).exp() as f32;
-                slices.extend(px[1..].iter().map(|x| (-x).exp() as f32));
-            }
+            let slices = finish_band(camera, b as u32 * rows, &tau, stride, t_band)?;
             progress(t_band.len() as u64);
             Ok((lookups, slices))
         })
         .collect::<Result<_>>()?;
+    Ok(Some(assemble(camera, s, depths, t_image, &bands, start)))
+}
+
+/// A finished band of rows from `y0`: `T = exp(-tau)` of each pixel into `t_band`, and its
+/// slices (`slices[n k + c]`, as the ray renderer keeps them); a NaN optical depth is an
+/// error naming the pixel's ray.
+fn finish_band(
+    camera: &Camera,
+    y0: u32,
+    tau: &[f64],
+    stride: usize,
+    t_band: &mut [f32],
+) -> Result<Vec<f32>> {
+    let w = camera.width;
+    let mut slices = Vec::with_capacity(t_band.len() * (stride - 1));
+    for (n, px) in tau.chunks(stride).enumerate() {
+        if px.iter().any(|x| x.is_nan()) {
+            let (i, j) = (n as u32 % w, y0 + n as u32 / w);
+            let ray = camera.pixel_ray(i, j)?;
+            return Err(crate::Error::nan_on_ray("optical depth", &ray));
+        }
+        t_band[n] = (-px[0]).exp() as f32;
+        slices.extend(px[1..].iter().map(|x| (-x).exp() as f32));
+    }
+    Ok(slices)
+}
+
+/// The map from its `T` image and its bands' `(lookups, slices)`.
+fn assemble(
+    camera: &Camera,
+    s: &BakeSettings,
+    depths: &[f64],
+    t_image: Vec<f32>,
+    bands: &[(u64, Vec<f32>)],
+    start: std::time::Instant,
+) -> Map {
+    let (k, npix) = (depths.len(), camera.pixels());
     let mut slices = vec![Vec::with_capacity(npix as usize); k];
-    for (_, band) in &bands {
+    for (_, band) in bands {
         for (c, slice) in slices.iter_mut().enumerate() {
             slice.extend(band.iter().skip(c).step_by(k.max(1)));
         }
     }
     let lookups = bands.iter().map(|(l, _)| l).sum();
     let len = npix as usize;
-    Ok(Some(Map {
+    Map {
         camera: *camera,
         settings: s.clone(),
         t: t_image,
@@ -948,7 +1045,161 @@ pub(crate) fn render(
             sweep: true,
             ..BakeStats::default()
         },
-    }))
+    }
+}
+
+/// Whether [`render_streamed`] can take `camera`'s map of `vol` (a shell is enough: only the
+/// topology, the tiles and the transform are read): no extinction outside lower nodes, and
+/// rays the sweep takes.
+///
+/// # Errors
+/// Camera errors.
+pub(crate) fn streams(vol: &Volume, camera: &Camera) -> Result<bool> {
+    Ok(!needs_rest(vol) && Rays::new(vol, camera)?.is_some())
+}
+
+/// What a streamed sweep ([`render_streamed`]) read.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Streamed {
+    /// Groups of lower nodes decoded one after the other (the shell blocks' pass included).
+    pub groups: u64,
+    /// Leaves decoded over all groups (a leaf next to two groups is decoded twice).
+    pub leaves_decoded: u64,
+    /// Most leaves one group held.
+    pub max_group_leaves: u64,
+}
+
+/// The sweep's map of a lazily opened grid in bounded memory: the lower nodes the map sees are
+/// taken in tree order, in groups of at most about `group_leaves` leaves (each with the leaves
+/// of its `[o, o + 128]` box, what its blocks' halos read); a group is decoded
+/// ([`crate::vdb::LazyGrid::load`]), made a volume by `volume_of` (density scale, transform;
+/// `shell` is the lazy grid's shell made a volume the same way),
+/// swept into the whole image's optical depth and dropped; the shell blocks come last, as in
+/// [`render`]. Every pixel adds the same pieces in the same order as [`render`] does on the
+/// whole grid, so the map is bit-identical. `None` when the sweep cannot take this map in
+/// pieces: its rays ([`Rays::new`]), or extinction outside lower nodes (a non-zero background
+/// or tiles above lower nodes, which the rays walk whole).
+///
+/// # Errors
+/// Decoding errors of the groups' leaves, and those of [`render`].
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render_streamed(
+    lazy: &crate::vdb::LazyGrid,
+    shell: &Volume,
+    volume_of: &(dyn Fn(crate::vdb::Grid) -> Result<Volume> + Sync),
+    camera: &Camera,
+    s: &BakeSettings,
+    depths: &[f64],
+    rows: u32,
+    group_leaves: usize,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Option<(Map, Streamed)>> {
+    let start = std::time::Instant::now();
+    if !streams(shell, camera)? {
+        return Ok(None);
+    }
+    let topo = shell.tree();
+    // Groups of lower nodes in tree order, with the leaves their pieces read.
+    let mut groups: Vec<(Vec<usize>, Vec<u32>)> = Vec::new();
+    let (mut lowers, mut leaves) = (Vec::new(), Vec::new());
+    let rays = Rays::new(shell, camera)?;
+    for (l, node) in topo.lowers.iter().enumerate() {
+        let o = node.origin.map(i64::from);
+        if rays.as_ref().is_some_and(|r| r.footprint(o, 128).is_none()) {
+            continue;
+        }
+        let mut mine = Vec::new();
+        topo.leaves_in_box(o, o.map(|c| c + 128), &mut |leaf| mine.push(leaf));
+        if !lowers.is_empty() && leaves.len() + mine.len() > group_leaves {
+            groups.push((std::mem::take(&mut lowers), std::mem::take(&mut leaves)));
+        }
+        lowers.push(l);
+        leaves.extend(mine);
+    }
+    if !lowers.is_empty() {
+        groups.push((lowers, leaves));
+    }
+    let stride = 1 + depths.len();
+    let mut tau = vec![0.0f64; camera.pixels() as usize * stride];
+    let mut lookups = 0;
+    let mut stats = Streamed::default();
+    let mut entered = std::collections::HashSet::new();
+    let mut bases = Vec::new();
+    let mut sweep_with = |ids: &[u32], pieces: &dyn Fn(&Volume, &Rays) -> Vec<Piece>| {
+        let vol = volume_of(lazy.load_from(shell.tree(), ids)?)?;
+        stats.groups += 1;
+        stats.leaves_decoded += vol.tree().loaded_leaf_count() as u64;
+        stats.max_group_leaves = stats
+            .max_group_leaves
+            .max(vol.tree().loaded_leaf_count() as u64);
+        let Some(rays) = Rays::new(&vol, camera)? else {
+            return Ok(None);
+        };
+        let pieces = pieces(&vol, &rays);
+        let sweep = Sweep::from_pieces(&vol, camera, rays, pieces, false, rows, depths);
+        lookups += sweep.add_all(&mut tau)?;
+        Ok(Some(vol))
+    };
+    for (lowers, leaves) in &groups {
+        let pieces = |vol: &Volume, rays: &Rays| {
+            let mut out = Vec::new();
+            for &l in lowers {
+                lower_pieces(vol, rays, l, &mut out);
+            }
+            out
+        };
+        let Some(vol) = sweep_with(leaves, &pieces)? else {
+            return Ok(None);
+        };
+        for &l in lowers {
+            if entered_lowers(vol.tree(), std::iter::once(l)).is_empty() {
+                continue;
+            }
+            entered.insert(vol.tree().lowers[l].origin);
+            let seen = rays.as_ref().is_some_and(|r| {
+                r.footprint(vol.tree().lowers[l].origin.map(i64::from), 128)
+                    .is_some()
+            });
+            if seen {
+                bases.push(l);
+            }
+        }
+    }
+    // The shell blocks next to the entered lower nodes, after every lower node's pieces.
+    let mut outside = std::collections::BTreeSet::new();
+    for &l in &bases {
+        shell_blocks(&entered, topo.lowers[l].origin.map(i64::from), &mut outside);
+    }
+    if !outside.is_empty() {
+        let mut ids = Vec::new();
+        for o in &outside {
+            topo.leaves_in_box(*o, o.map(|c| c + 8), &mut |leaf| ids.push(leaf));
+        }
+        let pieces = |vol: &Volume, rays: &Rays| {
+            let mut out = Vec::new();
+            shell_pieces(vol, rays, &outside, &mut out);
+            out
+        };
+        if sweep_with(&ids, &pieces)?.is_none() {
+            return Ok(None);
+        }
+    }
+    let w = camera.width as usize;
+    let mut t_image = vec![0.0f32; camera.pixels() as usize];
+    let bands: Vec<(u64, Vec<f32>)> = t_image
+        .par_chunks_mut(rows as usize * w)
+        .zip(tau.par_chunks(rows as usize * w * stride))
+        .enumerate()
+        .map(|(b, (t_band, tau))| {
+            let slices = finish_band(camera, b as u32 * rows, tau, stride, t_band)?;
+            progress(t_band.len() as u64);
+            Ok((0, slices))
+        })
+        .collect::<Result<_>>()?;
+    let mut map = assemble(camera, s, depths, t_image, &bands, start);
+    map.stats.lookups = lookups;
+    map.stats.parts = stats.groups;
+    Ok(Some((map, stats)))
 }
 
 /// The exact optical depth of every pixel of `camera`'s map of `vol`, in object order:

@@ -89,6 +89,11 @@ pub struct BakeArgs {
     /// Worker threads (0: all cores).
     #[arg(long, default_value_t = 0)]
     threads: usize,
+    /// Memory budget (bytes, or with K, M, G: `512M`, `1.5G`; powers of 1024). When the
+    /// decoded grid and the image would not fit, an exact map is baked a part of the grid at
+    /// a time (the same map, bit for bit); other maps are refused before any work.
+    #[arg(long, value_parser = crate::common::parse_bytes)]
+    max_memory: Option<u64>,
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
@@ -217,8 +222,39 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         output: a.output.clone(),
         preview: a.preview.clone(),
         overwrite: a.force,
+        max_memory: a.max_memory,
     };
     let scene_file = umbra::scene::is_scene_file(&job.input);
+    let setup_error = |e: umbra::Error| match e {
+        umbra::Error::Output { .. } | umbra::Error::InvalidArgument { .. } => {
+            anyhow::Error::from(crate::common::flag_error(e))
+        }
+        other if scene_file => anyhow::Error::from(other).context("loading the scene"),
+        other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
+    };
+    if let Some(plan) = job.plan_bounded().map_err(setup_error)? {
+        let bar = progress_bar(
+            a.quiet,
+            "{spinner} baking in parts [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
+            plan.camera().pixels(),
+        );
+        let result = job.run_bounded(plan, &|n| bar.inc(n));
+        bar.finish_and_clear();
+        let done = result.map_err(|e| match e {
+            umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
+            other => other,
+        })?;
+        report(
+            a,
+            &done.map,
+            &done.provenance,
+            total.elapsed().as_secs_f64(),
+        )?;
+        for w in &done.warnings {
+            eprintln!("umbra: warning: {}: {w}", a.file.display());
+        }
+        return Ok(ExitCode::SUCCESS);
+    }
     let (scene, camera) = job.prepare().map_err(|e| match e {
         umbra::Error::Output { .. } | umbra::Error::InvalidArgument { .. } => {
             anyhow::Error::from(crate::common::flag_error(e))
@@ -298,7 +334,7 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
             "seconds": st.seconds, "total_seconds": total, "rays": st.rays,
             "rays_per_second": rays_per_second, "mean_spp": mean_spp, "lookups": st.lookups,
             "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
-            "order": if st.sweep { "sweep" } else { "rays" },
+            "order": if st.sweep { "sweep" } else { "rays" }, "parts": st.parts,
             "capped": st.capped, "majorant_violations": st.majorant_violations,
             "unconverged": st.unconverged, "max_std_err": st.max_std_err,
             "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
