@@ -568,36 +568,24 @@ fn bakes_that_cannot_go_in_parts_are_refused_before_any_work() {
     assert!(job.plan_bounded().unwrap().is_none());
     assert_eq!(job.run(&|_| {}).unwrap().map.stats.parts, 0);
     // The CLI names the flag and writes nothing.
-    let o = assert_cmd::Command::cargo_bin("umbra")
-        .unwrap()
-        .args(["bake", corpus("gen/cloud_fbm.vdb").to_str().unwrap()])
-        .args([
-            "--light-dir",
-            "0,-1,0",
-            "-o",
-            dir.path().join("c.exr").to_str().unwrap(),
-        ])
-        .args(["--max-memory", "1M"])
-        .output()
-        .unwrap();
+    let c = dir.path().join("c.exr");
+    let cli = |budget: &str| {
+        assert_cmd::Command::cargo_bin("umbra")
+            .unwrap()
+            .args(["bake", corpus("gen/cloud_fbm.vdb").to_str().unwrap()])
+            .args(["--light-dir", "0,-1,0", "-o", c.to_str().unwrap()])
+            .args(["--max-memory", budget])
+            .output()
+            .unwrap()
+    };
+    let o = cli("1M");
     assert_ne!(o.status.code(), Some(0));
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
         err.contains("--max-memory") && err.contains("at least"),
         "{err}"
     );
-    assert!(!dir.path().join("c.exr").exists());
-    let o = assert_cmd::Command::cargo_bin("umbra")
-        .unwrap()
-        .args(["bake", corpus("gen/cloud_fbm.vdb").to_str().unwrap()])
-        .args([
-            "--light-dir",
-            "0,-1,0",
-            "-o",
-            dir.path().join("c.exr").to_str().unwrap(),
-        ])
-        .args(["--max-memory", "lots"])
-        .output()
-        .unwrap();
+    assert!(!c.exists());
+    let o = cli("lots");
     assert_eq!(o.status.code(), Some(2));
 }

@@ -232,43 +232,31 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         other if scene_file => anyhow::Error::from(other).context("loading the scene"),
         other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
     };
-    if let Some(plan) = job.plan_bounded().map_err(setup_error)? {
-        let bar = progress_bar(
-            a.quiet,
-            "{spinner} baking in parts [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
-            plan.camera().pixels(),
-        );
-        let result = job.run_bounded(plan, &|n| bar.inc(n));
-        bar.finish_and_clear();
-        let done = result.map_err(|e| match e {
-            umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
-            other => other,
-        })?;
-        report(
-            a,
-            &done.map,
-            &done.provenance,
-            total.elapsed().as_secs_f64(),
-        )?;
-        for w in &done.warnings {
-            eprintln!("umbra: warning: {}: {w}", a.file.display());
+    let bounded = job.plan_bounded().map_err(setup_error)?;
+    let result = match bounded {
+        // Over --max-memory: the grid a part at a time.
+        Some(plan) => {
+            let bar = progress_bar(
+                a.quiet,
+                "{spinner} baking in parts [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
+                plan.camera().pixels(),
+            );
+            let r = job.run_bounded(plan, &|n| bar.inc(n));
+            bar.finish_and_clear();
+            r
         }
-        return Ok(ExitCode::SUCCESS);
-    }
-    let (scene, camera) = job.prepare().map_err(|e| match e {
-        umbra::Error::Output { .. } | umbra::Error::InvalidArgument { .. } => {
-            anyhow::Error::from(crate::common::flag_error(e))
+        None => {
+            let (scene, camera) = job.prepare().map_err(setup_error)?;
+            let bar = progress_bar(
+                a.quiet,
+                "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
+                camera.pixels(),
+            );
+            let r = job.run_on(scene, camera, &|n| bar.inc(n));
+            bar.finish_and_clear();
+            r
         }
-        other if scene_file => anyhow::Error::from(other).context("loading the scene"),
-        other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
-    })?;
-    let bar = progress_bar(
-        a.quiet,
-        "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
-        camera.pixels(),
-    );
-    let result = job.run_on(scene, camera, &|n| bar.inc(n));
-    bar.finish_and_clear();
+    };
     let done = result.map_err(|e| match e {
         umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
         other => other,
