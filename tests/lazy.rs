@@ -550,19 +550,67 @@ fn bakes_in_parts_equal_whole_bakes_bit_for_bit() {
 }
 
 #[test]
-fn bakes_that_cannot_go_in_parts_are_refused_before_any_work() {
+fn ray_path_bakes_in_parts_equal_whole_bakes_bit_for_bit() {
     let dir = tempfile::tempdir().unwrap();
-    // Tiles above lower nodes: the rays walk them whole.
+    let path = tiled_cloud(dir.path());
+    let cases = [
+        ("ratio", Interp::Trilinear),
+        ("regular", Interp::Nearest),
+        ("track-length", Interp::Trilinear),
+    ];
+    for (name, interp) in cases {
+        let job = |out: &str, m: Option<u64>| {
+            let mut j = bake_job(&path, dir.path().join(out), m);
+            j.settings.estimator = Estimator::from_name(name).unwrap();
+            j.settings.options.interp = interp;
+            j.settings.options.samples = 4;
+            j.settings.std_err = true;
+            j
+        };
+        let whole = job("whole.exr", None).run(&|_| {}).unwrap();
+        let least = match job("p.exr", Some(1 << 20)).plan_bounded() {
+            Err(umbra::Error::InvalidArgument { reason, .. }) => {
+                let at_least = reason.split("at least ").nth(1).unwrap();
+                let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
+                (mib * f64::from(1 << 20)) as u64
+            }
+            other => panic!("{other:?}"),
+        };
+        let r = job("parts.exr", Some(least + (2 << 20)))
+            .run(&|_| {})
+            .unwrap();
+        assert!(
+            r.map.stats.parts >= 2,
+            "{name}: {} parts",
+            r.map.stats.parts
+        );
+        assert!(!r.map.stats.sweep);
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&r.map.t), bits(&whole.map.t), "{name}");
+        assert_eq!(
+            bits(r.map.std_err.as_ref().unwrap()),
+            bits(whole.map.std_err.as_ref().unwrap()),
+            "{name}"
+        );
+        for (a, b) in r.map.slices.iter().zip(&whole.map.slices) {
+            assert_eq!(bits(a), bits(b), "{name} slices");
+        }
+        assert_eq!(r.map.stats.lookups, whole.map.stats.lookups, "{name}");
+        let written = std::fs::read(dir.path().join("parts.exr")).unwrap();
+        let reference = std::fs::read(dir.path().join("whole.exr")).unwrap();
+        assert!(written == reference, "{name}: the EXR files differ");
+    }
+}
+
+#[test]
+fn bakes_in_parts_are_planned_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("t.exr");
+    // Tiles above lower nodes go on the ray path.
     let job = bake_job(&corpus("gen/tiles_mixed.vdb"), out.clone(), Some(1 << 20));
     let e = job.plan_bounded().unwrap_err();
-    assert!(e.to_string().contains("cannot be baked in parts"), "{e}");
+    assert!(e.to_string().contains("at least"), "{e}");
     assert!(!out.exists());
-    // A stochastic map does not stream.
-    let mut job = bake_job(&corpus("gen/cloud_fbm.vdb"), out.clone(), Some(1 << 20));
-    job.settings.estimator = Estimator::from_name("ratio").unwrap();
-    let e = job.plan_bounded().unwrap_err();
-    assert!(e.to_string().contains("only exact trilinear maps"), "{e}");
     // A budget the whole grid fits in bakes as usual.
     let job = bake_job(&corpus("gen/cloud_fbm.vdb"), out.clone(), Some(1 << 30));
     assert!(job.plan_bounded().unwrap().is_none());

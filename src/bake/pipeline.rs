@@ -243,10 +243,16 @@ impl BakeJob {
     /// the tree with its neighbour tables and faces, the image, and the part's leaf values
     /// (2 KiB each); the process's own code and stacks are outside it.
     ///
+    /// Exact trilinear maps the sweep takes go in tree order, a group of lower nodes at a time
+    /// (`sweep::render_streamed`); every other map of one grid (any estimator, nearest
+    /// lookups, a light inside the volume, extinction above lower nodes) goes by runs of image
+    /// rows on the ray path, each run decoding the leaves its pixel rays touch. Scene files and
+    /// colour maps load whole.
+    ///
     /// # Errors
     /// Output and settings errors; [`Error::InvalidArgument`] (name `max-memory`) when the
-    /// budget is below the least a part needs, or when the map cannot be baked in parts (only
-    /// exact trilinear maps of one `.vdb` grid, without extinction outside lower nodes, can);
+    /// budget is below the least a part needs (for the ray path an estimate: a run of rows
+    /// whose rays touch more leaves than a part holds is baked as one part all the same);
     /// loading errors of the topology.
     pub fn plan_bounded(&self) -> Result<Option<BoundedPlan>> {
         let Some(budget) = self.max_memory else {
@@ -293,26 +299,15 @@ impl BakeJob {
         let tree_copy = loaded - leaves * leaf;
         let transient = leaves * BOUNDS_SCRATCH_PER_LEAF;
         let fixed = topology + tree_copy + transient + image + PROCESS_SLACK;
+        // Exact trilinear maps the sweep takes go in tree order (the sweep's own order);
+        // every other map by runs of image rows on the ray path.
         let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR
             && self.settings.options.interp == crate::volume::Interp::Trilinear
-            && !self.levelset_solid;
-        if !exact {
-            return Err(refuse(format!(
-                "the whole grid and the image need {} and only exact trilinear maps (estimator \
-                 regular, interp trilinear) are baked in parts",
-                mib(whole)
-            )));
-        }
-        if let Some(f) = shell.fogs().first() {
-            if !super::sweep::streams(f.volume(), &camera)? {
-                return Err(refuse(format!(
-                    "the whole grid and the image need {} and this map cannot be baked in \
-                     parts (a light inside the volume, a non-zero background or tiles above \
-                     128^3 nodes)",
-                    mib(whole)
-                )));
-            }
-        }
+            && self.settings.order == super::Order::Auto;
+        let sweep = match shell.fogs().first() {
+            Some(f) => exact && super::sweep::streams(f.volume(), &camera)?,
+            None => false,
+        };
         // The least part: the lower node with the most leaves in its `[o, o + 128]` box.
         let Some(topo) = shell.fogs().first().map(|f| f.volume().tree()) else {
             return Ok(None);
@@ -346,6 +341,7 @@ impl BakeJob {
             shell,
             camera,
             group_leaves,
+            sweep,
         }))
     }
 
@@ -354,9 +350,7 @@ impl BakeJob {
     /// overlap; each part's policy is the whole grid's).
     ///
     /// # Errors
-    /// As [`BakeJob::run`]; [`Error::InvalidArgument`] (name `max-memory`) when the map cannot
-    /// be swept in parts (a pinhole inside the volume, a non-zero background or tiles above
-    /// lower nodes).
+    /// As [`BakeJob::run`].
     pub fn run_bounded(
         &self,
         plan: BoundedPlan,
@@ -369,24 +363,38 @@ impl BakeJob {
                 reason: "the grid's shell is not a fog volume".into(),
             });
         };
-        let baked = super::render::bake_streamed(
-            &plan.lazy,
-            shell,
-            &volume_of,
-            &plan.camera,
-            &self.settings,
-            plan.group_leaves,
-            progress,
-        )?;
-        let Some((map, _)) = baked else {
-            return Err(Error::InvalidArgument {
-                name: "max-memory".into(),
-                reason: format!(
-                    "{} does not fit and this map cannot be baked in parts (a light inside the \
-                     volume, a non-zero background or tiles above 128^3 nodes)",
-                    self.input.display()
-                ),
-            });
+        let map = if plan.sweep {
+            let baked = super::render::bake_streamed(
+                &plan.lazy,
+                shell,
+                &volume_of,
+                &plan.camera,
+                &self.settings,
+                plan.group_leaves,
+                progress,
+            )?;
+            let Some((map, _)) = baked else {
+                return Err(Error::InvalidArgument {
+                    name: "max-memory".into(),
+                    reason: format!(
+                        "{} does not fit and this map cannot be swept in parts",
+                        self.input.display()
+                    ),
+                });
+            };
+            map
+        } else {
+            let load = |ids: &[u32]| self.volume_of(plan.lazy.load_from(shell.tree(), ids)?);
+            let (mut map, parts) = super::render::bake_rows_streamed(
+                shell,
+                &load,
+                &plan.camera,
+                &self.settings,
+                plan.group_leaves,
+                progress,
+            )?;
+            map.stats.parts = parts;
+            map
         };
         self.finish(map, plan.shell, plan.camera)
     }
@@ -525,6 +533,8 @@ pub struct BoundedPlan {
     shell: Scene,
     camera: Camera,
     group_leaves: usize,
+    /// In tree order by the sweep (exact maps it takes), else by runs of rows on the ray path.
+    sweep: bool,
 }
 
 impl BoundedPlan {

@@ -574,6 +574,95 @@ pub(crate) fn bake_streamed(
         .install(run)
 }
 
+/// [`bake`] of a lazily opened grid in bounded memory, on the ray path: image rows in runs
+/// whose pixel rays touch at most about `group_leaves` leaves ([`crate::demand`]), each run
+/// decoded by `load` (a volume holding those leaves), rendered and dropped. Every pixel is the
+/// whole-grid ray path's, bit for bit (its ray reads only leaves its run loaded). A single row
+/// touching more leaves than that is one run of its own.
+///
+/// # Errors
+/// As [`bake`], and decoding errors of the leaves.
+pub(crate) fn bake_rows_streamed(
+    shell: &Volume,
+    load: &(dyn Fn(&[u32]) -> Result<Volume> + Sync),
+    camera: &Camera,
+    settings: &BakeSettings,
+    group_leaves: usize,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Map, u64)> {
+    super::check_res(camera.width, camera.height)?;
+    settings.validate()?;
+    let depths = resolve_depths(&settings.depths, camera)?;
+    let (samples, name) = match settings.target_error {
+        Some(_) => (settings.max_spp.max(settings.options.samples), "max-spp"),
+        None => (settings.options.samples, "spp"),
+    };
+    crate::estimate::budget::check_job(
+        shell,
+        &settings.estimator,
+        camera.pixels(),
+        u64::from(samples),
+        name,
+    )?;
+    let run = || -> Result<(Map, u64)> {
+        let start = std::time::Instant::now();
+        let (w, h) = (camera.width, camera.height);
+        let rows = band_rows(h, rayon::current_num_threads());
+        let (interp, gran) = (settings.options.interp, settings.options.granularity);
+        let mut t_image = Vec::with_capacity(camera.pixels() as usize);
+        let mut bands = Vec::new();
+        let mut parts = 0;
+        let mut r0 = 0;
+        let mut held: Vec<u32> = Vec::new();
+        let mut flush = |r0: u32, r1: u32, ids: &[u32]| -> Result<()> {
+            let vol = load(ids)?;
+            let (t, b) = render_rows(
+                Source::Volume(&vol),
+                camera,
+                settings,
+                &depths,
+                (r0, r1),
+                rows,
+                progress,
+            )?;
+            t_image.extend(t);
+            bands.extend(b);
+            parts += 1;
+            Ok(())
+        };
+        for j in 0..h {
+            let rays: Vec<Ray> = (0..w)
+                .map(|i| camera.pixel_ray(i, j))
+                .collect::<Result<_>>()?;
+            let row = crate::demand::leaves_touched(shell, &rays, interp, gran);
+            let mut union: Vec<u32> = held.iter().chain(&row).copied().collect();
+            union.sort_unstable();
+            union.dedup();
+            if j > r0 && union.len() > group_leaves {
+                flush(r0, j, &held)?;
+                r0 = j;
+                held = row;
+            } else {
+                held = union;
+            }
+        }
+        flush(r0, h, &held)?;
+        let nc = 1;
+        Ok((
+            assemble_rays(camera, settings, &depths, nc, t_image, bands, start),
+            parts,
+        ))
+    };
+    if settings.threads == 0 {
+        return run();
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(settings.threads)
+        .build()
+        .map_err(|e| bad("threads", e.to_string()))?
+        .install(run)
+}
+
 /// The optional channels of one finished band of rows (the main `T` is written in place) and
 /// its share of the statistics; per-pixel records are not kept.
 struct Band {
@@ -601,11 +690,8 @@ fn render(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Map> {
     let start = std::time::Instant::now();
-    let (w, h) = (camera.width, camera.height);
-    let npix = camera.pixels();
-    let k = depths.len();
+    let h = camera.height;
     let nc = src.channels();
-    let len = npix as usize;
     let rows = band_rows(h, rayon::current_num_threads());
     if s.order == Order::Auto && super::sweep::applies(s) {
         match src {
@@ -619,6 +705,26 @@ fn render(
             }
         }
     }
+    let (t_image, bands) = render_rows(src, camera, s, depths, (0, h), rows, progress)?;
+    Ok(assemble_rays(camera, s, depths, nc, t_image, bands, start))
+}
+
+/// The ray path over image rows `r0..r1` (in bands of `rows` rows, in parallel): their `T`
+/// and their bands. Pixel `(i, j)` is ray id `j W + i` of the whole image, whatever the range.
+fn render_rows(
+    src: Source<'_>,
+    camera: &Camera,
+    s: &BakeSettings,
+    depths: &[f64],
+    (r0, r1): (u32, u32),
+    rows: u32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<f32>, Vec<Band>)> {
+    let w = camera.width;
+    let npix = camera.pixels();
+    let k = depths.len();
+    let nc = src.channels();
+    let len = (r1 - r0) as usize * w as usize;
     // Bands of whole rows are contiguous in the row-major image, so every worker writes `T`
     // straight into its own part of the output; inside a band, pixels go tile by tile
     // (`TILE` columns at a time) so that neighbouring rays reuse the same cached nodes.
@@ -627,7 +733,7 @@ fn render(
         .par_chunks_mut(rows as usize * w as usize)
         .enumerate()
         .map(|(b, t_band)| {
-            let y0 = b as u32 * rows;
+            let y0 = r0 + b as u32 * rows;
             let bh = (t_band.len() / w as usize) as u32;
             let n_band = t_band.len();
             let mut band = Band {
@@ -664,6 +770,21 @@ fn render(
             Ok(band)
         })
         .collect::<Result<_>>()?;
+    Ok((t_image, bands))
+}
+
+/// The map of the ray path from its `T` image and bands (in image order).
+fn assemble_rays(
+    camera: &Camera,
+    s: &BakeSettings,
+    depths: &[f64],
+    nc: usize,
+    t_image: Vec<f32>,
+    bands: Vec<Band>,
+    start: std::time::Instant,
+) -> Map {
+    let (npix, k) = (camera.pixels(), depths.len());
+    let len = npix as usize;
     let mut chans: Vec<Channel> = (0..nc)
         .map(|_| Channel {
             t: Vec::with_capacity(if nc > 1 { len } else { 0 }),
@@ -692,7 +813,7 @@ fn render(
     }
     stats.seconds = start.elapsed().as_secs_f64();
     let (red, color) = split_channels(chans);
-    Ok(Map {
+    Map {
         camera: *camera,
         settings: s.clone(),
         t: t_image,
@@ -701,5 +822,5 @@ fn render(
         slices: red.slices,
         color,
         stats,
-    })
+    }
 }
