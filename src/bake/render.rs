@@ -498,14 +498,33 @@ fn bake_source(
             ),
         ));
     }
-    // The work budget: every pixel may take up to max-spp samples when adaptive.
-    let (samples, name) = match settings.target_error {
-        Some(_) => (settings.max_spp.max(settings.options.samples), "max-spp"),
-        None => (settings.options.samples, "spp"),
-    };
     let vols: Vec<&Volume> = match src {
         Source::Volume(v) => vec![v],
         Source::Scene(s) => s.fogs().iter().map(crate::scene::Fog::volume).collect(),
+    };
+    check_work(&vols, camera, settings)?;
+    let run = || render(src, camera, settings, &depths, progress);
+    in_pool(settings.threads, run)
+}
+
+/// `run` on a pool of `threads` workers (0: the current pool).
+fn in_pool<T: Send>(threads: usize, run: impl FnOnce() -> Result<T> + Send) -> Result<T> {
+    if threads == 0 {
+        return run();
+    }
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| bad("threads", e.to_string()))?
+        .install(run)
+}
+
+/// The work budget of a map of `vols` ([`crate::estimate::budget::check_job`]): every pixel
+/// may take up to max-spp samples when adaptive.
+fn check_work(vols: &[&Volume], camera: &Camera, settings: &BakeSettings) -> Result<()> {
+    let (samples, name) = match settings.target_error {
+        Some(_) => (settings.max_spp.max(settings.options.samples), "max-spp"),
+        None => (settings.options.samples, "spp"),
     };
     for vol in vols {
         crate::estimate::budget::check_job(
@@ -516,15 +535,7 @@ fn bake_source(
             name,
         )?;
     }
-    let run = || render(src, camera, settings, &depths, progress);
-    if settings.threads == 0 {
-        return run();
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(settings.threads)
-        .build()
-        .map_err(|e| bad("threads", e.to_string()))?
-        .install(run)
+    Ok(())
 }
 
 /// [`bake`] of a lazily opened grid in bounded memory, by the sweep in groups of lower nodes
@@ -564,14 +575,7 @@ pub(crate) fn bake_streamed(
             progress,
         )
     };
-    if settings.threads == 0 {
-        return run();
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(settings.threads)
-        .build()
-        .map_err(|e| bad("threads", e.to_string()))?
-        .install(run)
+    in_pool(settings.threads, run)
 }
 
 /// [`bake`] of a lazily opened grid in bounded memory, on the ray path: image rows in runs
@@ -593,17 +597,7 @@ pub(crate) fn bake_rows_streamed(
     super::check_res(camera.width, camera.height)?;
     settings.validate()?;
     let depths = resolve_depths(&settings.depths, camera)?;
-    let (samples, name) = match settings.target_error {
-        Some(_) => (settings.max_spp.max(settings.options.samples), "max-spp"),
-        None => (settings.options.samples, "spp"),
-    };
-    crate::estimate::budget::check_job(
-        shell,
-        &settings.estimator,
-        camera.pixels(),
-        u64::from(samples),
-        name,
-    )?;
+    check_work(&[shell], camera, settings)?;
     let run = || -> Result<(Map, u64)> {
         let start = std::time::Instant::now();
         let (w, h) = (camera.width, camera.height);
@@ -653,14 +647,7 @@ pub(crate) fn bake_rows_streamed(
             parts,
         ))
     };
-    if settings.threads == 0 {
-        return run();
-    }
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(settings.threads)
-        .build()
-        .map_err(|e| bad("threads", e.to_string()))?
-        .install(run)
+    in_pool(settings.threads, run)
 }
 
 /// The optional channels of one finished band of rows (the main `T` is written in place) and
