@@ -97,6 +97,41 @@ pub fn box_corners([lo, hi]: [[f64; 3]; 2]) -> [glam::DVec3; 8] {
     })
 }
 
+/// A byte count: digits with an optional fraction and a suffix K, M, G or T (powers of 1024,
+/// `B`/`iB` allowed: `512M`, `1.5GiB`), or plain bytes.
+///
+/// # Errors
+/// A message saying what is wrong with `s`.
+pub fn parse_bytes(s: &str) -> std::result::Result<u64, String> {
+    let t = s.trim();
+    let lower = t.to_ascii_lowercase();
+    let body = lower
+        .strip_suffix("ib")
+        .or_else(|| lower.strip_suffix('b'))
+        .unwrap_or(&lower);
+    let (num, unit) = match body.char_indices().last() {
+        Some((i, c)) if c.is_ascii_alphabetic() => (&body[..i], c),
+        _ => (body, ' '),
+    };
+    let scale = match unit {
+        ' ' => 1u64,
+        'k' => 1 << 10,
+        'm' => 1 << 20,
+        'g' => 1 << 30,
+        't' => 1 << 40,
+        _ => return Err(format!("{t:?}: the unit must be K, M, G or T")),
+    };
+    let v: f64 = num
+        .trim()
+        .parse()
+        .map_err(|_| format!("{t:?} is not a size such as 512M or 2G"))?;
+    let bytes = v * scale as f64;
+    if !(bytes.is_finite() && bytes >= 1.0 && bytes < 2f64.powi(63)) {
+        return Err(format!("{t:?} is not a size between 1 byte and 8 EiB"));
+    }
+    Ok(bytes as u64)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

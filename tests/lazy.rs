@@ -637,3 +637,47 @@ fn bakes_in_parts_are_planned_before_any_work() {
     let o = cli("lots");
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn batch_jobs_take_a_memory_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = tiled_cloud(dir.path());
+    let job = |budget: &str| {
+        let p = dir.path().join("job.toml");
+        std::fs::write(
+            &p,
+            format!(
+                "output = \"{}/{{stem}}_{{light}}.exr\"\n[[inputs]]\nfile = {:?}\n\
+                 [[lights]]\nname = \"sun\"\ndir = [0.3, -1, 0.2]\n[bake]\nres = [300, 200]\n\
+                 max_memory = {budget:?}\n",
+                dir.path().display(),
+                path.display().to_string()
+            ),
+        )
+        .unwrap();
+        assert_cmd::Command::cargo_bin("umbra")
+            .unwrap()
+            .args(["batch", p.to_str().unwrap(), "-q", "--force"])
+            .output()
+            .unwrap()
+    };
+    // Whole, then in parts: the same bytes.
+    assert!(job("64G").status.success());
+    let whole = std::fs::read(dir.path().join("tiled_sun.exr")).unwrap();
+    let least = match bake_job(&path, dir.path().join("p.exr"), Some(1 << 20)).plan_bounded() {
+        Err(umbra::Error::InvalidArgument { reason, .. }) => {
+            let at_least = reason.split("at least ").nth(1).unwrap();
+            at_least.split(' ').next().unwrap().parse::<f64>().unwrap()
+        }
+        other => panic!("{other:?}"),
+    };
+    let o = job(&format!("{}M", least.ceil() + 2.0));
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let parts = std::fs::read(dir.path().join("tiled_sun.exr")).unwrap();
+    assert!(parts == whole, "the batch map in parts differs");
+    // A bad size names the key.
+    let o = job("lots");
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("bake.max_memory"), "{err}");
+}

@@ -217,6 +217,8 @@ pub struct BakeSpec {
     pub sigma_t: Option<[f64; 3]>,
     /// `"solid"`: a level-set grid is traced as an opaque solid (otherwise refused).
     pub levelset: Option<String>,
+    /// Memory budget of each task (`"512M"`, `"2G"`), as `umbra bake --max-memory`.
+    pub max_memory: Option<String>,
 }
 
 impl Default for BakeSpec {
@@ -248,6 +250,7 @@ impl Default for BakeSpec {
             xform: None,
             sigma_t: None,
             levelset: None,
+            max_memory: None,
         }
     }
 }
@@ -312,6 +315,8 @@ pub struct Job {
     pub sigma_t: Option<[f64; 3]>,
     /// Level sets traced as solids (`bake.levelset = "solid"`).
     pub levelset_solid: bool,
+    /// Each task's memory budget in bytes (`bake.max_memory`; see [`BakeJob::max_memory`]).
+    pub max_memory: Option<u64>,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
@@ -647,6 +652,12 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             ))
         }
     };
+    let max_memory = match &b.max_memory {
+        None => None,
+        Some(m) => Some(
+            crate::math::parse_bytes(m).map_err(|reason| err(&path, "bake.max_memory", reason))?,
+        ),
+    };
     let xform = match &b.xform {
         Some(v) => Some(crate::xform::Xform::from_row_major(v).map_err(|e| match e {
             crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.xform", reason),
@@ -886,6 +897,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         xform,
         sigma_t,
         levelset_solid,
+        max_memory,
         shared: std::sync::OnceLock::new(),
     })
 }
@@ -976,7 +988,7 @@ impl Job {
             output: task.output.clone(),
             preview: task.preview.clone(),
             overwrite: true,
-            max_memory: None,
+            max_memory: self.max_memory,
         }
     }
 

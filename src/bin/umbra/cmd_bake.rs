@@ -92,7 +92,7 @@ pub struct BakeArgs {
     /// Memory budget (bytes, or with K, M, G: `512M`, `1.5G`; powers of 1024). When the
     /// decoded grid and the image would not fit, an exact map is baked a part of the grid at
     /// a time (the same map, bit for bit); other maps are refused before any work.
-    #[arg(long, value_parser = crate::common::parse_bytes)]
+    #[arg(long, value_parser = umbra::math::parse_bytes)]
     max_memory: Option<u64>,
     /// No progress bar.
     #[arg(long, short)]
