@@ -220,17 +220,11 @@ impl LazyGrid {
     /// [`LazyGrid::load`] onto a copy of `topology`, this grid's topology as a shell volume
     /// holds it (after [`LazyGrid::take_shell`]).
     pub(crate) fn load_from(&self, topology: &crate::tree::Tree, leaves: &[u32]) -> Result<Grid> {
-        let n = topology.leaves.len();
-        let mut ids = leaves.to_vec();
-        ids.sort_unstable();
-        ids.dedup();
-        if ids.last().is_some_and(|&l| l as usize >= n) || n + 1 != self.offsets.len() {
+        let ids = self.check_leaves(leaves)?;
+        if topology.leaves.len() + 1 != self.offsets.len() {
             return Err(crate::Error::InvalidArgument {
-                name: "leaves".into(),
-                reason: format!(
-                    "not leaves of this grid's {} leaves",
-                    self.offsets.len() - 1
-                ),
+                name: "topology".into(),
+                reason: "not this grid's topology".into(),
             });
         }
         self.decode(&ids, topology.clone())
@@ -249,7 +243,8 @@ impl LazyGrid {
 
     /// `leaves` sorted, without repeats, each checked against the leaf count.
     fn check_leaves(&self, leaves: &[u32]) -> Result<Vec<u32>> {
-        let n = self.leaf_count();
+        // From the offsets: the count stays known after `take_shell`.
+        let n = self.offsets.len().saturating_sub(1);
         let mut ids = leaves.to_vec();
         ids.sort_unstable();
         ids.dedup();

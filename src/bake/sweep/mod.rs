@@ -472,12 +472,17 @@ fn entered_lowers(
     tree: &Tree,
     lowers: impl Iterator<Item = usize>,
 ) -> std::collections::HashSet<[i32; 3]> {
-    let bg = tree.background;
     lowers
         .map(|l| &tree.lowers[l])
-        .filter(|n| !(n.halo.min == bg && n.halo.max == bg))
+        .filter(|n| entered(tree, n))
         .map(|n| n.origin)
         .collect()
+}
+
+/// Whether a ray walk would enter lower node `n` of `tree` (its halo is not just the
+/// background).
+fn entered(tree: &Tree, n: &crate::tree::Internal) -> bool {
+    !(n.halo.min == tree.background && n.halo.max == tree.background)
 }
 
 /// The pieces of lower node `l` (every child block whose halo is not a zero extinction, and
@@ -487,7 +492,7 @@ fn lower_pieces(vol: &Volume, rays: &Rays, l: usize, out: &mut Vec<Piece>) -> bo
     let tree = vol.tree();
     let node = &tree.lowers[l];
     let bg = tree.background;
-    if node.halo.min == bg && node.halo.max == bg {
+    if !entered(tree, node) {
         return false;
     }
     if rays.footprint(node.origin.map(i64::from), 128).is_none() {
@@ -1095,17 +1100,19 @@ pub(crate) fn render_streamed(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<(Map, Streamed)>> {
     let start = std::time::Instant::now();
-    if !streams(shell, camera)? {
+    if needs_rest(shell) {
         return Ok(None);
     }
+    let Some(rays) = Rays::new(shell, camera)? else {
+        return Ok(None);
+    };
     let topo = shell.tree();
     // Groups of lower nodes in tree order, with the leaves their pieces read.
     let mut groups: Vec<(Vec<usize>, Vec<u32>)> = Vec::new();
     let (mut lowers, mut leaves) = (Vec::new(), Vec::new());
-    let rays = Rays::new(shell, camera)?;
     for (l, node) in topo.lowers.iter().enumerate() {
         let o = node.origin.map(i64::from);
-        if rays.as_ref().is_some_and(|r| r.footprint(o, 128).is_none()) {
+        if rays.footprint(o, 128).is_none() {
             continue;
         }
         let mut mine = Vec::new();
@@ -1123,7 +1130,7 @@ pub(crate) fn render_streamed(
     let mut tau = vec![0.0f64; camera.pixels() as usize * stride];
     let mut lookups = 0;
     let mut stats = Streamed::default();
-    let mut entered = std::collections::HashSet::new();
+    let mut entered_set = std::collections::HashSet::new();
     let mut bases = Vec::new();
     let mut sweep_with = |ids: &[u32], pieces: &dyn Fn(&Volume, &Rays) -> Vec<Piece>| {
         let vol = volume_of(lazy.load_from(shell.tree(), ids)?)?;
@@ -1151,16 +1158,11 @@ pub(crate) fn render_streamed(
         let Some(vol) = sweep_with(leaves, &pieces)? else {
             return Ok(None);
         };
+        // Every lower node of a group is in view (grouping skipped the others).
         for &l in lowers {
-            if entered_lowers(vol.tree(), std::iter::once(l)).is_empty() {
-                continue;
-            }
-            entered.insert(vol.tree().lowers[l].origin);
-            let seen = rays.as_ref().is_some_and(|r| {
-                r.footprint(vol.tree().lowers[l].origin.map(i64::from), 128)
-                    .is_some()
-            });
-            if seen {
+            let node = &vol.tree().lowers[l];
+            if entered(vol.tree(), node) {
+                entered_set.insert(node.origin);
                 bases.push(l);
             }
         }
@@ -1168,7 +1170,11 @@ pub(crate) fn render_streamed(
     // The shell blocks next to the entered lower nodes, after every lower node's pieces.
     let mut outside = std::collections::BTreeSet::new();
     for &l in &bases {
-        shell_blocks(&entered, topo.lowers[l].origin.map(i64::from), &mut outside);
+        shell_blocks(
+            &entered_set,
+            topo.lowers[l].origin.map(i64::from),
+            &mut outside,
+        );
     }
     if !outside.is_empty() {
         let mut ids = Vec::new();
