@@ -208,6 +208,34 @@ pub struct FileInfo {
 }
 
 impl FileInfo {
+    /// The report on `path` (`umbra info`): every grid, or only `grid` (display name such as
+    /// `density[1]`, or the stored name), whose values alone are then read.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidArgument`] (name `files`) for a scene file; opening errors;
+    /// [`crate::Error::GridNotFound`]. A grid that cannot be decoded is reported with its
+    /// error instead.
+    pub fn read(path: &std::path::Path, grid: Option<&str>) -> crate::Result<Self> {
+        if crate::scene::is_scene_file(path) {
+            return Err(crate::Error::InvalidArgument {
+                name: "files".into(),
+                reason: format!(
+                    "{} is a scene file; info reports on .vdb files (run it on the files the \
+                     scene names)",
+                    path.display()
+                ),
+            });
+        }
+        let archive = crate::vdb::open(path)?;
+        let only = match grid {
+            Some(name) => Some(archive.find_grid(name)?.stored_name.clone()),
+            None => None,
+        };
+        Ok(Self::from_archive_grids(&archive, |gd| {
+            only.as_ref().map_or(true, |s| *s == gd.stored_name)
+        }))
+    }
+
     /// Decode every grid of `archive` and report on it (streaming each grid's values, see
     /// [`GridInfo::from_lazy`]).
     #[must_use]

@@ -15,7 +15,7 @@ use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
 
 /// How the density between voxel centres is defined.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Interp {
     /// OpenVDB `PointSampler`: the voxel `floor(p + 0.5)`, piecewise constant.

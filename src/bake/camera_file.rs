@@ -50,6 +50,27 @@ pub fn read_camera(path: &Path, res: Option<Resolution>) -> Result<Camera> {
     } else {
         from_json(path, &std::fs::read(path).map_err(io)?)?
     };
+    sized(path, spec, size, res)
+}
+
+/// The camera in `json` (a `bake --json` summary or a bare camera object, as in a file
+/// [`read_camera`] reads), at its own resolution or at `res`; messages name it `label`.
+///
+/// # Errors
+/// As [`read_camera`], but for reading a file.
+pub fn camera_from_json(label: &str, json: &[u8], res: Option<Resolution>) -> Result<Camera> {
+    let path = Path::new(label);
+    let (spec, size) = from_json(path, json)?;
+    sized(path, spec, size, res)
+}
+
+/// `spec` at the file's size or at `res`.
+fn sized(
+    path: &Path,
+    spec: CameraSpec,
+    size: Option<(u32, u32)>,
+    res: Option<Resolution>,
+) -> Result<Camera> {
     let with_size = |(width, height): (u32, u32)| {
         Camera::from_spec(&CameraSpec {
             width,

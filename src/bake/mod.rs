@@ -24,16 +24,18 @@ mod output;
 mod pipeline;
 mod render;
 mod scene_map;
+mod summary;
 mod sweep;
 
 pub use camera::{
     check_res, world_box_corners, Camera, CameraSpec, Projection, Resolution, View,
     DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE,
 };
-pub use camera_file::read_camera;
+pub use camera_file::{camera_from_json, read_camera};
 pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
 pub use render::{
     bake, bake_scene, check_threads, BakeSettings, BakeStats, Channel, Depths, Map, Order,
     MAX_BATCHES, MAX_SLICES, MAX_THREADS,
 };
+pub use summary::{channel_names, MapSummary, SummaryCamera};

@@ -455,8 +455,39 @@ impl BakeJob {
         self.finish(map, scene, camera)
     }
 
+    /// The map of `scene` seen by `camera`, in memory: nothing is read from `input` or
+    /// written to `output` (which only name the map's source in its provenance). What the
+    /// Python module's `Volume.bake` runs on a volume it holds.
+    ///
+    /// # Errors
+    /// Settings errors; tracing errors.
+    pub fn bake_in_memory(
+        &self,
+        scene: &Scene,
+        camera: Camera,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<BakeReport> {
+        self.settings.validate()?;
+        let map = bake_scene(scene, &camera, &self.settings, progress)?;
+        Ok(self.describe(map, scene, camera))
+    }
+
     /// Warnings, provenance and the written map: the common tail of every bake.
     fn finish(&self, map: Map, scene: Scene, camera: Camera) -> Result<BakeReport> {
+        let report = self.describe(map, &scene, camera);
+        drop(scene);
+        write_map(
+            &self.output,
+            self.preview.as_deref(),
+            &report.map,
+            &report.provenance,
+            self.overwrite,
+        )?;
+        Ok(report)
+    }
+
+    /// The warnings and the provenance of a finished map.
+    fn describe(&self, map: Map, scene: &Scene, camera: Camera) -> BakeReport {
         let mut warnings = volume_warnings(&scene.sanitized());
         let diagonal = scene.box_corners().map_or(0.0, |c| {
             let (lo, hi) = c.iter().fold(
@@ -492,14 +523,6 @@ impl BakeJob {
             xform: self.xform.map(|x| x.rows()),
             sigma_t: self.sigma_t,
         };
-        drop(scene);
-        write_map(
-            &self.output,
-            self.preview.as_deref(),
-            &map,
-            &provenance,
-            self.overwrite,
-        )?;
         if map.stats.capped > 0 {
             warnings.push(Warning::Capped {
                 samples: map.stats.capped,
@@ -510,11 +533,11 @@ impl BakeJob {
                 lookups: map.stats.majorant_violations,
             });
         }
-        Ok(BakeReport {
+        BakeReport {
             map,
             provenance,
             warnings,
-        })
+        }
     }
 }
 

@@ -5,9 +5,7 @@ use anyhow::{bail, Context, Result};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use umbra::bake::{
-    slice_channel, BakeJob, BakeSettings, Depths, Map, Projection, Provenance, Resolution, View,
-};
+use umbra::bake::{BakeJob, BakeSettings, Depths, Map, Projection, Provenance, Resolution, View};
 use umbra::Interp;
 
 /// Arguments of `umbra bake`.
@@ -282,21 +280,8 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
     let t_mean = map.t.iter().map(|&t| f64::from(t)).sum::<f64>() / n;
     let t_min = map.t.iter().copied().fold(f32::INFINITY, f32::min);
     let t_max = map.t.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let names: &[&str] = if map.channels() == 3 {
-        &["R", "G", "B"]
-    } else {
-        &["T"]
-    };
-    let mut channels: Vec<String> = Vec::new();
-    for base in names {
-        channels.push((*base).to_string());
-        if map.std_err.is_some() {
-            channels.push(format!("{base}.stderr"));
-        }
-        channels.extend(
-            (0..map.slices.len()).map(|k| slice_channel(k).replace(".T", &format!(".{base}"))),
-        );
-    }
+    let summary = umbra::bake::MapSummary::new(map, prov);
+    let channels = &summary.channels;
     let threads = if a.threads == 0 {
         rayon::current_num_threads()
     } else {
@@ -305,28 +290,22 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
     let s = &map.settings;
     let mut out = std::io::stdout().lock();
     if a.json {
-        let v = serde_json::json!({
-            "output": a.output, "preview": a.preview, "file": prov.source_file, "grid": prov.grid,
-            "width": c.width(), "height": c.height(),
-            "camera": {
-                "kind": c.kind(), "origin": c.origin(), "step_x": c.step_x(), "step_y": c.step_y(),
-                "direction": c.direction(), "t_max": c.t_max(),
-            },
-            "light_dir": prov.light_dir, "light_pos": prov.light_pos, "xform": prov.xform,
-            "fov_deg": c.fov_deg().map(|f| [f.0, f.1]),
-            "channels": channels, "depths": map.depths,
-            "estimator": s.estimator.name(), "estimator_params": s.estimator,
-            "interp": s.options.interp,
-            "spp": s.options.samples, "target_error": s.target_error, "max_spp": s.max_spp,
-            "seed": s.options.seed, "density_scale": prov.density_scale, "threads": threads,
-            "seconds": st.seconds, "total_seconds": total, "rays": st.rays,
-            "rays_per_second": rays_per_second, "mean_spp": mean_spp, "lookups": st.lookups,
+        // The map's own description (what the Python module returns as its camera dict),
+        // then what this run adds.
+        let mut v = serde_json::to_value(&summary)?;
+        let run = serde_json::json!({
+            "output": a.output, "preview": a.preview, "threads": threads,
+            "seconds": st.seconds, "total_seconds": total,
+            "rays_per_second": rays_per_second, "lookups": st.lookups,
             "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
             "order": if st.sweep { "sweep" } else { "rays" }, "parts": st.parts,
             "capped": st.capped, "majorant_violations": st.majorant_violations,
             "unconverged": st.unconverged, "max_std_err": st.max_std_err,
             "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
         });
+        if let (Some(o), serde_json::Value::Object(r)) = (v.as_object_mut(), run) {
+            o.extend(r);
+        }
         writeln!(out, "{v}")?;
     } else {
         writeln!(

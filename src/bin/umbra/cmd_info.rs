@@ -32,27 +32,7 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
     let mut reports = Vec::new();
     let mut file_errors = Vec::new();
     for file in &a.files {
-        let one = || -> umbra::Result<FileInfo> {
-            if umbra::scene::is_scene_file(file) {
-                return Err(umbra::Error::InvalidArgument {
-                    name: "files".into(),
-                    reason: format!(
-                        "{} is a scene file; info reports on .vdb files (run it on the files \
-                         the scene names)",
-                        file.display()
-                    ),
-                });
-            }
-            let archive = umbra::vdb::open(file)?;
-            // With --grid, only that grid is read.
-            let only = match &a.grid {
-                Some(name) => Some(archive.find_grid(name)?.stored_name.clone()),
-                None => None,
-            };
-            Ok(FileInfo::from_archive_grids(&archive, |gd| {
-                only.as_ref().map_or(true, |s| *s == gd.stored_name)
-            }))
-        };
+        let one = || FileInfo::read(file, a.grid.as_deref());
         match one() {
             Ok(info) => reports.push(info),
             Err(e) if a.files.len() == 1 => return Err(e.into()),

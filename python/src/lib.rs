@@ -1,0 +1,811 @@
+//! `umbra._umbra`: the native half of umbra's Python module, a thin layer over the umbra
+//! library. The pure-Python package `umbra` (`python/umbra/__init__.py`) checks and converts
+//! arguments (NumPy arrays to C-contiguous `float64`), and this module does the work with the
+//! GIL released, on rayon's threads.
+//!
+//! Errors become `umbra.Error` (`umbra.FileError`, also an `OSError`, for what a file or the
+//! file system did; `umbra.InvalidArgument`, also a `ValueError`, for what the caller asked),
+//! with the messages the CLI prints after `umbra: error: `.
+
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray1, PyReadonlyArray2};
+use pyo3::prelude::*;
+use pyo3::sync::PyOnceLock;
+use pyo3::types::PyType;
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use umbra::bake::{
+    BakeJob, BakeSettings, Camera, Channel, MapSummary, Projection, Resolution, View,
+};
+use umbra::estimate::{Estimator, Options};
+use umbra::scene::{Scene, SceneOptions};
+use umbra::{Interp, Light, Ray};
+
+// ---------------------------------------------------------------------------------------------
+// Errors
+
+/// Which Python exception a library error becomes.
+#[derive(Clone, Copy)]
+enum Class {
+    /// `umbra.FileError` (an `OSError`): the file or the file system.
+    File,
+    /// `umbra.InvalidArgument` (a `ValueError`): the caller's arguments.
+    Argument,
+    /// `umbra.Error`: anything else (a NaN answer).
+    Other,
+}
+
+fn class_of(e: &umbra::Error) -> Class {
+    use umbra::Error as E;
+    match e {
+        E::Io { .. }
+        | E::NotVdb { .. }
+        | E::Invalid { .. }
+        | E::Unsupported { .. }
+        | E::Output { .. }
+        | E::Scene { .. } => Class::File,
+        E::InvalidArgument { .. } | E::GridNotFound { .. } => Class::Argument,
+        _ => Class::Other,
+    }
+}
+
+static ERRORS: PyOnceLock<Py<PyModule>> = PyOnceLock::new();
+
+/// A Python exception of `class` with `message` (the classes live in `umbra._errors`, so that
+/// `FileError` can be both an `umbra.Error` and an `OSError`).
+fn raise(class: Class, message: String) -> PyErr {
+    Python::attach(|py| {
+        let module =
+            ERRORS.get_or_try_init(py, || py.import("umbra._errors").map(pyo3::Bound::unbind));
+        let name = match class {
+            Class::File => "FileError",
+            Class::Argument => "InvalidArgument",
+            Class::Other => "Error",
+        };
+        match module.and_then(|m| m.bind(py).getattr(name)) {
+            Ok(ty) => match ty.cast_into::<PyType>() {
+                Ok(ty) => PyErr::from_type(ty, message),
+                Err(_) => pyo3::exceptions::PyRuntimeError::new_err(message),
+            },
+            Err(e) => e,
+        }
+    })
+}
+
+/// An argument error named as the CLI names it (`--samples`), as the CLI prints it.
+fn flag_error(e: umbra::Error) -> umbra::Error {
+    match e {
+        umbra::Error::InvalidArgument { name, reason } if !name.starts_with("--") => {
+            umbra::Error::InvalidArgument {
+                name: format!("--{name}"),
+                reason,
+            }
+        }
+        other => other,
+    }
+}
+
+/// A library error as the CLI prints it (argument names as flags), as a Python exception.
+fn py_err(e: umbra::Error) -> PyErr {
+    let e = flag_error(e);
+    raise(class_of(&e), e.to_string())
+}
+
+/// A load error as `umbra query`/`bake` print it: `loading grid 'NAME': ...` (`loading the
+/// scene: ...`), argument errors as they are.
+fn load_err(e: umbra::Error, file: &Path, grid: &str) -> PyErr {
+    let class = class_of(&e);
+    match e {
+        umbra::Error::InvalidArgument { .. } => py_err(e),
+        other if umbra::scene::is_scene_file(file) => {
+            raise(class, format!("loading the scene: {other}"))
+        }
+        other => raise(class, format!("loading grid '{grid}': {other}")),
+    }
+}
+
+fn arg(name: &str, reason: impl Into<String>) -> PyErr {
+    raise(
+        Class::Argument,
+        format!("invalid argument '{name}': {}", reason.into()),
+    )
+}
+
+// ---------------------------------------------------------------------------------------------
+// Module functions
+
+/// The `umbra info --json` report on `path` (every grid, or only `grid`), as JSON text.
+#[pyfunction]
+#[pyo3(signature = (path, grid=None))]
+fn info_json(py: Python<'_>, path: PathBuf, grid: Option<String>) -> PyResult<String> {
+    let info = py
+        .detach(|| umbra::info::FileInfo::read(&path, grid.as_deref()))
+        .map_err(py_err)?;
+    serde_json::to_string(&info).map_err(|e| raise(Class::Other, e.to_string()))
+}
+
+/// The estimator registry (`umbra estimators --json`), as JSON text.
+#[pyfunction]
+fn estimators_json() -> PyResult<String> {
+    serde_json::to_string(umbra::estimate::REGISTRY).map_err(|e| raise(Class::Other, e.to_string()))
+}
+
+/// Write an image and its summary (a map's `camera` dict, as JSON text) as the OpenEXR file
+/// `umbra bake` writes. `t`/`err` hold `C` channels of `W x H` pixels, channel-major.
+#[pyfunction]
+#[pyo3(signature = (path, summary, t, err, channels, overwrite))]
+fn write_exr(
+    py: Python<'_>,
+    path: PathBuf,
+    summary: &str,
+    t: PyReadonlyArray1<'_, f32>,
+    err: Option<PyReadonlyArray1<'_, f32>>,
+    channels: usize,
+    overwrite: bool,
+) -> PyResult<()> {
+    let summary: MapSummary = serde_json::from_str(summary)
+        .map_err(|e| arg("camera", format!("not the camera dict of a baked map: {e}")))?;
+    let split = |v: Vec<f32>| -> Vec<Vec<f32>> {
+        let n = v.len() / channels.max(1);
+        v.chunks(n.max(1)).map(<[f32]>::to_vec).collect()
+    };
+    let mut t = split(t.as_slice()?.to_vec()).into_iter();
+    let mut e = err
+        .map(|e| e.as_slice().map(|s| split(s.to_vec())))
+        .transpose()?
+        .map(Vec::into_iter);
+    let red = t.next().unwrap_or_default();
+    let red_err = e.as_mut().and_then(Iterator::next);
+    let color = (channels == 3).then(|| {
+        let mut ch = || Channel {
+            t: t.next().unwrap_or_default(),
+            std_err: e.as_mut().and_then(Iterator::next),
+            slices: Vec::new(),
+        };
+        let g = ch();
+        let b = ch();
+        Box::new([g, b])
+    });
+    let (map, prov) = summary.to_map(red, red_err, color).map_err(|e| {
+        let class = class_of(&e);
+        raise(class, e.to_string())
+    })?;
+    py.detach(|| umbra::bake::write_exr(&path, &map, &prov, overwrite))
+        .map_err(py_err)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Volumes
+
+/// A loaded volume (a grid of a `.vdb` file, or a scene) with what it was loaded with.
+#[pyclass(frozen, module = "umbra._umbra", name = "Volume")]
+struct NativeVolume {
+    scene: Scene,
+    path: PathBuf,
+    grid: String,
+    density_scale: f64,
+    xform: Option<umbra::xform::Xform>,
+    interp: Interp,
+    warnings: Vec<String>,
+}
+
+fn parse_interp(s: &str) -> PyResult<Interp> {
+    match s {
+        "trilinear" => Ok(Interp::Trilinear),
+        "nearest" => Ok(Interp::Nearest),
+        other => Err(arg(
+            "interp",
+            format!("'{other}': expected 'trilinear' or 'nearest'"),
+        )),
+    }
+}
+
+/// The estimator `name` with `params`, and the options, validated as the CLI validates them.
+fn estimator(
+    name: &str,
+    params: &[(String, f64)],
+    interp: Interp,
+    samples: u32,
+    seed: u64,
+) -> PyResult<(Estimator, Options)> {
+    let p: Vec<(&str, f64)> = params.iter().map(|(n, v)| (n.as_str(), *v)).collect();
+    let est = Estimator::with_params(name, &p).map_err(py_err)?;
+    let opts = Options {
+        interp,
+        samples,
+        seed,
+        ..Options::default()
+    };
+    opts.validate().map_err(py_err)?;
+    Ok((est, opts))
+}
+
+/// Run `f` on `threads` workers (0: rayon's global pool, every core).
+fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> umbra::Result<T> {
+    if threads == 0 {
+        return Ok(f());
+    }
+    umbra::bake::check_threads(threads)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()
+        .map_err(|e| umbra::Error::InvalidArgument {
+            name: "threads".into(),
+            reason: format!("cannot start worker threads: {e}"),
+        })?;
+    Ok(pool.install(f))
+}
+
+/// `(N, 3)` rows as points.
+fn points(a: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f64; 3]>> {
+    let s = a.as_slice()?;
+    Ok(s.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect())
+}
+
+/// What a batch of rays gave, row by row: `C` values per row (1 grey, 3 RGB).
+struct Traced {
+    channels: usize,
+    t: Vec<f64>,
+    err: Vec<f64>,
+    tau: Vec<f64>,
+    capped: u64,
+    violations: u64,
+}
+
+/// Counters and the first failure (lowest row) of a batch.
+#[derive(Default)]
+struct Tally {
+    capped: u64,
+    violations: u64,
+    failed: u64,
+    first: Option<(usize, String)>,
+}
+
+impl Tally {
+    fn merge(mut self, o: Self) -> Self {
+        self.capped += o.capped;
+        self.violations += o.violations;
+        self.failed += o.failed;
+        self.first = match (self.first, o.first) {
+            (Some(a), Some(b)) => Some(if a.0 <= b.0 { a } else { b }),
+            (a, b) => a.or(b),
+        };
+        self
+    }
+}
+
+impl NativeVolume {
+    fn load(
+        py: Python<'_>,
+        path: PathBuf,
+        grid: String,
+        density_scale: f64,
+        interp: &str,
+        xform: Option<Vec<f64>>,
+    ) -> PyResult<Self> {
+        let interp = parse_interp(interp)?;
+        let xform = xform
+            .map(|v| umbra::xform::Xform::from_row_major(&v))
+            .transpose()
+            .map_err(py_err)?;
+        let opts = SceneOptions {
+            grid: grid.clone(),
+            density_scale,
+            sigma_t: None,
+            xform,
+            levelset_solid: false,
+        };
+        let scene = py
+            .detach(|| umbra::scene::load(&path, &opts))
+            .map_err(|e| load_err(e, &path, &grid))?;
+        let warnings = umbra::bake::volume_warnings(&scene.sanitized())
+            .iter()
+            .map(|w| format!("{}: {w}", path.display()))
+            .collect();
+        Ok(Self {
+            scene,
+            path,
+            grid,
+            density_scale,
+            xform,
+            interp,
+            warnings,
+        })
+    }
+
+    /// The one volume of a single-grid load, or an argument error for a scene of several.
+    fn single(&self, what: &str) -> PyResult<&umbra::Volume> {
+        self.scene.single().ok_or_else(|| {
+            arg(
+                what,
+                format!(
+                    "a scene of {} volumes has no single {what}",
+                    self.scene.fogs().len() + self.scene.solids().len()
+                ),
+            )
+        })
+    }
+
+    /// Trace `rays` (ray `n` with ray id `ray_id + n`); a ray that could not be made is its
+    /// row's failure.
+    fn trace_rays(
+        &self,
+        rays: &[Result<Ray, String>],
+        est: &Estimator,
+        opts: &Options,
+        ray_id: u64,
+    ) -> Result<Traced, String> {
+        let c = self.scene.channels();
+        let n = rays.len();
+        let (mut t, mut err, mut tau) = (vec![0.0; n * c], vec![0.0; n * c], vec![0.0; n * c]);
+        let tally = t
+            .par_chunks_mut(c)
+            .zip(err.par_chunks_mut(c))
+            .zip(tau.par_chunks_mut(c))
+            .enumerate()
+            .map(|(row, ((t, e), tau))| {
+                let r = rays[row].as_ref().map_err(Clone::clone).and_then(|ray| {
+                    umbra::scene::estimate(
+                        &self.scene,
+                        ray,
+                        ray_id.wrapping_add(row as u64),
+                        est,
+                        opts,
+                    )
+                    .map_err(|e| e.to_string())
+                });
+                match r {
+                    Ok(v) => {
+                        t.copy_from_slice(&v.value[..c]);
+                        e.copy_from_slice(&v.std_err[..c]);
+                        match v.tau {
+                            Some(x) => tau.copy_from_slice(&x[..c]),
+                            None => tau.fill(f64::NAN),
+                        }
+                        Tally {
+                            capped: v.capped,
+                            violations: v.majorant_violations,
+                            ..Tally::default()
+                        }
+                    }
+                    Err(msg) => {
+                        t.fill(f64::NAN);
+                        e.fill(f64::NAN);
+                        tau.fill(f64::NAN);
+                        Tally {
+                            failed: 1,
+                            first: Some((row, msg)),
+                            ..Tally::default()
+                        }
+                    }
+                }
+            })
+            .reduce(Tally::default, Tally::merge);
+        if let Some((row, msg)) = tally.first {
+            return Err(format!(
+                "{} of {n} rays failed (first: row {row}: {msg})",
+                tally.failed
+            ));
+        }
+        Ok(Traced {
+            channels: c,
+            t,
+            err,
+            tau,
+            capped: tally.capped,
+            violations: tally.violations,
+        })
+    }
+
+    /// Estimate along `rays` after the CLI's up-front checks (the estimator, its options and
+    /// the job's work budget).
+    #[allow(clippy::too_many_arguments)]
+    fn run<'py>(
+        &self,
+        py: Python<'py>,
+        make: impl Fn(&Scene) -> Vec<Result<Ray, String>> + Send + Sync,
+        estimator_name: &str,
+        params: &[(String, f64)],
+        samples: u32,
+        seed: u64,
+        ray_id: u64,
+        threads: usize,
+    ) -> PyResult<TraceOut<'py>> {
+        let (est, opts) = estimator(estimator_name, params, self.interp, samples, seed)?;
+        let traced = py.detach(|| {
+            on_threads(threads, || {
+                let rays = make(&self.scene);
+                for f in self.scene.fogs() {
+                    umbra::estimate::budget::check_job(
+                        f.volume(),
+                        &est,
+                        rays.len() as u64,
+                        u64::from(opts.samples),
+                        "samples",
+                    )?;
+                }
+                Ok(self.trace_rays(&rays, &est, &opts, ray_id))
+            })
+        });
+        let traced = traced.and_then(|r| r).map_err(py_err)?;
+        let traced = traced.map_err(|m| raise(Class::Other, m))?;
+        let c = traced.channels;
+        let n = traced.t.len() / c;
+        let shape = |v: Vec<f64>| -> PyResult<Bound<'py, PyArray2<f64>>> {
+            PyArray1::from_vec(py, v).reshape([n, c])
+        };
+        let mut warnings = Vec::new();
+        if traced.capped > 0 {
+            warnings.push(
+                umbra::bake::Warning::Capped {
+                    samples: traced.capped,
+                }
+                .to_string(),
+            );
+        }
+        if traced.violations > 0 {
+            warnings.push(
+                umbra::bake::Warning::MajorantViolations {
+                    lookups: traced.violations,
+                }
+                .to_string(),
+            );
+        }
+        Ok((
+            shape(traced.t)?,
+            shape(traced.err)?,
+            shape(traced.tau)?,
+            warnings,
+        ))
+    }
+}
+
+/// `(T, std_err, tau, warnings)`, arrays of shape `(N, C)`.
+type TraceOut<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Vec<String>,
+);
+
+/// A baked image: `(T, std_err or None, summary JSON, warnings)`, arrays of shape `(C, H, W)`
+/// flattened channel-major.
+type BakeOut<'py> = (
+    Bound<'py, PyArray1<f32>>,
+    Option<Bound<'py, PyArray1<f32>>>,
+    String,
+    Vec<String>,
+);
+
+#[pymethods]
+impl NativeVolume {
+    /// Load grid `grid` of the `.vdb` file `path` (whole).
+    #[staticmethod]
+    #[pyo3(signature = (path, grid, density_scale, interp, xform))]
+    fn open(
+        py: Python<'_>,
+        path: PathBuf,
+        grid: String,
+        density_scale: f64,
+        interp: &str,
+        xform: Option<Vec<f64>>,
+    ) -> PyResult<Self> {
+        if umbra::scene::is_scene_file(&path) {
+            return Err(arg(
+                "path",
+                format!(
+                    "{} is a scene file: load it with umbra.Volume.from_scene",
+                    path.display()
+                ),
+            ));
+        }
+        Self::load(py, path, grid, density_scale, interp, xform)
+    }
+
+    /// Load the `.toml` scene file `path`.
+    #[staticmethod]
+    #[pyo3(signature = (path, density_scale, interp, xform))]
+    fn open_scene(
+        py: Python<'_>,
+        path: PathBuf,
+        density_scale: f64,
+        interp: &str,
+        xform: Option<Vec<f64>>,
+    ) -> PyResult<Self> {
+        if !umbra::scene::is_scene_file(&path) {
+            return Err(arg(
+                "path",
+                format!(
+                    "{} is not a scene file (.toml): load a grid with umbra.Volume",
+                    path.display()
+                ),
+            ));
+        }
+        Self::load(py, path, "density".into(), density_scale, interp, xform)
+    }
+
+    /// What the bad-voxel policy changed, as warning lines.
+    #[getter]
+    fn warnings(&self) -> Vec<String> {
+        self.warnings.clone()
+    }
+
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    #[getter]
+    fn grid(&self) -> String {
+        self.scene.grid_names()
+    }
+
+    #[getter]
+    fn density_scale(&self) -> f64 {
+        self.density_scale
+    }
+
+    #[getter]
+    fn interp(&self) -> &'static str {
+        match self.interp {
+            Interp::Nearest => "nearest",
+            Interp::Trilinear => "trilinear",
+        }
+    }
+
+    #[getter]
+    fn channels(&self) -> usize {
+        self.scene.channels()
+    }
+
+    /// World-from-index, 4x4 row-major (the translation in the last column).
+    fn world_from_index(&self) -> PyResult<[[f64; 4]; 4]> {
+        let r = self.single("world_from_index")?.world_from_index_rows();
+        Ok([r[0], r[1], r[2], [0.0, 0.0, 0.0, 1.0]])
+    }
+
+    /// Inclusive index box of the active voxels (tiles count as the voxels they cover).
+    fn index_bbox(&self) -> PyResult<Option<[[i32; 3]; 2]>> {
+        Ok(self.single("index_bbox")?.tree().stats().index_bbox)
+    }
+
+    /// Active voxels (over every volume of a scene).
+    fn active_voxels(&self) -> u64 {
+        self.scene
+            .fogs()
+            .iter()
+            .map(|f| f.volume().tree().stats().active_voxels)
+            .sum()
+    }
+
+    /// World box of the active voxel centres (the index box's corners in world space; a
+    /// scene: over its volumes).
+    fn world_bbox(&self) -> Option<[[f64; 3]; 2]> {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for f in self.scene.fogs() {
+            let v = f.volume();
+            let Some(b) = v.tree().stats().index_bbox else {
+                continue;
+            };
+            for n in 0..8 {
+                let p = [0, 1, 2].map(|a| f64::from(b[(n >> a) & 1][a]));
+                let w = v.to_world(p).to_array();
+                for a in 0..3 {
+                    lo[a] = lo[a].min(w[a]);
+                    hi[a] = hi[a].max(w[a]);
+                }
+            }
+        }
+        (lo[0] <= hi[0]).then_some([lo, hi])
+    }
+
+    /// Transmittance along the segments `origins[n] -> ends[n]` (ray id `ray_id + n`).
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (origins, ends, estimator, params, samples, seed, ray_id, threads))]
+    fn trace<'py>(
+        &self,
+        py: Python<'py>,
+        origins: PyReadonlyArray2<'py, f64>,
+        ends: PyReadonlyArray2<'py, f64>,
+        estimator: &str,
+        params: Vec<(String, f64)>,
+        samples: u32,
+        seed: u64,
+        ray_id: u64,
+        threads: usize,
+    ) -> PyResult<TraceOut<'py>> {
+        let (o, e) = (points(&origins)?, points(&ends)?);
+        if o.len() != e.len() {
+            return Err(arg(
+                "ends",
+                format!("{} origins but {} ends", o.len(), e.len()),
+            ));
+        }
+        drop((origins, ends));
+        let make = move |_: &Scene| {
+            o.iter()
+                .zip(&e)
+                .map(|(a, b)| Ray::between(*a, *b).map_err(|e| e.to_string()))
+                .collect()
+        };
+        self.run(py, make, estimator, &params, samples, seed, ray_id, threads)
+    }
+
+    /// Transmittance from each point toward a light (`query --at`), ray id `ray_id + n`.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (points_, light_dir, light_pos, estimator, params, samples, seed, ray_id, threads))]
+    fn trace_to_light<'py>(
+        &self,
+        py: Python<'py>,
+        points_: PyReadonlyArray2<'py, f64>,
+        light_dir: Option<[f64; 3]>,
+        light_pos: Option<[f64; 3]>,
+        estimator: &str,
+        params: Vec<(String, f64)>,
+        samples: u32,
+        seed: u64,
+        ray_id: u64,
+        threads: usize,
+    ) -> PyResult<TraceOut<'py>> {
+        let light = match (light_dir, light_pos) {
+            (Some(dir), None) => Light::Directional { dir },
+            (None, Some(pos)) => Light::Point { pos },
+            _ => {
+                return Err(arg(
+                    "light_dir",
+                    "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them",
+                ))
+            }
+        };
+        let p = points(&points_)?;
+        drop(points_);
+        let make = move |scene: &Scene| {
+            p.iter()
+                .map(|at| {
+                    light
+                        .ray_from_scene(scene, *at)
+                        .map_err(|e| flag_error(e).to_string())
+                })
+                .collect()
+        };
+        self.run(py, make, estimator, &params, samples, seed, ray_id, threads)
+    }
+
+    /// Bake a transmittance map (`umbra bake`, in memory).
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (light_dir, light_pos, ortho, fov, up, frame_box, res, camera_json, camera_path, estimator_name, params, spp, seed, target_error, max_spp, std_err, threads))]
+    fn bake<'py>(
+        &self,
+        py: Python<'py>,
+        light_dir: Option<[f64; 3]>,
+        light_pos: Option<[f64; 3]>,
+        ortho: bool,
+        fov: Option<f64>,
+        up: Option<[f64; 3]>,
+        frame_box: Option<[[f64; 3]; 2]>,
+        res: Option<(u32, u32)>,
+        camera_json: Option<String>,
+        camera_path: Option<PathBuf>,
+        estimator_name: &str,
+        params: Vec<(String, f64)>,
+        spp: u32,
+        seed: u64,
+        target_error: Option<f64>,
+        max_spp: u32,
+        std_err: bool,
+        threads: usize,
+    ) -> PyResult<BakeOut<'py>> {
+        // `res`: (W, H), or (N, 0) for N pixels on the long side.
+        let res = res.map(|(w, h)| {
+            if h == 0 {
+                Resolution::LongSide(w)
+            } else {
+                Resolution::Exact(w, h)
+            }
+        });
+        if let Some(r) = res {
+            r.check().map_err(py_err)?;
+        }
+        let fixed = camera_json.is_some() || camera_path.is_some();
+        let view = if fixed {
+            View {
+                res,
+                ..View::default()
+            }
+        } else {
+            let projection = match (light_dir, light_pos) {
+                (None, None) => {
+                    return Err(arg(
+                        "light_dir",
+                        "give light_dir=(dx, dy, dz) (orthographic map), light_pos=(x, y, z) \
+                         (perspective map) or camera=",
+                    ))
+                }
+                (_, Some(_)) if !ortho => Projection::Perspective,
+                _ => Projection::Ortho,
+            };
+            if fov.is_some() && projection == Projection::Ortho {
+                return Err(arg(
+                    "fov",
+                    "applies to perspective maps (light_pos without ortho=True)",
+                ));
+            }
+            View {
+                projection,
+                light_dir,
+                light_pos,
+                fov_deg: fov,
+                res,
+                up,
+                frame_box,
+            }
+        };
+        let (est, opts) = estimator(estimator_name, &params, self.interp, spp, seed)?;
+        let job = BakeJob {
+            input: self.path.clone(),
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            xform: self.xform,
+            sigma_t: None,
+            levelset_solid: false,
+            view,
+            camera: None,
+            settings: BakeSettings {
+                target_error,
+                max_spp,
+                std_err,
+                threads,
+                ..BakeSettings::new(est, opts)
+            },
+            output: PathBuf::new(),
+            preview: None,
+            overwrite: false,
+            max_memory: None,
+        };
+        let report = py
+            .detach(|| -> umbra::Result<_> {
+                let camera: Camera = match (&camera_json, &camera_path) {
+                    (Some(j), _) => umbra::bake::camera_from_json("camera", j.as_bytes(), res)?,
+                    (None, Some(p)) => umbra::bake::read_camera(p, res)?,
+                    (None, None) => Camera::frame(&job.view, &self.scene.box_corners()?)?,
+                };
+                on_threads(threads, || job.bake_in_memory(&self.scene, camera, &|_| {}))?
+            })
+            .map_err(py_err)?;
+        let map = &report.map;
+        let summary = MapSummary::new(map, &report.provenance);
+        let json =
+            serde_json::to_string(&summary).map_err(|e| raise(Class::Other, e.to_string()))?;
+        let c = map.channels();
+        let mut t = Vec::with_capacity(map.t.len() * c);
+        let mut e = map
+            .std_err
+            .as_ref()
+            .map(|_| Vec::with_capacity(map.t.len() * c));
+        for ch in 0..c {
+            let (tc, ec, _) = map.channel(ch);
+            t.extend_from_slice(tc);
+            if let (Some(e), Some(ec)) = (e.as_mut(), ec) {
+                e.extend_from_slice(ec);
+            }
+        }
+        let warnings = report.warnings.iter().map(ToString::to_string).collect();
+        Ok((
+            PyArray1::from_vec(py, t),
+            e.map(|e| PyArray1::from_vec(py, e)),
+            json,
+            warnings,
+        ))
+    }
+}
+
+/// umbra's native module: see the `umbra` package.
+#[pymodule]
+fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    m.add_function(wrap_pyfunction!(info_json, m)?)?;
+    m.add_function(wrap_pyfunction!(estimators_json, m)?)?;
+    m.add_function(wrap_pyfunction!(write_exr, m)?)?;
+    m.add_class::<NativeVolume>()?;
+    Ok(())
+}

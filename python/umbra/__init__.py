@@ -1,0 +1,482 @@
+"""umbra: how much light gets through this OpenVDB cloud?
+
+Exact (regular tracking) and stochastic transmittance through ``.vdb`` volumes, NumPy in, NumPy
+out. The work runs in Rust on every core with the GIL released, so other Python threads (a
+DCC's UI, a farm submitter's heartbeat) keep running.
+
+    >>> import numpy as np, umbra
+    >>> vol = umbra.Volume("cloud.vdb", grid="density")
+    >>> T = vol.transmittance(np.array([[0, 1.5, 0]]), np.array([[3, 4.5, 0]]))
+    >>> image, camera = vol.bake(light_dir=(-1, -1, 0), res=(256, 256))
+    >>> umbra.write_exr("shadow.exr", image, camera)
+
+Results equal the command line's bit for bit: row ``n`` of a call uses ray id ``ray_id + n``,
+as line ``n`` of ``umbra query --rays`` does, and ``bake`` makes the pixels ``umbra bake``
+writes. Errors are :class:`umbra.Error` (:class:`umbra.FileError`, also an ``OSError``;
+:class:`umbra.InvalidArgument`, also a ``ValueError``) with the CLI's messages.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings as _warnings
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _umbra
+from ._errors import Error, FileError, InvalidArgument
+
+__version__: str = _umbra.__version__
+
+__all__ = [
+    "Error",
+    "FileError",
+    "InvalidArgument",
+    "Volume",
+    "estimators",
+    "info",
+    "write_exr",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+Vec3 = Union[Sequence[float], np.ndarray]
+
+_ESTIMATOR_PARAMS = ("step", "kernel", "points")
+
+
+def _invalid(name: str, reason: str) -> InvalidArgument:
+    return InvalidArgument(f"invalid argument '{name}': {reason}")
+
+
+def _path(name: str, p: Any) -> str:
+    try:
+        return os.fsdecode(os.fspath(p))
+    except TypeError:
+        raise _invalid(name, f"expected a path, got {type(p).__name__}") from None
+
+
+def _points(name: str, a: Any) -> np.ndarray:
+    """``a`` as a C-contiguous float64 (N, 3) array of finite world points."""
+    try:
+        arr = np.asarray(a)
+    except (TypeError, ValueError) as e:
+        raise _invalid(name, f"expected an (N, 3) array of numbers ({e})") from None
+    if arr.dtype.kind not in "fiu":
+        raise _invalid(name, f"expected an (N, 3) array of real numbers, got dtype {arr.dtype}")
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise _invalid(name, f"expected an array of shape (N, 3), got shape {arr.shape}")
+    arr = np.ascontiguousarray(arr, dtype=np.float64)
+    bad = ~np.isfinite(arr).all(axis=1)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise _invalid(
+            name,
+            f"row {row} ({', '.join(repr(float(v)) for v in arr[row])}) is not a finite point"
+            f" ({int(bad.sum())} of {len(arr)} rows are not)",
+        )
+    return arr
+
+
+def _vec3(name: str, v: Any) -> Optional[Tuple[float, float, float]]:
+    if v is None:
+        return None
+    try:
+        arr = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _invalid(name, f"expected three numbers, got {v!r}") from None
+    if arr.shape != (3,) or not np.isfinite(arr).all():
+        raise _invalid(name, f"expected three finite numbers, got {v!r}")
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+def _count(name: str, v: Any, lo: int = 0) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+        raise _invalid(name, f"expected a whole number, got {v!r}")
+    if int(v) < lo or int(v) >= 2**64:
+        raise _invalid(name, f"{v} is out of range")
+    return int(v)
+
+
+def _params(step: Optional[float], kernel: Optional[float], points: Optional[float]):
+    given = {"step": step, "kernel": kernel, "points": points}
+    return [(k, float(v)) for k, v in given.items() if v is not None]
+
+
+def _xform(xform: Any) -> Optional[List[float]]:
+    if xform is None:
+        return None
+    try:
+        m = np.asarray(xform, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _invalid("xform", "expected a 4x4 matrix (or 16 numbers, row-major)") from None
+    if m.size != 16 or m.ndim not in (1, 2) or (m.ndim == 2 and m.shape != (4, 4)):
+        raise _invalid(
+            "xform", f"expected a 4x4 matrix (or 16 numbers, row-major), got shape {m.shape}"
+        )
+    return [float(x) for x in m.reshape(16)]
+
+
+def _warn(lines: Sequence[str]) -> None:
+    for w in lines:
+        _warnings.warn(f"umbra: {w}", RuntimeWarning, stacklevel=3)
+
+
+def _finish(t: np.ndarray, err: np.ndarray, return_stderr: bool):
+    if t.shape[1] == 1:
+        t, err = t[:, 0], err[:, 0]
+    return (t, err) if return_stderr else t
+
+
+def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]:
+    """What ``umbra info --json PATH`` reports, one dict per grid (every grid, or only
+    ``grid``): name, type, class, voxel size, transform, index and world boxes, active voxels,
+    tiles, value range, NaN/Inf counts, memory. Only the header, topology and (streamed)
+    values are read.
+
+    Raises :class:`FileError` for a file that cannot be read, :class:`InvalidArgument` for a
+    grid it does not hold or a scene file.
+    """
+    return json.loads(_umbra.info_json(_path("path", path), grid))["grids"]
+
+
+def estimators() -> List[Dict[str, Any]]:
+    """The estimator registry (``umbra estimators --json``): one dict per estimator with
+    ``name``, ``kind`` (exact, unbiased, biased), ``deterministic``, ``params`` (name,
+    default, range, unit), ``summary`` and ``budget``."""
+    return json.loads(_umbra.estimators_json())
+
+
+def write_exr(
+    path: PathLike,
+    image: Any,
+    camera: Dict[str, Any],
+    stderr: Any = None,
+    overwrite: bool = False,
+) -> None:
+    """Write ``image`` (the ``(H, W)`` float32 map of :meth:`Volume.bake`, row 0 at the top;
+    ``(H, W, 3)`` for a colour scene) and its ``camera`` dict as the OpenEXR file ``umbra
+    bake`` writes: the same channels (``T``, or ``R``/``G``/``B``; ``T.stderr`` with
+    ``stderr``), the same ``worldToCamera``/``worldToNDC`` matrices and ``umbra:*``
+    attributes, so ``umbra bake --camera`` and the CLI's readers take it. The file is written
+    atomically; an existing file is an error unless ``overwrite``.
+
+    The image may have been changed (composited, denoised); its shape must stay the camera's.
+    """
+    if not isinstance(camera, dict):
+        raise _invalid("camera", "expected the camera dict Volume.bake returns")
+    w, h = camera.get("width"), camera.get("height")
+    rgb = camera.get("channels", ["T"])[:1] == ["R"]
+    want = (h, w, 3) if rgb else (h, w)
+
+    def planes(name: str, a: Any) -> np.ndarray:
+        arr = np.asarray(a)
+        if arr.dtype.kind not in "fiu":
+            raise _invalid(name, f"expected real numbers, got dtype {arr.dtype}")
+        if arr.shape != want:
+            raise _invalid(name, f"expected shape {want} for this camera, got {arr.shape}")
+        arr = arr.astype(np.float32, copy=False)
+        if rgb:
+            arr = np.moveaxis(arr, 2, 0)
+        return np.ascontiguousarray(arr).reshape(-1)
+
+    t = planes("image", image)
+    e = None if stderr is None else planes("stderr", stderr)
+    _umbra.write_exr(
+        _path("path", path), json.dumps(camera), t, e, 3 if rgb else 1, bool(overwrite)
+    )
+
+
+class Volume:
+    """A volume loaded for tracing: grid ``grid`` of a ``.vdb`` file (what ``--grid`` takes:
+    a display name such as ``density[1]``, or the stored name), decoded whole.
+
+    ``density_scale``: extinction ``mu_t = density_scale x value`` per world unit.
+    ``interp``: ``"trilinear"`` (OpenVDB's BoxSampler, the default) or ``"nearest"``
+    (PointSampler). ``xform``: a world-from-object 4x4 matrix (row-major, translation in the
+    last column) placing the volume in the shot, as ``--xform``.
+
+    NaN and negative voxels are traced as 0 (a ``RuntimeWarning`` says how many).
+    """
+
+    def __init__(
+        self,
+        path: PathLike,
+        grid: str = "density",
+        density_scale: float = 1.0,
+        interp: str = "trilinear",
+        xform: Any = None,
+    ) -> None:
+        self._v = _umbra.Volume.open(
+            _path("path", path), str(grid), float(density_scale), str(interp), _xform(xform)
+        )
+        _warn(self._v.warnings)
+
+    @classmethod
+    def from_scene(
+        cls,
+        path: PathLike,
+        density_scale: float = 1.0,
+        interp: str = "trilinear",
+        xform: Any = None,
+    ) -> "Volume":
+        """A ``.toml`` scene file: several volumes (each with its transform and extinction
+        colour), solids; an RGB scene gives (N, 3) transmittance and (H, W, 3) maps."""
+        self = cls.__new__(cls)
+        self._v = _umbra.Volume.open_scene(
+            _path("path", path), float(density_scale), str(interp), _xform(xform)
+        )
+        _warn(self._v.warnings)
+        return self
+
+    def __repr__(self) -> str:
+        return (
+            f"umbra.Volume({self.path!r}, grid={self.grid!r}, "
+            f"density_scale={self.density_scale!r}, interp={self.interp!r})"
+        )
+
+    @property
+    def path(self) -> str:
+        """The file as given."""
+        return str(self._v.path)
+
+    @property
+    def grid(self) -> str:
+        """The grid(s) traced."""
+        return self._v.grid
+
+    @property
+    def density_scale(self) -> float:
+        return self._v.density_scale
+
+    @property
+    def interp(self) -> str:
+        return self._v.interp
+
+    @property
+    def channels(self) -> int:
+        """1 (grey) or 3 (an RGB scene)."""
+        return self._v.channels
+
+    @property
+    def world_bbox(self) -> Optional[np.ndarray]:
+        """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``: the world box of the active voxel
+        centres (the corners of :attr:`index_bbox` through the transform, ``xform``
+        included; a scene: over its volumes). ``None`` for an empty grid."""
+        b = self._v.world_bbox()
+        return None if b is None else np.array(b, dtype=np.float64)
+
+    @property
+    def index_bbox(self) -> Optional[np.ndarray]:
+        """Inclusive index box of the active voxels, ``[[i0, j0, k0], [i1, j1, k1]]`` (int64),
+        as ``umbra info`` and OpenVDB's ``evalActiveVoxelBoundingBox`` give it."""
+        b = self._v.index_bbox()
+        return None if b is None else np.array(b, dtype=np.int64)
+
+    @property
+    def voxel_size(self) -> np.ndarray:
+        """World length of a voxel's three edges (the columns of :attr:`world_from_index`)."""
+        m = self.world_from_index
+        return np.linalg.norm(m[:3, :3], axis=0)
+
+    @property
+    def world_from_index(self) -> np.ndarray:
+        """The 4x4 affine map from index to world space (``xform`` included), row-major,
+        translation in the last column: ``world = M @ [i, j, k, 1]``."""
+        return np.array(self._v.world_from_index(), dtype=np.float64)
+
+    @property
+    def active_voxels(self) -> int:
+        """Active voxels (tiles count as the voxels they cover)."""
+        return int(self._v.active_voxels())
+
+    def transmittance(
+        self,
+        origins: Any,
+        ends: Any,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        return_stderr: bool = False,
+        *,
+        ray_id: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+        threads: int = 0,
+    ):
+        """Transmittance ``T = exp(-tau)`` along each segment ``origins[n] -> ends[n]`` (world
+        points, (N, 3) arrays): an (N,) float64 array ((N, 3) for an RGB scene), and with
+        ``return_stderr`` the tuple ``(T, stderr)`` (0 for deterministic estimators).
+
+        ``estimator`` is any name of :func:`estimators` (``step``, ``kernel``, ``points``
+        its parameters), ``samples`` independent samples per ray, ``seed`` the random
+        streams: row ``n`` uses ray id ``ray_id + n``, so the answers equal ``umbra query
+        --rays`` line for line, bit for bit. ``threads``: 0 for every core.
+        """
+        o = _points("origins", origins)
+        e = _points("ends", ends)
+        if o.shape != e.shape:
+            raise _invalid("ends", f"{len(o)} origins but {len(e)} ends")
+        t, err, _, warns = self._v.trace(
+            o,
+            e,
+            str(estimator),
+            _params(step, kernel, points),
+            _count("samples", samples),
+            _count("seed", seed),
+            _count("ray_id", ray_id),
+            _count("threads", threads),
+        )
+        _warn(warns)
+        return _finish(t, err, return_stderr)
+
+    def optical_depth(self, origins: Any, ends: Any, *, threads: int = 0) -> np.ndarray:
+        """The exact optical depth ``tau = integral of mu_t`` along each segment (regular
+        tracking): an (N,) float64 array ((N, 3) for an RGB scene); ``inf`` through opaque
+        voxels or a solid."""
+        o = _points("origins", origins)
+        e = _points("ends", ends)
+        if o.shape != e.shape:
+            raise _invalid("ends", f"{len(o)} origins but {len(e)} ends")
+        _, _, tau, warns = self._v.trace(o, e, "regular", [], 1, 0, 0, _count("threads", threads))
+        _warn(warns)
+        return tau[:, 0] if tau.shape[1] == 1 else tau
+
+    def transmittance_to_light(
+        self,
+        points: Any,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        return_stderr: bool = False,
+        *,
+        ray_id: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points_per_estimate: Optional[float] = None,
+        threads: int = 0,
+    ):
+        """How much of a light reaches each point (what ``umbra query --at P`` answers):
+        with ``light_dir`` (the direction the light travels) the ray from the point against it
+        until it leaves every volume's box; with ``light_pos`` the segment to the light.
+        ``points``: (N, 3) world points. Returns as :meth:`transmittance`; row ``n`` uses ray
+        id ``ray_id + n`` (``--ray-id``). ``points_per_estimate`` is the jackknife's
+        ``--points``."""
+        p = _points("points", points)
+        d, q = _vec3("light_dir", light_dir), _vec3("light_pos", light_pos)
+        if (d is None) == (q is None):
+            raise _invalid("light_dir", "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them")
+        t, err, _, warns = self._v.trace_to_light(
+            p,
+            d,
+            q,
+            str(estimator),
+            _params(step, kernel, points_per_estimate),
+            _count("samples", samples),
+            _count("seed", seed),
+            _count("ray_id", ray_id),
+            _count("threads", threads),
+        )
+        _warn(warns)
+        return _finish(t, err, return_stderr)
+
+    def bake(
+        self,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        res: Union[None, int, Tuple[int, int]] = None,
+        estimator: str = "regular",
+        spp: int = 1,
+        seed: int = 0,
+        up: Optional[Vec3] = None,
+        *,
+        ortho: bool = False,
+        fov: Optional[float] = None,
+        frame_box: Any = None,
+        camera: Union[None, Dict[str, Any], PathLike] = None,
+        target_error: Optional[float] = None,
+        max_spp: int = 65536,
+        return_stderr: bool = False,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+        threads: int = 0,
+    ):
+        """A transmittance (shadow) map seen from the light, as ``umbra bake`` makes it.
+
+        ``light_dir``: an orthographic map along the direction the light travels, framing the
+        volume; ``light_pos``: a perspective map from the light (``ortho=True``: an
+        orthographic one whose image plane passes through it; ``fov`` in degrees across the
+        long side). ``res``: ``(W, H)``, or ``N`` pixels on the long side (default 1024).
+        ``up``: the world direction up in the map. ``frame_box``: frame this world box
+        ``[[x0, y0, z0], [x1, y1, z1]]`` instead of the volume's. ``camera``: reuse exactly an
+        earlier map's camera (its dict, or the path of its EXR or JSON), so maps of a sequence
+        line up pixel for pixel. ``target_error``/``max_spp``: adaptive sampling.
+
+        Returns ``(image, camera)``: an (H, W) float32 array of T (row 0 the top row, as in the
+        EXR; (H, W, 3) for an RGB scene) and the camera dict ``umbra bake --json`` prints
+        (the camera, the light, the estimator and its settings; :func:`write_exr` takes it
+        back). With ``return_stderr``: ``(image, stderr, camera)``.
+        """
+        if res is None:
+            r = None
+        elif isinstance(res, (int, np.integer)) and not isinstance(res, bool):
+            r = (_count("res", res), 0)
+        elif isinstance(res, (tuple, list)) and len(res) == 2:
+            r = (_count("res", res[0]), _count("res", res[1]))
+            if r[1] == 0:
+                raise _invalid("res", "a width and a height of at least 1 pixel")
+        else:
+            raise _invalid("res", f"expected (W, H) or N, got {res!r}")
+        if r is not None and max(r) >= 2**32:
+            raise _invalid("res", f"{res!r} is out of range")
+        fb = None
+        if frame_box is not None:
+            try:
+                b = np.asarray(frame_box, dtype=np.float64)
+            except (TypeError, ValueError):
+                b = None
+            if b is None or b.shape != (2, 3):
+                raise _invalid("frame_box", "expected [[x0, y0, z0], [x1, y1, z1]]")
+            fb = (tuple(map(float, b[0])), tuple(map(float, b[1])))
+        cam_json = cam_path = None
+        if isinstance(camera, dict):
+            cam_json = json.dumps(camera)
+        elif camera is not None:
+            cam_path = _path("camera", camera)
+        out = self._v.bake(
+            _vec3("light_dir", light_dir),
+            _vec3("light_pos", light_pos),
+            bool(ortho),
+            None if fov is None else float(fov),
+            _vec3("up", up),
+            fb,
+            r,
+            cam_json,
+            cam_path,
+            str(estimator),
+            _params(step, kernel, points),
+            _count("spp", spp),
+            _count("seed", seed),
+            None if target_error is None else float(target_error),
+            _count("max_spp", max_spp),
+            bool(return_stderr),
+            _count("threads", threads),
+        )
+        t, e, summary, warns = out
+        _warn(warns)
+        cam = json.loads(summary)
+        h, w = cam["height"], cam["width"]
+
+        def image(flat: np.ndarray) -> np.ndarray:
+            c = flat.size // (w * h)
+            a = flat.reshape(c, h, w)
+            return a[0] if c == 1 else np.ascontiguousarray(np.moveaxis(a, 0, 2))
+
+        if return_stderr:
+            return image(t), image(e), cam
+        return image(t), cam
