@@ -657,6 +657,12 @@ impl NativeVolume {
                 ))
             }
         };
+        // A direction that is no direction fails the call, not each row.
+        if let Light::Directional { .. } = light {
+            light
+                .ray_from_scene(&self.scene, [0.0; 3])
+                .map_err(py_err)?;
+        }
         let p = points(&points_)?;
         drop(points_);
         let make = move |scene: &Scene| {

@@ -1,0 +1,57 @@
+"""A call on 10^6 rays runs on every core with the GIL released: another Python thread keeps
+running while it traces."""
+
+import os
+import threading
+import time
+
+import numpy as np
+
+import umbra
+from conftest import DATA
+
+
+def rays(n):
+    rng = np.random.default_rng(0)
+    a = rng.uniform([-2.2, 0.1, -2.1], [2.1, 3.2, 2.0], (n, 3))
+    b = rng.uniform([-2.2, 0.1, -2.1], [2.1, 3.2, 2.0], (n, 3))
+    return a, b
+
+
+def test_million_rays_use_every_core_and_release_the_gil():
+    vol = umbra.Volume(DATA / "cloud.vdb")
+    a, b = rays(1_000_000)
+    vol.transmittance(a[:1000], b[:1000])  # warm up the pool
+
+    # Both cores: the process's CPU time runs at about twice the wall time.
+    wall, cpu = time.perf_counter(), time.process_time()
+    t = vol.transmittance(a, b)
+    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    cores = min(os.cpu_count() or 1, 2)
+    assert t.shape == (1_000_000,) and np.isfinite(t).all()
+    assert (t < 1).sum() > 100_000
+    if cores >= 2:
+        assert cpu / wall > 1.5, (cpu, wall)
+
+    # Another Python thread runs while the call traces: it counts on, and is seen to count
+    # during the call (between the call's start and end).
+    ticks = []
+    stop = threading.Event()
+
+    def count():
+        while not stop.is_set():
+            ticks.append(time.perf_counter())
+            time.sleep(0.001)
+
+    th = threading.Thread(target=count)
+    th.start()
+    time.sleep(0.05)
+    start = time.perf_counter()
+    t2 = vol.transmittance(a, b)
+    end = time.perf_counter()
+    stop.set()
+    th.join()
+    during = [x for x in ticks if start < x < end]
+    assert np.array_equal(t, t2)
+    # The thread ticks about once a millisecond; holding the GIL would leave it at none.
+    assert len(during) > 0.25 * (end - start) / 0.001, (len(during), end - start)
