@@ -61,3 +61,9 @@ def cli_error(stderr: str) -> str:
 
 def json_lines(stdout: str):
     return [json.loads(l) for l in stdout.splitlines() if l.strip()]
+
+
+@pytest.fixture(autouse=True)
+def in_repo(monkeypatch):
+    """Every test runs in the repository, as the CLI runs are (maps record paths as given)."""
+    monkeypatch.chdir(REPO)

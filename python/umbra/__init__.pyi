@@ -1,0 +1,198 @@
+"""Type stubs of umbra's Python module (see the docstrings in umbra/__init__.py)."""
+
+import os
+from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple, Union, overload
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+__all__ = [
+    "Error",
+    "FileError",
+    "InvalidArgument",
+    "Volume",
+    "estimators",
+    "info",
+    "write_exr",
+]
+
+PathLike = Union[str, os.PathLike[str]]
+Vec3 = Union[Sequence[float], npt.NDArray[np.floating[Any]]]
+_Points = npt.ArrayLike
+"""An (N, 3) array of finite world points (float or integer dtype)."""
+_Camera = Dict[str, Any]
+"""The camera dict of a baked map: what ``umbra bake --json`` prints about the map."""
+
+class Error(Exception):
+    """Base class of every umbra error; ``str(e)`` is the CLI's message."""
+
+class FileError(Error, OSError):
+    """A file could not be read or written."""
+
+class InvalidArgument(Error, ValueError):
+    """An argument is out of range, of the wrong shape or dtype, or names nothing."""
+
+def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]: ...
+def estimators() -> List[Dict[str, Any]]: ...
+def write_exr(
+    path: PathLike,
+    image: npt.ArrayLike,
+    camera: _Camera,
+    stderr: Optional[npt.ArrayLike] = None,
+    overwrite: bool = False,
+) -> None: ...
+
+class Volume:
+    def __init__(
+        self,
+        path: PathLike,
+        grid: str = "density",
+        density_scale: float = 1.0,
+        interp: Literal["trilinear", "nearest"] = "trilinear",
+        xform: Optional[npt.ArrayLike] = None,
+    ) -> None: ...
+    @classmethod
+    def from_scene(
+        cls,
+        path: PathLike,
+        density_scale: float = 1.0,
+        interp: Literal["trilinear", "nearest"] = "trilinear",
+        xform: Optional[npt.ArrayLike] = None,
+    ) -> "Volume": ...
+    @property
+    def path(self) -> str: ...
+    @property
+    def grid(self) -> str: ...
+    @property
+    def density_scale(self) -> float: ...
+    @property
+    def interp(self) -> str: ...
+    @property
+    def channels(self) -> int: ...
+    @property
+    def world_bbox(self) -> Optional[npt.NDArray[np.float64]]: ...
+    @property
+    def index_bbox(self) -> Optional[npt.NDArray[np.int64]]: ...
+    @property
+    def voxel_size(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def world_from_index(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def active_voxels(self) -> int: ...
+    @overload
+    def transmittance(
+        self,
+        origins: _Points,
+        ends: _Points,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        return_stderr: Literal[False] = False,
+        *,
+        ray_id: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+        threads: int = 0,
+    ) -> npt.NDArray[np.float64]: ...
+    @overload
+    def transmittance(
+        self,
+        origins: _Points,
+        ends: _Points,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        *,
+        return_stderr: Literal[True],
+        ray_id: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+        threads: int = 0,
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
+    def optical_depth(
+        self, origins: _Points, ends: _Points, *, threads: int = 0
+    ) -> npt.NDArray[np.float64]: ...
+    @overload
+    def transmittance_to_light(
+        self,
+        points: _Points,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        return_stderr: Literal[False] = False,
+        *,
+        ray_id: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points_per_estimate: Optional[float] = None,
+        threads: int = 0,
+    ) -> npt.NDArray[np.float64]: ...
+    @overload
+    def transmittance_to_light(
+        self,
+        points: _Points,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        *,
+        return_stderr: Literal[True],
+        ray_id: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points_per_estimate: Optional[float] = None,
+        threads: int = 0,
+    ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
+    @overload
+    def bake(
+        self,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        res: Union[None, int, Tuple[int, int]] = None,
+        estimator: str = "regular",
+        spp: int = 1,
+        seed: int = 0,
+        up: Optional[Vec3] = None,
+        *,
+        ortho: bool = False,
+        fov: Optional[float] = None,
+        frame_box: Optional[npt.ArrayLike] = None,
+        camera: Union[None, _Camera, PathLike] = None,
+        target_error: Optional[float] = None,
+        max_spp: int = 65536,
+        return_stderr: Literal[False] = False,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+        threads: int = 0,
+    ) -> Tuple[npt.NDArray[np.float32], _Camera]: ...
+    @overload
+    def bake(
+        self,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        res: Union[None, int, Tuple[int, int]] = None,
+        estimator: str = "regular",
+        spp: int = 1,
+        seed: int = 0,
+        up: Optional[Vec3] = None,
+        *,
+        ortho: bool = False,
+        fov: Optional[float] = None,
+        frame_box: Optional[npt.ArrayLike] = None,
+        camera: Union[None, _Camera, PathLike] = None,
+        target_error: Optional[float] = None,
+        max_spp: int = 65536,
+        return_stderr: Literal[True],
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+        threads: int = 0,
+    ) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.float32], _Camera]: ...
