@@ -28,7 +28,11 @@ _CACHE: dict = {}
 def load_volume(path, grid="density", density_scale=1.0, cache=None):
     """The umbra.Volume for a file, cached on (path, grid, scale, mtime)."""
     cache = _CACHE if cache is None else cache
-    key = (os.path.abspath(path), grid, float(density_scale), os.path.getmtime(path))
+    try:
+        mtime = os.path.getmtime(path)
+    except OSError:
+        mtime = None  # umbra.Volume raises a FileError naming the file
+    key = (os.path.abspath(path), grid, float(density_scale), mtime)
     vol = cache.get(key)
     if vol is None:
         for k in [k for k in cache if k[:3] == key[:3]]:

@@ -5,6 +5,7 @@ import pathlib
 import py_compile
 
 import numpy as np
+import pytest
 
 import umbra
 from conftest import DATA
@@ -51,3 +52,72 @@ def test_blender_sequence_keeps_its_camera(tmp_path):
     assert cam2["camera"] == cam1["camera"] and img2.shape == img1.shape
     assert (img2 <= img1).all() and img1.min() < 0.5
     assert (tmp_path / "a.exr").exists() and (tmp_path / "b.exr").exists()
+
+
+class _Geometry:
+    """What the Houdini example uses of hou.Geometry, over a NumPy array of P."""
+
+    def __init__(self, p):
+        self.p = np.ascontiguousarray(p, dtype=np.float32)
+        self.attribs = {}
+
+    def pointFloatAttribValuesAsString(self, name):
+        assert name == "P"
+        return self.p.tobytes()
+
+    def findPointAttrib(self, name):
+        return self.attribs.get(name)
+
+    def addAttrib(self, kind, name, default):
+        assert kind == "point" and default == 1.0
+        self.attribs[name] = np.full(len(self.p), default, dtype=np.float32)
+
+    def setPointFloatAttribValuesFromString(self, name, data):
+        assert name in self.attribs
+        self.attribs[name] = np.frombuffer(data, dtype=np.float32).copy()
+
+
+class _ParmTuple:
+    def __init__(self, v):
+        self.v = v
+
+    def eval(self):
+        return self.v
+
+
+def test_houdini_sop_body_with_a_stand_in_hou(monkeypatch):
+    """The SOP's code run as a Python SOP runs it, against a stand-in for the hou calls it
+    makes (point positions in, the shadowT attribute out, spare parameters, errors)."""
+    import sys
+    import types
+
+    rng = np.random.default_rng(1)
+    geo = _Geometry(rng.uniform([-2, 0, -2], [2, 3, 2], (300, 3)))
+    parms = {"vdb": ("$DATA/cloud.vdb",), "lightdir": (0.0, -1.0, 0.5), "density": (2.0,)}
+
+    class NodeError(Exception):
+        pass
+
+    node = types.SimpleNamespace(
+        geometry=lambda: geo,
+        parmTuple=lambda name: _ParmTuple(parms[name]) if name in parms else None,
+        type=lambda: types.SimpleNamespace(name=lambda: "python"),
+    )
+    hou = types.ModuleType("hou")
+    hou.pwd = lambda: node
+    hou.expandString = lambda s: s.replace("$DATA", str(DATA))
+    hou.session = types.ModuleType("hou.session")
+    hou.NodeError = NodeError
+    hou.attribType = types.SimpleNamespace(Point="point")
+    monkeypatch.setitem(sys.modules, "hou", hou)
+    import runpy
+
+    runpy.run_path(str(EXAMPLES / "houdini_shadow_sop.py"), run_name="__main__")
+    vol = umbra.Volume(DATA / "cloud.vdb", density_scale=2.0)
+    want = vol.transmittance_to_light(geo.p.astype(np.float64), light_dir=(0, -1, 0.5))
+    assert np.array_equal(geo.attribs["shadowT"], want.astype(np.float32))
+    assert (want < 0.5).any()
+    # A missing file is the node's error, with umbra's message.
+    parms["vdb"] = ("$DATA/nope.vdb",)
+    with pytest.raises(NodeError, match="nope.vdb"):
+        runpy.run_path(str(EXAMPLES / "houdini_shadow_sop.py"), run_name="__main__")
