@@ -23,15 +23,21 @@ def test_million_rays_use_every_core_and_release_the_gil():
     a, b = rays(1_000_000)
     vol.transmittance(a[:1000], b[:1000])  # warm up the pool
 
-    # Both cores: the process's CPU time runs at about twice the wall time.
-    wall, cpu = time.perf_counter(), time.process_time()
-    t = vol.transmittance(a, b)
-    wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+    # Both cores: the process's CPU time runs at about twice the wall time. Other work on the
+    # machine can take a core away for a while, so the best of three calls counts.
     cores = min(os.cpu_count() or 1, 2)
+    ratios = []
+    for _ in range(3):
+        wall, cpu = time.perf_counter(), time.process_time()
+        t = vol.transmittance(a, b)
+        wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
+        ratios.append(cpu / wall)
+        if ratios[-1] > 1.5:
+            break
     assert t.shape == (1_000_000,) and np.isfinite(t).all()
     assert (t < 1).sum() > 100_000
     if cores >= 2:
-        assert cpu / wall > 1.5, (cpu, wall)
+        assert max(ratios) > 1.5, ratios
 
     # Another Python thread runs while the call traces: it counts on, and is seen to count
     # during the call (between the call's start and end).
