@@ -93,6 +93,22 @@ pub enum Error {
 }
 
 impl Error {
+    /// The error as the command line reports it: an [`Error::InvalidArgument`] names its
+    /// argument as the flag (`--step` for `step`); every other error is unchanged. The Python
+    /// module reports its errors the same way, so its messages are the CLI's.
+    #[must_use]
+    pub fn flag_named(self) -> Self {
+        match self {
+            Self::InvalidArgument { name, reason } if !name.starts_with("--") => {
+                Self::InvalidArgument {
+                    name: format!("--{name}"),
+                    reason,
+                }
+            }
+            other => other,
+        }
+    }
+
     /// [`Error::NotANumber`] for `what` (`optical depth`, `... transmittance estimate`) on
     /// `ray`, naming its origin and direction.
     pub(crate) fn nan_on_ray(what: impl Into<String>, ray: &crate::ray::Ray) -> Self {

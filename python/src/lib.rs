@@ -71,22 +71,9 @@ fn raise(class: Class, message: String) -> PyErr {
     })
 }
 
-/// An argument error named as the CLI names it (`--samples`), as the CLI prints it.
-fn flag_error(e: umbra::Error) -> umbra::Error {
-    match e {
-        umbra::Error::InvalidArgument { name, reason } if !name.starts_with("--") => {
-            umbra::Error::InvalidArgument {
-                name: format!("--{name}"),
-                reason,
-            }
-        }
-        other => other,
-    }
-}
-
 /// A library error as the CLI prints it (argument names as flags), as a Python exception.
 fn py_err(e: umbra::Error) -> PyErr {
-    let e = flag_error(e);
+    let e = e.flag_named();
     raise(class_of(&e), e.to_string())
 }
 
@@ -670,7 +657,7 @@ impl NativeVolume {
                 .map(|at| {
                     light
                         .ray_from_scene(scene, *at)
-                        .map_err(|e| flag_error(e).to_string())
+                        .map_err(|e| e.flag_named().to_string())
                 })
                 .collect()
         };

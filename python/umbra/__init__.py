@@ -104,6 +104,26 @@ def _params(step: Optional[float], kernel: Optional[float], points: Optional[flo
     return [(k, float(v)) for k, v in given.items() if v is not None]
 
 
+def _segments(origins: Any, ends: Any) -> Tuple[np.ndarray, np.ndarray]:
+    o = _points("origins", origins)
+    e = _points("ends", ends)
+    if o.shape != e.shape:
+        raise _invalid("ends", f"{len(o)} origins but {len(e)} ends")
+    return o, e
+
+
+def _sampling(estimator: str, params, samples: Any, seed: Any, ray_id: Any, threads: Any):
+    """The native trace calls' trailing arguments, checked."""
+    return (
+        str(estimator),
+        params,
+        _count("samples", samples),
+        _count("seed", seed),
+        _count("ray_id", ray_id),
+        _count("threads", threads),
+    )
+
+
 def _xform(xform: Any) -> Optional[List[float]]:
     if xform is None:
         return None
@@ -315,19 +335,10 @@ class Volume:
         streams: row ``n`` uses ray id ``ray_id + n``, so the answers equal ``umbra query
         --rays`` line for line, bit for bit. ``threads``: 0 for every core.
         """
-        o = _points("origins", origins)
-        e = _points("ends", ends)
-        if o.shape != e.shape:
-            raise _invalid("ends", f"{len(o)} origins but {len(e)} ends")
+        o, e = _segments(origins, ends)
+        params = _params(step, kernel, points)
         t, err, _, warns = self._v.trace(
-            o,
-            e,
-            str(estimator),
-            _params(step, kernel, points),
-            _count("samples", samples),
-            _count("seed", seed),
-            _count("ray_id", ray_id),
-            _count("threads", threads),
+            o, e, *_sampling(estimator, params, samples, seed, ray_id, threads)
         )
         _warn(warns)
         return _finish(t, err, return_stderr)
@@ -336,11 +347,8 @@ class Volume:
         """The exact optical depth ``tau = integral of mu_t`` along each segment (regular
         tracking): an (N,) float64 array ((N, 3) for an RGB scene); ``inf`` through opaque
         voxels or a solid."""
-        o = _points("origins", origins)
-        e = _points("ends", ends)
-        if o.shape != e.shape:
-            raise _invalid("ends", f"{len(o)} origins but {len(e)} ends")
-        _, _, tau, warns = self._v.trace(o, e, "regular", [], 1, 0, 0, _count("threads", threads))
+        o, e = _segments(origins, ends)
+        _, _, tau, warns = self._v.trace(o, e, *_sampling("regular", [], 1, 0, 0, threads))
         _warn(warns)
         return tau[:, 0] if tau.shape[1] == 1 else tau
 
@@ -370,16 +378,9 @@ class Volume:
         d, q = _vec3("light_dir", light_dir), _vec3("light_pos", light_pos)
         if (d is None) == (q is None):
             raise _invalid("light_dir", "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them")
+        params = _params(step, kernel, points_per_estimate)
         t, err, _, warns = self._v.trace_to_light(
-            p,
-            d,
-            q,
-            str(estimator),
-            _params(step, kernel, points_per_estimate),
-            _count("samples", samples),
-            _count("seed", seed),
-            _count("ray_id", ray_id),
-            _count("threads", threads),
+            p, d, q, *_sampling(estimator, params, samples, seed, ray_id, threads)
         )
         _warn(warns)
         return _finish(t, err, return_stderr)

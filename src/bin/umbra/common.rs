@@ -111,15 +111,7 @@ impl ParamArgs {
 
 /// A library argument error, with its name spelled as the flag (`--step`).
 pub fn flag_error(e: umbra::Error) -> umbra::Error {
-    match e {
-        umbra::Error::InvalidArgument { name, reason } if !name.starts_with("--") => {
-            umbra::Error::InvalidArgument {
-                name: format!("--{name}"),
-                reason,
-            }
-        }
-        other => other,
-    }
+    e.flag_named()
 }
 
 /// `--estimator`'s long help: one line per registered estimator.
