@@ -13,6 +13,7 @@ use pyo3::sync::PyOnceLock;
 use pyo3::types::PyType;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
 use umbra::bake::{
     BakeJob, BakeSettings, Camera, Channel, MapSummary, Projection, Resolution, View,
 };
@@ -222,6 +223,45 @@ fn on_threads<T: Send>(threads: usize, f: impl FnOnce() -> T + Send) -> umbra::R
     Ok(pool.install(f))
 }
 
+/// Calls with fewer rows run without watching for Ctrl-C (they are short).
+const INTERRUPTIBLE_ROWS: usize = 4096;
+
+/// Run `work` while the calling thread (the GIL released) watches Python's signal handlers:
+/// on Ctrl-C (a `KeyboardInterrupt` from `check_signals`) `cancel` is set, the work winds down
+/// (every row not yet started is skipped) and the interrupt is returned. The work runs on a
+/// scoped thread, the caller waking every 50 ms; a panic in the work is resumed here.
+fn interruptible<T: Send>(work: impl FnOnce() -> T + Send, cancel: &AtomicBool) -> PyResult<T> {
+    std::thread::scope(|s| {
+        let (tx, rx) = std::sync::mpsc::channel();
+        let handle = s.spawn(move || {
+            let r = work();
+            let _ = tx.send(());
+            r
+        });
+        let mut interrupt = None;
+        loop {
+            match rx.recv_timeout(std::time::Duration::from_millis(50)) {
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) if interrupt.is_none() => {
+                    if let Err(e) = Python::attach(|py| py.check_signals()) {
+                        cancel.store(true, Ordering::Relaxed);
+                        interrupt = Some(e);
+                    }
+                }
+                Err(std::sync::mpsc::RecvTimeoutError::Timeout) => {}
+                _ => break,
+            }
+        }
+        let result = match handle.join() {
+            Ok(r) => r,
+            Err(panic) => std::panic::resume_unwind(panic),
+        };
+        match interrupt {
+            Some(e) => Err(e),
+            None => Ok(result),
+        }
+    })
+}
+
 /// `(N, 3)` rows as points.
 fn points(a: &PyReadonlyArray2<'_, f64>) -> PyResult<Vec<[f64; 3]>> {
     let s = a.as_slice()?;
@@ -320,6 +360,7 @@ impl NativeVolume {
         est: &Estimator,
         opts: &Options,
         ray_id: u64,
+        cancel: &AtomicBool,
     ) -> Result<Traced, String> {
         let c = self.scene.channels();
         let n = rays.len();
@@ -330,6 +371,9 @@ impl NativeVolume {
             .zip(tau.par_chunks_mut(c))
             .enumerate()
             .map(|(row, ((t, e), tau))| {
+                if cancel.load(Ordering::Relaxed) {
+                    return Tally::default();
+                }
                 let r = rays[row].as_ref().map_err(Clone::clone).and_then(|ray| {
                     umbra::scene::estimate(
                         &self.scene,
@@ -389,6 +433,7 @@ impl NativeVolume {
     fn run<'py>(
         &self,
         py: Python<'py>,
+        rows: usize,
         make: impl Fn(&Scene) -> Vec<Result<Ray, String>> + Send + Sync,
         estimator_name: &str,
         params: &[(String, f64)],
@@ -398,7 +443,8 @@ impl NativeVolume {
         threads: usize,
     ) -> PyResult<TraceOut<'py>> {
         let (est, opts) = estimator(estimator_name, params, self.interp, samples, seed)?;
-        let traced = py.detach(|| {
+        let cancel = AtomicBool::new(false);
+        let work = || {
             on_threads(threads, || {
                 let rays = make(&self.scene);
                 for f in self.scene.fogs() {
@@ -410,9 +456,15 @@ impl NativeVolume {
                         "samples",
                     )?;
                 }
-                Ok(self.trace_rays(&rays, &est, &opts, ray_id))
+                Ok(self.trace_rays(&rays, &est, &opts, ray_id, &cancel))
             })
-        });
+        };
+        // Short calls run inline: watching for Ctrl-C costs a thread.
+        let traced = if rows >= INTERRUPTIBLE_ROWS {
+            py.detach(|| interruptible(work, &cancel))?
+        } else {
+            py.detach(work)
+        };
         let traced = traced.and_then(|r| r).map_err(py_err)?;
         let traced = traced.map_err(|m| raise(Class::Other, m))?;
         let c = traced.channels;
@@ -609,13 +661,16 @@ impl NativeVolume {
             ));
         }
         drop((origins, ends));
+        let n = o.len();
         let make = move |_: &Scene| {
             o.iter()
                 .zip(&e)
                 .map(|(a, b)| Ray::between(*a, *b).map_err(|e| e.to_string()))
                 .collect()
         };
-        self.run(py, make, estimator, &params, samples, seed, ray_id, threads)
+        self.run(
+            py, n, make, estimator, &params, samples, seed, ray_id, threads,
+        )
     }
 
     /// Transmittance from each point toward a light (`query --at`), ray id `ray_id + n`.
@@ -652,6 +707,7 @@ impl NativeVolume {
         }
         let p = points(&points_)?;
         drop(points_);
+        let n = p.len();
         let make = move |scene: &Scene| {
             p.iter()
                 .map(|at| {
@@ -661,7 +717,9 @@ impl NativeVolume {
                 })
                 .collect()
         };
-        self.run(py, make, estimator, &params, samples, seed, ray_id, threads)
+        self.run(
+            py, n, make, estimator, &params, samples, seed, ray_id, threads,
+        )
     }
 
     /// Bake a transmittance map (`umbra bake`, in memory).

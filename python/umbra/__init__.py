@@ -228,9 +228,9 @@ class Volume:
         interp: str = "trilinear",
         xform: Any = None,
     ) -> None:
-        self._v = _umbra.Volume.open(
-            _path("path", path), str(grid), float(density_scale), str(interp), _xform(xform)
-        )
+        args = (_path("path", path), str(grid), float(density_scale), str(interp), _xform(xform))
+        self._v = _umbra.Volume.open(*args)
+        self._args: Tuple[Any, ...] = ("grid", *args)
         _warn(self._v.warnings)
 
     @classmethod
@@ -244,11 +244,16 @@ class Volume:
         """A ``.toml`` scene file: several volumes (each with its transform and extinction
         colour), solids; an RGB scene gives (N, 3) transmittance and (H, W, 3) maps."""
         self = cls.__new__(cls)
-        self._v = _umbra.Volume.open_scene(
-            _path("path", path), float(density_scale), str(interp), _xform(xform)
-        )
+        args = (_path("path", path), float(density_scale), str(interp), _xform(xform))
+        self._v = _umbra.Volume.open_scene(*args)
+        self._args = ("scene", *args)
         _warn(self._v.warnings)
         return self
+
+    def __reduce__(self):
+        # Pickled as what it was loaded from (multiprocessing, farm workers): unpickling loads
+        # the file again.
+        return (_reload, self._args)
 
     def __repr__(self) -> str:
         return (
@@ -481,3 +486,11 @@ class Volume:
         if return_stderr:
             return image(t), image(e), cam
         return image(t), cam
+
+
+def _reload(kind: str, *args: Any) -> Volume:
+    """A pickled Volume, loaded again from its file."""
+    v = Volume.__new__(Volume)
+    v._v = _umbra.Volume.open(*args) if kind == "grid" else _umbra.Volume.open_scene(*args)
+    v._args = (kind, *args)
+    return v
