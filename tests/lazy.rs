@@ -488,6 +488,7 @@ fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> um
         preview: None,
         overwrite: true,
         max_memory,
+        layout: umbra::bake::ExrLayout::default(),
     }
 }
 

@@ -42,6 +42,7 @@ fn job(out: PathBuf, est: Estimator, spp: u32, std_err: bool) -> BakeJob {
         preview: None,
         overwrite: false,
         max_memory: None,
+        layout: umbra::bake::ExrLayout::default(),
     }
 }
 

@@ -2170,6 +2170,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         preview: Some(out.join("map.png")),
         overwrite: true,
         max_memory: None,
+        layout: umbra::bake::ExrLayout::default(),
     };
     stage.set("bake");
     match job.run_on(umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {

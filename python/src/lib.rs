@@ -120,7 +120,8 @@ fn estimators_json() -> PyResult<String> {
 /// Write an image and its summary (a map's `camera` dict, as JSON text) as the OpenEXR file
 /// `umbra bake` writes. `t`/`err` hold `C` channels of `W x H` pixels, channel-major.
 #[pyfunction]
-#[pyo3(signature = (path, summary, t, err, channels, overwrite))]
+#[allow(clippy::too_many_arguments)]
+#[pyo3(signature = (path, summary, t, err, channels, overwrite, tile, mipmap))]
 fn write_exr(
     py: Python<'_>,
     path: PathBuf,
@@ -129,6 +130,8 @@ fn write_exr(
     err: Option<PyReadonlyArray1<'_, f32>>,
     channels: usize,
     overwrite: bool,
+    tile: Option<u32>,
+    mipmap: bool,
 ) -> PyResult<()> {
     let summary: MapSummary = serde_json::from_str(summary)
         .map_err(|e| arg("camera", format!("not the camera dict of a baked map: {e}")))?;
@@ -157,7 +160,8 @@ fn write_exr(
         let class = class_of(&e);
         raise(class, e.to_string())
     })?;
-    py.detach(|| umbra::bake::write_exr(&path, &map, &prov, overwrite))
+    let layout = umbra::bake::ExrLayout { tile, mipmap };
+    py.detach(|| umbra::bake::write_exr_as(&path, &map, &prov, &layout, overwrite))
         .map_err(py_err)
 }
 
@@ -812,6 +816,7 @@ impl NativeVolume {
             preview: None,
             overwrite: false,
             max_memory: None,
+            layout: umbra::bake::ExrLayout::default(),
         };
         let report = py
             .detach(|| -> umbra::Result<_> {

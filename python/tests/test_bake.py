@@ -150,3 +150,15 @@ def test_bake_argument_errors():
         vol.bake(light_dir=(0, -1, 0), spp=0, estimator="ratio")
     with pytest.raises(umbra.InvalidArgument, match="camera"):
         vol.bake(camera={"kind": "ortho"})
+
+
+def test_write_exr_tiled_and_mipmapped(cli, tmp_path):
+    out = tmp_path / "cli.exr"
+    cli("bake", CLOUD, "--light-dir=-1,-1,0", "--res", "50x30", "--spp", "1", "--tile", "16",
+        "--mipmap", "-o", out, "--quiet")
+    image, camera = umbra.Volume(CLOUD).bake(light_dir=(-1, -1, 0), res=(50, 30))
+    umbra.write_exr(tmp_path / "py.exr", image, camera, tile=16, mipmap=True)
+    assert (tmp_path / "py.exr").read_bytes() == out.read_bytes()
+    with pytest.raises(umbra.InvalidArgument, match="--tile"):
+        umbra.write_exr(tmp_path / "x.exr", image, camera, mipmap=True)
+    assert not (tmp_path / "x.exr").exists()

@@ -174,6 +174,9 @@ def write_exr(
     camera: Dict[str, Any],
     stderr: Any = None,
     overwrite: bool = False,
+    *,
+    tile: Optional[int] = None,
+    mipmap: bool = False,
 ) -> None:
     """Write ``image`` (the ``(H, W)`` float32 map of :meth:`Volume.bake`, row 0 at the top;
     ``(H, W, 3)`` for a colour scene) and its ``camera`` dict as the OpenEXR file ``umbra
@@ -183,6 +186,8 @@ def write_exr(
     atomically; an existing file is an error unless ``overwrite``.
 
     The image may have been changed (composited, denoised); its shape must stay the camera's.
+    ``tile=N`` writes N x N tiles, ``mipmap=True`` (with ``tile``) adds box-filtered mip levels,
+    as ``umbra bake --tile N --mipmap``.
     """
     if not isinstance(camera, dict):
         raise _invalid("camera", "expected the camera dict Volume.bake returns")
@@ -204,7 +209,14 @@ def write_exr(
     t = planes("image", image)
     e = None if stderr is None else planes("stderr", stderr)
     _umbra.write_exr(
-        _path("path", path), json.dumps(camera), t, e, 3 if rgb else 1, bool(overwrite)
+        _path("path", path),
+        json.dumps(camera),
+        t,
+        e,
+        3 if rgb else 1,
+        bool(overwrite),
+        None if tile is None else _count("tile", tile),
+        bool(mipmap),
     )
 
 

@@ -42,6 +42,9 @@ def write_exr(
     camera: _Camera,
     stderr: Optional[npt.ArrayLike] = None,
     overwrite: bool = False,
+    *,
+    tile: Optional[int] = None,
+    mipmap: bool = False,
 ) -> None: ...
 
 class Volume:

@@ -19,6 +19,7 @@
 mod camera;
 mod camera_file;
 pub(crate) use camera::{normalise, CameraParts};
+mod layout;
 mod matrix;
 mod output;
 mod pipeline;
@@ -32,7 +33,8 @@ pub use camera::{
     DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE,
 };
 pub use camera_file::{camera_from_json, read_camera};
-pub use output::{slice_channel, write_exr, write_map, write_png, Provenance};
+pub use layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
+pub use output::{slice_channel, write_exr, write_exr_as, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
 pub use render::{
     bake, bake_scene, check_threads, BakeSettings, BakeStats, Channel, Depths, Map, Order,

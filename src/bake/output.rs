@@ -3,13 +3,14 @@
 //! together).
 
 use super::camera::Projection;
+use super::layout::{mip_levels, ExrLayout};
 use super::render::Map;
 use crate::error::{Error, Result};
 use crate::output::{commit_all, stage, write_atomic};
 use exr::meta::attribute::{AttributeValue, Text};
 use exr::prelude::{
-    AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, SmallVec,
-    SpecificChannels, Vec2, WritableImage,
+    AnyChannel, AnyChannels, Encoding, FlatSamples, Image, Layer, LayerAttributes, Levels,
+    SmallVec, SpecificChannels, Vec2, WritableImage,
 };
 use std::io::Write;
 use std::path::Path;
@@ -82,7 +83,25 @@ pub fn slice_channel(k: usize) -> String {
 /// # Errors
 /// [`Error::Output`] as [`write_atomic`], or if the encoder fails.
 pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> Result<()> {
-    let bytes = encode_exr(map, prov).map_err(|e| output_err(path, e))?;
+    write_exr_as(path, map, prov, &ExrLayout::SCANLINES, overwrite)
+}
+
+/// [`write_exr`] in `layout`: scanlines, or tiles of `n x n` pixels (the same channels and
+/// attributes; OpenEXR's `tiles` attribute says the tile size and level mode), with
+/// box-filtered round-down mip levels of every channel when `layout.mipmap`
+/// ([`super::layout`]).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a layout [`ExrLayout::validate`] refuses; as [`write_exr`].
+pub fn write_exr_as(
+    path: &Path,
+    map: &Map,
+    prov: &Provenance,
+    layout: &ExrLayout,
+    overwrite: bool,
+) -> Result<()> {
+    layout.validate()?;
+    let bytes = encode_exr(map, prov, layout).map_err(|e| output_err(path, e))?;
     write_atomic(path, overwrite, |w| {
         w.write_all(&bytes).map_err(|e| format!("writing: {e}"))
     })
@@ -99,12 +118,14 @@ pub fn write_map(
     png: Option<&Path>,
     map: &Map,
     prov: &Provenance,
+    layout: &ExrLayout,
     overwrite: bool,
 ) -> Result<()> {
     if png.is_some_and(|p| crate::output::same_file(p, exr)) {
         return Err(output_err(exr, "the preview and the map are the same file"));
     }
-    let bytes = encode_exr(map, prov).map_err(|e| output_err(exr, e))?;
+    layout.validate()?;
+    let bytes = encode_exr(map, prov, layout).map_err(|e| output_err(exr, e))?;
     let mut staged = vec![stage(exr, overwrite, |w| {
         w.write_all(&bytes).map_err(|e| format!("writing: {e}"))
     })?];
@@ -115,8 +136,12 @@ pub fn write_map(
     commit_all(staged)
 }
 
-/// The EXR file's bytes (see [`write_exr`]).
-fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, String> {
+/// The EXR file's bytes (see [`write_exr`] and [`write_exr_as`]).
+fn encode_exr(
+    map: &Map,
+    prov: &Provenance,
+    layout: &ExrLayout,
+) -> std::result::Result<Vec<u8>, String> {
     let c = &map.camera;
     let size = (c.width as usize, c.height as usize);
     let mut a = LayerAttributes {
@@ -188,12 +213,38 @@ fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, Stri
     }
     let enc = Encoding {
         compression: exr::compression::Compression::ZIP16,
-        blocks: exr::image::Blocks::ScanLines,
+        blocks: match layout.tile {
+            Some(n) => exr::image::Blocks::Tiles(Vec2(n as usize, n as usize)),
+            None => exr::image::Blocks::ScanLines,
+        },
         line_order: exr::meta::attribute::LineOrder::Increasing,
     };
     let parallel = s.threads == 0;
     let mut buf = std::io::Cursor::new(Vec::new());
-    let encoded = if map.std_err.is_none() && map.slices.is_empty() && map.color.is_none() {
+    let encoded = if layout.mipmap {
+        // Every channel with its levels (the list as below, each a `Levels::Mip`).
+        let mut list: SmallVec<[AnyChannel<Levels<FlatSamples>>; 4]> = SmallVec::new();
+        for (name, data) in channel_planes(map) {
+            let levels = mip_levels(data, size.0, size.1)
+                .into_iter()
+                .map(FlatSamples::F32)
+                .collect();
+            list.push(AnyChannel::new(
+                name,
+                Levels::Mip {
+                    rounding_mode: exr::math::RoundingMode::Down,
+                    level_data: levels,
+                },
+            ));
+        }
+        let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
+        let writer = image.write();
+        if parallel {
+            writer.to_buffered(&mut buf)
+        } else {
+            writer.non_parallel().to_buffered(&mut buf)
+        }
+    } else if map.std_err.is_none() && map.slices.is_empty() && map.color.is_none() {
         // The common single-channel map is read straight from `map.t` (no copy of the image).
         let width = size.0;
         let channels = SpecificChannels::build()
@@ -208,23 +259,8 @@ fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, Stri
         }
     } else {
         let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
-        let names: &[&str] = if map.color.is_some() {
-            &["R", "G", "B"]
-        } else {
-            &["T"]
-        };
-        for (c, base) in names.iter().enumerate() {
-            let (t, err, slices) = map.channel(c);
-            list.push(AnyChannel::new(*base, FlatSamples::F32(t.to_vec())));
-            if let Some(e) = err {
-                let name = Text::new_or_none(format!("{base}.stderr")).unwrap_or_default();
-                list.push(AnyChannel::new(name, FlatSamples::F32(e.to_vec())));
-            }
-            for (k, s) in slices.iter().enumerate() {
-                let name = slice_channel(k).replace(".T", &format!(".{base}"));
-                let name = Text::new_or_none(name).unwrap_or_default();
-                list.push(AnyChannel::new(name, FlatSamples::F32(s.clone())));
-            }
+        for (name, data) in channel_planes(map) {
+            list.push(AnyChannel::new(name, FlatSamples::F32(data.to_vec())));
         }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
         let writer = image.write();
@@ -238,6 +274,25 @@ fn encode_exr(map: &Map, prov: &Provenance) -> std::result::Result<Vec<u8>, Stri
     let mut bytes = buf.into_inner();
     sort_attributes(&mut bytes)?;
     Ok(bytes)
+}
+
+/// Every channel of `map` with its name: `T` (or `R`, `G`, `B`), each followed by its
+/// `.stderr` and `sliceNN` channels.
+fn channel_planes(map: &Map) -> Vec<(Text, &[f32])> {
+    let names =
+        super::summary::channel_names(map.channels(), map.std_err.is_some(), map.slices.len());
+    let mut planes: Vec<&[f32]> = Vec::with_capacity(names.len());
+    for c in 0..map.channels() {
+        let (t, err, slices) = map.channel(c);
+        planes.push(t);
+        planes.extend(err);
+        planes.extend(slices.iter().map(Vec::as_slice));
+    }
+    names
+        .iter()
+        .map(|n| Text::new_or_none(n.as_str()).unwrap_or_default())
+        .zip(planes)
+        .collect()
 }
 
 /// Put the attributes of a single-part OpenEXR header in name order, as the OpenEXR library

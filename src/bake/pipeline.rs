@@ -38,6 +38,8 @@ pub struct BakeJob {
     pub preview: Option<PathBuf>,
     /// Replace existing outputs.
     pub overwrite: bool,
+    /// The EXR's layout: scanlines, or tiles with optional mip levels (`--tile`, `--mipmap`).
+    pub layout: super::ExrLayout,
     /// A memory budget in bytes (`--max-memory`): when the decoded grid and the image would
     /// not fit in it, an exact map is swept a part of the grid at a time
     /// ([`BakeJob::plan_bounded`]); `None`: load the whole grid.
@@ -206,6 +208,7 @@ impl BakeJob {
                 });
             }
         }
+        self.layout.validate()?;
         check_writable(&self.output, self.overwrite)?;
         check_extension(&self.output, "exr", "output", "a map is written as OpenEXR")?;
         if let Some(p) = &self.preview {
@@ -481,6 +484,7 @@ impl BakeJob {
             self.preview.as_deref(),
             &report.map,
             &report.provenance,
+            &self.layout,
             self.overwrite,
         )?;
         Ok(report)

@@ -219,6 +219,10 @@ pub struct BakeSpec {
     pub levelset: Option<String>,
     /// Memory budget of each task (`"512M"`, `"2G"`), as `umbra bake --max-memory`.
     pub max_memory: Option<String>,
+    /// Tiled EXR maps with `tile x tile` tiles, as `umbra bake --tile`.
+    pub tile: Option<u32>,
+    /// Box-filtered mip levels (with `tile`), as `umbra bake --mipmap`.
+    pub mipmap: bool,
 }
 
 impl Default for BakeSpec {
@@ -251,6 +255,8 @@ impl Default for BakeSpec {
             sigma_t: None,
             levelset: None,
             max_memory: None,
+            tile: None,
+            mipmap: false,
         }
     }
 }
@@ -317,6 +323,8 @@ pub struct Job {
     pub levelset_solid: bool,
     /// Each task's memory budget in bytes (`bake.max_memory`; see [`BakeJob::max_memory`]).
     pub max_memory: Option<u64>,
+    /// The maps' EXR layout (`bake.tile`, `bake.mipmap`).
+    pub layout: crate::bake::ExrLayout,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
@@ -658,6 +666,16 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             crate::math::parse_bytes(m).map_err(|reason| err(&path, "bake.max_memory", reason))?,
         ),
     };
+    let layout = crate::bake::ExrLayout {
+        tile: b.tile,
+        mipmap: b.mipmap,
+    };
+    layout.validate().map_err(|e| match e {
+        crate::Error::InvalidArgument { name, reason } => {
+            err(&path, &format!("bake.{name}"), reason)
+        }
+        other => BatchError::Task(other),
+    })?;
     let xform = match &b.xform {
         Some(v) => Some(crate::xform::Xform::from_row_major(v).map_err(|e| match e {
             crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.xform", reason),
@@ -898,6 +916,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         sigma_t,
         levelset_solid,
         max_memory,
+        layout,
         shared: std::sync::OnceLock::new(),
     })
 }
@@ -989,6 +1008,7 @@ impl Job {
             preview: task.preview.clone(),
             overwrite: true,
             max_memory: self.max_memory,
+            layout: self.layout,
         }
     }
 

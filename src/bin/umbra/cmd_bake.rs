@@ -57,6 +57,13 @@ pub struct BakeArgs {
     /// (default 1024).
     #[arg(long, allow_hyphen_values = true)]
     res: Option<String>,
+    /// Write a tiled EXR with N x N tiles (renderers page large maps in by tile).
+    #[arg(long, value_name = "N")]
+    tile: Option<u32>,
+    /// With --tile: also write box-filtered mip levels of every channel (round-down, down to
+    /// 1x1; each level pixel the mean of T over its footprint).
+    #[arg(long)]
+    mipmap: bool,
     /// Overwrite existing outputs.
     #[arg(long)]
     force: bool,
@@ -221,6 +228,10 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         preview: a.preview.clone(),
         overwrite: a.force,
         max_memory: a.max_memory,
+        layout: umbra::bake::ExrLayout {
+            tile: a.tile,
+            mipmap: a.mipmap,
+        },
     };
     let scene_file = umbra::scene::is_scene_file(&job.input);
     let setup_error = |e: umbra::Error| match e {
@@ -295,6 +306,7 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
         let mut v = serde_json::to_value(&summary)?;
         let run = serde_json::json!({
             "output": a.output, "preview": a.preview, "threads": threads,
+            "tile": a.tile, "mipmap": a.mipmap,
             "seconds": st.seconds, "total_seconds": total,
             "rays_per_second": rays_per_second, "lookups": st.lookups,
             "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
