@@ -221,6 +221,17 @@ fn encode_exr(
     };
     let parallel = s.threads == 0;
     let mut buf = std::io::Cursor::new(Vec::new());
+    // Each layout is its own image type; they encode alike.
+    macro_rules! encode {
+        ($image:expr) => {{
+            let writer = $image.write();
+            if parallel {
+                writer.to_buffered(&mut buf)
+            } else {
+                writer.non_parallel().to_buffered(&mut buf)
+            }
+        }};
+    }
     let encoded = if layout.mipmap {
         // Every channel with its levels (the list as below, each a `Levels::Mip`).
         let mut list: SmallVec<[AnyChannel<Levels<FlatSamples>>; 4]> = SmallVec::new();
@@ -238,12 +249,7 @@ fn encode_exr(
             ));
         }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
-        let writer = image.write();
-        if parallel {
-            writer.to_buffered(&mut buf)
-        } else {
-            writer.non_parallel().to_buffered(&mut buf)
-        }
+        encode!(image)
     } else if map.std_err.is_none() && map.slices.is_empty() && map.color.is_none() {
         // The common single-channel map is read straight from `map.t` (no copy of the image).
         let width = size.0;
@@ -251,24 +257,14 @@ fn encode_exr(
             .with_channel("T")
             .with_pixel_fn(|p: Vec2<usize>| (map.t[p.y() * width + p.x()],));
         let image = Image::from_layer(Layer::new(size, a, enc, channels));
-        let writer = image.write();
-        if parallel {
-            writer.to_buffered(&mut buf)
-        } else {
-            writer.non_parallel().to_buffered(&mut buf)
-        }
+        encode!(image)
     } else {
         let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
         for (name, data) in channel_planes(map) {
             list.push(AnyChannel::new(name, FlatSamples::F32(data.to_vec())));
         }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
-        let writer = image.write();
-        if parallel {
-            writer.to_buffered(&mut buf)
-        } else {
-            writer.non_parallel().to_buffered(&mut buf)
-        }
+        encode!(image)
     };
     encoded.map_err(|e| format!("OpenEXR encoder: {e}"))?;
     let mut bytes = buf.into_inner();
