@@ -19,6 +19,7 @@
 mod camera;
 mod camera_file;
 mod deep;
+mod deep_fit;
 pub(crate) use camera::{normalise, CameraParts};
 mod layout;
 mod matrix;
@@ -35,6 +36,7 @@ pub use camera::{
 };
 pub use camera_file::{camera_from_json, read_camera};
 pub use deep::{encode_deep_exr, write_deep_exr, DeepAttributes, DeepImage, RESERVED_ATTRIBUTES};
+pub use deep_fit::{fit_profile, fitted_transmittance, DeepSample};
 pub use layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
 pub use output::{slice_channel, write_exr, write_exr_as, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
