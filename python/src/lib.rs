@@ -135,15 +135,19 @@ fn write_exr(
 ) -> PyResult<()> {
     let summary: MapSummary = serde_json::from_str(summary)
         .map_err(|e| arg("camera", format!("not the camera dict of a baked map: {e}")))?;
-    let split = |v: Vec<f32>| -> Vec<Vec<f32>> {
-        let n = v.len() / channels.max(1);
-        v.chunks(n.max(1)).map(<[f32]>::to_vec).collect()
+    // Channel-major planes, one `Vec` each.
+    let split = |v: &[f32]| -> std::vec::IntoIter<Vec<f32>> {
+        let n = (v.len() / channels.max(1)).max(1);
+        v.chunks(n)
+            .map(<[f32]>::to_vec)
+            .collect::<Vec<_>>()
+            .into_iter()
     };
-    let mut t = split(t.as_slice()?.to_vec()).into_iter();
-    let mut e = err
-        .map(|e| e.as_slice().map(|s| split(s.to_vec())))
-        .transpose()?
-        .map(Vec::into_iter);
+    let mut t = split(t.as_slice()?);
+    let mut e = match &err {
+        Some(e) => Some(split(e.as_slice()?)),
+        None => None,
+    };
     let red = t.next().unwrap_or_default();
     let red_err = e.as_mut().and_then(Iterator::next);
     let color = (channels == 3).then(|| {
@@ -156,10 +160,10 @@ fn write_exr(
         let b = ch();
         Box::new([g, b])
     });
-    let (map, prov) = summary.to_map(red, red_err, color).map_err(|e| {
-        let class = class_of(&e);
-        raise(class, e.to_string())
-    })?;
+    // The summary's own names (`camera`, `image`), not flags.
+    let (map, prov) = summary
+        .to_map(red, red_err, color)
+        .map_err(|e| raise(class_of(&e), e.to_string()))?;
     let layout = umbra::bake::ExrLayout { tile, mipmap };
     py.detach(|| umbra::bake::write_exr_as(&path, &map, &prov, &layout, overwrite))
         .map_err(py_err)
@@ -178,6 +182,8 @@ struct NativeVolume {
     xform: Option<umbra::xform::Xform>,
     interp: Interp,
     warnings: Vec<String>,
+    /// Each fog volume's tree statistics, computed on first use (a pass over every leaf).
+    stats: std::sync::OnceLock<Vec<umbra::tree::TreeStats>>,
 }
 
 fn parse_interp(s: &str) -> PyResult<Interp> {
@@ -340,6 +346,18 @@ impl NativeVolume {
             xform,
             interp,
             warnings,
+            stats: std::sync::OnceLock::new(),
+        })
+    }
+
+    /// The tree statistics of each fog volume, in scene order.
+    fn stats(&self) -> &[umbra::tree::TreeStats] {
+        self.stats.get_or_init(|| {
+            self.scene
+                .fogs()
+                .iter()
+                .map(|f| f.volume().tree().stats())
+                .collect()
         })
     }
 
@@ -356,18 +374,19 @@ impl NativeVolume {
         })
     }
 
-    /// Trace `rays` (ray `n` with ray id `ray_id + n`); a ray that could not be made is its
-    /// row's failure.
+    /// Trace `n` rays, row `row` along `ray_of(row)` with ray id `ray_id + row`; a ray that
+    /// could not be made is its row's failure. Rays are made on the worker threads, row by
+    /// row, never stored.
     fn trace_rays(
         &self,
-        rays: &[Result<Ray, String>],
+        n: usize,
+        ray_of: &(dyn Fn(usize) -> Result<Ray, String> + Sync),
         est: &Estimator,
         opts: &Options,
         ray_id: u64,
         cancel: &AtomicBool,
     ) -> Result<Traced, String> {
         let c = self.scene.channels();
-        let n = rays.len();
         let (mut t, mut err, mut tau) = (vec![0.0; n * c], vec![0.0; n * c], vec![0.0; n * c]);
         let tally = t
             .par_chunks_mut(c)
@@ -378,10 +397,10 @@ impl NativeVolume {
                 if cancel.load(Ordering::Relaxed) {
                     return Tally::default();
                 }
-                let r = rays[row].as_ref().map_err(Clone::clone).and_then(|ray| {
+                let r = ray_of(row).and_then(|ray| {
                     umbra::scene::estimate(
                         &self.scene,
-                        ray,
+                        &ray,
                         ray_id.wrapping_add(row as u64),
                         est,
                         opts,
@@ -431,14 +450,14 @@ impl NativeVolume {
         })
     }
 
-    /// Estimate along `rays` after the CLI's up-front checks (the estimator, its options and
-    /// the job's work budget).
+    /// Estimate along `rows` rays (`ray_of(row)`) after the CLI's up-front checks (the
+    /// estimator, its options and the job's work budget).
     #[allow(clippy::too_many_arguments)]
     fn run<'py>(
         &self,
         py: Python<'py>,
         rows: usize,
-        make: impl Fn(&Scene) -> Vec<Result<Ray, String>> + Send + Sync,
+        ray_of: impl Fn(usize) -> Result<Ray, String> + Send + Sync,
         estimator_name: &str,
         params: &[(String, f64)],
         samples: u32,
@@ -450,17 +469,16 @@ impl NativeVolume {
         let cancel = AtomicBool::new(false);
         let work = || {
             on_threads(threads, || {
-                let rays = make(&self.scene);
                 for f in self.scene.fogs() {
                     umbra::estimate::budget::check_job(
                         f.volume(),
                         &est,
-                        rays.len() as u64,
+                        rows as u64,
                         u64::from(opts.samples),
                         "samples",
                     )?;
                 }
-                Ok(self.trace_rays(&rays, &est, &opts, ray_id, &cancel))
+                Ok(self.trace_rays(rows, &ray_of, &est, &opts, ray_id, &cancel))
             })
         };
         // Short calls run inline: watching for Ctrl-C costs a thread.
@@ -608,16 +626,13 @@ impl NativeVolume {
 
     /// Inclusive index box of the active voxels (tiles count as the voxels they cover).
     fn index_bbox(&self) -> PyResult<Option<[[i32; 3]; 2]>> {
-        Ok(self.single("index_bbox")?.tree().stats().index_bbox)
+        self.single("index_bbox")?;
+        Ok(self.stats().first().and_then(|s| s.index_bbox))
     }
 
     /// Active voxels (over every volume of a scene).
     fn active_voxels(&self) -> u64 {
-        self.scene
-            .fogs()
-            .iter()
-            .map(|f| f.volume().tree().stats().active_voxels)
-            .sum()
+        self.stats().iter().map(|s| s.active_voxels).sum()
     }
 
     /// World box of the active voxel centres (the index box's corners in world space; a
@@ -625,14 +640,13 @@ impl NativeVolume {
     fn world_bbox(&self) -> Option<[[f64; 3]; 2]> {
         let mut lo = [f64::INFINITY; 3];
         let mut hi = [f64::NEG_INFINITY; 3];
-        for f in self.scene.fogs() {
-            let v = f.volume();
-            let Some(b) = v.tree().stats().index_bbox else {
+        for (f, s) in self.scene.fogs().iter().zip(self.stats()) {
+            let Some(b) = s.index_bbox else {
                 continue;
             };
-            for n in 0..8 {
-                let p = [0, 1, 2].map(|a| f64::from(b[(n >> a) & 1][a]));
-                let w = v.to_world(p).to_array();
+            let b = b.map(|c| c.map(f64::from));
+            for p in umbra::math::box_corners(b) {
+                let w = f.volume().to_world(p).to_array();
                 for a in 0..3 {
                     lo[a] = lo[a].min(w[a]);
                     hi[a] = hi[a].max(w[a]);
@@ -666,14 +680,9 @@ impl NativeVolume {
         }
         drop((origins, ends));
         let n = o.len();
-        let make = move |_: &Scene| {
-            o.iter()
-                .zip(&e)
-                .map(|(a, b)| Ray::between(*a, *b).map_err(|e| e.to_string()))
-                .collect()
-        };
+        let ray_of = |row: usize| Ray::between(o[row], e[row]).map_err(|e| e.to_string());
         self.run(
-            py, n, make, estimator, &params, samples, seed, ray_id, threads,
+            py, n, ray_of, estimator, &params, samples, seed, ray_id, threads,
         )
     }
 
@@ -712,17 +721,14 @@ impl NativeVolume {
         let p = points(&points_)?;
         drop(points_);
         let n = p.len();
-        let make = move |scene: &Scene| {
-            p.iter()
-                .map(|at| {
-                    light
-                        .ray_from_scene(scene, *at)
-                        .map_err(|e| e.flag_named().to_string())
-                })
-                .collect()
+        let scene = &self.scene;
+        let ray_of = |row: usize| {
+            light
+                .ray_from_scene(scene, p[row])
+                .map_err(|e| e.flag_named().to_string())
         };
         self.run(
-            py, n, make, estimator, &params, samples, seed, ray_id, threads,
+            py, n, ray_of, estimator, &params, samples, seed, ray_id, threads,
         )
     }
 

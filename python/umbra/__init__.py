@@ -43,9 +43,6 @@ __all__ = [
 PathLike = Union[str, "os.PathLike[str]"]
 Vec3 = Union[Sequence[float], np.ndarray]
 
-_ESTIMATOR_PARAMS = ("step", "kernel", "points")
-
-
 def _invalid(name: str, reason: str) -> InvalidArgument:
     return InvalidArgument(f"invalid argument '{name}': {reason}")
 
@@ -91,10 +88,10 @@ def _vec3(name: str, v: Any) -> Optional[Tuple[float, float, float]]:
     return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
-def _count(name: str, v: Any, lo: int = 0) -> int:
+def _count(name: str, v: Any) -> int:
     if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
         raise _invalid(name, f"expected a whole number, got {v!r}")
-    if int(v) < lo or int(v) >= 2**64:
+    if int(v) < 0 or int(v) >= 2**64:
         raise _invalid(name, f"{v} is out of range")
     return int(v)
 

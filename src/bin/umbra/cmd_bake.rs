@@ -286,7 +286,6 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
     let c = &map.camera;
     let st = &map.stats;
     let rays_per_second = st.rays as f64 / st.seconds.max(1e-9);
-    let mean_spp = st.samples as f64 / st.rays.max(1) as f64;
     let n = map.t.len().max(1) as f64;
     let t_mean = map.t.iter().map(|&t| f64::from(t)).sum::<f64>() / n;
     let t_min = map.t.iter().copied().fold(f32::INFINITY, f32::min);
@@ -336,10 +335,11 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
         )?;
         writeln!(
             out,
-            "{:.3} s on {threads} threads, {:.0} rays/s, {}, {mean_spp:.1} spp, {:.0} lookups/ray",
+            "{:.3} s on {threads} threads, {:.0} rays/s, {}, {:.1} spp, {:.0} lookups/ray",
             st.seconds,
             rays_per_second,
             s.estimator.name(),
+            summary.mean_spp,
             st.lookups as f64 / st.rays.max(1) as f64
         )?;
         if st.unconverged > 0 {
