@@ -24,6 +24,9 @@ use crate::tree::{Accessor, Block, Neighbour};
 use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
 
+mod profile;
+pub use profile::{optical_depth_profile, optical_depth_profile_tau, Profile, MAX_PIECES};
+
 /// Exact optical depth along a ray and what it cost.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct OpticalDepth {
@@ -312,7 +315,7 @@ impl CornerSource for LeafSource<'_> {
 #[inline]
 fn nearest_cells(
     src: &mut impl CornerSource,
-    mut w: Dda,
+    w: Dda,
     q: [f64; 3],
     d: [f64; 3],
     t1: f64,
@@ -320,7 +323,29 @@ fn nearest_cells(
     hi: [i64; 3],
     n: &mut Counts,
 ) -> f64 {
-    let (mut t, mut sum) = (w.t0, 0.0f64);
+    let mut sum = 0.0f64;
+    nearest_walk(src, w, q, d, t1, lo, hi, n, |v, ta, tb| {
+        sum += v * (tb - ta);
+    });
+    sum
+}
+
+/// The voxels of `[t0, t1]` within `[lo, hi]` in ray order: `visit(value, ta, tb)` for each
+/// voxel's piece `[ta, tb]` of the line.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn nearest_walk(
+    src: &mut impl CornerSource,
+    mut w: Dda,
+    q: [f64; 3],
+    d: [f64; 3],
+    t1: f64,
+    lo: [i64; 3],
+    hi: [i64; 3],
+    n: &mut Counts,
+    mut visit: impl FnMut(f64, f64, f64),
+) {
+    let mut t = w.t0;
     loop {
         let axis = w.axis();
         let t_exit = w.t_next[axis].min(t1);
@@ -328,11 +353,11 @@ fn nearest_cells(
             n.cells += 1;
             n.reads += 1;
             src.at(w.cell);
-            sum += f64::from(src.get(0)) * (t_exit - t);
+            visit(f64::from(src.get(0)), t, t_exit);
             t = t_exit;
         }
         if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
-            return sum;
+            return;
         }
     }
 }
@@ -343,7 +368,7 @@ fn nearest_cells(
 #[inline]
 fn trilinear_cells(
     src: &mut impl CornerSource,
-    mut w: Dda,
+    w: Dda,
     q: [f64; 3],
     d: [f64; 3],
     t1: f64,
@@ -352,23 +377,46 @@ fn trilinear_cells(
     n: &mut Counts,
 ) -> f64 {
     let du = [0, 1, 2].map(|a| d[a] * GAUSS);
+    let mut sum = 0.0f64;
+    trilinear_walk(src, w, q, d, t1, lo, hi, n, |v, cell, ta, tb| {
+        sum += cubic_cell_integral(v, cell, q, d, du, ta, tb);
+    });
+    sum
+}
+
+/// The dual cells of `[t0, t1]` within `[lo, hi]` in ray order: `visit(corners, cell, ta, tb)`
+/// for each cell's piece `[ta, tb]` of the line, reusing the 4 corners two consecutive cells
+/// share.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn trilinear_walk(
+    src: &mut impl CornerSource,
+    mut w: Dda,
+    q: [f64; 3],
+    d: [f64; 3],
+    t1: f64,
+    lo: [i64; 3],
+    hi: [i64; 3],
+    n: &mut Counts,
+    mut visit: impl FnMut(&[f64; 8], [i64; 3], f64, f64),
+) {
     let mut v = [0f64; 8];
     src.at(w.cell);
     for (k, x) in v.iter_mut().enumerate() {
         *x = f64::from(src.get(k));
     }
     n.reads += 8;
-    let (mut t, mut sum) = (w.t0, 0.0f64);
+    let mut t = w.t0;
     loop {
         let axis = w.axis();
         let t_exit = w.t_next[axis].min(t1);
         if t_exit > t {
             n.cells += 1;
-            sum += cubic_cell_integral(&v, w.cell, q, d, du, t, t_exit);
+            visit(&v, w.cell, t, t_exit);
             t = t_exit;
         }
         if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
-            return sum;
+            return;
         }
         // The old far face on `axis` is the new near face (or the other way round).
         // Constant indices in each arm, so the 8 corners can stay in registers.

@@ -43,6 +43,7 @@ fn job(out: PathBuf, est: Estimator, spp: u32, std_err: bool) -> BakeJob {
         overwrite: false,
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
+        product: umbra::bake::Product::Map,
     }
 }
 

@@ -2171,6 +2171,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         overwrite: true,
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
+        product: umbra::bake::Product::Map,
     };
     stage.set("bake");
     match job.run_on(umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {

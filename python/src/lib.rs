@@ -823,6 +823,7 @@ impl NativeVolume {
             overwrite: false,
             max_memory: None,
             layout: umbra::bake::ExrLayout::default(),
+            product: umbra::bake::Product::Map,
         };
         let report = py
             .detach(|| -> umbra::Result<_> {

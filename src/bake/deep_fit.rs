@@ -64,7 +64,19 @@ pub fn fitted_transmittance(samples: &[DeepSample], z: f64) -> f64 {
 
 /// The largest `|exp(-a(t)) - exp(-b(t))|` over `[t0, t1]` for `a` linear from `a0` to `a1`
 /// and `b` linear from `b0` to `b1`: at the ends, or where the derivative vanishes.
+#[cfg(test)]
 fn max_gap(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64)) -> f64 {
+    gap_within(t0, t1, (a0, a1), (b0, b1), 0.0)
+}
+
+/// [`max_gap`], or a bound on it no larger than `enough` when that settles the question
+/// without the exponentials: `|exp(-a) - exp(-b)| <= |a - b|` for non-negative `a`, `b`,
+/// and `a - b` is linear, so largest at an end.
+fn gap_within(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64), enough: f64) -> f64 {
+    let cheap = (a0 - b0).abs().max((a1 - b1).abs());
+    if cheap <= enough && a0.min(a1).min(b0).min(b1) >= 0.0 {
+        return cheap;
+    }
     let g = |a: f64, b: f64| ((-a).exp() - (-b).exp()).abs();
     let mut worst = g(a0, b0).max(g(a1, b1));
     let len = t1 - t0;
@@ -91,6 +103,30 @@ fn max_gap(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64)) -> f64 
 /// `deep`) for profiles of different lengths, non-finite values, depths that decrease or
 /// optical depths that do.
 pub fn fit_profile(t: &[f64], tau: &[f64], max_error: f64) -> Result<Vec<DeepSample>> {
+    Ok(fit_spans(t, &[tau], max_error)?
+        .into_iter()
+        .map(|(i, j)| DeepSample {
+            z0: t[i],
+            z1: t[j],
+            tau0: tau[i],
+            tau1: tau[j],
+        })
+        .collect())
+}
+
+/// [`fit_profile`] for several channels sharing the depths `t` (R, G, B and A of a colour
+/// map): the samples as breakpoint index pairs `(i, j)` (sample `[t_i, t_j]`, each channel's
+/// optical depth linear from `taus[c][i]` to `taus[c][j]`), every channel within
+/// `max_error` at every depth. A span ends where every channel is flat.
+///
+/// The search for a sample's end gallops (`j = i + 1, i + 2, i + 4, ...` while the chord
+/// fits), then bisects between the last fit and the first miss, so a sample of `L`
+/// breakpoints costs `O(L log L)` checks; each accepted chord is checked on every interval it
+/// spans.
+///
+/// # Errors
+/// As [`fit_profile`], for any channel; also (name `deep`) for no channel.
+pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usize, usize)>> {
     if !(max_error > 0.0 && max_error < 1.0) {
         return Err(Error::InvalidArgument {
             name: "deep-error".into(),
@@ -101,50 +137,83 @@ pub fn fit_profile(t: &[f64], tau: &[f64], max_error: f64) -> Result<Vec<DeepSam
         name: "deep".into(),
         reason: reason.into(),
     };
-    if t.len() != tau.len() {
-        return Err(bad(
-            "the profile's depths and optical depths differ in number",
-        ));
+    if taus.is_empty() {
+        return Err(bad("a profile needs at least one channel"));
     }
-    if t.iter().chain(tau).any(|v| !v.is_finite()) {
-        return Err(bad("the profile holds a value that is not finite"));
-    }
-    if t.windows(2).any(|w| w[1] < w[0]) || tau.windows(2).any(|w| w[1] < w[0]) {
-        return Err(bad(
-            "the profile's depths and optical depths must not decrease",
-        ));
+    for tau in taus {
+        if t.len() != tau.len() {
+            return Err(bad(
+                "the profile's depths and optical depths differ in number",
+            ));
+        }
+        if t.iter().chain(tau.iter()).any(|v| !v.is_finite()) {
+            return Err(bad("the profile holds a value that is not finite"));
+        }
+        if t.windows(2).any(|w| w[1] < w[0]) || tau.windows(2).any(|w| w[1] < w[0]) {
+            return Err(bad(
+                "the profile's depths and optical depths must not decrease",
+            ));
+        }
     }
     let n = t.len();
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i + 1 < n {
-        if tau[i + 1] == tau[i] {
-            i += 1;
-            continue;
-        }
-        // The chord from breakpoint i to j fits when every interval in between does.
-        let fits = |j: usize| {
-            let slope = (tau[j] - tau[i]) / (t[j] - t[i]).max(f64::MIN_POSITIVE);
+    let flat = |k: usize| taus.iter().all(|tau| tau[k + 1] == tau[k]);
+    // The chord from breakpoint i to j fits when every channel does on every interval.
+    let fits = |i: usize, j: usize| {
+        let span = (t[j] - t[i]).max(f64::MIN_POSITIVE);
+        taus.iter().all(|tau| {
+            let slope = (tau[j] - tau[i]) / span;
             let chord = |x: f64| tau[i] + slope * (x - t[i]);
             (i..j).all(|k| {
-                max_gap(
+                gap_within(
                     t[k],
                     t[k + 1],
                     (chord(t[k]), chord(t[k + 1])),
                     (tau[k], tau[k + 1]),
+                    max_error,
                 ) <= max_error
             })
-        };
-        let mut j = i + 1;
-        while j + 1 < n && fits(j + 1) {
-            j += 1;
+        })
+    };
+    let mut out = Vec::new();
+    let mut i = 0;
+    while i + 1 < n {
+        if flat(i) {
+            i += 1;
+            continue;
         }
-        out.push(DeepSample {
-            z0: t[i],
-            z1: t[j],
-            tau0: tau[i],
-            tau1: tau[j],
-        });
+        // Gallop: `good` fits (a single interval always does: the chord is the profile),
+        // `bad` (if any) does not.
+        let (mut good, mut step) = (i + 1, 1);
+        let mut miss = None;
+        while good + 1 < n {
+            let j = (good + step).min(n - 1);
+            if fits(i, j) {
+                good = j;
+                step *= 2;
+            } else {
+                miss = Some(j);
+                break;
+            }
+        }
+        if let Some(mut hi) = miss {
+            while hi - good > 1 {
+                let mid = good + (hi - good) / 2;
+                if fits(i, mid) {
+                    good = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+        }
+        // Trailing flat intervals belong to no sample when the steeper chord still fits.
+        let mut j = good;
+        while j > i + 1 && taus.iter().all(|tau| tau[j] == tau[j - 1]) {
+            j -= 1;
+        }
+        if j < good && !fits(i, j) {
+            j = good;
+        }
+        out.push((i, j));
         i = j;
     }
     Ok(out)

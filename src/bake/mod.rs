@@ -20,6 +20,7 @@ mod camera;
 mod camera_file;
 mod deep;
 mod deep_fit;
+mod deep_map;
 pub(crate) use camera::{normalise, CameraParts};
 mod layout;
 mod matrix;
@@ -36,10 +37,14 @@ pub use camera::{
 };
 pub use camera_file::{camera_from_json, read_camera};
 pub use deep::{encode_deep_exr, write_deep_exr, DeepAttributes, DeepImage, RESERVED_ATTRIBUTES};
-pub use deep_fit::{fit_profile, fitted_transmittance, DeepSample};
+pub use deep_fit::{fit_profile, fit_spans, fitted_transmittance, DeepSample};
+pub use deep_map::{
+    bake_deep, check_deep_error, deep_attributes, DeepMap, DeepStats, DEFAULT_DEEP_ERROR,
+    STOCHASTIC_DEPTHS,
+};
 pub use layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
 pub use output::{slice_channel, write_exr, write_exr_as, write_map, write_png, Provenance};
-pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Warning};
+pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Product, Warning};
 pub use render::{
     bake, bake_scene, check_threads, BakeSettings, BakeStats, Channel, Depths, Map, Order,
     MAX_BATCHES, MAX_SLICES, MAX_THREADS,

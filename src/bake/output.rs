@@ -59,7 +59,7 @@ fn v3d(v: [f64; 3]) -> AttributeValue {
 }
 
 /// A column-vector 4x4 as OpenEXR's row-vector `m44f` (the transpose, row-major).
-fn m44f(m: [[f64; 4]; 4]) -> [f32; 16] {
+pub(crate) fn m44f(m: [[f64; 4]; 4]) -> [f32; 16] {
     std::array::from_fn(|k| m[k % 4][k / 4] as f32)
 }
 
@@ -126,8 +126,29 @@ pub fn write_map(
     }
     layout.validate()?;
     let bytes = encode_exr(map, prov, layout).map_err(|e| output_err(exr, e))?;
-    let mut staged = vec![stage(exr, overwrite, |w| {
-        w.write_all(&bytes).map_err(|e| format!("writing: {e}"))
+    write_with_preview(exr, &bytes, png, map, overwrite)
+}
+
+/// Write `bytes` to `path` and, if given, `map`'s PNG preview to `png`, all or nothing (both
+/// staged, then renamed together).
+///
+/// # Errors
+/// As [`write_map`].
+pub(crate) fn write_with_preview(
+    path: &Path,
+    bytes: &[u8],
+    png: Option<&Path>,
+    map: &Map,
+    overwrite: bool,
+) -> Result<()> {
+    if png.is_some_and(|p| crate::output::same_file(p, path)) {
+        return Err(output_err(
+            path,
+            "the preview and the map are the same file",
+        ));
+    }
+    let mut staged = vec![stage(path, overwrite, |w| {
+        w.write_all(bytes).map_err(|e| format!("writing: {e}"))
     })?];
     if let Some(p) = png {
         let px = preview_pixels(map);
@@ -153,6 +174,74 @@ fn encode_exr(
         )),
         ..LayerAttributes::default()
     };
+    for (k, v) in umbra_attributes(map, prov) {
+        a.other.insert(Text::from(k.as_str()), v);
+    }
+    let enc = Encoding {
+        compression: exr::compression::Compression::ZIP16,
+        blocks: match layout.tile {
+            Some(n) => exr::image::Blocks::Tiles(Vec2(n as usize, n as usize)),
+            None => exr::image::Blocks::ScanLines,
+        },
+        line_order: exr::meta::attribute::LineOrder::Increasing,
+    };
+    let parallel = map.settings.threads == 0;
+    let mut buf = std::io::Cursor::new(Vec::new());
+    // Each layout is its own image type; they encode alike.
+    macro_rules! encode {
+        ($image:expr) => {{
+            let writer = $image.write();
+            if parallel {
+                writer.to_buffered(&mut buf)
+            } else {
+                writer.non_parallel().to_buffered(&mut buf)
+            }
+        }};
+    }
+    let encoded = if layout.mipmap {
+        // Every channel with its levels (the list as below, each a `Levels::Mip`).
+        let mut list: SmallVec<[AnyChannel<Levels<FlatSamples>>; 4]> = SmallVec::new();
+        for (name, data) in channel_planes(map) {
+            let levels = mip_levels(data, size.0, size.1)
+                .into_iter()
+                .map(FlatSamples::F32)
+                .collect();
+            list.push(AnyChannel::new(
+                name,
+                Levels::Mip {
+                    rounding_mode: exr::math::RoundingMode::Down,
+                    level_data: levels,
+                },
+            ));
+        }
+        let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
+        encode!(image)
+    } else if map.std_err.is_none() && map.slices.is_empty() && map.color.is_none() {
+        // The common single-channel map is read straight from `map.t` (no copy of the image).
+        let width = size.0;
+        let channels = SpecificChannels::build()
+            .with_channel("T")
+            .with_pixel_fn(|p: Vec2<usize>| (map.t[p.y() * width + p.x()],));
+        let image = Image::from_layer(Layer::new(size, a, enc, channels));
+        encode!(image)
+    } else {
+        let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
+        for (name, data) in channel_planes(map) {
+            list.push(AnyChannel::new(name, FlatSamples::F32(data.to_vec())));
+        }
+        let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
+        encode!(image)
+    };
+    encoded.map_err(|e| format!("OpenEXR encoder: {e}"))?;
+    let mut bytes = buf.into_inner();
+    sort_attributes(&mut bytes)?;
+    Ok(bytes)
+}
+
+/// The `umbra:*` header attributes of a map (camera, estimator, provenance, slice depths), by
+/// full name: what flat and deep maps both carry.
+pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, AttributeValue)> {
+    let c = &map.camera;
     let s = &map.settings;
     let kind = match c.kind {
         Projection::Ortho => "ortho",
@@ -208,68 +297,10 @@ fn encode_exr(
     for (k, d) in map.depths.iter().enumerate() {
         attrs.push((format!("depth.{k:02}"), AttributeValue::F64(*d)));
     }
-    for (k, v) in attrs {
-        a.other.insert(Text::from(format!("umbra:{k}").as_str()), v);
-    }
-    let enc = Encoding {
-        compression: exr::compression::Compression::ZIP16,
-        blocks: match layout.tile {
-            Some(n) => exr::image::Blocks::Tiles(Vec2(n as usize, n as usize)),
-            None => exr::image::Blocks::ScanLines,
-        },
-        line_order: exr::meta::attribute::LineOrder::Increasing,
-    };
-    let parallel = s.threads == 0;
-    let mut buf = std::io::Cursor::new(Vec::new());
-    // Each layout is its own image type; they encode alike.
-    macro_rules! encode {
-        ($image:expr) => {{
-            let writer = $image.write();
-            if parallel {
-                writer.to_buffered(&mut buf)
-            } else {
-                writer.non_parallel().to_buffered(&mut buf)
-            }
-        }};
-    }
-    let encoded = if layout.mipmap {
-        // Every channel with its levels (the list as below, each a `Levels::Mip`).
-        let mut list: SmallVec<[AnyChannel<Levels<FlatSamples>>; 4]> = SmallVec::new();
-        for (name, data) in channel_planes(map) {
-            let levels = mip_levels(data, size.0, size.1)
-                .into_iter()
-                .map(FlatSamples::F32)
-                .collect();
-            list.push(AnyChannel::new(
-                name,
-                Levels::Mip {
-                    rounding_mode: exr::math::RoundingMode::Down,
-                    level_data: levels,
-                },
-            ));
-        }
-        let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
-        encode!(image)
-    } else if map.std_err.is_none() && map.slices.is_empty() && map.color.is_none() {
-        // The common single-channel map is read straight from `map.t` (no copy of the image).
-        let width = size.0;
-        let channels = SpecificChannels::build()
-            .with_channel("T")
-            .with_pixel_fn(|p: Vec2<usize>| (map.t[p.y() * width + p.x()],));
-        let image = Image::from_layer(Layer::new(size, a, enc, channels));
-        encode!(image)
-    } else {
-        let mut list: SmallVec<[AnyChannel<FlatSamples>; 4]> = SmallVec::new();
-        for (name, data) in channel_planes(map) {
-            list.push(AnyChannel::new(name, FlatSamples::F32(data.to_vec())));
-        }
-        let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
-        encode!(image)
-    };
-    encoded.map_err(|e| format!("OpenEXR encoder: {e}"))?;
-    let mut bytes = buf.into_inner();
-    sort_attributes(&mut bytes)?;
-    Ok(bytes)
+    attrs
+        .into_iter()
+        .map(|(k, v)| (format!("umbra:{k}"), v))
+        .collect()
 }
 
 /// Every channel of `map` with its name: `T` (or `R`, `G`, `B`), each followed by its

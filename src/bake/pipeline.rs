@@ -44,6 +44,23 @@ pub struct BakeJob {
     /// not fit in it, an exact map is swept a part of the grid at a time
     /// ([`BakeJob::plan_bounded`]); `None`: load the whole grid.
     pub max_memory: Option<u64>,
+    /// What `output` holds: a flat map (the default) or a deep map.
+    pub product: Product,
+}
+
+/// What a bake writes at its output.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub enum Product {
+    /// A flat OpenEXR map: `T` (or `R`, `G`, `B`), with slices and `T.stderr` when asked for,
+    /// in scanlines or tiles ([`BakeJob::layout`]).
+    #[default]
+    Map,
+    /// A deep scanline OpenEXR map ([`super::bake_deep`]): the transmittance function along
+    /// every pixel's ray within `max_error` in T at every depth (`--deep`, `--deep-error`).
+    Deep {
+        /// The bound `E` on `|T_deep(z) - T(z)|`.
+        max_error: f64,
+    },
 }
 
 /// Something a finished bake wants its user to know.
@@ -189,6 +206,8 @@ pub struct BakeReport {
     pub provenance: Provenance,
     /// Things the user should be told, in order.
     pub warnings: Vec<Warning>,
+    /// The deep map's counts, for [`Product::Deep`].
+    pub deep: Option<super::DeepStats>,
 }
 
 impl BakeJob {
@@ -209,6 +228,34 @@ impl BakeJob {
             }
         }
         self.layout.validate()?;
+        if let Product::Deep { max_error } = self.product {
+            super::check_deep_error(max_error)?;
+            let flat_only = |flag: &str, what: &str| Error::InvalidArgument {
+                name: flag.into(),
+                reason: format!(
+                    "{what} belongs to flat maps; a deep map holds the whole transmittance \
+                     function of every pixel"
+                ),
+            };
+            if self.layout.tile.is_some() || self.layout.mipmap {
+                return Err(flat_only(
+                    "tile",
+                    "a tiled layout (deep maps are written as scanlines)",
+                ));
+            }
+            if self.settings.depths != super::Depths::None {
+                return Err(flat_only("slices", "--slices/--depths"));
+            }
+            if self.settings.std_err {
+                return Err(flat_only("stderr", "the T.stderr channel"));
+            }
+            if self.max_memory.is_some() {
+                return Err(flat_only(
+                    "max-memory",
+                    "baking in parts under a memory budget",
+                ));
+            }
+        }
         check_writable(&self.output, self.overwrite)?;
         check_extension(&self.output, "exr", "output", "a map is written as OpenEXR")?;
         if let Some(p) = &self.preview {
@@ -454,8 +501,59 @@ impl BakeJob {
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<BakeReport> {
         self.check_outputs()?;
+        if let Product::Deep { max_error } = self.product {
+            let (map, deep) = self.bake_deep_map(&scene, camera, max_error, progress)?;
+            let mut report = self.describe(map, &scene, camera);
+            drop(scene);
+            let attrs = super::deep_attributes(&report.map, &report.provenance, &deep.stats);
+            let bytes = super::encode_deep_exr(&deep.image, &attrs);
+            super::output::write_with_preview(
+                &self.output,
+                &bytes,
+                self.preview.as_deref(),
+                &report.map,
+                self.overwrite,
+            )?;
+            report.deep = Some(deep.stats);
+            return Ok(report);
+        }
         let map = bake_scene(&scene, &camera, &self.settings, progress)?;
         self.finish(map, scene, camera)
+    }
+
+    /// The flat map (for the summary, the preview and the warnings) and the deep map of a
+    /// [`Product::Deep`] job. A stochastic estimator's flat map carries the
+    /// [`super::STOCHASTIC_DEPTHS`] slices its deep function is fitted to (removed from the
+    /// returned map); an exact map is swept first, then the deep pass traces every pixel's
+    /// profile (progress counts the deep pass).
+    fn bake_deep_map(
+        &self,
+        scene: &Scene,
+        camera: Camera,
+        max_error: f64,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<(Map, super::DeepMap)> {
+        let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR;
+        let none = |_: u64| {};
+        let mut map = if exact {
+            bake_scene(scene, &camera, &self.settings, &none)?
+        } else {
+            let settings = BakeSettings {
+                depths: super::Depths::Slices(super::STOCHASTIC_DEPTHS),
+                ..self.settings.clone()
+            };
+            bake_scene(scene, &camera, &settings, progress)?
+        };
+        let deep = super::bake_deep(scene, &map, max_error, if exact { progress } else { &none })?;
+        map.settings.depths = super::Depths::None;
+        map.depths.clear();
+        map.slices.clear();
+        if let Some(gb) = &mut map.color {
+            for ch in gb.iter_mut() {
+                ch.slices.clear();
+            }
+        }
+        Ok((map, deep))
     }
 
     /// The map of `scene` seen by `camera`, in memory: nothing is read from `input` or
@@ -541,6 +639,7 @@ impl BakeJob {
             map,
             provenance,
             warnings,
+            deep: None,
         }
     }
 }

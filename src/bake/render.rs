@@ -508,7 +508,10 @@ fn bake_source(
 }
 
 /// `run` on a pool of `threads` workers (0: the current pool).
-fn in_pool<T: Send>(threads: usize, run: impl FnOnce() -> Result<T> + Send) -> Result<T> {
+pub(crate) fn in_pool<T: Send>(
+    threads: usize,
+    run: impl FnOnce() -> Result<T> + Send,
+) -> Result<T> {
     if threads == 0 {
         return run();
     }

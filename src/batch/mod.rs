@@ -223,6 +223,10 @@ pub struct BakeSpec {
     pub tile: Option<u32>,
     /// Box-filtered mip levels (with `tile`), as `umbra bake --mipmap`.
     pub mipmap: bool,
+    /// Deep maps, as `umbra bake --deep`.
+    pub deep: bool,
+    /// The deep maps' error bound in T, as `umbra bake --deep-error` (default 0.002).
+    pub deep_error: Option<f64>,
 }
 
 impl Default for BakeSpec {
@@ -257,6 +261,8 @@ impl Default for BakeSpec {
             max_memory: None,
             tile: None,
             mipmap: false,
+            deep: false,
+            deep_error: None,
         }
     }
 }
@@ -325,6 +331,8 @@ pub struct Job {
     pub max_memory: Option<u64>,
     /// The maps' EXR layout (`bake.tile`, `bake.mipmap`).
     pub layout: crate::bake::ExrLayout,
+    /// Flat or deep maps (`bake.deep`, `bake.deep_error`).
+    pub product: crate::bake::Product,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
@@ -676,6 +684,26 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         }
         other => BatchError::Task(other),
     })?;
+    let product = match (b.deep, b.deep_error) {
+        (false, Some(_)) => {
+            return Err(err(
+                &path,
+                "bake.deep_error",
+                "applies to deep maps: add deep = true",
+            ))
+        }
+        (false, None) => crate::bake::Product::Map,
+        (true, e) => {
+            let max_error = e.unwrap_or(crate::bake::DEFAULT_DEEP_ERROR);
+            crate::bake::check_deep_error(max_error).map_err(|e| match e {
+                crate::Error::InvalidArgument { reason, .. } => {
+                    err(&path, "bake.deep_error", reason)
+                }
+                other => BatchError::Task(other),
+            })?;
+            crate::bake::Product::Deep { max_error }
+        }
+    };
     let xform = match &b.xform {
         Some(v) => Some(crate::xform::Xform::from_row_major(v).map_err(|e| match e {
             crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.xform", reason),
@@ -917,6 +945,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         levelset_solid,
         max_memory,
         layout,
+        product,
         shared: std::sync::OnceLock::new(),
     })
 }
@@ -1009,6 +1038,7 @@ impl Job {
             overwrite: true,
             max_memory: self.max_memory,
             layout: self.layout,
+            product: self.product,
         }
     }
 

@@ -11,12 +11,14 @@ mod lazy;
 mod metadata;
 mod transform;
 mod values;
+pub mod write;
 
 pub use archive::{display_name, Archive, Compression, GridDescriptor, NAME_SEPARATOR};
 pub use lazy::LazyGrid;
 pub use metadata::{MetaMap, MetaValue};
 pub use transform::{FrustumParams, Transform};
 pub use values::{PrecisionLoss, ValueKind};
+pub use write::{encode_vdb, write_vdb, FloatGridOut, GridClassOut, LeafOut, VdbCompression};
 
 use crate::error::{DecodeError, Error, Result};
 use crate::text;

@@ -64,6 +64,13 @@ pub struct BakeArgs {
     /// 1x1; each level pixel the mean of T over its footprint).
     #[arg(long)]
     mipmap: bool,
+    /// Write a deep OpenEXR map: per pixel the whole transmittance function along its ray as
+    /// volumetric samples (channels A, Z, ZBack; R, G, B with colour).
+    #[arg(long)]
+    deep: bool,
+    /// With --deep: the bound E on |T_deep(z) - T(z)| at every depth z (default 0.002).
+    #[arg(long, requires = "deep", allow_negative_numbers = true)]
+    deep_error: Option<f64>,
     /// Overwrite existing outputs.
     #[arg(long)]
     force: bool,
@@ -232,6 +239,13 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
             tile: a.tile,
             mipmap: a.mipmap,
         },
+        product: if a.deep {
+            umbra::bake::Product::Deep {
+                max_error: a.deep_error.unwrap_or(umbra::bake::DEFAULT_DEEP_ERROR),
+            }
+        } else {
+            umbra::bake::Product::Map
+        },
     };
     let scene_file = umbra::scene::is_scene_file(&job.input);
     let setup_error = |e: umbra::Error| match e {
@@ -274,6 +288,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         a,
         &done.map,
         &done.provenance,
+        done.deep.as_ref(),
         total.elapsed().as_secs_f64(),
     )?;
     for w in &done.warnings {
@@ -282,7 +297,13 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> {
+fn report(
+    a: &BakeArgs,
+    map: &Map,
+    prov: &Provenance,
+    deep: Option<&umbra::bake::DeepStats>,
+    total: f64,
+) -> Result<()> {
     let c = &map.camera;
     let st = &map.stats;
     let rays_per_second = st.rays as f64 / st.seconds.max(1e-9);
@@ -313,6 +334,12 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
             "capped": st.capped, "majorant_violations": st.majorant_violations,
             "unconverged": st.unconverged, "max_std_err": st.max_std_err,
             "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
+            "deep": deep.map(|d| serde_json::json!({
+                "max_error": d.max_error, "samples": d.samples,
+                "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
+                "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
+                "coarse_cells": d.coarse_cells, "seconds": d.seconds,
+            })),
         });
         if let (Some(o), serde_json::Value::Object(r)) = (v.as_object_mut(), run) {
             o.extend(r);
@@ -347,6 +374,20 @@ fn report(a: &BakeArgs, map: &Map, prov: &Provenance, total: f64) -> Result<()> 
                 out,
                 "{} pixels stopped at --max-spp above the target error (largest std_err {:.2e})",
                 st.unconverged, st.max_std_err
+            )?;
+        }
+        if let Some(d) = deep {
+            writeln!(
+                out,
+                "deep: {} samples, {:.2} per pixel (most {}), {} empty pixels, within {} in T \
+                 ({:.1} profile breakpoints per pixel, {:.3} s)",
+                d.samples,
+                d.mean_samples(),
+                d.max_samples,
+                d.empty_pixels,
+                d.max_error,
+                d.breakpoints as f64 / d.pixels.max(1) as f64,
+                d.seconds
             )?;
         }
         if let Some(p) = &a.preview {
