@@ -28,6 +28,7 @@ mod output;
 mod pipeline;
 mod render;
 mod scene_map;
+mod shadow_volume;
 mod summary;
 mod sweep;
 
@@ -48,5 +49,9 @@ pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Product, 
 pub use render::{
     bake, bake_scene, check_threads, BakeSettings, BakeStats, Channel, Depths, Map, Order,
     MAX_BATCHES, MAX_SLICES, MAX_THREADS,
+};
+pub use shadow_volume::{
+    transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats, DEFAULT_OUT_GRID,
+    MAX_VOLUME_LEAVES,
 };
 pub use summary::{channel_names, MapSummary, SummaryCamera};

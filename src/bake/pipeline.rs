@@ -673,7 +673,12 @@ impl BoundedPlan {
 
 /// `path` must end in `.ext` (any case): an output of the wrong format is refused before any
 /// work, naming the flag.
-fn check_extension(path: &std::path::Path, ext: &str, flag: &str, what: &str) -> Result<()> {
+pub(super) fn check_extension(
+    path: &std::path::Path,
+    ext: &str,
+    flag: &str,
+    what: &str,
+) -> Result<()> {
     let ok = path
         .extension()
         .and_then(|e| e.to_str())

@@ -50,9 +50,16 @@ pub struct BakeArgs {
     /// same window at that size).
     #[arg(long, conflicts_with_all = ["light_dir", "light_pos", "ortho", "fov", "up", "frame_box"])]
     camera: Option<PathBuf>,
-    /// Output OpenEXR file (.exr; written atomically, together with the preview).
+    /// Output: an OpenEXR map (.exr; written atomically, together with the preview), or a
+    /// transmittance volume (.vdb: T toward the light at every active voxel of the density).
     #[arg(short, long)]
     output: PathBuf,
+    /// With -o NAME.vdb: the name of the written grid.
+    #[arg(long, default_value = umbra::bake::DEFAULT_OUT_GRID)]
+    out_grid: String,
+    /// With -o NAME.vdb: store 16-bit half floats.
+    #[arg(long)]
+    half: bool,
     /// Resolution: WxH, or N for N pixels on the long side with the framed box's aspect
     /// (default 1024).
     #[arg(long, allow_hyphen_values = true)]
@@ -198,6 +205,17 @@ fn view(a: &BakeArgs) -> Result<View> {
 
 /// Bake, write, report: the shared pipeline ([`BakeJob`]) with a progress bar.
 pub fn run(a: &BakeArgs) -> Result<ExitCode> {
+    let vdb = a
+        .output
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
+    if vdb {
+        return run_volume(a);
+    }
+    if a.out_grid != umbra::bake::DEFAULT_OUT_GRID || a.half {
+        bail!("--out-grid and --half apply to transmittance volumes (-o NAME.vdb)");
+    }
     let total = std::time::Instant::now();
     let view = view(a)?;
     let depths = match (a.slices, &a.depths) {
@@ -395,4 +413,128 @@ fn report(
         }
     }
     Ok(())
+}
+
+/// `bake ... -o NAME.vdb`: a transmittance volume beside the density.
+fn run_volume(a: &BakeArgs) -> Result<ExitCode> {
+    let total = std::time::Instant::now();
+    let map_only: [(&str, bool); 16] = [
+        ("--camera", a.camera.is_some()),
+        ("--ortho", a.ortho),
+        ("--fov", a.fov.is_some()),
+        ("--up", a.up.is_some()),
+        ("--frame-box", a.frame_box.is_some()),
+        ("--res", a.res.is_some()),
+        ("--tile", a.tile.is_some()),
+        ("--mipmap", a.mipmap),
+        ("--deep", a.deep),
+        ("--preview", a.preview.is_some()),
+        ("--slices", a.slices.is_some()),
+        ("--depths", a.depths.is_some()),
+        ("--stderr", a.stderr),
+        ("--target-error", a.target_error.is_some()),
+        ("--max-memory", a.max_memory.is_some()),
+        ("--sigma-t", a.trace.sigma_t.is_some()),
+    ];
+    if let Some((flag, _)) = map_only.iter().find(|(_, set)| *set) {
+        bail!("{flag} applies to maps (.exr); a transmittance volume (.vdb) is one float grid of T toward the light");
+    }
+    if a.trace.levelset.is_some() {
+        bail!(
+            "--levelset applies to maps (.exr); a transmittance volume is made from a fog volume"
+        );
+    }
+    if umbra::scene::is_scene_file(&a.file) {
+        bail!(
+            "a transmittance volume (.vdb) is made from one density grid; {} is a scene file",
+            a.file.display()
+        );
+    }
+    let light = match (a.light_dir, a.light_pos) {
+        (Some(dir), None) => umbra::Light::Directional { dir },
+        (None, Some(pos)) => umbra::Light::Point { pos },
+        (None, None) => {
+            bail!("give --light-dir DX,DY,DZ or --light-pos X,Y,Z: the light the volume is lit by")
+        }
+        (Some(_), Some(_)) => {
+            bail!("give --light-dir or --light-pos for a transmittance volume, not both")
+        }
+    };
+    let interp: Interp = a.interp.into();
+    let (estimator, options) = a.est.resolve(interp)?;
+    umbra::bake::check_threads(a.threads).map_err(crate::common::flag_error)?;
+    let job = umbra::bake::VolumeJob {
+        input: a.file.clone(),
+        grid: a.grid.clone(),
+        density_scale: a.density_scale,
+        xform: a.xform,
+        light,
+        estimator,
+        options,
+        threads: a.threads,
+        output: a.output.clone(),
+        out_grid: a.out_grid.clone(),
+        half: a.half,
+        overwrite: a.force,
+    };
+    job.check_outputs().map_err(crate::common::flag_error)?;
+    options.validate().map_err(crate::common::flag_error)?;
+    let vol = job
+        .load()
+        .with_context(|| format!("loading grid '{}'", job.grid))?;
+    let bar = progress_bar(
+        a.quiet,
+        "{spinner} transmittance volume [{bar:30}] {percent:>3}% {human_pos}/{human_len} voxels, eta {eta}",
+        vol.tree().leaves().len() as u64 * 512,
+    );
+    let r = job.run_on(&vol, &|n| bar.inc(n));
+    bar.finish_and_clear();
+    let done = r.map_err(|e| match e {
+        umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
+        other => other,
+    })?;
+    let st = &done.stats;
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        let v = serde_json::json!({
+            "output": a.output, "grid": a.out_grid, "source_grid": job.grid, "half": a.half,
+            "light": job.light, "estimator": estimator.name(), "interp": interp,
+            "voxels": st.voxels, "leaves": st.leaves, "tile_leaves": st.tile_leaves,
+            "sharing": st.sharing, "rays": st.rays, "lookups": st.lookups,
+            "T_min": st.t_min, "T_max": st.t_max, "T_mean": st.t_mean,
+            "seconds": st.seconds, "ns_per_voxel": st.ns_per_voxel(),
+            "total_seconds": total.elapsed().as_secs_f64(),
+        });
+        writeln!(out, "{v}")?;
+    } else {
+        writeln!(
+            out,
+            "{}: grid '{}' of {} voxels ({} leaves, {} from active tiles), T in [{:.4}, {:.4}], mean {:.4}",
+            a.output.display(),
+            a.out_grid,
+            st.voxels,
+            st.leaves,
+            st.tile_leaves,
+            st.t_min,
+            st.t_max,
+            st.t_mean
+        )?;
+        writeln!(
+            out,
+            "{:.3} s, {:.0} ns/voxel, {}, {} ({} rays for {} voxels)",
+            st.seconds,
+            st.ns_per_voxel(),
+            estimator.name(),
+            match st.sharing {
+                umbra::bake::Sharing::Lines => "one exact ray per line of voxels along the light",
+                umbra::bake::Sharing::Rays => "one ray per voxel",
+            },
+            st.rays,
+            st.voxels
+        )?;
+    }
+    for w in &done.warnings {
+        eprintln!("umbra: warning: {}: {w}", a.file.display());
+    }
+    Ok(ExitCode::SUCCESS)
 }

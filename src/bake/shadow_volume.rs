@@ -1,0 +1,533 @@
+//! Transmittance volumes: `T` from the light stored per voxel in a VDB float grid beside the
+//! density (what Houdini's and Blender's `shadow` fields hold), written by umbra's own VDB
+//! writer ([`crate::vdb::write_vdb`]).
+//!
+//! **What a voxel holds.** Voxel `ijk` (an active voxel of the density grid, or a voxel of an
+//! active tile) holds `T = exp(-tau)` along [`crate::Light::ray_from`] from its centre, the
+//! index point `ijk` in world space: toward a directional light until the ray leaves the
+//! volume box, toward a point light up to the light. The output grid has exactly the density
+//! grid's active voxels (active tiles written as dense leaves), background 1, the volume's
+//! transform (with `--xform`). Inactive voxels inside written leaves hold 1.
+//!
+//! **Shared work, exactly.** With regular tracking and a directional light whose direction in
+//! index space lies along an index axis (a sun straight down a grid axis, the common set-up
+//! for layout lights), the rays of all voxels on one line of voxel centres along that axis
+//! are the same ray: `tau(c_far) = tau(c_near) + int_{c_far}^{c_near} mu`. Between two
+//! neighbouring centres `k`, `k + 1` on such a line both lookups are exact in closed form: the
+//! trilinear field is linear there (the other two coordinates are integers) and the nearest
+//! field is `v_k` for half the step and `v_{k+1}` for the other half, so the integral is
+//! `h (v_k + v_{k+1}) / 2` (`h` the world length of one index step). So one exact ray per
+//! line (from the centre nearest the light) and one value read per voxel step give every
+//! voxel's exact `T`: no ray per voxel. Any other light (point lights, oblique suns) traces
+//! one exact ray per voxel, in parallel; stochastic estimators estimate every voxel's ray on
+//! its own (ray id: the voxel's index in the output, leaf by leaf, 512 per leaf).
+//!
+//! The axis test allows other components up to `1e-12` of the direction's length: over a line
+//! of `n` voxels the lines then drift by at most `1e-12 n` voxels from the rays, far below f32.
+
+use crate::error::{Error, Result};
+use crate::estimate::{Estimator, Options};
+use crate::light::Light;
+use crate::tree::{bit, Accessor};
+use crate::vdb::LeafOut;
+use crate::volume::Volume;
+use rayon::prelude::*;
+use std::collections::BTreeMap;
+
+/// Longest run of voxel steps a line walks between two output voxels; a longer gap starts a
+/// fresh ray (which skips empty space by the HDDA).
+const MAX_STEPS: i64 = 64;
+
+/// Most 8^3 leaves a transmittance volume may hold (2 KiB of values each: 4 GiB).
+pub const MAX_VOLUME_LEAVES: usize = 1 << 21;
+
+/// How the voxels' transmittances were computed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Sharing {
+    /// One exact ray per line of voxel centres along the light (an axis-aligned sun).
+    Lines,
+    /// One ray (or estimate) per voxel.
+    Rays,
+}
+
+/// What a transmittance volume holds and cost.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct VolumeStats {
+    /// Voxels written (the density's active voxels, active tiles included).
+    pub voxels: u64,
+    /// Leaves written.
+    pub leaves: u64,
+    /// Leaves made from active tiles.
+    pub tile_leaves: u64,
+    /// How the work was shared.
+    pub sharing: Sharing,
+    /// Rays traced from scratch (one per line, or one per voxel).
+    pub rays: u64,
+    /// Density values read.
+    pub lookups: u64,
+    /// Smallest, largest and mean `T` over the voxels.
+    pub t_min: f64,
+    /// Largest `T`.
+    pub t_max: f64,
+    /// Mean `T`.
+    pub t_mean: f64,
+    /// Wall time of the computation, seconds.
+    pub seconds: f64,
+}
+
+impl VolumeStats {
+    /// Wall time per voxel, nanoseconds.
+    #[must_use]
+    pub fn ns_per_voxel(&self) -> f64 {
+        self.seconds * 1e9 / self.voxels.max(1) as f64
+    }
+}
+
+/// The 8^3 blocks of the output: a leaf's active voxels or an active tile's.
+fn output_blocks(vol: &Volume) -> Result<Vec<LeafOut>> {
+    let tree = vol.tree();
+    let too_big = |n: usize| Error::InvalidArgument {
+        name: "output".into(),
+        reason: format!(
+            "the transmittance volume would hold more than {MAX_VOLUME_LEAVES} leaves of 8^3 \
+             voxels ({n} so far): active tiles are written voxel by voxel"
+        ),
+    };
+    let empty = |origin: [i32; 3], active: [u64; 8]| LeafOut {
+        origin,
+        values: Box::new([1.0; 512]),
+        active,
+    };
+    let mut out: Vec<LeafOut> = Vec::new();
+    for l in tree.leaves() {
+        if l.value_mask.iter().any(|&w| w != 0) {
+            out.push(empty(l.origin, l.value_mask));
+        }
+    }
+    for lower in tree.lowers() {
+        for n in 0..4096usize {
+            if !lower.has_child(n) && bit(&lower.value_mask, n) {
+                let o = [(n >> 8) as i32, ((n >> 4) & 15) as i32, (n & 15) as i32];
+                let origin = [0, 1, 2].map(|a| lower.origin[a] + o[a] * 8);
+                out.push(empty(origin, [u64::MAX; 8]));
+            }
+        }
+    }
+    for upper in tree.uppers() {
+        for n in 0..32768usize {
+            if !upper.has_child(n) && bit(&upper.value_mask, n) {
+                let o = [(n >> 10) as i32, ((n >> 5) & 31) as i32, (n & 31) as i32];
+                let base = [0, 1, 2].map(|a| upper.origin[a] + o[a] * 128);
+                if out.len() + 4096 > MAX_VOLUME_LEAVES {
+                    return Err(too_big(out.len() + 4096));
+                }
+                for k in 0..4096i32 {
+                    let b = [k >> 8, (k >> 4) & 15, k & 15];
+                    out.push(empty([0, 1, 2].map(|a| base[a] + b[a] * 8), [u64::MAX; 8]));
+                }
+            }
+        }
+    }
+    if tree
+        .root()
+        .iter()
+        .any(|e| matches!(e.slot, crate::tree::RootSlot::Tile { active: true, .. }))
+    {
+        return Err(Error::InvalidArgument {
+            name: "output".into(),
+            reason: "the grid has an active 4096^3 root tile; a transmittance volume of it \
+                     would be 6.9e10 voxels"
+                .into(),
+        });
+    }
+    if out.len() > MAX_VOLUME_LEAVES {
+        return Err(too_big(out.len()));
+    }
+    out.sort_by_key(|l| l.origin);
+    Ok(out)
+}
+
+/// The index axis along which a directional light travels, with the step (+1 or -1) toward
+/// the light, or `None` for other lights.
+fn light_axis(vol: &Volume, light: &Light) -> Option<(usize, i32)> {
+    let Light::Directional { dir } = *light else {
+        return None;
+    };
+    let d = vol.to_index_dir(glam::DVec3::from_array(dir)).to_array();
+    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    if !(len > 0.0 && len.is_finite()) {
+        return None;
+    }
+    let a = (0..3).max_by(|&x, &y| d[x].abs().total_cmp(&d[y].abs()))?;
+    let off = (0..3)
+        .filter(|&x| x != a)
+        .all(|x| d[x].abs() <= 1e-12 * len);
+    // Toward the light is against the direction the light travels.
+    off.then_some((a, if d[a] > 0.0 { -1 } else { 1 }))
+}
+
+/// Transmittance toward `light` at every output voxel of `vol` (module docs): the leaves to
+/// write and what they cost. `progress` gets finished voxel counts.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] for a volume too large to write voxel by voxel, a bad light;
+/// estimator errors of any voxel's ray.
+pub fn transmittance_leaves(
+    vol: &Volume,
+    light: &Light,
+    est: &Estimator,
+    opts: &Options,
+    threads: usize,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(Vec<LeafOut>, VolumeStats)> {
+    opts.validate()?;
+    let start = std::time::Instant::now();
+    let mut leaves = output_blocks(vol)?;
+    let leaf_count = vol
+        .tree()
+        .leaves()
+        .iter()
+        .filter(|l| l.value_mask.iter().any(|&w| w != 0))
+        .count();
+    let tile_leaves = (leaves.len() - leaf_count) as u64;
+    let axis = light_axis(vol, light).filter(|_| *est == Estimator::REGULAR);
+    // Check the light once (a zero direction is refused here, not per voxel).
+    light.ray_from(vol, vol.to_world(glam::DVec3::ZERO).to_array())?;
+    let run = || -> Result<(u64, u64)> {
+        match axis {
+            Some((a, toward)) => by_lines(vol, light, opts, &mut leaves, a, toward, progress),
+            None => by_rays(vol, light, est, opts, &mut leaves, progress),
+        }
+    };
+    let (rays, lookups) = super::render::in_pool(threads, run)?;
+    let mut stats = VolumeStats {
+        voxels: 0,
+        leaves: leaves.len() as u64,
+        tile_leaves,
+        sharing: if axis.is_some() {
+            Sharing::Lines
+        } else {
+            Sharing::Rays
+        },
+        rays,
+        lookups,
+        t_min: f64::INFINITY,
+        t_max: f64::NEG_INFINITY,
+        t_mean: 0.0,
+        seconds: 0.0,
+    };
+    let mut sum = 0.0f64;
+    for l in &leaves {
+        for (n, &v) in l.values.iter().enumerate() {
+            if bit(&l.active, n) {
+                let v = f64::from(v);
+                stats.voxels += 1;
+                stats.t_min = stats.t_min.min(v);
+                stats.t_max = stats.t_max.max(v);
+                sum += v;
+            }
+        }
+    }
+    stats.t_mean = sum / stats.voxels.max(1) as f64;
+    if stats.voxels == 0 {
+        (stats.t_min, stats.t_max) = (1.0, 1.0);
+    }
+    stats.seconds = start.elapsed().as_secs_f64();
+    Ok((leaves, stats))
+}
+
+/// One ray (or estimate) per voxel, leaves in parallel.
+fn by_rays(
+    vol: &Volume,
+    light: &Light,
+    est: &Estimator,
+    opts: &Options,
+    leaves: &mut [LeafOut],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(u64, u64)> {
+    let exact = *est == Estimator::REGULAR;
+    leaves
+        .par_iter_mut()
+        .enumerate()
+        .map(|(li, leaf)| {
+            let (mut rays, mut lookups, mut done) = (0u64, 0u64, 0u64);
+            for n in 0..512usize {
+                if !bit(&leaf.active, n) {
+                    continue;
+                }
+                let ijk = [
+                    leaf.origin[0] + (n >> 6) as i32,
+                    leaf.origin[1] + ((n >> 3) & 7) as i32,
+                    leaf.origin[2] + (n & 7) as i32,
+                ];
+                let p = vol.to_world(glam::DVec3::from_array(ijk.map(f64::from)));
+                let ray = light.ray_from(vol, p.to_array())?;
+                let t = if exact {
+                    let od = crate::regular::optical_depth(vol, &ray, opts.interp)?;
+                    lookups += od.lookups;
+                    od.transmittance()
+                } else {
+                    let id = li as u64 * 512 + n as u64;
+                    let e = crate::estimate::estimate(vol, &ray, id, est, opts)?;
+                    lookups += e.lookups;
+                    e.value
+                };
+                leaf.values[n] = t as f32;
+                rays += 1;
+                done += 1;
+            }
+            progress(done);
+            Ok((rays, lookups))
+        })
+        .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
+}
+
+/// The exact shared walk along lines of voxel centres (module docs): leaves grouped into
+/// columns along `axis`, each column's 64 lines walked from the light.
+#[allow(clippy::too_many_arguments)]
+fn by_lines(
+    vol: &Volume,
+    light: &Light,
+    opts: &Options,
+    leaves: &mut [LeafOut],
+    axis: usize,
+    toward: i32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(u64, u64)> {
+    let (u, v) = match axis {
+        0 => (1, 2),
+        1 => (0, 2),
+        _ => (0, 1),
+    };
+    // Columns: leaves sharing the two other origin coordinates, nearest the light first.
+    let mut columns: BTreeMap<(i32, i32), Vec<&mut LeafOut>> = BTreeMap::new();
+    for l in leaves.iter_mut() {
+        columns
+            .entry((l.origin[u], l.origin[v]))
+            .or_default()
+            .push(l);
+    }
+    let mut columns: Vec<Vec<&mut LeafOut>> = columns.into_values().collect();
+    for c in &mut columns {
+        c.sort_by_key(|l| -toward * l.origin[axis]);
+    }
+    let mut unit = glam::DVec3::ZERO;
+    unit[axis] = 1.0;
+    let h = vol.world_from_index().matrix3.mul_vec3(unit).length();
+    let scale = vol.density_scale();
+    columns
+        .par_iter_mut()
+        .map(|column| {
+            let mut acc = Accessor::new(vol.tree());
+            let (mut rays, mut lookups, mut done) = (0u64, 0u64, 0u64);
+            for a in 0..8i32 {
+                for b in 0..8i32 {
+                    // The line's last voxel written and its optical depth.
+                    let mut last: Option<(i64, f64)> = None;
+                    for leaf in column.iter_mut() {
+                        for s in 0..8i32 {
+                            // Walk away from the light: from the near face of the leaf.
+                            let k = if toward > 0 { 7 - s } else { s };
+                            let mut ijk = [0i32; 3];
+                            ijk[axis] = leaf.origin[axis] + k;
+                            ijk[u] = leaf.origin[u] + a;
+                            ijk[v] = leaf.origin[v] + b;
+                            let n = crate::tree::leaf_offset(ijk);
+                            if !bit(&leaf.active, n) {
+                                continue;
+                            }
+                            let here = i64::from(ijk[axis]);
+                            // A long gap (another cloud further along the line) is cheaper
+                            // to cross by a fresh ray, which skips empty space.
+                            let last_near =
+                                last.filter(|(from, _)| (from - here).abs() <= MAX_STEPS);
+                            let tau = match last_near {
+                                None => {
+                                    let p =
+                                        vol.to_world(glam::DVec3::from_array(ijk.map(f64::from)));
+                                    let ray = light.ray_from(vol, p.to_array())?;
+                                    let od = crate::regular::optical_depth(vol, &ray, opts.interp)?;
+                                    rays += 1;
+                                    lookups += od.lookups;
+                                    od.tau
+                                }
+                                Some((from, tau)) => {
+                                    // Steps from `from` (nearer the light) back to `here`.
+                                    let mut sum = 0.0f64;
+                                    let mut c =
+                                        [i64::from(ijk[0]), i64::from(ijk[1]), i64::from(ijk[2])];
+                                    c[axis] = from;
+                                    let mut prev = f64::from(acc.value_at(c));
+                                    let step = -i64::from(toward);
+                                    let mut pos = from;
+                                    while pos != here {
+                                        pos += step;
+                                        c[axis] = pos;
+                                        let val = f64::from(acc.value_at(c));
+                                        sum += 0.5 * (prev + val);
+                                        prev = val;
+                                    }
+                                    lookups += (from - here).unsigned_abs() + 1;
+                                    tau + crate::math::scaled(scale, sum) * h
+                                }
+                            };
+                            leaf.values[n] = (-tau).exp() as f32;
+                            last = Some((here, tau));
+                            done += 1;
+                        }
+                    }
+                }
+            }
+            progress(done);
+            Ok((rays, lookups))
+        })
+        .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
+}
+
+/// One transmittance volume from a file to a `.vdb`: what `umbra bake ... -o NAME.vdb` runs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VolumeJob {
+    /// The `.vdb` file.
+    pub input: std::path::PathBuf,
+    /// The density grid.
+    pub grid: String,
+    /// `mu_t = density_scale x value`.
+    pub density_scale: f64,
+    /// Where the volume sits in the shot; the output grid's transform includes it.
+    pub xform: Option<crate::xform::Xform>,
+    /// The light.
+    pub light: Light,
+    /// Estimator of every voxel's ray (regular tracking: exact).
+    pub estimator: Estimator,
+    /// Its options (samples, seed, interpolation).
+    pub options: Options,
+    /// Worker threads: 0 the current pool, `n` a pool of `n`.
+    pub threads: usize,
+    /// The `.vdb` written.
+    pub output: std::path::PathBuf,
+    /// Name of the written grid (`transmittance` by default, `--out-grid`).
+    pub out_grid: String,
+    /// Store 16-bit half floats.
+    pub half: bool,
+    /// Replace an existing output.
+    pub overwrite: bool,
+}
+
+/// What a finished transmittance volume produced.
+#[derive(Debug, Clone)]
+pub struct VolumeReport {
+    /// Counts and cost.
+    pub stats: VolumeStats,
+    /// Things the user should be told (bad voxels in the density).
+    pub warnings: Vec<super::Warning>,
+}
+
+/// The default name of the written grid.
+pub const DEFAULT_OUT_GRID: &str = "transmittance";
+
+impl VolumeJob {
+    /// Check the output before any work: a writable `.vdb` path (no clobbering without
+    /// `overwrite`) and a usable grid name.
+    ///
+    /// # Errors
+    /// [`Error::Output`] naming the file; [`Error::InvalidArgument`] (`output`, `out-grid`).
+    pub fn check_outputs(&self) -> Result<()> {
+        crate::output::check_writable(&self.output, self.overwrite)?;
+        super::pipeline::check_extension(
+            &self.output,
+            "vdb",
+            "output",
+            "a transmittance volume is written as OpenVDB",
+        )?;
+        if self.out_grid.is_empty() || self.out_grid.contains(['\0', '\u{1e}']) {
+            return Err(Error::InvalidArgument {
+                name: "out-grid".into(),
+                reason: format!(
+                    "{:?}: a grid name must be non-empty, without NUL or the record separator",
+                    crate::text::escape(&self.out_grid)
+                ),
+            });
+        }
+        if self.out_grid == self.grid && crate::output::same_file(&self.output, &self.input) {
+            return Err(Error::InvalidArgument {
+                name: "output".into(),
+                reason: "the transmittance volume would replace the density it is made from".into(),
+            });
+        }
+        Ok(())
+    }
+
+    /// Load the density grid as this job traces it (scale, `xform`).
+    ///
+    /// # Errors
+    /// Load errors.
+    pub fn load(&self) -> Result<Volume> {
+        let v = Volume::load(&self.input, &self.grid, self.density_scale)?;
+        match &self.xform {
+            Some(x) => v.with_xform(x),
+            None => Ok(v),
+        }
+    }
+
+    /// Check, load, compute and write.
+    ///
+    /// # Errors
+    /// Output, load, light, estimator and write errors; nothing is written on error.
+    pub fn run(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<VolumeReport> {
+        self.check_outputs()?;
+        self.options.validate()?;
+        let vol = self.load()?;
+        self.run_on(&vol, progress)
+    }
+
+    /// [`VolumeJob::run`] on a volume already loaded.
+    ///
+    /// # Errors
+    /// As [`VolumeJob::run`].
+    pub fn run_on(&self, vol: &Volume, progress: &(dyn Fn(u64) + Sync)) -> Result<VolumeReport> {
+        self.check_outputs()?;
+        let (leaves, stats) = transmittance_leaves(
+            vol,
+            &self.light,
+            &self.estimator,
+            &self.options,
+            self.threads,
+            progress,
+        )?;
+        let mut grid =
+            crate::vdb::FloatGridOut::new(&self.out_grid, 1.0, vol.world_from_index(), leaves)?
+                .with_half(self.half);
+        let light = match self.light {
+            Light::Directional { dir } => format!("directional {dir:?}"),
+            Light::Point { pos } => format!("point {pos:?}"),
+        };
+        let meta = [
+            (
+                "umbra:quantity",
+                "transmittance exp(-tau) from each voxel centre toward the light".to_string(),
+            ),
+            ("umbra:light", light),
+            ("umbra:estimator", self.estimator.name().to_string()),
+            (
+                "umbra:interp",
+                format!("{:?}", self.options.interp).to_lowercase(),
+            ),
+            ("umbra:density_scale", format!("{}", self.density_scale)),
+            ("umbra:source_file", self.input.display().to_string()),
+            ("umbra:grid", vol.name().to_string()),
+            (
+                "umbra:software",
+                concat!("umbra ", env!("CARGO_PKG_VERSION")).to_string(),
+            ),
+        ];
+        for (k, v) in meta {
+            grid = grid.with_metadata(k, &v);
+        }
+        crate::vdb::write_vdb(&self.output, &grid, self.overwrite)?;
+        Ok(VolumeReport {
+            stats,
+            warnings: super::volume_warnings(&vol.sanitized()),
+        })
+    }
+}
