@@ -10,20 +10,25 @@
 //! transform (with `--xform`). Inactive voxels inside written leaves hold 1.
 //!
 //! **Shared work, exactly.** With regular tracking and a directional light whose direction in
-//! index space lies along an index axis (a sun straight down a grid axis, the common set-up
-//! for layout lights), the rays of all voxels on one line of voxel centres along that axis
-//! are the same ray: `tau(c_far) = tau(c_near) + int_{c_far}^{c_near} mu`. Between two
-//! neighbouring centres `k`, `k + 1` on such a line both lookups are exact in closed form: the
-//! trilinear field is linear there (the other two coordinates are integers) and the nearest
-//! field is `v_k` for half the step and `v_{k+1}` for the other half, so the integral is
-//! `h (v_k + v_{k+1}) / 2` (`h` the world length of one index step). So one exact ray per
-//! line (from the centre nearest the light) and one value read per voxel step give every
-//! voxel's exact `T`: no ray per voxel. Any other light (point lights, oblique suns) traces
-//! one exact ray per voxel, in parallel; stochastic estimators estimate every voxel's ray on
-//! its own (ray id: the voxel's index in the output, leaf by leaf, 512 per leaf).
+//! index space is parallel to a lattice vector `w` (integer components up to
+//! [`MAX_LINE_STEP`]: an axis, a diagonal, or any direction typed with one or two decimals,
+//! such as `0.3,-1,0.2`, parallel to `(3, -10, 2)`), the voxel centres `c`, `c + w`, `c + 2w`,
+//! ... lie on one ray toward the light: `tau(c) = tau(c + w) + int_c^{c+w} mu`. So each line's
+//! voxel nearest the light traces one exact ray and every other voxel adds the exact integral
+//! over the steps to it: along an axis `h (v_k + v_{k+1}) / 2` per step (`h` the world length
+//! of one index step; the trilinear field is linear between two centres there, and the nearest
+//! field is `v_k` for half the step and `v_{k+1}` for the other half), along other lattice
+//! vectors regular tracking's cell walk over the index segment `[c, c + w]`. A gap of more than
+//! a few steps starts a fresh ray (which skips empty space). Any other light (point lights,
+//! suns off the lattice) traces one exact ray per voxel, in parallel; stochastic estimators
+//! estimate every voxel's ray on its own (ray id: the voxel's index in the output, leaf by
+//! leaf, 512 per leaf).
 //!
-//! The axis test allows other components up to `1e-12` of the direction's length: over a line
-//! of `n` voxels the lines then drift by at most `1e-12 n` voxels from the rays, far below f32.
+//! The lattice test allows each component `1e-12 n` off an integer (`n` the scale tried): over
+//! a line of `m` steps the line drifts from the rays by at most about `1e-12 m` voxels, far
+//! below f32. Exact values along parallel lines that hold one voxel centre each cannot share
+//! work, so suns off the lattice pay a ray per voxel; an interpolating light-aligned grid would
+//! be faster but not exact.
 
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
@@ -45,7 +50,8 @@ pub const MAX_VOLUME_LEAVES: usize = 1 << 21;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Sharing {
-    /// One exact ray per line of voxel centres along the light (an axis-aligned sun).
+    /// One exact ray per line of voxel centres along the light (a sun along a lattice
+    /// direction of the index grid).
     Lines,
     /// One ray (or estimate) per voxel.
     Rays,
@@ -62,6 +68,9 @@ pub struct VolumeStats {
     pub tile_leaves: u64,
     /// How the work was shared.
     pub sharing: Sharing,
+    /// With [`Sharing::Lines`]: the index step from a voxel centre to the next one toward the
+    /// light on its line.
+    pub line_step: Option<[i64; 3]>,
     /// Rays traced from scratch (one per line, or one per voxel).
     pub rays: u64,
     /// Density values read.
@@ -148,23 +157,30 @@ fn output_blocks(vol: &Volume) -> Result<Vec<LeafOut>> {
     Ok(out)
 }
 
-/// The index axis along which a directional light travels, with the step (+1 or -1) toward
-/// the light, or `None` for other lights.
-fn light_axis(vol: &Volume, light: &Light) -> Option<(usize, i32)> {
+/// Largest component of a lattice step [`light_step`] looks for.
+pub const MAX_LINE_STEP: i64 = 16;
+
+/// For a directional light whose index-space direction is parallel (to `1e-12` of its length,
+/// per component) to a lattice vector `w` with components of at most [`MAX_LINE_STEP`]: the
+/// shortest such `w` pointing toward the light. Voxel centres `c` and `c + w` lie on one ray
+/// toward the light. `None` for point lights and other directions.
+#[must_use]
+pub fn light_step(vol: &Volume, light: &Light) -> Option<[i64; 3]> {
     let Light::Directional { dir } = *light else {
         return None;
     };
-    let d = vol.to_index_dir(glam::DVec3::from_array(dir)).to_array();
-    let len = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-    if !(len > 0.0 && len.is_finite()) {
+    let d = (-vol.to_index_dir(glam::DVec3::from_array(dir))).to_array();
+    let a = (0..3).max_by(|&x, &y| d[x].abs().total_cmp(&d[y].abs()))?;
+    if !(d[a].abs() > 0.0 && d[a].is_finite()) {
         return None;
     }
-    let a = (0..3).max_by(|&x, &y| d[x].abs().total_cmp(&d[y].abs()))?;
-    let off = (0..3)
-        .filter(|&x| x != a)
-        .all(|x| d[x].abs() <= 1e-12 * len);
-    // Toward the light is against the direction the light travels.
-    off.then_some((a, if d[a] > 0.0 { -1 } else { 1 }))
+    let unit = d.map(|c| c / d[a].abs());
+    (1..=MAX_LINE_STEP).find_map(|n| {
+        let v = unit.map(|c| c * n as f64);
+        let w = v.map(|c| c.round());
+        let close = (0..3).all(|k| (v[k] - w[k]).abs() <= 1e-12 * n as f64);
+        close.then(|| w.map(|c| c as i64))
+    })
 }
 
 /// Transmittance toward `light` at every output voxel of `vol` (module docs): the leaves to
@@ -191,12 +207,25 @@ pub fn transmittance_leaves(
         .filter(|l| l.value_mask.iter().any(|&w| w != 0))
         .count();
     let tile_leaves = (leaves.len() - leaf_count) as u64;
-    let axis = light_axis(vol, light).filter(|_| *est == Estimator::REGULAR);
+    let step = light_step(vol, light).filter(|_| *est == Estimator::REGULAR);
     // Check the light once (a zero direction is refused here, not per voxel).
     light.ray_from(vol, vol.to_world(glam::DVec3::ZERO).to_array())?;
     let run = || -> Result<(u64, u64)> {
-        match axis {
-            Some((a, toward)) => by_lines(vol, light, opts, &mut leaves, a, toward, progress),
+        match step {
+            Some(w) => {
+                match (0..3).find(|&a| w[a] != 0 && w.iter().filter(|&&c| c != 0).count() == 1) {
+                    Some(a) => by_lines(
+                        vol,
+                        light,
+                        opts,
+                        &mut leaves,
+                        a,
+                        w[a].signum() as i32,
+                        progress,
+                    ),
+                    None => by_lattice(vol, light, opts, &mut leaves, w, progress),
+                }
+            }
             None => by_rays(vol, light, est, opts, &mut leaves, progress),
         }
     };
@@ -205,11 +234,12 @@ pub fn transmittance_leaves(
         voxels: 0,
         leaves: leaves.len() as u64,
         tile_leaves,
-        sharing: if axis.is_some() {
+        sharing: if step.is_some() {
             Sharing::Lines
         } else {
             Sharing::Rays
         },
+        line_step: step,
         rays,
         lookups,
         t_min: f64::INFINITY,
@@ -383,6 +413,105 @@ fn by_lines(
             Ok((rays, lookups))
         })
         .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
+}
+
+/// The exact shared walk along lattice lines `c + m w` (`w` toward the light, not along an
+/// axis): each line's voxel nearest the light traces a ray, the others add the exact integral
+/// over each step `[c, c + w]` (regular tracking's cell walk on that index segment).
+fn by_lattice(
+    vol: &Volume,
+    light: &Light,
+    opts: &Options,
+    leaves: &mut [LeafOut],
+    w: [i64; 3],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(u64, u64)> {
+    let a = (0..3).max_by_key(|&x| w[x].abs()).unwrap_or(0);
+    // Every output voxel: its line (the point with `0 <= key_a < |w_a|` on it), its position
+    // `m` on the line (larger is nearer the light), and where it goes.
+    let mut voxels: Vec<([i64; 3], i64, u32, u16)> = Vec::new();
+    for (li, l) in leaves.iter().enumerate() {
+        for n in 0..512usize {
+            if bit(&l.active, n) {
+                let c = [
+                    i64::from(l.origin[0]) + (n >> 6) as i64,
+                    i64::from(l.origin[1]) + ((n >> 3) & 7) as i64,
+                    i64::from(l.origin[2]) + (n & 7) as i64,
+                ];
+                let m = c[a].div_euclid(w[a]);
+                let key = [0, 1, 2].map(|k| c[k] - m * w[k]);
+                voxels.push((key, m, li as u32, n as u16));
+            }
+        }
+    }
+    voxels.sort_unstable_by(|x, y| x.0.cmp(&y.0).then(y.1.cmp(&x.1)));
+    let mut lines: Vec<std::ops::Range<usize>> = Vec::new();
+    let mut start = 0;
+    for i in 1..=voxels.len() {
+        if i == voxels.len() || voxels[i].0 != voxels[start].0 {
+            lines.push(start..i);
+            start = i;
+        }
+    }
+    let wv = glam::DVec3::new(w[0] as f64, w[1] as f64, w[2] as f64);
+    let step_len = vol.world_from_index().matrix3.mul_vec3(wv).length();
+    let scale = vol.density_scale();
+    let shift = opts.interp.shift();
+    let dir = wv.to_array();
+    let results = lines
+        .par_iter()
+        .map(|range| {
+            let mut acc = Accessor::new(vol.tree());
+            let mut out = Vec::with_capacity(range.len());
+            let (mut rays, mut lookups) = (0u64, 0u64);
+            let mut last: Option<(i64, f64)> = None;
+            for &(key, m, li, n) in &voxels[range.clone()] {
+                let c = [0, 1, 2].map(|k| key[k] + m * w[k]);
+                let tau = match last.filter(|(from, _)| from - m <= MAX_STEPS / 8) {
+                    Some((from, tau)) => {
+                        let mut sum = 0.0f64;
+                        let mut cells = 0u64;
+                        for s in m..from {
+                            let q = [0, 1, 2].map(|k| (key[k] + s * w[k]) as f64 + shift);
+                            sum += crate::regular::integrate_cells(
+                                &mut acc,
+                                q,
+                                dir,
+                                0.0,
+                                1.0,
+                                opts.interp,
+                                &mut cells,
+                            );
+                        }
+                        lookups += cells;
+                        tau + crate::math::scaled(scale, sum) * step_len
+                    }
+                    None => {
+                        let p =
+                            vol.to_world(glam::DVec3::new(c[0] as f64, c[1] as f64, c[2] as f64));
+                        let ray = light.ray_from(vol, p.to_array())?;
+                        let od = crate::regular::optical_depth(vol, &ray, opts.interp)?;
+                        rays += 1;
+                        lookups += od.lookups;
+                        od.tau
+                    }
+                };
+                out.push((li, n, (-tau).exp() as f32));
+                last = Some((m, tau));
+            }
+            progress(range.len() as u64);
+            Ok((out, rays, lookups))
+        })
+        .collect::<Result<Vec<_>>>()?;
+    let (mut rays, mut lookups) = (0, 0);
+    for (out, r, l) in results {
+        rays += r;
+        lookups += l;
+        for (li, n, v) in out {
+            leaves[li as usize].values[usize::from(n)] = v;
+        }
+    }
+    Ok((rays, lookups))
 }
 
 /// One transmittance volume from a file to a `.vdb`: what `umbra bake ... -o NAME.vdb` runs.

@@ -500,7 +500,7 @@ fn run_volume(a: &BakeArgs) -> Result<ExitCode> {
             "output": a.output, "grid": a.out_grid, "source_grid": job.grid, "half": a.half,
             "light": job.light, "estimator": estimator.name(), "interp": interp,
             "voxels": st.voxels, "leaves": st.leaves, "tile_leaves": st.tile_leaves,
-            "sharing": st.sharing, "rays": st.rays, "lookups": st.lookups,
+            "sharing": st.sharing, "line_step": st.line_step, "rays": st.rays, "lookups": st.lookups,
             "T_min": st.t_min, "T_max": st.t_max, "T_mean": st.t_mean,
             "seconds": st.seconds, "ns_per_voxel": st.ns_per_voxel(),
             "total_seconds": total.elapsed().as_secs_f64(),
@@ -525,9 +525,10 @@ fn run_volume(a: &BakeArgs) -> Result<ExitCode> {
             st.seconds,
             st.ns_per_voxel(),
             estimator.name(),
-            match st.sharing {
-                umbra::bake::Sharing::Lines => "one exact ray per line of voxels along the light",
-                umbra::bake::Sharing::Rays => "one ray per voxel",
+            match (st.sharing, st.line_step) {
+                (umbra::bake::Sharing::Lines, Some(w)) =>
+                    format!("one exact ray per line of voxel centres, step {w:?} toward the light"),
+                _ => "one ray per voxel".to_string(),
             },
             st.rays,
             st.voxels
