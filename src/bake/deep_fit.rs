@@ -66,15 +66,23 @@ pub fn fitted_transmittance(samples: &[DeepSample], z: f64) -> f64 {
 /// and `b` linear from `b0` to `b1`: at the ends, or where the derivative vanishes.
 #[cfg(test)]
 fn max_gap(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64)) -> f64 {
-    gap_within(t0, t1, (a0, a1), (b0, b1), 0.0)
+    gap_within(t0, t1, (a0, a1), (b0, b1), 0.0, (0.0, 1.0))
 }
 
 /// [`max_gap`], or a bound on it no larger than `enough` when that settles the question
-/// without the exponentials: `|exp(-a) - exp(-b)| <= |a - b|` for non-negative `a`, `b`,
-/// and `a - b` is linear, so largest at an end.
-fn gap_within(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64), enough: f64) -> f64 {
-    let cheap = (a0 - b0).abs().max((a1 - b1).abs());
-    if cheap <= enough && a0.min(a1).min(b0).min(b1) >= 0.0 {
+/// without transcendentals: with `a, b >= floor` on the interval, `|exp(-a) - exp(-b)| <=
+/// exp(-floor) |a - b|`, and `a - b` is linear, so largest at an end. `decay` is
+/// `exp(-floor)`, computed once per chord by the caller.
+fn gap_within(
+    t0: f64,
+    t1: f64,
+    (a0, a1): (f64, f64),
+    (b0, b1): (f64, f64),
+    enough: f64,
+    (floor, decay): (f64, f64),
+) -> f64 {
+    let cheap = decay * (a0 - b0).abs().max((a1 - b1).abs());
+    if cheap <= enough && a0.min(a1).min(b0).min(b1) >= floor {
         return cheap;
     }
     let g = |a: f64, b: f64| ((-a).exp() - (-b).exp()).abs();
@@ -163,6 +171,8 @@ pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usiz
         taus.iter().all(|tau| {
             let slope = (tau[j] - tau[i]) / span;
             let chord = |x: f64| tau[i] + slope * (x - t[i]);
+            // Chord and profile both start at tau[i] and never decrease.
+            let floor = (tau[i], (-tau[i]).exp());
             (i..j).all(|k| {
                 gap_within(
                     t[k],
@@ -170,6 +180,7 @@ pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usiz
                     (chord(t[k]), chord(t[k + 1])),
                     (tau[k], tau[k + 1]),
                     max_error,
+                    floor,
                 ) <= max_error
             })
         })
