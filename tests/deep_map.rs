@@ -414,3 +414,96 @@ fn deep_maps_refuse_flat_only_options() {
     }
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
+
+/// A scene (two tinted fog volumes and a solid sphere, `examples/scene/shot.toml`): every
+/// channel's `T(z)` within E of the exact scene transmittance over `[0, z]` (regular tracking
+/// in each volume, zero past the sphere), the sphere a point sample of alpha 1 where the ray
+/// meets it. Depths within an f32 step of a point sample are the file's resolution there
+/// and are left out.
+#[test]
+fn scene_deep_maps_hold_the_bound_and_stop_at_solids() {
+    let dir = tempfile::tempdir().unwrap();
+    let shot = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("examples/scene/shot.toml");
+    if !shot
+        .with_file_name("../../../shared/corpus/gen/sphere_levelset.vdb")
+        .exists()
+    {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "../shared/corpus is needed under CI"
+        );
+        return;
+    }
+    let e = 0.002;
+    let out = dir.path().join("scene.exr");
+    let mut j = job(
+        out.clone(),
+        Estimator::REGULAR,
+        Interp::Trilinear,
+        Product::Deep { max_error: e },
+    );
+    j.input = shot.clone();
+    j.density_scale = 3.0;
+    j.view.light_dir = Some([-0.4, -1.0, -0.3]);
+    let report = j.run(&|_| {}).unwrap();
+    let scene = umbra::scene::load(&shot, &j.scene_options()).unwrap();
+    let cam = report.map.camera;
+    let (w, h) = (cam.width() as usize, cam.height() as usize);
+    let Some(pixels) = dump(&out, w, h) else {
+        return;
+    };
+    let opts = Options {
+        interp: Interp::Trilinear,
+        ..Options::default()
+    };
+    let (mut opaque, mut checked) = (0, 0);
+    for jj in 0..h {
+        for i in 0..w {
+            let px = &pixels[jj * w + i];
+            check_order(px, &["A", "AR", "AG", "AB"]);
+            let points: Vec<f64> = px
+                .iter()
+                .filter(|s| s["Z"] == s["ZBack"])
+                .map(|s| s["Z"])
+                .collect();
+            opaque += points.len();
+            let ray = cam.pixel_ray(i as u32, jj as u32).unwrap();
+            for k in 0..=32 {
+                let z = ray.t_max() * f64::from(k) / 32.0;
+                if points
+                    .iter()
+                    .any(|p| (z - p).abs() <= 4.0 * f64::from(f32::EPSILON) * p.abs())
+                {
+                    continue;
+                }
+                let est = umbra::scene::estimate(
+                    &scene,
+                    &ray.with_range(0.0, z).unwrap(),
+                    0,
+                    &Estimator::REGULAR,
+                    &opts,
+                )
+                .unwrap();
+                let tau = est.tau.unwrap();
+                let mean = (tau[0] + tau[1] + tau[2]) / 3.0;
+                for (c, t) in [("AR", tau[0]), ("AG", tau[1]), ("AB", tau[2]), ("A", mean)] {
+                    let exact = (-t).exp();
+                    let got = t_at(px, c, z);
+                    assert!(
+                        (got - exact).abs() <= e,
+                        "pixel ({i}, {jj}) {c} at z = {z}: {got} vs exact {exact}"
+                    );
+                }
+                checked += 1;
+            }
+        }
+    }
+    // The sphere's shadow is in the map, as point samples of alpha 1.
+    assert!(opaque >= 5, "{opaque} opaque samples");
+    assert!(checked > w * h * 30);
+    for px in &pixels {
+        for s in px.iter().filter(|s| s["Z"] == s["ZBack"]) {
+            assert_eq!((s["A"], s["AR"], s["AG"], s["AB"]), (1.0, 1.0, 1.0, 1.0));
+        }
+    }
+}
