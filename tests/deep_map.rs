@@ -308,6 +308,19 @@ fn colour_deep_maps_fit_every_channel() {
         info.contains("channel list: A, AR, AG, AB, Z, ZBack"),
         "{info}"
     );
+    // The camera travels with the deep map, as with a flat one.
+    for attr in [
+        "worldToCamera",
+        "worldToNDC",
+        "umbra:camera_origin",
+        "umbra:camera_step_x",
+        "umbra:camera_direction",
+        "umbra:camera_t_max",
+        "umbra:deep_error: 0.002",
+        "umbra:sigma_t",
+    ] {
+        assert!(info.contains(attr), "{attr} missing: {info}");
+    }
     assert!(report.deep.unwrap().samples > 0);
 }
 
@@ -506,4 +519,90 @@ fn scene_deep_maps_hold_the_bound_and_stop_at_solids() {
             assert_eq!((s["A"], s["AR"], s["AG"], s["AB"]), (1.0, 1.0, 1.0, 1.0));
         }
     }
+}
+
+/// The CLI: `--deep-error` needs `--deep` (usage, exit 2); a bad bound is a one-line error
+/// (exit 1); `--json` carries the deep counts.
+#[test]
+fn cli_deep_flags() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("d.exr");
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .arg("bake")
+            .arg(cloud())
+            .args(["--light-dir=0.3,-1,0.2", "--res", "32", "-o"])
+            .arg(&out)
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    assert_eq!(run(&["--deep-error", "0.01"]).status.code(), Some(2));
+    let bad = run(&["--deep", "--deep-error", "1.5"]);
+    assert_eq!(bad.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(
+        err.starts_with("umbra: error:") && err.contains("--deep-error"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let ok = run(&["--deep", "--json", "--quiet"]);
+    assert!(ok.status.success());
+    let j: serde_json::Value = serde_json::from_slice(&ok.stdout).unwrap();
+    assert_eq!(j["deep"]["max_error"], 0.002);
+    assert!(j["deep"]["samples"].as_u64().unwrap() > 0);
+    assert!(out.exists());
+}
+
+/// A batch job's `deep = true` / `deep_error` bakes the CLI's deep map (same samples; the
+/// files differ only in the provenance a batch task records), and `deep_error` without
+/// `deep` is refused naming the key.
+#[test]
+fn batch_jobs_write_deep_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = |extra: &str| {
+        let p = dir.path().join("job.toml");
+        std::fs::write(
+            &p,
+            format!(
+                "output = \"{}/{{stem}}_{{light}}.exr\"\n[[inputs]]\nfile = {:?}\n\
+                 [[lights]]\nname = \"sun\"\ndir = [0.3, -1, 0.2]\n[bake]\nres = [40, 30]\n\
+                 density_scale = 4\n{extra}\n",
+                dir.path().display(),
+                cloud().display().to_string()
+            ),
+        )
+        .unwrap();
+        Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .args(["batch", p.to_str().unwrap(), "-q", "--force"])
+            .output()
+            .unwrap()
+    };
+    let bad = job("deep_error = 0.01");
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("bake.deep_error"));
+    let o = job("deep = true\ndeep_error = 0.01");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cli = dir.path().join("cli.exr");
+    let c = Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .arg("bake")
+        .arg(cloud())
+        .args([
+            "--light-dir=0.3,-1,0.2",
+            "--res",
+            "40x30",
+            "--density-scale",
+            "4",
+        ])
+        .args(["--deep", "--deep-error", "0.01", "-q", "-o"])
+        .arg(&cli)
+        .output()
+        .unwrap();
+    assert!(c.status.success());
+    let Some(a) = dump(&dir.path().join("cloud_sun.exr"), 40, 30) else {
+        return;
+    };
+    let b = dump(&cli, 40, 30).unwrap();
+    assert_eq!(a, b);
+    assert!(a.iter().map(Vec::len).sum::<usize>() > 0);
 }
