@@ -6,11 +6,12 @@
 //! smooth data, raw bytes are stored when it does not. Without the tools the tests fail unless
 //! `UMBRA_SKIP_OIIO=1`.
 
+mod common;
+
 use exr::meta::attribute::{AttributeValue, Text};
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 use std::path::Path;
-use std::process::Command;
 use umbra::bake::{write_deep_exr, DeepAttributes, DeepImage};
 use umbra::Error;
 
@@ -94,74 +95,12 @@ fn write(path: &Path, case: &Case) {
     write_deep_exr(path, &case.image(), &Default::default(), false).unwrap();
 }
 
-/// `name args` stdout; `None` when the tool is missing and `UMBRA_SKIP_OIIO=1`.
 fn tool(name: &str, args: &[&str]) -> Option<String> {
-    let o = match Command::new(name).args(args).output() {
-        Ok(o) => o,
-        Err(e) => {
-            assert!(
-                std::env::var("UMBRA_SKIP_OIIO").as_deref() == Ok("1"),
-                "{name} (Debian openimageio-tools) is needed ({e}); set UMBRA_SKIP_OIIO=1 to skip"
-            );
-            return None;
-        }
-    };
-    assert!(
-        o.status.success(),
-        "{name} {args:?}: {}{}",
-        String::from_utf8_lossy(&o.stdout),
-        String::from_utf8_lossy(&o.stderr)
-    );
-    Some(String::from_utf8_lossy(&o.stdout).into_owned())
+    common::oiio_tool(name, args)
 }
 
-fn parse_f32(s: &str) -> f32 {
-    s.parse()
-        .unwrap_or_else(|e| panic!("oiiotool printed {s:?}, not a float: {e}"))
-}
-
-/// Every pixel `oiiotool --dumpdata` prints, row-major: its samples as `(channel, value)`.
-/// Lines read `Pixel (x, y): n samples : A=1 Z=2 / A=3 Z=4`.
 fn dump(path: &Path, w: u32, h: u32) -> Option<Vec<Vec<Sample>>> {
-    let text = tool("oiiotool", &["--dumpdata", path.to_str().unwrap()])?;
-    let mut pixels: Vec<Option<Vec<Sample>>> = vec![None; (w * h) as usize];
-    for line in text
-        .lines()
-        .map(str::trim)
-        .filter(|l| l.starts_with("Pixel ("))
-    {
-        let (pos, rest) = line["Pixel (".len()..].split_once("): ").unwrap();
-        let (x, y) = pos.split_once(", ").unwrap();
-        let (x, y): (usize, usize) = (x.parse().unwrap(), y.parse().unwrap());
-        let (n, samples) = match rest.split_once(" : ") {
-            Some((n, s)) => (n, s),
-            None => (rest, ""),
-        };
-        let n: usize = n.trim().strip_suffix(" samples").unwrap().parse().unwrap();
-        let list: Vec<Sample> = samples
-            .split(" / ")
-            .filter(|s| !s.trim().is_empty())
-            .map(|s| {
-                s.split_whitespace()
-                    .map(|cv| {
-                        let (c, v) = cv.split_once('=').unwrap();
-                        (c.to_string(), parse_f32(v))
-                    })
-                    .collect()
-            })
-            .collect();
-        assert_eq!(list.len(), n, "{line}");
-        let slot = &mut pixels[y * w as usize + x];
-        assert!(slot.is_none(), "pixel ({x}, {y}) printed twice");
-        *slot = Some(list);
-    }
-    Some(
-        pixels
-            .into_iter()
-            .enumerate()
-            .map(|(p, s)| s.unwrap_or_else(|| panic!("oiiotool did not print pixel {p}")))
-            .collect(),
-    )
+    common::deep_dump(path, w as usize, h as usize)
 }
 
 /// OIIO reads back exactly `case`: every pixel's sample count and every sample's bits.

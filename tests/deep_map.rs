@@ -8,6 +8,8 @@
 //! oiiotool the tests fail unless `UMBRA_SKIP_OIIO=1`.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -54,63 +56,23 @@ fn job(out: PathBuf, est: Estimator, interp: Interp, product: Product) -> BakeJo
     }
 }
 
-/// `oiiotool args` stdout; `None` when it is missing and `UMBRA_SKIP_OIIO=1`.
 fn oiiotool(args: &[&str]) -> Option<String> {
-    let o = match Command::new("oiiotool").args(args).output() {
-        Ok(o) => o,
-        Err(e) => {
-            assert!(
-                std::env::var("UMBRA_SKIP_OIIO").as_deref() == Ok("1"),
-                "oiiotool (Debian openimageio-tools) is needed ({e}); set UMBRA_SKIP_OIIO=1 to skip"
-            );
-            return None;
-        }
-    };
-    assert!(
-        o.status.success(),
-        "oiiotool {args:?}: {}",
-        String::from_utf8_lossy(&o.stderr)
-    );
-    Some(String::from_utf8_lossy(&o.stdout).into_owned())
+    common::oiio_tool("oiiotool", args)
 }
 
 /// One deep sample as read back: channel name to value.
 type Sample = BTreeMap<String, f64>;
 
-/// Every pixel's samples, row-major, from `oiiotool --dumpdata` (`Pixel (x, y): n samples :
-/// A=1 Z=2 / A=3 Z=4`).
+/// Every pixel's samples, row-major, from `oiiotool --dumpdata`.
 fn dump(path: &Path, w: usize, h: usize) -> Option<Vec<Vec<Sample>>> {
-    let text = oiiotool(&["--dumpdata", path.to_str().unwrap()])?;
-    let mut pixels = vec![None; w * h];
-    for line in text
-        .lines()
-        .map(str::trim)
-        .filter(|l| l.starts_with("Pixel ("))
-    {
-        let (pos, rest) = line["Pixel (".len()..].split_once("): ").unwrap();
-        let (x, y) = pos.split_once(", ").unwrap();
-        let (x, y): (usize, usize) = (x.parse().unwrap(), y.parse().unwrap());
-        let (n, samples) = rest.split_once(" : ").unwrap_or((rest, ""));
-        let n: usize = n.trim().strip_suffix(" samples").unwrap().parse().unwrap();
-        let list: Vec<Sample> = samples
-            .split(" / ")
-            .filter(|s| !s.trim().is_empty())
-            .map(|s| {
-                s.split_whitespace()
-                    .map(|cv| {
-                        let (c, v) = cv.split_once('=').unwrap();
-                        (c.to_string(), v.parse::<f32>().unwrap().into())
-                    })
+    Some(
+        common::deep_dump(path, w, h)?
+            .into_iter()
+            .map(|px| {
+                px.into_iter()
+                    .map(|s| s.into_iter().map(|(c, v)| (c, f64::from(v))).collect())
                     .collect()
             })
-            .collect();
-        assert_eq!(list.len(), n, "{line}");
-        pixels[y * w + x] = Some(list);
-    }
-    Some(
-        pixels
-            .into_iter()
-            .map(|p| p.expect("every pixel printed"))
             .collect(),
     )
 }

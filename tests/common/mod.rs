@@ -60,4 +60,83 @@ pub fn peak_rss_bytes() -> Option<u64> {
 }
 
 /// The message of a caught panic payload (the library's own helper).
+#[allow(unused_imports)]
 pub use umbra::batch::panic_message;
+
+/// `name args` stdout for an OpenImageIO tool (`oiiotool`, `iinfo`; Debian `openimageio-tools`),
+/// asserting success; `None` when the tool is missing and `UMBRA_SKIP_OIIO=1` (else the missing
+/// tool fails the test).
+pub fn oiio_tool(name: &str, args: &[&str]) -> Option<String> {
+    let o = match std::process::Command::new(name).args(args).output() {
+        Ok(o) => o,
+        Err(e) => {
+            assert!(
+                std::env::var("UMBRA_SKIP_OIIO").as_deref() == Ok("1"),
+                "{name} (Debian openimageio-tools) is needed ({e}); set UMBRA_SKIP_OIIO=1 to skip"
+            );
+            return None;
+        }
+    };
+    assert!(
+        o.status.success(),
+        "{name} {args:?}: {}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    Some(String::from_utf8_lossy(&o.stdout).into_owned())
+}
+
+/// One deep sample as `oiiotool --dumpdata` prints it: `(channel, value)` in printed order.
+pub type DumpedSample = Vec<(String, f32)>;
+
+/// Every pixel of a `w x h` deep file as `oiiotool --dumpdata` prints it, row-major: its
+/// samples. Lines read `Pixel (x, y): n samples : A=1 Z=2 / A=3 Z=4`. `None` as
+/// [`oiio_tool`].
+pub fn deep_dump(path: &std::path::Path, w: usize, h: usize) -> Option<Vec<Vec<DumpedSample>>> {
+    let text = oiio_tool("oiiotool", &["--dumpdata", path.to_str()?])?;
+    let mut pixels: Vec<Option<Vec<DumpedSample>>> = vec![None; w * h];
+    for line in text
+        .lines()
+        .map(str::trim)
+        .filter(|l| l.starts_with("Pixel ("))
+    {
+        let (pos, rest) = line["Pixel (".len()..]
+            .split_once("): ")
+            .unwrap_or_default();
+        let (x, y) = pos.split_once(", ").unwrap_or_default();
+        let (x, y): (usize, usize) = (x.parse().unwrap_or(usize::MAX), y.parse().unwrap_or(0));
+        let (n, samples) = rest.split_once(" : ").unwrap_or((rest, ""));
+        let n: usize = n
+            .trim()
+            .strip_suffix(" samples")
+            .and_then(|n| n.parse().ok())
+            .unwrap_or(usize::MAX);
+        let list: Vec<DumpedSample> = samples
+            .split(" / ")
+            .filter(|s| !s.trim().is_empty())
+            .map(|s| {
+                s.split_whitespace()
+                    .map(|cv| {
+                        let (c, v) = cv.split_once('=').unwrap_or((cv, "?"));
+                        let v: f32 = v
+                            .parse()
+                            .unwrap_or_else(|e| panic!("oiiotool printed {v:?}, not a float: {e}"));
+                        (c.to_string(), v)
+                    })
+                    .collect()
+            })
+            .collect();
+        assert_eq!(list.len(), n, "{line}");
+        assert!(x < w && y < h, "{line}");
+        let slot = &mut pixels[y * w + x];
+        assert!(slot.is_none(), "pixel ({x}, {y}) printed twice");
+        *slot = Some(list);
+    }
+    Some(
+        pixels
+            .into_iter()
+            .enumerate()
+            .map(|(p, s)| s.unwrap_or_else(|| panic!("oiiotool did not print pixel {p}")))
+            .collect(),
+    )
+}
