@@ -2,7 +2,7 @@
 //! cache is decoded only where the job looks ([`crate::vdb::LazyGrid::load`]).
 //!
 //! A walk's path through the tree depends on the topology alone (root table, child masks,
-//! value box), never on values. [`touched_blocks`] replays it and reports every block it
+//! value box), never on values. `traverse::touched_blocks` replays it and reports every block it
 //! visits at the job's granularity. Every value the job can read along the ray, and every bound
 //! it uses, lies in the closed box `[o, o + dim]` of a visited block `(o, dim)`:
 //! - a leaf segment's lookups and its exact integral read the leaf and, for trilinear cells,

@@ -89,7 +89,7 @@ pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> 
 /// [`write_exr`] in `layout`: scanlines, or tiles of `n x n` pixels (the same channels and
 /// attributes; OpenEXR's `tiles` attribute says the tile size and level mode), with
 /// box-filtered round-down mip levels of every channel when `layout.mipmap`
-/// ([`super::layout`]).
+/// ([`super::mip_levels`]).
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for a layout [`ExrLayout::validate`] refuses; as [`write_exr`].

@@ -395,7 +395,7 @@ impl BakeJob {
         }))
     }
 
-    /// Bake a [`BoundedPlan`]: the map the whole-grid bake would make, bit for bit, holding a
+    /// Bake a `BoundedPlan`: the map the whole-grid bake would make, bit for bit, holding a
     /// part of the grid at a time. Bad-voxel counts are not reported in this mode (the parts
     /// overlap; each part's policy is the whole grid's).
     ///

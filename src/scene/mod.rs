@@ -1,7 +1,7 @@
 //! Scenes: what one map or query traces. A scene is one or more fog volumes (each its own grid,
 //! transform, density scale and extinction colour `sigma_t`) and any number of opaque solids
 //! (level sets). A `.vdb` file is a scene of one volume; a `.toml` scene file lists
-//! `[[volume]]` tables (see [`file`]).
+//! `[[volume]]` tables (see `scene::file`).
 //!
 //! Extinction of channel `c` at a world point `x`:
 //! `mu_c(x) = sum_k sigma_{k,c} density_scale_k value_k(x)` over the fog volumes, `+inf` inside
