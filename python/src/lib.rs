@@ -537,6 +537,81 @@ type BakeOut<'py> = (
     Vec<String>,
 );
 
+/// A transmittance volume in memory: `(ijk, T, stats JSON, warnings)`, `ijk` of shape `(N, 3)`.
+type VolumeOut<'py> = (
+    Bound<'py, PyArray2<i32>>,
+    Bound<'py, PyArray1<f32>>,
+    String,
+    Vec<String>,
+);
+
+/// The light of a transmittance volume: exactly one of `light_dir`, `light_pos` (the CLI's
+/// `--light-dir`/`--light-pos` rule).
+fn volume_light(light_dir: Option<[f64; 3]>, light_pos: Option<[f64; 3]>) -> PyResult<Light> {
+    match (light_dir, light_pos) {
+        (Some(dir), None) => Ok(Light::Directional { dir }),
+        (None, Some(pos)) => Ok(Light::Point { pos }),
+        (None, None) => Err(arg(
+            "light_dir",
+            "give light_dir=(dx, dy, dz) or light_pos=(x, y, z): the light the volume is lit by",
+        )),
+        (Some(_), Some(_)) => Err(arg(
+            "light_dir",
+            "give light_dir or light_pos for a transmittance volume, not both",
+        )),
+    }
+}
+
+/// A transmittance volume's stats as a JSON object: [`umbra::bake::VolumeStats`]'s fields
+/// and `ns_per_voxel`.
+fn stats_json(st: &umbra::bake::VolumeStats) -> PyResult<String> {
+    let mut v = serde_json::to_value(st).map_err(|e| raise(Class::Other, e.to_string()))?;
+    if let Some(o) = v.as_object_mut() {
+        o.insert("ns_per_voxel".into(), serde_json::json!(st.ns_per_voxel()));
+    }
+    Ok(v.to_string())
+}
+
+impl NativeVolume {
+    /// The one density grid a transmittance volume is made from (a scene is refused, as `umbra
+    /// bake SCENE.toml -o OUT.vdb` refuses it), the light, the estimator and the thread count,
+    /// checked as the CLI checks them.
+    #[allow(clippy::too_many_arguments)]
+    fn volume_setup(
+        &self,
+        light_dir: Option<[f64; 3]>,
+        light_pos: Option<[f64; 3]>,
+        estimator_name: &str,
+        params: &[(String, f64)],
+        samples: u32,
+        seed: u64,
+        threads: usize,
+    ) -> PyResult<(&umbra::Volume, Light, Estimator, Options)> {
+        if umbra::scene::is_scene_file(&self.path) {
+            return Err(raise(
+                Class::Argument,
+                format!(
+                    "a transmittance volume (.vdb) is made from one density grid; {} is a \
+                     scene file",
+                    self.path.display()
+                ),
+            ));
+        }
+        let vol = self.single("transmittance volume")?;
+        let light = volume_light(light_dir, light_pos)?;
+        let (est, opts) = estimator(estimator_name, params, self.interp, samples, seed)?;
+        umbra::bake::check_threads(threads).map_err(py_err)?;
+        Ok((vol, light, est, opts))
+    }
+
+    /// A transmittance volume's warnings as the CLI prints them: `FILE: warning`.
+    fn volume_warnings(&self, w: &[umbra::bake::Warning]) -> Vec<String> {
+        w.iter()
+            .map(|w| format!("{}: {w}", self.path.display()))
+            .collect()
+    }
+}
+
 #[pymethods]
 impl NativeVolume {
     /// Load grid `grid` of the `.vdb` file `path` (whole).
@@ -730,6 +805,111 @@ impl NativeVolume {
         self.run(
             py, n, ray_of, estimator, &params, samples, seed, ray_id, threads,
         )
+    }
+
+    /// T toward a light at every active voxel (`umbra bake ... -o OUT.vdb`, in memory):
+    /// the voxels' index coordinates and values in output order (leaves by origin, voxels by
+    /// offset).
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (light_dir, light_pos, estimator_name, params, samples, seed, threads))]
+    fn transmittance_volume<'py>(
+        &self,
+        py: Python<'py>,
+        light_dir: Option<[f64; 3]>,
+        light_pos: Option<[f64; 3]>,
+        estimator_name: &str,
+        params: Vec<(String, f64)>,
+        samples: u32,
+        seed: u64,
+        threads: usize,
+    ) -> PyResult<VolumeOut<'py>> {
+        let (vol, light, est, opts) = self.volume_setup(
+            light_dir,
+            light_pos,
+            estimator_name,
+            &params,
+            samples,
+            seed,
+            threads,
+        )?;
+        let (ijk, t, stats) = py
+            .detach(|| -> umbra::Result<_> {
+                let (leaves, stats) =
+                    umbra::bake::transmittance_leaves(vol, &light, &est, &opts, threads, &|_| {})?;
+                let voxels = usize::try_from(stats.voxels).unwrap_or(0);
+                let (mut ijk, mut t) = (Vec::with_capacity(voxels * 3), Vec::with_capacity(voxels));
+                for l in &leaves {
+                    for (n, &v) in l.values.iter().enumerate() {
+                        if l.active[n / 64] >> (n % 64) & 1 == 1 {
+                            ijk.extend_from_slice(&[
+                                l.origin[0] + (n >> 6) as i32,
+                                l.origin[1] + ((n >> 3) & 7) as i32,
+                                l.origin[2] + (n & 7) as i32,
+                            ]);
+                            t.push(v);
+                        }
+                    }
+                }
+                Ok((ijk, t, stats))
+            })
+            .map_err(py_err)?;
+        let n = t.len();
+        let warnings = self.volume_warnings(&umbra::bake::volume_warnings(&vol.sanitized()));
+        Ok((
+            PyArray1::from_vec(py, ijk).reshape([n, 3])?,
+            PyArray1::from_vec(py, t),
+            stats_json(&stats)?,
+            warnings,
+        ))
+    }
+
+    /// Write the transmittance volume `umbra bake FILE ... -o PATH` writes for this volume
+    /// (its file, grid, density scale and `xform` recorded): `(stats JSON, warnings)`.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (path, light_dir, light_pos, out_grid, half, overwrite, estimator_name, params, samples, seed, threads))]
+    fn write_transmittance_volume(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        light_dir: Option<[f64; 3]>,
+        light_pos: Option<[f64; 3]>,
+        out_grid: String,
+        half: bool,
+        overwrite: bool,
+        estimator_name: &str,
+        params: Vec<(String, f64)>,
+        samples: u32,
+        seed: u64,
+        threads: usize,
+    ) -> PyResult<(String, Vec<String>)> {
+        let (vol, light, est, opts) = self.volume_setup(
+            light_dir,
+            light_pos,
+            estimator_name,
+            &params,
+            samples,
+            seed,
+            threads,
+        )?;
+        let job = umbra::bake::VolumeJob {
+            input: self.path.clone(),
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            xform: self.xform,
+            light,
+            estimator: est,
+            options: opts,
+            threads,
+            output: path,
+            out_grid,
+            half,
+            overwrite,
+        };
+        let report = py.detach(|| job.run_on(vol, &|_| {})).map_err(py_err)?;
+        Ok((
+            stats_json(&report.stats)?,
+            self.volume_warnings(&report.warnings),
+        ))
     }
 
     /// Bake a transmittance map (`umbra bake`, in memory).

@@ -399,6 +399,92 @@ class Volume:
         _warn(warns)
         return _finish(t, err, return_stderr)
 
+    def transmittance_volume(
+        self,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        *,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        threads: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+    ) -> Tuple[np.ndarray, np.ndarray, Dict[str, Any]]:
+        """``T = exp(-tau)`` toward a light at every active voxel (tiles count as the voxels they
+        cover): what ``umbra bake FILE --light-dir D -o OUT.vdb`` stores, in memory.
+
+        Give one of ``light_dir`` (a sun: the direction the light travels) or ``light_pos``
+        (a point light). Each voxel's value is the transmittance from its centre (index point
+        ``ijk`` in world space) toward the light. With the exact ``regular`` estimator and a
+        sun along a lattice direction of the index grid (an axis, a diagonal, ``0.3,-1,0.2``),
+        voxels on one line toward the light share its ray exactly. Stochastic estimators use
+        each voxel's index in the output as its ray id.
+
+        Returns ``(ijk, T, stats)``: an (N, 3) int32 array of index coordinates and an (N,)
+        float32 array of T, in output order (8^3 leaves by origin, voxels by offset), and a
+        dict of counts and cost (``voxels``, ``leaves``, ``tile_leaves``, ``sharing``
+        ``"lines"``/``"rays"``, ``line_step``, ``rays``, ``lookups``, ``t_min``, ``t_max``,
+        ``t_mean``, ``seconds``, ``ns_per_voxel``). World positions: ``world_from_index``
+        applied to ``ijk``. A scene is refused (a transmittance volume is made from one grid).
+        """
+        ijk, t, stats, warns = self._v.transmittance_volume(
+            _vec3("light_dir", light_dir),
+            _vec3("light_pos", light_pos),
+            str(estimator),
+            _params(step, kernel, points),
+            _count("samples", samples),
+            _count("seed", seed),
+            _count("threads", threads),
+        )
+        _warn(warns)
+        return ijk, t, json.loads(stats)
+
+    def write_transmittance_volume(
+        self,
+        path: PathLike,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        *,
+        grid: str = "transmittance",
+        half: bool = False,
+        overwrite: bool = False,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        threads: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+    ) -> Dict[str, Any]:
+        """Write :meth:`transmittance_volume` as the ``.vdb`` file ``umbra bake FILE ... -o
+        PATH`` writes for this volume, byte for byte: one float grid named ``grid``
+        (``--out-grid``) with the density's active voxels, background 1, the volume's
+        transform (``xform`` included), ``umbra:*`` metadata naming the light, the estimator
+        and the source file as this Volume was given it; ``half=True`` stores 16-bit floats
+        (``--half``). The file is written atomically; an existing file is a
+        :class:`FileError` unless ``overwrite``. Returns the stats dict of
+        :meth:`transmittance_volume`.
+        """
+        if not isinstance(grid, str):
+            raise _invalid("grid", f"expected a grid name, got {grid!r}")
+        stats, warns = self._v.write_transmittance_volume(
+            _path("path", path),
+            _vec3("light_dir", light_dir),
+            _vec3("light_pos", light_pos),
+            grid,
+            bool(half),
+            bool(overwrite),
+            str(estimator),
+            _params(step, kernel, points),
+            _count("samples", samples),
+            _count("seed", seed),
+            _count("threads", threads),
+        )
+        _warn(warns)
+        return json.loads(stats)
+
     def bake(
         self,
         light_dir: Optional[Vec3] = None,

@@ -153,6 +153,36 @@ class Volume:
         points_per_estimate: Optional[float] = None,
         threads: int = 0,
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
+    def transmittance_volume(
+        self,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        *,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        threads: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+    ) -> Tuple[npt.NDArray[np.int32], npt.NDArray[np.float32], Dict[str, Any]]: ...
+    def write_transmittance_volume(
+        self,
+        path: PathLike,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        *,
+        grid: str = "transmittance",
+        half: bool = False,
+        overwrite: bool = False,
+        estimator: str = "regular",
+        samples: int = 1,
+        seed: int = 0,
+        threads: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+    ) -> Dict[str, Any]: ...
     @overload
     def bake(
         self,
