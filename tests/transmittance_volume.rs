@@ -214,6 +214,7 @@ fn check(
         rb.density_count,
         "active voxel count"
     );
+    assert_eq!(umbra::bake::output_voxels(&vol), rb.density_count);
     assert!(
         rb.all_on_in_density,
         "a written voxel is not active in the density"

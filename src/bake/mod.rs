@@ -51,7 +51,7 @@ pub use render::{
     MAX_BATCHES, MAX_SLICES, MAX_THREADS,
 };
 pub use shadow_volume::{
-    transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats, DEFAULT_OUT_GRID,
-    MAX_VOLUME_LEAVES,
+    output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,
+    DEFAULT_OUT_GRID, MAX_VOLUME_LEAVES,
 };
 pub use summary::{channel_names, MapSummary, SummaryCamera};

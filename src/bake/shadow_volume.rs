@@ -93,6 +93,43 @@ impl VolumeStats {
     }
 }
 
+/// How many voxels a transmittance volume of `vol` holds: the active voxels of its leaves and
+/// of its active lower and upper tiles (what [`transmittance_leaves`] writes; an active root
+/// tile counts its 4096^3 voxels, which the write then refuses). From the masks alone.
+#[must_use]
+pub fn output_voxels(vol: &Volume) -> u64 {
+    let tree = vol.tree();
+    let leaves: u64 = tree
+        .leaves()
+        .iter()
+        .map(|l| {
+            l.value_mask
+                .iter()
+                .map(|w| u64::from(w.count_ones()))
+                .sum::<u64>()
+        })
+        .sum();
+    let tiles = |nodes: &[crate::tree::Internal], voxels: u64| -> u64 {
+        nodes
+            .iter()
+            .map(|n| {
+                n.value_mask
+                    .iter()
+                    .zip(n.child_mask.iter())
+                    .map(|(v, c)| u64::from((v & !c).count_ones()))
+                    .sum::<u64>()
+                    * voxels
+            })
+            .sum()
+    };
+    let root = tree
+        .root()
+        .iter()
+        .filter(|e| matches!(e.slot, crate::tree::RootSlot::Tile { active: true, .. }))
+        .count() as u64;
+    leaves + tiles(tree.lowers(), 512) + tiles(tree.uppers(), 128 * 128 * 128) + root * (1 << 36)
+}
+
 /// The 8^3 blocks of the output: a leaf's active voxels or an active tile's.
 fn output_blocks(vol: &Volume) -> Result<Vec<LeafOut>> {
     let tree = vol.tree();
@@ -207,6 +244,17 @@ pub fn transmittance_leaves(
         .filter(|l| l.value_mask.iter().any(|&w| w != 0))
         .count();
     let tile_leaves = (leaves.len() - leaf_count) as u64;
+    debug_assert_eq!(
+        output_voxels(vol),
+        leaves
+            .iter()
+            .map(|l| l
+                .active
+                .iter()
+                .map(|w| u64::from(w.count_ones()))
+                .sum::<u64>())
+            .sum::<u64>()
+    );
     let step = light_step(vol, light).filter(|_| *est == Estimator::REGULAR);
     // Check the light once (a zero direction is refused here, not per voxel).
     light.ray_from(vol, vol.to_world(glam::DVec3::ZERO).to_array())?;

@@ -485,7 +485,7 @@ fn run_volume(a: &BakeArgs) -> Result<ExitCode> {
     let bar = progress_bar(
         a.quiet,
         "{spinner} transmittance volume [{bar:30}] {percent:>3}% {human_pos}/{human_len} voxels, eta {eta}",
-        vol.tree().leaves().len() as u64 * 512,
+        umbra::bake::output_voxels(&vol),
     );
     let r = job.run_on(&vol, &|n| bar.inc(n));
     bar.finish_and_clear();
