@@ -494,3 +494,77 @@ fn transmittance_volumes_refuse_map_options_and_leave_nothing() {
         .unwrap();
     assert_eq!(r.status.code(), Some(1));
 }
+
+/// A batch job whose output pattern ends in `.vdb` writes transmittance volumes: each task's
+/// file equals `umbra bake INPUT --light-dir D -o OUT.vdb`'s byte for byte (sun and point
+/// light, `out_grid`, `half`); map keys with a `.vdb` pattern, and `half` with an `.exr`
+/// pattern, are refused naming the key.
+#[test]
+fn batch_jobs_write_transmittance_volumes() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = |output: &str, extra: &str| {
+        let p = dir.path().join("job.toml");
+        std::fs::write(
+            &p,
+            format!(
+                "output = \"{}/{output}\"\n[[inputs]]\nfile = {:?}\n\
+                 [[lights]]\nname = \"sun\"\ndir = [0, -1, 0]\n\
+                 [[lights]]\nname = \"lamp\"\npos = [0.5, 4, 0.2]\n\
+                 [bake]\ndensity_scale = 2\n{extra}\n",
+                dir.path().display(),
+                cloud().display().to_string()
+            ),
+        )
+        .unwrap();
+        umbra_bin()
+            .args(["batch", p.to_str().unwrap(), "-q", "--force"])
+            .output()
+            .unwrap()
+    };
+    let o = job("{stem}_{light}.vdb", "out_grid = \"shadow\"\nhalf = true");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for (name, light) in [
+        ("sun", "--light-dir=0,-1,0"),
+        ("lamp", "--light-pos=0.5,4,0.2"),
+    ] {
+        let cli = dir.path().join(format!("cli_{name}.vdb"));
+        let r = umbra_bin()
+            .arg("bake")
+            .arg(cloud())
+            .args([
+                light,
+                "--density-scale",
+                "2",
+                "--out-grid",
+                "shadow",
+                "--half",
+                "-q",
+                "-o",
+            ])
+            .arg(&cli)
+            .output()
+            .unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let from_batch = std::fs::read(dir.path().join(format!("cloud_{name}.vdb"))).unwrap();
+        assert!(
+            from_batch == std::fs::read(&cli).unwrap(),
+            "{name}: batch and CLI files differ"
+        );
+    }
+    for (output, extra, key) in [
+        (
+            "{stem}_{light}.vdb",
+            "preview = \"p_{light}.png\"",
+            "bake.preview",
+        ),
+        ("{stem}_{light}.vdb", "res = 64", "bake.res"),
+        ("{stem}_{light}.vdb", "deep = true", "bake.deep"),
+        ("{stem}_{light}.exr", "half = true", "bake.half"),
+        ("{stem}_{light}.exr", "out_grid = \"t\"", "bake.out_grid"),
+    ] {
+        let o = job(output, extra);
+        let e = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{extra}: {e}");
+        assert!(e.contains(key), "{extra}: {e}");
+    }
+}

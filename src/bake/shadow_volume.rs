@@ -640,6 +640,16 @@ impl VolumeJob {
     /// # Errors
     /// Load errors.
     pub fn load(&self) -> Result<Volume> {
+        if crate::scene::is_scene_file(&self.input) {
+            return Err(Error::InvalidArgument {
+                name: "output".into(),
+                reason: format!(
+                    "a transmittance volume (.vdb) is made from one density grid; {} is a scene \
+                     file",
+                    self.input.display()
+                ),
+            });
+        }
         let v = Volume::load(&self.input, &self.grid, self.density_scale)?;
         match &self.xform {
             Some(x) => v.with_xform(x),

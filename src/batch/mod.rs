@@ -227,6 +227,11 @@ pub struct BakeSpec {
     pub deep: bool,
     /// The deep maps' error bound in T, as `umbra bake --deep-error` (default 0.002).
     pub deep_error: Option<f64>,
+    /// Transmittance volumes (an output pattern ending in `.vdb`): the written grid's name,
+    /// as `umbra bake --out-grid` (default `transmittance`).
+    pub out_grid: Option<String>,
+    /// Transmittance volumes: 16-bit half floats, as `umbra bake --half`.
+    pub half: bool,
 }
 
 impl Default for BakeSpec {
@@ -263,6 +268,8 @@ impl Default for BakeSpec {
             mipmap: false,
             deep: false,
             deep_error: None,
+            out_grid: None,
+            half: false,
         }
     }
 }
@@ -333,6 +340,9 @@ pub struct Job {
     pub layout: crate::bake::ExrLayout,
     /// Flat or deep maps (`bake.deep`, `bake.deep_error`).
     pub product: crate::bake::Product,
+    /// Transmittance volumes instead of maps (an output pattern ending in `.vdb`): the written
+    /// grid's name and whether it is stored as half floats.
+    pub volume: Option<(String, bool)>,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
@@ -378,7 +388,8 @@ pub struct Record {
     pub status: &'static str,
     /// Wall time of the task.
     pub seconds: f64,
-    /// Rays per second of the bake (0 when not baked).
+    /// Rays per second of the bake: map pixels, or voxels of a transmittance volume (0 when
+    /// not baked).
     pub rays_per_second: f64,
     /// Error message of a failed task.
     pub error: Option<String>,
@@ -505,6 +516,58 @@ pub fn fill_output(
     }
     out.push_str(rest);
     Ok(out)
+}
+
+/// Whether the job writes transmittance volumes (its output pattern ends in `.vdb`), with
+/// the grid name and half flag; the map-only and volume-only keys checked against it.
+fn volume_output(path: &Path, file: &JobFile) -> Result<Option<(String, bool)>, BatchError> {
+    let b = &file.bake;
+    let vdb = Path::new(&file.output)
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
+    if !vdb {
+        if b.out_grid.is_some() || b.half {
+            let key = if b.half { "bake.half" } else { "bake.out_grid" };
+            return Err(err(
+                path,
+                key,
+                "applies to transmittance volumes (an output pattern ending in .vdb)",
+            ));
+        }
+        return Ok(None);
+    }
+    let map_only = [
+        ("preview", b.preview.is_some()),
+        ("res", b.res.is_some()),
+        ("slices", b.slices.is_some()),
+        ("depths", b.depths.is_some()),
+        ("stderr", b.stderr),
+        ("tile", b.tile.is_some()),
+        ("mipmap", b.mipmap),
+        ("deep", b.deep || b.deep_error.is_some()),
+        ("target_error", b.target_error.is_some()),
+        ("sigma_t", b.sigma_t.is_some()),
+        ("camera", b.camera.is_some()),
+        ("fov", b.fov.is_some()),
+        ("ortho", b.ortho),
+        ("up", b.up.is_some()),
+        ("frame_box", b.frame_box.is_some()),
+        ("max_memory", b.max_memory.is_some()),
+        ("levelset", b.levelset.is_some()),
+    ];
+    if let Some((key, _)) = map_only.iter().find(|(_, set)| *set) {
+        return Err(err(
+            path,
+            &format!("bake.{key}"),
+            "applies to maps; an output pattern ending in .vdb writes transmittance volumes",
+        ));
+    }
+    let grid = b
+        .out_grid
+        .clone()
+        .unwrap_or_else(|| crate::bake::DEFAULT_OUT_GRID.to_string());
+    Ok(Some((grid, b.half)))
 }
 
 /// Parse and validate a job file's text; `path` is the job file (relative paths in it are
@@ -684,6 +747,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         }
         other => BatchError::Task(other),
     })?;
+    let volume = volume_output(&path, &file)?;
     let product = match (b.deep, b.deep_error) {
         (false, Some(_)) => {
             return Err(err(
@@ -946,6 +1010,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         max_memory,
         layout,
         product,
+        volume,
         shared: std::sync::OnceLock::new(),
     })
 }
@@ -1175,7 +1240,11 @@ impl Job {
     /// # Errors
     /// As [`Job::share_cameras`].
     pub fn share_cameras_cached(&self, cache: &Path) -> Result<bool, BatchError> {
-        if self.framing != Framing::Shared || self.camera.is_some() || self.shared.get().is_some() {
+        if self.framing != Framing::Shared
+            || self.camera.is_some()
+            || self.volume.is_some()
+            || self.shared.get().is_some()
+        {
             return Ok(false);
         }
         let fingerprint = self.framing_fingerprint();
@@ -1272,6 +1341,53 @@ impl Job {
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<BakeReport, BatchError> {
         let job = self.bake_job(task, threads);
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job.run(progress)))
+            .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
+            .map_err(BatchError::Task)
+    }
+
+    /// The transmittance volume of one task, as `umbra bake INPUT --light-dir D -o OUT.vdb`
+    /// would write it; `None` for a job of maps.
+    #[must_use]
+    pub fn volume_job(&self, task: &Task, threads: usize) -> Option<crate::bake::VolumeJob> {
+        let (out_grid, half) = self.volume.clone()?;
+        let light = match (task.dir, task.pos) {
+            (_, Some(pos)) => crate::Light::Point { pos },
+            (Some(dir), None) => crate::Light::Directional { dir },
+            (None, None) => return None,
+        };
+        Some(crate::bake::VolumeJob {
+            input: task.input.clone(),
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            xform: self.xform,
+            light,
+            estimator: self.settings.estimator,
+            options: self.settings.options,
+            threads,
+            output: task.output.clone(),
+            out_grid,
+            half,
+            overwrite: true,
+        })
+    }
+
+    /// [`Job::run_task`] for a job of transmittance volumes ([`Job::volume_job`]).
+    ///
+    /// # Errors
+    /// As [`Job::run_task`]; [`BatchError::Task`] (an invalid argument) for a job of maps.
+    pub fn run_volume_task(
+        &self,
+        task: &Task,
+        threads: usize,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<crate::bake::VolumeReport, BatchError> {
+        let job = self.volume_job(task, threads).ok_or_else(|| {
+            BatchError::Task(crate::Error::InvalidArgument {
+                name: "output".into(),
+                reason: "this job writes maps, not transmittance volumes".into(),
+            })
+        })?;
         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job.run(progress)))
             .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
             .map_err(BatchError::Task)

@@ -148,24 +148,28 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
                 let k = next.fetch_add(1, Ordering::Relaxed);
                 let Some(t) = todo.get(k) else { break };
                 let t0 = std::time::Instant::now();
-                let result = job.run_task(t, per_task, &|n| {
+                let tick = |n: u64| {
                     if pixels.is_some() {
                         bar.inc(n);
                     }
-                });
+                };
+                // Maps report rays per second, transmittance volumes voxels per second.
+                let result = if job.volume.is_some() {
+                    job.run_volume_task(t, per_task, &tick).map(|d| {
+                        let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
+                        (rate, d.warnings)
+                    })
+                } else {
+                    job.run_task(t, per_task, &tick).map(|d| {
+                        let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
+                        (rate, d.warnings)
+                    })
+                };
                 let secs = t0.elapsed().as_secs_f64();
                 let rec = match result {
-                    Ok(done) => {
-                        let st = &done.map.stats;
-                        let mut r = record(
-                            &job,
-                            t,
-                            "ok",
-                            secs,
-                            st.rays as f64 / st.seconds.max(1e-9),
-                            None,
-                        );
-                        r.warnings = done.warnings.iter().map(ToString::to_string).collect();
+                    Ok((rate, warnings)) => {
+                        let mut r = record(&job, t, "ok", secs, rate, None);
+                        r.warnings = warnings.iter().map(ToString::to_string).collect();
                         for w in &r.warnings {
                             bar.suspend(|| {
                                 eprintln!(
