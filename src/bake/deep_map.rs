@@ -18,7 +18,8 @@
 //! is within `3E / 4` of the exact prefix transmittance at every depth `z`; the last `E / 4`
 //! is the room left for the file's f32 depths and alphas. Stochastic estimators give the
 //! deep function of their estimate: `T` estimated at [`STOCHASTIC_DEPTHS`] depths evenly
-//! spaced across the volume's depth range (the map's slices: ray ids `(64 + k) W H + p`),
+//! spaced across the volume's depth range (the map's slices: ray ids `(64 + k) W H + p`;
+//! `T = 1` up to the start of that range, where no ray has met the volume box yet),
 //! made non-increasing (a running minimum, clamped to `[0, 1]`), linear in optical depth
 //! between them, fitted within `E / 2`.
 
@@ -349,7 +350,13 @@ fn exact_profile(scene: &Scene, ray: &Ray, flat: &Map, max_error: f64) -> Result
 /// A stochastic pixel's profile from its slices (module docs).
 fn estimated_profile(flat: &Map, p: usize) -> PixelProfile {
     let channels = flat.channels();
-    let mut t = vec![0.0];
+    // No ray meets the volume box before t_near: T = 1 up to there.
+    let start = flat.camera.t_near().max(0.0);
+    let mut t = vec![if flat.depths.first().is_some_and(|&d| start < d) {
+        start
+    } else {
+        0.0
+    }];
     t.extend_from_slice(&flat.depths);
     let mut opaque_at = None;
     let mut taus = Vec::with_capacity(channels);
