@@ -578,3 +578,30 @@ fn batch_jobs_write_deep_maps() {
     assert_eq!(a, b);
     assert!(a.iter().map(Vec::len).sum::<usize>() > 0);
 }
+
+/// `BakeJob::run_loaded` (the scene borrowed, as the Python module keeps it) writes the same
+/// deep and flat files as `run`.
+#[test]
+fn run_loaded_writes_what_run_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    for product in [Product::Deep { max_error: 0.005 }, Product::Map] {
+        let a = dir.path().join("a.exr");
+        let b = dir.path().join("b.exr");
+        let j = job(a.clone(), Estimator::REGULAR, Interp::Trilinear, product);
+        let ra = j.run(&|_| {}).unwrap();
+        let jb = BakeJob {
+            output: b.clone(),
+            ..j.clone()
+        };
+        let (scene, camera) = jb.prepare().unwrap();
+        let rb = jb.run_loaded(&scene, camera, &|_| {}).unwrap();
+        assert_eq!(
+            std::fs::read(&a).unwrap(),
+            std::fs::read(&b).unwrap(),
+            "{product:?}"
+        );
+        assert_eq!(ra.deep.map(|d| d.samples), rb.deep.map(|d| d.samples));
+        std::fs::remove_file(&a).unwrap();
+        std::fs::remove_file(&b).unwrap();
+    }
+}

@@ -503,22 +503,58 @@ impl BakeJob {
         self.check_outputs()?;
         if let Product::Deep { max_error } = self.product {
             let (map, deep) = self.bake_deep_map(&scene, camera, max_error, progress)?;
-            let mut report = self.describe(map, &scene, camera);
+            let report = self.describe(map, &scene, camera);
             drop(scene);
-            let attrs = super::deep_attributes(&report.map, &report.provenance, &deep.stats);
-            let bytes = super::encode_deep_exr(&deep.image, &attrs);
-            super::output::write_with_preview(
-                &self.output,
-                &bytes,
-                self.preview.as_deref(),
-                &report.map,
-                self.overwrite,
-            )?;
-            report.deep = Some(deep.stats);
-            return Ok(report);
+            return self.write_deep(report, &deep);
         }
         let map = bake_scene(&scene, &camera, &self.settings, progress)?;
         self.finish(map, scene, camera)
+    }
+
+    /// [`BakeJob::run_on`] with the scene borrowed, for callers that keep it loaded (the
+    /// Python module's `Volume`): bake and write the job's product (flat or deep map, and the
+    /// preview) from `scene` seen by `camera`.
+    ///
+    /// # Errors
+    /// As [`BakeJob::run`].
+    pub fn run_loaded(
+        &self,
+        scene: &Scene,
+        camera: Camera,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<BakeReport> {
+        self.check_outputs()?;
+        if let Product::Deep { max_error } = self.product {
+            let (map, deep) = self.bake_deep_map(scene, camera, max_error, progress)?;
+            let report = self.describe(map, scene, camera);
+            return self.write_deep(report, &deep);
+        }
+        let map = bake_scene(scene, &camera, &self.settings, progress)?;
+        let report = self.describe(map, scene, camera);
+        write_map(
+            &self.output,
+            self.preview.as_deref(),
+            &report.map,
+            &report.provenance,
+            &self.layout,
+            self.overwrite,
+        )?;
+        Ok(report)
+    }
+
+    /// Write a deep map and the preview of its flat map together.
+    fn write_deep(&self, mut report: BakeReport, deep: &super::DeepMap) -> Result<BakeReport> {
+        let attrs = super::deep_attributes(&report.map, &report.provenance, &deep.stats);
+        let bytes = super::encode_deep_exr(&deep.image, &attrs);
+        super::output::write_with_preview(
+            &self.output,
+            &bytes,
+            self.preview.as_deref(),
+            &report.map,
+            self.overwrite,
+        )?;
+        report.deep = Some(deep.stats);
+        Ok(report)
     }
 
     /// The flat map (for the summary, the preview and the warnings) and the deep map of a
