@@ -936,89 +936,30 @@ impl NativeVolume {
         std_err: bool,
         threads: usize,
     ) -> PyResult<BakeOut<'py>> {
-        // `res`: (W, H), or (N, 0) for N pixels on the long side.
-        let res = res.map(|(w, h)| {
-            if h == 0 {
-                Resolution::LongSide(w)
-            } else {
-                Resolution::Exact(w, h)
-            }
-        });
-        if let Some(r) = res {
-            r.check().map_err(py_err)?;
-        }
-        let fixed = camera_json.is_some() || camera_path.is_some();
-        let view = if fixed {
-            View {
-                res,
-                ..View::default()
-            }
-        } else {
-            let projection = match (light_dir, light_pos) {
-                (None, None) => {
-                    return Err(arg(
-                        "light_dir",
-                        "give light_dir=(dx, dy, dz) (orthographic map), light_pos=(x, y, z) \
-                         (perspective map) or camera=",
-                    ))
-                }
-                (_, Some(_)) if !ortho => Projection::Perspective,
-                _ => Projection::Ortho,
-            };
-            if fov.is_some() && projection == Projection::Ortho {
-                return Err(arg(
-                    "fov",
-                    "applies to perspective maps (light_pos without ortho=True)",
-                ));
-            }
-            View {
-                projection,
-                light_dir,
-                light_pos,
-                fov_deg: fov,
-                res,
-                up,
-                frame_box,
-            }
-        };
+        let fixed = FixedCamera::new(camera_json, camera_path);
+        let view = bake_view(light_dir, light_pos, ortho, fov, up, frame_box, res, &fixed)?;
         let (est, opts) = estimator(estimator_name, &params, self.interp, spp, seed)?;
-        let job = BakeJob {
-            input: self.path.clone(),
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            xform: self.xform,
-            sigma_t: None,
-            levelset_solid: false,
+        let job = self.bake_job(
             view,
-            camera: None,
-            settings: BakeSettings {
+            BakeSettings {
                 target_error,
                 max_spp,
                 std_err,
                 threads,
                 ..BakeSettings::new(est, opts)
             },
-            output: PathBuf::new(),
-            preview: None,
-            overwrite: false,
-            max_memory: None,
-            layout: umbra::bake::ExrLayout::default(),
-            product: umbra::bake::Product::Map,
-        };
+        );
         let report = py
             .detach(|| -> umbra::Result<_> {
-                let camera: Camera = match (&camera_json, &camera_path) {
-                    (Some(j), _) => umbra::bake::camera_from_json("camera", j.as_bytes(), res)?,
-                    (None, Some(p)) => umbra::bake::read_camera(p, res)?,
-                    (None, None) => Camera::frame(&job.view, &self.scene.box_corners()?)?,
+                let camera = match fixed.read(job.view.res)? {
+                    Some(c) => c,
+                    None => self.frame(&job.view)?,
                 };
                 on_threads(threads, || job.bake_in_memory(&self.scene, camera, &|_| {}))?
             })
             .map_err(py_err)?;
         let map = &report.map;
-        let summary = MapSummary::new(map, &report.provenance);
-        let json =
-            serde_json::to_string(&summary).map_err(|e| raise(Class::Other, e.to_string()))?;
+        let json = summary_json(&report)?;
         let c = map.channels();
         let mut t = Vec::with_capacity(map.t.len() * c);
         let mut e = map
@@ -1039,6 +980,195 @@ impl NativeVolume {
             json,
             warnings,
         ))
+    }
+
+    /// Write the deep map `umbra bake FILE ... --deep [--deep-error E] -o PATH` writes for
+    /// this volume (its file, grid, density scale and `xform` recorded), byte for byte:
+    /// `(summary JSON, deep stats JSON, warnings)`.
+    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (path, light_dir, light_pos, ortho, fov, up, frame_box, res, camera_json, camera_path, estimator_name, params, spp, seed, deep_error, overwrite, threads))]
+    fn write_deep_map(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        light_dir: Option<[f64; 3]>,
+        light_pos: Option<[f64; 3]>,
+        ortho: bool,
+        fov: Option<f64>,
+        up: Option<[f64; 3]>,
+        frame_box: Option<[[f64; 3]; 2]>,
+        res: Option<(u32, u32)>,
+        camera_json: Option<String>,
+        camera_path: Option<PathBuf>,
+        estimator_name: &str,
+        params: Vec<(String, f64)>,
+        spp: u32,
+        seed: u64,
+        deep_error: f64,
+        overwrite: bool,
+        threads: usize,
+    ) -> PyResult<(String, String, Vec<String>)> {
+        let fixed = FixedCamera::new(camera_json, camera_path);
+        let view = bake_view(light_dir, light_pos, ortho, fov, up, frame_box, res, &fixed)?;
+        let (est, opts) = estimator(estimator_name, &params, self.interp, spp, seed)?;
+        let job = BakeJob {
+            output: path,
+            overwrite,
+            product: umbra::bake::Product::Deep {
+                max_error: deep_error,
+            },
+            ..self.bake_job(
+                view,
+                BakeSettings {
+                    threads,
+                    ..BakeSettings::new(est, opts)
+                },
+            )
+        };
+        // The CLI's order: a camera file is read, the outputs and settings are checked, then
+        // the camera is framed.
+        let report = py
+            .detach(|| -> umbra::Result<_> {
+                let camera = fixed.read(job.view.res)?;
+                job.check_outputs()?;
+                job.settings.validate()?;
+                let camera = match camera {
+                    Some(c) => c,
+                    None => self.frame(&job.view)?,
+                };
+                on_threads(threads, || job.run_loaded(&self.scene, camera, &|_| {}))?
+            })
+            .map_err(py_err)?;
+        let Some(d) = report.deep else {
+            return Err(raise(Class::Other, "the bake made no deep map".into()));
+        };
+        // `umbra bake --json`'s `deep` object.
+        let deep = serde_json::json!({
+            "max_error": d.max_error, "samples": d.samples,
+            "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
+            "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
+            "coarse_cells": d.coarse_cells, "seconds": d.seconds,
+        });
+        let warnings = report.warnings.iter().map(ToString::to_string).collect();
+        Ok((summary_json(&report)?, deep.to_string(), warnings))
+    }
+}
+
+/// An earlier map's camera a bake reuses (`camera=`): its dict as JSON text, or the path of
+/// its EXR or JSON file; neither: the bake frames its own.
+struct FixedCamera {
+    json: Option<String>,
+    path: Option<PathBuf>,
+}
+
+impl FixedCamera {
+    fn new(json: Option<String>, path: Option<PathBuf>) -> Self {
+        Self { json, path }
+    }
+
+    fn is_some(&self) -> bool {
+        self.json.is_some() || self.path.is_some()
+    }
+
+    /// The camera, at `res` when given (`umbra bake --camera FILE [--res]`).
+    fn read(&self, res: Option<Resolution>) -> umbra::Result<Option<Camera>> {
+        match (&self.json, &self.path) {
+            (Some(j), _) => umbra::bake::camera_from_json("camera", j.as_bytes(), res).map(Some),
+            (None, Some(p)) => umbra::bake::read_camera(p, res).map(Some),
+            (None, None) => Ok(None),
+        }
+    }
+}
+
+/// The camera request of a bake, checked as `umbra bake` checks its flags. `res`: (W, H), or
+/// (N, 0) for N pixels on the long side. A fixed camera takes only `res`.
+#[allow(clippy::too_many_arguments)]
+fn bake_view(
+    light_dir: Option<[f64; 3]>,
+    light_pos: Option<[f64; 3]>,
+    ortho: bool,
+    fov: Option<f64>,
+    up: Option<[f64; 3]>,
+    frame_box: Option<[[f64; 3]; 2]>,
+    res: Option<(u32, u32)>,
+    fixed: &FixedCamera,
+) -> PyResult<View> {
+    let res = res.map(|(w, h)| {
+        if h == 0 {
+            Resolution::LongSide(w)
+        } else {
+            Resolution::Exact(w, h)
+        }
+    });
+    if let Some(r) = res {
+        r.check().map_err(py_err)?;
+    }
+    if fixed.is_some() {
+        return Ok(View {
+            res,
+            ..View::default()
+        });
+    }
+    let projection = match (light_dir, light_pos) {
+        (None, None) => {
+            return Err(arg(
+                "light_dir",
+                "give light_dir=(dx, dy, dz) (orthographic map), light_pos=(x, y, z) \
+                 (perspective map) or camera=",
+            ))
+        }
+        (_, Some(_)) if !ortho => Projection::Perspective,
+        _ => Projection::Ortho,
+    };
+    if fov.is_some() && projection == Projection::Ortho {
+        return Err(arg(
+            "fov",
+            "applies to perspective maps (light_pos without ortho=True)",
+        ));
+    }
+    Ok(View {
+        projection,
+        light_dir,
+        light_pos,
+        fov_deg: fov,
+        res,
+        up,
+        frame_box,
+    })
+}
+
+/// A finished map's summary (the camera dict), as JSON text.
+fn summary_json(report: &umbra::bake::BakeReport) -> PyResult<String> {
+    let summary = MapSummary::new(&report.map, &report.provenance);
+    serde_json::to_string(&summary).map_err(|e| raise(Class::Other, e.to_string()))
+}
+
+impl NativeVolume {
+    /// A bake of this volume as `umbra bake` would run it on its file (what it was loaded
+    /// with recorded): a flat map, no outputs.
+    fn bake_job(&self, view: View, settings: BakeSettings) -> BakeJob {
+        BakeJob {
+            input: self.path.clone(),
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            xform: self.xform,
+            sigma_t: None,
+            levelset_solid: false,
+            view,
+            camera: None,
+            settings,
+            output: PathBuf::new(),
+            preview: None,
+            overwrite: false,
+            max_memory: None,
+            layout: umbra::bake::ExrLayout::default(),
+            product: umbra::bake::Product::Map,
+        }
+    }
+
+    /// The camera `view` frames on this volume's box.
+    fn frame(&self, view: &View) -> umbra::Result<Camera> {
+        Camera::frame(view, &self.scene.box_corners()?)
     }
 }
 

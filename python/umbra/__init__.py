@@ -9,6 +9,7 @@ DCC's UI, a farm submitter's heartbeat) keep running.
     >>> T = vol.transmittance(np.array([[0, 1.5, 0]]), np.array([[3, 4.5, 0]]))
     >>> image, camera = vol.bake(light_dir=(-1, -1, 0), res=(256, 256))
     >>> umbra.write_exr("shadow.exr", image, camera)
+    >>> camera, deep = vol.write_deep_map("deep.exr", light_dir=(-1, -1, 0), res=256)
 
 Results equal the command line's bit for bit: row ``n`` of a call uses ray id ``ray_id + n``,
 as line ``n`` of ``umbra query --rays`` does, and ``bake`` makes the pixels ``umbra bake``
@@ -144,6 +145,57 @@ def _finish(t: np.ndarray, err: np.ndarray, return_stderr: bool):
     if t.shape[1] == 1:
         t, err = t[:, 0], err[:, 0]
     return (t, err) if return_stderr else t
+
+
+def _view(
+    light_dir: Any,
+    light_pos: Any,
+    ortho: Any,
+    fov: Any,
+    up: Any,
+    frame_box: Any,
+    res: Any,
+    camera: Any,
+) -> Tuple[Any, ...]:
+    """A map's camera request (what :meth:`Volume.bake` and :meth:`Volume.write_deep_map`
+    take), checked and converted: the native calls' leading arguments."""
+    if res is None:
+        r = None
+    elif isinstance(res, (int, np.integer)) and not isinstance(res, bool):
+        r = (_count("res", res), 0)
+    elif isinstance(res, (tuple, list)) and len(res) == 2:
+        r = (_count("res", res[0]), _count("res", res[1]))
+        if r[1] == 0:
+            raise _invalid("res", "a width and a height of at least 1 pixel")
+    else:
+        raise _invalid("res", f"expected (W, H) or N, got {res!r}")
+    if r is not None and max(r) >= 2**32:
+        raise _invalid("res", f"{res!r} is out of range")
+    fb = None
+    if frame_box is not None:
+        try:
+            b = np.asarray(frame_box, dtype=np.float64)
+        except (TypeError, ValueError):
+            b = None
+        if b is None or b.shape != (2, 3):
+            raise _invalid("frame_box", "expected [[x0, y0, z0], [x1, y1, z1]]")
+        fb = (tuple(map(float, b[0])), tuple(map(float, b[1])))
+    cam_json = cam_path = None
+    if isinstance(camera, dict):
+        cam_json = json.dumps(camera)
+    elif camera is not None:
+        cam_path = _path("camera", camera)
+    return (
+        _vec3("light_dir", light_dir),
+        _vec3("light_pos", light_pos),
+        bool(ortho),
+        None if fov is None else float(fov),
+        _vec3("up", up),
+        fb,
+        r,
+        cam_json,
+        cam_path,
+    )
 
 
 def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]:
@@ -523,42 +575,8 @@ class Volume:
         (the camera, the light, the estimator and its settings; :func:`write_exr` takes it
         back). With ``return_stderr``: ``(image, stderr, camera)``.
         """
-        if res is None:
-            r = None
-        elif isinstance(res, (int, np.integer)) and not isinstance(res, bool):
-            r = (_count("res", res), 0)
-        elif isinstance(res, (tuple, list)) and len(res) == 2:
-            r = (_count("res", res[0]), _count("res", res[1]))
-            if r[1] == 0:
-                raise _invalid("res", "a width and a height of at least 1 pixel")
-        else:
-            raise _invalid("res", f"expected (W, H) or N, got {res!r}")
-        if r is not None and max(r) >= 2**32:
-            raise _invalid("res", f"{res!r} is out of range")
-        fb = None
-        if frame_box is not None:
-            try:
-                b = np.asarray(frame_box, dtype=np.float64)
-            except (TypeError, ValueError):
-                b = None
-            if b is None or b.shape != (2, 3):
-                raise _invalid("frame_box", "expected [[x0, y0, z0], [x1, y1, z1]]")
-            fb = (tuple(map(float, b[0])), tuple(map(float, b[1])))
-        cam_json = cam_path = None
-        if isinstance(camera, dict):
-            cam_json = json.dumps(camera)
-        elif camera is not None:
-            cam_path = _path("camera", camera)
         out = self._v.bake(
-            _vec3("light_dir", light_dir),
-            _vec3("light_pos", light_pos),
-            bool(ortho),
-            None if fov is None else float(fov),
-            _vec3("up", up),
-            fb,
-            r,
-            cam_json,
-            cam_path,
+            *_view(light_dir, light_pos, ortho, fov, up, frame_box, res, camera),
             str(estimator),
             _params(step, kernel, points),
             _count("spp", spp),
@@ -581,6 +599,60 @@ class Volume:
         if return_stderr:
             return image(t), image(e), cam
         return image(t), cam
+
+    def write_deep_map(
+        self,
+        path: PathLike,
+        light_dir: Optional[Vec3] = None,
+        light_pos: Optional[Vec3] = None,
+        res: Union[None, int, Tuple[int, int]] = None,
+        estimator: str = "regular",
+        spp: int = 1,
+        seed: int = 0,
+        up: Optional[Vec3] = None,
+        *,
+        ortho: bool = False,
+        fov: Optional[float] = None,
+        frame_box: Any = None,
+        camera: Union[None, Dict[str, Any], PathLike] = None,
+        deep_error: float = 0.002,
+        overwrite: bool = False,
+        threads: int = 0,
+        step: Optional[float] = None,
+        kernel: Optional[float] = None,
+        points: Optional[float] = None,
+    ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
+        """Write a deep shadow map: the deep OpenEXR file ``umbra bake FILE ... --deep
+        [--deep-error E] -o PATH`` writes for this volume, byte for byte. Per pixel it holds
+        the whole transmittance function along the pixel's ray (volumetric deep samples,
+        ``A``/``Z``/``ZBack``; ``AR``/``AG``/``AB`` and ``A`` for an RGB scene), within
+        ``deep_error`` in T at every depth (``--deep-error``, between 0 and 1).
+
+        The camera arguments are :meth:`bake`'s (``camera=`` reuses an earlier map's camera,
+        and :meth:`bake` takes the camera dict returned here). The file is written atomically;
+        an existing file is a :class:`FileError` unless ``overwrite``.
+
+        Returns ``(camera, deep)``: the camera dict :meth:`bake` returns, and the ``deep``
+        object of ``umbra bake --deep --json`` (``max_error``, ``samples``,
+        ``mean_samples_per_pixel``, ``max_samples_per_pixel``, ``empty_pixels``,
+        ``profile_breakpoints``, ``coarse_cells``, ``seconds``).
+        """
+        number = (int, float, np.integer, np.floating)
+        if isinstance(deep_error, bool) or not isinstance(deep_error, number):
+            raise _invalid("deep_error", f"expected a number, got {deep_error!r}")
+        summary, deep, warns = self._v.write_deep_map(
+            _path("path", path),
+            *_view(light_dir, light_pos, ortho, fov, up, frame_box, res, camera),
+            str(estimator),
+            _params(step, kernel, points),
+            _count("spp", spp),
+            _count("seed", seed),
+            float(deep_error),
+            bool(overwrite),
+            _count("threads", threads),
+        )
+        _warn(warns)
+        return json.loads(summary), json.loads(deep)
 
 
 def _reload(kind: str, *args: Any) -> Volume:
