@@ -619,31 +619,46 @@ fn interrupted_bakes_leave_no_temporary_or_partial_files() {
         &["--slices", "3"],
         &["--preview", "p.png", "--slices", "2", "--stderr"],
     ];
+    let base = [
+        "bake",
+        c.as_str(),
+        "--light-dir=-1,-1,0.3",
+        "--res",
+        "900",
+        "--estimator",
+        "ratio",
+        "--spp",
+        "6",
+        "-o",
+        "m.exr",
+        "-q",
+    ];
+    // The signals land across the bake's own duration on this machine (measured once, the
+    // shortest variant uninterrupted), so most interrupt it whatever the machine's speed (a
+    // few, near the end, may find it finished or committing).
+    let full_ms = {
+        let dir = tempfile::tempdir().unwrap();
+        let t0 = std::time::Instant::now();
+        let ok = Command::new(env!("CARGO_BIN_EXE_umbra"))
+            .current_dir(dir.path())
+            .args(base)
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        (t0.elapsed().as_millis() as u64).max(100)
+    };
     let mut interrupted = 0;
     for k in 0..16 {
         let dir = tempfile::tempdir().unwrap();
         let extra = variants[k % variants.len()];
-        let mut args = vec![
-            "bake",
-            &c,
-            "--light-dir=-1,-1,0.3",
-            "--res",
-            "900",
-            "--estimator",
-            "ratio",
-            "--spp",
-            "6",
-            "-o",
-            "m.exr",
-            "-q",
-        ];
+        let mut args = base.to_vec();
         args.extend_from_slice(extra);
         let child = Command::new(env!("CARGO_BIN_EXE_umbra"))
             .current_dir(dir.path())
             .args(&args)
             .spawn()
             .unwrap();
-        let wait_ms = 30 + rand() % 1500;
+        let wait_ms = 30 + rand() % full_ms;
         std::thread::sleep(std::time::Duration::from_millis(wait_ms));
         let sig = if k % 2 == 0 { "-INT" } else { "-TERM" };
         // The shell's built-in kill: no procps needed on a fresh machine.
@@ -694,6 +709,7 @@ fn interrupted_bakes_leave_no_temporary_or_partial_files() {
             }
         }
     }
+    eprintln!("{interrupted} of 16 bakes interrupted (an uninterrupted one took {full_ms} ms)");
     assert!(
         interrupted >= 8,
         "only {interrupted} of 16 bakes were interrupted"
