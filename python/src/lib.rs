@@ -840,7 +840,7 @@ impl NativeVolume {
                 let (mut ijk, mut t) = (Vec::with_capacity(voxels * 3), Vec::with_capacity(voxels));
                 for l in &leaves {
                     for (n, &v) in l.values.iter().enumerate() {
-                        if l.active[n / 64] >> (n % 64) & 1 == 1 {
+                        if umbra::tree::bit(&l.active, n) {
                             ijk.extend_from_slice(&[
                                 l.origin[0] + (n >> 6) as i32,
                                 l.origin[1] + ((n >> 3) & 7) as i32,

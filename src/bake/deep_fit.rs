@@ -135,12 +135,7 @@ pub fn fit_profile(t: &[f64], tau: &[f64], max_error: f64) -> Result<Vec<DeepSam
 /// # Errors
 /// As [`fit_profile`], for any channel; also (name `deep`) for no channel.
 pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usize, usize)>> {
-    if !(max_error > 0.0 && max_error < 1.0) {
-        return Err(Error::InvalidArgument {
-            name: "deep-error".into(),
-            reason: format!("{max_error}: an error bound between 0 and 1 (in T)"),
-        });
-    }
+    super::check_deep_error(max_error)?;
     let bad = |reason: &str| Error::InvalidArgument {
         name: "deep".into(),
         reason: reason.into(),
