@@ -356,9 +356,10 @@ fn nearest_walk(
             visit(f64::from(src.get(0)), t, t_exit);
             t = t_exit;
         }
-        if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
+        if t_exit >= t1 {
             return;
         }
+        w.advance(axis, q, d, lo, hi);
     }
 }
 
@@ -415,8 +416,12 @@ fn trilinear_walk(
             visit(&v, w.cell, t, t_exit);
             t = t_exit;
         }
-        if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
+        if t_exit >= t1 {
             return;
+        }
+        if !w.advance(axis, q, d, lo, hi) {
+            // Held at the range's edge: the same cell, the same corners.
+            continue;
         }
         // The old far face on `axis` is the new near face (or the other way round).
         // Constant indices in each arm, so the 8 corners can stay in registers.

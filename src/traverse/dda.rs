@@ -7,8 +7,10 @@
 //!
 //! Cells come in ray order with the exact `t` interval the ray spends in each; zero-length
 //! visits (at edges and corners) are skipped. Ties between axes go to the lower axis. Every
-//! step moves one axis's cell index one step in the ray's direction, so the walk ends after at
-//! most the number of cells in the range: no stall, no infinite loop.
+//! step moves one axis's cell index one step in the ray's direction or holds that axis for the
+//! rest of the walk (a step out of the range, see [`Dda::advance`]), so the walk ends after at
+//! most the number of cells in the range plus three: no stall, no infinite loop, and the
+//! visits always cover all of `[t0, t1]`.
 
 use crate::math::{floor_i64, non_empty};
 use std::ops::ControlFlow;
@@ -78,7 +80,12 @@ impl Dda {
         }
     }
 
-    /// Step along `axis`; false when the walk leaves `[lo, hi]` or cannot move.
+    /// Step along `axis`; false when the cell does not change. A step that would leave
+    /// `[lo, hi]` *holds* the axis instead (`t_next[axis] = inf`): every caller's range holds
+    /// its whole `[t0, t1]`, so a boundary inside `[t0, t1]` that leads out of it is rounding
+    /// (a line a hair off a lattice plane, whose cell by position and by boundary `t`
+    /// disagree), and the rest of the walk stays in this cell along `axis`. Stopping there
+    /// instead dropped the rest of the segment: up to a whole tile of density.
     #[inline(always)]
     pub(crate) fn advance(
         &mut self,
@@ -93,6 +100,7 @@ impl Dda {
         }
         let c = self.cell[axis] + self.step[axis];
         if c < lo[axis] || c > hi[axis] {
+            self.t_next[axis] = f64::INFINITY;
             return false;
         }
         self.cell[axis] = c;
@@ -144,9 +152,10 @@ pub fn dda(
             visit(w.cell, t, t_exit)?;
             t = t_exit;
         }
-        if t_exit >= t1 || !w.advance(axis, q, d, lo, hi) {
+        if t_exit >= t1 {
             return ControlFlow::Continue(());
         }
+        w.advance(axis, q, d, lo, hi);
     }
 }
 

@@ -301,7 +301,8 @@ impl PixelDir {
         let (mut a, mut b) = (t_min, t_max);
         for k in 0..3 {
             if self.d[k] == 0.0 {
-                if p[k] < lo[k] || p[k] > hi[k] {
+                // Half-open, as `RowClip::at`: a face two blocks share belongs to the upper.
+                if p[k] < lo[k] || p[k] >= hi[k] {
                     return None;
                 }
                 continue;
@@ -319,7 +320,7 @@ impl PixelDir {
 
 /// One row of rays against one box: slab `k`'s entry and exit are `near[k] + beta[k] i` and
 /// `far[k] + beta[k] i` for column `i` (a slab the rays run parallel to, `flat[k]`, has
-/// `near = -inf`, `far = inf`, and its bounds `lo..=hi` checked on the ray's coordinate).
+/// `near = -inf`, `far = inf`, and its bounds `lo..hi` checked on the ray's coordinate).
 /// The slab test of [`crate::ray::clip_box`] (intersected with `[t_min, t_max]` and the
 /// walk's clip box) with the divisions hoisted out of the row.
 struct RowClip {
@@ -380,7 +381,9 @@ impl RowClip {
     fn at(&self, i: u32) -> Option<(DVec3, f64, f64)> {
         let x = f64::from(i);
         let q = self.q + self.qx * x;
-        if (0..3).any(|k| self.flat[k] && !(self.lo[k]..=self.hi[k]).contains(&q[k])) {
+        // Half-open on the slabs the rays run along: a ray exactly on the face two blocks
+        // share belongs to the upper one (the cell `floor(q)` the ray walk reads), not to both.
+        if (0..3).any(|k| self.flat[k] && !(self.lo[k]..self.hi[k]).contains(&q[k])) {
             return None;
         }
         let (mut a, mut b) = (self.t_min, self.t_max);
