@@ -26,6 +26,7 @@ mod layout;
 mod matrix;
 mod output;
 mod pipeline;
+mod reach;
 mod render;
 mod scene_map;
 mod shadow_volume;
@@ -46,6 +47,7 @@ pub use deep_map::{
 pub use layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
 pub use output::{slice_channel, write_exr, write_exr_as, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Product, Warning};
+pub use reach::Outside;
 pub use render::{
     bake, bake_scene, check_threads, BakeSettings, BakeStats, Channel, Depths, Map, Order,
     MAX_BATCHES, MAX_SLICES, MAX_THREADS,

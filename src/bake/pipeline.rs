@@ -91,6 +91,14 @@ pub enum Warning {
         /// A density scale that would give the densest pixel an optical depth of about 2.
         suggested_scale: f64,
     },
+    /// The volume box reaches outside the camera's window (a reused camera framed on another
+    /// box): density there is not in the map ([`Camera::outside`]).
+    OutsideCamera {
+        /// How far, in pixels beyond the window's edge (`inf`: behind a perspective light).
+        pixels: f64,
+        /// How far, in world units.
+        world: f64,
+    },
     /// No pixel lets 1% through: the density scale is probably far too large.
     NearlyBlack {
         /// Largest T of the map.
@@ -120,6 +128,17 @@ impl std::fmt::Display for Warning {
                 f,
                 "the map is almost empty (every T >= {t_min:.4}); try --density-scale \
                  {suggested_scale:.2e}"
+            ),
+            Self::OutsideCamera { pixels, world } if pixels.is_infinite() => write!(
+                f,
+                "the volume box reaches behind the camera's light (world distance {world}): \
+                 density there is not in the map"
+            ),
+            Self::OutsideCamera { pixels, world } => write!(
+                f,
+                "the volume box reaches {pixels:.1} pixels ({world:.4} world units) outside the \
+                 camera's window: density there is not in the map; frame the camera on a box \
+                 that holds every frame"
             ),
             Self::NearlyBlack {
                 t_max,
@@ -325,9 +344,9 @@ impl BakeJob {
         let leaves = lazy.leaf_count() as u64;
         let topology = lazy.shell().tree.memory_bytes();
         let shell = Scene::from_volume(self.volume_of(lazy.take_shell())?);
-        let camera = match self.camera {
-            Some(c) => c,
-            None => Camera::frame(&self.view, &shell.box_corners()?)?,
+        let (camera, depth_shift) = match self.camera {
+            Some(c) => c.covering(&shell.box_corners()?),
+            None => (Camera::frame(&self.view, &shell.box_corners()?)?, 0.0),
         };
         let depth_images = match &self.settings.depths {
             super::Depths::None => 0,
@@ -390,6 +409,7 @@ impl BakeJob {
             lazy,
             shell,
             camera,
+            depth_shift,
             group_leaves,
             sweep,
         }))
@@ -413,13 +433,14 @@ impl BakeJob {
                 reason: "the grid's shell is not a fog volume".into(),
             });
         };
+        let settings = self.settings_shifted(plan.depth_shift);
         let map = if plan.sweep {
             let baked = super::render::bake_streamed(
                 &plan.lazy,
                 shell,
                 &volume_of,
                 &plan.camera,
-                &self.settings,
+                &settings,
                 plan.group_leaves,
                 progress,
             )?;
@@ -439,7 +460,7 @@ impl BakeJob {
                 shell,
                 &load,
                 &plan.camera,
-                &self.settings,
+                &settings,
                 plan.group_leaves,
                 progress,
             )?;
@@ -507,8 +528,32 @@ impl BakeJob {
             drop(scene);
             return self.write_deep(report, &deep);
         }
-        let map = bake_scene(&scene, &camera, &self.settings, progress)?;
+        let (camera, settings) = self.aimed(&scene, camera);
+        let map = bake_scene(&scene, &camera, &settings, progress)?;
         self.finish(map, scene, camera)
+    }
+
+    /// The camera and settings `scene` is traced with: `camera`'s ray range extended to the
+    /// scene's box ([`Camera::covering`]: a reused camera never cuts density off), and depths
+    /// given explicitly moved with a ray start that moved back, so every slice stays at the
+    /// world point it was asked for. A camera that covers the box comes back unchanged.
+    fn aimed(&self, scene: &Scene, camera: Camera) -> (Camera, BakeSettings) {
+        let Ok(corners) = scene.box_corners() else {
+            return (camera, self.settings.clone());
+        };
+        let (camera, delta) = camera.covering(&corners);
+        (camera, self.settings_shifted(delta))
+    }
+
+    /// The settings with explicit depths moved `delta` further along the rays.
+    fn settings_shifted(&self, delta: f64) -> BakeSettings {
+        let mut settings = self.settings.clone();
+        if let super::Depths::At(d) = &mut settings.depths {
+            if delta > 0.0 {
+                d.iter_mut().for_each(|z| *z += delta);
+            }
+        }
+        settings
     }
 
     /// [`BakeJob::run_on`] with the scene borrowed, for callers that keep it loaded (the
@@ -529,7 +574,8 @@ impl BakeJob {
             let report = self.describe(map, scene, camera);
             return self.write_deep(report, &deep);
         }
-        let map = bake_scene(scene, &camera, &self.settings, progress)?;
+        let (camera, settings) = self.aimed(scene, camera);
+        let map = bake_scene(scene, &camera, &settings, progress)?;
         let report = self.describe(map, scene, camera);
         write_map(
             &self.output,
@@ -571,12 +617,13 @@ impl BakeJob {
     ) -> Result<(Map, super::DeepMap)> {
         let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR;
         let none = |_: u64| {};
+        let (camera, settings) = self.aimed(scene, camera);
         let mut map = if exact {
-            bake_scene(scene, &camera, &self.settings, &none)?
+            bake_scene(scene, &camera, &settings, &none)?
         } else {
             let settings = BakeSettings {
                 depths: super::Depths::Slices(super::STOCHASTIC_DEPTHS),
-                ..self.settings.clone()
+                ..settings
             };
             bake_scene(scene, &camera, &settings, progress)?
         };
@@ -605,7 +652,8 @@ impl BakeJob {
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<BakeReport> {
         self.settings.validate()?;
-        let map = bake_scene(scene, &camera, &self.settings, progress)?;
+        let (camera, settings) = self.aimed(scene, camera);
+        let map = bake_scene(scene, &camera, &settings, progress)?;
         Ok(self.describe(map, scene, camera))
     }
 
@@ -643,6 +691,20 @@ impl BakeJob {
         };
         if scene.solids().is_empty() {
             warnings.extend(map_warnings(&map, self.density_scale, v_max, diagonal));
+        }
+        // Framed here, a camera holds the whole box unless a frame box or a field of view
+        // crops it on purpose; a reused camera may not.
+        if self.view.frame_box.is_none() && self.view.fov_deg.is_none() {
+            if let Some(o) = scene
+                .box_corners()
+                .ok()
+                .and_then(|c| map.camera.outside(&c))
+            {
+                warnings.push(Warning::OutsideCamera {
+                    pixels: o.pixels,
+                    world: o.world,
+                });
+            }
         }
         // The light as given; for a fixed camera without one, the light its rays come from.
         let (mut light_dir, mut light_pos) = (self.view.light_dir, self.view.light_pos);
@@ -694,6 +756,8 @@ pub struct BoundedPlan {
     /// The grid's shell as a scene: boxes and names for framing and the header.
     shell: Scene,
     camera: Camera,
+    /// How far the camera's ray start moved back to cover the grid ([`Camera::covering`]).
+    depth_shift: f64,
     group_leaves: usize,
     /// In tree order by the sweep (exact maps it takes), else by runs of rows on the ray path.
     sweep: bool,

@@ -307,6 +307,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
         &done.map,
         &done.provenance,
         done.deep.as_ref(),
+        &done.warnings,
         total.elapsed().as_secs_f64(),
     )?;
     for w in &done.warnings {
@@ -320,6 +321,7 @@ fn report(
     map: &Map,
     prov: &Provenance,
     deep: Option<&umbra::bake::DeepStats>,
+    warnings: &[umbra::bake::Warning],
     total: f64,
 ) -> Result<()> {
     let c = &map.camera;
@@ -358,6 +360,14 @@ fn report(
                 "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
                 "coarse_cells": d.coarse_cells, "seconds": d.seconds,
             })),
+            // Each warning as data (its `kind` and fields) with the line stderr prints.
+            "warnings": warnings.iter().map(|w| {
+                let mut v = serde_json::to_value(w).unwrap_or_default();
+                if let Some(o) = v.as_object_mut() {
+                    o.insert("message".into(), w.to_string().into());
+                }
+                v
+            }).collect::<Vec<_>>(),
         });
         if let (Some(o), serde_json::Value::Object(r)) = (v.as_object_mut(), run) {
             o.extend(r);
