@@ -82,6 +82,14 @@ pub enum Error {
         /// What is wrong, where.
         reason: String,
     },
+    /// An output file exists and the caller did not allow replacing it. Nothing was written.
+    /// Displayed as the command line says it; [`Error::for_front`] words it for another front
+    /// end.
+    #[error("{}: cannot write: already exists (use --force to overwrite)", path.display())]
+    Exists {
+        /// The existing file.
+        path: PathBuf,
+    },
     /// A caller-supplied argument is out of its domain.
     #[error("invalid argument '{name}': {reason}")]
     InvalidArgument {
@@ -92,34 +100,67 @@ pub enum Error {
     },
 }
 
-impl Error {
-    /// The error as the command line reports it: an [`Error::InvalidArgument`] names its
-    /// argument as the flag (`--step` for `step`); every other error is unchanged. The Python
-    /// module reports its errors the same way, so its messages are the CLI's.
+/// The front ends a user names options through. The library names an option in kebab case
+/// (`deep-error`); each front end spells it its own way by one rule: the command line's long
+/// flag `--deep-error`, a job file's key and a Python keyword `deep_error` (the flag with `-`
+/// turned into `_`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Front {
+    /// The `umbra` command line: `--deep-error`.
+    Cli,
+    /// A batch job file: `deep_error` (a key of its `[bake]` table).
+    Job,
+    /// The Python module: the keyword `deep_error`.
+    Python,
+}
+
+impl Front {
+    /// How this front end spells the library's option `name` (kebab case; a name already in
+    /// a front end's spelling is respelled).
     #[must_use]
-    pub fn flag_named(self) -> Self {
+    pub fn spell(self, name: &str) -> String {
+        let bare = name.trim_start_matches("--");
         match self {
-            Self::InvalidArgument { name, reason } if !name.starts_with("--") => {
-                Self::InvalidArgument {
-                    name: format!("--{name}"),
-                    reason,
-                }
-            }
+            Self::Cli => format!("--{}", bare.replace('_', "-")),
+            Self::Job | Self::Python => bare.replace('-', "_"),
+        }
+    }
+
+    /// How a user of this front end allows replacing an existing output.
+    #[must_use]
+    pub fn overwrite_hint(self) -> &'static str {
+        match self {
+            Self::Cli => "use --force to overwrite",
+            Self::Job => "run the job with --force to overwrite",
+            Self::Python => "pass overwrite=True to replace it",
+        }
+    }
+}
+
+impl Error {
+    /// The error as front end `front` reports it: an [`Error::InvalidArgument`] names its
+    /// argument as that front end spells it ([`Front::spell`]: `--step`, `step`), an
+    /// [`Error::Exists`] says how that front end allows overwriting; every other error is
+    /// unchanged, so the messages of every front end agree but for the names.
+    #[must_use]
+    pub fn for_front(self, front: Front) -> Self {
+        match self {
+            Self::InvalidArgument { name, reason } => Self::InvalidArgument {
+                name: front.spell(&name),
+                reason,
+            },
+            Self::Exists { path } if front != Front::Cli => Self::Output {
+                path,
+                reason: format!("already exists ({})", front.overwrite_hint()),
+            },
             other => other,
         }
     }
 
-    /// [`Error::NotANumber`] for `what` (`optical depth`, `... transmittance estimate`) on
-    /// `ray`, naming its origin and direction.
-    pub(crate) fn nan_on_ray(what: impl Into<String>, ray: &crate::ray::Ray) -> Self {
-        Self::NotANumber {
-            what: what.into(),
-            context: format!(
-                " on the ray from {} along {}",
-                ray.origin(),
-                ray.direction()
-            ),
-        }
+    /// The error as the command line reports it: [`Error::for_front`] with [`Front::Cli`].
+    #[must_use]
+    pub fn flag_named(self) -> Self {
+        self.for_front(Front::Cli)
     }
 }
 

@@ -244,10 +244,9 @@ pub fn check_target(path: &Path, overwrite: bool) -> Result<()> {
             ));
         }
         if !overwrite {
-            return Err(output_err(
-                path,
-                "already exists (use --force to overwrite)",
-            ));
+            return Err(Error::Exists {
+                path: path.to_path_buf(),
+            });
         }
     }
     let dir = match path.parent().filter(|d| !d.as_os_str().is_empty()) {

@@ -403,7 +403,7 @@ fn same_image_same_bytes_and_no_silent_overwrite() {
     write(&b, &case);
     assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
     let e = write_deep_exr(&a, &case.image(), &Default::default(), false).unwrap_err();
-    assert!(matches!(e, Error::Output { .. }), "{e}");
+    assert!(matches!(e, Error::Exists { .. }), "{e}");
     write_deep_exr(&a, &case.image(), &Default::default(), true).unwrap();
     // OpenEXR's own writer (through oiiotool) stores the same samples.
     let c = dir.path().join("c.exr");

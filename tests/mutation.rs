@@ -1853,6 +1853,7 @@ fn kind(e: &umbra::Error) -> &'static str {
         umbra::Error::GridNotFound { .. } => "GridNotFound",
         umbra::Error::InvalidArgument { .. } => "InvalidArgument",
         umbra::Error::Output { .. } => "Output",
+        umbra::Error::Exists { .. } => "Exists",
         umbra::Error::NotANumber { .. } => "NotANumber",
         _ => "other",
     }

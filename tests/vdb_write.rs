@@ -698,11 +698,8 @@ fn an_existing_file_is_refused_without_overwrite_and_nothing_is_left_behind() {
     let before = listing(dir.path());
     assert_eq!(before.len(), 1);
     match write_vdb(&path, &b, false) {
-        Err(Error::Output { path: p, reason }) => {
-            assert_eq!(p, path);
-            assert!(!reason.is_empty());
-        }
-        other => panic!("expected Error::Output, got {other:?}"),
+        Err(Error::Exists { path: p }) => assert_eq!(p, path),
+        other => panic!("expected Error::Exists, got {other:?}"),
     }
     assert_eq!(
         listing(dir.path()),

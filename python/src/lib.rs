@@ -43,6 +43,7 @@ fn class_of(e: &umbra::Error) -> Class {
         | E::Invalid { .. }
         | E::Unsupported { .. }
         | E::Output { .. }
+        | E::Exists { .. }
         | E::Scene { .. } => Class::File,
         E::InvalidArgument { .. } | E::GridNotFound { .. } => Class::Argument,
         _ => Class::Other,
@@ -74,7 +75,7 @@ fn raise(class: Class, message: String) -> PyErr {
 
 /// A library error as the CLI prints it (argument names as flags), as a Python exception.
 fn py_err(e: umbra::Error) -> PyErr {
-    let e = e.flag_named();
+    let e = e.for_front(umbra::Front::Python);
     raise(class_of(&e), e.to_string())
 }
 
@@ -109,6 +110,98 @@ fn info_json(py: Python<'_>, path: PathBuf, grid: Option<String>) -> PyResult<St
         .detach(|| umbra::info::FileInfo::read(&path, grid.as_deref()))
         .map_err(py_err)?;
     serde_json::to_string(&info).map_err(|e| raise(Class::Other, e.to_string()))
+}
+
+/// Run a batch job (`umbra batch JOB [--task I | --shard I/N] [--force] [--log F] [--jobs N]`)
+/// with the library's runner, the GIL released; `progress(done, total)` is called with units of
+/// work (pixels, or tasks) as they finish, from the runner's threads. The run's report as JSON
+/// text.
+#[pyfunction]
+#[pyo3(signature = (path, task, shard, force, log, jobs, progress))]
+#[allow(clippy::too_many_arguments)]
+fn run_job(
+    py: Python<'_>,
+    path: PathBuf,
+    task: Option<usize>,
+    shard: Option<(usize, usize)>,
+    force: bool,
+    log: Option<PathBuf>,
+    jobs: usize,
+    progress: Option<Py<PyAny>>,
+) -> PyResult<String> {
+    let batch_err = |e: umbra::batch::BatchError| match e {
+        umbra::batch::BatchError::Task(e) => py_err(e),
+        umbra::batch::BatchError::Invalid { key, reason, .. }
+            if key == "task" || key == "log" || key == "shard" =>
+        {
+            arg(&key, reason)
+        }
+        other => raise(Class::File, other.to_string()),
+    };
+    let job = py
+        .detach(|| umbra::batch::load_job(&path))
+        .map_err(batch_err)?;
+    if let Some((i, n)) = shard {
+        if n == 0 || i == 0 || i > n {
+            return Err(arg(
+                "shard",
+                format!("({i}, {n}): give (I, N) with 1 <= I <= N"),
+            ));
+        }
+    }
+    let opts = umbra::batch::RunOptions {
+        task,
+        shard,
+        force,
+        log,
+        jobs,
+    };
+    let callback = PyProgress {
+        callback: progress,
+        total: std::sync::atomic::AtomicU64::new(0),
+        done: std::sync::atomic::AtomicU64::new(0),
+    };
+    let report = py
+        .detach(|| umbra::batch::run(&job, &opts, &callback))
+        .map_err(batch_err)?;
+    serde_json::to_string(&report).map_err(|e| raise(Class::Other, e.to_string()))
+}
+
+/// The runner's progress as calls of a Python callable `progress(done, total)`.
+struct PyProgress {
+    callback: Option<Py<PyAny>>,
+    total: std::sync::atomic::AtomicU64,
+    done: std::sync::atomic::AtomicU64,
+}
+
+impl umbra::batch::Progress for PyProgress {
+    fn start(&self, _tasks: usize, units: u64) {
+        self.total
+            .store(units, std::sync::atomic::Ordering::Relaxed);
+        self.call(0);
+    }
+    fn advance(&self, units: u64) {
+        let done = self
+            .done
+            .fetch_add(units, std::sync::atomic::Ordering::Relaxed)
+            + units;
+        self.call(done);
+    }
+}
+
+impl PyProgress {
+    fn call(&self, done: u64) {
+        if let Some(cb) = &self.callback {
+            let total = self.total.load(std::sync::atomic::Ordering::Relaxed);
+            // A callback that raises is reported as Python reports unraisable errors; the
+            // run goes on (its outputs and log are the job's, not the callback's).
+            Python::attach(|py| {
+                if let Err(e) = cb.call1(py, (done, total)) {
+                    e.write_unraisable(py, None);
+                }
+            });
+        }
+    }
 }
 
 /// The estimator registry (`umbra estimators --json`), as JSON text.
@@ -1179,6 +1272,7 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(info_json, m)?)?;
     m.add_function(wrap_pyfunction!(estimators_json, m)?)?;
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;
+    m.add_function(wrap_pyfunction!(run_job, m)?)?;
     m.add_class::<NativeVolume>()?;
     Ok(())
 }
