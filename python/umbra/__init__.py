@@ -22,7 +22,7 @@ from __future__ import annotations
 import json
 import os
 import warnings as _warnings
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -38,6 +38,7 @@ __all__ = [
     "Volume",
     "estimators",
     "info",
+    "run_job",
     "write_exr",
 ]
 
@@ -208,6 +209,47 @@ def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]:
     grid it does not hold or a scene file.
     """
     return json.loads(_umbra.info_json(_path("path", path), grid))["grids"]
+
+
+def run_job(
+    path: PathLike,
+    *,
+    task: Optional[int] = None,
+    shard: Optional[Tuple[int, int]] = None,
+    force: bool = False,
+    log: Optional[PathLike] = None,
+    jobs: int = 0,
+    progress: Optional[Callable[[int, int], Any]] = None,
+) -> Dict[str, Any]:
+    """Run a batch job file as ``umbra batch PATH`` does (the same runner, the same outputs
+    and JSON-lines log): every task, or only ``task`` (0-based, as ``--plan`` numbers them),
+    or shard ``(I, N)`` (1-based); up-to-date outputs are skipped unless ``force``; ``log``
+    replaces the job's log (its directory must exist); ``jobs`` tasks at once (0: as many as
+    cores). ``progress(done, total)`` is called as work finishes (pixels when every map has a
+    known size, else tasks), from the runner's threads.
+
+    Returns the run's report: ``selected``, ``baked``, ``skipped``, ``failed``, ``seconds``,
+    ``workers``, ``threads_per_task``, ``log`` and ``records`` (one dict per task, as the log
+    holds them: ``task``, ``input``, ``light``, ``output``, ``status``, ``error``, ...). A
+    failed task does not raise: it is counted and recorded. Raises :class:`FileError` for a
+    job file that cannot be read or is invalid, or a missing input;
+    :class:`InvalidArgument` for ``task``/``shard``/``log`` out of range.
+    """
+    if task is not None:
+        task = _count("task", task)
+    if shard is not None:
+        try:
+            i, n = (int(x) for x in shard)
+        except (TypeError, ValueError):
+            raise _invalid("shard", f"{shard!r}: give (I, N), two integers") from None
+        shard = (i, n)
+    if progress is not None and not callable(progress):
+        raise _invalid("progress", "give a callable progress(done, total)")
+    log_path = None if log is None else _path("log", log)
+    report = _umbra.run_job(
+        _path("path", path), task, shard, bool(force), log_path, _count("jobs", jobs), progress
+    )
+    return json.loads(report)
 
 
 def estimators() -> List[Dict[str, Any]]:
@@ -477,8 +519,8 @@ class Volume:
         Returns ``(ijk, T, stats)``: an (N, 3) int32 array of index coordinates and an (N,)
         float32 array of T, in output order (8^3 leaves by origin, voxels by offset), and a
         dict of counts and cost (``voxels``, ``leaves``, ``tile_leaves``, ``sharing``
-        ``"lines"``/``"rays"``, ``line_step``, ``rays``, ``lookups``, ``t_min``, ``t_max``,
-        ``t_mean``, ``seconds``, ``ns_per_voxel``). World positions: ``world_from_index``
+        ``"lines"``/``"rays"``, ``line_step``, ``rays``, ``lookups``, ``T_min``, ``T_max``,
+        ``T_mean``, ``seconds``, ``ns_per_voxel``). World positions: ``world_from_index``
         applied to ``ijk``. A scene is refused (a transmittance volume is made from one grid).
         """
         ijk, t, stats, warns = self._v.transmittance_volume(

@@ -75,11 +75,15 @@ pub struct VolumeStats {
     pub rays: u64,
     /// Density values read.
     pub lookups: u64,
-    /// Smallest, largest and mean `T` over the voxels.
+    /// Smallest, largest and mean `T` over the voxels (`T_min` as data, the key every
+    /// front end's report uses).
+    #[serde(rename = "T_min")]
     pub t_min: f64,
-    /// Largest `T`.
+    /// Largest `T` (`T_max` as data).
+    #[serde(rename = "T_max")]
     pub t_max: f64,
-    /// Mean `T`.
+    /// Mean `T` (`T_mean` as data).
+    #[serde(rename = "T_mean")]
     pub t_mean: f64,
     /// Wall time of the computation, seconds.
     pub seconds: f64,
