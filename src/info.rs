@@ -59,6 +59,9 @@ pub struct GridInfo {
     pub precision_loss: Option<crate::vdb::PrecisionLoss>,
     /// Why the grid could not be decoded, if it could not.
     pub error: Option<String>,
+    /// Why only the header is described (a grid type umbra does not decode: point data, other
+    /// tree configurations), if so. Such a grid is valid: it is not an error.
+    pub note: Option<String>,
 }
 
 /// A float as JSON: a number when finite, else `"inf"`, `"-inf"` or `"nan"`.
@@ -148,6 +151,39 @@ impl GridInfo {
             file_mem_bytes: grid.file_mem_bytes(),
             precision_loss: None,
             error: None,
+            note: None,
+        }
+    }
+
+    /// Report on a grid umbra does not decode, from its header `h`: identity, class,
+    /// compression and transform; `note` says why the tree's figures are absent.
+    #[must_use]
+    pub fn from_header(gd: &crate::vdb::GridDescriptor, h: &crate::vdb::GridHeader) -> Self {
+        let t = &h.transform;
+        let what = if gd.tree_type.contains("ptdata") {
+            "point data"
+        } else {
+            "a grid type umbra does not decode"
+        };
+        Self {
+            class: h.class.clone(),
+            compression: Some(h.compression.describe()),
+            voxel_size: t.is_affine().then(|| t.voxel_size()),
+            map: Some(t.map.clone()),
+            world_from_index: t.is_affine().then_some(t.world_from_index),
+            file_mem_bytes: h.file_mem_bytes(),
+            error: None,
+            note: Some(format!(
+                "{what} ({}): described from its header; umbra traces float and double grids",
+                gd.tree_type
+            )),
+            ..Self::failed(
+                &gd.display_name,
+                &gd.stored_name,
+                &gd.tree_type,
+                gd.saved_as_half,
+                String::new(),
+            )
         }
     }
 
@@ -185,6 +221,7 @@ impl GridInfo {
             file_mem_bytes: None,
             precision_loss: None,
             error: Some(err),
+            note: None,
         }
     }
 }
@@ -254,19 +291,21 @@ impl FileInfo {
             .iter()
             .filter(|gd| wanted(gd))
             .map(|gd| {
-                match archive
+                let failed = |e: crate::Error| {
+                    let (name, stored, half) =
+                        (&gd.display_name, &gd.stored_name, gd.saved_as_half);
+                    GridInfo::failed(name, stored, &gd.tree_type, half, e.to_string())
+                };
+                if crate::vdb::ValueKind::from_tree_type(&gd.tree_type).is_err() {
+                    // Valid, but not a grid umbra decodes: its header still says what it is.
+                    return archive
+                        .header(gd)
+                        .map_or_else(failed, |h| GridInfo::from_header(gd, &h));
+                }
+                archive
                     .open_lazy(gd)
                     .and_then(|lazy| GridInfo::from_lazy(&lazy, &gd.tree_type))
-                {
-                    Ok(info) => info,
-                    Err(e) => GridInfo::failed(
-                        &gd.display_name,
-                        &gd.stored_name,
-                        &gd.tree_type,
-                        gd.saved_as_half,
-                        e.to_string(),
-                    ),
-                }
+                    .unwrap_or_else(failed)
             })
             .collect();
         Self {

@@ -86,6 +86,28 @@ pub struct GridExtent {
     pub value_box: Option<[[i64; 3]; 2]>,
 }
 
+/// What a grid's header says before its tree: readable for every grid type, including those
+/// umbra does not decode (point data, other tree configurations) ([`Archive::header`]).
+#[derive(Debug, Clone)]
+pub struct GridHeader {
+    /// `class` metadata (`fog volume`, `level set`, ...), if any.
+    pub class: Option<String>,
+    /// Index-to-world transform.
+    pub transform: Transform,
+    /// Grid metadata, in file order.
+    pub metadata: MetaMap,
+    /// Compression flags the grid was stored with.
+    pub compression: Compression,
+}
+
+impl GridHeader {
+    /// OpenVDB's `file_mem_bytes` metadata, if stored.
+    #[must_use]
+    pub fn file_mem_bytes(&self) -> Option<i64> {
+        metadata::meta_int(&self.metadata, "file_mem_bytes")
+    }
+}
+
 /// First window for a grid's head (metadata, transform, topology): most topologies fit.
 const HEAD_WINDOW: u64 = 1 << 16;
 
@@ -111,6 +133,22 @@ impl Archive {
     /// type is [`Error::Invalid`].
     pub fn load(&self, gd: &GridDescriptor) -> Result<Grid> {
         self.open_lazy(gd)?.load_all()
+    }
+
+    /// The header of grid `gd` (from this archive): compression, metadata and transform, read
+    /// without its tree, so any grid type has one.
+    ///
+    /// # Errors
+    /// [`Error::Io`] or [`Error::Invalid`] naming the file for a header that cannot be read.
+    pub fn header(&self, gd: &GridDescriptor) -> Result<GridHeader> {
+        // The value type only matters for the topology, which is not read.
+        let (head, _) = self.head(gd, ValueKind::Float, false)?;
+        Ok(GridHeader {
+            class: metadata::meta_string(&head.metadata, "class").map(str::to_string),
+            transform: head.transform,
+            metadata: head.metadata,
+            compression: head.compression,
+        })
     }
 
     /// Parse a grid's head (compression, metadata, transform, and with `topology` its tree

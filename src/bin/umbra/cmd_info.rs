@@ -145,27 +145,41 @@ fn count(n: u64) -> String {
 }
 
 /// One line per grid: name, type, class, voxel size, active voxels, index bbox, value range.
+/// The name and type columns are as wide as the file's longest (at least 16 and 12), so long
+/// names do not push the other columns out of line.
 fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
     writeln!(out, "{}:", escape(&info.path))?;
-    for g in &info.grids {
-        let ty = format!(
+    let ty = |g: &GridInfo| {
+        format!(
             "{}{}",
             g.value_type,
             if g.saved_as_half { " (half)" } else { "" }
-        );
+        )
+    };
+    let width = |f: &dyn Fn(&GridInfo) -> usize, least: usize| {
+        info.grids.iter().map(f).max().unwrap_or(0).max(least)
+    };
+    let nw = width(&|g| escape(&g.name).chars().count(), 16);
+    let tw = width(&|g| ty(g).chars().count(), 12);
+    for g in &info.grids {
+        let (name, ty) = (escape(&g.name), ty(g));
         if let Some(e) = &g.error {
+            writeln!(out, "  {name:<nw$} {ty:<tw$} error: {}", escape(e))?;
+            continue;
+        }
+        if let Some(n) = &g.note {
             writeln!(
                 out,
-                "  {:<16} {ty:<12} error: {}",
-                escape(&g.name),
-                escape(e)
+                "  {name:<nw$} {ty:<tw$} {:<10} voxel {:<10} ({})",
+                escape(g.class.as_deref().unwrap_or("-")),
+                g.voxel_size.map_or("-".into(), vec3),
+                escape(n)
             )?;
             continue;
         }
         writeln!(
             out,
-            "  {:<16} {ty:<12} {:<10} voxel {:<10} {:>8} active  {}  [{}, {}]",
-            escape(&g.name),
+            "  {name:<nw$} {ty:<tw$} {:<10} voxel {:<10} {:>8} active  {}  [{}, {}]",
             escape(g.class.as_deref().unwrap_or("-")),
             g.voxel_size.map_or("-".into(), vec3),
             count(g.active_voxels.unwrap_or(0)),
@@ -232,6 +246,15 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
                 num(row[3])
             )?;
         }
+    }
+    if let Some(n) = &g.note {
+        writeln!(out, "  note: {}", escape(n))?;
+        writeln!(
+            out,
+            "  OpenVDB file_mem_bytes: {}",
+            g.file_mem_bytes.map_or("-".to_string(), |b| b.to_string())
+        )?;
+        return Ok(());
     }
     writeln!(out, "  background: {}", val(&g.background))?;
     writeln!(out, "  index bbox: {}", bbox(g.index_bbox))?;
