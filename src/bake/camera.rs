@@ -21,6 +21,7 @@
 //! `t` is world distance along the unit ray direction, as everywhere in umbra.
 
 use crate::error::{Error, Result};
+use crate::math::normalise;
 use crate::ray::Ray;
 use glam::DVec3;
 
@@ -79,8 +80,9 @@ impl Default for View {
     }
 }
 
-/// How large a map is.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+/// How large a map is. As data (job files, JSON): `N`, `[W, H]`, or the command line's
+/// `"WxH"` / `"N"` text; anything else is refused saying which forms are accepted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(untagged)]
 pub enum Resolution {
     /// Exactly `W x H` pixels (`[W, H]` in job files).
@@ -88,6 +90,71 @@ pub enum Resolution {
     /// `N` pixels on the long side, the other side from the framed box's aspect (`N` in job
     /// files, `--res N` on the command line).
     LongSide(u32),
+}
+
+impl std::str::FromStr for Resolution {
+    type Err = String;
+
+    /// `WxH` (exactly that size) or `N` (the long side), as `--res` takes it.
+    fn from_str(text: &str) -> std::result::Result<Self, String> {
+        let t = text.trim();
+        let num = |v: &str| v.trim().parse::<u32>().ok();
+        let parsed = match t.split_once(['x', 'X']) {
+            Some((w, h)) => num(w).zip(num(h)).map(|(w, h)| Self::Exact(w, h)),
+            None => num(t).map(Self::LongSide),
+        };
+        parsed.ok_or_else(|| {
+            format!(
+                "'{text}': expected WxH (such as 1024x768) or N (pixels on the long side), \
+                 whole positive numbers"
+            )
+        })
+    }
+}
+
+impl<'de> serde::Deserialize<'de> for Resolution {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V;
+        impl<'de> serde::de::Visitor<'de> for V {
+            type Value = Resolution;
+            fn expecting(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("N (the long side), [W, H] or \"WxH\"")
+            }
+            fn visit_u64<E: serde::de::Error>(self, v: u64) -> std::result::Result<Resolution, E> {
+                u32::try_from(v)
+                    .map(Resolution::LongSide)
+                    .map_err(|_| E::custom(format!("{v} pixels is too large a resolution")))
+            }
+            fn visit_i64<E: serde::de::Error>(self, v: i64) -> std::result::Result<Resolution, E> {
+                u64::try_from(v).map_or_else(
+                    |_| {
+                        Err(E::custom(format!(
+                            "{v} is not a resolution: sides are positive"
+                        )))
+                    },
+                    |v| self.visit_u64(v),
+                )
+            }
+            fn visit_str<E: serde::de::Error>(self, v: &str) -> std::result::Result<Resolution, E> {
+                v.parse()
+                    .map_err(|e: String| E::custom(format!("res {e}, or [W, H]")))
+            }
+            fn visit_seq<A: serde::de::SeqAccess<'de>>(
+                self,
+                mut seq: A,
+            ) -> std::result::Result<Resolution, A::Error> {
+                use serde::de::Error;
+                let bad = || A::Error::custom("give [W, H]: two positive integers");
+                let w: u32 = seq.next_element()?.ok_or_else(bad)?;
+                let h: u32 = seq.next_element()?.ok_or_else(bad)?;
+                if seq.next_element::<u32>()?.is_some() {
+                    return Err(bad());
+                }
+                Ok(Resolution::Exact(w, h))
+            }
+        }
+        d.deserialize_any(V)
+    }
 }
 
 impl Resolution {
@@ -374,17 +441,6 @@ impl Camera {
             ..derived
         })
     }
-}
-
-/// `v / |v|`, or `None` for a zero or non-finite vector. Scaled by its largest component first,
-/// so a vector like `(1e308, 0, 0)` (whose length overflows) still has a direction.
-pub(crate) fn normalise(v: DVec3) -> Option<DVec3> {
-    v.try_normalize().or_else(|| {
-        let m = v.abs().max_element();
-        (m > 0.0 && m.is_finite())
-            .then(|| (v / m).try_normalize())
-            .flatten()
-    })
 }
 
 /// `+ 0.0` turns -0 into +0, so headers and JSON never show "-0".

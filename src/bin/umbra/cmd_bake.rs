@@ -72,7 +72,8 @@ pub struct BakeArgs {
     #[arg(long)]
     mipmap: bool,
     /// Write a deep OpenEXR map: per pixel the whole transmittance function along its ray as
-    /// volumetric samples (channels A, Z, ZBack; R, G, B with colour).
+    /// volumetric samples (channels A, Z, ZBack; AR, AG, AB, OpenEXR's per-channel
+    /// opacities, with colour).
     #[arg(long)]
     deep: bool,
     /// With --deep: the bound E on |T_deep(z) - T(z)| at every depth z (default 0.002).
@@ -123,28 +124,13 @@ pub struct BakeArgs {
     est: EstimatorArgs,
 }
 
-/// Parse `WxH` or `N` (N on the long side).
+/// Parse `WxH` or `N` (N on the long side): the library's one parser, checked.
 fn parse_res(s: &str) -> Result<Resolution> {
-    let t = s.trim();
-    let parsed = match t.split_once(['x', 'X']) {
-        Some((w, h)) => w
-            .trim()
-            .parse()
-            .ok()
-            .zip(h.trim().parse().ok())
-            .map(|(w, h)| Resolution::Exact(w, h)),
-        None => t.parse().ok().map(Resolution::LongSide),
-    };
-    match parsed {
-        Some(r) => {
-            r.check().map_err(crate::common::flag_error)?;
-            Ok(r)
-        }
-        None => bail!(
-            "invalid argument '--res': '{s}': expected WxH (such as 1024x768) or N (pixels on \
-             the long side), whole positive numbers"
-        ),
-    }
+    let r: Resolution = s
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("invalid argument '--res': {e}"))?;
+    r.check().map_err(crate::common::flag_error)?;
+    Ok(r)
 }
 
 fn parse_depths(s: &str) -> Result<Vec<f64>> {
@@ -267,9 +253,9 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
     };
     let scene_file = umbra::scene::is_scene_file(&job.input);
     let setup_error = |e: umbra::Error| match e {
-        umbra::Error::Output { .. } | umbra::Error::InvalidArgument { .. } => {
-            anyhow::Error::from(crate::common::flag_error(e))
-        }
+        umbra::Error::Output { .. }
+        | umbra::Error::Exists { .. }
+        | umbra::Error::InvalidArgument { .. } => anyhow::Error::from(crate::common::flag_error(e)),
         other if scene_file => anyhow::Error::from(other).context("loading the scene"),
         other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
     };
