@@ -67,7 +67,7 @@ impl Light {
         match *self {
             Self::Point { pos } => Ray::between(at, pos),
             Self::Directional { dir } => {
-                let d = crate::bake::normalise(glam::DVec3::from_array(dir))
+                let d = crate::math::normalise(glam::DVec3::from_array(dir))
                     .map(|v| v.to_array())
                     .ok_or_else(|| Error::InvalidArgument {
                         name: "light-dir".into(),

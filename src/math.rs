@@ -132,6 +132,17 @@ pub fn parse_bytes(s: &str) -> std::result::Result<u64, String> {
     Ok(bytes as u64)
 }
 
+/// `v / |v|`, or `None` for a zero or non-finite vector. Scaled by its largest component first,
+/// so a vector like `(1e308, 0, 0)` (whose length overflows) still has a direction.
+pub(crate) fn normalise(v: glam::DVec3) -> Option<glam::DVec3> {
+    v.try_normalize().or_else(|| {
+        let m = v.abs().max_element();
+        (m > 0.0 && m.is_finite())
+            .then(|| (v / m).try_normalize())
+            .flatten()
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

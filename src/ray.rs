@@ -152,6 +152,21 @@ pub fn clip_box(
     (t0 <= t1).then_some((t0, t1))
 }
 
+impl Error {
+    /// [`Error::NotANumber`] for `what` (`optical depth`, `... transmittance estimate`) on
+    /// `ray`, naming its origin and direction.
+    pub(crate) fn nan_on_ray(what: impl Into<String>, ray: &crate::ray::Ray) -> Self {
+        Self::NotANumber {
+            what: what.into(),
+            context: format!(
+                " on the ray from {} along {}",
+                ray.origin(),
+                ray.direction()
+            ),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

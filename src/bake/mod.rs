@@ -21,7 +21,7 @@ mod camera_file;
 mod deep;
 mod deep_fit;
 mod deep_map;
-pub(crate) use camera::{normalise, CameraParts};
+pub(crate) use camera::CameraParts;
 mod layout;
 mod matrix;
 mod output;

@@ -433,6 +433,49 @@ impl Tree {
     }
 }
 
+/// The index box of every leaf (origins `leaves`) and every tile of `tree` whose value differs
+/// from the background.
+pub(crate) fn value_box_of(
+    tree: &Tree,
+    leaves: impl Iterator<Item = [i32; 3]>,
+) -> Option<[[i64; 3]; 2]> {
+    let mut b: Option<[[i64; 3]; 2]> = None;
+    let mut add = |o: [i32; 3], dim: i64| {
+        let lo = o.map(i64::from);
+        let hi = lo.map(|c| c + dim - 1);
+        let bb = b.get_or_insert([lo, hi]);
+        for a in 0..3 {
+            bb[0][a] = bb[0][a].min(lo[a]);
+            bb[1][a] = bb[1][a].max(hi[a]);
+        }
+    };
+    let bg = tree.background;
+    for e in &tree.root {
+        if let RootSlot::Tile { value, .. } = e.slot {
+            if value != bg {
+                add(e.origin, 4096);
+            }
+        }
+    }
+    for (nodes, dim, child) in [(&tree.uppers, 32usize, 128i64), (&tree.lowers, 16, 8)] {
+        for n in nodes {
+            for s in 0..n.slots.len() {
+                if !n.has_child(s) && n.tile_value(s) != bg {
+                    let l = [s / (dim * dim), (s / dim) % dim, s % dim];
+                    add(
+                        [0, 1, 2].map(|a| n.origin[a] + (l[a] as i64 * child) as i32),
+                        child,
+                    );
+                }
+            }
+        }
+    }
+    for origin in leaves {
+        add(origin, 8);
+    }
+    b
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -141,7 +141,7 @@ impl Topology {
     /// The index box of every leaf and every non-background tile (as
     /// [`crate::Volume::value_box`]), without the leaf values.
     pub(crate) fn value_box(&self) -> Option<[[i64; 3]; 2]> {
-        crate::volume::value_box_of(&self.tree, self.leaves.iter().map(|(o, _)| *o))
+        crate::tree::value_box_of(&self.tree, self.leaves.iter().map(|(o, _)| *o))
     }
 }
 
