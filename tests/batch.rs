@@ -580,13 +580,17 @@ fn shared_cameras_are_cached_for_farm_tasks() {
     let job = setup(d, "");
     assert!(batch(&job, &["--task", "0"]).status.success());
     let cache = d.join("out/umbra_batch.cameras.json");
-    let fresh = read_exr(&d.join("out/shadow_sun.0001.exr")).v3d("camera_origin");
+    let first = read_exr(&d.join("out/shadow_sun.0001.exr"));
+    let (fresh, step_x) = (first.v3d("camera_origin"), first.v3d("camera_step_x"));
     let mut stored: serde_json::Value =
         serde_json::from_slice(&std::fs::read(&cache).unwrap()).unwrap();
     let cams = stored["cameras"].as_array_mut().unwrap();
     assert_eq!(cams.len(), 2, "one camera per light of the one sequence");
     let sun = cams.iter_mut().find(|c| c["light"] == "sun").unwrap();
-    let moved = [fresh[0] + 0.25, fresh[1], fresh[2]];
+    // Moved four pixels across the image plane (along step_x): the same depth range, so the
+    // bake uses it exactly as cached (a move along the light would be extended to cover the
+    // frame, see tests/camera_reuse.rs).
+    let moved = [0, 1, 2].map(|k| fresh[k] + 4.0 * step_x[k]);
     sun["camera"]["spec"]["origin"] = serde_json::json!(moved);
     std::fs::write(&cache, serde_json::to_vec(&stored).unwrap()).unwrap();
     let origin = || read_exr(&d.join("out/shadow_sun.0002.exr")).v3d("camera_origin");

@@ -359,7 +359,11 @@ fn bad_invocations_exit_with_their_code_say_one_line_and_write_nothing() {
         (vec!["batch", "missing.toml"], 1, "missing.toml"),
         (vec!["batch", "broken.toml"], 1, "broken.toml"),
         (vec!["batch", "badkey.toml"], 1, "lights[0].dir"),
-        (vec!["batch", "job.toml", "--task", "99"], 1, "--task 99"),
+        (
+            vec!["batch", "job.toml", "--task", "99"],
+            1,
+            "invalid argument '--task': 99",
+        ),
         (vec!["batch", "job.toml", "--shard", "3/2"], 2, ""),
         // compare
         (

@@ -1,7 +1,7 @@
 """Type stubs of umbra's Python module (see the docstrings in umbra/__init__.py)."""
 
 import os
-from typing import Any, Dict, List, Literal, Optional, Sequence, Tuple, Union, overload
+from typing import Any, Callable, Dict, List, Literal, Optional, Sequence, Tuple, Union, overload
 
 import numpy as np
 import numpy.typing as npt
@@ -36,6 +36,16 @@ class InvalidArgument(Error, ValueError):
 
 def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]: ...
 def estimators() -> List[Dict[str, Any]]: ...
+def run_job(
+    path: PathLike,
+    *,
+    task: Optional[int] = ...,
+    shard: Optional[Tuple[int, int]] = ...,
+    force: bool = ...,
+    log: Optional[PathLike] = ...,
+    jobs: int = ...,
+    progress: Optional[Callable[[int, int], Any]] = ...,
+) -> Dict[str, Any]: ...
 def write_exr(
     path: PathLike,
     image: npt.ArrayLike,

@@ -51,6 +51,9 @@
 //! **Resume.** A task is up to date when its output exists and its modification time is not
 //! older than its input's; outputs are written atomically, so an existing output is complete.
 
+mod runner;
+pub use runner::{run, Progress, RunOptions, RunReport, Silent};
+
 use crate::bake::{
     BakeJob, BakeReport, BakeSettings, Camera, Depths, Projection, Resolution, View,
 };
@@ -1266,7 +1269,12 @@ impl Job {
                     .collect(),
             };
             if let Ok(text) = serde_json::to_string_pretty(&stored) {
-                // Best effort: a farm node that cannot write beside the log still runs.
+                // Best effort: a farm node that cannot write beside the log still runs. The
+                // job is valid by now (the cameras are framed), so its log directory may be
+                // made here.
+                if let Some(d) = cache.parent().filter(|d| !d.as_os_str().is_empty()) {
+                    let _ = std::fs::create_dir_all(d);
+                }
                 let _ = crate::output::write_atomic(cache, true, |w| {
                     std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
                 });

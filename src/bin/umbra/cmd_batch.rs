@@ -1,12 +1,12 @@
 //! `umbra batch`: many inputs x many lights from a TOML job file, resumable, shardable.
 
-use anyhow::{bail, Context, Result};
+use anyhow::Result;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::Mutex;
-use umbra::batch::{in_shard, load_job, parse_shard, up_to_date, Job, Record, Task};
+use std::sync::OnceLock;
+use umbra::batch::{load_job, parse_shard, BatchError, Progress, Record, RunOptions};
 
 /// Arguments of `umbra batch`.
 #[derive(Debug, clap::Args)]
@@ -48,7 +48,8 @@ fn shell_quote(s: &str) -> String {
     }
 }
 
-/// Run the job (or print its plan).
+/// Run the job (or print its plan): the library's runner ([`umbra::batch::run`]) with a
+/// progress bar, warnings and failures on stderr, and a summary line.
 pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     let job = load_job(&a.job)?;
     if a.plan {
@@ -67,197 +68,103 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
-    let selected: Vec<&Task> = match (a.task, a.shard) {
-        (Some(i), _) => match job.tasks.get(i) {
-            Some(t) => vec![t],
-            None => bail!(
-                "--task {i}: the job has {} tasks (0..{})",
-                job.tasks.len(),
-                job.tasks.len()
-            ),
-        },
-        (None, Some(s)) => job.tasks.iter().filter(|t| in_shard(t.index, s)).collect(),
-        (None, None) => job.tasks.iter().collect(),
+    let opts = RunOptions {
+        task: a.task,
+        shard: a.shard,
+        force: a.force,
+        log: a.log.clone(),
+        jobs: a.jobs,
     };
-    let log_path = a.log.clone().unwrap_or_else(|| job.log.clone());
-    // An explicit --log goes into an existing directory (a typo must not create /nonexistent);
-    // the job's own log sits beside its outputs, whose directories the job creates.
-    if let Some(d) = a
-        .log
-        .as_ref()
-        .and_then(|l| l.parent())
-        .filter(|d| !d.as_os_str().is_empty() && !d.is_dir())
-    {
-        bail!(
-            "invalid argument '--log': no directory {} (create it first)",
-            d.display()
-        );
-    }
-    if let Some(d) = log_path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
-    }
-    for t in &selected {
-        if let Some(d) = t.output.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(d).with_context(|| format!("creating {}", d.display()))?;
+    let bar = Bar {
+        quiet: a.quiet,
+        bar: OnceLock::new(),
+        tasks: AtomicUsize::new(0),
+        done: AtomicUsize::new(0),
+        failed: AtomicUsize::new(0),
+    };
+    let report = umbra::batch::run(&job, &opts, &bar).map_err(|e| match e {
+        // The runner's own options, named as this command's flags.
+        BatchError::Invalid { key, reason, .. } if key == "task" || key == "log" => {
+            anyhow::anyhow!("invalid argument '--{key}': {reason}")
         }
+        other => other.into(),
+    })?;
+    if let Some(b) = bar.bar.get() {
+        b.finish_and_clear();
     }
-    let log = Mutex::new(
-        std::fs::OpenOptions::new()
-            .create(true)
-            .append(true)
-            .open(&log_path)
-            .with_context(|| format!("opening the log {}", log_path.display()))?,
-    );
-    let (todo, skipped): (Vec<&Task>, Vec<&Task>) =
-        selected.iter().partition(|t| a.force || !up_to_date(t));
-    if !todo.is_empty() {
-        // Missing frames and grids fail the job up front; then one camera per light over every
-        // input (not just this shard's), so shards agree.
-        job.check_inputs()?;
-        let stem = log_path.file_stem().map_or_else(
-            || "umbra_batch".into(),
-            |s| s.to_string_lossy().into_owned(),
-        );
-        job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
-    }
-    for t in &skipped {
-        write_record(&log, &record(&job, t, "skipped", 0.0, 0.0, None))?;
-    }
-    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let workers = if a.jobs == 0 { cores } else { a.jobs }
-        .min(todo.len())
-        .max(1);
-    let per_task = (cores / workers).max(1);
-    // With a fixed resolution the bar counts pixels (it moves during long bakes), else tasks.
-    let pixels = job.pixels_hint();
-    let total_units = pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64);
-    let bar = crate::common::progress_bar(
-        a.quiet,
-        "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}",
-        total_units,
-    );
-    bar.set_message(format!("0/{} tasks, 0 failed,", todo.len()));
-    let done = AtomicUsize::new(0);
-    let start = std::time::Instant::now();
-    let next = AtomicUsize::new(0);
-    let failed = AtomicUsize::new(0);
-    let errors: Mutex<Vec<String>> = Mutex::new(Vec::new());
-    std::thread::scope(|s| {
-        for _ in 0..workers {
-            s.spawn(|| loop {
-                let k = next.fetch_add(1, Ordering::Relaxed);
-                let Some(t) = todo.get(k) else { break };
-                let t0 = std::time::Instant::now();
-                let tick = |n: u64| {
-                    if pixels.is_some() {
-                        bar.inc(n);
-                    }
-                };
-                // Maps report rays per second, transmittance volumes voxels per second.
-                let result = if job.volume.is_some() {
-                    job.run_volume_task(t, per_task, &tick).map(|d| {
-                        let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
-                        (rate, d.warnings)
-                    })
-                } else {
-                    job.run_task(t, per_task, &tick).map(|d| {
-                        let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
-                        (rate, d.warnings)
-                    })
-                };
-                let secs = t0.elapsed().as_secs_f64();
-                let rec = match result {
-                    Ok((rate, warnings)) => {
-                        let mut r = record(&job, t, "ok", secs, rate, None);
-                        r.warnings = warnings.iter().map(ToString::to_string).collect();
-                        for w in &r.warnings {
-                            bar.suspend(|| {
-                                eprintln!(
-                                    "umbra: warning: task {} ({}): {w}",
-                                    t.index,
-                                    t.input.display()
-                                );
-                            });
-                        }
-                        r
-                    }
-                    Err(e) => {
-                        failed.fetch_add(1, Ordering::Relaxed);
-                        bar.suspend(|| {
-                            eprintln!(
-                                "umbra: task {} ({}) failed: {}",
-                                t.index,
-                                t.input.display(),
-                                umbra::text::escape(&e.to_string())
-                            );
-                        });
-                        record(&job, t, "failed", secs, 0.0, Some(e.to_string()))
-                    }
-                };
-                if let Err(e) = write_record(&log, &rec) {
-                    if let Ok(mut v) = errors.lock() {
-                        v.push(format!("{e:#}"));
-                    }
-                }
-                if pixels.is_none() {
-                    bar.inc(1);
-                }
-                bar.set_message(format!(
-                    "{}/{} tasks, {} failed,",
-                    done.fetch_add(1, Ordering::Relaxed) + 1,
-                    todo.len(),
-                    failed.load(Ordering::Relaxed)
-                ));
-            });
-        }
-    });
-    bar.finish_and_clear();
-    if let Some(e) = errors.into_inner().ok().and_then(|v| v.into_iter().next()) {
-        bail!("writing the log: {e}");
-    }
-    let failed = failed.into_inner();
     println!(
-        "umbra batch: {} tasks: {} baked, {} skipped (up to date), {failed} failed in {:.2} s on {workers} workers x {per_task} threads; log {}",
-        selected.len(),
-        todo.len() - failed,
-        skipped.len(),
-        start.elapsed().as_secs_f64(),
-        log_path.display()
+        "umbra batch: {} tasks: {} baked, {} skipped (up to date), {} failed in {:.2} s on {} workers x {} threads; log {}",
+        report.selected,
+        report.baked,
+        report.skipped,
+        report.failed,
+        report.seconds,
+        report.workers,
+        report.threads_per_task,
+        report.log.display()
     );
-    Ok(if failed > 0 {
+    Ok(if report.failed > 0 {
         ExitCode::from(3)
     } else {
         ExitCode::SUCCESS
     })
 }
 
-fn record(
-    job: &Job,
-    t: &Task,
-    status: &'static str,
-    seconds: f64,
-    rays_per_second: f64,
-    error: Option<String>,
-) -> Record {
-    Record {
-        task: t.index,
-        input: t.input.clone(),
-        grid: job.grid.clone(),
-        light: t.light.clone(),
-        output: t.output.clone(),
-        status,
-        seconds,
-        rays_per_second,
-        error,
-        warnings: Vec::new(),
-    }
+/// The runner's progress as an indicatif bar, with each task's warnings and failures printed
+/// above it.
+struct Bar {
+    quiet: bool,
+    bar: OnceLock<indicatif::ProgressBar>,
+    tasks: AtomicUsize,
+    done: AtomicUsize,
+    failed: AtomicUsize,
 }
 
-fn write_record(log: &Mutex<std::fs::File>, rec: &Record) -> Result<()> {
-    let line = serde_json::to_string(rec)? + "\n";
-    let mut f = log
-        .lock()
-        .map_err(|_| anyhow::anyhow!("log lock poisoned"))?;
-    f.write_all(line.as_bytes())?;
-    Ok(())
+impl Progress for Bar {
+    fn start(&self, tasks: usize, units: u64) {
+        self.tasks.store(tasks, Ordering::Relaxed);
+        let bar = crate::common::progress_bar(
+            self.quiet,
+            "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}",
+            units,
+        );
+        bar.set_message(format!("0/{tasks} tasks, 0 failed,"));
+        let _ = self.bar.set(bar);
+    }
+
+    fn advance(&self, units: u64) {
+        if let Some(b) = self.bar.get() {
+            b.inc(units);
+        }
+    }
+
+    fn task(&self, r: &Record) {
+        let Some(b) = self.bar.get() else { return };
+        b.suspend(|| {
+            for w in &r.warnings {
+                eprintln!(
+                    "umbra: warning: task {} ({}): {w}",
+                    r.task,
+                    r.input.display()
+                );
+            }
+            if let Some(e) = &r.error {
+                eprintln!(
+                    "umbra: task {} ({}) failed: {}",
+                    r.task,
+                    r.input.display(),
+                    umbra::text::escape(e)
+                );
+            }
+        });
+        if r.error.is_some() {
+            self.failed.fetch_add(1, Ordering::Relaxed);
+        }
+        b.set_message(format!(
+            "{}/{} tasks, {} failed,",
+            self.done.fetch_add(1, Ordering::Relaxed) + 1,
+            self.tasks.load(Ordering::Relaxed),
+            self.failed.load(Ordering::Relaxed)
+        ));
+    }
 }

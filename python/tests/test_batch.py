@@ -1,0 +1,73 @@
+"""umbra.run_job: the library's batch runner from Python, held to `umbra batch` byte for byte."""
+
+import json
+import pathlib
+
+import pytest
+
+import umbra
+
+from conftest import DATA
+
+
+def _job(dir, out, inputs=None, grid="density"):
+    inputs = inputs or [DATA / "cloud.vdb", DATA / "cloud_half.vdb"]
+    text = f'grid = "{grid}"\noutput = "{out}/shadow_{{light}}.{{stem}}.exr"\n'
+    for f in inputs:
+        text += f"[[inputs]]\nfile = {json.dumps(str(f))}\n"
+    text += '[[lights]]\nname = "sun"\ndir = [0.3, -1.0, 0.2]\n'
+    text += '[[lights]]\nname = "lamp"\npos = [0.0, 4.0, 3.0]\n'
+    text += "[bake]\nres = [48, 40]\ndensity_scale = 2.0\n"
+    path = dir / f"{out}.toml"
+    path.write_text(text)
+    return path
+
+
+def test_run_job_bakes_what_the_cli_bakes(tmp_path, cli):
+    cli("batch", _job(tmp_path, "cli"), "-q")
+    calls = []
+    report = umbra.run_job(_job(tmp_path, "py"), progress=lambda d, t: calls.append((d, t)))
+    assert (report["selected"], report["baked"], report["skipped"], report["failed"]) == (4, 4, 0, 0)
+    assert [r["status"] for r in report["records"]] == ["ok"] * 4
+    for r in report["records"]:
+        out = pathlib.Path(r["output"])
+        assert out.parent == tmp_path / "py"
+        twin = tmp_path / "cli" / out.name
+        assert out.read_bytes() == twin.read_bytes(), out.name
+    # Progress counts pixels of 48 x 40 maps, from 0 to the whole.
+    assert calls[0] == (0, 4 * 48 * 40) and calls[-1] == (4 * 48 * 40, 4 * 48 * 40)
+    assert all(a[0] <= b[0] for a, b in zip(calls, calls[1:]))
+    # The log holds the records, as the CLI's does.
+    lines = [json.loads(l) for l in (tmp_path / "py" / "umbra_batch.jsonl").read_text().splitlines()]
+    assert sorted(l["task"] for l in lines) == [0, 1, 2, 3]
+    # Again: everything is up to date; one task with force re-bakes it.
+    again = umbra.run_job(_job(tmp_path, "py"))
+    assert (again["skipped"], again["baked"]) == (4, 0)
+    one = umbra.run_job(_job(tmp_path, "py"), task=2, force=True)
+    assert (one["selected"], one["baked"]) == (1, 1) and one["records"][0]["task"] == 2
+    shard = umbra.run_job(_job(tmp_path, "py"), shard=(2, 2), force=True, jobs=1)
+    assert [r["task"] for r in shard["records"]] == [1, 3]
+
+
+def test_run_job_errors(tmp_path):
+    job = _job(tmp_path, "o")
+    with pytest.raises(umbra.InvalidArgument, match="'task'"):
+        umbra.run_job(job, task=9)
+    with pytest.raises(umbra.InvalidArgument, match="'shard'"):
+        umbra.run_job(job, shard=(3, 2))
+    with pytest.raises(umbra.InvalidArgument, match="'log'"):
+        umbra.run_job(job, log=tmp_path / "no" / "dir" / "log.jsonl")
+    with pytest.raises(umbra.InvalidArgument, match="progress"):
+        umbra.run_job(job, progress=3)  # type: ignore[arg-type]
+    # A missing input refuses the job before anything is created.
+    bad = _job(tmp_path, "missing", inputs=[tmp_path / "nope.vdb"])
+    with pytest.raises(umbra.FileError):
+        umbra.run_job(bad)
+    assert not (tmp_path / "missing").exists()
+    # An input that is not a VDB file refuses the job up front too (every header is read
+    # before any task runs).
+    (tmp_path / "broken.vdb").write_bytes(b"not a vdb")
+    broken = _job(tmp_path, "broken", inputs=[DATA / "cloud.vdb", tmp_path / "broken.vdb"])
+    with pytest.raises(umbra.FileError):
+        umbra.run_job(broken)
+    assert not (tmp_path / "broken").exists()

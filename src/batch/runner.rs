@@ -1,0 +1,266 @@
+//! Running a job: select its tasks (all, one, or a shard), validate before anything is created,
+//! skip what is up to date, bake the rest on worker threads, and log every task as a JSON line.
+//! The command line (`umbra batch`) and the Python module (`umbra.run_job`) are thin over
+//! [`run`]; progress reaches them through [`Progress`].
+//!
+//! **Order of work.** The task selection, the inputs (every file and grid) and the shared
+//! cameras are checked first: a refused job creates no directory and no log. Then the log's and
+//! the outputs' directories are made, skipped tasks are logged, and `workers` threads take the
+//! remaining tasks in index order, each with `cores / workers` threads of its own. A failed task
+//! is logged with its error and the others go on.
+
+use super::{in_shard, up_to_date, BatchError, Job, Record, Task};
+use std::io::Write;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+/// Which tasks to run and how (the options of `umbra batch`).
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct RunOptions {
+    /// Only this task (0-based, as `--plan` numbers them).
+    pub task: Option<usize>,
+    /// Only shard `(I, N)`, 1-based: the tasks whose index `% N == I - 1`.
+    pub shard: Option<(usize, usize)>,
+    /// Re-bake outputs that are up to date.
+    pub force: bool,
+    /// The JSON-lines log (default: the job's `log`). Its directory must exist.
+    pub log: Option<PathBuf>,
+    /// Tasks baked at once (0: as many as cores, at most the number of tasks).
+    pub jobs: usize,
+}
+
+/// What a run reports as it goes. Called from worker threads.
+pub trait Progress: Sync {
+    /// The run starts: `tasks` to bake, `units` of work in all (pixels when every map has a
+    /// known size, else one unit per task).
+    fn start(&self, _tasks: usize, _units: u64) {}
+    /// `units` more of work are done.
+    fn advance(&self, _units: u64) {}
+    /// A task finished (`ok`, `failed`; `skipped` ones are reported before the run starts).
+    fn task(&self, _record: &Record) {}
+}
+
+/// A [`Progress`] that reports nothing.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct Silent;
+
+impl Progress for Silent {}
+
+/// What a run did.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct RunReport {
+    /// Tasks selected (all, one, or a shard's).
+    pub selected: usize,
+    /// Tasks baked successfully.
+    pub baked: usize,
+    /// Tasks skipped as up to date.
+    pub skipped: usize,
+    /// Tasks that failed.
+    pub failed: usize,
+    /// Wall time of the run, seconds.
+    pub seconds: f64,
+    /// Worker threads, and threads per task.
+    pub workers: usize,
+    /// Threads each task bakes with.
+    pub threads_per_task: usize,
+    /// The log written.
+    pub log: PathBuf,
+    /// Every selected task's record, in task order.
+    pub records: Vec<Record>,
+}
+
+/// Run `job` as `opts` asks (module docs).
+///
+/// # Errors
+/// [`BatchError::Invalid`] for a task index out of range or a `log` whose directory does not
+/// exist; input and framing errors of [`Job::check_inputs`] and [`Job::share_cameras_cached`]
+/// (nothing created then); an I/O error creating directories or writing the log. A failed task
+/// is not an error: it is counted in [`RunReport::failed`] and logged.
+pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunReport, BatchError> {
+    let selected: Vec<&Task> = match (opts.task, opts.shard) {
+        (Some(i), _) => match job.tasks.get(i) {
+            Some(t) => vec![t],
+            None => {
+                return Err(invalid(
+                    job,
+                    "task",
+                    format!(
+                        "{i}: the job has {} tasks (0..{})",
+                        job.tasks.len(),
+                        job.tasks.len()
+                    ),
+                ))
+            }
+        },
+        (None, Some(s)) => job.tasks.iter().filter(|t| in_shard(t.index, s)).collect(),
+        (None, None) => job.tasks.iter().collect(),
+    };
+    let log_path = opts.log.clone().unwrap_or_else(|| job.log.clone());
+    // An explicit log goes into an existing directory (a typo must not create /nonexistent);
+    // the job's own log sits beside its outputs, whose directories the job creates.
+    if let Some(d) = opts
+        .log
+        .as_ref()
+        .and_then(|l| l.parent())
+        .filter(|d| !d.as_os_str().is_empty() && !d.is_dir())
+    {
+        return Err(invalid(
+            job,
+            "log",
+            format!("no directory {} (create it first)", d.display()),
+        ));
+    }
+    let (todo, skipped): (Vec<&Task>, Vec<&Task>) =
+        selected.iter().partition(|t| opts.force || !up_to_date(t));
+    if !todo.is_empty() {
+        // Missing frames and grids fail the job up front; then one camera per light over every
+        // input (not just this shard's), so shards agree. Both before anything is created.
+        job.check_inputs()?;
+        let stem = log_path.file_stem().map_or_else(
+            || "umbra_batch".into(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
+    }
+    let io = |what: String, e: std::io::Error| {
+        BatchError::Task(crate::Error::Io {
+            path: PathBuf::from(what),
+            err: e,
+        })
+    };
+    let dirs = std::iter::once(log_path.as_path())
+        .chain(todo.iter().map(|t| t.output.as_path()))
+        .filter_map(|p| p.parent().filter(|d| !d.as_os_str().is_empty()));
+    for d in dirs {
+        std::fs::create_dir_all(d).map_err(|e| io(d.display().to_string(), e))?;
+    }
+    let log = Mutex::new(
+        std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&log_path)
+            .map_err(|e| io(log_path.display().to_string(), e))?,
+    );
+    let records: Mutex<Vec<Record>> = Mutex::new(Vec::new());
+    let log_error: Mutex<Option<std::io::Error>> = Mutex::new(None);
+    let keep = |rec: Record| {
+        let line = serde_json::to_string(&rec).unwrap_or_default() + "\n";
+        if let Ok(mut f) = log.lock() {
+            if let Err(e) = f.write_all(line.as_bytes()) {
+                if let Ok(mut slot) = log_error.lock() {
+                    slot.get_or_insert(e);
+                }
+            }
+        }
+        if let Ok(mut v) = records.lock() {
+            v.push(rec);
+        }
+    };
+    for t in &skipped {
+        keep(record(job, t, "skipped", 0.0, 0.0, None));
+    }
+    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    let workers = if opts.jobs == 0 { cores } else { opts.jobs }
+        .min(todo.len())
+        .max(1);
+    let per_task = (cores / workers).max(1);
+    // With a fixed resolution progress counts pixels (it moves during long bakes), else tasks.
+    let pixels = job.pixels_hint();
+    progress.start(
+        todo.len(),
+        pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64),
+    );
+    let start = std::time::Instant::now();
+    let next = AtomicUsize::new(0);
+    let failed = AtomicUsize::new(0);
+    std::thread::scope(|s| {
+        for _ in 0..workers {
+            s.spawn(|| loop {
+                let k = next.fetch_add(1, Ordering::Relaxed);
+                let Some(t) = todo.get(k) else { break };
+                let t0 = std::time::Instant::now();
+                let tick = |n: u64| {
+                    if pixels.is_some() {
+                        progress.advance(n);
+                    }
+                };
+                // Maps report rays per second, transmittance volumes voxels per second.
+                let result = if job.volume.is_some() {
+                    job.run_volume_task(t, per_task, &tick).map(|d| {
+                        let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
+                        (rate, d.warnings.iter().map(ToString::to_string).collect())
+                    })
+                } else {
+                    job.run_task(t, per_task, &tick).map(|d| {
+                        let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
+                        (rate, d.warnings.iter().map(ToString::to_string).collect())
+                    })
+                };
+                let secs = t0.elapsed().as_secs_f64();
+                let rec = match result {
+                    Ok((rate, warnings)) => Record {
+                        warnings,
+                        ..record(job, t, "ok", secs, rate, None)
+                    },
+                    Err(e) => {
+                        failed.fetch_add(1, Ordering::Relaxed);
+                        record(job, t, "failed", secs, 0.0, Some(e.to_string()))
+                    }
+                };
+                progress.task(&rec);
+                keep(rec);
+                if pixels.is_none() {
+                    progress.advance(1);
+                }
+            });
+        }
+    });
+    if let Some(e) = log_error.into_inner().ok().flatten() {
+        return Err(io(log_path.display().to_string(), e));
+    }
+    let failed = failed.into_inner();
+    let mut records = records.into_inner().unwrap_or_default();
+    records.sort_by_key(|r| r.task);
+    Ok(RunReport {
+        selected: selected.len(),
+        baked: todo.len() - failed,
+        skipped: skipped.len(),
+        failed,
+        seconds: start.elapsed().as_secs_f64(),
+        workers,
+        threads_per_task: per_task,
+        log: log_path,
+        records,
+    })
+}
+
+fn invalid(job: &Job, key: &str, reason: String) -> BatchError {
+    BatchError::Invalid {
+        path: job.path.clone(),
+        key: key.into(),
+        reason,
+    }
+}
+
+fn record(
+    job: &Job,
+    t: &Task,
+    status: &'static str,
+    seconds: f64,
+    rays_per_second: f64,
+    error: Option<String>,
+) -> Record {
+    Record {
+        task: t.index,
+        input: t.input.clone(),
+        grid: job.grid.clone(),
+        light: t.light.clone(),
+        output: t.output.clone(),
+        status,
+        seconds,
+        rays_per_second,
+        error,
+        warnings: Vec::new(),
+    }
+}
