@@ -7,7 +7,6 @@
 
 mod bake_support;
 #[path = "common/vdb_writer.rs"]
-#[allow(dead_code)]
 mod vdb_writer;
 
 use bake_support::read_exr;

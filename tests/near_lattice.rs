@@ -14,26 +14,15 @@
 //! maps (the object-order sweep and the ray path), deep-map profiles and transmittance volumes.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
+use common::oracle_available;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use umbra::regular::optical_depth;
 use umbra::{Interp, Ray, Volume};
 
 const SCALE: f64 = 0.5;
-
-fn oracle_available() -> bool {
-    let ok = Command::new("/usr/bin/python3")
-        .args(["-c", "import pyopenvdb"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok {
-        assert!(
-            std::env::var("UMBRA_SKIP_ORACLE").as_deref() == Ok("1"),
-            "pyopenvdb is not installed (apt-get install python3-openvdb) and UMBRA_SKIP_ORACLE is not 1"
-        );
-    }
-    ok
-}
 
 fn shared() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared")

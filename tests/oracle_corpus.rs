@@ -4,6 +4,9 @@
 //! (`.ci/run` installs it); set `UMBRA_SKIP_ORACLE=1` to skip on machines without it.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
+mod common;
+
+use common::oracle_available;
 use rand::{Rng, SeedableRng};
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -22,20 +25,6 @@ const CASES: &[(&str, &str, f64)] = &[
     ("gen/sphere_fog.vdb", "density", 2.0),
     ("real/openvdb_smoke1_houdini_v222.vdb", "density", 0.5),
 ];
-
-fn oracle_available() -> bool {
-    let ok = Command::new("/usr/bin/python3")
-        .args(["-c", "import pyopenvdb"])
-        .status()
-        .is_ok_and(|s| s.success());
-    if !ok {
-        assert!(
-            std::env::var("UMBRA_SKIP_ORACLE").as_deref() == Ok("1"),
-            "pyopenvdb is not installed (apt-get install python3-openvdb) and UMBRA_SKIP_ORACLE is not 1"
-        );
-    }
-    ok
-}
 
 #[test]
 fn exact_regular_tracking_matches_the_openvdb_oracle() {

@@ -20,6 +20,22 @@ pub fn corpus_dir() -> Option<PathBuf> {
     None
 }
 
+/// Whether Debian's pyopenvdb is there for the OpenVDB oracle (`../shared/tools/oracle.py`).
+/// Missing, it fails the test unless `UMBRA_SKIP_ORACLE=1` (then the caller skips).
+pub fn oracle_available() -> bool {
+    let ok = std::process::Command::new("/usr/bin/python3")
+        .args(["-c", "import pyopenvdb"])
+        .status()
+        .is_ok_and(|s| s.success());
+    if !ok {
+        assert!(
+            std::env::var("UMBRA_SKIP_ORACLE").as_deref() == Ok("1"),
+            "pyopenvdb is not installed (apt-get install python3-openvdb) and UMBRA_SKIP_ORACLE is not 1"
+        );
+    }
+    ok
+}
+
 /// A sample of the crate's `data/` directory.
 pub fn data(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -1,0 +1,194 @@
+//! What a new user ran into (issue 30), each held to its fix: `info` on a valid file with a grid
+//! umbra does not trace (point data) exits 0 and describes it from its header; long grid names
+//! keep the columns aligned; a refused job file creates nothing; a bad `res` in a job file says
+//! which forms are accepted; a refused level set names `--levelset solid`; `bake --help` names
+//! the deep colour channels a deep map really carries.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+#[path = "common/vdb_writer.rs"]
+mod vdb_writer;
+
+use assert_cmd::Command;
+use std::path::Path;
+use vdb_writer::{Grid, Leaf, Map, VdbFile};
+
+fn umbra() -> Command {
+    Command::cargo_bin("umbra").unwrap()
+}
+
+/// A liquid cache's shape: a fog grid with a long name and a point-data grid (its header as
+/// OpenVDB writes it; umbra reads only the header of a tree type it does not decode).
+fn liquid_cache(path: &Path) {
+    let fog = Grid::fog(
+        "liquid_surface_density_with_a_long_name",
+        vec![Leaf::filled([0, 0, 0], 0.5)],
+    )
+    .with_map(Map::UniformScale(0.1));
+    let mut points =
+        Grid::fog("points", vec![Leaf::filled([8, 0, 0], 1.0)]).with_map(Map::UniformScale(0.1));
+    points.tree_type = Some("Tree_ptdataidx32_ptdataidx32_5_4_3".into());
+    points.class = None;
+    VdbFile::new(vec![fog, points]).write(path);
+}
+
+#[test]
+fn info_describes_point_data_from_its_header_and_exits_0() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("liquid.vdb");
+    liquid_cache(&path);
+    let o = umbra().arg("info").arg(&path).output().unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert_eq!(
+        o.status.code(),
+        Some(0),
+        "{out}{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(!out.contains("error"), "{out}");
+    let lines: Vec<&str> = out.lines().skip(1).collect();
+    assert_eq!(lines.len(), 2, "{out}");
+    assert!(
+        lines[1].contains("point data") && lines[1].contains("header"),
+        "{out}"
+    );
+    // The type column starts at the same place on both lines, after the longest name.
+    let col = |l: &str, w: &str| l.find(w).unwrap();
+    assert_eq!(
+        col(lines[0], "float"),
+        col(lines[1], "ptdataidx32"),
+        "{out}"
+    );
+    // JSON: the header's facts and a note, no error.
+    let o = umbra()
+        .args(["info", "--json"])
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(0));
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    let g = &v["grids"][1];
+    assert!(g["error"].is_null(), "{g}");
+    assert!(g["note"].as_str().unwrap().contains("point data"), "{g}");
+    assert_eq!(g["voxel_size"], serde_json::json!([0.1, 0.1, 0.1]), "{g}");
+    assert_eq!(g["map"], "UniformScaleMap", "{g}");
+    // -v too.
+    let o = umbra().args(["info", "-v"]).arg(&path).output().unwrap();
+    assert_eq!(o.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&o.stdout).contains("note: point data"));
+}
+
+/// A job whose input is missing, or whose grid is not in its file, is refused before anything
+/// is created: no output directory, no log.
+#[test]
+fn a_refused_job_creates_nothing() {
+    let cloud = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb");
+    for (grid, file) in [
+        ("density", "missing.vdb".to_string()),
+        ("nope", cloud.display().to_string()),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let job = dir.path().join("job.toml");
+        std::fs::write(
+            &job,
+            format!(
+                "grid = {grid:?}\noutput = \"out/{{stem}}.exr\"\n[[inputs]]\nfile = {file:?}\n\
+                 [[lights]]\nname = \"sun\"\ndir = [0, -1, 0]\n"
+            ),
+        )
+        .unwrap();
+        let o = umbra()
+            .args(["batch", "-q"])
+            .arg(&job)
+            .current_dir(dir.path())
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&o.stderr);
+        assert_eq!(o.status.code(), Some(1), "{err}");
+        let left: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(
+            left,
+            vec![std::ffi::OsString::from("job.toml")],
+            "{grid}: {err}"
+        );
+    }
+}
+
+/// `res = "64by48"` names the key and the accepted forms; `"64x48"` is one of them.
+#[test]
+fn a_bad_res_in_a_job_says_what_is_accepted() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    let cloud = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb");
+    let text = |res: &str| {
+        format!(
+            "grid = \"density\"\noutput = \"{{stem}}.exr\"\n[[inputs]]\nfile = {:?}\n\
+             [[lights]]\nname = \"sun\"\ndir = [0, -1, 0]\n[bake]\nres = {res}\n",
+            cloud.display().to_string()
+        )
+    };
+    std::fs::write(&job, text("\"64by48\"")).unwrap();
+    let o = umbra()
+        .args(["batch", "--plan"])
+        .arg(&job)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("res") && err.contains("WxH") && err.contains("[W, H]"),
+        "{err}"
+    );
+    assert!(!err.contains("untagged"), "{err}");
+    for ok in ["\"64x48\"", "[64, 48]", "64"] {
+        std::fs::write(&job, text(ok)).unwrap();
+        let o = umbra()
+            .args(["batch", "--plan"])
+            .arg(&job)
+            .output()
+            .unwrap();
+        assert!(
+            o.status.success(),
+            "{ok}: {}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+    }
+}
+
+#[test]
+fn a_refused_level_set_names_the_solid_option() {
+    let ls = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gen/sphere_levelset.vdb");
+    if !ls.exists() {
+        assert!(std::env::var("CI").is_err(), "the corpus is missing");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let o = umbra()
+        .arg("bake")
+        .arg(&ls)
+        .args([
+            "--grid",
+            "ls_sphere",
+            "--light-dir=0,-1,0",
+            "--res",
+            "8",
+            "-q",
+            "-o",
+        ])
+        .arg(dir.path().join("x.exr"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--levelset solid"), "{err}");
+}
+
+#[test]
+fn bake_help_names_the_deep_colour_channels() {
+    let o = umbra().args(["bake", "--help"]).output().unwrap();
+    let help = String::from_utf8_lossy(&o.stdout);
+    assert!(help.contains("AR, AG, AB"), "{help}");
+    assert!(!help.contains("R, G, B with colour"), "{help}");
+}
