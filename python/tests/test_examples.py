@@ -121,3 +121,20 @@ def test_houdini_sop_body_with_a_stand_in_hou(monkeypatch):
     parms["vdb"] = ("$DATA/nope.vdb",)
     with pytest.raises(NodeError, match="nope.vdb"):
         runpy.run_path(str(EXAMPLES / "houdini_shadow_sop.py"), run_name="__main__")
+
+
+def _readme_block(heading: str, lang: str) -> str:
+    text = (pathlib.Path(__file__).resolve().parents[2] / "README.md").read_text()
+    section = text.split(heading, 1)[1]
+    return section.split(f"```{lang}\n", 1)[1].split("```", 1)[0]
+
+
+def test_readme_python_example_runs_as_written(tmp_path, monkeypatch):
+    # In a scratch directory beside a link to data/, so the example's file lands there.
+    (tmp_path / "data").symlink_to(DATA)
+    monkeypatch.chdir(tmp_path)
+    names: dict = {}
+    exec(compile(_readme_block("## Python", "python"), "README.md", "exec"), names)
+    assert names["T"].shape == (2,) and names["image"].shape == (256, 256)
+    assert abs(float(names["T_sun"][0]) - 0.3116) < 1e-3
+    assert (tmp_path / "shadow_py.exr").is_file()
