@@ -64,10 +64,11 @@ def test_run_job_errors(tmp_path):
     with pytest.raises(umbra.FileError):
         umbra.run_job(bad)
     assert not (tmp_path / "missing").exists()
-    # An input that is not a VDB file refuses the job up front too (every header is read
-    # before any task runs).
+    # A bad asset fails its own tasks only: recorded with their error, not raised.
     (tmp_path / "broken.vdb").write_bytes(b"not a vdb")
     broken = _job(tmp_path, "broken", inputs=[DATA / "cloud.vdb", tmp_path / "broken.vdb"])
-    with pytest.raises(umbra.FileError):
-        umbra.run_job(broken)
-    assert not (tmp_path / "broken").exists()
+    report = umbra.run_job(broken)
+    assert (report["baked"], report["failed"]) == (2, 2)
+    failed = [r for r in report["records"] if r["status"] == "failed"]
+    assert [r["task"] for r in failed] == [2, 3]
+    assert all("broken.vdb" in r["error"] for r in failed)

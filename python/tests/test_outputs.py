@@ -105,9 +105,9 @@ def test_refusals(cli, tmp_path):
         vol.write_transmittance_volume(tmp_path / "x.vdb", light_dir=(0, -1, 0), light_pos=(0, 5, 0))
     with pytest.raises(umbra.InvalidArgument, match="light_dir"):
         vol.write_transmittance_volume(tmp_path / "x.vdb")
-    with pytest.raises(umbra.InvalidArgument, match="light-dir.*no length"):
+    with pytest.raises(umbra.InvalidArgument, match="light_dir.*no length"):
         vol.transmittance_volume(light_dir=(0, 0, 0))
-    with pytest.raises(umbra.InvalidArgument, match="out-grid"):
+    with pytest.raises(umbra.InvalidArgument, match="'out_grid'"):
         vol.write_transmittance_volume(tmp_path / "x.vdb", light_dir=(0, -1, 0), grid="")
     with pytest.raises(umbra.InvalidArgument, match="grid"):
         vol.write_transmittance_volume(tmp_path / "x.vdb", light_dir=(0, -1, 0), grid=3)  # type: ignore[arg-type]

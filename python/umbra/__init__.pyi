@@ -15,6 +15,7 @@ __all__ = [
     "Volume",
     "estimators",
     "info",
+    "run_job",
     "write_exr",
 ]
 

@@ -49,9 +49,11 @@ impl ExrLayout {
                 });
             }
         } else if self.mipmap {
+            // The missing option is the one named: each front end spells it its own way.
             return Err(Error::InvalidArgument {
-                name: "mipmap".into(),
-                reason: "mip levels are stored in tiles: give --tile N too".into(),
+                name: "tile".into(),
+                reason: "mip levels are stored in tiles: give a tile size with mip levels"
+                    .into(),
             });
         }
         Ok(())
