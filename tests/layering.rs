@@ -136,3 +136,152 @@ fn no_import_climbs_a_layer() {
         climbs.join("\n")
     );
 }
+
+/// `pub use child::{a, b}` / `pub(crate) use child::a;` lines of a `mod.rs`: item -> child.
+fn reexports(mod_rs: &str) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    let text = code(mod_rs);
+    for stmt in text.split(';') {
+        let s = stmt.trim();
+        let Some(rest) = s
+            .strip_prefix("pub use ")
+            .or_else(|| s.strip_prefix("pub(crate) use "))
+            .or_else(|| s.strip_prefix("pub(super) use "))
+        else {
+            continue;
+        };
+        let Some((child, items)) = rest.split_once("::") else {
+            continue;
+        };
+        let items = items.trim().trim_start_matches('{').trim_end_matches('}');
+        for item in items.split(',') {
+            let name = item.trim().split(" as ").last().unwrap_or("").trim();
+            if !name.is_empty() {
+                out.push((name.to_string(), child.trim().to_string()));
+            }
+        }
+    }
+    out
+}
+
+/// The names a file takes from its parent module: `super::NAME` and `use super::{A, B}`.
+fn super_names(code: &str) -> BTreeSet<String> {
+    let mut out = BTreeSet::new();
+    for (i, _) in code.match_indices("super::") {
+        let after = &code[i + "super::".len()..];
+        if let Some(group) = after.strip_prefix('{') {
+            let group = &group[..group.find('}').unwrap_or(group.len())];
+            for n in group.split(',') {
+                let n: String = n
+                    .trim()
+                    .chars()
+                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                    .collect();
+                if !n.is_empty() {
+                    out.insert(n);
+                }
+            }
+        } else {
+            let n: String = after
+                .chars()
+                .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
+                .collect();
+            if !n.is_empty() {
+                out.insert(n);
+            }
+        }
+    }
+    out
+}
+
+/// No two files of one module import each other round a loop (`bake/output.rs` and
+/// `bake/summary.rs` once did): within every directory of `src/`, a file naming a sibling
+/// module or an item its parent re-exports from a sibling is an arrow to that sibling, and the
+/// arrows have no cycle. Between top-level modules `no_import_climbs_a_layer` rules; within a
+/// layer, the top-level modules have no cycle either.
+#[test]
+fn no_import_loops() {
+    let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+    let mut files = Vec::new();
+    rust_files(&src, &mut files);
+    // Arrows between sibling files, per directory with a mod.rs.
+    let mut arrows: Vec<(String, String)> = Vec::new();
+    for f in &files {
+        // A `dir/mod.rs` is module `dir` among its parent's files; its `super` is the parent.
+        let (dir, own) = if f.ends_with("mod.rs") {
+            let d = f.parent().unwrap();
+            (
+                d.parent().unwrap(),
+                d.file_name().unwrap().to_string_lossy().to_string(),
+            )
+        } else {
+            (
+                f.parent().unwrap(),
+                f.file_stem().unwrap().to_string_lossy().to_string(),
+            )
+        };
+        let mod_rs = dir.join("mod.rs");
+        if !mod_rs.exists() || dir.starts_with(src.join("bin")) {
+            continue;
+        }
+        let items = reexports(&std::fs::read_to_string(&mod_rs).unwrap());
+        let text = code(&std::fs::read_to_string(f).unwrap());
+        for name in super_names(&text) {
+            let sibling = if dir.join(format!("{name}.rs")).exists()
+                || dir.join(&name).join("mod.rs").exists()
+            {
+                Some(name.clone())
+            } else {
+                items
+                    .iter()
+                    .find(|(i, _)| *i == name)
+                    .map(|(_, c)| c.clone())
+            };
+            if let Some(s) = sibling.filter(|s| *s != own) {
+                let rel = |n: &str| format!("{}/{n}", dir.strip_prefix(&src).unwrap().display());
+                arrows.push((rel(&own), rel(&s)));
+            }
+        }
+    }
+    // Arrows between top-level modules.
+    for f in &files {
+        let module = module_of(&src, f);
+        if module == "bin" || module == "lib" {
+            continue;
+        }
+        for target in crate_paths(&code(&std::fs::read_to_string(f).unwrap())) {
+            if target != module && layer_of(&target).is_some() {
+                arrows.push((module.clone(), target));
+            }
+        }
+    }
+    arrows.sort();
+    arrows.dedup();
+    assert!(arrows.len() > 60, "only {} arrows read", arrows.len());
+    // A cycle is a node that reaches itself.
+    let next = |n: &str| -> Vec<String> {
+        arrows
+            .iter()
+            .filter(|(a, _)| a == n)
+            .map(|(_, b)| b.clone())
+            .collect()
+    };
+    let mut loops = Vec::new();
+    let nodes: BTreeSet<String> = arrows.iter().map(|(a, _)| a.clone()).collect();
+    for start in &nodes {
+        let mut seen = BTreeSet::new();
+        let mut stack = vec![(start.clone(), vec![start.clone()])];
+        while let Some((n, path)) = stack.pop() {
+            for m in next(&n) {
+                if m == *start {
+                    loops.push(path.join(" -> ") + " -> " + start);
+                } else if seen.insert(m.clone()) {
+                    let mut p = path.clone();
+                    p.push(m.clone());
+                    stack.push((m, p));
+                }
+            }
+        }
+    }
+    assert!(loops.is_empty(), "import loops:\n{}", loops.join("\n"));
+}

@@ -52,8 +52,7 @@ impl ExrLayout {
             // The missing option is the one named: each front end spells it its own way.
             return Err(Error::InvalidArgument {
                 name: "tile".into(),
-                reason: "mip levels are stored in tiles: give a tile size with mip levels"
-                    .into(),
+                reason: "mip levels are stored in tiles: give a tile size with mip levels".into(),
             });
         }
         Ok(())

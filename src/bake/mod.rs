@@ -23,6 +23,7 @@ mod deep_fit;
 mod deep_map;
 pub(crate) use camera::CameraParts;
 mod layout;
+mod map;
 mod matrix;
 mod output;
 mod pipeline;
@@ -45,15 +46,16 @@ pub use deep_map::{
     STOCHASTIC_DEPTHS,
 };
 pub use layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
-pub use output::{slice_channel, write_exr, write_exr_as, write_map, write_png, Provenance};
+pub use map::{
+    channel_names, check_threads, slice_channel, BakeSettings, BakeStats, Channel, Depths, Map,
+    Order, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
+};
+pub use output::{write_exr, write_exr_as, write_map, write_png, Provenance};
 pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Product, Warning};
 pub use reach::Outside;
-pub use render::{
-    bake, bake_scene, check_threads, BakeSettings, BakeStats, Channel, Depths, Map, Order,
-    MAX_BATCHES, MAX_SLICES, MAX_THREADS,
-};
+pub use render::{bake, bake_scene};
 pub use shadow_volume::{
     output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,
     DEFAULT_OUT_GRID, MAX_VOLUME_LEAVES,
 };
-pub use summary::{channel_names, MapSummary, SummaryCamera};
+pub use summary::{MapSummary, SummaryCamera};

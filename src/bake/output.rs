@@ -4,7 +4,7 @@
 
 use super::camera::Projection;
 use super::layout::{mip_levels, ExrLayout};
-use super::render::Map;
+use super::map::Map;
 use crate::error::{Error, Result};
 use crate::output::{commit_all, stage, write_atomic};
 use exr::meta::attribute::{AttributeValue, Text};
@@ -61,12 +61,6 @@ fn v3d(v: [f64; 3]) -> AttributeValue {
 /// A column-vector 4x4 as OpenEXR's row-vector `m44f` (the transpose, row-major).
 pub(crate) fn m44f(m: [[f64; 4]; 4]) -> [f32; 16] {
     std::array::from_fn(|k| m[k % 4][k / 4] as f32)
-}
-
-/// Name of depth slice `k`'s channel: `slice00.T`, `slice01.T`, ...
-#[must_use]
-pub fn slice_channel(k: usize) -> String {
-    format!("slice{k:02}.T")
 }
 
 /// Write `map` to `path` as a single-part scanline OpenEXR (ZIP, increasing line order) with
@@ -306,8 +300,7 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
 /// Every channel of `map` with its name: `T` (or `R`, `G`, `B`), each followed by its
 /// `.stderr` and `sliceNN` channels.
 fn channel_planes(map: &Map) -> Vec<(Text, &[f32])> {
-    let names =
-        super::summary::channel_names(map.channels(), map.std_err.is_some(), map.slices.len());
+    let names = super::map::channel_names(map.channels(), map.std_err.is_some(), map.slices.len());
     let mut planes: Vec<&[f32]> = Vec::with_capacity(names.len());
     for c in 0..map.channels() {
         let (t, err, slices) = map.channel(c);

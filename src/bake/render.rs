@@ -1,7 +1,11 @@
 //! The parallel tile renderer: one estimate per pixel (plus adaptive batches and depth slices).
 
 use super::camera::{Camera, MAX_PIXELS};
-use crate::error::{Error, Result};
+use super::map::{
+    bad, split_channels, BakeSettings, BakeStats, Channel, Depths, Map, Order, MAX_BATCHES,
+    MAX_SLICES,
+};
+use crate::error::Result;
 use crate::estimate::{estimate, Estimate, Estimator, Options};
 use crate::ray::Ray;
 use crate::scene::{Scene, SceneEstimate};
@@ -11,225 +15,6 @@ use rayon::prelude::*;
 /// Tile side in pixels: bands of up to `TILE` rows are the unit of parallel work, and each
 /// band is traced `TILE` columns at a time (the unit of progress).
 const TILE: u32 = 16;
-/// Most adaptive batches per pixel (each doubles the sample count).
-pub const MAX_BATCHES: u32 = 32;
-/// Most depth slices of one map.
-pub const MAX_SLICES: usize = 64;
-
-/// Depths at which extra transmittance channels are baked.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Depths {
-    /// Only the full-depth `T`.
-    None,
-    /// `K` depths evenly spaced across the volume's depth range:
-    /// `t_k = t_near + (t_max - t_near) (k + 1) / K`, `k = 0..K`.
-    Slices(usize),
-    /// Explicit depths (world distance along each ray), strictly increasing, non-negative.
-    At(Vec<f64>),
-}
-
-/// Most worker threads accepted (`--threads`): far more than any machine has cores, far fewer
-/// than make thread creation fail.
-pub const MAX_THREADS: usize = 1024;
-
-/// Check a thread count: 0 (all cores) to [`MAX_THREADS`].
-///
-/// # Errors
-/// [`Error::InvalidArgument`] naming `threads`, with the largest accepted value.
-pub fn check_threads(threads: usize) -> Result<()> {
-    if threads <= MAX_THREADS {
-        return Ok(());
-    }
-    Err(bad(
-        "threads",
-        format!("{threads} threads; at most {MAX_THREADS} (0 uses every core)"),
-    ))
-}
-
-/// How to bake.
-#[derive(Debug, Clone, PartialEq, serde::Serialize)]
-pub struct BakeSettings {
-    /// Estimator of every pixel.
-    pub estimator: Estimator,
-    /// Estimator options; `options.samples` is the samples per pixel (first batch).
-    pub options: Options,
-    /// Adaptive sampling: while a pixel's error bound `sqrt(s^2 + (sqrt(3) / n)^2)` (`s` its
-    /// standard error over `n` samples; the second term is the rule-of-three bound on a rare
-    /// event that n samples all missed) exceeds this, add a batch as large as all its samples
-    /// so far (its total doubles), up to `max_spp`. So a pixel takes at least `sqrt(3) / E`
-    /// samples unless its ray needs no sampling at all.
-    pub target_error: Option<f64>,
-    /// Cap on samples per pixel for adaptive sampling.
-    pub max_spp: u32,
-    /// Extra depth channels.
-    pub depths: Depths,
-    /// Also keep each pixel's standard error (`T.stderr`).
-    pub std_err: bool,
-    /// Worker threads: 0 runs on the current rayon pool, `n` on a local pool of `n` threads.
-    pub threads: usize,
-    /// How pixels are traced: [`Order::Auto`] lets exact maps use the object-order sweep; [`Order::Rays`] traces every pixel's ray (the reference the sweep is tested
-    /// against).
-    pub order: Order,
-}
-
-/// The order in which a map is traced.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Order {
-    /// Object order (the sweep: each 8^3 block adds its exact integral to the pixels it covers)
-    /// for exact trilinear maps (slices included; orthographic, or perspective with the light
-    /// outside the volume's clip box); ray order for everything else.
-    #[default]
-    Auto,
-    /// One ray per pixel, walked down the tree.
-    Rays,
-}
-
-impl BakeSettings {
-    /// Check the settings that do not depend on the camera: the estimator options, at least
-    /// one sample, a positive finite target error, `max_spp >= 1`, slice counts.
-    ///
-    /// # Errors
-    /// [`Error::InvalidArgument`] naming the setting.
-    pub fn validate(&self) -> Result<()> {
-        // A bake calls the samples per pixel `spp`.
-        self.options.validate().map_err(|e| match e {
-            Error::InvalidArgument { name, reason } if name == "samples" => bad("spp", reason),
-            other => other,
-        })?;
-        if let Some(e) = self.target_error {
-            if !(e.is_finite() && e > 0.0) {
-                return Err(bad("target-error", format!("{e} is not a positive number")));
-            }
-        }
-        check_threads(self.threads)?;
-        if self.max_spp == 0 {
-            return Err(bad("max-spp", "must be at least 1".into()));
-        }
-        crate::estimate::budget::check_samples("max-spp", u64::from(self.max_spp))?;
-        match &self.depths {
-            Depths::Slices(k) if *k == 0 || *k > MAX_SLICES => {
-                Err(bad("slices", format!("{k} is not in 1..={MAX_SLICES}")))
-            }
-            Depths::At(v) if v.is_empty() || v.len() > MAX_SLICES => {
-                Err(bad("depths", format!("give 1 to {MAX_SLICES} depths")))
-            }
-            _ => Ok(()),
-        }
-    }
-
-    /// Settings for `estimator` with `options`: no adaptivity, no slices, no stderr channel,
-    /// the current thread pool.
-    #[must_use]
-    pub fn new(estimator: Estimator, options: Options) -> Self {
-        Self {
-            estimator,
-            options,
-            target_error: None,
-            max_spp: 65_536,
-            depths: Depths::None,
-            std_err: false,
-            threads: 0,
-            order: Order::Auto,
-        }
-    }
-}
-
-/// What a bake cost.
-#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
-pub struct BakeStats {
-    /// Pixels (primary rays).
-    pub rays: u64,
-    /// Samples of the main `T` summed over pixels (`rays` for deterministic estimators).
-    pub samples: u64,
-    /// Density lookups, slices included.
-    pub lookups: u64,
-    /// Samples stopped by the collision cap (biased).
-    pub capped: u64,
-    /// Lookups outside their segment's bounds (see [`Estimate::majorant_violations`]).
-    pub majorant_violations: u64,
-    /// Pixels whose error bound is still above the target (adaptive sampling hit the cap).
-    pub unconverged: u64,
-    /// Largest per-pixel standard error.
-    pub max_std_err: f64,
-    /// Wall time of the render, seconds.
-    pub seconds: f64,
-    /// The map was traced in object order (the sweep) rather than one ray per pixel.
-    pub sweep: bool,
-    /// Parts of the grid decoded one after another to stay within `--max-memory` (0: the
-    /// whole grid was in memory).
-    pub parts: u64,
-}
-
-/// A baked map: row-major channels, row 0 at the top, pixel `(i, j)` at index `j W + i`.
-#[derive(Debug, Clone)]
-pub struct Map {
-    /// The camera every pixel's ray comes from.
-    pub camera: Camera,
-    /// The settings it was baked with.
-    pub settings: BakeSettings,
-    /// Transmittance over `[0, t_max]`.
-    pub t: Vec<f32>,
-    /// Standard error of `t`, when asked for.
-    pub std_err: Option<Vec<f32>>,
-    /// Depths of the slices (world distance along each ray).
-    pub depths: Vec<f64>,
-    /// Transmittance over `[0, depths[k]]`, one image per depth.
-    pub slices: Vec<Vec<f32>>,
-    /// Green and blue of an RGB scene (`t`, `std_err` and `slices` then hold red).
-    pub color: Option<Box<[Channel; 2]>>,
-    /// Cost.
-    pub stats: BakeStats,
-}
-
-/// One colour channel of a map: its transmittance, standard error and slices, laid out as
-/// [`Map`]'s.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct Channel {
-    /// Transmittance over `[0, t_max]`.
-    pub t: Vec<f32>,
-    /// Standard error of `t`, when asked for.
-    pub std_err: Option<Vec<f32>>,
-    /// Transmittance over `[0, depths[k]]`.
-    pub slices: Vec<Vec<f32>>,
-}
-
-/// Split per-channel images (1 or 3) into [`Map`]'s red-or-grey channel and its `color`.
-pub(crate) fn split_channels(chans: Vec<Channel>) -> (Channel, Option<Box<[Channel; 2]>>) {
-    let mut it = chans.into_iter();
-    let red = it.next().unwrap_or_default();
-    let color = match (it.next(), it.next()) {
-        (Some(g), Some(b)) => Some(Box::new([g, b])),
-        _ => None,
-    };
-    (red, color)
-}
-
-impl Map {
-    /// 1 (grey) or 3 (R, G, B).
-    #[must_use]
-    pub fn channels(&self) -> usize {
-        if self.color.is_some() {
-            3
-        } else {
-            1
-        }
-    }
-
-    /// Channel `c` (0 = grey or red, 1 = green, 2 = blue) as `(t, std_err, slices)`.
-    #[must_use]
-    pub fn channel(&self, c: usize) -> (&[f32], Option<&[f32]>, &[Vec<f32>]) {
-        match (c, &self.color) {
-            (1 | 2, Some(gb)) => {
-                let ch = &gb[c - 1];
-                (&ch.t, ch.std_err.as_deref(), &ch.slices)
-            }
-            _ => (&self.t, self.std_err.as_deref(), &self.slices),
-        }
-    }
-}
-
 /// What a map traces: one volume (every single-grid path) or a scene.
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum Source<'a> {
@@ -256,13 +41,6 @@ impl Source<'_> {
             Self::Volume(_) => 1,
             Self::Scene(s) => s.channels(),
         }
-    }
-}
-
-fn bad(name: &str, reason: String) -> Error {
-    Error::InvalidArgument {
-        name: name.into(),
-        reason,
     }
 }
 

@@ -5,7 +5,7 @@
 //! each pixel's ray at its first hit: `T = 0` for the map and for every slice at or past it.
 
 use super::camera::Camera;
-use super::render::{BakeSettings, BakeStats, Channel, Map, Order};
+use super::map::{BakeSettings, BakeStats, Channel, Map, Order};
 use crate::error::{Error, Result};
 use crate::math::scaled;
 use crate::scene::Scene;
@@ -176,7 +176,7 @@ pub(crate) fn exact(
                 .collect(),
         }
     });
-    let (red, color) = super::render::split_channels(chans.collect());
+    let (red, color) = super::map::split_channels(chans.collect());
     Ok(Map {
         camera: *camera,
         settings: s.clone(),

@@ -9,8 +9,9 @@
 //! (`samples / max(rays, 1)`).
 
 use super::camera::{Camera, CameraSpec, Projection};
-use super::output::{slice_channel, Provenance};
-use super::render::{BakeSettings, BakeStats, Channel, Depths, Map};
+use super::map::channel_names;
+use super::map::{BakeSettings, BakeStats, Channel, Depths, Map};
+use super::output::Provenance;
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
 use crate::Interp;
@@ -271,26 +272,6 @@ impl MapSummary {
         };
         Ok((map, prov))
     }
-}
-
-/// The EXR channel names of a map with `channels` (1: `T`; 3: `R`, `G`, `B`) channels, each
-/// followed by its `.stderr` and its `sliceNN` channels.
-#[must_use]
-pub fn channel_names(channels: usize, std_err: bool, slices: usize) -> Vec<String> {
-    let names: &[&str] = if channels == 3 {
-        &["R", "G", "B"]
-    } else {
-        &["T"]
-    };
-    let mut out = Vec::new();
-    for base in names {
-        out.push((*base).to_string());
-        if std_err {
-            out.push(format!("{base}.stderr"));
-        }
-        out.extend((0..slices).map(|k| slice_channel(k).replace(".T", &format!(".{base}"))));
-    }
-    out
 }
 
 fn bad(reason: impl Into<String>) -> Error {

@@ -44,7 +44,7 @@
 mod kernel;
 
 use super::camera::{Camera, Projection};
-use super::render::{BakeSettings, BakeStats, Map};
+use super::map::{BakeSettings, BakeStats, Map};
 use crate::error::Result;
 use crate::estimate::Estimator;
 use crate::math::box_corners;
