@@ -61,31 +61,29 @@ fn code(text: &str) -> String {
 
 /// Every `crate::NAME` the code names.
 fn crate_paths(code: &str) -> BTreeSet<String> {
-    let mut out = BTreeSet::new();
-    let mut rest = code;
-    while let Some(i) = rest.find("crate::") {
-        let after = &rest[i + "crate::".len()..];
-        let name: String = after
+    names_after(code, "crate::")
+}
+
+/// The first path segment after every `prefix` (`crate::`, `super::`) in `code`, every name of
+/// a group (`prefix{a, b::c}` gives `a` and `b`).
+fn names_after(code: &str, prefix: &str) -> BTreeSet<String> {
+    let ident = |t: &str| -> String {
+        t.trim()
             .chars()
             .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-            .collect();
-        // `use crate::{a, b}`: every name of the group.
-        if after.starts_with('{') {
-            let group = &after[1..after.find('}').unwrap_or(after.len())];
-            for n in group.split(',') {
-                let n: String = n
-                    .trim()
-                    .chars()
-                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-                    .collect();
-                if !n.is_empty() {
-                    out.insert(n);
-                }
-            }
-        } else if !name.is_empty() {
-            out.insert(name);
-        }
-        rest = &rest[i + 1..];
+            .collect()
+    };
+    let mut out = BTreeSet::new();
+    for (i, _) in code.match_indices(prefix) {
+        let after = &code[i + prefix.len()..];
+        let names: Vec<String> = match after.strip_prefix('{') {
+            Some(group) => group[..group.find('}').unwrap_or(group.len())]
+                .split(',')
+                .map(ident)
+                .collect(),
+            None => vec![ident(after)],
+        };
+        out.extend(names.into_iter().filter(|n| !n.is_empty()));
     }
     out
 }
@@ -166,32 +164,7 @@ fn reexports(mod_rs: &str) -> Vec<(String, String)> {
 
 /// The names a file takes from its parent module: `super::NAME` and `use super::{A, B}`.
 fn super_names(code: &str) -> BTreeSet<String> {
-    let mut out = BTreeSet::new();
-    for (i, _) in code.match_indices("super::") {
-        let after = &code[i + "super::".len()..];
-        if let Some(group) = after.strip_prefix('{') {
-            let group = &group[..group.find('}').unwrap_or(group.len())];
-            for n in group.split(',') {
-                let n: String = n
-                    .trim()
-                    .chars()
-                    .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-                    .collect();
-                if !n.is_empty() {
-                    out.insert(n);
-                }
-            }
-        } else {
-            let n: String = after
-                .chars()
-                .take_while(|c| c.is_ascii_alphanumeric() || *c == '_')
-                .collect();
-            if !n.is_empty() {
-                out.insert(n);
-            }
-        }
-    }
-    out
+    names_after(code, "super::")
 }
 
 /// No two files of one module import each other round a loop (`bake/output.rs` and

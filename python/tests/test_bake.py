@@ -159,6 +159,6 @@ def test_write_exr_tiled_and_mipmapped(cli, tmp_path):
     image, camera = umbra.Volume(CLOUD).bake(light_dir=(-1, -1, 0), res=(50, 30))
     umbra.write_exr(tmp_path / "py.exr", image, camera, tile=16, mipmap=True)
     assert (tmp_path / "py.exr").read_bytes() == out.read_bytes()
-    with pytest.raises(umbra.InvalidArgument, match="'tile'"):
+    with pytest.raises(umbra.InvalidArgument, match="'mipmap'.*tile size"):
         umbra.write_exr(tmp_path / "x.exr", image, camera, mipmap=True)
     assert not (tmp_path / "x.exr").exists()

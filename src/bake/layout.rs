@@ -49,10 +49,9 @@ impl ExrLayout {
                 });
             }
         } else if self.mipmap {
-            // The missing option is the one named: each front end spells it its own way.
             return Err(Error::InvalidArgument {
-                name: "tile".into(),
-                reason: "mip levels are stored in tiles: give a tile size with mip levels".into(),
+                name: "mipmap".into(),
+                reason: "mip levels are stored in tiles: give a tile size too".into(),
             });
         }
         Ok(())
@@ -210,9 +209,9 @@ mod tests {
             .to_string()
             .contains("'tile'"));
         assert!(tiled(Some(MAX_TILE + 1), false).is_err());
-        assert!(tiled(None, true)
-            .unwrap_err()
-            .to_string()
-            .contains("--tile"));
+        // Mip levels without tiles name the option given, as each front end spells it.
+        let e = tiled(None, true).unwrap_err();
+        assert!(e.to_string().contains("'mipmap'") && e.to_string().contains("tile size"));
+        assert!(e.flag_named().to_string().contains("'--mipmap'"));
     }
 }
