@@ -102,14 +102,12 @@ pub enum Error {
 
 /// The front ends a user names options through. The library names an option in kebab case
 /// (`deep-error`); each front end spells it its own way by one rule: the command line's long
-/// flag `--deep-error`, a job file's key and a Python keyword `deep_error` (the flag with `-`
-/// turned into `_`).
+/// flag `--deep-error`, a Python keyword `deep_error` (the flag with `-` turned into `_`, as a
+/// job file's key is).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Front {
     /// The `umbra` command line: `--deep-error`.
     Cli,
-    /// A batch job file: `deep_error` (a key of its `[bake]` table).
-    Job,
     /// The Python module: the keyword `deep_error`.
     Python,
 }
@@ -122,7 +120,7 @@ impl Front {
         let bare = name.trim_start_matches("--");
         match self {
             Self::Cli => format!("--{}", bare.replace('_', "-")),
-            Self::Job | Self::Python => bare.replace('-', "_"),
+            Self::Python => bare.replace('-', "_"),
         }
     }
 
@@ -131,7 +129,6 @@ impl Front {
     pub fn overwrite_hint(self) -> &'static str {
         match self {
             Self::Cli => "use --force to overwrite",
-            Self::Job => "run the job with --force to overwrite",
             Self::Python => "pass overwrite=True to replace it",
         }
     }

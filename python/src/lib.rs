@@ -130,25 +130,12 @@ fn run_job(
     progress: Option<Py<PyAny>>,
 ) -> PyResult<String> {
     let batch_err = |e: umbra::batch::BatchError| match e {
-        umbra::batch::BatchError::Task(e) => py_err(e),
-        umbra::batch::BatchError::Invalid { key, reason, .. }
-            if key == "task" || key == "log" || key == "shard" =>
-        {
-            arg(&key, reason)
-        }
+        umbra::batch::BatchError::Task(e) | umbra::batch::BatchError::Options(e) => py_err(e),
         other => raise(Class::File, other.to_string()),
     };
     let job = py
         .detach(|| umbra::batch::load_job(&path))
         .map_err(batch_err)?;
-    if let Some((i, n)) = shard {
-        if n == 0 || i == 0 || i > n {
-            return Err(arg(
-                "shard",
-                format!("({i}, {n}): give (I, N) with 1 <= I <= N"),
-            ));
-        }
-    }
     let opts = umbra::batch::RunOptions {
         task,
         shard,

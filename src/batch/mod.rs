@@ -96,6 +96,11 @@ pub enum BatchError {
     /// A task's bake failed (load, framing, settings, write).
     #[error(transparent)]
     Task(#[from] crate::Error),
+    /// An option of the run ([`RunOptions`]: `task`, `shard`, `log`) is out of range: an
+    /// [`crate::Error::InvalidArgument`] in the library's spelling, which each front end
+    /// respells ([`crate::Error::for_front`]: `--task` / `task`).
+    #[error(transparent)]
+    Options(crate::Error),
     /// A task panicked (a bug): the panic message.
     #[error("task panicked: {0}")]
     Panic(String),
@@ -1058,9 +1063,15 @@ pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
         .split_once('/')
         .and_then(|(i, n)| Some((i.trim().parse().ok()?, n.trim().parse().ok()?)));
     match parsed {
-        Some((i, n)) if n >= 1 && (1..=n).contains(&i) => Ok((i, n)),
+        Some(shard) if valid_shard(shard) => Ok(shard),
         _ => Err(format!("expected I/N with 1 <= I <= N, got '{s}'")),
     }
+}
+
+/// Whether `(i, n)` names a shard: `1 <= i <= n`.
+#[must_use]
+pub fn valid_shard((i, n): (usize, usize)) -> bool {
+    n >= 1 && (1..=n).contains(&i)
 }
 
 /// Whether task `index` belongs to shard `i/n` (1-based `i`).

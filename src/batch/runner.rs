@@ -9,7 +9,7 @@
 //! remaining tasks in index order, each with `cores / workers` threads of its own. A failed task
 //! is logged with its error and the others go on.
 
-use super::{in_shard, up_to_date, BatchError, Job, Record, Task};
+use super::{in_shard, up_to_date, valid_shard, BatchError, Job, Record, Task};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -73,17 +73,22 @@ pub struct RunReport {
 /// Run `job` as `opts` asks (module docs).
 ///
 /// # Errors
-/// [`BatchError::Invalid`] for a task index out of range or a `log` whose directory does not
-/// exist; input and framing errors of [`Job::check_inputs`] and [`Job::share_cameras_cached`]
+/// [`BatchError::Options`] for a task index or shard out of range or a `log` whose directory
+/// does not exist; input and framing errors of [`Job::check_inputs`] and [`Job::share_cameras_cached`]
 /// (nothing created then); an I/O error creating directories or writing the log. A failed task
 /// is not an error: it is counted in [`RunReport::failed`] and logged.
 pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunReport, BatchError> {
+    if let Some((i, n)) = opts.shard.filter(|s| !valid_shard(*s)) {
+        return Err(invalid(
+            "shard",
+            format!("{i}/{n}: give I/N with 1 <= I <= N"),
+        ));
+    }
     let selected: Vec<&Task> = match (opts.task, opts.shard) {
         (Some(i), _) => match job.tasks.get(i) {
             Some(t) => vec![t],
             None => {
                 return Err(invalid(
-                    job,
                     "task",
                     format!(
                         "{i}: the job has {} tasks (0..{})",
@@ -106,7 +111,6 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         .filter(|d| !d.as_os_str().is_empty() && !d.is_dir())
     {
         return Err(invalid(
-            job,
             "log",
             format!("no directory {} (create it first)", d.display()),
         ));
@@ -235,12 +239,11 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     })
 }
 
-fn invalid(job: &Job, key: &str, reason: String) -> BatchError {
-    BatchError::Invalid {
-        path: job.path.clone(),
-        key: key.into(),
+fn invalid(option: &str, reason: String) -> BatchError {
+    BatchError::Options(crate::Error::InvalidArgument {
+        name: option.into(),
         reason,
-    }
+    })
 }
 
 fn record(

@@ -83,11 +83,8 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         failed: AtomicUsize::new(0),
     };
     let report = umbra::batch::run(&job, &opts, &bar).map_err(|e| match e {
-        // The runner's own options, named as this command's flags.
-        BatchError::Invalid { key, reason, .. } if key == "task" || key == "log" => {
-            anyhow::anyhow!("invalid argument '--{key}': {reason}")
-        }
-        other => other.into(),
+        BatchError::Options(e) => crate::common::flag_error(e).into(),
+        other => anyhow::Error::from(other),
     })?;
     if let Some(b) = bar.bar.get() {
         b.finish_and_clear();
