@@ -129,7 +129,7 @@ impl Front {
     pub fn overwrite_hint(self) -> &'static str {
         match self {
             Self::Cli => "use --force to overwrite",
-            Self::Python => "pass overwrite=True to replace it",
+            Self::Python => "pass force=True to replace it",
         }
     }
 }

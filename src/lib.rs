@@ -66,6 +66,7 @@ pub mod math;
 pub mod output;
 pub mod ray;
 pub mod regular;
+pub mod request;
 pub mod rng;
 pub mod scene;
 pub mod solid;

@@ -16,6 +16,8 @@ use rayon::prelude::*;
 
 /// How the density between voxel centres is defined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Interp {
     /// OpenVDB `PointSampler`: the voxel `floor(p + 0.5)`, piecewise constant.

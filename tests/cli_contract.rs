@@ -247,7 +247,7 @@ fn bad_invocations_exit_with_their_code_say_one_line_and_write_nothing() {
                 "--res",
                 "-5x100",
             ],
-            1,
+            2,
             "--res",
         ),
         (
@@ -261,7 +261,7 @@ fn bad_invocations_exit_with_their_code_say_one_line_and_write_nothing() {
                 "--res",
                 "big",
             ],
-            1,
+            2,
             "--res",
         ),
         (vec!["bake", c, "-o", "o.exr"], 1, "--light-dir"),

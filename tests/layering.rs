@@ -18,7 +18,7 @@ const LAYERS: &[(&str, &[&str])] = &[
         "answers",
         &["regular", "solid", "estimate", "scene", "light"],
     ),
-    ("products", &["bake", "compare", "batch", "info"]),
+    ("products", &["bake", "compare", "request", "batch", "info"]),
 ];
 
 fn layer_of(module: &str) -> Option<usize> {

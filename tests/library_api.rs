@@ -232,7 +232,7 @@ fn bake_settings_and_cameras_validate() {
                 },
                 ..base.clone()
             },
-            "spp",
+            "samples",
         ),
         (
             BakeSettings {
@@ -330,8 +330,9 @@ fn batch_errors_are_typed_and_panics_keep_their_message() {
         other => panic!("{other:?}"),
     }
     let ok = parse_job(path, &text.replace("step = 0", "step = 0.5\nslices = 2")).unwrap();
-    assert_eq!(ok.settings.estimator.param("step"), Some(0.5));
-    assert_eq!(ok.settings.depths, Depths::Slices(2));
+    let task = ok.bake_job(&ok.tasks[0], 1).unwrap();
+    assert_eq!(task.settings.estimator.param("step"), Some(0.5));
+    assert_eq!(task.settings.depths, Depths::Slices(2));
     let p = std::panic::catch_unwind(|| panic!("boom {}", 42)).unwrap_err();
     assert_eq!(panic_message(p.as_ref()), "boom 42");
     let q = std::panic::catch_unwind(|| panic!("static")).unwrap_err();

@@ -438,21 +438,21 @@ fn transmittance_volumes_refuse_map_options_and_leave_nothing() {
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (
             vec!["--light-dir=0,-1,0", "--preview", "p.png"],
-            "--preview applies to maps",
+            "'--preview': applies to maps",
         ),
         (
             vec!["--light-dir=0,-1,0", "--sigma-t", "1,1,1"],
-            "--sigma-t applies to maps",
+            "'--sigma-t': applies to maps",
         ),
         (
             vec!["--light-dir=0,-1,0", "--deep"],
-            "--deep applies to maps",
+            "'--deep': applies to maps",
         ),
         (
             vec!["--light-dir=0,-1,0", "--res", "64"],
-            "--res applies to maps",
+            "'--res': applies to maps",
         ),
-        (vec![], "give --light-dir"),
+        (vec![], "'--light-dir': no light"),
         (vec!["--light-dir=0,-1,0", "--light-pos=0,5,0"], "not both"),
         (vec!["--light-dir=0,0,0"], "light-dir"),
         (vec!["--light-dir=0,-1,0", "--out-grid", ""], "out-grid"),

@@ -14,10 +14,9 @@ use pyo3::types::PyType;
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
-use umbra::bake::{
-    BakeJob, BakeSettings, Camera, Channel, MapSummary, Projection, Resolution, View,
-};
+use umbra::bake::{BakeJob, Camera, Channel, MapSummary};
 use umbra::estimate::{Estimator, Options};
+use umbra::request::{BakeOptions, BakePlan, BakeRequest};
 use umbra::scene::{Scene, SceneOptions};
 use umbra::{Interp, Light, Ray};
 
@@ -625,23 +624,6 @@ type VolumeOut<'py> = (
     Vec<String>,
 );
 
-/// The light of a transmittance volume: exactly one of `light_dir`, `light_pos` (the CLI's
-/// `--light-dir`/`--light-pos` rule).
-fn volume_light(light_dir: Option<[f64; 3]>, light_pos: Option<[f64; 3]>) -> PyResult<Light> {
-    match (light_dir, light_pos) {
-        (Some(dir), None) => Ok(Light::Directional { dir }),
-        (None, Some(pos)) => Ok(Light::Point { pos }),
-        (None, None) => Err(arg(
-            "light_dir",
-            "give light_dir=(dx, dy, dz) or light_pos=(x, y, z): the light the volume is lit by",
-        )),
-        (Some(_), Some(_)) => Err(arg(
-            "light_dir",
-            "give light_dir or light_pos for a transmittance volume, not both",
-        )),
-    }
-}
-
 /// A transmittance volume's stats as a JSON object: [`umbra::bake::VolumeStats`]'s fields
 /// and `ns_per_voxel`.
 fn stats_json(st: &umbra::bake::VolumeStats) -> PyResult<String> {
@@ -653,35 +635,24 @@ fn stats_json(st: &umbra::bake::VolumeStats) -> PyResult<String> {
 }
 
 impl NativeVolume {
-    /// The one density grid a transmittance volume is made from (a scene is refused, as `umbra
-    /// bake SCENE.toml -o OUT.vdb` refuses it), the light, the estimator and the thread count,
-    /// checked as the CLI checks them.
-    #[allow(clippy::too_many_arguments)]
-    fn volume_setup(
+    /// This volume's transmittance volume as the options (the Python keywords, JSON text) ask
+    /// for it, written to `output` (or a name only, in memory): the request's plan, checked
+    /// as the CLI checks it, and the loaded grid.
+    fn volume_plan(
         &self,
-        light_dir: Option<[f64; 3]>,
-        light_pos: Option<[f64; 3]>,
-        estimator_name: &str,
-        params: &[(String, f64)],
-        samples: u32,
-        seed: u64,
-        threads: usize,
-    ) -> PyResult<(&umbra::Volume, Light, Estimator, Options)> {
-        if umbra::scene::is_scene_file(&self.path) {
-            return Err(raise(
-                Class::Argument,
-                format!(
-                    "a transmittance volume (.vdb) is made from one density grid; {} is a \
-                     scene file",
-                    self.path.display()
-                ),
+        options: &str,
+        output: PathBuf,
+    ) -> PyResult<(&umbra::Volume, umbra::bake::VolumeJob)> {
+        let request = self.request(options, output)?;
+        let plan = request.plan().map_err(py_err)?;
+        let BakePlan::Volume(job) = plan else {
+            return Err(arg(
+                "path",
+                "a transmittance volume is written to a .vdb file",
             ));
-        }
+        };
         let vol = self.single("transmittance volume")?;
-        let light = volume_light(light_dir, light_pos)?;
-        let (est, opts) = estimator(estimator_name, params, self.interp, samples, seed)?;
-        umbra::bake::check_threads(threads).map_err(py_err)?;
-        Ok((vol, light, est, opts))
+        Ok((vol, *job))
     }
 
     /// A transmittance volume's warnings as the CLI prints them: `FILE: warning`.
@@ -890,28 +861,13 @@ impl NativeVolume {
     /// T toward a light at every active voxel (`umbra bake ... -o OUT.vdb`, in memory):
     /// the voxels' index coordinates and values in output order (leaves by origin, voxels by
     /// offset).
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (light_dir, light_pos, estimator_name, params, samples, seed, threads))]
     fn transmittance_volume<'py>(
         &self,
         py: Python<'py>,
-        light_dir: Option<[f64; 3]>,
-        light_pos: Option<[f64; 3]>,
-        estimator_name: &str,
-        params: Vec<(String, f64)>,
-        samples: u32,
-        seed: u64,
-        threads: usize,
+        options: &str,
     ) -> PyResult<VolumeOut<'py>> {
-        let (vol, light, est, opts) = self.volume_setup(
-            light_dir,
-            light_pos,
-            estimator_name,
-            &params,
-            samples,
-            seed,
-            threads,
-        )?;
+        let (vol, job) = self.volume_plan(options, PathBuf::from("memory.vdb"))?;
+        let (light, est, opts, threads) = (job.light, job.estimator, job.options, job.threads);
         let (ijk, t, stats) = py
             .detach(|| -> umbra::Result<_> {
                 let (leaves, stats) =
@@ -945,46 +901,13 @@ impl NativeVolume {
 
     /// Write the transmittance volume `umbra bake FILE ... -o PATH` writes for this volume
     /// (its file, grid, density scale and `xform` recorded): `(stats JSON, warnings)`.
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (path, light_dir, light_pos, out_grid, half, overwrite, estimator_name, params, samples, seed, threads))]
     fn write_transmittance_volume(
         &self,
         py: Python<'_>,
         path: PathBuf,
-        light_dir: Option<[f64; 3]>,
-        light_pos: Option<[f64; 3]>,
-        out_grid: String,
-        half: bool,
-        overwrite: bool,
-        estimator_name: &str,
-        params: Vec<(String, f64)>,
-        samples: u32,
-        seed: u64,
-        threads: usize,
+        options: &str,
     ) -> PyResult<(String, Vec<String>)> {
-        let (vol, light, est, opts) = self.volume_setup(
-            light_dir,
-            light_pos,
-            estimator_name,
-            &params,
-            samples,
-            seed,
-            threads,
-        )?;
-        let job = umbra::bake::VolumeJob {
-            input: self.path.clone(),
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            xform: self.xform,
-            light,
-            estimator: est,
-            options: opts,
-            threads,
-            output: path,
-            out_grid,
-            half,
-            overwrite,
-        };
+        let (vol, job) = self.volume_plan(options, path)?;
         let report = py.detach(|| job.run_on(vol, &|_| {})).map_err(py_err)?;
         Ok((
             stats_json(&report.stats)?,
@@ -992,49 +915,14 @@ impl NativeVolume {
         ))
     }
 
-    /// Bake a transmittance map (`umbra bake`, in memory).
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (light_dir, light_pos, ortho, fov, up, frame_box, res, camera_json, camera_path, estimator_name, params, spp, seed, target_error, max_spp, std_err, threads))]
-    fn bake<'py>(
-        &self,
-        py: Python<'py>,
-        light_dir: Option<[f64; 3]>,
-        light_pos: Option<[f64; 3]>,
-        ortho: bool,
-        fov: Option<f64>,
-        up: Option<[f64; 3]>,
-        frame_box: Option<[[f64; 3]; 2]>,
-        res: Option<(u32, u32)>,
-        camera_json: Option<String>,
-        camera_path: Option<PathBuf>,
-        estimator_name: &str,
-        params: Vec<(String, f64)>,
-        spp: u32,
-        seed: u64,
-        target_error: Option<f64>,
-        max_spp: u32,
-        std_err: bool,
-        threads: usize,
-    ) -> PyResult<BakeOut<'py>> {
-        let fixed = FixedCamera::new(camera_json, camera_path);
-        let view = bake_view(light_dir, light_pos, ortho, fov, up, frame_box, res, &fixed)?;
-        let (est, opts) = estimator(estimator_name, &params, self.interp, spp, seed)?;
-        let job = self.bake_job(
-            view,
-            BakeSettings {
-                target_error,
-                max_spp,
-                std_err,
-                threads,
-                ..BakeSettings::new(est, opts)
-            },
-        );
+    /// Bake a transmittance map (`umbra bake`, in memory) as the options (the Python
+    /// keywords, JSON text) ask.
+    fn bake<'py>(&self, py: Python<'py>, options: &str) -> PyResult<BakeOut<'py>> {
+        let request = self.request(options, PathBuf::new())?;
+        let threads = request.options.threads;
         let report = py
             .detach(|| -> umbra::Result<_> {
-                let camera = match fixed.read(job.view.res)? {
-                    Some(c) => c,
-                    None => self.frame(&job.view)?,
-                };
+                let (job, camera) = self.map_plan(&request)?;
                 on_threads(threads, || job.bake_in_memory(&self.scene, camera, &|_| {}))?
             })
             .map_err(py_err)?;
@@ -1065,191 +953,129 @@ impl NativeVolume {
     /// Write the deep map `umbra bake FILE ... --deep [--deep-error E] -o PATH` writes for
     /// this volume (its file, grid, density scale and `xform` recorded), byte for byte:
     /// `(summary JSON, deep stats JSON, warnings)`.
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (path, light_dir, light_pos, ortho, fov, up, frame_box, res, camera_json, camera_path, estimator_name, params, spp, seed, deep_error, overwrite, threads))]
     fn write_deep_map(
         &self,
         py: Python<'_>,
         path: PathBuf,
-        light_dir: Option<[f64; 3]>,
-        light_pos: Option<[f64; 3]>,
-        ortho: bool,
-        fov: Option<f64>,
-        up: Option<[f64; 3]>,
-        frame_box: Option<[[f64; 3]; 2]>,
-        res: Option<(u32, u32)>,
-        camera_json: Option<String>,
-        camera_path: Option<PathBuf>,
-        estimator_name: &str,
-        params: Vec<(String, f64)>,
-        spp: u32,
-        seed: u64,
-        deep_error: f64,
-        overwrite: bool,
-        threads: usize,
+        options: &str,
     ) -> PyResult<(String, String, Vec<String>)> {
-        let fixed = FixedCamera::new(camera_json, camera_path);
-        let view = bake_view(light_dir, light_pos, ortho, fov, up, frame_box, res, &fixed)?;
-        let (est, opts) = estimator(estimator_name, &params, self.interp, spp, seed)?;
-        let job = BakeJob {
-            output: path,
-            overwrite,
-            product: umbra::bake::Product::Deep {
-                max_error: deep_error,
-            },
-            ..self.bake_job(
-                view,
-                BakeSettings {
-                    threads,
-                    ..BakeSettings::new(est, opts)
-                },
-            )
-        };
-        // The CLI's order: a camera file is read, the outputs and settings are checked, then
-        // the camera is framed.
+        let mut request = self.request(options, path)?;
+        request.options.deep = true;
+        let threads = request.options.threads;
+        // The CLI's order: the request is planned (a camera file read), the outputs checked,
+        // then the camera framed.
         let report = py
             .detach(|| -> umbra::Result<_> {
-                let camera = fixed.read(job.view.res)?;
-                job.check_outputs()?;
-                job.settings.validate()?;
-                let camera = match camera {
-                    Some(c) => c,
-                    None => self.frame(&job.view)?,
-                };
+                if let BakePlan::Map(job) = request.plan()? {
+                    job.check_outputs()?;
+                }
+                let (job, camera) = self.map_plan(&request)?;
                 on_threads(threads, || job.run_loaded(&self.scene, camera, &|_| {}))?
             })
             .map_err(py_err)?;
-        let Some(d) = report.deep else {
+        let Some(d) = report.deep.as_ref() else {
             return Err(raise(Class::Other, "the bake made no deep map".into()));
         };
-        // `umbra bake --json`'s `deep` object.
-        let deep = serde_json::json!({
-            "max_error": d.max_error, "samples": d.samples,
-            "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
-            "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
-            "coarse_cells": d.coarse_cells, "seconds": d.seconds,
-        });
         let warnings = report.warnings.iter().map(ToString::to_string).collect();
-        Ok((summary_json(&report)?, deep.to_string(), warnings))
+        Ok((summary_json(&report)?, deep_json(d).to_string(), warnings))
     }
 }
 
-/// An earlier map's camera a bake reuses (`camera=`): its dict as JSON text, or the path of
-/// its EXR or JSON file; neither: the bake frames its own.
-struct FixedCamera {
-    json: Option<String>,
-    path: Option<PathBuf>,
+impl NativeVolume {
+    /// This volume's request: the Python keywords' options (JSON text), with what the volume
+    /// was loaded with (file, grid, density scale, interpolation, `xform`) recorded.
+    fn request(&self, options: &str, output: PathBuf) -> PyResult<BakeRequest> {
+        let mut o = BakeOptions::from_json(options).map_err(py_err)?;
+        o.grid.clone_from(&self.grid);
+        o.density_scale = self.density_scale;
+        o.interp = self.interp;
+        o.xform = self
+            .xform
+            .map(|x| x.rows().iter().flatten().copied().collect());
+        Ok(BakeRequest {
+            input: self.path.clone(),
+            output,
+            options: o,
+        })
+    }
+
+    /// The map of a request on this volume: its fixed camera, or the one its view frames.
+    fn map_plan(&self, request: &BakeRequest) -> umbra::Result<(BakeJob, Camera)> {
+        let BakePlan::Map(job) = request.plan()? else {
+            return Err(umbra::Error::InvalidArgument {
+                name: "output".into(),
+                reason: "a map is written to an EXR file".into(),
+            });
+        };
+        let camera = match job.camera {
+            Some(c) => c,
+            None => Camera::frame(&job.view, &self.scene.box_corners()?)?,
+        };
+        Ok((*job, camera))
+    }
 }
 
-impl FixedCamera {
-    fn new(json: Option<String>, path: Option<PathBuf>) -> Self {
-        Self { json, path }
-    }
-
-    fn is_some(&self) -> bool {
-        self.json.is_some() || self.path.is_some()
-    }
-
-    /// The camera, at `res` when given (`umbra bake --camera FILE [--res]`).
-    fn read(&self, res: Option<Resolution>) -> umbra::Result<Option<Camera>> {
-        match (&self.json, &self.path) {
-            (Some(j), _) => umbra::bake::camera_from_json("camera", j.as_bytes(), res).map(Some),
-            (None, Some(p)) => umbra::bake::read_camera(p, res).map(Some),
-            (None, None) => Ok(None),
-        }
-    }
-}
-
-/// The camera request of a bake, checked as `umbra bake` checks its flags. `res`: (W, H), or
-/// (N, 0) for N pixels on the long side. A fixed camera takes only `res`.
-#[allow(clippy::too_many_arguments)]
-fn bake_view(
-    light_dir: Option<[f64; 3]>,
-    light_pos: Option<[f64; 3]>,
-    ortho: bool,
-    fov: Option<f64>,
-    up: Option<[f64; 3]>,
-    frame_box: Option<[[f64; 3]; 2]>,
-    res: Option<(u32, u32)>,
-    fixed: &FixedCamera,
-) -> PyResult<View> {
-    let res = res.map(|(w, h)| {
-        if h == 0 {
-            Resolution::LongSide(w)
-        } else {
-            Resolution::Exact(w, h)
-        }
-    });
-    if let Some(r) = res {
-        r.check().map_err(py_err)?;
-    }
-    if fixed.is_some() {
-        return Ok(View {
-            res,
-            ..View::default()
-        });
-    }
-    let projection = match (light_dir, light_pos) {
-        (None, None) => {
-            return Err(arg(
-                "light_dir",
-                "give light_dir=(dx, dy, dz) (orthographic map), light_pos=(x, y, z) \
-                 (perspective map) or camera=",
-            ))
-        }
-        (_, Some(_)) if !ortho => Projection::Perspective,
-        _ => Projection::Ortho,
-    };
-    if fov.is_some() && projection == Projection::Ortho {
-        return Err(arg(
-            "fov",
-            "applies to perspective maps (light_pos without ortho=True)",
-        ));
-    }
-    Ok(View {
-        projection,
-        light_dir,
-        light_pos,
-        fov_deg: fov,
-        res,
-        up,
-        frame_box,
+/// `umbra bake --json`'s `deep` object.
+fn deep_json(d: &umbra::bake::DeepStats) -> serde_json::Value {
+    serde_json::json!({
+        "max_error": d.max_error, "samples": d.samples,
+        "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
+        "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
+        "coarse_cells": d.coarse_cells, "seconds": d.seconds,
     })
+}
+
+/// `umbra.bake(input, output, **options)`: the one bake request, from a file to its output,
+/// as `umbra bake INPUT -o OUTPUT --flags` runs it. Returns the summary as JSON text (a map's
+/// camera dict with `deep` for a deep map; a transmittance volume's stats) and the warnings.
+#[pyfunction]
+fn bake_file(
+    py: Python<'_>,
+    input: PathBuf,
+    output: PathBuf,
+    options: &str,
+) -> PyResult<(String, Vec<String>)> {
+    let request = BakeRequest {
+        input,
+        output,
+        options: BakeOptions::from_json(options).map_err(py_err)?,
+    };
+    let plan = request.plan().map_err(py_err)?;
+    let load = |e: umbra::Error| match e {
+        umbra::Error::InvalidArgument { .. }
+        | umbra::Error::Output { .. }
+        | umbra::Error::Exists { .. } => py_err(e),
+        other => load_err(other, &request.input, &request.options.grid),
+    };
+    match plan {
+        BakePlan::Map(job) => {
+            let report = py.detach(|| job.run(&|_| {})).map_err(load)?;
+            let mut summary =
+                serde_json::to_value(MapSummary::new(&report.map, &report.provenance))
+                    .map_err(|e| raise(Class::Other, e.to_string()))?;
+            if let (Some(o), Some(d)) = (summary.as_object_mut(), report.deep.as_ref()) {
+                o.insert("deep".into(), deep_json(d));
+            }
+            let warnings = report.warnings.iter().map(ToString::to_string).collect();
+            Ok((summary.to_string(), warnings))
+        }
+        BakePlan::Volume(job) => {
+            let report = py
+                .detach(|| {
+                    job.check_outputs()?;
+                    job.run(&|_| {})
+                })
+                .map_err(load)?;
+            let warnings = report.warnings.iter().map(ToString::to_string).collect();
+            Ok((stats_json(&report.stats)?, warnings))
+        }
+    }
 }
 
 /// A finished map's summary (the camera dict), as JSON text.
 fn summary_json(report: &umbra::bake::BakeReport) -> PyResult<String> {
     let summary = MapSummary::new(&report.map, &report.provenance);
     serde_json::to_string(&summary).map_err(|e| raise(Class::Other, e.to_string()))
-}
-
-impl NativeVolume {
-    /// A bake of this volume as `umbra bake` would run it on its file (what it was loaded
-    /// with recorded): a flat map, no outputs.
-    fn bake_job(&self, view: View, settings: BakeSettings) -> BakeJob {
-        BakeJob {
-            input: self.path.clone(),
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            xform: self.xform,
-            sigma_t: None,
-            levelset_solid: false,
-            view,
-            camera: None,
-            settings,
-            output: PathBuf::new(),
-            preview: None,
-            overwrite: false,
-            max_memory: None,
-            layout: umbra::bake::ExrLayout::default(),
-            product: umbra::bake::Product::Map,
-        }
-    }
-
-    /// The camera `view` frames on this volume's box.
-    fn frame(&self, view: &View) -> umbra::Result<Camera> {
-        Camera::frame(view, &self.scene.box_corners()?)
-    }
 }
 
 /// umbra's native module: see the `umbra` package.
@@ -1260,6 +1086,7 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(estimators_json, m)?)?;
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(run_job, m)?)?;
+    m.add_function(wrap_pyfunction!(bake_file, m)?)?;
     m.add_class::<NativeVolume>()?;
     Ok(())
 }

@@ -56,13 +56,13 @@ def cli(umbra_bin):
 def cli_error(stderr: str) -> str:
     """The message of the CLI's one `umbra: error: ...` line, as the Python module words the
     same error: each front end names options its own way (`--deep-error` is the keyword
-    `deep_error`, `--force` is `overwrite=True`); everything else is the same text."""
+    `deep_error`, `--force` is `force=True`); everything else is the same text."""
     lines = [l for l in stderr.splitlines() if l.startswith("umbra: error: ")]
     assert len(lines) == 1, stderr
     message = lines[0][len("umbra: error: "):]
     message = re.sub(r"invalid argument '--([a-z0-9-]+)'",
                      lambda m: "invalid argument '%s'" % m.group(1).replace("-", "_"), message)
-    return message.replace("(use --force to overwrite)", "(pass overwrite=True to replace it)")
+    return message.replace("(use --force to overwrite)", "(pass force=True to replace it)")
 
 
 def json_lines(stdout: str):

@@ -35,8 +35,7 @@ CASES = [
 @pytest.mark.parametrize("kw,flags", CASES)
 def test_bake_equals_cli_exr(cli, tmp_path, kw, flags):
     out = tmp_path / "cli.exr"
-    _, stdout, _ = cli("bake", CLOUD, "--grid", "density", "-o", out, "--json", "--quiet", *flags,
-                       *([] if "spp" in kw else ["--spp", "1"]))
+    _, stdout, _ = cli("bake", CLOUD, "--grid", "density", "-o", out, "--json", "--quiet", *flags)
     summary = json.loads(stdout)
     vol = umbra.Volume(CLOUD)
     image, camera = vol.bake(**kw)
@@ -119,7 +118,7 @@ def test_rgb_scene_equals_cli(cli, tmp_path):
         f'[[volume]]\nfile = "{DATA / "cloud.vdb"}"\ngrid = "density"\nsigma_t = [1.0, 2.0, 0.5]\n'
     )
     out = tmp_path / "cli.exr"
-    cli("bake", scene, "--light-dir=-1,-1,0", "--res", "48x32", "--spp", "1", "-o", out, "--quiet")
+    cli("bake", scene, "--light-dir=-1,-1,0", "--res", "48x32", "-o", out, "--quiet")
     vol = umbra.Volume.from_scene(scene)
     assert vol.channels == 3
     image, camera = vol.bake(light_dir=(-1, -1, 0), res=(48, 32))
@@ -154,7 +153,7 @@ def test_bake_argument_errors():
 
 def test_write_exr_tiled_and_mipmapped(cli, tmp_path):
     out = tmp_path / "cli.exr"
-    cli("bake", CLOUD, "--light-dir=-1,-1,0", "--res", "50x30", "--spp", "1", "--tile", "16",
+    cli("bake", CLOUD, "--light-dir=-1,-1,0", "--res", "50x30", "--tile", "16",
         "--mipmap", "-o", out, "--quiet")
     image, camera = umbra.Volume(CLOUD).bake(light_dir=(-1, -1, 0), res=(50, 30))
     umbra.write_exr(tmp_path / "py.exr", image, camera, tile=16, mipmap=True)

@@ -32,8 +32,7 @@ def load(path):
 
 
 def cli_deep(cli, src, out, *flags):
-    spp = [] if "--spp" in flags else ["--spp", "1"]  # the Python default (the CLI's is 64)
-    _, stdout, _ = cli("bake", src, *flags, *spp, "--deep", "-o", out, "--json", "--quiet")
+    _, stdout, _ = cli("bake", src, *flags, "--deep", "-o", out, "--json", "--quiet")
     return json.loads(stdout)
 
 

@@ -36,6 +36,7 @@ __all__ = [
     "FileError",
     "InvalidArgument",
     "Volume",
+    "bake",
     "estimators",
     "info",
     "run_job",
@@ -88,6 +89,38 @@ def _vec3(name: str, v: Any) -> Optional[Tuple[float, float, float]]:
     if arr.shape != (3,) or not np.isfinite(arr).all():
         raise _invalid(name, f"expected three finite numbers, got {v!r}")
     return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, np.generic):
+        return v.item()
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    if isinstance(v, os.PathLike):
+        return os.fspath(v)
+    raise TypeError(f"{v!r} is not a number, a string, a path or a sequence of them")
+
+
+def _options(**kw: Any) -> str:
+    """Bake options as the library reads them (JSON text): the keywords by their canonical
+    names (a keyword left at ``None`` takes the library's default). The library checks every
+    value and names the keyword that is wrong."""
+    given = {k: v for k, v in kw.items() if v is not None}
+    for k, v in given.items():
+        try:
+            json.dumps(v, default=_jsonable, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise _invalid(k, f"{v!r}: {e}") from None
+    return json.dumps(given, default=_jsonable, allow_nan=False)
+
+
+def _alias(canonical: str, value: Any, alias: str, alias_value: Any, default: Any) -> Any:
+    """``value``, or the older spelling's ``alias_value`` when only that was given."""
+    if alias_value is None:
+        return value
+    if value != default and value != alias_value:
+        raise _invalid(alias, f"is another name of {canonical}: give one of them")
+    return alias_value
 
 
 def _count(name: str, v: Any) -> int:
@@ -148,57 +181,6 @@ def _finish(t: np.ndarray, err: np.ndarray, return_stderr: bool):
     return (t, err) if return_stderr else t
 
 
-def _view(
-    light_dir: Any,
-    light_pos: Any,
-    ortho: Any,
-    fov: Any,
-    up: Any,
-    frame_box: Any,
-    res: Any,
-    camera: Any,
-) -> Tuple[Any, ...]:
-    """A map's camera request (what :meth:`Volume.bake` and :meth:`Volume.write_deep_map`
-    take), checked and converted: the native calls' leading arguments."""
-    if res is None:
-        r = None
-    elif isinstance(res, (int, np.integer)) and not isinstance(res, bool):
-        r = (_count("res", res), 0)
-    elif isinstance(res, (tuple, list)) and len(res) == 2:
-        r = (_count("res", res[0]), _count("res", res[1]))
-        if r[1] == 0:
-            raise _invalid("res", "a width and a height of at least 1 pixel")
-    else:
-        raise _invalid("res", f"expected (W, H) or N, got {res!r}")
-    if r is not None and max(r) >= 2**32:
-        raise _invalid("res", f"{res!r} is out of range")
-    fb = None
-    if frame_box is not None:
-        try:
-            b = np.asarray(frame_box, dtype=np.float64)
-        except (TypeError, ValueError):
-            b = None
-        if b is None or b.shape != (2, 3):
-            raise _invalid("frame_box", "expected [[x0, y0, z0], [x1, y1, z1]]")
-        fb = (tuple(map(float, b[0])), tuple(map(float, b[1])))
-    cam_json = cam_path = None
-    if isinstance(camera, dict):
-        cam_json = json.dumps(camera)
-    elif camera is not None:
-        cam_path = _path("camera", camera)
-    return (
-        _vec3("light_dir", light_dir),
-        _vec3("light_pos", light_pos),
-        bool(ortho),
-        None if fov is None else float(fov),
-        _vec3("up", up),
-        fb,
-        r,
-        cam_json,
-        cam_path,
-    )
-
-
 def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]:
     """What ``umbra info --json PATH`` reports, one dict per grid (every grid, or only
     ``grid``): name, type, class, voxel size, transform, index and world boxes, active voxels,
@@ -250,6 +232,91 @@ def run_job(
         _path("path", path), task, shard, bool(force), log_path, _count("jobs", jobs), progress
     )
     return json.loads(report)
+
+
+def bake(
+    input: PathLike,
+    output: PathLike,
+    *,
+    grid: str = "density",
+    light_dir: Optional[Vec3] = None,
+    light_pos: Optional[Vec3] = None,
+    ortho: bool = False,
+    fov: Optional[float] = None,
+    up: Optional[Vec3] = None,
+    frame_box: Any = None,
+    xform: Any = None,
+    camera: Union[None, Dict[str, Any], PathLike] = None,
+    res: Union[None, int, str, Tuple[int, int]] = None,
+    tile: Optional[int] = None,
+    mipmap: bool = False,
+    deep: bool = False,
+    deep_error: Optional[float] = None,
+    out_grid: Optional[str] = None,
+    half: bool = False,
+    preview: Optional[PathLike] = None,
+    slices: Optional[int] = None,
+    depths: Optional[Sequence[float]] = None,
+    stderr: bool = False,
+    target_error: Optional[float] = None,
+    max_spp: int = 65536,
+    interp: str = "trilinear",
+    density_scale: float = 1.0,
+    sigma_t: Optional[Vec3] = None,
+    levelset: Optional[str] = None,
+    estimator: str = "regular",
+    samples: int = 64,
+    seed: int = 0,
+    step: Optional[float] = None,
+    kernel: Optional[float] = None,
+    points: Optional[float] = None,
+    granularity: str = "leaf",
+    global_majorant: bool = False,
+    threads: int = 0,
+    max_memory: Union[None, int, str] = None,
+    force: bool = False,
+    spp: Optional[int] = None,
+    overwrite: Optional[bool] = None,
+) -> Dict[str, Any]:
+    """Bake ``input`` (a ``.vdb`` file or a ``.toml`` scene) to ``output`` exactly as
+    ``umbra bake INPUT -o OUTPUT ...`` does, byte for byte: an OpenEXR map (flat, tiled with
+    ``tile``/``mipmap``, deep with ``deep``/``deep_error``, with ``slices``/``depths`` and
+    ``stderr`` channels, RGB with ``sigma_t`` or a scene's colours), or, for an output ending in
+    ``.vdb``, a transmittance volume (``out_grid``, ``half``).
+
+    Every keyword is the command line's long flag with ``_`` for ``-`` (``--deep-error`` is
+    ``deep_error``), with the same default and the same checks (a batch job's ``[bake]`` keys
+    are the same names; ``umbra batch --schema`` describes them). ``spp`` and ``overwrite`` are
+    older names of ``samples`` and ``force``. ``max_memory`` takes bytes or text such as
+    ``"512M"``. Outputs are written atomically; an existing output is a :class:`FileError`
+    unless ``force``.
+
+    Returns what ``--json`` reports about the product: a map's camera dict (with ``deep``, the
+    deep map's statistics, for a deep map), or a transmittance volume's statistics
+    (``voxels``, ``T_min``, ``T_max``, ``T_mean``, ...). Warnings (bad voxels, a camera that
+    misses part of the volume) are Python warnings.
+    """
+    samples = _alias("samples", samples, "spp", spp, 64)
+    force = _alias("force", force, "overwrite", overwrite, False)
+    if isinstance(max_memory, (int, np.integer)) and not isinstance(max_memory, bool):
+        max_memory = str(int(max_memory))
+    summary, warns = _umbra.bake_file(
+        _path("input", input),
+        _path("output", output),
+        _options(
+            grid=grid, light_dir=light_dir, light_pos=light_pos, ortho=ortho, fov=fov, up=up,
+            frame_box=frame_box, xform=xform, camera=camera, res=res, tile=tile,
+            mipmap=mipmap, deep=deep, deep_error=deep_error, out_grid=out_grid, half=half,
+            preview=preview, slices=slices, depths=depths, stderr=stderr,
+            target_error=target_error, max_spp=max_spp, interp=interp,
+            density_scale=density_scale, sigma_t=sigma_t, levelset=levelset,
+            estimator=estimator, samples=samples, seed=seed, step=step, kernel=kernel,
+            points=points, granularity=granularity, global_majorant=global_majorant,
+            threads=threads, max_memory=max_memory, force=force,
+        ),
+    )
+    _warn(warns)
+    return json.loads(summary)
 
 
 def estimators() -> List[Dict[str, Any]]:
@@ -499,7 +566,7 @@ class Volume:
         light_pos: Optional[Vec3] = None,
         *,
         estimator: str = "regular",
-        samples: int = 1,
+        samples: int = 64,
         seed: int = 0,
         threads: int = 0,
         step: Optional[float] = None,
@@ -524,13 +591,10 @@ class Volume:
         applied to ``ijk``. A scene is refused (a transmittance volume is made from one grid).
         """
         ijk, t, stats, warns = self._v.transmittance_volume(
-            _vec3("light_dir", light_dir),
-            _vec3("light_pos", light_pos),
-            str(estimator),
-            _params(step, kernel, points),
-            _count("samples", samples),
-            _count("seed", seed),
-            _count("threads", threads),
+            _options(
+                light_dir=light_dir, light_pos=light_pos, estimator=estimator, samples=samples,
+                seed=seed, threads=threads, step=step, kernel=kernel, points=points,
+            )
         )
         _warn(warns)
         return ijk, t, json.loads(stats)
@@ -541,40 +605,39 @@ class Volume:
         light_dir: Optional[Vec3] = None,
         light_pos: Optional[Vec3] = None,
         *,
-        grid: str = "transmittance",
+        out_grid: str = "transmittance",
         half: bool = False,
-        overwrite: bool = False,
+        force: bool = False,
         estimator: str = "regular",
-        samples: int = 1,
+        samples: int = 64,
         seed: int = 0,
         threads: int = 0,
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        grid: Optional[str] = None,
+        overwrite: Optional[bool] = None,
     ) -> Dict[str, Any]:
         """Write :meth:`transmittance_volume` as the ``.vdb`` file ``umbra bake FILE ... -o
-        PATH`` writes for this volume, byte for byte: one float grid named ``grid``
+        PATH`` writes for this volume, byte for byte: one float grid named ``out_grid``
         (``--out-grid``) with the density's active voxels, background 1, the volume's
         transform (``xform`` included), ``umbra:*`` metadata naming the light, the estimator
         and the source file as this Volume was given it; ``half=True`` stores 16-bit floats
         (``--half``). The file is written atomically; an existing file is a
-        :class:`FileError` unless ``overwrite``. Returns the stats dict of
-        :meth:`transmittance_volume`.
+        :class:`FileError` unless ``force``. ``grid`` and ``overwrite`` are older names of
+        ``out_grid`` and ``force``. Returns the stats dict of :meth:`transmittance_volume`.
         """
-        if not isinstance(grid, str):
-            raise _invalid("grid", f"expected a grid name, got {grid!r}")
+        out_grid = _alias("out_grid", out_grid, "grid", grid, "transmittance")
+        force = _alias("force", force, "overwrite", overwrite, False)
+        if not isinstance(out_grid, str):
+            raise _invalid("out_grid", f"expected a grid name, got {out_grid!r}")
         stats, warns = self._v.write_transmittance_volume(
             _path("path", path),
-            _vec3("light_dir", light_dir),
-            _vec3("light_pos", light_pos),
-            grid,
-            bool(half),
-            bool(overwrite),
-            str(estimator),
-            _params(step, kernel, points),
-            _count("samples", samples),
-            _count("seed", seed),
-            _count("threads", threads),
+            _options(
+                light_dir=light_dir, light_pos=light_pos, out_grid=out_grid, half=half,
+                force=force, estimator=estimator, samples=samples, seed=seed, threads=threads,
+                step=step, kernel=kernel, points=points,
+            ),
         )
         _warn(warns)
         return json.loads(stats)
@@ -585,7 +648,7 @@ class Volume:
         light_pos: Optional[Vec3] = None,
         res: Union[None, int, Tuple[int, int]] = None,
         estimator: str = "regular",
-        spp: int = 1,
+        samples: int = 64,
         seed: int = 0,
         up: Optional[Vec3] = None,
         *,
@@ -595,39 +658,47 @@ class Volume:
         camera: Union[None, Dict[str, Any], PathLike] = None,
         target_error: Optional[float] = None,
         max_spp: int = 65536,
-        return_stderr: bool = False,
+        stderr: bool = False,
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
         threads: int = 0,
+        spp: Optional[int] = None,
+        return_stderr: Optional[bool] = None,
     ):
         """A transmittance (shadow) map seen from the light, as ``umbra bake`` makes it.
 
-        ``light_dir``: an orthographic map along the direction the light travels, framing the
-        volume; ``light_pos``: a perspective map from the light (``ortho=True``: an
-        orthographic one whose image plane passes through it; ``fov`` in degrees across the
-        long side). ``res``: ``(W, H)``, or ``N`` pixels on the long side (default 1024).
-        ``up``: the world direction up in the map. ``frame_box``: frame this world box
-        ``[[x0, y0, z0], [x1, y1, z1]]`` instead of the volume's. ``camera``: reuse exactly an
-        earlier map's camera (its dict, or the path of its EXR or JSON), so maps of a sequence
-        line up pixel for pixel. ``target_error``/``max_spp``: adaptive sampling.
+        The keywords are :func:`umbra.bake`'s (``umbra bake``'s flags with ``_`` for ``-``,
+        the same defaults and checks); the file, grid, density scale, interpolation and
+        ``xform`` are this Volume's. ``light_dir``: an orthographic map along the direction the
+        light travels, framing the volume; ``light_pos``: a perspective map from the light
+        (``ortho=True``: an orthographic one whose image plane passes through it; ``fov`` in
+        degrees across the long side). ``res``: ``(W, H)``, or ``N`` pixels on the long side
+        (default 1024). ``up``: the world direction up in the map. ``frame_box``: frame this
+        world box ``[[x0, y0, z0], [x1, y1, z1]]`` instead of the volume's. ``camera``: reuse
+        exactly an earlier map's camera (its dict, or the path of its EXR or JSON), so maps of
+        a sequence line up pixel for pixel. ``target_error``/``max_spp``: adaptive sampling.
+        ``spp`` and ``return_stderr`` are older names of ``samples`` and ``stderr``.
 
         Returns ``(image, camera)``: an (H, W) float32 array of T (row 0 the top row, as in the
         EXR; (H, W, 3) for an RGB scene) and the camera dict ``umbra bake --json`` prints
         (the camera, the light, the estimator and its settings; :func:`write_exr` takes it
-        back). With ``return_stderr``: ``(image, stderr, camera)``.
+        back). With ``stderr``: ``(image, stderr, camera)``.
         """
+        samples = _alias("samples", samples, "spp", spp, 64)
+        stderr = _alias("stderr", stderr, "return_stderr", return_stderr, False)
         out = self._v.bake(
-            *_view(light_dir, light_pos, ortho, fov, up, frame_box, res, camera),
-            str(estimator),
-            _params(step, kernel, points),
-            _count("spp", spp),
-            _count("seed", seed),
-            None if target_error is None else float(target_error),
-            _count("max_spp", max_spp),
-            bool(return_stderr),
-            _count("threads", threads),
+            _options(
+                light_dir=light_dir, light_pos=light_pos, res=res, estimator=estimator,
+                samples=samples, seed=seed, up=up, ortho=ortho, fov=fov, frame_box=frame_box,
+                camera=camera, target_error=target_error, max_spp=max_spp, stderr=stderr,
+                step=step, kernel=kernel, points=points, granularity=granularity,
+                global_majorant=global_majorant, threads=threads,
+            )
         )
+        return_stderr = bool(stderr)
         t, e, summary, warns = out
         _warn(warns)
         cam = json.loads(summary)
@@ -649,7 +720,7 @@ class Volume:
         light_pos: Optional[Vec3] = None,
         res: Union[None, int, Tuple[int, int]] = None,
         estimator: str = "regular",
-        spp: int = 1,
+        samples: int = 64,
         seed: int = 0,
         up: Optional[Vec3] = None,
         *,
@@ -658,11 +729,15 @@ class Volume:
         frame_box: Any = None,
         camera: Union[None, Dict[str, Any], PathLike] = None,
         deep_error: float = 0.002,
-        overwrite: bool = False,
+        force: bool = False,
         threads: int = 0,
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
+        spp: Optional[int] = None,
+        overwrite: Optional[bool] = None,
     ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
         """Write a deep shadow map: the deep OpenEXR file ``umbra bake FILE ... --deep
         [--deep-error E] -o PATH`` writes for this volume, byte for byte. Per pixel it holds
@@ -670,28 +745,26 @@ class Volume:
         ``A``/``Z``/``ZBack``; ``AR``/``AG``/``AB`` and ``A`` for an RGB scene), within
         ``deep_error`` in T at every depth (``--deep-error``, between 0 and 1).
 
-        The camera arguments are :meth:`bake`'s (``camera=`` reuses an earlier map's camera,
+        The other keywords are :meth:`bake`'s (``camera=`` reuses an earlier map's camera,
         and :meth:`bake` takes the camera dict returned here). The file is written atomically;
-        an existing file is a :class:`FileError` unless ``overwrite``.
+        an existing file is a :class:`FileError` unless ``force`` (older name ``overwrite``).
 
         Returns ``(camera, deep)``: the camera dict :meth:`bake` returns, and the ``deep``
         object of ``umbra bake --deep --json`` (``max_error``, ``samples``,
         ``mean_samples_per_pixel``, ``max_samples_per_pixel``, ``empty_pixels``,
         ``profile_breakpoints``, ``coarse_cells``, ``seconds``).
         """
-        number = (int, float, np.integer, np.floating)
-        if isinstance(deep_error, bool) or not isinstance(deep_error, number):
-            raise _invalid("deep_error", f"expected a number, got {deep_error!r}")
+        samples = _alias("samples", samples, "spp", spp, 64)
+        force = _alias("force", force, "overwrite", overwrite, False)
         summary, deep, warns = self._v.write_deep_map(
             _path("path", path),
-            *_view(light_dir, light_pos, ortho, fov, up, frame_box, res, camera),
-            str(estimator),
-            _params(step, kernel, points),
-            _count("spp", spp),
-            _count("seed", seed),
-            float(deep_error),
-            bool(overwrite),
-            _count("threads", threads),
+            _options(
+                light_dir=light_dir, light_pos=light_pos, res=res, estimator=estimator,
+                samples=samples, seed=seed, up=up, ortho=ortho, fov=fov, frame_box=frame_box,
+                camera=camera, deep_error=deep_error, force=force, threads=threads,
+                step=step, kernel=kernel, points=points, granularity=granularity,
+                global_majorant=global_majorant,
+            ),
         )
         _warn(warns)
         return json.loads(summary), json.loads(deep)

@@ -112,6 +112,26 @@ impl std::str::FromStr for Resolution {
     }
 }
 
+/// As data: `N`, `[W, H]` or `"WxH"` / `"N"`.
+#[cfg(feature = "schema")]
+impl schemars::JsonSchema for Resolution {
+    fn schema_name() -> std::borrow::Cow<'static, str> {
+        "Resolution".into()
+    }
+
+    fn json_schema(_: &mut schemars::SchemaGenerator) -> schemars::Schema {
+        schemars::json_schema!({
+            "description": "N pixels on the long side, [W, H], or the command line's \"WxH\" / \"N\"",
+            "oneOf": [
+                {"type": "integer", "minimum": 1},
+                {"type": "array", "items": {"type": "integer", "minimum": 1},
+                 "minItems": 2, "maxItems": 2},
+                {"type": "string", "pattern": "^\\s*[0-9]+\\s*([xX]\\s*[0-9]+\\s*)?$"}
+            ]
+        })
+    }
+}
+
 impl<'de> serde::Deserialize<'de> for Resolution {
     fn deserialize<D: serde::Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
         struct V;

@@ -90,11 +90,7 @@ impl BakeSettings {
     /// # Errors
     /// [`Error::InvalidArgument`] naming the setting.
     pub fn validate(&self) -> Result<()> {
-        // A bake calls the samples per pixel `spp`.
-        self.options.validate().map_err(|e| match e {
-            Error::InvalidArgument { name, reason } if name == "samples" => bad("spp", reason),
-            other => other,
-        })?;
+        self.options.validate()?;
         if let Some(e) = self.target_error {
             if !(e.is_finite() && e > 0.0) {
                 return Err(bad("target-error", format!("{e} is not a positive number")));

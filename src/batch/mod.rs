@@ -54,12 +54,9 @@
 mod runner;
 pub use runner::{run, Progress, RunOptions, RunReport, Silent};
 
-use crate::bake::{
-    BakeJob, BakeReport, BakeSettings, Camera, Depths, Projection, Resolution, View,
-};
-use crate::estimate::{Estimator, Options};
-use crate::traverse::Granularity;
-use crate::Interp;
+use crate::bake::{BakeJob, BakeReport, Camera, Resolution};
+pub use crate::request::Framing;
+use crate::request::{BakeOptions, BakePlan, BakeRequest};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -118,32 +115,44 @@ pub fn panic_message(payload: &(dyn std::any::Any + Send)) -> String {
     }
 }
 
-/// The job file as written.
+/// The job file as written. Its JSON Schema ([`job_schema`], `umbra batch --schema`) is
+/// generated from this type.
 #[derive(Debug, Clone, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct JobFile {
-    /// Grid to bake in every input.
-    #[serde(default = "default_grid")]
-    pub grid: String,
-    /// Output path pattern.
+    /// Grid to bake in every input (default `density`; or `grid` in `[bake]`).
+    pub grid: Option<String>,
+    /// Output path pattern: `{light}`, `{stem}`, `{frame}`, `{frame:0N}`; ending in `.vdb`,
+    /// transmittance volumes, else EXR maps.
     pub output: String,
     /// JSON-lines log (default: `umbra_batch.jsonl` in the first output's directory).
     pub log: Option<String>,
     /// Inputs, in order.
     pub inputs: Vec<InputSpec>,
-    /// Lights, in order.
-    pub lights: Vec<LightSpec>,
-    /// Bake settings.
+    /// Lights, in order (or one light as `light_dir` / `light_pos` in `[bake]`).
     #[serde(default)]
-    pub bake: BakeSpec,
+    pub lights: Vec<LightSpec>,
+    /// The options of every bake: `umbra bake`'s, with the same names (`_` for `-`) and
+    /// defaults ([`BakeOptions`]), plus `framing`.
+    #[serde(default)]
+    pub bake: BakeOptions,
 }
 
-fn default_grid() -> String {
-    "density".into()
+/// The JSON Schema (draft 2020-12) of job files, generated from [`JobFile`] and
+/// [`BakeOptions`]: what `umbra batch --schema` prints.
+#[cfg(feature = "schema")]
+#[must_use]
+pub fn job_schema() -> serde_json::Value {
+    let schema = schemars::generate::SchemaSettings::draft2020_12()
+        .into_generator()
+        .into_root_schema_for::<JobFile>();
+    serde_json::to_value(schema).unwrap_or_default()
 }
 
 /// One `[[inputs]]` entry: `file`, or `pattern` with `frames`.
 #[derive(Debug, Clone, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct InputSpec {
     /// An explicit file.
@@ -158,128 +167,16 @@ pub struct InputSpec {
 
 /// One `[[lights]]` entry.
 #[derive(Debug, Clone, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct LightSpec {
     /// Name used by `{light}`.
     pub name: String,
-    /// Direction the light travels (directional light, orthographic map).
+    /// Direction the light travels (directional light, orthographic map; with `pos`, where a
+    /// perspective map from the light looks), as `umbra bake --light-dir`.
     pub dir: Option<[f64; 3]>,
-    /// Light position (point light, perspective map).
+    /// Light position (point light, perspective map), as `umbra bake --light-pos`.
     pub pos: Option<[f64; 3]>,
-}
-
-/// The `[bake]` table: every option of `umbra bake`, with the same names (`_` for `-`).
-#[derive(Debug, Clone, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct BakeSpec {
-    /// `[width, height]`, or `N` for N pixels on the long side (default: 1024 on the long
-    /// side).
-    pub res: Option<Resolution>,
-    /// Estimator name (as `umbra bake --estimator`).
-    pub estimator: String,
-    /// Samples per pixel (stochastic estimators).
-    pub spp: u32,
-    /// Seed of the random streams.
-    pub seed: u64,
-    /// `mu_t = density_scale x value`.
-    pub density_scale: f64,
-    /// `nearest` or `trilinear`.
-    pub interp: String,
-    /// Ray-marching step in voxels (estimators with a `step` parameter).
-    pub step: Option<f64>,
-    /// Collision kernel width (estimators with a `kernel` parameter).
-    pub kernel: Option<f64>,
-    /// Points per optical-depth estimate (estimators with a `points` parameter).
-    pub points: Option<f64>,
-    /// HDDA majorant granularity: `leaf`, `lower`, `upper`.
-    pub granularity: String,
-    /// One grid-wide majorant (the naive baseline).
-    pub global_majorant: bool,
-    /// Adaptive sampling target error per pixel.
-    pub target_error: Option<f64>,
-    /// Cap on samples per pixel for adaptive sampling.
-    pub max_spp: u32,
-    /// K evenly spaced depth slices.
-    pub slices: Option<usize>,
-    /// Explicit slice depths (world distances along each ray).
-    pub depths: Option<Vec<f64>>,
-    /// Also write `T.stderr`.
-    pub stderr: bool,
-    /// Perspective field of view, degrees (point lights).
-    pub fov: Option<f64>,
-    /// Point lights: an orthographic map whose image plane passes through the light.
-    pub ortho: bool,
-    /// PNG preview path pattern (same placeholders as `output`).
-    pub preview: Option<String>,
-    /// The world direction that is up in the maps.
-    pub up: Option<[f64; 3]>,
-    /// Frame this world box `[lo, hi]` instead of the volume boxes.
-    pub frame_box: Option<[[f64; 3]; 2]>,
-    /// Reuse the camera of an earlier map (`.exr`) or `bake --json` summary (one light only).
-    pub camera: Option<String>,
-    /// `shared` (one camera per light for all inputs) or `per-frame`.
-    pub framing: String,
-    /// World-from-object transform of every input: 16 numbers, row-major.
-    pub xform: Option<Vec<f64>>,
-    /// Extinction colour `[r, g, b]`: RGB maps (`R`, `G`, `B`).
-    pub sigma_t: Option<[f64; 3]>,
-    /// `"solid"`: a level-set grid is traced as an opaque solid (otherwise refused).
-    pub levelset: Option<String>,
-    /// Memory budget of each task (`"512M"`, `"2G"`), as `umbra bake --max-memory`.
-    pub max_memory: Option<String>,
-    /// Tiled EXR maps with `tile x tile` tiles, as `umbra bake --tile`.
-    pub tile: Option<u32>,
-    /// Box-filtered mip levels (with `tile`), as `umbra bake --mipmap`.
-    pub mipmap: bool,
-    /// Deep maps, as `umbra bake --deep`.
-    pub deep: bool,
-    /// The deep maps' error bound in T, as `umbra bake --deep-error` (default 0.002).
-    pub deep_error: Option<f64>,
-    /// Transmittance volumes (an output pattern ending in `.vdb`): the written grid's name,
-    /// as `umbra bake --out-grid` (default `transmittance`).
-    pub out_grid: Option<String>,
-    /// Transmittance volumes: 16-bit half floats, as `umbra bake --half`.
-    pub half: bool,
-}
-
-impl Default for BakeSpec {
-    fn default() -> Self {
-        Self {
-            res: None,
-            estimator: "regular".into(),
-            spp: 64,
-            seed: 0,
-            density_scale: 1.0,
-            interp: "trilinear".into(),
-            step: None,
-            kernel: None,
-            points: None,
-            granularity: "leaf".into(),
-            global_majorant: false,
-            target_error: None,
-            max_spp: 65_536,
-            slices: None,
-            depths: None,
-            stderr: false,
-            fov: None,
-            ortho: false,
-            preview: None,
-            up: None,
-            frame_box: None,
-            camera: None,
-            framing: "shared".into(),
-            xform: None,
-            sigma_t: None,
-            levelset: None,
-            max_memory: None,
-            tile: None,
-            mipmap: false,
-            deep: false,
-            deep_error: None,
-            out_grid: None,
-            half: false,
-        }
-    }
 }
 
 /// The shared cameras of a job as its cache file stores them.
@@ -297,16 +194,6 @@ struct CachedCamera {
     camera: crate::bake::CameraParts,
 }
 
-/// How the maps of a job are framed.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Framing {
-    /// One camera per light, framing the union of every input's volume box.
-    Shared,
-    /// Each input framed on its own volume box.
-    PerFrame,
-}
-
 /// A validated job.
 #[derive(Debug, Clone)]
 pub struct Job {
@@ -318,39 +205,15 @@ pub struct Job {
     pub log: PathBuf,
     /// Tasks in order.
     pub tasks: Vec<Task>,
-    /// Bake settings of every task (`threads` is set per run).
-    pub settings: BakeSettings,
-    /// Resolution.
-    pub res: Option<Resolution>,
-    /// Perspective field of view (point lights).
-    pub fov_deg: Option<f64>,
-    /// Point lights bake orthographic maps through the light.
-    pub ortho: bool,
-    /// Density scale.
-    pub density_scale: f64,
-    /// The world direction that is up in the maps.
-    pub up: Option<[f64; 3]>,
-    /// The world box framed instead of the volume boxes.
-    pub frame_box: Option<[[f64; 3]; 2]>,
+    /// The `[bake]` options every task shares, checked: the grid, the lights, the camera, the
+    /// preview pattern and the framing are moved out into the job and its tasks.
+    pub options: BakeOptions,
     /// How maps are framed.
     pub framing: Framing,
     /// A fixed camera for every task (`bake.camera`).
     pub camera: Option<Camera>,
-    /// Where every input sits in the shot (`bake.xform`).
-    pub xform: Option<crate::xform::Xform>,
-    /// Extinction colour (`bake.sigma_t`).
-    pub sigma_t: Option<[f64; 3]>,
-    /// Level sets traced as solids (`bake.levelset = "solid"`).
-    pub levelset_solid: bool,
-    /// Each task's memory budget in bytes (`bake.max_memory`; see [`BakeJob::max_memory`]).
-    pub max_memory: Option<u64>,
-    /// The maps' EXR layout (`bake.tile`, `bake.mipmap`).
-    pub layout: crate::bake::ExrLayout,
-    /// Flat or deep maps (`bake.deep`, `bake.deep_error`).
-    pub product: crate::bake::Product,
-    /// Transmittance volumes instead of maps (an output pattern ending in `.vdb`): the written
-    /// grid's name and whether it is stored as half floats.
-    pub volume: Option<(String, bool)>,
+    /// Transmittance volumes instead of maps (an output pattern ending in `.vdb`).
+    pub volume: bool,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,
@@ -526,56 +389,32 @@ pub fn fill_output(
     Ok(out)
 }
 
-/// Whether the job writes transmittance volumes (its output pattern ends in `.vdb`), with
-/// the grid name and half flag; the map-only and volume-only keys checked against it.
-fn volume_output(path: &Path, file: &JobFile) -> Result<Option<(String, bool)>, BatchError> {
-    let b = &file.bake;
-    let vdb = Path::new(&file.output)
-        .extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("vdb"));
-    if !vdb {
-        if b.out_grid.is_some() || b.half {
-            let key = if b.half { "bake.half" } else { "bake.out_grid" };
-            return Err(err(
-                path,
-                key,
-                "applies to transmittance volumes (an output pattern ending in .vdb)",
-            ));
-        }
-        return Ok(None);
+/// The key (`bake.levelset`) whose value starts the line holding byte `at` of a job file: the
+/// text before `=` on that line, after the last `[table]` header above it. `None` for a line
+/// that is not `key = value`.
+fn key_at(text: &str, at: usize) -> Option<String> {
+    let start = text[..at].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    let bare = |k: &str| {
+        !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
+    };
+    if !bare(key) {
+        return None;
     }
-    let map_only = [
-        ("preview", b.preview.is_some()),
-        ("res", b.res.is_some()),
-        ("slices", b.slices.is_some()),
-        ("depths", b.depths.is_some()),
-        ("stderr", b.stderr),
-        ("tile", b.tile.is_some()),
-        ("mipmap", b.mipmap),
-        ("deep", b.deep || b.deep_error.is_some()),
-        ("target_error", b.target_error.is_some()),
-        ("sigma_t", b.sigma_t.is_some()),
-        ("camera", b.camera.is_some()),
-        ("fov", b.fov.is_some()),
-        ("ortho", b.ortho),
-        ("up", b.up.is_some()),
-        ("frame_box", b.frame_box.is_some()),
-        ("max_memory", b.max_memory.is_some()),
-        ("levelset", b.levelset.is_some()),
-    ];
-    if let Some((key, _)) = map_only.iter().find(|(_, set)| *set) {
-        return Err(err(
-            path,
-            &format!("bake.{key}"),
-            "applies to maps; an output pattern ending in .vdb writes transmittance volumes",
-        ));
-    }
-    let grid = b
-        .out_grid
-        .clone()
-        .unwrap_or_else(|| crate::bake::DEFAULT_OUT_GRID.to_string());
-    Ok(Some((grid, b.half)))
+    let table = text[..start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('['))
+        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+    Some(match table {
+        Some(t) if !t.is_empty() => format!("{t}.{key}"),
+        _ => key.to_string(),
+    })
 }
 
 /// Parse and validate a job file's text; `path` is the job file (relative paths in it are
@@ -591,7 +430,10 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 let before = &text[..r.start];
                 let line = before.matches('\n').count() + 1;
                 let column = r.start - before.rfind('\n').map_or(0, |i| i + 1) + 1;
-                format!("line {line}, column {column}: {}", e.message().trim())
+                let key = key_at(text, r.start)
+                    .map(|k| format!("{k}: "))
+                    .unwrap_or_default();
+                format!("line {line}, column {column}: {key}{}", e.message().trim())
             }
             _ => e.message().trim().to_string(),
         };
@@ -604,216 +446,58 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let resolve = |s: &str| base.join(s);
     let b = &file.bake;
-    let interp = match b.interp.as_str() {
-        "nearest" => Interp::Nearest,
-        "trilinear" => Interp::Trilinear,
-        other => {
+    // The grid: top level (the original place) or in [bake], once.
+    let grid = match (&file.grid, b.grid.as_str()) {
+        (Some(g), "density") => g.clone(),
+        (Some(_), _) => {
             return Err(err(
                 &path,
-                "bake.interp",
-                format!("'{other}': expected \"nearest\" or \"trilinear\""),
+                "bake.grid",
+                "the grid is given at the top level too: give it once",
             ))
         }
+        (None, g) => g.to_string(),
     };
-    let params: Vec<(&str, f64)> = [("step", b.step), ("kernel", b.kernel), ("points", b.points)]
-        .into_iter()
-        .filter_map(|(n, v)| v.map(|v| (n, v)))
-        .collect();
-    let estimator = Estimator::with_params(&b.estimator, &params).map_err(|e| match e {
-        crate::Error::InvalidArgument { name, reason } => {
-            let key = if name == "estimator" {
-                name
-            } else {
-                name.replace('-', "_")
-            };
-            err(&path, &format!("bake.{key}"), reason)
-        }
-        other => BatchError::Task(other),
-    })?;
-    let granularity = match b.granularity.as_str() {
-        "leaf" => Granularity::Leaf,
-        "lower" => Granularity::Lower,
-        "upper" => Granularity::Upper,
-        other => {
-            return Err(err(
-                &path,
-                "bake.granularity",
-                format!("'{other}': expected \"leaf\", \"lower\" or \"upper\""),
-            ))
-        }
-    };
-    let depths = match (b.slices, &b.depths) {
-        (Some(_), Some(_)) => {
-            return Err(err(&path, "bake.slices", "give slices or depths, not both"))
-        }
-        (Some(k), None) => Depths::Slices(k),
-        (None, Some(d)) => Depths::At(d.clone()),
-        (None, None) => Depths::None,
-    };
-    let settings = BakeSettings {
-        estimator,
-        options: Options {
-            interp,
-            samples: b.spp,
-            seed: b.seed,
-            granularity,
-            global_majorant: b.global_majorant,
-            ..Options::default()
-        },
-        target_error: b.target_error,
-        max_spp: b.max_spp,
-        depths,
-        std_err: b.stderr,
-        threads: 0,
-        order: crate::bake::Order::Auto,
-    };
-    settings.validate().map_err(|e| match e {
-        crate::Error::InvalidArgument { name, reason } => {
-            let key = if name == "samples" {
-                "spp".into()
-            } else {
-                name.replace('-', "_")
-            };
-            err(&path, &format!("bake.{key}"), reason)
-        }
-        other => BatchError::Task(other),
-    })?;
-    if let Some(f) = b.fov {
-        if !(f.is_finite() && f > 0.0 && f < 180.0) {
-            return Err(err(&path, "bake.fov", "must be in (0, 180) degrees"));
-        }
-    }
-    if !(b.density_scale.is_finite() && b.density_scale >= 0.0) {
-        return Err(err(
-            &path,
-            "bake.density_scale",
-            "must be a finite non-negative number",
-        ));
-    }
-    if let Some(r) = b.res {
-        r.check().map_err(|e| err(&path, "bake.res", e))?;
-    }
-    let framing = match b.framing.as_str() {
-        "shared" => Framing::Shared,
-        "per-frame" => Framing::PerFrame,
-        other => {
-            return Err(err(
-                &path,
-                "bake.framing",
-                format!("'{other}': expected \"shared\" or \"per-frame\""),
-            ))
-        }
-    };
-    if let Some(u) = b.up {
-        if !u.iter().all(|c| c.is_finite()) || u.iter().all(|&c| c == 0.0) {
-            return Err(err(&path, "bake.up", "must be finite and non-zero"));
-        }
-    }
-    if let Some(fb) = b.frame_box {
-        if !(0..3).all(|a| fb[0][a].is_finite() && fb[1][a].is_finite() && fb[0][a] < fb[1][a]) {
-            return Err(err(
-                &path,
-                "bake.frame_box",
-                "must be [[x0, y0, z0], [x1, y1, z1]], finite, with x0 < x1, y0 < y1, z0 < z1",
-            ));
-        }
-    }
-    if let Some(s) = b.sigma_t {
-        crate::scene::check_sigma(s).map_err(|e| match e {
-            crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.sigma_t", reason),
-            other => BatchError::Task(other),
-        })?;
-    }
-    let sigma_t = b.sigma_t;
-    let levelset_solid = match b.levelset.as_deref() {
-        None => false,
-        Some("solid") => true,
-        Some(other) => {
-            return Err(err(
-                &path,
-                "bake.levelset",
-                format!(
-                    "'{}': the only choice is \"solid\" (trace level sets as opaque solids)",
-                    crate::text::escape(other)
-                ),
-            ))
-        }
-    };
-    let max_memory = match &b.max_memory {
-        None => None,
-        Some(m) => Some(
-            crate::math::parse_bytes(m).map_err(|reason| err(&path, "bake.max_memory", reason))?,
-        ),
-    };
-    let layout = crate::bake::ExrLayout {
-        tile: b.tile,
-        mipmap: b.mipmap,
-    };
-    layout.validate().map_err(|e| match e {
-        crate::Error::InvalidArgument { name, reason } => {
-            err(&path, &format!("bake.{name}"), reason)
-        }
-        other => BatchError::Task(other),
-    })?;
-    let volume = volume_output(&path, &file)?;
-    let product = match (b.deep, b.deep_error) {
-        (false, Some(_)) => {
-            return Err(err(
-                &path,
-                "bake.deep_error",
-                "applies to deep maps: add deep = true",
-            ))
-        }
-        (false, None) => crate::bake::Product::Map,
-        (true, e) => {
-            let max_error = e.unwrap_or(crate::bake::DEFAULT_DEEP_ERROR);
-            crate::bake::check_deep_error(max_error).map_err(|e| match e {
-                crate::Error::InvalidArgument { reason, .. } => {
-                    err(&path, "bake.deep_error", reason)
-                }
-                other => BatchError::Task(other),
-            })?;
-            crate::bake::Product::Deep { max_error }
-        }
-    };
-    let xform = match &b.xform {
-        Some(v) => Some(crate::xform::Xform::from_row_major(v).map_err(|e| match e {
-            crate::Error::InvalidArgument { reason, .. } => err(&path, "bake.xform", reason),
-            other => BatchError::Task(other),
-        })?),
-        None => None,
-    };
-    let camera = match &b.camera {
-        Some(c) => {
-            if file.lights.len() > 1 {
-                return Err(err(
-                    &path,
-                    "bake.camera",
-                    "a fixed camera is one view: give one [[lights]] entry (it names the outputs)",
-                ));
-            }
-            if b.up.is_some() || b.frame_box.is_some() || b.fov.is_some() || b.ortho {
-                return Err(err(
-                    &path,
-                    "bake.camera",
-                    "fixes the whole camera: drop up, frame_box, fov and ortho",
-                ));
-            }
-            Some(
-                crate::bake::read_camera(&resolve(c), b.res)
-                    .map_err(|e| err(&path, "bake.camera", e))?,
-            )
-        }
-        None => None,
-    };
-    if file.grid.is_empty() {
+    if grid.is_empty() {
         return Err(err(&path, "grid", "must not be empty"));
     }
-    if file.lights.is_empty() {
-        return Err(err(&path, "lights", "give at least one [[lights]] entry"));
+    // The lights: [[lights]] entries, or one light in [bake].
+    let lights = match (file.lights.is_empty(), b.light_dir, b.light_pos) {
+        (true, None, None) => {
+            return Err(err(
+                &path,
+                "lights",
+                "give at least one [[lights]] entry, or light_dir / light_pos in [bake]",
+            ))
+        }
+        (true, dir, pos) => vec![LightSpec {
+            name: "light".into(),
+            dir,
+            pos,
+        }],
+        (false, None, None) => file.lights.clone(),
+        (false, ..) => {
+            let key = if b.light_dir.is_some() {
+                "bake.light_dir"
+            } else {
+                "bake.light_pos"
+            };
+            return Err(err(
+                &path,
+                key,
+                "the lights are given as [[lights]] too: give them in one place",
+            ));
+        }
+    };
+    if b.camera.is_some() && lights.len() > 1 {
+        return Err(err(
+            &path,
+            "bake.camera",
+            "a fixed camera is one view: give one [[lights]] entry (it names the outputs)",
+        ));
     }
     let mut names = std::collections::HashSet::new();
-    for (i, l) in file.lights.iter().enumerate() {
+    for (i, l) in lights.iter().enumerate() {
         let key = |k: &str| format!("lights[{i}].{k}");
         if l.name.is_empty()
             || l.name == "."
@@ -842,21 +526,16 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                     "give dir = [x, y, z] (directional) or pos = [x, y, z] (point)",
                 ))
             }
-            (Some(_), Some(_)) => {
-                return Err(err(
-                    &path,
-                    &format!("lights[{i}]"),
-                    "give dir or pos, not both",
-                ))
-            }
-            (Some(d), None) => {
-                if !d.iter().all(|c| c.is_finite()) || d.iter().all(|&c| c == 0.0) {
-                    return Err(err(&path, &key("dir"), "must be finite and non-zero"));
+            (dir, pos) => {
+                if let Some(d) = dir {
+                    if !d.iter().all(|c| c.is_finite()) || d.iter().all(|&c| c == 0.0) {
+                        return Err(err(&path, &key("dir"), "must be finite and non-zero"));
+                    }
                 }
-            }
-            (None, Some(p)) => {
-                if !p.iter().all(|c| c.is_finite()) {
-                    return Err(err(&path, &key("pos"), "must be finite"));
+                if let Some(p) = pos {
+                    if !p.iter().all(|c| c.is_finite()) {
+                        return Err(err(&path, &key("pos"), "must be finite"));
+                    }
                 }
             }
         }
@@ -938,7 +617,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             }
         }
     }
-    if file.lights.len() > 1 && !file.output.contains("{light}") {
+    if lights.len() > 1 && !file.output.contains("{light}") {
         return Err(err(
             &path,
             "output",
@@ -952,13 +631,13 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
-        for l in &file.lights {
+        for l in &lights {
             let out = fill_output(&file.output, &l.name, &stem, *frame)
                 .map_err(|e| err(&path, "output", e))?;
             let output = normalise(&resolve(&out));
             let preview = match &b.preview {
                 Some(p) => Some(normalise(&resolve(
-                    &fill_output(p, &l.name, &stem, *frame)
+                    &fill_output(&p.to_string_lossy(), &l.name, &stem, *frame)
                         .map_err(|e| err(&path, "bake.preview", e))?,
                 ))),
                 None => None,
@@ -998,26 +677,52 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             .map(|d| d.join("umbra_batch.jsonl"))
             .unwrap_or_else(|| PathBuf::from("umbra_batch.jsonl")),
     };
+    // Check the options once, as task 0 would run them; keep what every task shares.
+    let mut options = b.clone();
+    options.grid.clone_from(&grid);
+    options.light_dir = None;
+    options.light_pos = None;
+    options.preview = None;
+    let framing = options.framing.take().unwrap_or_default();
+    if let Some(crate::request::CameraSource::File(c)) = &mut options.camera {
+        *c = resolve(&c.to_string_lossy());
+    }
+    let first = &tasks[0];
+    let mut template = options.clone();
+    template.preview.clone_from(&first.preview);
+    if template.camera.is_none() {
+        template.light_dir = first.dir;
+        template.light_pos = first.pos;
+    }
+    let plan = BakeRequest {
+        input: first.input.clone(),
+        output: first.output.clone(),
+        options: template,
+    }
+    .plan()
+    .map_err(|e| match e {
+        crate::Error::InvalidArgument { name, reason } => {
+            let key = match name.as_str() {
+                "output" => "output".to_string(),
+                n => format!("bake.{}", n.replace('-', "_")),
+            };
+            err(&path, &key, reason)
+        }
+        other => err(&path, "bake.camera", other),
+    })?;
+    let (volume, camera) = match plan {
+        BakePlan::Map(j) => (false, j.camera),
+        BakePlan::Volume(_) => (true, None),
+    };
+    options.camera = None;
     Ok(Job {
         path,
-        grid: file.grid,
+        grid,
         log,
         tasks,
-        settings,
-        res: b.res,
-        fov_deg: b.fov,
-        ortho: b.ortho,
-        density_scale: b.density_scale,
-        up: b.up,
-        frame_box: b.frame_box,
+        options,
         framing,
         camera,
-        xform,
-        sigma_t,
-        levelset_solid,
-        max_memory,
-        layout,
-        product,
         volume,
         shared: std::sync::OnceLock::new(),
     })
@@ -1091,51 +796,54 @@ pub fn up_to_date(task: &Task) -> bool {
 }
 
 impl Job {
-    /// The bake of one task, as `umbra bake` would run it.
+    /// The request of one task, as `umbra bake INPUT ... -o OUTPUT` would make it: the job's
+    /// options with the task's light, preview and `threads`.
     #[must_use]
-    pub fn bake_job(&self, task: &Task, threads: usize) -> BakeJob {
-        BakeJob {
-            view: self.view(task),
-            camera: self.camera.or_else(|| {
+    pub fn request(&self, task: &Task, threads: usize) -> BakeRequest {
+        let mut options = self.options.clone();
+        // With a fixed camera the light only names the outputs: the plan frames a view from it
+        // that the fixed camera then replaces.
+        options.light_dir = task.dir;
+        options.light_pos = task.pos;
+        options.preview.clone_from(&task.preview);
+        options.threads = threads;
+        options.force = true;
+        BakeRequest {
+            input: task.input.clone(),
+            output: task.output.clone(),
+            options,
+        }
+    }
+
+    /// The plan of one task ([`Job::request`]), with the job's fixed or shared camera.
+    ///
+    /// # Errors
+    /// [`BatchError::Task`] when the task cannot be planned (the job's options were checked on
+    /// task 0, so only a reused camera that became unreadable).
+    pub fn plan(&self, task: &Task, threads: usize) -> Result<BakePlan, BatchError> {
+        let mut plan = self.request(task, threads).plan()?;
+        if let BakePlan::Map(j) = &mut plan {
+            j.camera = self.camera.or_else(|| {
                 self.shared
                     .get()
                     .and_then(|m| m.get(&(task.sequence, task.light.clone())))
                     .copied()
-            }),
-            input: task.input.clone(),
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            xform: self.xform,
-            sigma_t: self.sigma_t,
-            levelset_solid: self.levelset_solid,
-            settings: BakeSettings {
-                threads,
-                ..self.settings.clone()
-            },
-            output: task.output.clone(),
-            preview: task.preview.clone(),
-            overwrite: true,
-            max_memory: self.max_memory,
-            layout: self.layout,
-            product: self.product,
+            });
         }
+        Ok(plan)
     }
 
-    /// The camera request of a task's light (framing its own input, or the shared box).
-    fn view(&self, task: &Task) -> View {
-        let perspective = task.pos.is_some() && !self.ortho;
-        View {
-            projection: if perspective {
-                Projection::Perspective
-            } else {
-                Projection::Ortho
-            },
-            light_dir: task.dir,
-            light_pos: task.pos,
-            fov_deg: if perspective { self.fov_deg } else { None },
-            res: self.res,
-            up: self.up,
-            frame_box: self.frame_box,
+    /// The bake of one task's map, as `umbra bake` would run it.
+    ///
+    /// # Errors
+    /// As [`Job::plan`]; [`BatchError::Task`] for a job of transmittance volumes.
+    pub fn bake_job(&self, task: &Task, threads: usize) -> Result<BakeJob, BatchError> {
+        match self.plan(task, threads)? {
+            BakePlan::Map(j) => Ok(*j),
+            BakePlan::Volume(_) => Err(BatchError::Task(crate::Error::InvalidArgument {
+                name: "output".into(),
+                reason: "this job writes transmittance volumes, not maps".into(),
+            })),
         }
     }
 
@@ -1172,10 +880,11 @@ impl Job {
     pub fn scene_options(&self) -> crate::scene::SceneOptions {
         crate::scene::SceneOptions {
             grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            sigma_t: self.sigma_t,
-            xform: self.xform,
-            levelset_solid: self.levelset_solid,
+            density_scale: self.options.density_scale,
+            sigma_t: self.options.sigma_t,
+            // Checked when the job was parsed.
+            xform: self.options.xform().ok().flatten(),
+            levelset_solid: self.options.levelset == Some(crate::request::LevelSet::Solid),
         }
     }
 
@@ -1192,7 +901,7 @@ impl Job {
     /// [`BatchError::Task`] naming the input that cannot be read; [`BatchError::Invalid`]
     /// naming a light that cannot frame the union (for example a light inside it).
     pub fn share_cameras(&self) -> Result<(), BatchError> {
-        if self.framing != Framing::Shared || self.camera.is_some() {
+        if self.framing != Framing::Shared || self.camera.is_some() || self.volume {
             return Ok(());
         }
         let mut shared = std::collections::BTreeMap::new();
@@ -1227,7 +936,8 @@ impl Job {
                 if let std::collections::btree_map::Entry::Vacant(e) =
                     shared.entry((sequence, t.light.clone()))
                 {
-                    let camera = Camera::frame(&self.view(t), &union).map_err(|e| {
+                    let view = self.bake_job(t, 0)?.view;
+                    let camera = Camera::frame(&view, &union).map_err(|e| {
                         err(
                             &self.path,
                             &format!("lights '{}'", t.light),
@@ -1256,7 +966,7 @@ impl Job {
     pub fn share_cameras_cached(&self, cache: &Path) -> Result<bool, BatchError> {
         if self.framing != Framing::Shared
             || self.camera.is_some()
-            || self.volume.is_some()
+            || self.volume
             || self.shared.get().is_some()
         {
             return Ok(false);
@@ -1301,15 +1011,16 @@ impl Job {
             .iter()
             .map(|t| (t.sequence, &t.input, &t.light, t.dir, t.pos))
             .collect();
+        let o = &self.options;
         serde_json::json!({
             "version": 1,
             "grid": self.grid,
-            "res": self.res,
-            "fov_deg": self.fov_deg,
-            "ortho": self.ortho,
-            "up": self.up,
-            "frame_box": self.frame_box,
-            "xform": self.xform.map(|x| x.rows()),
+            "res": o.res,
+            "fov_deg": o.fov,
+            "ortho": o.ortho,
+            "up": o.up,
+            "frame_box": o.frame_box,
+            "xform": o.xform,
             "tasks": tasks,
         })
         .to_string()
@@ -1359,36 +1070,29 @@ impl Job {
         threads: usize,
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<BakeReport, BatchError> {
-        let job = self.bake_job(task, threads);
+        let job = self.bake_job(task, threads)?;
         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job.run(progress)))
             .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
             .map_err(BatchError::Task)
     }
 
     /// The transmittance volume of one task, as `umbra bake INPUT --light-dir D -o OUT.vdb`
-    /// would write it; `None` for a job of maps.
-    #[must_use]
-    pub fn volume_job(&self, task: &Task, threads: usize) -> Option<crate::bake::VolumeJob> {
-        let (out_grid, half) = self.volume.clone()?;
-        let light = match (task.dir, task.pos) {
-            (_, Some(pos)) => crate::Light::Point { pos },
-            (Some(dir), None) => crate::Light::Directional { dir },
-            (None, None) => return None,
-        };
-        Some(crate::bake::VolumeJob {
-            input: task.input.clone(),
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            xform: self.xform,
-            light,
-            estimator: self.settings.estimator,
-            options: self.settings.options,
-            threads,
-            output: task.output.clone(),
-            out_grid,
-            half,
-            overwrite: true,
-        })
+    /// would write it.
+    ///
+    /// # Errors
+    /// As [`Job::plan`]; [`BatchError::Task`] for a job of maps.
+    pub fn volume_job(
+        &self,
+        task: &Task,
+        threads: usize,
+    ) -> Result<crate::bake::VolumeJob, BatchError> {
+        match self.plan(task, threads)? {
+            BakePlan::Volume(j) => Ok(*j),
+            BakePlan::Map(_) => Err(BatchError::Task(crate::Error::InvalidArgument {
+                name: "output".into(),
+                reason: "this job writes maps, not transmittance volumes".into(),
+            })),
+        }
     }
 
     /// [`Job::run_task`] for a job of transmittance volumes ([`Job::volume_job`]).
@@ -1401,12 +1105,7 @@ impl Job {
         threads: usize,
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<crate::bake::VolumeReport, BatchError> {
-        let job = self.volume_job(task, threads).ok_or_else(|| {
-            BatchError::Task(crate::Error::InvalidArgument {
-                name: "output".into(),
-                reason: "this job writes maps, not transmittance volumes".into(),
-            })
-        })?;
+        let job = self.volume_job(task, threads)?;
         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job.run(progress)))
             .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
             .map_err(BatchError::Task)
@@ -1415,7 +1114,7 @@ impl Job {
     /// Pixels of a task's map when it is known without loading (fixed resolution).
     #[must_use]
     pub fn pixels_hint(&self) -> Option<u64> {
-        match self.res {
+        match self.options.res {
             Some(Resolution::Exact(w, h)) => Some(u64::from(w) * u64::from(h)),
             _ => None,
         }

@@ -190,7 +190,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
                     }
                 };
                 // Maps report rays per second, transmittance volumes voxels per second.
-                let result = if job.volume.is_some() {
+                let result = if job.volume {
                     job.run_volume_task(t, per_task, &tick).map(|d| {
                         let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
                         (rate, d.warnings.iter().map(ToString::to_string).collect())

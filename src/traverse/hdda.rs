@@ -18,7 +18,9 @@ use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
 
 /// Finest node level at which segments are emitted.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Granularity {
     /// One segment per leaf (8^3) or tile: tightest majorants, most segments.

@@ -12,7 +12,12 @@ use umbra::batch::{load_job, parse_shard, BatchError, Progress, Record, RunOptio
 #[derive(Debug, clap::Args)]
 pub struct BatchArgs {
     /// The TOML job file.
-    job: PathBuf,
+    #[arg(required_unless_present = "schema")]
+    job: Option<PathBuf>,
+    /// Print the JSON Schema (draft 2020-12) of job files and exit: pipeline tools validate
+    /// job files against it, editors complete them.
+    #[arg(long, exclusive = true)]
+    schema: bool,
     /// Print one self-contained `umbra batch JOB --task I` command per task and exit.
     #[arg(long)]
     plan: bool,
@@ -51,7 +56,12 @@ fn shell_quote(s: &str) -> String {
 /// Run the job (or print its plan): the library's runner ([`umbra::batch::run`]) with a
 /// progress bar, warnings and failures on stderr, and a summary line.
 pub fn run(a: &BatchArgs) -> Result<ExitCode> {
-    let job = load_job(&a.job)?;
+    let Some(path) = &a.job else {
+        let schema = serde_json::to_string_pretty(&umbra::batch::job_schema())?;
+        writeln!(std::io::stdout().lock(), "{schema}")?;
+        return Ok(ExitCode::SUCCESS);
+    };
+    let job = load_job(path)?;
     if a.plan {
         let exe = std::env::current_exe()
             .map(|p| p.display().to_string())

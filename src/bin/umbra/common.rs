@@ -115,7 +115,7 @@ pub fn flag_error(e: umbra::Error) -> umbra::Error {
 }
 
 /// `--estimator`'s long help: one line per registered estimator.
-fn estimator_help() -> String {
+pub fn estimator_help() -> String {
     let mut s = String::from("Estimator (default regular, exact). One of:\n");
     for spec in umbra::estimate::REGISTRY {
         let params: Vec<String> = spec
@@ -168,17 +168,7 @@ pub enum LevelSetArg {
     Solid,
 }
 
-/// Parse `X,Y,Z` into three finite numbers.
-pub fn parse_vec3(s: &str) -> Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|c| c.trim().parse::<f64>().map_err(|e| format!("'{c}': {e}")))
-        .collect::<Result<_, _>>()?;
-    match v.as_slice() {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
-        _ => Err(format!("expected three finite numbers X,Y,Z, got '{s}'")),
-    }
-}
+pub use umbra::request::parse_vec3;
 
 /// Parse `--xform`: 16 comma-separated numbers, row-major.
 pub fn parse_xform(s: &str) -> std::result::Result<umbra::xform::Xform, String> {

@@ -1,0 +1,826 @@
+//! One bake request for every front end: [`BakeOptions`] is everything a TD asks of a bake
+//! besides its input file and its output path, as plain data, and [`BakeRequest::plan`] turns
+//! it into a checked plan ([`BakePlan`]: a map or a transmittance volume) in one place.
+//!
+//! **One naming rule.** The CLI's long flags, the job file's `[bake]` keys and the Python
+//! keywords are this type's fields: a job key and a Python keyword are the long flag with `-`
+//! turned into `_` (`--deep-error`, `deep_error = 0.01`, `deep_error=0.01`). The CLI derives its
+//! flags from the type (feature `cli`), serde reads job files and Python's keywords from it,
+//! and the JSON Schema of job files (`umbra batch --schema`, feature `schema`) is generated
+//! from it, so the three cannot drift apart. Where an option had two spellings, the canonical
+//! one is the field and the other an alias everywhere: `samples` (alias `spp`), `force`
+//! (alias `overwrite`), `stderr` (Python's `return_stderr`).
+//!
+//! **One set of defaults, one set of errors.** [`BakeOptions::default`] is every front end's
+//! default (a test holds the CLI's to it). [`BakeRequest::plan`] refuses what cannot be
+//! baked with [`Error::InvalidArgument`] naming the option in the library's spelling; each
+//! front end respells the name ([`crate::Error::for_front`]: `--step`, `step =`, `step=`).
+//!
+//! **What a product reads.** The output's extension picks the product: `.vdb` a
+//! transmittance volume, anything else an EXR map (flat, or deep with `deep`). A
+//! transmittance volume reads only [`VOLUME_OPTIONS`]; any other option set to a value other
+//! than its default is refused naming it, and a map refuses `out_grid` and `half`. So a
+//! request that would silently ignore an option cannot be planned.
+
+use crate::bake::{
+    BakeJob, BakeSettings, Camera, Depths, ExrLayout, Product, Projection, Resolution, View,
+    VolumeJob, DEFAULT_DEEP_ERROR, DEFAULT_OUT_GRID,
+};
+use crate::error::{Error, Result};
+use crate::estimate::{Estimator, Options};
+use crate::traverse::Granularity;
+use crate::Interp;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// What to do with a level-set grid (`levelset`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum LevelSet {
+    /// An opaque occluder: T = 0 from where a ray first enters phi < 0.
+    Solid,
+}
+
+/// How the maps of a batch job are framed (`framing`, job files only).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[serde(rename_all = "kebab-case")]
+pub enum Framing {
+    /// One camera per light for a whole sequence, framing the union of its volume boxes.
+    #[default]
+    Shared,
+    /// Each input framed on its own volume box.
+    PerFrame,
+}
+
+/// A camera to reuse (`camera`): the path of an earlier umbra map (`.exr`) or of a JSON file
+/// holding the `camera` object `bake --json` prints, or that object itself (job files and
+/// Python).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[serde(untagged)]
+pub enum CameraSource {
+    /// A map or JSON file (relative to a job file's directory in a job).
+    File(PathBuf),
+    /// The camera object itself.
+    Inline(serde_json::Map<String, serde_json::Value>),
+}
+
+impl std::str::FromStr for CameraSource {
+    type Err = std::convert::Infallible;
+
+    /// A path, as `--camera` takes it.
+    fn from_str(s: &str) -> std::result::Result<Self, Self::Err> {
+        Ok(Self::File(PathBuf::from(s)))
+    }
+}
+
+impl CameraSource {
+    /// The camera, at `res` when given (the same window at that size).
+    ///
+    /// # Errors
+    /// [`Error::Io`] or [`Error::InvalidArgument`] from reading it.
+    pub fn read(&self, res: Option<Resolution>) -> Result<Camera> {
+        match self {
+            Self::File(p) => crate::bake::read_camera(p, res),
+            Self::Inline(m) => {
+                let text = serde_json::to_vec(m).map_err(|e| bad("camera", e.to_string()))?;
+                crate::bake::camera_from_json("camera", &text, res)
+            }
+        }
+    }
+}
+
+/// Everything a bake can be asked for besides its input and output: the one definition of a
+/// bake's options. Fields are the options' canonical names (see the module docs for the
+/// naming rule); every field has its default, so a request names only what it changes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(deny_unknown_fields, default)]
+pub struct BakeOptions {
+    /// Grid to trace (display name such as `density[1]`, or the stored name).
+    #[cfg_attr(feature = "cli", arg(long, default_value = "density"))]
+    pub grid: String,
+    /// Direction the light travels, DX,DY,DZ: an orthographic map framing the volume box (with
+    /// light-pos it aims the perspective map); for a transmittance volume, a sun.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
+    pub light_dir: Option<[f64; 3]>,
+    /// Light position X,Y,Z: a perspective map from the light (aimed at the volume box centre
+    /// unless light-dir is given); for a transmittance volume, a point light.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
+    pub light_pos: Option<[f64; 3]>,
+    /// With light-pos: an orthographic map whose image plane passes through the light.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub ortho: bool,
+    /// Perspective field of view across the longer image side, degrees in (0, 180) (default:
+    /// just holds the volume box).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub fov: Option<f64>,
+    /// The world direction that is up in the map, X,Y,Z (default 0,1,0; when it is parallel to
+    /// the light, the default's rule applies).
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
+    pub up: Option<[f64; 3]>,
+    /// Frame this world box instead of the volume box (the rays still cover the whole volume in
+    /// depth): X0,Y0,Z0,X1,Y1,Z1 on the command line, [[x0, y0, z0], [x1, y1, z1]] as data.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_box, allow_hyphen_values = true))]
+    pub frame_box: Option<[[f64; 3]; 2]>,
+    /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 numbers, row-major, the
+    /// translation in the last column.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)
+    )]
+    pub xform: Option<Vec<f64>>,
+    /// Reuse exactly the camera of an earlier umbra map (.exr), of a JSON file holding the
+    /// `camera` object `bake --json` prints, or (as data) that object; its resolution unless
+    /// res is given (then the same window at that size).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub camera: Option<CameraSource>,
+    /// Resolution: WxH, or N for N pixels on the long side with the framed box's aspect
+    /// (default 1024); as data also [W, H].
+    #[cfg_attr(feature = "cli", arg(long, allow_hyphen_values = true))]
+    pub res: Option<Resolution>,
+    /// Write a tiled EXR with N x N tiles (renderers page large maps in by tile).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
+    pub tile: Option<u32>,
+    /// With tile: also write box-filtered mip levels of every channel (round-down, down to
+    /// 1x1; each level pixel the mean of T over its footprint).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub mipmap: bool,
+    /// Write a deep OpenEXR map: per pixel the whole transmittance function along its ray as
+    /// volumetric samples (channels A, Z, ZBack; AR, AG, AB, OpenEXR's per-channel
+    /// opacities, with colour).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub deep: bool,
+    /// With deep: the bound E on |T_deep(z) - T(z)| at every depth z (default 0.002).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub deep_error: Option<f64>,
+    /// A transmittance volume (.vdb output): the name of the written grid (default
+    /// `transmittance`).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub out_grid: Option<String>,
+    /// A transmittance volume (.vdb output): store 16-bit half floats.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub half: bool,
+    /// Also write an 8-bit grayscale PNG preview of T here (.png; in a job, a pattern like the
+    /// output's).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub preview: Option<PathBuf>,
+    /// K extra channels `sliceNN.T`: T at K depths evenly spaced across the volume's depth range.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub slices: Option<usize>,
+    /// Extra channels `sliceNN.T` at these depths (world distance along each ray): a,b,c.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)
+    )]
+    pub depths: Option<Vec<f64>>,
+    /// Also write each pixel's standard error (`T.stderr`).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub stderr: bool,
+    /// Adaptive sampling: double a pixel's samples until its standard error is below E.
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub target_error: Option<f64>,
+    /// Cap on samples per pixel for target-error.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 65_536))]
+    pub max_spp: u32,
+    /// How the density between voxel centres is defined.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "trilinear"))]
+    pub interp: Interp,
+    /// mu_t = S x value, per world unit.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value_t = 1.0, allow_negative_numbers = true)
+    )]
+    pub density_scale: f64,
+    /// Extinction colour R,G,B: T per channel (an RGB map), mu_c = sigma_t[c] x density-scale
+    /// x value (multiplies a scene's own sigma_t).
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
+    pub sigma_t: Option<[f64; 3]>,
+    /// `solid`: trace a level-set grid as an opaque solid (T = 0 from where a ray enters it)
+    /// instead of refusing it.
+    #[cfg_attr(feature = "cli", arg(long, value_enum))]
+    pub levelset: Option<LevelSet>,
+    /// Estimator (`umbra estimators` lists them with their parameters).
+    #[cfg_attr(feature = "cli", arg(long, default_value = "regular"))]
+    pub estimator: String,
+    /// Independent samples per pixel or voxel (stochastic estimators); alias spp.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, visible_alias = "spp", default_value_t = 64)
+    )]
+    #[serde(alias = "spp")]
+    pub samples: u32,
+    /// Seed of the random streams.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub seed: u64,
+    /// Ray-marching step in voxels (riemann, mc, jittered; default 1).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub step: Option<f64>,
+    /// Kernel width in voxels (collision; default 1).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub kernel: Option<f64>,
+    /// Points per optical-depth estimate (jackknife; default 10).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub points: Option<f64>,
+    /// Majorant granularity of the HDDA.
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "leaf"))]
+    pub granularity: Granularity,
+    /// One majorant for the whole grid (the naive baseline).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub global_majorant: bool,
+    /// Worker threads (0: all cores).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub threads: usize,
+    /// Memory budget (bytes, or with K, M, G: `512M`, `1.5G`; powers of 1024). When the
+    /// decoded grid and the image would not fit, an exact map is baked a part of the grid at
+    /// a time (the same map, bit for bit); other maps are refused before any work.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_size))]
+    pub max_memory: Option<String>,
+    /// Replace existing outputs (alias overwrite).
+    #[cfg_attr(feature = "cli", arg(long, visible_alias = "overwrite"))]
+    #[serde(alias = "overwrite")]
+    pub force: bool,
+    /// Batch jobs only: `shared` (one camera per light for a whole sequence) or `per-frame`.
+    #[cfg_attr(feature = "cli", arg(skip))]
+    pub framing: Option<Framing>,
+}
+
+impl Default for BakeOptions {
+    fn default() -> Self {
+        Self {
+            grid: "density".into(),
+            light_dir: None,
+            light_pos: None,
+            ortho: false,
+            fov: None,
+            up: None,
+            frame_box: None,
+            xform: None,
+            camera: None,
+            res: None,
+            tile: None,
+            mipmap: false,
+            deep: false,
+            deep_error: None,
+            out_grid: None,
+            half: false,
+            preview: None,
+            slices: None,
+            depths: None,
+            stderr: false,
+            target_error: None,
+            max_spp: 65_536,
+            interp: Interp::Trilinear,
+            density_scale: 1.0,
+            sigma_t: None,
+            levelset: None,
+            estimator: "regular".into(),
+            samples: 64,
+            seed: 0,
+            step: None,
+            kernel: None,
+            points: None,
+            granularity: Granularity::Leaf,
+            global_majorant: false,
+            threads: 0,
+            max_memory: None,
+            force: false,
+            framing: None,
+        }
+    }
+}
+
+/// The options a transmittance volume reads; any other option set is refused.
+pub const VOLUME_OPTIONS: &[&str] = &[
+    "grid",
+    "light_dir",
+    "light_pos",
+    "xform",
+    "out_grid",
+    "half",
+    "interp",
+    "density_scale",
+    "estimator",
+    "samples",
+    "seed",
+    "step",
+    "kernel",
+    "points",
+    "granularity",
+    "global_majorant",
+    "threads",
+    "force",
+];
+
+/// The options only a transmittance volume reads; a map refuses them.
+const VOLUME_ONLY: &[&str] = &["out_grid", "half"];
+
+fn bad(name: &str, reason: impl Into<String>) -> Error {
+    Error::InvalidArgument {
+        name: name.into(),
+        reason: reason.into(),
+    }
+}
+
+/// Parse `X,Y,Z` into three finite numbers (`--light-dir`, `--up`, `--sigma-t`).
+///
+/// # Errors
+/// A message naming what is wrong.
+pub fn parse_vec3(s: &str) -> std::result::Result<[f64; 3], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>().map_err(|e| format!("'{c}': {e}")))
+        .collect::<std::result::Result<_, _>>()?;
+    match v.as_slice() {
+        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
+        _ => Err(format!("expected three finite numbers X,Y,Z, got '{s}'")),
+    }
+}
+
+/// Parse `X0,Y0,Z0,X1,Y1,Z1` (`--frame-box`).
+///
+/// # Errors
+/// A message naming what is wrong.
+pub fn parse_box(s: &str) -> std::result::Result<[[f64; 3]; 2], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .ok()
+        .filter(|v: &Vec<f64>| v.len() == 6)
+        .ok_or_else(|| format!("'{s}': expected X0,Y0,Z0,X1,Y1,Z1 (six numbers)"))?;
+    Ok([[v[0], v[1], v[2]], [v[3], v[4], v[5]]])
+}
+
+/// Check a size such as `512M` (`--max-memory`), keeping its text.
+///
+/// # Errors
+/// A message naming what is wrong.
+pub fn parse_size(s: &str) -> std::result::Result<String, String> {
+    crate::math::parse_bytes(s).map(|_| s.to_string())
+}
+
+impl BakeOptions {
+    /// The options set to something other than their default, by canonical name, in
+    /// alphabetical order.
+    #[must_use]
+    pub fn changed(&self) -> Vec<String> {
+        let (Ok(serde_json::Value::Object(mine)), Ok(serde_json::Value::Object(base))) = (
+            serde_json::to_value(self),
+            serde_json::to_value(Self::default()),
+        ) else {
+            return Vec::new();
+        };
+        mine.into_iter()
+            .filter(|(k, v)| base.get(k) != Some(v))
+            .map(|(k, _)| k)
+            .collect()
+    }
+
+    /// Options from a JSON object, as the Python module passes its keywords: a value of the
+    /// wrong type or an unknown name is an [`Error::InvalidArgument`] naming that option.
+    ///
+    /// # Errors
+    /// As above.
+    pub fn from_json(text: &str) -> Result<Self> {
+        let value: serde_json::Map<String, serde_json::Value> =
+            serde_json::from_str(text).map_err(|e| bad("options", e.to_string()))?;
+        serde_json::from_value(serde_json::Value::Object(value.clone())).map_err(|whole| {
+            // Name the first option that does not parse on its own.
+            for (k, v) in &value {
+                let one = serde_json::Map::from_iter([(k.clone(), v.clone())]);
+                if let Err(e) = serde_json::from_value::<Self>(serde_json::Value::Object(one)) {
+                    let reason = e.to_string();
+                    return bad(k, reason.split(" at line").next().unwrap_or(&reason));
+                }
+            }
+            bad("options", whole.to_string())
+        })
+    }
+
+    /// The estimator these options select, with its parameters.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `estimator` or a parameter it does not take.
+    pub fn estimator(&self) -> Result<(Estimator, Options)> {
+        let params: Vec<(&str, f64)> = [
+            ("step", self.step),
+            ("kernel", self.kernel),
+            ("points", self.points),
+        ]
+        .into_iter()
+        .filter_map(|(n, v)| v.map(|v| (n, v)))
+        .collect();
+        let estimator = Estimator::with_params(&self.estimator, &params)?;
+        let options = Options {
+            interp: self.interp,
+            samples: self.samples,
+            seed: self.seed,
+            granularity: self.granularity,
+            global_majorant: self.global_majorant,
+            ..Options::default()
+        };
+        options.validate()?;
+        Ok((estimator, options))
+    }
+
+    /// The placement transform, checked.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `xform`.
+    pub fn xform(&self) -> Result<Option<crate::xform::Xform>> {
+        self.xform
+            .as_deref()
+            .map(crate::xform::Xform::from_row_major)
+            .transpose()
+    }
+
+    /// The memory budget in bytes.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `max-memory`.
+    pub fn max_memory(&self) -> Result<Option<u64>> {
+        self.max_memory
+            .as_deref()
+            .map(|m| crate::math::parse_bytes(m).map_err(|r| bad("max-memory", r)))
+            .transpose()
+    }
+
+    /// The checks every product shares: scale, transform, estimator, threads.
+    fn check_common(&self) -> Result<()> {
+        if self.grid.is_empty() {
+            return Err(bad("grid", "must not be empty"));
+        }
+        if !(self.density_scale.is_finite() && self.density_scale >= 0.0) {
+            return Err(bad(
+                "density-scale",
+                format!("{} is not a finite non-negative number", self.density_scale),
+            ));
+        }
+        crate::bake::check_threads(self.threads)?;
+        if self.framing.is_some() {
+            return Err(bad(
+                "framing",
+                "applies to batch jobs (how the maps of a sequence are framed)",
+            ));
+        }
+        Ok(())
+    }
+
+    /// The camera request of a map (no fixed camera): the light-to-projection rule.
+    fn view(&self) -> Result<View> {
+        let projection = match (self.light_dir, self.light_pos) {
+            (None, None) => {
+                return Err(bad(
+                    "light-dir",
+                    "no light: give the direction the light travels (an orthographic map), \
+                     light-pos (a perspective map) or camera",
+                ))
+            }
+            (_, Some(_)) if !self.ortho => Projection::Perspective,
+            _ => Projection::Ortho,
+        };
+        if let Some(f) = self.fov {
+            if projection == Projection::Ortho {
+                return Err(bad(
+                    "fov",
+                    "applies to perspective maps (light-pos without ortho)",
+                ));
+            }
+            if !(f.is_finite() && f > 0.0 && f < 180.0) {
+                let shown = if f.abs() >= 1e6 {
+                    format!("{f:e}")
+                } else {
+                    format!("{f}")
+                };
+                return Err(bad("fov", format!("{shown} is not in (0, 180) degrees")));
+            }
+        }
+        if let Some(u) = self.up {
+            if !u.iter().all(|c| c.is_finite()) || u.iter().all(|&c| c == 0.0) {
+                return Err(bad("up", "must be finite and non-zero"));
+            }
+        }
+        if let Some(fb) = self.frame_box {
+            if !(0..3).all(|a| fb[0][a].is_finite() && fb[1][a].is_finite() && fb[0][a] < fb[1][a])
+            {
+                return Err(bad(
+                    "frame-box",
+                    "must be finite, with x0 < x1, y0 < y1, z0 < z1",
+                ));
+            }
+        }
+        Ok(View {
+            projection,
+            light_dir: self.light_dir,
+            light_pos: self.light_pos,
+            fov_deg: self.fov,
+            res: self.res,
+            up: self.up,
+            frame_box: self.frame_box,
+        })
+    }
+}
+
+/// One bake: an input, an output and the options.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BakeRequest {
+    /// The `.vdb` file, or a `.toml` scene file.
+    pub input: PathBuf,
+    /// The output: an OpenEXR map (`.exr`) or a transmittance volume (`.vdb`).
+    pub output: PathBuf,
+    /// Everything else.
+    pub options: BakeOptions,
+}
+
+/// A checked bake, ready to run: a map (flat or deep EXR) or a transmittance volume.
+#[derive(Debug, Clone, PartialEq)]
+pub enum BakePlan {
+    /// An EXR map ([`BakeJob`]; `product` says flat or deep).
+    Map(Box<BakeJob>),
+    /// A transmittance volume ([`VolumeJob`]).
+    Volume(Box<VolumeJob>),
+}
+
+/// Whether `output` names a transmittance volume (`.vdb`).
+#[must_use]
+pub fn is_volume_output(output: &Path) -> bool {
+    output
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("vdb"))
+}
+
+impl BakeRequest {
+    /// Check the request and build its plan. Reads nothing but a reused camera's file; outputs
+    /// are checked when the plan runs ([`BakeJob::check_outputs`], [`VolumeJob::check_outputs`]).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
+    /// spelling, for [`crate::Error::for_front`]); errors reading a reused camera.
+    pub fn plan(&self) -> Result<BakePlan> {
+        let o = &self.options;
+        o.check_common()?;
+        let changed = o.changed();
+        if is_volume_output(&self.output) {
+            if let Some(k) = changed
+                .iter()
+                .find(|k| !VOLUME_OPTIONS.contains(&k.as_str()))
+            {
+                return Err(bad(
+                    k,
+                    "applies to maps (.exr); a transmittance volume (.vdb) is one float grid of T \
+                     toward the light",
+                ));
+            }
+            return self.plan_volume().map(|j| BakePlan::Volume(Box::new(j)));
+        }
+        if let Some(k) = changed.iter().find(|k| VOLUME_ONLY.contains(&k.as_str())) {
+            return Err(bad(
+                k,
+                "applies to transmittance volumes (an output ending in .vdb)",
+            ));
+        }
+        self.plan_map().map(|j| BakePlan::Map(Box::new(j)))
+    }
+
+    fn plan_volume(&self) -> Result<VolumeJob> {
+        let o = &self.options;
+        if crate::scene::is_scene_file(&self.input) {
+            return Err(bad(
+                "output",
+                format!(
+                    "a transmittance volume (.vdb) is made from one density grid; {} is a scene \
+                     file",
+                    self.input.display()
+                ),
+            ));
+        }
+        let light = match (o.light_dir, o.light_pos) {
+            (Some(dir), None) => crate::Light::Directional { dir },
+            (None, Some(pos)) => crate::Light::Point { pos },
+            (None, None) => {
+                return Err(bad(
+                    "light-dir",
+                    "no light: give the direction the light travels (a sun) or light-pos (a \
+                     point light)",
+                ))
+            }
+            (Some(_), Some(_)) => {
+                return Err(bad(
+                    "light-pos",
+                    "a transmittance volume is lit by one light: give light-dir or light-pos, \
+                     not both",
+                ))
+            }
+        };
+        let (estimator, options) = o.estimator()?;
+        Ok(VolumeJob {
+            input: self.input.clone(),
+            grid: o.grid.clone(),
+            density_scale: o.density_scale,
+            xform: o.xform()?,
+            light,
+            estimator,
+            options,
+            threads: o.threads,
+            output: self.output.clone(),
+            out_grid: o
+                .out_grid
+                .clone()
+                .unwrap_or_else(|| DEFAULT_OUT_GRID.to_string()),
+            half: o.half,
+            overwrite: o.force,
+        })
+    }
+
+    fn plan_map(&self) -> Result<BakeJob> {
+        let o = &self.options;
+        if let Some(r) = o.res {
+            r.check().map_err(|e| match e {
+                Error::InvalidArgument { reason, .. } => bad("res", reason),
+                other => other,
+            })?;
+        }
+        let (view, camera) = match &o.camera {
+            Some(source) => {
+                let fixed = [
+                    ("light-dir", o.light_dir.is_some()),
+                    ("light-pos", o.light_pos.is_some()),
+                    ("ortho", o.ortho),
+                    ("fov", o.fov.is_some()),
+                    ("up", o.up.is_some()),
+                    ("frame-box", o.frame_box.is_some()),
+                ];
+                if let Some((k, _)) = fixed.iter().find(|(_, set)| *set) {
+                    return Err(bad(
+                        k,
+                        "a reused camera fixes the whole view: give camera or the light and \
+                         framing options, not both",
+                    ));
+                }
+                let view = View {
+                    res: o.res,
+                    ..View::default()
+                };
+                (view, Some(source.read(o.res)?))
+            }
+            None => (o.view()?, None),
+        };
+        let depths = match (o.slices, &o.depths) {
+            (Some(_), Some(_)) => return Err(bad("slices", "give slices or depths, not both")),
+            (Some(k), None) => Depths::Slices(k),
+            (None, Some(d)) => Depths::At(d.clone()),
+            (None, None) => Depths::None,
+        };
+        if let Some(s) = o.sigma_t {
+            crate::scene::check_sigma(s)?;
+        }
+        let (estimator, options) = o.estimator()?;
+        let settings = BakeSettings {
+            target_error: o.target_error,
+            max_spp: o.max_spp,
+            depths,
+            std_err: o.stderr,
+            threads: o.threads,
+            ..BakeSettings::new(estimator, options)
+        };
+        settings.validate()?;
+        let layout = ExrLayout {
+            tile: o.tile,
+            mipmap: o.mipmap,
+        };
+        layout.validate()?;
+        let product = match (o.deep, o.deep_error) {
+            (false, Some(_)) => return Err(bad("deep-error", "applies to deep maps: add deep")),
+            (false, None) => Product::Map,
+            (true, e) => {
+                let max_error = e.unwrap_or(DEFAULT_DEEP_ERROR);
+                crate::bake::check_deep_error(max_error)?;
+                Product::Deep { max_error }
+            }
+        };
+        Ok(BakeJob {
+            input: self.input.clone(),
+            grid: o.grid.clone(),
+            density_scale: o.density_scale,
+            xform: o.xform()?,
+            sigma_t: o.sigma_t,
+            levelset_solid: o.levelset == Some(LevelSet::Solid),
+            view,
+            camera,
+            settings,
+            output: self.output.clone(),
+            preview: o.preview.clone(),
+            overwrite: o.force,
+            layout,
+            max_memory: o.max_memory()?,
+            product,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn defaults_change_nothing() {
+        assert!(BakeOptions::default().changed().is_empty());
+        let o = BakeOptions {
+            tile: Some(64),
+            samples: 8,
+            ..BakeOptions::default()
+        };
+        assert_eq!(o.changed(), ["samples", "tile"]);
+    }
+
+    #[test]
+    fn aliases_and_errors_name_the_option() {
+        let o = BakeOptions::from_json(r#"{"spp": 4, "overwrite": true}"#).unwrap();
+        assert_eq!((o.samples, o.force), (4, true));
+        let e = BakeOptions::from_json(r#"{"tile": 4, "fov": "wide"}"#).unwrap_err();
+        assert!(
+            matches!(e, Error::InvalidArgument { ref name, .. } if name == "fov"),
+            "{e}"
+        );
+        let e = BakeOptions::from_json(r#"{"tiles": 4}"#).unwrap_err();
+        assert!(
+            matches!(e, Error::InvalidArgument { ref name, .. } if name == "tiles"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_volume_refuses_map_options() {
+        let r = |options| BakeRequest {
+            input: "a.vdb".into(),
+            output: "t.vdb".into(),
+            options,
+        };
+        let e = r(BakeOptions {
+            light_dir: Some([0.0, -1.0, 0.0]),
+            tile: Some(16),
+            ..BakeOptions::default()
+        })
+        .plan()
+        .unwrap_err();
+        assert!(
+            matches!(e, Error::InvalidArgument { ref name, .. } if name == "tile"),
+            "{e}"
+        );
+        let ok = r(BakeOptions {
+            light_dir: Some([0.0, -1.0, 0.0]),
+            half: true,
+            ..BakeOptions::default()
+        })
+        .plan()
+        .unwrap();
+        assert!(matches!(ok, BakePlan::Volume(ref v) if v.half));
+    }
+
+    /// Every flag clap derives from the type is a property of the job schema by the naming
+    /// rule, and every property but the job's `framing` is a flag.
+    #[cfg(all(feature = "cli", feature = "schema"))]
+    #[test]
+    fn every_flag_is_a_schema_property() {
+        use clap::CommandFactory;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            options: BakeOptions,
+        }
+        let schema = serde_json::to_value(schemars::schema_for!(BakeOptions)).unwrap();
+        let props = schema["properties"].as_object().unwrap();
+        let flags: Vec<String> = Cli::command()
+            .get_arguments()
+            .filter_map(|a| a.get_long().map(|l| l.replace('-', "_")))
+            .filter(|l| l != "help")
+            .collect();
+        for f in &flags {
+            assert!(props.contains_key(f), "--{f} is not a schema property");
+        }
+        let mut keys: Vec<&String> = props.keys().filter(|k| *k != "framing").collect();
+        keys.sort();
+        let mut sorted: Vec<&String> = flags.iter().collect();
+        sorted.sort();
+        assert_eq!(keys, sorted);
+    }
+
+    #[cfg(feature = "cli")]
+    #[test]
+    fn cli_defaults_are_the_library_defaults() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            options: BakeOptions,
+        }
+        let parsed = Cli::try_parse_from(["umbra"]).unwrap();
+        assert_eq!(parsed.options, BakeOptions::default());
+    }
+}
