@@ -36,7 +36,7 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
-/// The top-level module a library file belongs to (`src/bake/sweep/kernel.rs` -> `bake`).
+/// The top-level module a library file belongs to (`src/bake/trace/sweep/kernel.rs` -> `bake`).
 fn module_of(src: &Path, file: &Path) -> String {
     let rel = file.strip_prefix(src).unwrap();
     let first = rel
@@ -257,4 +257,106 @@ fn no_import_loops() {
         }
     }
     assert!(loops.is_empty(), "import loops:\n{}", loops.join("\n"));
+}
+
+/// The rooms of `bake`, by stage, from the bottom: what a map is and its camera; the two stages
+/// that make and write a map (tracing and encoding, which never import each other); the
+/// products that run them. A file may import its own room and those of lower stages
+/// (ARCHITECTURE.md draws the same).
+const BAKE_ROOMS: &[(&str, &[&str])] = &[
+    ("vocabulary", &["map", "camera"]),
+    ("stages", &["trace", "encode"]),
+    ("products", &["product"]),
+];
+
+/// `pub use room::path::{a, b}` lines of `bake/mod.rs`: item -> room (the first segment).
+fn room_reexports(mod_rs: &str) -> Vec<(String, String)> {
+    let mut out = Vec::new();
+    for stmt in code(mod_rs).split(';') {
+        let s = stmt.trim();
+        let Some(rest) = s
+            .strip_prefix("pub use ")
+            .or_else(|| s.strip_prefix("pub(crate) use "))
+        else {
+            continue;
+        };
+        let Some((room, path)) = rest.split_once("::") else {
+            continue;
+        };
+        let list = match path.rfind('{') {
+            Some(i) => &path[i + 1..],
+            None => path.rsplit("::").next().unwrap_or(""),
+        };
+        for item in list.trim_end_matches('}').split(',') {
+            let name = item.trim().split(" as ").last().unwrap_or("").trim();
+            if !name.is_empty() {
+                out.push((name.to_string(), room.trim().to_string()));
+            }
+        }
+    }
+    out
+}
+
+fn room_stage(room: &str) -> Option<usize> {
+    BAKE_ROOMS.iter().position(|(_, rs)| rs.contains(&room))
+}
+
+#[test]
+fn bake_rooms_keep_their_stages() {
+    let bake = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/bake");
+    let items = room_reexports(&std::fs::read_to_string(bake.join("mod.rs")).unwrap());
+    assert!(items.len() > 50, "only {} re-exports read", items.len());
+    let mut files = Vec::new();
+    rust_files(&bake, &mut files);
+    let mut wrong = Vec::new();
+    let mut unplaced = BTreeSet::new();
+    let mut seen = 0;
+    for f in &files {
+        let rel = f.strip_prefix(&bake).unwrap();
+        if rel == Path::new("mod.rs") {
+            continue;
+        }
+        let own = rel
+            .components()
+            .next()
+            .unwrap()
+            .as_os_str()
+            .to_string_lossy()
+            .trim_end_matches(".rs")
+            .to_string();
+        let Some(own_stage) = room_stage(&own) else {
+            unplaced.insert(own);
+            continue;
+        };
+        let text = code(&std::fs::read_to_string(f).unwrap());
+        for name in names_after(&text, "crate::bake::") {
+            // A room by name, or an item bake/mod.rs re-exports from a room.
+            let room = if room_stage(&name).is_some() {
+                name.clone()
+            } else if let Some((_, r)) = items.iter().find(|(i, _)| *i == name) {
+                r.clone()
+            } else {
+                continue;
+            };
+            seen += 1;
+            let stage = room_stage(&room).unwrap();
+            let sideways = own != room && stage == own_stage && own_stage == 1;
+            if stage > own_stage || sideways {
+                wrong.push(format!(
+                    "bake/{} ({own}) imports crate::bake::{name} ({room})",
+                    rel.display()
+                ));
+            }
+        }
+    }
+    assert!(seen > 40, "only {seen} imports read");
+    assert!(
+        unplaced.is_empty(),
+        "bake rooms without a stage: {unplaced:?}"
+    );
+    assert!(
+        wrong.is_empty(),
+        "imports against the stages:\n{}",
+        wrong.join("\n")
+    );
 }

@@ -335,13 +335,15 @@ def write_exr(
     *,
     tile: Optional[int] = None,
     mipmap: bool = False,
+    force: bool = False,
 ) -> None:
     """Write ``image`` (the ``(H, W)`` float32 map of :meth:`Volume.bake`, row 0 at the top;
     ``(H, W, 3)`` for a colour scene) and its ``camera`` dict as the OpenEXR file ``umbra
     bake`` writes: the same channels (``T``, or ``R``/``G``/``B``; ``T.stderr`` with
     ``stderr``), the same ``worldToCamera``/``worldToNDC`` matrices and ``umbra:*``
     attributes, so ``umbra bake --camera`` and the CLI's readers take it. The file is written
-    atomically; an existing file is an error unless ``overwrite``.
+    atomically; an existing file is an error unless ``force`` (or ``overwrite``, its older
+    name).
 
     The image may have been changed (composited, denoised); its shape must stay the camera's.
     ``tile=N`` writes N x N tiles, ``mipmap=True`` (with ``tile``) adds box-filtered mip levels,
@@ -372,7 +374,7 @@ def write_exr(
         t,
         e,
         3 if rgb else 1,
-        bool(overwrite),
+        bool(overwrite) or bool(force),
         None if tile is None else _count("tile", tile),
         bool(mipmap),
     )

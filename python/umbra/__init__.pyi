@@ -101,6 +101,7 @@ def write_exr(
     *,
     tile: Optional[int] = None,
     mipmap: bool = False,
+    force: bool = False,
 ) -> None: ...
 
 class Volume:

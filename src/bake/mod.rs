@@ -1,5 +1,16 @@
-//! Baking transmittance maps: a [`Camera`] framed on the volume box, one ray per pixel traced in
-//! parallel tiles, written to OpenEXR ([`write_exr`]) atomically, with a PNG preview.
+//! Baking: what a light sees through a volume, as a map (flat, tiled, deep OpenEXR, with a PNG
+//! preview) or as a transmittance volume (`.vdb`). The rooms follow the stages of a bake, and a
+//! room imports only its own stage and those below it (`tests/layering.rs` holds this):
+//!
+//! | stage | room | what it does |
+//! |---|---|---|
+//! | vocabulary | `map` | what a map is and how it is asked for: [`BakeSettings`], [`Depths`], [`Map`], channel names |
+//! | vocabulary | `camera` | [`View`] -> [`Camera`]: framing, OpenEXR matrices, cameras reused from earlier maps, how far a volume reaches outside a fixed camera |
+//! | stages | `trace` | making a [`Map`] in memory: the parallel tile renderer (one estimate per pixel), the exact sweep in object order (`trace/sweep`, AVX2 lanes), scenes channel by channel |
+//! | stages | `encode` | writing bytes: EXR scanline / tiled / mip-mapped ([`write_exr`]), deep EXR ([`DeepImage`]), PNG, the map as data ([`MapSummary`]), the greedy deep-sample fit |
+//! | products | `product` | [`BakeJob`] (file to written map), [`bake_deep`] (deep maps), [`VolumeJob`] (transmittance volumes) |
+//!
+//! A bake is asked for through [`crate::request`], which plans one of these products.
 //!
 //! **Volume box.** What a map frames: [`crate::Volume::box_corners`], the world image of the
 //! index box holding every non-background value grown by one voxel (the reach of a trilinear
@@ -12,50 +23,39 @@
 //! settings, never on the thread count or the tile order.
 //!
 //! **Order.** Exact maps (regular tracking, trilinear, slices included; orthographic, and
-//! perspective with the light outside the volume) are traced in object order by the sweep: each 8^3 block of the tree adds its exact integral to every pixel
-//! it covers (`sweep`, see ARCHITECTURE.md); everything else, and any map with
-//! [`BakeSettings::order`] = [`Order::Rays`], traces one ray per pixel.
+//! perspective with the light outside the volume) are traced in object order by the sweep:
+//! each 8^3 block of the tree adds its exact integral to every pixel it covers (see
+//! ARCHITECTURE.md); everything else, and any map with [`BakeSettings::order`] =
+//! [`Order::Rays`], traces one ray per pixel.
 
 mod camera;
-mod camera_file;
-mod deep;
-mod deep_fit;
-mod deep_map;
-pub(crate) use camera::CameraParts;
-mod layout;
+mod encode;
 mod map;
-mod matrix;
-mod output;
-mod pipeline;
-mod reach;
-mod render;
-mod scene_map;
-mod shadow_volume;
-mod summary;
-mod sweep;
+mod product;
+mod trace;
 
+pub(crate) use camera::CameraParts;
 pub use camera::{
-    check_res, world_box_corners, Camera, CameraSpec, Projection, Resolution, View,
-    DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE,
+    camera_from_json, check_res, read_camera, world_box_corners, Camera, CameraSpec, Outside,
+    Projection, Resolution, View, DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE,
 };
-pub use camera_file::{camera_from_json, read_camera};
-pub use deep::{encode_deep_exr, write_deep_exr, DeepAttributes, DeepImage, RESERVED_ATTRIBUTES};
-pub use deep_fit::{fit_profile, fit_spans, fitted_transmittance, DeepSample};
-pub use deep_map::{
-    bake_deep, check_deep_error, deep_attributes, DeepMap, DeepStats, DEFAULT_DEEP_ERROR,
-    STOCHASTIC_DEPTHS,
+pub use encode::deep_exr::{
+    encode_deep_exr, write_deep_exr, DeepAttributes, DeepImage, RESERVED_ATTRIBUTES,
 };
-pub use layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
+pub use encode::deep_fit::{
+    check_deep_error, fit_profile, fit_spans, fitted_transmittance, DeepSample, DEFAULT_DEEP_ERROR,
+};
+pub use encode::exr::{write_exr, write_exr_as, write_map, write_png, Provenance};
+pub use encode::layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
+pub use encode::summary::{MapSummary, SummaryCamera};
 pub use map::{
     channel_names, check_threads, slice_channel, BakeSettings, BakeStats, Channel, Depths, Map,
     Order, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
 };
-pub use output::{write_exr, write_exr_as, write_map, write_png, Provenance};
-pub use pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Product, Warning};
-pub use reach::Outside;
-pub use render::{bake, bake_scene};
-pub use shadow_volume::{
+pub use product::deep_map::{bake_deep, deep_attributes, DeepMap, DeepStats, STOCHASTIC_DEPTHS};
+pub use product::pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Product, Warning};
+pub use product::transmittance_volume::{
     output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,
     DEFAULT_OUT_GRID, MAX_VOLUME_LEAVES,
 };
-pub use summary::{MapSummary, SummaryCamera};
+pub use trace::{bake, bake_scene};

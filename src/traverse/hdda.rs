@@ -84,7 +84,7 @@ pub fn walk(
 /// `Tree::lowers`) at [`Granularity::Lower`], an upper node (into `Tree::uppers`) at
 /// [`Granularity::Upper`]; `None` for tiles and empty root cells. Regular tracking reads a
 /// leaf's voxels directly instead of descending the tree for every voxel; the object-order map
-/// renderer (`bake::sweep`) integrates lower nodes itself and walks rays only for the rest.
+/// renderer (`bake/trace/sweep`) integrates lower nodes itself and walks rays only for the rest.
 pub(crate) fn walk_nodes(
     vol: &Volume,
     ray: &Ray,

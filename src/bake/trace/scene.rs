@@ -4,8 +4,8 @@
 //! `tau_c = sum_k sigma_{k,c} tau_k`; then one exponential per channel and pixel. Solids cut
 //! each pixel's ray at its first hit: `T = 0` for the map and for every slice at or past it.
 
-use super::camera::Camera;
-use super::map::{BakeSettings, BakeStats, Channel, Map, Order};
+use crate::bake::camera::Camera;
+use crate::bake::map::{BakeSettings, BakeStats, Channel, Map, Order};
 use crate::error::{Error, Result};
 use crate::math::scaled;
 use crate::scene::Scene;
@@ -32,7 +32,7 @@ impl Passes<'_> {
 }
 
 /// One volume's exact optical depth per pixel by regular tracking along each pixel's ray
-/// (`tau[n (1 + K) + s]` as [`super::sweep::tau_image`]), and the lookups it cost.
+/// (`tau[n (1 + K) + s]` as [`crate::bake::trace::sweep::tau_image`]), and the lookups it cost.
 fn ray_tau(
     vol: &Volume,
     camera: &Camera,
@@ -127,7 +127,7 @@ pub(crate) fn exact(
     for fog in scene.fogs() {
         let vol = fog.volume();
         let sweep = if s.order == Order::Auto && interp == Interp::Trilinear {
-            super::sweep::tau_image(vol, camera, depths, rows, &report)?
+            crate::bake::trace::sweep::tau_image(vol, camera, depths, rows, &report)?
         } else {
             None
         };
@@ -176,7 +176,7 @@ pub(crate) fn exact(
                 .collect(),
         }
     });
-    let (red, color) = super::map::split_channels(chans.collect());
+    let (red, color) = crate::bake::map::split_channels(chans.collect());
     Ok(Map {
         camera: *camera,
         settings: s.clone(),

@@ -14,7 +14,7 @@
 //! new size ([`Camera::with_resolution`]). A bare camera object without a size takes the given
 //! `W x H` as is (its pixel steps fix the window).
 
-use super::camera::{Camera, CameraSpec, Projection, Resolution};
+use crate::bake::camera::{Camera, CameraSpec, Projection, Resolution};
 use crate::error::{Error, Result};
 use exr::meta::attribute::AttributeValue;
 use std::path::Path;

@@ -2,7 +2,7 @@
 //! outputs, load the grid, frame the camera, bake, write the map and its preview together, and
 //! report what a user should be warned about.
 
-use super::{bake_scene, write_map, BakeSettings, Camera, Map, Provenance, View};
+use crate::bake::{bake_scene, write_map, BakeSettings, Camera, Map, Provenance, View};
 use crate::error::{Error, Result};
 use crate::output::check_writable;
 use crate::scene::{Scene, SceneOptions};
@@ -39,7 +39,7 @@ pub struct BakeJob {
     /// Replace existing outputs.
     pub overwrite: bool,
     /// The EXR's layout: scanlines, or tiles with optional mip levels (`--tile`, `--mipmap`).
-    pub layout: super::ExrLayout,
+    pub layout: crate::bake::ExrLayout,
     /// A memory budget in bytes (`--max-memory`): when the decoded grid and the image would
     /// not fit in it, an exact map is swept a part of the grid at a time
     /// ([`BakeJob::plan_bounded`]); `None`: load the whole grid.
@@ -55,7 +55,7 @@ pub enum Product {
     /// in scanlines or tiles ([`BakeJob::layout`]).
     #[default]
     Map,
-    /// A deep scanline OpenEXR map ([`super::bake_deep`]): the transmittance function along
+    /// A deep scanline OpenEXR map ([`crate::bake::bake_deep`]): the transmittance function along
     /// every pixel's ray within `max_error` in T at every depth (`--deep`, `--deep-error`).
     Deep {
         /// The bound `E` on `|T_deep(z) - T(z)|`.
@@ -226,7 +226,7 @@ pub struct BakeReport {
     /// Things the user should be told, in order.
     pub warnings: Vec<Warning>,
     /// The deep map's counts, for [`Product::Deep`].
-    pub deep: Option<super::DeepStats>,
+    pub deep: Option<crate::bake::DeepStats>,
 }
 
 impl BakeJob {
@@ -248,7 +248,7 @@ impl BakeJob {
         }
         self.layout.validate()?;
         if let Product::Deep { max_error } = self.product {
-            super::check_deep_error(max_error)?;
+            crate::bake::check_deep_error(max_error)?;
             let flat_only = |flag: &str, what: &str| Error::InvalidArgument {
                 name: flag.into(),
                 reason: format!(
@@ -262,7 +262,7 @@ impl BakeJob {
                     "a tiled layout (deep maps are written as scanlines)",
                 ));
             }
-            if self.settings.depths != super::Depths::None {
+            if self.settings.depths != crate::bake::Depths::None {
                 return Err(flat_only("slices", "--slices/--depths"));
             }
             if self.settings.std_err {
@@ -349,9 +349,9 @@ impl BakeJob {
             None => (Camera::frame(&self.view, &shell.box_corners()?)?, 0.0),
         };
         let depth_images = match &self.settings.depths {
-            super::Depths::None => 0,
-            super::Depths::Slices(k) => *k as u64,
-            super::Depths::At(d) => d.len() as u64,
+            crate::bake::Depths::None => 0,
+            crate::bake::Depths::Slices(k) => *k as u64,
+            crate::bake::Depths::At(d) => d.len() as u64,
         };
         // T (f32) and the f64 optical depth of every pixel, per slice too.
         let image = camera.pixels() * (1 + depth_images) * 12;
@@ -372,9 +372,9 @@ impl BakeJob {
         // every other map by runs of image rows on the ray path.
         let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR
             && self.settings.options.interp == crate::volume::Interp::Trilinear
-            && self.settings.order == super::Order::Auto;
+            && self.settings.order == crate::bake::Order::Auto;
         let sweep = match shell.fogs().first() {
-            Some(f) => exact && super::sweep::streams(f.volume(), &camera)?,
+            Some(f) => exact && crate::bake::trace::sweep::streams(f.volume(), &camera)?,
             None => false,
         };
         // The least part: the lower node with the most leaves in its `[o, o + 128]` box.
@@ -435,7 +435,7 @@ impl BakeJob {
         };
         let settings = self.settings_shifted(plan.depth_shift);
         let map = if plan.sweep {
-            let baked = super::render::bake_streamed(
+            let baked = crate::bake::trace::bake_streamed(
                 &plan.lazy,
                 shell,
                 &volume_of,
@@ -456,7 +456,7 @@ impl BakeJob {
             map
         } else {
             let load = |ids: &[u32]| self.volume_of(plan.lazy.load_from(shell.tree(), ids)?);
-            let (mut map, parts) = super::render::bake_rows_streamed(
+            let (mut map, parts) = crate::bake::trace::bake_rows_streamed(
                 shell,
                 &load,
                 &plan.camera,
@@ -548,7 +548,7 @@ impl BakeJob {
     /// The settings with explicit depths moved `delta` further along the rays.
     fn settings_shifted(&self, delta: f64) -> BakeSettings {
         let mut settings = self.settings.clone();
-        if let super::Depths::At(d) = &mut settings.depths {
+        if let crate::bake::Depths::At(d) = &mut settings.depths {
             if delta > 0.0 {
                 d.iter_mut().for_each(|z| *z += delta);
             }
@@ -589,10 +589,14 @@ impl BakeJob {
     }
 
     /// Write a deep map and the preview of its flat map together.
-    fn write_deep(&self, mut report: BakeReport, deep: &super::DeepMap) -> Result<BakeReport> {
-        let attrs = super::deep_attributes(&report.map, &report.provenance, &deep.stats);
-        let bytes = super::encode_deep_exr(&deep.image, &attrs);
-        super::output::write_with_preview(
+    fn write_deep(
+        &self,
+        mut report: BakeReport,
+        deep: &crate::bake::DeepMap,
+    ) -> Result<BakeReport> {
+        let attrs = crate::bake::deep_attributes(&report.map, &report.provenance, &deep.stats);
+        let bytes = crate::bake::encode_deep_exr(&deep.image, &attrs);
+        crate::bake::encode::exr::write_with_preview(
             &self.output,
             &bytes,
             self.preview.as_deref(),
@@ -605,7 +609,7 @@ impl BakeJob {
 
     /// The flat map (for the summary, the preview and the warnings) and the deep map of a
     /// [`Product::Deep`] job. A stochastic estimator's flat map carries the
-    /// [`super::STOCHASTIC_DEPTHS`] slices its deep function is fitted to (removed from the
+    /// [`crate::bake::STOCHASTIC_DEPTHS`] slices its deep function is fitted to (removed from the
     /// returned map); an exact map is swept first, then the deep pass traces every pixel's
     /// profile (progress counts the deep pass).
     fn bake_deep_map(
@@ -614,7 +618,7 @@ impl BakeJob {
         camera: Camera,
         max_error: f64,
         progress: &(dyn Fn(u64) + Sync),
-    ) -> Result<(Map, super::DeepMap)> {
+    ) -> Result<(Map, crate::bake::DeepMap)> {
         let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR;
         let none = |_: u64| {};
         let (camera, settings) = self.aimed(scene, camera);
@@ -622,13 +626,14 @@ impl BakeJob {
             bake_scene(scene, &camera, &settings, &none)?
         } else {
             let settings = BakeSettings {
-                depths: super::Depths::Slices(super::STOCHASTIC_DEPTHS),
+                depths: crate::bake::Depths::Slices(crate::bake::STOCHASTIC_DEPTHS),
                 ..settings
             };
             bake_scene(scene, &camera, &settings, progress)?
         };
-        let deep = super::bake_deep(scene, &map, max_error, if exact { progress } else { &none })?;
-        map.settings.depths = super::Depths::None;
+        let deep =
+            crate::bake::bake_deep(scene, &map, max_error, if exact { progress } else { &none })?;
+        map.settings.depths = crate::bake::Depths::None;
         map.depths.clear();
         map.slices.clear();
         if let Some(gb) = &mut map.color {
@@ -710,8 +715,8 @@ impl BakeJob {
         let (mut light_dir, mut light_pos) = (self.view.light_dir, self.view.light_pos);
         if light_dir.is_none() && light_pos.is_none() {
             match camera.kind() {
-                super::Projection::Ortho => light_dir = Some(camera.direction()),
-                super::Projection::Perspective => light_pos = Some(camera.origin()),
+                crate::bake::Projection::Ortho => light_dir = Some(camera.direction()),
+                crate::bake::Projection::Perspective => light_pos = Some(camera.origin()),
             }
         }
         let provenance = Provenance {

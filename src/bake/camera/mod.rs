@@ -20,6 +20,12 @@
 //!
 //! `t` is world distance along the unit ray direction, as everywhere in umbra.
 
+pub(crate) mod file;
+mod matrix;
+pub(crate) mod reach;
+pub use file::{camera_from_json, read_camera};
+pub use reach::Outside;
+
 use crate::error::{Error, Result};
 use crate::math::normalise;
 use crate::ray::Ray;

@@ -1,7 +1,13 @@
-//! The parallel tile renderer: one estimate per pixel (plus adaptive batches and depth slices).
+//! Tracing a map: the parallel tile renderer (one estimate per pixel, plus adaptive batches and
+//! depth slices) in this file, the exact sweep in object order (`sweep`) and the per-channel
+//! bake of scenes (`scene`). Tracing makes a [`Map`] in memory; it reads no file and writes
+//! none (encoding is `bake/encode`, orchestration `bake/product`).
 
-use super::camera::{Camera, MAX_PIXELS};
-use super::map::{
+pub(crate) mod scene;
+pub(crate) mod sweep;
+
+use crate::bake::camera::{Camera, MAX_PIXELS};
+use crate::bake::map::{
     bad, split_channels, BakeSettings, BakeStats, Channel, Depths, Map, Order, MAX_BATCHES,
     MAX_SLICES,
 };
@@ -263,7 +269,7 @@ fn bake_source(
     settings: &BakeSettings,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Map> {
-    super::check_res(camera.width, camera.height)?;
+    crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
     let depths = resolve_depths(&settings.depths, camera)?;
     let channels = (1 + depths.len() as u64 + u64::from(settings.std_err)) * src.channels() as u64;
@@ -320,7 +326,7 @@ fn check_work(vols: &[&Volume], camera: &Camera, settings: &BakeSettings) -> Res
 }
 
 /// [`bake`] of a lazily opened grid in bounded memory, by the sweep in groups of lower nodes
-/// of at most about `group_leaves` leaves ([`super::sweep::render_streamed`]): the same map,
+/// of at most about `group_leaves` leaves ([`crate::bake::trace::sweep::render_streamed`]): the same map,
 /// bit for bit. `volume_of` makes a volume of each decoded part (density scale, transform).
 /// `None` when this map cannot be swept in parts (not an exact trilinear map, a pinhole inside
 /// the volume, extinction outside lower nodes).
@@ -335,16 +341,16 @@ pub(crate) fn bake_streamed(
     settings: &BakeSettings,
     group_leaves: usize,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<Option<(Map, super::sweep::Streamed)>> {
-    super::check_res(camera.width, camera.height)?;
+) -> Result<Option<(Map, crate::bake::trace::sweep::Streamed)>> {
+    crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
-    if settings.order != Order::Auto || !super::sweep::applies(settings) {
+    if settings.order != Order::Auto || !crate::bake::trace::sweep::applies(settings) {
         return Ok(None);
     }
     let depths = resolve_depths(&settings.depths, camera)?;
     let run = || {
         let rows = band_rows(camera.height, rayon::current_num_threads());
-        super::sweep::render_streamed(
+        crate::bake::trace::sweep::render_streamed(
             lazy,
             shell,
             volume_of,
@@ -375,7 +381,7 @@ pub(crate) fn bake_rows_streamed(
     group_leaves: usize,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<(Map, u64)> {
-    super::check_res(camera.width, camera.height)?;
+    crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
     let depths = resolve_depths(&settings.depths, camera)?;
     check_work(&[shell], camera, settings)?;
@@ -461,15 +467,17 @@ fn render(
     let h = camera.height;
     let nc = src.channels();
     let rows = band_rows(h, rayon::current_num_threads());
-    if s.order == Order::Auto && super::sweep::applies(s) {
+    if s.order == Order::Auto && crate::bake::trace::sweep::applies(s) {
         match src {
             Source::Volume(vol) => {
-                if let Some(map) = super::sweep::render(vol, camera, s, depths, rows, progress)? {
+                if let Some(map) =
+                    crate::bake::trace::sweep::render(vol, camera, s, depths, rows, progress)?
+                {
                     return Ok(map);
                 }
             }
             Source::Scene(scene) => {
-                return super::scene_map::exact(scene, camera, s, depths, rows, progress);
+                return crate::bake::trace::scene::exact(scene, camera, s, depths, rows, progress);
             }
         }
     }

@@ -1,17 +1,17 @@
 //! What a baked map is, as data: the [`MapSummary`] that `umbra bake --json` prints (with the
 //! run's timings added) and the Python module returns as a map's `camera` dict, and the way
-//! back from it and the pixels to a [`Map`] that [`super::write_exr`] writes as the same file
+//! back from it and the pixels to a [`Map`] that [`crate::bake::write_exr`] writes as the same file
 //! the CLI writes.
 //!
 //! The summary holds everything the EXR header holds besides the pixels: the camera (the
-//! `camera` object [`super::read_camera`] reads back), the provenance, the estimator with its
+//! `camera` object [`crate::bake::read_camera`] reads back), the provenance, the estimator with its
 //! parameters, the sampling settings and the sample counts behind `umbra:mean_spp`
 //! (`samples / max(rays, 1)`).
 
-use super::camera::{Camera, CameraSpec, Projection};
-use super::map::channel_names;
-use super::map::{BakeSettings, BakeStats, Channel, Depths, Map};
-use super::output::Provenance;
+use crate::bake::camera::{Camera, CameraSpec, Projection};
+use crate::bake::encode::exr::Provenance;
+use crate::bake::map::channel_names;
+use crate::bake::map::{BakeSettings, BakeStats, Channel, Depths, Map};
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
 use crate::Interp;

@@ -435,7 +435,7 @@ fn encode_line(img: &DeepImage, y: usize) -> Vec<u8> {
 }
 
 /// Encode `img` as a single-part deep scanline OpenEXR file (ZIPS, increasing Y, the layout of
-/// README's *Deep maps* and the `bake::deep` source) with the attributes `attrs`. Extra attributes that
+/// README's *Deep maps* and the `bake/encode/deep_exr.rs` source) with the attributes `attrs`. Extra attributes that
 /// [`DeepAttributes::validate`] would refuse for their name or type name are left out, a
 /// reserved name never overrides the writer's value, and of a repeated name the last wins;
 /// an invalid `part_name` becomes `"deep"`. Scanlines are compressed in parallel (in the

@@ -20,7 +20,7 @@
 //! the box reaches beyond it, in pixels and world units (at the box's nearest depth for a
 //! perspective camera), for the bake's warnings.
 
-use super::{Camera, Projection};
+use crate::bake::{Camera, Projection};
 use glam::DVec3;
 
 /// How far a box reaches outside a camera's window (see [`Camera::outside`]).

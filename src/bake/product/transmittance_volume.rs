@@ -281,7 +281,7 @@ pub fn transmittance_leaves(
             None => by_rays(vol, light, est, opts, &mut leaves, progress),
         }
     };
-    let (rays, lookups) = super::render::in_pool(threads, run)?;
+    let (rays, lookups) = crate::bake::trace::in_pool(threads, run)?;
     let mut stats = VolumeStats {
         voxels: 0,
         leaves: leaves.len() as u64,
@@ -601,7 +601,7 @@ pub struct VolumeReport {
     /// Counts and cost.
     pub stats: VolumeStats,
     /// Things the user should be told (bad voxels in the density).
-    pub warnings: Vec<super::Warning>,
+    pub warnings: Vec<crate::bake::Warning>,
 }
 
 /// The default name of the written grid.
@@ -615,7 +615,7 @@ impl VolumeJob {
     /// [`Error::Output`] naming the file; [`Error::InvalidArgument`] (`output`, `out-grid`).
     pub fn check_outputs(&self) -> Result<()> {
         crate::output::check_writable(&self.output, self.overwrite)?;
-        super::pipeline::check_extension(
+        crate::bake::product::pipeline::check_extension(
             &self.output,
             "vdb",
             "output",
@@ -718,7 +718,7 @@ impl VolumeJob {
         crate::vdb::write_vdb(&self.output, &grid, self.overwrite)?;
         Ok(VolumeReport {
             stats,
-            warnings: super::volume_warnings(&vol.sanitized()),
+            warnings: crate::bake::volume_warnings(&vol.sanitized()),
         })
     }
 }

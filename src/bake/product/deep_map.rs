@@ -1,20 +1,20 @@
 //! Deep shadow maps (Lokovic and Veach 2000): per pixel, the whole transmittance function
-//! along the pixel's ray as OpenEXR volumetric deep samples (see [`super::deep_fit`] for how
-//! a sample describes `T(z)`, [`super::deep`] for the file).
+//! along the pixel's ray as OpenEXR volumetric deep samples (see `bake/encode/deep_fit.rs` for how
+//! a sample describes `T(z)`, `bake/encode/deep_exr.rs` for the file).
 //!
 //! **Channels.** A grey map has `A`, `Z`, `ZBack`; a colour map (`--sigma-t`, RGB scenes) has
 //! `AR`, `AG`, `AB` (each colour's alpha, `1 - exp(-(tau_c(ZBack) - tau_c(Z)))`: OpenEXR's
 //! standard names for per-channel opacity; `R`, `G`, `B` are premultiplied colours to every
 //! deep reader, which would composite them with `A`) and `A` (the alpha of the mean optical
 //! depth `(tau_R + tau_G + tau_B) / 3`), all fitted together.
-//! `Z`/`ZBack` are world distances `t` along the pixel's ray ([`super::Camera::pixel_ray`]),
+//! `Z`/`ZBack` are world distances `t` along the pixel's ray ([`crate::bake::Camera::pixel_ray`]),
 //! samples sorted and non-overlapping; an opaque voxel or a solid adds one point sample
 //! (`Z = ZBack`, alpha 1) where the ray meets it. Pixels whose ray meets no extinction have no
 //! samples.
 //!
 //! **Error.** With regular tracking the function is the exact one: the optical-depth profile
 //! of [`crate::regular::optical_depth_profile`] (piecewise linear within `E / 4` in T of the
-//! exact `tau(t)`) fitted by [`super::fit_spans`] within `E / 2`, so the samples' `T(z)`
+//! exact `tau(t)`) fitted by [`crate::bake::fit_spans`] within `E / 2`, so the samples' `T(z)`
 //! is within `3E / 4` of the exact prefix transmittance at every depth `z`; the last `E / 4`
 //! is the room left for the file's f32 depths and alphas. Stochastic estimators give the
 //! deep function of their estimate: `T` estimated at [`STOCHASTIC_DEPTHS`] depths evenly
@@ -23,11 +23,11 @@
 //! made non-increasing (a running minimum, clamped to `[0, 1]`), linear in optical depth
 //! between them, fitted within `E / 2`.
 
-use super::deep::{DeepAttributes, DeepImage};
-use super::deep_fit::fit_spans;
-use super::output::{m44f, umbra_attributes};
-use super::render::in_pool;
-use super::{Map, Provenance, MAX_SLICES};
+use crate::bake::encode::deep_exr::{DeepAttributes, DeepImage};
+use crate::bake::encode::deep_fit::{check_deep_error, fit_spans};
+use crate::bake::encode::exr::{m44f, umbra_attributes};
+use crate::bake::trace::in_pool;
+use crate::bake::{Map, Provenance, MAX_SLICES};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::ray::Ray;
@@ -36,8 +36,6 @@ use crate::scene::Scene;
 use exr::meta::attribute::{AttributeValue, Text};
 use rayon::prelude::*;
 
-/// The default bound on `|T_deep(z) - T(z)|` (`--deep-error`).
-pub const DEFAULT_DEEP_ERROR: f64 = 0.002;
 /// Depths at which a stochastic estimator's deep function is estimated.
 pub const STOCHASTIC_DEPTHS: usize = MAX_SLICES;
 /// Share of the error bound the piecewise-linear profile may use.
@@ -79,7 +77,7 @@ impl DeepStats {
 /// A baked deep map.
 #[derive(Debug)]
 pub struct DeepMap {
-    /// The samples, ready for [`super::write_deep_exr`].
+    /// The samples, ready for [`crate::bake::write_deep_exr`].
     pub image: DeepImage,
     /// Counts and cost.
     pub stats: DeepStats,
@@ -92,20 +90,6 @@ struct PixelProfile {
     taus: Vec<Vec<f64>>,
     opaque_at: Option<f64>,
     coarse: u64,
-}
-
-/// Check a deep error bound.
-///
-/// # Errors
-/// [`Error::InvalidArgument`] (name `deep-error`) outside `(0, 1)`.
-pub fn check_deep_error(max_error: f64) -> Result<()> {
-    if max_error > 0.0 && max_error < 1.0 {
-        return Ok(());
-    }
-    Err(Error::InvalidArgument {
-        name: "deep-error".into(),
-        reason: format!("{max_error}: an error bound between 0 and 1 (in T)"),
-    })
 }
 
 /// The deep map of `scene` seen by `flat`'s camera with `flat`'s settings. `flat` is the

@@ -1,6 +1,6 @@
 //! The standard OpenEXR camera matrices of a [`Camera`]: `worldToCamera` and `worldToNDC`.
 
-use super::camera::{Camera, Projection};
+use crate::bake::camera::{Camera, Projection};
 use glam::DVec3;
 
 impl Camera {

@@ -2,9 +2,9 @@
 //! preview. Files are written through [`crate::output`] (atomic, all outputs of one bake
 //! together).
 
-use super::camera::Projection;
-use super::layout::{mip_levels, ExrLayout};
-use super::map::Map;
+use crate::bake::camera::Projection;
+use crate::bake::encode::layout::{mip_levels, ExrLayout};
+use crate::bake::map::Map;
 use crate::error::{Error, Result};
 use crate::output::{commit_all, stage, write_atomic};
 use exr::meta::attribute::{AttributeValue, Text};
@@ -83,7 +83,7 @@ pub fn write_exr(path: &Path, map: &Map, prov: &Provenance, overwrite: bool) -> 
 /// [`write_exr`] in `layout`: scanlines, or tiles of `n x n` pixels (the same channels and
 /// attributes; OpenEXR's `tiles` attribute says the tile size and level mode), with
 /// box-filtered round-down mip levels of every channel when `layout.mipmap`
-/// ([`super::mip_levels`]).
+/// ([`crate::bake::mip_levels`]).
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for a layout [`ExrLayout::validate`] refuses; as [`write_exr`].
@@ -300,7 +300,8 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
 /// Every channel of `map` with its name: `T` (or `R`, `G`, `B`), each followed by its
 /// `.stderr` and `sliceNN` channels.
 fn channel_planes(map: &Map) -> Vec<(Text, &[f32])> {
-    let names = super::map::channel_names(map.channels(), map.std_err.is_some(), map.slices.len());
+    let names =
+        crate::bake::map::channel_names(map.channels(), map.std_err.is_some(), map.slices.len());
     let mut planes: Vec<&[f32]> = Vec::with_capacity(names.len());
     for c in 0..map.channels() {
         let (t, err, slices) = map.channel(c);

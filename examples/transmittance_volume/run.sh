@@ -3,7 +3,7 @@
 # files, merge density and T into one cache (grids `density` and `shadow`), list it with
 # vdb_print and render the middle z-slice of density, T and density x T as a PNG.
 #
-#   bash examples/shadow_volume/run.sh [OUT_DIR]     (default examples/shadow_volume/out)
+#   bash examples/transmittance_volume/run.sh [OUT_DIR]     (default examples/transmittance_volume/out)
 #
 # Needs Debian's /usr/bin/python3 with pyopenvdb and numpy (python3-openvdb), vdb_print
 # (libopenvdb-tools) and oiiotool (openimageio-tools). UMBRA=path/to/umbra skips the build.

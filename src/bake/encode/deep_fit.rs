@@ -64,6 +64,23 @@ pub fn fitted_transmittance(samples: &[DeepSample], z: f64) -> f64 {
 
 /// The largest `|exp(-a(t)) - exp(-b(t))|` over `[t0, t1]` for `a` linear from `a0` to `a1`
 /// and `b` linear from `b0` to `b1`: at the ends, or where the derivative vanishes.
+/// The default bound on `|T_deep(z) - T(z)|` (`--deep-error`).
+pub const DEFAULT_DEEP_ERROR: f64 = 0.002;
+
+/// Check a deep error bound.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (name `deep-error`) outside `(0, 1)`.
+pub fn check_deep_error(max_error: f64) -> Result<()> {
+    if max_error > 0.0 && max_error < 1.0 {
+        return Ok(());
+    }
+    Err(Error::InvalidArgument {
+        name: "deep-error".into(),
+        reason: format!("{max_error}: an error bound between 0 and 1 (in T)"),
+    })
+}
+
 #[cfg(test)]
 fn max_gap(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64)) -> f64 {
     gap_within(t0, t1, (a0, a1), (b0, b1), 0.0, (0.0, 1.0))
@@ -135,7 +152,7 @@ pub fn fit_profile(t: &[f64], tau: &[f64], max_error: f64) -> Result<Vec<DeepSam
 /// # Errors
 /// As [`fit_profile`], for any channel; also (name `deep`) for no channel.
 pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usize, usize)>> {
-    super::check_deep_error(max_error)?;
+    check_deep_error(max_error)?;
     let bad = |reason: &str| Error::InvalidArgument {
         name: "deep".into(),
         reason: reason.into(),

@@ -43,8 +43,8 @@
 
 mod kernel;
 
-use super::camera::{Camera, Projection};
-use super::map::{BakeSettings, BakeStats, Map};
+use crate::bake::camera::{Camera, Projection};
+use crate::bake::map::{BakeSettings, BakeStats, Map};
 use crate::error::Result;
 use crate::estimate::Estimator;
 use crate::math::box_corners;

@@ -1,0 +1,440 @@
+//! The job file: its types as written (`JobFile`, `[[inputs]]`, `[[lights]]`, `[bake]` as the
+//! one [`BakeOptions`] type), their JSON Schema, and `parse_job`, which checks a job file into
+//! a [`Job`] of tasks: every error names its key (`bake.step`, `lights[1].dir`) and, for a
+//! value of the wrong type, its line and column.
+
+use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAMES, MAX_FRAME_PAD};
+use super::{BatchError, Job, Task};
+use crate::request::{BakeOptions, BakePlan, BakeRequest};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// The job file as written. Its JSON Schema ([`job_schema`], `umbra batch --schema`) is
+/// generated from this type.
+#[derive(Debug, Clone, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[serde(deny_unknown_fields)]
+pub struct JobFile {
+    /// Grid to bake in every input (default `density`; or `grid` in `[bake]`).
+    pub grid: Option<String>,
+    /// Output path pattern: `{light}`, `{stem}`, `{frame}`, `{frame:0N}`; ending in `.vdb`,
+    /// transmittance volumes, else EXR maps.
+    pub output: String,
+    /// JSON-lines log (default: `umbra_batch.jsonl` in the first output's directory).
+    pub log: Option<String>,
+    /// Inputs, in order.
+    pub inputs: Vec<InputSpec>,
+    /// Lights, in order (or one light as `light_dir` / `light_pos` in `[bake]`).
+    #[serde(default)]
+    pub lights: Vec<LightSpec>,
+    /// The options of every bake: `umbra bake`'s, with the same names (`_` for `-`) and
+    /// defaults ([`BakeOptions`]), plus `framing`.
+    #[serde(default)]
+    pub bake: BakeOptions,
+}
+
+/// The JSON Schema (draft 2020-12) of job files, generated from [`JobFile`] and
+/// [`BakeOptions`]: what `umbra batch --schema` prints.
+#[cfg(feature = "schema")]
+#[must_use]
+pub fn job_schema() -> serde_json::Value {
+    let schema = schemars::generate::SchemaSettings::draft2020_12()
+        .into_generator()
+        .into_root_schema_for::<JobFile>();
+    serde_json::to_value(schema).unwrap_or_default()
+}
+
+/// One `[[inputs]]` entry: `file`, or `pattern` with `frames`.
+#[derive(Debug, Clone, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[serde(deny_unknown_fields)]
+pub struct InputSpec {
+    /// An explicit file.
+    pub file: Option<String>,
+    /// A sequence pattern: `####` (padding = number of `#`), `$F4` / `$F`, or `%04d` / `%d`.
+    pub pattern: Option<String>,
+    /// Inclusive frame range `[first, last]` of a pattern.
+    pub frames: Option<[i64; 2]>,
+    /// Frame step of a pattern (default 1).
+    pub step: Option<i64>,
+}
+
+/// One `[[lights]]` entry.
+#[derive(Debug, Clone, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[serde(deny_unknown_fields)]
+pub struct LightSpec {
+    /// Name used by `{light}`.
+    pub name: String,
+    /// Direction the light travels (directional light, orthographic map; with `pos`, where a
+    /// perspective map from the light looks), as `umbra bake --light-dir`.
+    pub dir: Option<[f64; 3]>,
+    /// Light position (point light, perspective map), as `umbra bake --light-pos`.
+    pub pos: Option<[f64; 3]>,
+}
+
+pub(super) fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> BatchError {
+    BatchError::Invalid {
+        path: path.to_path_buf(),
+        key: key.to_string(),
+        reason: reason.to_string(),
+    }
+}
+
+/// The key (`bake.levelset`) whose value starts the line holding byte `at` of a job file: the
+/// text before `=` on that line, after the last `[table]` header above it. `None` for a line
+/// that is not `key = value`.
+fn key_at(text: &str, at: usize) -> Option<String> {
+    let start = text[..at].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    let bare = |k: &str| {
+        !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
+    };
+    if !bare(key) {
+        return None;
+    }
+    let table = text[..start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('['))
+        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+    Some(match table {
+        Some(t) if !t.is_empty() => format!("{t}.{key}"),
+        _ => key.to_string(),
+    })
+}
+
+/// Parse and validate a job file's text; `path` is the job file (relative paths in it are
+/// relative to its directory).
+///
+/// # Errors
+/// [`BatchError::Syntax`] (with line and column) or [`BatchError::Invalid`] naming the key.
+pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
+    let file: JobFile = toml::from_str(text).map_err(|e| {
+        // One line: "line L, column C: message" (the parser's own text quotes the source).
+        let message = match e.span() {
+            Some(r) if r.start <= text.len() => {
+                let before = &text[..r.start];
+                let line = before.matches('\n').count() + 1;
+                let column = r.start - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+                let key = key_at(text, r.start)
+                    .map(|k| format!("{k}: "))
+                    .unwrap_or_default();
+                format!("line {line}, column {column}: {key}{}", e.message().trim())
+            }
+            _ => e.message().trim().to_string(),
+        };
+        BatchError::Syntax {
+            path: path.to_path_buf(),
+            message: message.replace('\n', " "),
+        }
+    })?;
+    let path = std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf());
+    let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let resolve = |s: &str| base.join(s);
+    let b = &file.bake;
+    // The grid: top level (the original place) or in [bake], once.
+    let grid = match (&file.grid, b.grid.as_str()) {
+        (Some(g), "density") => g.clone(),
+        (Some(_), _) => {
+            return Err(err(
+                &path,
+                "bake.grid",
+                "the grid is given at the top level too: give it once",
+            ))
+        }
+        (None, g) => g.to_string(),
+    };
+    if grid.is_empty() {
+        return Err(err(&path, "grid", "must not be empty"));
+    }
+    // The lights: [[lights]] entries, or one light in [bake].
+    let lights = match (file.lights.is_empty(), b.light_dir, b.light_pos) {
+        (true, None, None) => {
+            return Err(err(
+                &path,
+                "lights",
+                "give at least one [[lights]] entry, or light_dir / light_pos in [bake]",
+            ))
+        }
+        (true, dir, pos) => vec![LightSpec {
+            name: "light".into(),
+            dir,
+            pos,
+        }],
+        (false, None, None) => file.lights.clone(),
+        (false, ..) => {
+            let key = if b.light_dir.is_some() {
+                "bake.light_dir"
+            } else {
+                "bake.light_pos"
+            };
+            return Err(err(
+                &path,
+                key,
+                "the lights are given as [[lights]] too: give them in one place",
+            ));
+        }
+    };
+    if b.camera.is_some() && lights.len() > 1 {
+        return Err(err(
+            &path,
+            "bake.camera",
+            "a fixed camera is one view: give one [[lights]] entry (it names the outputs)",
+        ));
+    }
+    let mut names = std::collections::HashSet::new();
+    for (i, l) in lights.iter().enumerate() {
+        let key = |k: &str| format!("lights[{i}].{k}");
+        if l.name.is_empty()
+            || l.name == "."
+            || l.name == ".."
+            || l.name.contains(['/', '\\'])
+            || l.name.chars().any(char::is_control)
+        {
+            return Err(err(
+                &path,
+                &key("name"),
+                "must be a non-empty name without slashes or control characters, not . or ..",
+            ));
+        }
+        if !names.insert(l.name.as_str()) {
+            return Err(err(
+                &path,
+                &key("name"),
+                format!("'{}' is used twice", l.name),
+            ));
+        }
+        match (l.dir, l.pos) {
+            (None, None) => {
+                return Err(err(
+                    &path,
+                    &format!("lights[{i}]"),
+                    "give dir = [x, y, z] (directional) or pos = [x, y, z] (point)",
+                ))
+            }
+            (dir, pos) => {
+                if let Some(d) = dir {
+                    if !d.iter().all(|c| c.is_finite()) || d.iter().all(|&c| c == 0.0) {
+                        return Err(err(&path, &key("dir"), "must be finite and non-zero"));
+                    }
+                }
+                if let Some(p) = pos {
+                    if !p.iter().all(|c| c.is_finite()) {
+                        return Err(err(&path, &key("pos"), "must be finite"));
+                    }
+                }
+            }
+        }
+    }
+    if file.inputs.is_empty() {
+        return Err(err(&path, "inputs", "give at least one [[inputs]] entry"));
+    }
+    // (file, frame, index of its [[inputs]] entry)
+    let mut inputs: Vec<(PathBuf, Option<i64>, usize)> = Vec::new();
+    for (i, inp) in file.inputs.iter().enumerate() {
+        let key = |k: &str| format!("inputs[{i}].{k}");
+        match (&inp.file, &inp.pattern) {
+            (Some(f), None) => {
+                if inp.frames.is_some() || inp.step.is_some() {
+                    return Err(err(
+                        &path,
+                        &key("frames"),
+                        "frames/step go with pattern, not file",
+                    ));
+                }
+                inputs.push((resolve(f), None, i));
+            }
+            (None, Some(p)) => {
+                let [first, last] = inp.frames.ok_or_else(|| {
+                    err(
+                        &path,
+                        &key("frames"),
+                        "a pattern needs frames = [first, last]",
+                    )
+                })?;
+                let step = inp.step.unwrap_or(1);
+                if step < 1 {
+                    return Err(err(&path, &key("step"), "must be at least 1"));
+                }
+                if last < first {
+                    return Err(err(&path, &key("frames"), "last frame before the first"));
+                }
+                match pattern_pad(p) {
+                    None => {
+                        return Err(err(
+                            &path,
+                            &key("pattern"),
+                            format!("'{p}' has no frame token (####, $F4 or %04d)"),
+                        ))
+                    }
+                    Some(n) if n > MAX_FRAME_PAD => {
+                        return Err(err(
+                            &path,
+                            &key("pattern"),
+                            format!("pads frames to {n} digits; at most {MAX_FRAME_PAD}"),
+                        ))
+                    }
+                    Some(_) => {}
+                }
+                let count = (i128::from(last) - i128::from(first)) / i128::from(step) + 1;
+                if count > i128::from(MAX_FRAMES) {
+                    return Err(err(
+                        &path,
+                        &key("frames"),
+                        format!("{count} frames; at most {MAX_FRAMES} per sequence"),
+                    ));
+                }
+                let mut f = first;
+                loop {
+                    let name = expand_pattern(p, f).unwrap_or_default();
+                    inputs.push((resolve(&name), Some(f), i));
+                    match f.checked_add(step) {
+                        Some(next) if next <= last => f = next,
+                        _ => break,
+                    }
+                }
+            }
+            _ => {
+                return Err(err(
+                    &path,
+                    &format!("inputs[{i}]"),
+                    "give file = \"...\" or pattern = \"...\" with frames",
+                ))
+            }
+        }
+    }
+    if lights.len() > 1 && !file.output.contains("{light}") {
+        return Err(err(
+            &path,
+            "output",
+            "several lights but no {light} in the pattern: outputs would collide",
+        ));
+    }
+    let mut tasks = Vec::new();
+    let mut seen = std::collections::HashMap::new();
+    for (input, frame, sequence) in &inputs {
+        let stem = input
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        for l in &lights {
+            let out = fill_output(&file.output, &l.name, &stem, *frame)
+                .map_err(|e| err(&path, "output", e))?;
+            let output = normalise(&resolve(&out));
+            let preview = match &b.preview {
+                Some(p) => Some(normalise(&resolve(
+                    &fill_output(&p.to_string_lossy(), &l.name, &stem, *frame)
+                        .map_err(|e| err(&path, "bake.preview", e))?,
+                ))),
+                None => None,
+            };
+            if preview.as_ref() == Some(&output) {
+                return Err(err(&path, "bake.preview", "names the same file as output"));
+            }
+            let index = tasks.len();
+            if let Some(prev) = seen.insert(output.clone(), index) {
+                return Err(err(
+                    &path,
+                    "output",
+                    format!(
+                        "tasks {prev} and {index} both write {} (add {{stem}} or {{frame:04}})",
+                        output.display()
+                    ),
+                ));
+            }
+            tasks.push(Task {
+                index,
+                sequence: *sequence,
+                input: input.clone(),
+                frame: *frame,
+                light: l.name.clone(),
+                dir: l.dir,
+                pos: l.pos,
+                output,
+                preview,
+            });
+        }
+    }
+    let log = match &file.log {
+        Some(l) => resolve(l),
+        None => tasks[0]
+            .output
+            .parent()
+            .map(|d| d.join("umbra_batch.jsonl"))
+            .unwrap_or_else(|| PathBuf::from("umbra_batch.jsonl")),
+    };
+    // Check the options once, as task 0 would run them; keep what every task shares.
+    let mut options = b.clone();
+    options.grid.clone_from(&grid);
+    options.light_dir = None;
+    options.light_pos = None;
+    options.preview = None;
+    let framing = options.framing.take().unwrap_or_default();
+    if let Some(crate::request::CameraSource::File(c)) = &mut options.camera {
+        *c = resolve(&c.to_string_lossy());
+    }
+    let first = &tasks[0];
+    let mut template = options.clone();
+    template.preview.clone_from(&first.preview);
+    if template.camera.is_none() {
+        template.light_dir = first.dir;
+        template.light_pos = first.pos;
+    }
+    let plan = BakeRequest {
+        input: first.input.clone(),
+        output: first.output.clone(),
+        options: template,
+    }
+    .plan()
+    .map_err(|e| match e {
+        crate::Error::InvalidArgument { name, reason } => {
+            let key = match name.as_str() {
+                "output" => "output".to_string(),
+                n => format!("bake.{}", n.replace('-', "_")),
+            };
+            err(&path, &key, reason)
+        }
+        other => err(&path, "bake.camera", other),
+    })?;
+    let (volume, camera) = match plan {
+        BakePlan::Map(j) => (false, j.camera),
+        BakePlan::Volume(_) => (true, None),
+    };
+    options.camera = None;
+    Ok(Job {
+        path,
+        grid,
+        log,
+        tasks,
+        options,
+        framing,
+        camera,
+        volume,
+        shared: std::sync::OnceLock::new(),
+    })
+}
+
+/// `p` with `.` and `name/..` components removed lexically (no file system access), so two
+/// spellings of one output path compare equal.
+fn normalise(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                if !out.pop() {
+                    out.push("..");
+                }
+            }
+            other => out.push(other.as_os_str()),
+        }
+    }
+    out
+}
