@@ -307,6 +307,7 @@ fn job(args: &Args, scale: f64, output: PathBuf, camera: Option<Camera>) -> Bake
         xform: None,
         sigma_t: None,
         levelset_solid: false,
+        stage: Default::default(),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some(args.light_dir),

@@ -82,6 +82,16 @@ pub enum Error {
         /// What is wrong, where.
         reason: String,
     },
+    /// A USD stage cannot be read as a shot: it cannot be opened, or a prim it names is not
+    /// what umbra reads (no volume, a field that is not an `OpenVDBAsset`, a missing asset, an
+    /// unknown light). The reason names the time code and the prim.
+    #[error("{}: {reason}", path.display())]
+    Stage {
+        /// The stage file.
+        path: PathBuf,
+        /// What is wrong, at which time, on which prim.
+        reason: String,
+    },
     /// An output file exists and the caller did not allow replacing it. Nothing was written.
     /// Displayed as the command line says it; [`Error::for_front`] words it for another front
     /// end.

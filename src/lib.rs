@@ -73,6 +73,7 @@ pub mod solid;
 pub mod text;
 pub mod traverse;
 pub mod tree;
+pub mod usd;
 pub mod vdb;
 pub mod volume;
 pub mod xform;

@@ -336,3 +336,68 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 }
+
+/// A private copy of some bytes in the system's temporary directory, for a reader that needs a
+/// file (a VDB packaged inside a `.usdz`): registered like a staged output, so a signal
+/// removes it, and removed when dropped.
+#[derive(Debug)]
+pub struct Scratch {
+    path: PathBuf,
+}
+
+impl Scratch {
+    /// Copy everything `from` reads into a new scratch file; `hint` (a file name) ends its
+    /// name so messages about it stay readable.
+    ///
+    /// # Errors
+    /// [`Error::Output`] naming the scratch file if it cannot be created or written, or
+    /// output was shut down.
+    pub fn copy_from(hint: &str, from: &mut dyn std::io::Read) -> Result<Self> {
+        static COUNTER: AtomicU64 = AtomicU64::new(0);
+        let n = COUNTER.fetch_add(1, Ordering::Relaxed);
+        let safe: String = hint
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '.' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        let path = std::env::temp_dir().join(format!("umbra-{}-{n}-{safe}", std::process::id()));
+        let file = {
+            let mut l = live();
+            if l.closed {
+                return Err(closed_err(&path));
+            }
+            let f = std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(&path)
+                .map_err(|e| output_err(&path, format!("cannot create a scratch file: {e}")))?;
+            l.temps.insert(path.clone());
+            f
+        };
+        let scratch = Self { path };
+        let mut w = BufWriter::new(file);
+        std::io::copy(from, &mut w)
+            .and_then(|_| std::io::Write::flush(&mut w))
+            .map_err(|e| output_err(&scratch.path, format!("writing: {e}")))?;
+        Ok(scratch)
+    }
+
+    /// Where the copy is.
+    #[must_use]
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let mut l = live();
+        let _ = std::fs::remove_file(&self.path);
+        l.temps.remove(&self.path);
+    }
+}

@@ -134,6 +134,21 @@ pub struct BakeOptions {
         arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)
     )]
     pub xform: Option<Vec<f64>>,
+    /// USD stage inputs: the time code to read (default: the stage's startTimeCode).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub frame: Option<f64>,
+    /// USD stage inputs: a Volume prim to trace, by path (repeatable; default: every active,
+    /// visible Volume of the stage).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "PRIM"))]
+    pub volume: Option<Vec<String>>,
+    /// USD stage inputs: the field a Volume's density is (its field:NAME relationship; default
+    /// density).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "NAME"))]
+    pub field: Option<String>,
+    /// USD stage inputs: the UsdLux light to bake from, by prim path or name (default: the
+    /// stage's only light; light-dir / light-pos override it).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "PRIM"))]
+    pub light: Option<String>,
     /// Reuse exactly the camera of an earlier umbra map (.exr), of a JSON file holding the
     /// `camera` object `bake --json` prints, or (as data) that object; its resolution unless
     /// res is given (then the same window at that size).
@@ -260,6 +275,10 @@ impl Default for BakeOptions {
             up: None,
             frame_box: None,
             xform: None,
+            frame: None,
+            volume: None,
+            field: None,
+            light: None,
             camera: None,
             res: None,
             tile: None,
@@ -428,6 +447,16 @@ impl BakeOptions {
         Ok((estimator, options))
     }
 
+    /// What a USD stage input is read at: `frame`, `volume`, `field`.
+    #[must_use]
+    pub fn stage_selection(&self) -> crate::usd::Selection {
+        crate::usd::Selection {
+            time: self.frame,
+            volumes: self.volume.clone().unwrap_or_default(),
+            field: self.field.clone().unwrap_or_else(|| "density".into()),
+        }
+    }
+
     /// The placement transform, checked.
     ///
     /// # Errors
@@ -563,6 +592,88 @@ impl BakeRequest {
     /// [`Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
     /// spelling, for [`crate::Error::for_front`]); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
+        let with_light = self.with_stage_light()?;
+        let req = with_light.as_ref().unwrap_or(self);
+        req.plan_checked()
+    }
+
+    /// The stage's part of a request: options that only a USD stage reads are refused for
+    /// other inputs; for a stage without light-dir, light-pos or camera, the light named by
+    /// `light` (or the stage's only light) at `frame` becomes light-dir (a `DistantLight`) or
+    /// light-pos (a local light), and the stage's up axis the map's default up (unless it is
+    /// parallel to the light). `None`: nothing to change.
+    fn with_stage_light(&self) -> Result<Option<Self>> {
+        let o = &self.options;
+        if !crate::usd::is_stage(&self.input) {
+            let given = [
+                ("frame", o.frame.is_some()),
+                ("volume", o.volume.is_some()),
+                ("field", o.field.is_some()),
+                ("light", o.light.is_some()),
+            ];
+            if let Some((k, _)) = given.iter().find(|(_, g)| *g) {
+                return Err(bad(
+                    k,
+                    format!(
+                        "applies to USD stages (.usd, .usda, .usdc, .usdz); {} is not one",
+                        self.input.display()
+                    ),
+                ));
+            }
+            return Ok(None);
+        }
+        if let Some(f) = o.frame {
+            if !f.is_finite() {
+                return Err(bad("frame", format!("{f} is not a finite time code")));
+            }
+        }
+        if o.field.as_deref() == Some("") {
+            return Err(bad("field", "must not be empty"));
+        }
+        let explicit = o.light_dir.is_some() || o.light_pos.is_some();
+        if o.light.is_some() && (explicit || o.camera.is_some()) {
+            let other = if explicit {
+                "light-dir / light-pos"
+            } else {
+                "camera"
+            };
+            return Err(bad(
+                "light",
+                format!("give a stage light or {other}, not both"),
+            ));
+        }
+        if explicit || o.camera.is_some() || is_volume_output(&self.output) {
+            return Ok(None);
+        }
+        let shot = crate::usd::lights_at(&self.input, o.frame)?;
+        let (_, emitter) = shot.light(o.light.as_deref())?;
+        let mut options = o.clone();
+        let dir = match emitter {
+            crate::usd::Emitter::Directional { dir } => {
+                options.light_dir = Some(dir);
+                Some(dir)
+            }
+            crate::usd::Emitter::Point { pos } => {
+                options.light_pos = Some(pos);
+                None
+            }
+        };
+        if options.up.is_none() {
+            let u = shot.up;
+            let parallel =
+                dir.is_some_and(|d| (d[0] * u[0] + d[1] * u[1] + d[2] * u[2]).abs() > 0.999);
+            if !parallel {
+                options.up = Some(u);
+            }
+        }
+        Ok(Some(Self {
+            input: self.input.clone(),
+            output: self.output.clone(),
+            options,
+        }))
+    }
+
+    fn plan_checked(&self) -> Result<BakePlan> {
         let o = &self.options;
         o.check_common()?;
         let changed = o.changed();
@@ -590,6 +701,16 @@ impl BakeRequest {
 
     fn plan_volume(&self) -> Result<VolumeJob> {
         let o = &self.options;
+        if crate::usd::is_stage(&self.input) {
+            return Err(bad(
+                "output",
+                format!(
+                    "a transmittance volume (.vdb) is made from one density grid; {} is a USD \
+                     stage (bake its volume's .vdb with its xform)",
+                    self.input.display()
+                ),
+            ));
+        }
         if crate::scene::is_scene_file(&self.input) {
             return Err(bad(
                 "output",
@@ -711,6 +832,7 @@ impl BakeRequest {
             xform: o.xform()?,
             sigma_t: o.sigma_t,
             levelset_solid: o.levelset == Some(LevelSet::Solid),
+            stage: o.stage_selection(),
             view,
             camera,
             settings,

@@ -110,6 +110,7 @@ fn job(view: View, settings: BakeSettings) -> BakeJob {
         xform: None,
         sigma_t: None,
         levelset_solid: false,
+        stage: Default::default(),
         view,
         camera: None,
         settings,

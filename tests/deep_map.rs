@@ -31,6 +31,7 @@ fn job(out: PathBuf, est: Estimator, interp: Interp, product: Product) -> BakeJo
         xform: None,
         sigma_t: None,
         levelset_solid: false,
+        stage: Default::default(),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([0.3, -1.0, 0.2]),

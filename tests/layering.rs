@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[(&str, &[&str])] = &[
     ("foundation", &["error", "math", "text", "rng", "output"]),
     ("data", &["tree", "ray", "xform"]),
-    ("input", &["vdb"]),
+    ("input", &["vdb", "usd"]),
     ("model", &["volume"]),
     ("traversal", &["traverse", "demand"]),
     (

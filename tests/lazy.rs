@@ -473,6 +473,7 @@ fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> um
         xform: None,
         sigma_t: None,
         levelset_solid: false,
+        stage: Default::default(),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([0.3, -1.0, 0.2]),

@@ -20,6 +20,7 @@ fn job(out: PathBuf, est: Estimator, spp: u32, std_err: bool) -> BakeJob {
         xform: None,
         sigma_t: None,
         levelset_solid: false,
+        stage: Default::default(),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([-1.0, -1.0, 0.2]),

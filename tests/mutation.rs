@@ -2164,6 +2164,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         xform: None,
         sigma_t: None,
         levelset_solid: false,
+        stage: Default::default(),
         view,
         camera: None,
         settings,

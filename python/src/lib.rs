@@ -397,6 +397,7 @@ impl NativeVolume {
         density_scale: f64,
         interp: &str,
         xform: Option<Vec<f64>>,
+        stage: umbra::usd::Selection,
     ) -> PyResult<Self> {
         let interp = parse_interp(interp)?;
         let xform = xform
@@ -409,6 +410,7 @@ impl NativeVolume {
             sigma_t: None,
             xform,
             levelset_solid: false,
+            stage,
         };
         let scene = py
             .detach(|| umbra::scene::load(&path, &opts))
@@ -685,7 +687,15 @@ impl NativeVolume {
                 ),
             ));
         }
-        Self::load(py, path, grid, density_scale, interp, xform)
+        Self::load(
+            py,
+            path,
+            grid,
+            density_scale,
+            interp,
+            xform,
+            Default::default(),
+        )
     }
 
     /// Load the `.toml` scene file `path`.
@@ -707,7 +717,54 @@ impl NativeVolume {
                 ),
             ));
         }
-        Self::load(py, path, "density".into(), density_scale, interp, xform)
+        Self::load(
+            py,
+            path,
+            "density".into(),
+            density_scale,
+            interp,
+            xform,
+            Default::default(),
+        )
+    }
+
+    /// Load the volumes of the USD stage `path` at time code `time` (default: its start).
+    #[staticmethod]
+    #[pyo3(signature = (path, time, volumes, field, density_scale, interp, xform))]
+    #[allow(clippy::too_many_arguments)]
+    fn open_stage(
+        py: Python<'_>,
+        path: PathBuf,
+        time: Option<f64>,
+        volumes: Vec<String>,
+        field: String,
+        density_scale: f64,
+        interp: &str,
+        xform: Option<Vec<f64>>,
+    ) -> PyResult<Self> {
+        if !umbra::usd::is_stage(&path) {
+            return Err(arg(
+                "path",
+                format!(
+                    "{} is not a USD stage (.usd, .usda, .usdc, .usdz)",
+                    path.display()
+                ),
+            ));
+        }
+        let sel = umbra::usd::Selection {
+            time,
+            volumes,
+            field,
+        };
+        Self::load(
+            py,
+            path,
+            "density".into(),
+            density_scale,
+            interp,
+            xform,
+            sel,
+        )
     }
 
     /// What the bad-voxel policy changed, as warning lines.
@@ -1028,6 +1085,38 @@ fn deep_json(d: &umbra::bake::DeepStats) -> serde_json::Value {
 /// `umbra.bake(input, output, **options)`: the one bake request, from a file to its output,
 /// as `umbra bake INPUT -o OUTPUT --flags` runs it. Returns the summary as JSON text (a map's
 /// camera dict with `deep` for a deep map; a transmittance volume's stats) and the warnings.
+/// The lights of the USD stage `path` at `time` as JSON: `{"time", "up", "lights": [{"prim",
+/// "name", "type", "kind", "dir" | "pos"}]}` (`kind` null for a type umbra does not trace).
+#[pyfunction]
+#[pyo3(signature = (path, time))]
+fn usd_lights_json(py: Python<'_>, path: PathBuf, time: Option<f64>) -> PyResult<String> {
+    let shot = py
+        .detach(|| umbra::usd::lights_at(&path, time))
+        .map_err(py_err)?;
+    let lights: Vec<serde_json::Value> = shot
+        .lights
+        .iter()
+        .map(|l| {
+            let mut o = serde_json::json!({
+                "prim": l.prim, "name": l.name(), "type": l.type_name, "kind": null,
+            });
+            match l.emitter {
+                Some(umbra::usd::Emitter::Directional { dir }) => {
+                    o["kind"] = "directional".into();
+                    o["dir"] = serde_json::json!(dir);
+                }
+                Some(umbra::usd::Emitter::Point { pos }) => {
+                    o["kind"] = "point".into();
+                    o["pos"] = serde_json::json!(pos);
+                }
+                None => {}
+            }
+            o
+        })
+        .collect();
+    Ok(serde_json::json!({"time": shot.time, "up": shot.up, "lights": lights}).to_string())
+}
+
 #[pyfunction]
 fn bake_file(
     py: Python<'_>,
@@ -1087,6 +1176,7 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(run_job, m)?)?;
     m.add_function(wrap_pyfunction!(bake_file, m)?)?;
+    m.add_function(wrap_pyfunction!(usd_lights_json, m)?)?;
     m.add_class::<NativeVolume>()?;
     Ok(())
 }

@@ -40,6 +40,7 @@ __all__ = [
     "estimators",
     "info",
     "run_job",
+    "usd_lights",
     "write_exr",
 ]
 
@@ -246,6 +247,10 @@ def bake(
     up: Optional[Vec3] = None,
     frame_box: Any = None,
     xform: Any = None,
+    frame: Optional[float] = None,
+    volume: Optional[Sequence[str]] = None,
+    field: Optional[str] = None,
+    light: Optional[str] = None,
     camera: Union[None, Dict[str, Any], PathLike] = None,
     res: Union[None, int, str, Tuple[int, int]] = None,
     tile: Optional[int] = None,
@@ -278,7 +283,8 @@ def bake(
     spp: Optional[int] = None,
     overwrite: Optional[bool] = None,
 ) -> Dict[str, Any]:
-    """Bake ``input`` (a ``.vdb`` file or a ``.toml`` scene) to ``output`` exactly as
+    """Bake ``input`` (a ``.vdb`` file, a ``.toml`` scene or a USD stage: its volumes and the
+    light ``light`` at time code ``frame``) to ``output`` exactly as
     ``umbra bake INPUT -o OUTPUT ...`` does, byte for byte: an OpenEXR map (flat, tiled with
     ``tile``/``mipmap``, deep with ``deep``/``deep_error``, with ``slices``/``depths`` and
     ``stderr`` channels, RGB with ``sigma_t`` or a scene's colours), or, for an output ending in
@@ -305,7 +311,9 @@ def bake(
         _path("output", output),
         _options(
             grid=grid, light_dir=light_dir, light_pos=light_pos, ortho=ortho, fov=fov, up=up,
-            frame_box=frame_box, xform=xform, camera=camera, res=res, tile=tile,
+            frame_box=frame_box, xform=xform, frame=frame,
+            volume=None if volume is None else [str(v) for v in volume], field=field,
+            light=light, camera=camera, res=res, tile=tile,
             mipmap=mipmap, deep=deep, deep_error=deep_error, out_grid=out_grid, half=half,
             preview=preview, slices=slices, depths=depths, stderr=stderr,
             target_error=target_error, max_spp=max_spp, interp=interp,
@@ -317,6 +325,16 @@ def bake(
     )
     _warn(warns)
     return json.loads(summary)
+
+
+def usd_lights(path: PathLike, time: Optional[float] = None) -> Dict[str, Any]:
+    """The UsdLux lights of a USD stage at time code ``time`` (default: its start), as umbra
+    reads them: ``{"time", "up", "lights": [{"prim", "name", "type", "kind", "dir" | "pos"}]}``.
+    A ``DistantLight`` is ``kind="directional"`` with the unit direction it travels (its world
+    -Z); a sphere, disk, rect or cylinder light is ``kind="point"`` at its world origin; other
+    types have ``kind=None``. ``up`` is the stage's up axis."""
+    t = None if time is None else float(time)
+    return json.loads(_umbra.usd_lights_json(_path("path", path), t))
 
 
 def estimators() -> List[Dict[str, Any]]:
@@ -419,6 +437,32 @@ class Volume:
         args = (_path("path", path), float(density_scale), str(interp), _xform(xform))
         self._v = _umbra.Volume.open_scene(*args)
         self._args = ("scene", *args)
+        _warn(self._v.warnings)
+        return self
+
+    @classmethod
+    def from_usd(
+        cls,
+        path: PathLike,
+        time: Optional[float] = None,
+        volumes: Optional[Sequence[str]] = None,
+        field: str = "density",
+        density_scale: float = 1.0,
+        interp: str = "trilinear",
+        xform: Any = None,
+    ) -> "Volume":
+        """The volumes of a USD stage (``.usd``, ``.usda``, ``.usdc``, ``.usdz``) at time code
+        ``time`` (default: the stage's start): every active, visible ``Volume`` prim, or the
+        prim paths in ``volumes``; each one's ``field:<field>`` OpenVDB asset placed by the
+        prim's world transform at that time. The same scene ``umbra bake STAGE --frame T``
+        traces."""
+        self = cls.__new__(cls)
+        vols = [] if volumes is None else [str(v) for v in volumes]
+        t = None if time is None else float(time)
+        args = (_path("path", path), t, vols, str(field), float(density_scale), str(interp),
+                _xform(xform))
+        self._v = _umbra.Volume.open_stage(*args)
+        self._args = ("usd", *args)
         _warn(self._v.warnings)
         return self
 
@@ -775,6 +819,8 @@ class Volume:
 def _reload(kind: str, *args: Any) -> Volume:
     """A pickled Volume, loaded again from its file."""
     v = Volume.__new__(Volume)
-    v._v = _umbra.Volume.open(*args) if kind == "grid" else _umbra.Volume.open_scene(*args)
+    opener = {"grid": _umbra.Volume.open, "scene": _umbra.Volume.open_scene,
+              "usd": _umbra.Volume.open_stage}[kind]
+    v._v = opener(*args)
     v._args = (kind, *args)
     return v

@@ -17,6 +17,7 @@ __all__ = [
     "estimators",
     "info",
     "run_job",
+    "usd_lights",
     "write_exr",
 ]
 
@@ -38,6 +39,7 @@ class InvalidArgument(Error, ValueError):
 
 def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]: ...
 def estimators() -> List[Dict[str, Any]]: ...
+def usd_lights(path: PathLike, time: Optional[float] = None) -> Dict[str, Any]: ...
 def bake(
     input: PathLike,
     output: PathLike,
@@ -50,6 +52,10 @@ def bake(
     up: Optional[Vec3] = None,
     frame_box: Optional[npt.ArrayLike] = None,
     xform: Optional[npt.ArrayLike] = None,
+    frame: Optional[float] = None,
+    volume: Optional[Sequence[str]] = None,
+    field: Optional[str] = None,
+    light: Optional[str] = None,
     camera: Union[None, _Camera, PathLike] = None,
     res: Union[None, int, str, Tuple[int, int]] = None,
     tile: Optional[int] = None,
@@ -117,6 +123,17 @@ class Volume:
     def from_scene(
         cls,
         path: PathLike,
+        density_scale: float = 1.0,
+        interp: Literal["trilinear", "nearest"] = "trilinear",
+        xform: Optional[npt.ArrayLike] = None,
+    ) -> "Volume": ...
+    @classmethod
+    def from_usd(
+        cls,
+        path: PathLike,
+        time: Optional[float] = None,
+        volumes: Optional[Sequence[str]] = None,
+        field: str = "density",
         density_scale: float = 1.0,
         interp: Literal["trilinear", "nearest"] = "trilinear",
         xform: Optional[npt.ArrayLike] = None,

@@ -337,6 +337,7 @@ impl Job {
             // Checked when the job was parsed.
             xform: self.options.xform().ok().flatten(),
             levelset_solid: self.options.levelset == Some(crate::request::LevelSet::Solid),
+            stage: self.options.stage_selection(),
         }
     }
 

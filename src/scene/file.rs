@@ -42,6 +42,8 @@ pub struct SceneOptions {
     /// A level-set grid of a `.vdb` input is traced as an opaque solid (`--levelset solid`)
     /// instead of being refused.
     pub levelset_solid: bool,
+    /// What to read of a USD stage input (time code, volumes, field); ignored otherwise.
+    pub stage: crate::usd::Selection,
 }
 
 impl Default for SceneOptions {
@@ -52,6 +54,7 @@ impl Default for SceneOptions {
             sigma_t: None,
             xform: None,
             levelset_solid: false,
+            stage: crate::usd::Selection::default(),
         }
     }
 }
@@ -64,7 +67,9 @@ pub fn is_scene_file(path: &Path) -> bool {
         .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
 }
 
-/// Load the scene at `path`: a scene file (`.toml`) or one grid of a `.vdb` file.
+/// Load the scene at `path`: a scene file (`.toml`), a USD stage (`.usd`, `.usda`, `.usdc`,
+/// `.usdz`: its volumes at `opts.stage`'s time code, [`crate::usd`]) or one grid of a `.vdb`
+/// file.
 ///
 /// # Errors
 /// Every loading error of the files it names ([`Volume::load`], [`Solid::load`]), and
@@ -75,7 +80,7 @@ pub fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
     }
-    if is_scene_file(path) {
+    if is_scene_file(path) || crate::usd::is_stage(path) {
         return load_file(path, opts);
     }
     let grid = crate::vdb::load_grid(path, &opts.grid)?;
@@ -107,7 +112,7 @@ pub fn load_for_rays(
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
     }
-    if is_scene_file(path) {
+    if is_scene_file(path) || crate::usd::is_stage(path) {
         let scene = load_file(path, opts)?;
         let r = rays(&scene);
         return Ok((scene, r));
@@ -197,7 +202,7 @@ fn scene_err(path: &Path, reason: impl Into<String>) -> Error {
 /// One grid of a scene file, resolved: where it is, how it is scaled, coloured and placed.
 #[derive(Debug, Clone)]
 struct Entry {
-    file: PathBuf,
+    file: crate::usd::Asset,
     grid: String,
     solid: bool,
     /// Full density scale (scene option x volume x weight).
@@ -205,8 +210,67 @@ struct Entry {
     sigma: [f64; 3],
     /// Volume transform, then the scene option's.
     xform: Option<Xform>,
-    /// `volume[i] (file)`, for messages.
+    /// `volume[i] (file)` (a stage: `at time t: /prim (file)`), for messages.
     at: String,
+}
+
+/// The grids of a USD stage at the selection's time code, with `opts` applied on top.
+fn stage_entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
+    let shot = crate::usd::read(path, &opts.stage)?;
+    let mut rgb = opts.sigma_t.is_some();
+    let tint = opts.sigma_t.unwrap_or([1.0; 3]);
+    let mut entries = Vec::new();
+    for v in shot.volumes {
+        let at = format!("at time {}: {} ({})", shot.time, v.prim, v.asset.display());
+        let here = |what: &str, e: Error| scene_err(path, format!("{at}: {what}{}", reason(e)));
+        let xform = match &opts.xform {
+            Some(b) => Xform::new(compose(&b.rows(), &v.xform.rows()))
+                .map_err(|e| here("its transform with xform: ", e))?,
+            None => v.xform,
+        };
+        crate::volume::check_density_scale(v.density_scale)
+            .map_err(|e| here("umbra:densityScale: ", e))?;
+        let sigma = v.sigma_t.unwrap_or([1.0; 3]);
+        check_sigma(sigma).map_err(|e| here("umbra:sigmaT: ", e))?;
+        rgb |= v.rgb;
+        entries.push(Entry {
+            file: v.asset,
+            grid: v.grid,
+            solid: v.solid,
+            scale: opts.density_scale * v.density_scale,
+            sigma: std::array::from_fn(|c| sigma[c] * tint[c]),
+            xform: Some(xform),
+            at,
+        });
+    }
+    if entries.iter().filter(|e| !e.solid).count() > super::MAX_VOLUMES {
+        return Err(scene_err(
+            path,
+            format!("more than {} fog volumes", super::MAX_VOLUMES),
+        ));
+    }
+    Ok((entries, rgb))
+}
+
+/// The grids of a scene file or a USD stage.
+fn entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
+    if crate::usd::is_stage(path) {
+        stage_entries(path, opts)
+    } else {
+        parse(path, opts)
+    }
+}
+
+/// An error loading a stage's asset, naming the stage, the time, the prim and the asset (not
+/// the scratch copy a packaged member is read from).
+fn asset_err(path: &Path, e: &Entry, opened: &Path, err: Error) -> Error {
+    if !crate::usd::is_stage(path) {
+        return err;
+    }
+    let msg = err
+        .to_string()
+        .replace(&opened.display().to_string(), &e.file.display());
+    scene_err(path, format!("{}: {msg}", e.at))
 }
 
 /// Parse a scene file into its grids (nothing is decoded) and whether it is RGB.
@@ -248,7 +312,7 @@ fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
             (None, b) => *b,
         };
         let entry = |grid: String, solid: bool, scale: f64, sigma: [f64; 3]| Entry {
-            file: file_path.clone(),
+            file: crate::usd::Asset::File(file_path.clone()),
             grid,
             solid,
             scale,
@@ -351,18 +415,21 @@ fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
 }
 
 fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
-    let (entries, rgb) = parse(path, opts)?;
+    let (entries, rgb) = entries(path, opts)?;
     let (mut fogs, mut solids) = (Vec::new(), Vec::new());
     for e in entries {
         let placed = |err: Error| scene_err(path, format!("{}: xform: {}", e.at, reason(err)));
+        let opened = e.file.open()?;
+        let file = opened.path();
+        let failed = |err: Error| asset_err(path, &e, file, err);
         if e.solid {
-            let mut s = Solid::load(&e.file, &e.grid)?;
+            let mut s = Solid::load(file, &e.grid).map_err(failed)?;
             if let Some(x) = &e.xform {
                 s = s.with_xform(x).map_err(placed)?;
             }
             solids.push(s);
         } else {
-            let mut vol = Volume::load(&e.file, &e.grid, e.scale)?;
+            let mut vol = Volume::load(file, &e.grid, e.scale).map_err(failed)?;
             if let Some(x) = &e.xform {
                 vol = vol.with_xform(x).map_err(placed)?;
             }
@@ -380,11 +447,11 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
 /// As [`load`], for what reading topology can find.
 pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Vec<DVec3>> {
     let path = path.as_ref();
-    let entries = if is_scene_file(path) {
-        parse(path, opts)?.0
+    let entries = if is_scene_file(path) || crate::usd::is_stage(path) {
+        entries(path, opts)?.0
     } else {
         vec![Entry {
-            file: path.to_path_buf(),
+            file: crate::usd::Asset::File(path.to_path_buf()),
             grid: opts.grid.clone(),
             solid: false,
             scale: 1.0,
@@ -395,7 +462,10 @@ pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<V
     };
     let mut out = Vec::new();
     for e in entries {
-        if let Some(c) = Volume::read_box_corners(&e.file, &e.grid)? {
+        let opened = e.file.open()?;
+        let corners = Volume::read_box_corners(opened.path(), &e.grid)
+            .map_err(|err| asset_err(path, &e, opened.path(), err))?;
+        if let Some(c) = corners {
             match &e.xform {
                 Some(x) => out.extend(c.map(|p| x.point(p))),
                 None => out.extend(c),

@@ -25,6 +25,8 @@ pub struct BakeJob {
     pub sigma_t: Option<[f64; 3]>,
     /// Trace a level-set grid of a `.vdb` input as an opaque solid (`--levelset solid`).
     pub levelset_solid: bool,
+    /// What a USD stage input is read at (time code, volumes, field); ignored otherwise.
+    pub stage: crate::usd::Selection,
     /// Camera request.
     pub view: View,
     /// A fixed camera (an earlier map's, or one shared by a sequence): used as it is instead
@@ -505,6 +507,7 @@ impl BakeJob {
             sigma_t: self.sigma_t,
             xform: self.xform,
             levelset_solid: self.levelset_solid,
+            stage: self.stage.clone(),
         }
     }
 

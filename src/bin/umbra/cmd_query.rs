@@ -17,7 +17,8 @@ use umbra::{Interp, Light, Ray};
 /// Arguments of `umbra query`.
 #[derive(Debug, clap::Args)]
 pub struct QueryArgs {
-    /// The .vdb file, or a .toml scene file (several volumes, colour, solids).
+    /// The .vdb file, a .toml scene file (several volumes, colour, solids) or a USD stage
+    /// (.usd, .usda, .usdc, .usdz: its volumes and lights at --frame).
     file: PathBuf,
     /// Grid to trace (display name such as `density[1]`, or the stored name).
     #[arg(long, default_value = "density")]
@@ -56,6 +57,8 @@ pub struct QueryArgs {
     xform: Option<umbra::xform::Xform>,
     #[command(flatten)]
     trace: crate::common::TraceArgs,
+    #[command(flatten)]
+    stage: crate::common::StageArgs,
     /// One JSON object per query on stdout.
     #[arg(long)]
     json: bool,
@@ -101,10 +104,17 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         }
         _ => None,
     };
+    a.stage.check(&a.file)?;
     let light = match (a.light_dir, a.light_pos) {
         (Some(_), Some(_)) => bail!("give --light-dir or --light-pos, not both"),
+        (Some(_), None) | (None, Some(_)) if a.stage.light.is_some() => {
+            bail!("give --light (a stage light) or --light-dir / --light-pos, not both")
+        }
         (Some(dir), None) => Some(Light::Directional { dir }),
         (None, Some(pos)) => Some(Light::Point { pos }),
+        (None, None) if a.at.is_some() && umbra::usd::is_stage(&a.file) => {
+            Some(a.stage.light_of(&a.file)?)
+        }
         (None, None) => None,
     };
     let modes =
@@ -115,7 +125,10 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         );
     }
     if a.at.is_some() != light.is_some() {
-        bail!("--at needs --light-dir DX,DY,DZ or --light-pos X,Y,Z, and those need --at");
+        bail!(
+            "--at needs --light-dir DX,DY,DZ or --light-pos X,Y,Z (or a stage's light), and \
+             those need --at"
+        );
     }
     // Read the batch before the (possibly slow) load so a missing file fails fast.
     let batch = match &a.rays {
@@ -130,6 +143,7 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         sigma_t: a.trace.sigma_t,
         xform: a.xform,
         levelset_solid: a.trace.levelset.is_some(),
+        stage: a.stage.selection(),
     };
     let pool = thread_pool(a.threads)?;
     // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray

@@ -1,7 +1,7 @@
 //! What the commands share: estimator and interpolation flags, vector parsing, loading with
 //! warnings, thread pools, progress bars.
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use std::path::Path;
 use umbra::bake::volume_warnings;
 use umbra::estimate::{Estimator, Options};
@@ -249,4 +249,70 @@ pub fn progress_bar(quiet: bool, template: &str, len: u64) -> indicatif::Progres
         .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar())
         .progress_chars("=> ");
     indicatif::ProgressBar::new(len).with_style(style)
+}
+
+/// What a command reads of a USD stage input (`--frame`, `--volume`, `--field`, `--light`).
+#[derive(Debug, Clone, clap::Args)]
+pub struct StageArgs {
+    /// USD stage inputs: the time code to read (default: the stage's startTimeCode).
+    #[arg(long, allow_negative_numbers = true)]
+    pub frame: Option<f64>,
+    /// USD stage inputs: a Volume prim to trace, by path (repeatable; default: every active,
+    /// visible Volume).
+    #[arg(long, value_name = "PRIM")]
+    pub volume: Vec<String>,
+    /// USD stage inputs: the field a Volume's density is (field:NAME; default density).
+    #[arg(long, value_name = "NAME")]
+    pub field: Option<String>,
+    /// USD stage inputs: the UsdLux light, by prim path or name (default: the stage's only
+    /// light).
+    #[arg(long, value_name = "PRIM")]
+    pub light: Option<String>,
+}
+
+impl StageArgs {
+    /// Refuse stage options on an input that is not a stage.
+    pub fn check(&self, file: &Path) -> Result<()> {
+        if umbra::usd::is_stage(file) {
+            if let Some(f) = self.frame {
+                if !f.is_finite() {
+                    bail!("invalid argument '--frame': {f} is not a finite time code");
+                }
+            }
+            return Ok(());
+        }
+        let given = [
+            ("--frame", self.frame.is_some()),
+            ("--volume", !self.volume.is_empty()),
+            ("--field", self.field.is_some()),
+            ("--light", self.light.is_some()),
+        ];
+        if let Some((k, _)) = given.iter().find(|(_, g)| *g) {
+            bail!(
+                "invalid argument '{k}': applies to USD stages (.usd, .usda, .usdc, .usdz); {} \
+                 is not one",
+                file.display()
+            );
+        }
+        Ok(())
+    }
+
+    /// The library's selection.
+    pub fn selection(&self) -> umbra::usd::Selection {
+        umbra::usd::Selection {
+            time: self.frame,
+            volumes: self.volume.clone(),
+            field: self.field.clone().unwrap_or_else(|| "density".into()),
+        }
+    }
+
+    /// The stage light `--light` names (or the stage's only light), as umbra traces it.
+    pub fn light_of(&self, file: &Path) -> Result<umbra::Light> {
+        let shot = umbra::usd::lights_at(file, self.frame)?;
+        let (_, e) = shot.light(self.light.as_deref())?;
+        Ok(match e {
+            umbra::usd::Emitter::Directional { dir } => umbra::Light::Directional { dir },
+            umbra::usd::Emitter::Point { pos } => umbra::Light::Point { pos },
+        })
+    }
 }

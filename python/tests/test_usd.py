@@ -1,0 +1,320 @@
+"""USD shots in: stages written by Pixar's usd-core (`pxr`), read by umbra's own reader, held
+to what usd-core says the stage means (XformCache matrices, light frames, resolved asset
+paths, the up axis): a USD bake equals the `.vdb` bake with that --xform / --light-dir /
+--light-pos / --up, pixel for pixel."""
+
+import json
+import math
+import pathlib
+import shutil
+import zipfile
+
+import numpy as np
+import OpenEXR
+import pytest
+
+pxr = pytest.importorskip("pxr", reason="usd-core (pip install usd-core) writes the test stages")
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, UsdUtils, UsdVol  # noqa: E402
+
+from conftest import DATA  # noqa: E402
+
+CLOUD = DATA / "cloud.vdb"
+
+
+def _stage(path, *, frames=(1, 2), animated_file=True, up="Z", lights=True):
+    """A small shot: /World (moved) / cloud (Volume, animated translate, rotate, scale), its
+    density an OpenVDBAsset per frame; a sun (DistantLight, rotated) and a lamp (SphereLight)
+    far off; copies of the sample cloud beside the stage."""
+    path = pathlib.Path(path)
+    for f in frames:
+        shutil.copy(CLOUD, path.parent / f"cloud.{f:04d}.vdb")
+    st = Usd.Stage.CreateNew(str(path))
+    UsdGeom.SetStageUpAxis(st, up)
+    st.SetStartTimeCode(frames[0])
+    st.SetEndTimeCode(frames[-1])
+    w = UsdGeom.Xform.Define(st, "/World")
+    w.AddTranslateOp().Set(Gf.Vec3d(1, 2, 3))
+    v = UsdVol.Volume.Define(st, "/World/cloud")
+    x = UsdGeom.Xformable(v)
+    t = x.AddTranslateOp()
+    r = x.AddRotateXYZOp()
+    s = x.AddScaleOp()
+    for i, f in enumerate(frames):
+        t.Set(Gf.Vec3d(0.5 * i, 0.25 * i, 0), f)
+        r.Set(Gf.Vec3f(10 + 5 * i, 20, 30 - 7 * i), f)
+        s.Set(Gf.Vec3f(1, 1.5 + 0.25 * i, 1), f)
+    a = UsdVol.OpenVDBAsset.Define(st, "/World/cloud/density")
+    if animated_file:
+        for f in frames:
+            a.GetFilePathAttr().Set(Sdf.AssetPath(f"./cloud.{f:04d}.vdb"), f)
+    else:
+        a.GetFilePathAttr().Set(Sdf.AssetPath(f"./cloud.{frames[0]:04d}.vdb"))
+    a.GetFieldNameAttr().Set("density")
+    v.CreateFieldRelationship("density", a.GetPath())
+    if lights:
+        sun = UsdLux.DistantLight.Define(st, "/World/sun")
+        so = UsdGeom.Xformable(sun).AddRotateXYZOp()
+        for i, f in enumerate(frames):
+            so.Set(Gf.Vec3f(-60 + 10 * i, 10, 0), f)
+        lamp = UsdLux.SphereLight.Define(st, "/World/lamp")
+        UsdGeom.Xformable(lamp).AddTranslateOp().Set(Gf.Vec3d(2, 40, -3))
+    st.Save()
+    return st
+
+
+def _xform(st, prim, t):
+    """umbra's --xform (column vectors, row-major) from usd-core's local-to-world (rows)."""
+    m = UsdGeom.XformCache(t).GetLocalToWorldTransform(st.GetPrimAtPath(prim))
+    return ",".join(repr(m[c][r]) for r in range(4) for c in range(4))
+
+
+def _sun(st, prim, t):
+    m = UsdGeom.XformCache(t).GetLocalToWorldTransform(st.GetPrimAtPath(prim))
+    d = m.TransformDir(Gf.Vec3d(0, 0, -1)).GetNormalized()
+    return ",".join(repr(c) for c in d)
+
+
+def _origin(st, prim, t):
+    m = UsdGeom.XformCache(t).GetLocalToWorldTransform(st.GetPrimAtPath(prim))
+    return ",".join(repr(c) for c in m.ExtractTranslation())
+
+
+def _up(st):
+    return "0,0,1" if UsdGeom.GetStageUpAxis(st) == "Z" else "0,1,0"
+
+
+def _pixels(path):
+    with OpenEXR.File(str(path)) as f:
+        part = f.parts[0]
+        return {k: np.array(c.pixels) for k, c in part.channels.items()}
+
+
+def _same_pixels(a, b):
+    pa, pb = _pixels(a), _pixels(b)
+    assert pa.keys() == pb.keys()
+    for k in pa:
+        assert pa[k].shape == pb[k].shape, k
+        assert np.array_equal(pa[k], pb[k]), (k, float(np.abs(pa[k] - pb[k]).max()))
+
+
+def test_a_usd_bake_is_the_vdb_bake_usd_core_describes(cli, tmp_path):
+    st = _stage(tmp_path / "shot.usdc")
+    stage = tmp_path / "shot.usdc"
+    for t in (1, 1.5, 2):
+        fp = st.GetPrimAtPath("/World/cloud/density").GetAttribute("filePath").Get(t)
+        vdb = fp.resolvedPath
+        assert vdb.endswith("cloud.0001.vdb" if t < 2 else "cloud.0002.vdb")
+        common = ["--res", "96", "--quiet", "--force"]
+        # The sun: ortho map; up from the stage's upAxis.
+        cli("bake", stage, "--frame", t, "--light", "sun", "-o", tmp_path / "u.exr", *common)
+        cli("bake", vdb, f"--xform={_xform(st, '/World/cloud', t)}",
+            f"--light-dir={_sun(st, '/World/sun', t)}", f"--up={_up(st)}",
+            "-o", tmp_path / "v.exr", *common)
+        _same_pixels(tmp_path / "u.exr", tmp_path / "v.exr")
+        # The lamp: a perspective map from its world origin.
+        cli("bake", stage, "--frame", t, "--light", "/World/lamp", "-o", tmp_path / "u.exr",
+            *common)
+        cli("bake", vdb, f"--xform={_xform(st, '/World/cloud', t)}",
+            f"--light-pos={_origin(st, '/World/lamp', t)}", f"--up={_up(st)}",
+            "-o", tmp_path / "v.exr", *common)
+        _same_pixels(tmp_path / "u.exr", tmp_path / "v.exr")
+
+
+def test_usda_usdc_and_usdz_give_the_same_map(cli, tmp_path):
+    # A static asset path: umbra's USD reader (openusd 0.6) cannot parse time-sampled asset
+    # values in a text layer (see test_time_sampled_assets_in_usda_say_how_to_convert).
+    (tmp_path / "a").mkdir()
+    _stage(tmp_path / "a" / "shot.usda", animated_file=False)
+    st = Usd.Stage.Open(str(tmp_path / "a" / "shot.usda"))
+    st.Export(str(tmp_path / "a" / "shot.usdc"))
+    pkg = tmp_path / "shot.usdz"
+    assert UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(tmp_path / "a" / "shot.usdc")), str(pkg))
+    with zipfile.ZipFile(pkg) as z:
+        assert any(n.endswith("cloud.0001.vdb") for n in z.namelist()), z.namelist()
+    outs = []
+    for src in (tmp_path / "a" / "shot.usda", tmp_path / "a" / "shot.usdc", pkg):
+        out = tmp_path / f"{src.suffix[1:]}.exr"
+        _, js, _ = cli("bake", src, "--frame", 2, "--light", "sun", "--res", "80", "-o", out,
+                       "--quiet", "--json")
+        outs.append((out, json.loads(js)))
+    for out, js in outs[1:]:
+        _same_pixels(outs[0][0], out)
+        assert js["camera"] == outs[0][1]["camera"]
+
+
+def test_a_two_volume_stage_is_the_same_scene_file(cli, tmp_path):
+    """One volume defined in the stage, one brought in by a reference to a layer in another
+    directory whose asset path is relative to that layer."""
+    (tmp_path / "fx").mkdir()
+    shutil.copy(CLOUD, tmp_path / "fx" / "puff.vdb")
+    shutil.copy(CLOUD, tmp_path / "main.vdb")
+    fx = Usd.Stage.CreateNew(str(tmp_path / "fx" / "puff.usda"))
+    v = UsdVol.Volume.Define(fx, "/Puff")
+    UsdGeom.Xformable(v).AddTranslateOp().Set(Gf.Vec3d(3, 0, 0))
+    a = UsdVol.OpenVDBAsset.Define(fx, "/Puff/density")
+    a.GetFilePathAttr().Set(Sdf.AssetPath("./puff.vdb"))
+    a.GetFieldNameAttr().Set("density")
+    v.CreateFieldRelationship("density", a.GetPath())
+    fx.SetDefaultPrim(v.GetPrim())
+    fx.Save()
+    st = Usd.Stage.CreateNew(str(tmp_path / "shot.usda"))
+    m = UsdVol.Volume.Define(st, "/World/main")
+    UsdGeom.Xformable(m).AddScaleOp().Set(Gf.Vec3f(1, 2, 1))
+    a = UsdVol.OpenVDBAsset.Define(st, "/World/main/density")
+    a.GetFilePathAttr().Set(Sdf.AssetPath("main.vdb"))
+    a.GetFieldNameAttr().Set("density")
+    m.CreateFieldRelationship("density", a.GetPath())
+    m.GetPrim().CreateAttribute("umbra:densityScale", Sdf.ValueTypeNames.Float).Set(2.0)
+    p = st.DefinePrim("/World/puff")
+    p.GetReferences().AddReference("./fx/puff.usda")
+    UsdGeom.Xformable(p).AddTranslateOp(opSuffix="shot").Set(Gf.Vec3d(0, 0, 1))
+    st.Save()
+    scene = tmp_path / "scene.toml"
+    lines = []
+    for prim, vdb, scale in (("/World/main", "main.vdb", 2.0), ("/World/puff", "fx/puff.vdb", 1.0)):
+        x = _xform(st, prim, Usd.TimeCode.Default())
+        lines += ["[[volume]]", f'file = "{vdb}"', f"density_scale = {scale}",
+                  f"xform = [{x}]", ""]
+    scene.write_text("\n".join(lines))
+    flags = ["--light-dir=0.3,-1,0.2", "--res", "72", "--quiet"]
+    cli("bake", tmp_path / "shot.usda", "-o", tmp_path / "u.exr", *flags)
+    cli("bake", scene, "-o", tmp_path / "s.exr", *flags)
+    _same_pixels(tmp_path / "u.exr", tmp_path / "s.exr")
+    # Only one of them, by prim path.
+    cli("bake", tmp_path / "shot.usda", "--volume", "/World/puff", "-o", tmp_path / "one.exr",
+        *flags)
+    assert not np.array_equal(_pixels(tmp_path / "one.exr")["T"], _pixels(tmp_path / "u.exr")["T"])
+
+
+def test_a_query_toward_a_sphere_light_is_the_explicit_query(cli, tmp_path):
+    st = _stage(tmp_path / "shot.usdc")
+    at = "1.4,2.6,3.2"
+    for t in (1, 2):
+        vdb = st.GetPrimAtPath("/World/cloud/density").GetAttribute("filePath").Get(t).resolvedPath
+        _, a, _ = cli("query", tmp_path / "shot.usdc", "--frame", t, "--light", "lamp",
+                      "--at", at, "--json")
+        _, b, _ = cli("query", vdb, f"--xform={_xform(st, '/World/cloud', t)}",
+                      f"--light-pos={_origin(st, '/World/lamp', t)}", "--at", at, "--json")
+        ja, jb = json.loads(a), json.loads(b)
+        # usd-core and umbra's reader compose the same xformOps to within an ulp or two (the
+        # rotation's float angles are widened in a different order), so f64 answers agree to
+        # round-off, not bit for bit; the float maps above are bit for bit.
+        assert ja["tau"] == pytest.approx(jb["tau"], rel=1e-12, abs=0), (ja, jb)
+        assert ja["length"] == pytest.approx(jb["length"], rel=1e-12), (ja, jb)
+        assert 0.0 < ja["T"] < 1.0
+
+
+def _err(cli, *args):
+    code, _, err = cli(*args, check=False)
+    assert code == 1, (code, err)
+    lines = [l for l in err.splitlines() if l.startswith("umbra: error: ")]
+    assert len(lines) == 1, err
+    return lines[0]
+
+
+def test_bad_stages_get_one_clear_error(cli, tmp_path):
+    st = _stage(tmp_path / "shot.usdc")
+    out = ["-o", tmp_path / "x.exr", "--res", "32", "--light", "sun", "--force"]
+    # A missing asset at one frame: the prim, the time, the file.
+    (tmp_path / "cloud.0002.vdb").unlink()
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--frame", 2, *out)
+    assert "at time 2" in e and "/World/cloud/density" in e and "cloud.0002.vdb" in e, e
+    cli("bake", tmp_path / "shot.usdc", "--frame", 1, *out, "--quiet")
+    assert (tmp_path / "x.exr").exists()
+    # Several lights and none named.
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "-o", tmp_path / "y.exr")
+    assert "--light" in e and "/World/sun (DistantLight)" in e and "/World/lamp" in e, e
+    # A light type umbra does not trace, by name.
+    UsdLux.DomeLight.Define(st, "/World/dome")
+    st.Save()
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--frame", 1, "--light", "dome",
+             "-o", tmp_path / "y.exr")
+    assert "DomeLight" in e and "/World/dome" in e, e
+    # No such light.
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--frame", 1, "--light", "moon",
+             "-o", tmp_path / "y.exr")
+    assert "'--light'" in e and "moon" in e, e
+    # A Field3DAsset, and a volume without a density field.
+    f3d = UsdVol.Field3DAsset.Define(st, "/World/cloud/f3d")
+    f3d.GetFilePathAttr().Set(Sdf.AssetPath("./cloud.0001.vdb"))
+    UsdVol.Volume(st.GetPrimAtPath("/World/cloud")).CreateFieldRelationship("heat", f3d.GetPath())
+    st.Save()
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--frame", 1, "--field", "heat", *out)
+    assert "Field3DAsset" in e and "/World/cloud/f3d" in e, e
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--frame", 1, "--field", "flame", *out)
+    assert "no field 'flame'" in e and "density" in e and "heat" in e, e
+    # No volume by that name.
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--frame", 1, "--volume", "/World/nope", *out)
+    assert "/World/nope" in e and "/World/cloud" in e, e
+    # Stage options on a .vdb input.
+    e = _err(cli, "bake", CLOUD, "--frame", 1, "--light-dir=0,-1,0", "-o", tmp_path / "z.exr")
+    assert "'--frame'" in e and "USD" in e, e
+    assert not (tmp_path / "y.exr").exists() and not (tmp_path / "z.exr").exists()
+
+
+def test_broken_stage_files_are_errors_not_crashes(cli, umbra_bin, tmp_path):
+    _stage(tmp_path / "shot.usdc")
+    data = (tmp_path / "shot.usdc").read_bytes()
+    flags = ["--light-dir=0,-1,0", "--res", "16", "-o", tmp_path / "x.exr"]
+    for n in (0, 8, 64, len(data) // 2, len(data) - 1):
+        (tmp_path / "cut.usdc").write_bytes(data[:n])
+        e = _err(cli, "bake", tmp_path / "cut.usdc", *flags)
+        assert "cut.usdc" in e, e
+    flipped = bytearray(data)
+    for i in range(100, len(flipped), 97):
+        flipped[i] ^= 0x5A
+    (tmp_path / "bad.usdc").write_bytes(bytes(flipped))
+    code, _, err = cli("bake", tmp_path / "bad.usdc", *flags, check=False)
+    assert code in (0, 1) and "panicked" not in err, err
+    (tmp_path / "bad.usdz").write_bytes(b"PK\x03\x04" + b"\x00" * 40)
+    e = _err(cli, "bake", tmp_path / "bad.usdz", *flags)
+    assert "bad.usdz" in e, e
+    # A cycle of references ends with an error or a stage, never a hang (pytest's run has no
+    # timeout, so a hang would stall the suite: the subprocess gets one).
+    (tmp_path / "a.usda").write_text('#usda 1.0\n(defaultPrim = "A")\n'
+                                     'def Volume "A" (references = @./b.usda@) {}\n')
+    (tmp_path / "b.usda").write_text('#usda 1.0\n(defaultPrim = "B")\n'
+                                     'def Volume "B" (references = @./a.usda@) {}\n')
+    import subprocess
+    p = subprocess.run([str(umbra_bin), "bake", str(tmp_path / "a.usda"), *map(str, flags)],
+                       capture_output=True, text=True, timeout=60)
+    assert p.returncode == 1 and "panicked" not in p.stderr, p.stderr
+    assert not (tmp_path / "x.exr").exists()
+
+
+def test_time_sampled_assets_in_usda_say_how_to_convert(cli, tmp_path):
+    _stage(tmp_path / "shot.usda")
+    e = _err(cli, "bake", tmp_path / "shot.usda", "--light", "sun", "-o", tmp_path / "x.exr")
+    assert "shot.usda" in e and ".usdc" in e and "usdcat" in e, e
+
+
+def test_python_reads_the_stage_as_the_cli_does(cli, tmp_path):
+    import umbra
+
+    st = _stage(tmp_path / "shot.usdc")
+    got = umbra.usd_lights(tmp_path / "shot.usdc", time=2)
+    assert got["time"] == 2 and got["up"] == [0, 0, 1]
+    by = {l["name"]: l for l in got["lights"]}
+    assert by["sun"]["kind"] == "directional" and by["lamp"]["kind"] == "point"
+    want = [float(c) for c in _sun(st, "/World/sun", 2).split(",")]
+    assert by["sun"]["dir"] == pytest.approx(want, abs=1e-12)
+    assert by["lamp"]["pos"] == pytest.approx([3, 42, 0], abs=1e-12)
+    # The same scene the CLI traces: a query through the loaded stage equals `umbra query`.
+    v = umbra.Volume.from_usd(tmp_path / "shot.usdc", time=2)
+    a, b = np.array([[1.4, 2.6, 3.2]]), np.array([[3.0, 42.0, 0.0]])
+    t = v.transmittance(a, b)
+    _, js, _ = cli("query", tmp_path / "shot.usdc", "--frame", 2, "--from", "1.4,2.6,3.2",
+                   "--to", "3,42,0", "--json")
+    assert t[0] == json.loads(js)["T"]
+    # Pickled as what it was loaded from.
+    import pickle
+    assert pickle.loads(pickle.dumps(v)).transmittance(a, b)[0] == t[0]
+    # umbra.bake on a stage writes what `umbra bake` writes.
+    umbra.bake(tmp_path / "shot.usdc", tmp_path / "p.exr", frame=2, light="sun", res=48)
+    cli("bake", tmp_path / "shot.usdc", "--frame", 2, "--light", "sun", "--res", 48,
+        "-o", tmp_path / "c.exr", "--quiet")
+    assert (tmp_path / "p.exr").read_bytes() == (tmp_path / "c.exr").read_bytes()
+    with pytest.raises(umbra.InvalidArgument, match="'light'.*moon"):
+        umbra.bake(tmp_path / "shot.usdc", tmp_path / "q.exr", light="moon")
+    with pytest.raises(umbra.InvalidArgument, match="'frame'.*USD"):
+        umbra.bake(DATA / "cloud.vdb", tmp_path / "q.exr", frame=1, light_dir=(0, -1, 0))

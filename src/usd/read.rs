@@ -1,0 +1,546 @@
+//! Reading a stage with `openusd`: volumes, lights, transforms and asset paths at a time code.
+
+use super::{resolve_asset, Asset, Emitter, Selection, Shot, StageLight, StageVolume};
+use crate::error::{Error, Result};
+use crate::xform::Xform;
+use openusd::gf::Matrix4d;
+use openusd::schemas::geom::{Imageable, Visibility, Xformable};
+use openusd::sdf::Value;
+use openusd::usd::{Prim, PrimPredicate, SchemaBase, SchemaKind, Stage, TimeCode};
+use std::path::Path;
+
+/// Any prim seen through `UsdGeomXformable` (a prim without `xformOpOrder` is the identity),
+/// so parents of every type (`Xform`, `Scope`, untyped `over`s) compose.
+struct AnyXformable(Prim);
+
+impl SchemaBase for AnyXformable {
+    const KIND: SchemaKind = SchemaKind::ConcreteTyped;
+    fn prim(&self) -> &Prim {
+        &self.0
+    }
+}
+impl Imageable for AnyXformable {}
+impl Xformable for AnyXformable {}
+
+/// Light types traced as points at their origin.
+const POINT_LIGHTS: [&str; 4] = ["SphereLight", "DiskLight", "RectLight", "CylinderLight"];
+
+struct Reader<'a> {
+    path: &'a Path,
+    stage: Stage,
+    time: f64,
+}
+
+impl Reader<'_> {
+    fn err(&self, reason: impl std::fmt::Display) -> Error {
+        Error::Stage {
+            path: self.path.to_path_buf(),
+            reason: format!("at time {}: {reason}", self.time),
+        }
+    }
+
+    fn at(&self, prim: &str, reason: impl std::fmt::Display) -> Error {
+        self.err(format!("{prim}: {reason}"))
+    }
+
+    fn tc(&self) -> TimeCode {
+        TimeCode::new(self.time)
+    }
+
+    /// Every composed prim (active, loaded, defined, concrete) with its type, in stage order.
+    fn prims(&self) -> Result<Vec<(String, String)>> {
+        let mut paths = Vec::new();
+        self.stage
+            .traverse(PrimPredicate::DEFAULT, |p| paths.push(p.clone()))
+            .map_err(|e| self.err(format!("{e:#}")))?;
+        let mut out = Vec::with_capacity(paths.len());
+        for p in paths {
+            let ty = self
+                .stage
+                .prim(p.clone())
+                .type_name()
+                .map_err(|e| self.at(p.as_str(), format!("{e:#}")))?
+                .map(|t| t.as_str().to_string())
+                .unwrap_or_default();
+            out.push((p.as_str().to_string(), ty));
+        }
+        Ok(out)
+    }
+
+    fn visible(&self, prim: &str) -> Result<bool> {
+        AnyXformable(self.stage.prim(prim))
+            .compute_visibility()
+            .map(|v| v != Visibility::Invisible)
+            .map_err(|e| self.at(prim, format!("visibility: {e:#}")))
+    }
+
+    /// The prim's local-to-world matrix at the time code (row vectors), parents composed up
+    /// to the root or a `!resetXformStack!`.
+    fn local_to_world(&self, prim: &str) -> Result<Matrix4d> {
+        let mut m = Matrix4d::IDENTITY;
+        let mut cur = Some(openusd::sdf::Path::new(prim).map_err(|e| self.at(prim, e))?);
+        while let Some(p) = cur {
+            if p.as_str() == "/" || p.as_str().is_empty() {
+                break;
+            }
+            let x = AnyXformable(self.stage.prim(p.clone()));
+            let local = x
+                .local_to_parent_transform(self.tc())
+                .map_err(|e| self.at(p.as_str(), format!("transform: {e:#}")))?;
+            m = m * local;
+            let resets = x
+                .resets_xform_stack()
+                .map_err(|e| self.at(p.as_str(), format!("transform: {e:#}")))?;
+            cur = if resets { None } else { p.parent() };
+        }
+        Ok(m)
+    }
+
+    fn value(&self, prim: &str, attr: &str) -> Result<Option<Value>> {
+        self.stage
+            .prim(prim)
+            .attribute(attr)
+            .get_at::<Value>(self.tc())
+            .map_err(|e| self.at(prim, format!("{attr}: {e:#}")))
+    }
+
+    fn number(&self, prim: &str, attr: &str) -> Result<Option<f64>> {
+        Ok(match self.value(prim, attr)? {
+            None => None,
+            Some(v) => Some(
+                as_number(&v)
+                    .ok_or_else(|| self.at(prim, format!("{attr}: {v:?} is not a number")))?,
+            ),
+        })
+    }
+
+    fn volume(&self, prim: &str, sel: &Selection) -> Result<StageVolume> {
+        let rel = format!("field:{}", sel.field);
+        let targets = self
+            .stage
+            .prim(prim)
+            .relationship(rel.as_str())
+            .targets()
+            .map_err(|e| self.at(prim, format!("{rel}: {e:#}")))?;
+        let field_prim = match targets.as_slice() {
+            [one] => one.as_str().to_string(),
+            [] => {
+                let names = self.field_names(prim);
+                return Err(self.at(
+                    prim,
+                    format!(
+                        "no field '{}' (its fields: {}); choose one with field",
+                        crate::text::escape(&sel.field),
+                        if names.is_empty() {
+                            "none".to_string()
+                        } else {
+                            names.join(", ")
+                        }
+                    ),
+                ));
+            }
+            _ => {
+                return Err(self.at(
+                    prim,
+                    format!("{rel} targets {} prims; umbra reads one", targets.len()),
+                ))
+            }
+        };
+        let ty = self
+            .stage
+            .prim(field_prim.as_str())
+            .type_name()
+            .map_err(|e| self.at(&field_prim, format!("{e:#}")))?
+            .map(|t| t.as_str().to_string());
+        match ty.as_deref() {
+            Some("OpenVDBAsset") => {}
+            Some("Field3DAsset") => {
+                return Err(self.at(
+                    &field_prim,
+                    "a Field3DAsset: umbra reads OpenVDB fields (OpenVDBAsset)",
+                ))
+            }
+            other => {
+                return Err(self.at(
+                    &field_prim,
+                    format!(
+                        "{rel} of {prim} targets a {}, not an OpenVDBAsset",
+                        other.unwrap_or("prim that does not exist")
+                    ),
+                ))
+            }
+        }
+        let attr = self.stage.prim(field_prim.as_str()).attribute("filePath");
+        let authored = match attr
+            .get_at::<Value>(self.tc())
+            .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
+        {
+            Some(Value::AssetPath(a)) => a.authored_path,
+            Some(Value::String(s)) => s,
+            Some(other) => {
+                return Err(self.at(
+                    &field_prim,
+                    format!("filePath is {other:?}, not an asset path"),
+                ))
+            }
+            None => return Err(self.at(&field_prim, "no filePath at this time")),
+        };
+        if authored.is_empty() {
+            return Err(self.at(&field_prim, "filePath is empty at this time"));
+        }
+        let layer = attr
+            .property_stack()
+            .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
+            .into_iter()
+            .next()
+            .map(|(layer, _)| layer)
+            .unwrap_or_else(|| self.path.display().to_string());
+        let asset = resolve_asset(&authored, &layer);
+        if let Asset::File(f) = &asset {
+            if !f.is_file() {
+                return Err(self.at(
+                    &field_prim,
+                    format!(
+                        "filePath @{authored}@ resolves to {}, which does not exist",
+                        f.display()
+                    ),
+                ));
+            }
+        }
+        let name = match self.value(&field_prim, "fieldName")? {
+            Some(Value::Token(t)) => t.as_str().to_string(),
+            Some(Value::String(s)) => s,
+            _ => sel.field.clone(),
+        };
+        let index = match self.value(&field_prim, "fieldIndex")? {
+            Some(v) => as_number(&v)
+                .filter(|i| i.fract() == 0.0 && *i >= 0.0)
+                .ok_or_else(|| self.at(&field_prim, format!("fieldIndex {v:?}")))?,
+            None => 0.0,
+        };
+        let grid = if index == 0.0 {
+            name
+        } else {
+            format!("{name}[{index}]")
+        };
+        let m = self.local_to_world(prim)?;
+        let xform = Xform::new(std::array::from_fn(|r| {
+            std::array::from_fn(|c| m.0[4 * c + r])
+        }))
+        .map_err(|e| self.at(prim, format!("its world transform: {}", reason(e))))?;
+        let density_scale = self.number(prim, "umbra:densityScale")?.unwrap_or(1.0);
+        let (sigma_t, rgb) = match self.value(prim, "umbra:sigmaT")? {
+            None => (None, false),
+            Some(v) => match (as_number(&v), as_triple(&v)) {
+                (Some(s), _) => (Some([s; 3]), false),
+                (None, Some(c)) => (Some(c), true),
+                _ => {
+                    return Err(self.at(
+                        prim,
+                        format!("umbra:sigmaT is {v:?}: give a number or a color3f"),
+                    ))
+                }
+            },
+        };
+        let solid = match self.value(prim, "umbra:kind")? {
+            None => false,
+            Some(Value::Token(t)) if t.as_str() == "fog" => false,
+            Some(Value::Token(t)) if t.as_str() == "solid" => true,
+            Some(Value::String(s)) if s == "fog" => false,
+            Some(Value::String(s)) if s == "solid" => true,
+            Some(v) => {
+                return Err(self.at(
+                    prim,
+                    format!("umbra:kind is {v:?}, not \"fog\" or \"solid\""),
+                ))
+            }
+        };
+        Ok(StageVolume {
+            prim: prim.to_string(),
+            field_prim,
+            authored,
+            asset,
+            grid,
+            xform,
+            density_scale,
+            sigma_t,
+            rgb,
+            solid,
+        })
+    }
+
+    fn field_names(&self, prim: &str) -> Vec<String> {
+        self.stage
+            .prim(prim)
+            .relationships()
+            .unwrap_or_default()
+            .iter()
+            .filter_map(|r| {
+                r.path()
+                    .as_str()
+                    .rsplit_once(".field:")
+                    .map(|(_, n)| n.to_string())
+            })
+            .collect()
+    }
+
+    fn lights(&self, prims: &[(String, String)]) -> Result<Vec<StageLight>> {
+        let mut out = Vec::new();
+        for (p, ty) in prims {
+            let is_light = ty.ends_with("Light") || ty.starts_with("DomeLight");
+            if !is_light || !self.visible(p)? {
+                continue;
+            }
+            let emitter = if ty == "DistantLight" {
+                let m = self.local_to_world(p)?;
+                let d = [-m.0[8], -m.0[9], -m.0[10]];
+                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+                if !(n.is_finite() && n > 0.0) {
+                    return Err(self.at(p, "its world -Z axis is degenerate"));
+                }
+                Some(Emitter::Directional {
+                    dir: d.map(|c| c / n),
+                })
+            } else if POINT_LIGHTS.contains(&ty.as_str()) {
+                let m = self.local_to_world(p)?;
+                let pos = [m.0[12], m.0[13], m.0[14]];
+                if !pos.iter().all(|c| c.is_finite()) {
+                    return Err(self.at(p, "its world position is not finite"));
+                }
+                Some(Emitter::Point { pos })
+            } else {
+                None
+            };
+            out.push(StageLight {
+                prim: p.clone(),
+                type_name: ty.clone(),
+                emitter,
+            });
+        }
+        Ok(out)
+    }
+
+    fn up(&self) -> Result<[f64; 3]> {
+        let v = self
+            .stage
+            .stage_metadata("upAxis")
+            .map_err(|e| self.err(format!("upAxis: {e:#}")))?;
+        let axis = match &v {
+            None => "Y".to_string(),
+            Some(Value::Token(t)) => t.as_str().to_string(),
+            Some(Value::String(s)) => s.clone(),
+            Some(other) => return Err(self.err(format!("upAxis is {other:?}"))),
+        };
+        match axis.as_str() {
+            "Y" => Ok([0.0, 1.0, 0.0]),
+            "Z" => Ok([0.0, 0.0, 1.0]),
+            other => Err(self.err(format!("upAxis is '{other}', not Y or Z"))),
+        }
+    }
+}
+
+fn reason(e: Error) -> String {
+    match e {
+        Error::InvalidArgument { reason, .. } => reason,
+        other => other.to_string(),
+    }
+}
+
+fn as_number(v: &Value) -> Option<f64> {
+    match v {
+        Value::Float(x) => Some(f64::from(*x)),
+        Value::Double(x) => Some(*x),
+        Value::Half(x) => Some(f64::from(x.to_f32())),
+        Value::Int(x) => Some(f64::from(*x)),
+        Value::Int64(x) => Some(*x as f64),
+        Value::Uint(x) => Some(f64::from(*x)),
+        _ => None,
+    }
+}
+
+fn as_triple(v: &Value) -> Option<[f64; 3]> {
+    match v {
+        Value::Vec3f(c) => Some([c.x, c.y, c.z].map(f64::from)),
+        Value::Vec3d(c) => Some([c.x, c.y, c.z]),
+        _ => None,
+    }
+}
+
+/// Open `path` as a USD stage, turning a panic inside the USD reader on a corrupt file into
+/// an error naming the file.
+fn open_stage(path: &Path) -> Result<Stage> {
+    let fail = |reason: String| Error::Stage {
+        path: path.to_path_buf(),
+        reason,
+    };
+    let meta = std::fs::metadata(path).map_err(|err| Error::Io {
+        path: path.to_path_buf(),
+        err,
+    })?;
+    if meta.is_dir() {
+        return Err(fail("a directory, not a USD stage".into()));
+    }
+    let s = path
+        .to_str()
+        .ok_or_else(|| fail("the path is not UTF-8".into()))?
+        .to_string();
+    let opened = std::panic::catch_unwind(|| Stage::open(&s));
+    match opened {
+        Ok(Ok(stage)) => Ok(stage),
+        Ok(Err(e)) => {
+            let msg = format!("{e:#}");
+            // openusd 0.6's text parser refuses time-sampled asset values (0.7 reads them but
+            // needs a newer Rust); binary layers hold the same stage.
+            let hint = if msg.contains("AssetRef") {
+                " (umbra's USD reader cannot read time-sampled asset paths in a .usda text \
+                 layer: save the layer as .usdc, e.g. `usdcat shot.usda -o shot.usdc`)"
+            } else {
+                ""
+            };
+            Err(fail(format!("cannot open the stage: {msg}{hint}")))
+        }
+        Err(p) => Err(fail(format!(
+            "cannot open the stage: the USD reader failed ({})",
+            panic_text(&p)
+        ))),
+    }
+}
+
+fn panic_text(p: &Box<dyn std::any::Any + Send>) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| (*s).to_string())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "a panic".into())
+}
+
+fn with_panics<T>(path: &Path, f: impl FnOnce() -> Result<T>) -> Result<T> {
+    match std::panic::catch_unwind(std::panic::AssertUnwindSafe(f)) {
+        Ok(r) => r,
+        Err(p) => Err(Error::Stage {
+            path: path.to_path_buf(),
+            reason: format!("the USD reader failed ({})", panic_text(&p)),
+        }),
+    }
+}
+
+/// Read the volumes and lights of the stage at `path` at `sel.time` (the stage's start time
+/// code when `None`).
+///
+/// # Errors
+/// [`Error::Io`] when the file cannot be read, [`Error::Stage`] naming the prim and the time
+/// for everything the stage gets wrong (no volume, a volume without the field, a field that is
+/// not an `OpenVDBAsset`, a missing asset, an unknown prim, a transform umbra cannot place).
+pub fn read(path: &Path, sel: &Selection) -> Result<Shot> {
+    with_panics(path, || {
+        let stage = open_stage(path)?;
+        let time = sel.time.unwrap_or_else(|| stage.start_time_code());
+        if !time.is_finite() {
+            return Err(Error::InvalidArgument {
+                name: "frame".into(),
+                reason: format!("{time} is not a finite time code"),
+            });
+        }
+        let r = Reader { path, stage, time };
+        let prims = r.prims()?;
+        let names: Vec<String> = if sel.volumes.is_empty() {
+            let mut v = Vec::new();
+            for (p, ty) in &prims {
+                if ty == "Volume" && r.visible(p)? {
+                    v.push(p.clone());
+                }
+            }
+            if v.is_empty() {
+                return Err(r.err("no active, visible Volume prim"));
+            }
+            v
+        } else {
+            for n in &sel.volumes {
+                match prims.iter().find(|(p, _)| p == n) {
+                    Some((_, ty)) if ty == "Volume" => {}
+                    Some((_, ty)) => {
+                        return Err(r.at(n, format!("a {ty}, not a Volume")));
+                    }
+                    None => {
+                        let vols: Vec<&str> = prims
+                            .iter()
+                            .filter(|(_, t)| t == "Volume")
+                            .map(|(p, _)| p.as_str())
+                            .collect();
+                        return Err(r.at(
+                            n,
+                            format!(
+                                "no such active prim (the stage's volumes: {})",
+                                if vols.is_empty() {
+                                    "none".to_string()
+                                } else {
+                                    vols.join(", ")
+                                }
+                            ),
+                        ));
+                    }
+                }
+            }
+            sel.volumes.clone()
+        };
+        let volumes = names
+            .iter()
+            .map(|p| r.volume(p, sel))
+            .collect::<Result<Vec<_>>>()?;
+        let lights = r.lights(&prims)?;
+        let up = r.up()?;
+        Ok(Shot {
+            path: path.to_path_buf(),
+            time,
+            up,
+            volumes,
+            lights,
+        })
+    })
+}
+
+/// The lights of the stage at `path` at `time` (no volume is read: a query toward a light, or
+/// a listing, needs none).
+///
+/// # Errors
+/// As [`read`], for what reading lights can find.
+pub fn lights_at(path: &Path, time: Option<f64>) -> Result<Shot> {
+    with_panics(path, || {
+        let stage = open_stage(path)?;
+        let time = time.unwrap_or_else(|| stage.start_time_code());
+        let r = Reader { path, stage, time };
+        let prims = r.prims()?;
+        let lights = r.lights(&prims)?;
+        let up = r.up()?;
+        Ok(Shot {
+            path: path.to_path_buf(),
+            time,
+            up,
+            volumes: Vec::new(),
+            lights,
+        })
+    })
+}
+
+/// Copy the member `member` of the `.usdz` package `package` into a scratch file.
+pub(super) fn extract(package: &Path, member: &str) -> Result<crate::output::Scratch> {
+    let bad = |reason: String| Error::Stage {
+        path: package.to_path_buf(),
+        reason,
+    };
+    let file = std::fs::File::open(package).map_err(|err| Error::Io {
+        path: package.to_path_buf(),
+        err,
+    })?;
+    let mut zip = zip::ZipArchive::new(file)
+        .map_err(|e| bad(format!("not a readable .usdz package: {e}")))?;
+    let names: Vec<String> = zip.file_names().map(str::to_string).collect();
+    let mut entry = zip.by_name(member).map_err(|_| {
+        bad(format!(
+            "no member '{}' in the package (it holds: {})",
+            crate::text::escape(member),
+            names.join(", ")
+        ))
+    })?;
+    let hint = member.rsplit('/').next().unwrap_or(member).to_string();
+    crate::output::Scratch::copy_from(&hint, &mut entry)
+}
