@@ -219,6 +219,9 @@ fn load_error(e: umbra::Error, file: &Path, opts: &umbra::scene::SceneOptions) -
         other if umbra::scene::is_scene_file(file) => {
             anyhow::Error::from(other).context("loading the scene")
         }
+        other if umbra::usd::is_stage(file) => {
+            anyhow::Error::from(other).context("loading the shot")
+        }
         other => anyhow::Error::from(other).context(format!("loading grid '{}'", opts.grid)),
     }
 }
