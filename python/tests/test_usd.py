@@ -319,3 +319,35 @@ def test_python_reads_the_stage_as_the_cli_does(cli, tmp_path):
         umbra.bake(tmp_path / "shot.usdc", tmp_path / "q.exr", light="moon")
     with pytest.raises(umbra.InvalidArgument, match="'frame'.*USD"):
         umbra.bake(DATA / "cloud.vdb", tmp_path / "q.exr", frame=1, light_dir=(0, -1, 0))
+
+
+def test_a_batch_job_reads_frames_and_lights_from_the_stage(cli, tmp_path):
+    _stage(tmp_path / "shot.usdc")
+    job = tmp_path / "job.toml"
+    body = ('output = "out/{light}.{frame:04}.exr"\n'
+            '[[inputs]]\nusd = "shot.usdc"\nframes = [1, 2]\n'
+            '[bake]\nres = 40\n')
+    # The sun turns between the frames: one shared camera cannot follow it.
+    job.write_text(body + '[[lights]]\nusd = "/Lights/sun"\n')
+    code, _, err = cli("batch", job, check=False)
+    assert code == 1 and "moves" in err and "per-frame" in err, err
+    assert not (tmp_path / "out").exists()
+    job.write_text(body + 'framing = "per-frame"\n[[lights]]\nusd = "/Lights/sun"\n')
+    cli("batch", job)
+    for f in (1, 2):
+        cli("bake", tmp_path / "shot.usdc", "--frame", f, "--light", "sun", "--res", 40,
+            "-o", tmp_path / "want.exr", "--quiet", "--force")
+        _same_pixels(tmp_path / "out" / f"sun.{f:04d}.exr", tmp_path / "want.exr")
+    # No [[lights]]: every light of the stage; the lamp does not move, so it shares a camera.
+    job.write_text(body.replace("out/", "all/") + 'framing = "per-frame"\n')
+    cli("batch", job)
+    names = sorted(p.name for p in (tmp_path / "all").glob("*.exr"))
+    assert names == ["lamp.0001.exr", "lamp.0002.exr", "sun.0001.exr", "sun.0002.exr"], names
+    # A frame whose asset is missing fails alone (exit 3); the other frame is baked.
+    (tmp_path / "cloud.0002.vdb").unlink()
+    job.write_text(body.replace("out/", "miss/") + 'framing = "per-frame"\n'
+                   '[[lights]]\nusd = "/Lights/lamp"\n')
+    code, _, err = cli("batch", job, check=False)
+    assert code == 3, err
+    assert (tmp_path / "miss" / "lamp.0001.exr").exists()
+    assert not (tmp_path / "miss" / "lamp.0002.exr").exists()

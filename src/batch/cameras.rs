@@ -48,11 +48,17 @@ impl Job {
                 .iter()
                 .filter(|t| t.sequence == sequence)
                 .collect();
-            let mut inputs: Vec<&Path> = tasks.iter().map(|t| t.input.as_path()).collect();
+            // A USD stage is one input read at every frame of the sequence.
+            let mut inputs: Vec<(&Path, Option<f64>)> = tasks
+                .iter()
+                .map(|t| (t.input.as_path(), t.time()))
+                .collect();
             inputs.dedup();
             let mut union = Vec::new();
-            for input in inputs {
-                match crate::scene::read_box_corners(input, &self.scene_options()) {
+            for (input, time) in inputs {
+                let mut opts = self.scene_options();
+                opts.stage.time = time;
+                match crate::scene::read_box_corners(input, &opts) {
                     Ok(c) => union.extend(c),
                     // A missing file or grid, or a malformed scene, fails the job before any
                     // task runs.
@@ -68,11 +74,12 @@ impl Job {
             if union.is_empty() {
                 continue; // nothing to frame anywhere: each task reports it
             }
-            for t in tasks {
+            for &t in &tasks {
                 if let std::collections::btree_map::Entry::Vacant(e) =
                     shared.entry((sequence, t.light.clone()))
                 {
                     let view = self.bake_job(t, 0)?.view;
+                    self.steady_light(t, &tasks)?;
                     let camera = Camera::frame(&view, &union).map_err(|e| {
                         err(
                             &self.path,
@@ -86,6 +93,33 @@ impl Job {
         }
         // A second call finds the same cameras (same files), so a set map stays.
         let _ = self.shared.set(shared);
+        Ok(())
+    }
+
+    /// A shared camera is one projection: a stage light that moves or turns over the sequence
+    /// cannot have one (each frame's map would be wrong), so it is refused by name.
+    fn steady_light(&self, t: &Task, tasks: &[&Task]) -> Result<(), BatchError> {
+        if t.usd_light.is_none() {
+            return Ok(());
+        }
+        let first = self.bake_job(t, 0)?.view;
+        for o in tasks
+            .iter()
+            .filter(|o| o.light == t.light && o.time() != t.time())
+        {
+            let v = self.bake_job(o, 0)?.view;
+            if (v.light_dir, v.light_pos) != (first.light_dir, first.light_pos) {
+                return Err(err(
+                    &self.path,
+                    &format!("lights '{}'", t.light),
+                    format!(
+                        "the stage light moves between frames {:?} and {:?}: a shared camera \
+                         cannot follow it; set framing = \"per-frame\" in [bake]",
+                        t.frame, o.frame
+                    ),
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -145,7 +179,17 @@ impl Job {
         let tasks: Vec<_> = self
             .tasks
             .iter()
-            .map(|t| (t.sequence, &t.input, &t.light, t.dir, t.pos))
+            .map(|t| {
+                (
+                    t.sequence,
+                    &t.input,
+                    &t.light,
+                    t.dir,
+                    t.pos,
+                    &t.usd_light,
+                    t.frame,
+                )
+            })
             .collect();
         let o = &self.options;
         serde_json::json!({

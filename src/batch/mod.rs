@@ -167,10 +167,24 @@ pub struct Task {
     pub dir: Option<[f64; 3]>,
     /// Light position.
     pub pos: Option<[f64; 3]>,
+    /// A USD stage light (prim path), read at the task's frame.
+    pub usd_light: Option<String>,
     /// Output file.
     pub output: PathBuf,
     /// PNG preview file.
     pub preview: Option<PathBuf>,
+}
+
+impl Task {
+    /// The time code a USD stage input is read at: the task's frame (`None` for other inputs,
+    /// and for a stage without `frames`: its start time code).
+    #[must_use]
+    pub fn time(&self) -> Option<f64> {
+        #[allow(clippy::cast_precision_loss)]
+        self.frame
+            .filter(|_| crate::usd::is_stage(&self.input))
+            .map(|f| f as f64)
+    }
 }
 
 /// What happened to a task (one JSON line of the log).
@@ -257,6 +271,8 @@ impl Job {
         // that the fixed camera then replaces.
         options.light_dir = task.dir;
         options.light_pos = task.pos;
+        options.light.clone_from(&task.usd_light);
+        options.frame = task.time();
         options.preview.clone_from(&task.preview);
         options.threads = threads;
         options.force = true;
@@ -310,7 +326,9 @@ impl Job {
         let mut inputs: Vec<&Path> = self.tasks.iter().map(|t| t.input.as_path()).collect();
         inputs.dedup();
         for input in inputs {
-            let found = if crate::scene::is_scene_file(input) {
+            let found = if crate::usd::is_stage(input) {
+                crate::usd::lights_at(input, None).map(|_| ())
+            } else if crate::scene::is_scene_file(input) {
                 crate::scene::read_box_corners(input, &self.scene_options()).map(|_| ())
             } else {
                 crate::vdb::open(input).and_then(|a| a.find_grid(&self.grid).map(|_| ()))
@@ -318,7 +336,8 @@ impl Job {
             if let Err(
                 e @ (crate::Error::Io { .. }
                 | crate::Error::GridNotFound { .. }
-                | crate::Error::Scene { .. }),
+                | crate::Error::Scene { .. }
+                | crate::Error::Stage { .. }),
             ) = found
             {
                 return Err(e.into());

@@ -57,6 +57,9 @@ pub struct InputSpec {
     pub frames: Option<[i64; 2]>,
     /// Frame step of a pattern (default 1).
     pub step: Option<i64>,
+    /// A USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`): its volumes at every frame of `frames`
+    /// (time codes; without `frames`, its start time code).
+    pub usd: Option<String>,
 }
 
 /// One `[[lights]]` entry.
@@ -64,13 +67,59 @@ pub struct InputSpec {
 #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields)]
 pub struct LightSpec {
-    /// Name used by `{light}`.
-    pub name: String,
+    /// Name used by `{light}` (default for a `usd` light: the prim's name).
+    pub name: Option<String>,
     /// Direction the light travels (directional light, orthographic map; with `pos`, where a
     /// perspective map from the light looks), as `umbra bake --light-dir`.
     pub dir: Option<[f64; 3]>,
     /// Light position (point light, perspective map), as `umbra bake --light-pos`.
     pub pos: Option<[f64; 3]>,
+    /// A UsdLux light of the job's USD stage inputs, by prim path (as `umbra bake --light`),
+    /// read at each task's frame.
+    pub usd: Option<String>,
+}
+
+/// A light of a job, resolved: its name, and how it shines.
+#[derive(Debug, Clone)]
+struct JobLight {
+    name: String,
+    dir: Option<[f64; 3]>,
+    pos: Option<[f64; 3]>,
+    usd: Option<String>,
+}
+
+/// Every light umbra traces of the first USD stage input at its first frame: a job of stage
+/// inputs without `[[lights]]`.
+fn stage_lights(
+    path: &Path,
+    stage: &Path,
+    frame: Option<i64>,
+) -> Result<Vec<JobLight>, BatchError> {
+    #[allow(clippy::cast_precision_loss)]
+    let shot = crate::usd::lights_at(stage, frame.map(|f| f as f64))
+        .map_err(|e| err(path, "inputs", e))?;
+    let lights: Vec<JobLight> = shot
+        .lights
+        .iter()
+        .filter(|l| l.emitter.is_some())
+        .map(|l| JobLight {
+            name: l.name().to_string(),
+            dir: None,
+            pos: None,
+            usd: Some(l.prim.clone()),
+        })
+        .collect();
+    if lights.is_empty() {
+        return Err(err(
+            path,
+            "lights",
+            format!(
+                "{} has no light umbra traces: give [[lights]] entries",
+                stage.display()
+            ),
+        ));
+    }
+    Ok(lights)
 }
 
 pub(super) fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> BatchError {
@@ -79,6 +128,40 @@ pub(super) fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> Bat
         key: key.to_string(),
         reason: reason.to_string(),
     }
+}
+
+/// The frames `[first, last]` by `step` of a sequence (bounded by [`MAX_FRAMES`]).
+fn frame_list(
+    path: &Path,
+    key: &str,
+    [first, last]: [i64; 2],
+    step: Option<i64>,
+) -> Result<Vec<i64>, BatchError> {
+    let step = step.unwrap_or(1);
+    if step < 1 {
+        return Err(err(path, key, "step must be at least 1"));
+    }
+    if last < first {
+        return Err(err(path, key, "last frame before the first"));
+    }
+    let count = (i128::from(last) - i128::from(first)) / i128::from(step) + 1;
+    if count > i128::from(MAX_FRAMES) {
+        return Err(err(
+            path,
+            key,
+            format!("{count} frames; at most {MAX_FRAMES} per sequence"),
+        ));
+    }
+    let mut out = Vec::new();
+    let mut f = first;
+    loop {
+        out.push(f);
+        match f.checked_add(step) {
+            Some(next) if next <= last => f = next,
+            _ => break,
+        }
+    }
+    Ok(out)
 }
 
 /// The key (`bake.levelset`) whose value starts the line holding byte `at` of a job file: the
@@ -153,85 +236,6 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     if grid.is_empty() {
         return Err(err(&path, "grid", "must not be empty"));
     }
-    // The lights: [[lights]] entries, or one light in [bake].
-    let lights = match (file.lights.is_empty(), b.light_dir, b.light_pos) {
-        (true, None, None) => {
-            return Err(err(
-                &path,
-                "lights",
-                "give at least one [[lights]] entry, or light_dir / light_pos in [bake]",
-            ))
-        }
-        (true, dir, pos) => vec![LightSpec {
-            name: "light".into(),
-            dir,
-            pos,
-        }],
-        (false, None, None) => file.lights.clone(),
-        (false, ..) => {
-            let key = if b.light_dir.is_some() {
-                "bake.light_dir"
-            } else {
-                "bake.light_pos"
-            };
-            return Err(err(
-                &path,
-                key,
-                "the lights are given as [[lights]] too: give them in one place",
-            ));
-        }
-    };
-    if b.camera.is_some() && lights.len() > 1 {
-        return Err(err(
-            &path,
-            "bake.camera",
-            "a fixed camera is one view: give one [[lights]] entry (it names the outputs)",
-        ));
-    }
-    let mut names = std::collections::HashSet::new();
-    for (i, l) in lights.iter().enumerate() {
-        let key = |k: &str| format!("lights[{i}].{k}");
-        if l.name.is_empty()
-            || l.name == "."
-            || l.name == ".."
-            || l.name.contains(['/', '\\'])
-            || l.name.chars().any(char::is_control)
-        {
-            return Err(err(
-                &path,
-                &key("name"),
-                "must be a non-empty name without slashes or control characters, not . or ..",
-            ));
-        }
-        if !names.insert(l.name.as_str()) {
-            return Err(err(
-                &path,
-                &key("name"),
-                format!("'{}' is used twice", l.name),
-            ));
-        }
-        match (l.dir, l.pos) {
-            (None, None) => {
-                return Err(err(
-                    &path,
-                    &format!("lights[{i}]"),
-                    "give dir = [x, y, z] (directional) or pos = [x, y, z] (point)",
-                ))
-            }
-            (dir, pos) => {
-                if let Some(d) = dir {
-                    if !d.iter().all(|c| c.is_finite()) || d.iter().all(|&c| c == 0.0) {
-                        return Err(err(&path, &key("dir"), "must be finite and non-zero"));
-                    }
-                }
-                if let Some(p) = pos {
-                    if !p.iter().all(|c| c.is_finite()) {
-                        return Err(err(&path, &key("pos"), "must be finite"));
-                    }
-                }
-            }
-        }
-    }
     if file.inputs.is_empty() {
         return Err(err(&path, "inputs", "give at least one [[inputs]] entry"));
     }
@@ -239,8 +243,25 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let mut inputs: Vec<(PathBuf, Option<i64>, usize)> = Vec::new();
     for (i, inp) in file.inputs.iter().enumerate() {
         let key = |k: &str| format!("inputs[{i}].{k}");
-        match (&inp.file, &inp.pattern) {
-            (Some(f), None) => {
+        match (&inp.file, &inp.pattern, &inp.usd) {
+            (None, None, Some(u)) => {
+                if !crate::usd::is_stage(Path::new(u)) {
+                    return Err(err(
+                        &path,
+                        &key("usd"),
+                        format!("'{u}' is not a USD stage (.usd, .usda, .usdc, .usdz)"),
+                    ));
+                }
+                match inp.frames {
+                    None => inputs.push((resolve(u), None, i)),
+                    Some(frames) => {
+                        for f in frame_list(&path, &key("frames"), frames, inp.step)? {
+                            inputs.push((resolve(u), Some(f), i));
+                        }
+                    }
+                }
+            }
+            (Some(f), None, None) => {
                 if inp.frames.is_some() || inp.step.is_some() {
                     return Err(err(
                         &path,
@@ -250,7 +271,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 }
                 inputs.push((resolve(f), None, i));
             }
-            (None, Some(p)) => {
+            (None, Some(p), None) => {
                 let [first, last] = inp.frames.ok_or_else(|| {
                     err(
                         &path,
@@ -304,8 +325,139 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 return Err(err(
                     &path,
                     &format!("inputs[{i}]"),
-                    "give file = \"...\" or pattern = \"...\" with frames",
+                    "give file = \"...\", pattern = \"...\" with frames, or usd = \"...\"",
                 ))
+            }
+        }
+    }
+    // The lights: [[lights]] entries, or one light in [bake].
+    let stage_input = inputs
+        .iter()
+        .find(|(p, _, _)| crate::usd::is_stage(p))
+        .map(|(p, f, _)| (p.clone(), *f));
+    let lights = match (file.lights.is_empty(), b.light_dir, b.light_pos) {
+        (true, None, None) => match &stage_input {
+            Some((stage, frame)) if b.camera.is_none() && b.light.is_none() => {
+                stage_lights(&path, stage, *frame)?
+            }
+            Some(_) if b.light.is_some() => vec![JobLight {
+                name: b
+                    .light
+                    .as_deref()
+                    .map_or("light", |l| l.rsplit('/').next().unwrap_or(l))
+                    .to_string(),
+                dir: None,
+                pos: None,
+                usd: b.light.clone(),
+            }],
+            _ => {
+                return Err(err(
+                    &path,
+                    "lights",
+                    "give at least one [[lights]] entry, or light_dir / light_pos in [bake]",
+                ))
+            }
+        },
+        (true, dir, pos) => vec![JobLight {
+            name: "light".into(),
+            dir,
+            pos,
+            usd: None,
+        }],
+        (false, None, None) => file
+            .lights
+            .iter()
+            .map(|l| JobLight {
+                name: l.name.clone().unwrap_or_else(|| {
+                    l.usd
+                        .as_deref()
+                        .map(|u| u.rsplit('/').next().unwrap_or(u).to_string())
+                        .unwrap_or_default()
+                }),
+                dir: l.dir,
+                pos: l.pos,
+                usd: l.usd.clone(),
+            })
+            .collect(),
+        (false, ..) => {
+            let key = if b.light_dir.is_some() {
+                "bake.light_dir"
+            } else {
+                "bake.light_pos"
+            };
+            return Err(err(
+                &path,
+                key,
+                "the lights are given as [[lights]] too: give them in one place",
+            ));
+        }
+    };
+    if b.camera.is_some() && lights.len() > 1 {
+        return Err(err(
+            &path,
+            "bake.camera",
+            "a fixed camera is one view: give one [[lights]] entry (it names the outputs)",
+        ));
+    }
+    let mut names = std::collections::HashSet::new();
+    for (i, l) in lights.iter().enumerate() {
+        let key = |k: &str| format!("lights[{i}].{k}");
+        if l.name.is_empty()
+            || l.name == "."
+            || l.name == ".."
+            || l.name.contains(['/', '\\'])
+            || l.name.chars().any(char::is_control)
+        {
+            return Err(err(
+                &path,
+                &key("name"),
+                "must be a non-empty name without slashes or control characters, not . or ..",
+            ));
+        }
+        if !names.insert(l.name.as_str()) {
+            return Err(err(
+                &path,
+                &key("name"),
+                format!("'{}' is used twice", l.name),
+            ));
+        }
+        if l.usd.is_some() {
+            if l.dir.is_some() || l.pos.is_some() {
+                return Err(err(
+                    &path,
+                    &key("usd"),
+                    "a stage light shines as the stage says: give usd, or dir / pos",
+                ));
+            }
+            if stage_input.is_none() {
+                return Err(err(
+                    &path,
+                    &key("usd"),
+                    "names a light of a USD stage, but no input is one (usd = \"...\")",
+                ));
+            }
+            continue;
+        }
+        match (l.dir, l.pos) {
+            (None, None) => {
+                return Err(err(
+                    &path,
+                    &format!("lights[{i}]"),
+                    "give dir = [x, y, z] (directional), pos = [x, y, z] (point) or usd = \
+                     \"/prim/path\" (a stage light)",
+                ))
+            }
+            (dir, pos) => {
+                if let Some(d) = dir {
+                    if !d.iter().all(|c| c.is_finite()) || d.iter().all(|&c| c == 0.0) {
+                        return Err(err(&path, &key("dir"), "must be finite and non-zero"));
+                    }
+                }
+                if let Some(p) = pos {
+                    if !p.iter().all(|c| c.is_finite()) {
+                        return Err(err(&path, &key("pos"), "must be finite"));
+                    }
+                }
             }
         }
     }
@@ -356,6 +508,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 light: l.name.clone(),
                 dir: l.dir,
                 pos: l.pos,
+                usd_light: l.usd.clone(),
                 output,
                 preview,
             });
@@ -374,6 +527,8 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     options.grid.clone_from(&grid);
     options.light_dir = None;
     options.light_pos = None;
+    options.light = None;
+    options.frame = None;
     options.preview = None;
     let framing = options.framing.take().unwrap_or_default();
     if let Some(crate::request::CameraSource::File(c)) = &mut options.camera {
@@ -385,7 +540,9 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     if template.camera.is_none() {
         template.light_dir = first.dir;
         template.light_pos = first.pos;
+        template.light.clone_from(&first.usd_light);
     }
+    template.frame = first.time();
     let plan = BakeRequest {
         input: first.input.clone(),
         output: first.output.clone(),
