@@ -145,6 +145,10 @@ pub struct BakeOptions {
     /// density).
     #[cfg_attr(feature = "cli", arg(long, value_name = "NAME"))]
     pub field: Option<String>,
+    /// USD stage inputs: also write a .usda layer that puts the map and its camera on the light
+    /// prim (time-sampled umbra:shadowMap and umbra:worldToShadow), to sublayer over the shot.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "LAYER.usda"))]
+    pub usd_out: Option<PathBuf>,
     /// USD stage inputs: the UsdLux light to bake from, by prim path or name (default: the
     /// stage's only light; light-dir / light-pos override it).
     #[cfg_attr(feature = "cli", arg(long, value_name = "PRIM"))]
@@ -279,6 +283,7 @@ impl Default for BakeOptions {
             volume: None,
             field: None,
             light: None,
+            usd_out: None,
             camera: None,
             res: None,
             tile: None,
@@ -585,6 +590,43 @@ pub fn is_volume_output(output: &Path) -> bool {
 }
 
 impl BakeRequest {
+    /// `usd_out`: check before any work that the layer may be written (`force` to replace it).
+    ///
+    /// # Errors
+    /// [`Error::Output`] / [`Error::Exists`] naming the layer.
+    pub fn check_usd_out(&self) -> Result<()> {
+        match &self.options.usd_out {
+            Some(u) => crate::output::check_target(u, self.options.force),
+            None => Ok(()),
+        }
+    }
+
+    /// `usd_out`: after the map is written, the `.usda` layer that puts it and its camera on
+    /// the stage light it was baked from ([`crate::usd::shadow_layer`]), written atomically.
+    /// Nothing when `usd_out` is not set.
+    ///
+    /// # Errors
+    /// As [`crate::usd::lights_at`] and [`crate::usd::shadow_layer`]; [`Error::Output`] when
+    /// the layer cannot be written.
+    #[cfg(feature = "usd")]
+    pub fn write_usd_out(&self, camera: &Camera) -> Result<()> {
+        let Some(layer) = &self.options.usd_out else {
+            return Ok(());
+        };
+        let shot = crate::usd::lights_at(&self.input, self.options.frame)?;
+        let (light, _) = shot.light(self.options.light.as_deref())?;
+        let sample = crate::usd::ShadowSample {
+            light: light.prim.clone(),
+            time: shot.time,
+            map: crate::usd::asset_name(layer, &self.output),
+            world_to_ndc: camera.world_to_ndc(),
+        };
+        let text = crate::usd::shadow_layer(&[sample])?;
+        crate::output::write_atomic(layer, self.options.force, |w| {
+            std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
+        })
+    }
+
     /// Check the request and build its plan. Reads nothing but a reused camera's file; outputs
     /// are checked when the plan runs ([`BakeJob::check_outputs`], [`VolumeJob::check_outputs`]).
     ///
@@ -610,6 +652,7 @@ impl BakeRequest {
                 ("volume", o.volume.is_some()),
                 ("field", o.field.is_some()),
                 ("light", o.light.is_some()),
+                ("usd-out", o.usd_out.is_some()),
             ];
             if let Some((k, _)) = given.iter().find(|(_, g)| *g) {
                 return Err(bad(
@@ -631,6 +674,24 @@ impl BakeRequest {
             return Err(bad("field", "must not be empty"));
         }
         let explicit = o.light_dir.is_some() || o.light_pos.is_some();
+        if let Some(u) = &o.usd_out {
+            if explicit || o.camera.is_some() {
+                return Err(bad(
+                    "usd-out",
+                    "puts the map on its stage light: bake from the stage's light (light), not \
+                     light-dir / light-pos / camera",
+                ));
+            }
+            let usda = u
+                .extension()
+                .is_some_and(|e| e.eq_ignore_ascii_case("usda"));
+            if !usda {
+                return Err(bad(
+                    "usd-out",
+                    format!("{} is not a .usda layer", u.display()),
+                ));
+            }
+        }
         if o.light.is_some() && (explicit || o.camera.is_some()) {
             let other = if explicit {
                 "light-dir / light-pos"

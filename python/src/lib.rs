@@ -1138,7 +1138,9 @@ fn bake_file(
     };
     match plan {
         BakePlan::Map(job) => {
+            request.check_usd_out().map_err(py_err)?;
             let report = py.detach(|| job.run(&|_| {})).map_err(load)?;
+            request.write_usd_out(&report.map.camera).map_err(py_err)?;
             let mut summary =
                 serde_json::to_value(MapSummary::new(&report.map, &report.provenance))
                     .map_err(|e| raise(Class::Other, e.to_string()))?;

@@ -311,10 +311,13 @@ def test_python_reads_the_stage_as_the_cli_does(cli, tmp_path):
     import pickle
     assert pickle.loads(pickle.dumps(v)).transmittance(a, b)[0] == t[0]
     # umbra.bake on a stage writes what `umbra bake` writes.
-    umbra.bake(tmp_path / "shot.usdc", tmp_path / "p.exr", frame=2, light="sun", res=48)
+    umbra.bake(tmp_path / "shot.usdc", tmp_path / "p.exr", frame=2, light="sun", res=48,
+               usd_out=tmp_path / "p.usda")
     cli("bake", tmp_path / "shot.usdc", "--frame", 2, "--light", "sun", "--res", 48,
-        "-o", tmp_path / "c.exr", "--quiet")
+        "-o", tmp_path / "c.exr", "--quiet", "--usd-out", tmp_path / "c.usda")
     assert (tmp_path / "p.exr").read_bytes() == (tmp_path / "c.exr").read_bytes()
+    assert (tmp_path / "p.usda").read_text().replace("p.exr", "c.exr") == \
+        (tmp_path / "c.usda").read_text()
     with pytest.raises(umbra.InvalidArgument, match="'light'.*moon"):
         umbra.bake(tmp_path / "shot.usdc", tmp_path / "q.exr", light="moon")
     with pytest.raises(umbra.InvalidArgument, match="'frame'.*USD"):
@@ -351,3 +354,34 @@ def test_a_batch_job_reads_frames_and_lights_from_the_stage(cli, tmp_path):
     assert code == 3, err
     assert (tmp_path / "miss" / "lamp.0001.exr").exists()
     assert not (tmp_path / "miss" / "lamp.0002.exr").exists()
+
+
+def test_usd_out_puts_the_map_and_its_camera_on_the_light(cli, tmp_path):
+    _stage(tmp_path / "shot.usdc")
+    (tmp_path / "maps").mkdir()
+    for light in ("sun", "lamp"):
+        out = tmp_path / "maps" / f"{light}.0002.exr"
+        layer = tmp_path / f"shadows_{light}.usda"
+        cli("bake", tmp_path / "shot.usdc", "--frame", 2, "--light", light, "--res", 40,
+            "-o", out, "--usd-out", layer, "--quiet", "--force")
+        # usd-core reads the layer back, sublayered over the shot.
+        root = Sdf.Layer.CreateAnonymous(".usda")
+        root.subLayerPaths = [str(layer), str(tmp_path / "shot.usdc")]
+        st = Usd.Stage.Open(root)
+        prim = st.GetPrimAtPath(f"/Lights/{light}")
+        assert prim.IsA(UsdLux.DistantLight if light == "sun" else UsdLux.SphereLight)
+        m = prim.GetAttribute("umbra:shadowMap").Get(2)
+        assert pathlib.Path(m.resolvedPath) == out, m
+        w2s = np.array(prim.GetAttribute("umbra:worldToShadow").Get(2))
+        with OpenEXR.File(str(out)) as f:
+            header = np.array(f.header()["worldToNDC"], dtype=np.float64)
+        # The EXR header keeps it as floats: the same matrix, rounded.
+        assert np.allclose(w2s, header, rtol=1e-6, atol=1e-7), (w2s, header)
+    # Refused before any work: a layer that is not .usda, or a light not from the stage.
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--light", "sun", "-o", tmp_path / "x.exr",
+             "--usd-out", tmp_path / "s.usdc")
+    assert "'--usd-out'" in e and ".usda" in e, e
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--light-dir=0,-1,0", "-o", tmp_path / "x.exr",
+             "--usd-out", layer)
+    assert "'--usd-out'" in e, e
+    assert not (tmp_path / "x.exr").exists()

@@ -56,6 +56,7 @@ def bake(
     volume: Optional[Sequence[str]] = None,
     field: Optional[str] = None,
     light: Optional[str] = None,
+    usd_out: Optional[PathLike] = None,
     camera: Union[None, _Camera, PathLike] = None,
     res: Union[None, int, str, Tuple[int, int]] = None,
     tile: Optional[int] = None,

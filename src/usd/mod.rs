@@ -32,7 +32,36 @@ use crate::xform::Xform;
 use std::path::{Path, PathBuf};
 
 #[cfg(feature = "usd")]
-pub use read::{lights_at, read};
+pub use read::{lights_at, read, shadow_layer};
+
+/// One baked map of a stage light, for the layer that hands maps back to the shot
+/// ([`shadow_layer`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct ShadowSample {
+    /// The light prim.
+    pub light: String,
+    /// The time code the map was baked at.
+    pub time: f64,
+    /// The map, as the layer names it (relative to the layer's directory when it is below it).
+    pub map: String,
+    /// The map's camera as OpenEXR's `worldToNDC`, a column-vector 4x4 (`[X, Y, Z, w] = M [p,
+    /// 1]`, NDC `(X/w, Y/w)` in `[0, 1]^2` from the top-left corner). The layer stores it in
+    /// USD's row-vector convention, `M^T`.
+    pub world_to_ndc: [[f64; 4]; 4],
+}
+
+/// How `layer` (a `.usda` file to be written) names `map`: relative (`./maps/sun.0001.exr`)
+/// when the map is in the layer's directory or below it, absolute otherwise.
+#[must_use]
+pub fn asset_name(layer: &Path, map: &Path) -> String {
+    let abs = |p: &Path| std::path::absolute(p).map_or_else(|_| p.to_path_buf(), |a| lexical(&a));
+    let (l, m) = (abs(layer), abs(map));
+    let dir = l.parent().unwrap_or(Path::new("/"));
+    match m.strip_prefix(dir) {
+        Ok(rel) => format!("./{}", rel.display()),
+        Err(_) => m.display().to_string(),
+    }
+}
 
 /// Whether `path` names a USD stage (extension `.usd`, `.usda`, `.usdc` or `.usdz`, any case).
 #[must_use]

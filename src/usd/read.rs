@@ -544,3 +544,50 @@ pub(super) fn extract(package: &Path, member: &str) -> Result<crate::output::Scr
     let hint = member.rsplit('/').next().unwrap_or(member).to_string();
     crate::output::Scratch::copy_from(&hint, &mut entry)
 }
+
+/// A `.usda` layer that hands baked maps back to the shot: over each light prim, the
+/// time-sampled `asset umbra:shadowMap` (the map baked at that time code) and `matrix4d
+/// umbra:worldToShadow` (its camera's `worldToNDC`, row-vector convention). Sublayer it over the
+/// shot and lighting tools find each light's maps.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (name `usd-out`) when a prim path is not a valid USD path or the
+/// layer cannot be authored.
+pub fn shadow_layer(samples: &[super::ShadowSample]) -> Result<String> {
+    let bad = |reason: String| Error::InvalidArgument {
+        name: "usd-out".into(),
+        reason,
+    };
+    let stage = Stage::builder()
+        .in_memory("umbra_shadows.usda")
+        .map_err(|e| bad(format!("{e:#}")))?;
+    for s in samples {
+        let t = TimeCode::new(s.time);
+        stage
+            .override_prim(s.light.as_str())
+            .map_err(|e| bad(format!("{}: {e}", s.light)))?;
+        let m = s.world_to_ndc;
+        let rows = Matrix4d(std::array::from_fn(|i| m[i % 4][i / 4]));
+        stage
+            .create_attribute(format!("{}.umbra:shadowMap", s.light).as_str(), "asset")
+            .and_then(|a| {
+                a.set_at(
+                    Value::AssetPath(openusd::sdf::AssetPath::new(s.map.clone())),
+                    t,
+                )
+            })
+            .map_err(|e| bad(format!("{}: {e}", s.light)))?;
+        stage
+            .create_attribute(
+                format!("{}.umbra:worldToShadow", s.light).as_str(),
+                "matrix4d",
+            )
+            .and_then(|a| a.set_at(Value::Matrix4d(rows), t))
+            .map_err(|e| bad(format!("{}: {e}", s.light)))?;
+    }
+    let text = stage
+        .root_layer()
+        .export_to_string()
+        .map_err(|e| bad(format!("{e:#}")))?;
+    Ok(text)
+}

@@ -30,14 +30,17 @@ pub struct BakeArgs {
 }
 
 /// Plan the request (the library checks every option), then bake, write and report.
-pub fn run(a: &BakeArgs) -> Result<ExitCode> {
-    let total = std::time::Instant::now();
-    let request = BakeRequest {
+fn request(a: &BakeArgs) -> BakeRequest {
+    BakeRequest {
         input: a.file.clone(),
         output: a.output.clone(),
         options: a.options.clone(),
-    };
-    match request.plan().map_err(crate::common::flag_error)? {
+    }
+}
+
+pub fn run(a: &BakeArgs) -> Result<ExitCode> {
+    let total = std::time::Instant::now();
+    match request(a).plan().map_err(crate::common::flag_error)? {
         BakePlan::Map(job) => run_map(a, &job, total),
         BakePlan::Volume(job) => run_volume(a, &job, total),
     }
@@ -53,6 +56,9 @@ fn run_map(a: &BakeArgs, job: &BakeJob, total: std::time::Instant) -> Result<Exi
         other if scene_file => anyhow::Error::from(other).context("loading the scene"),
         other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
     };
+    request(a)
+        .check_usd_out()
+        .map_err(crate::common::flag_error)?;
     let bounded = job.plan_bounded().map_err(setup_error)?;
     let result = match bounded {
         // Over --max-memory: the grid a part at a time.
@@ -94,6 +100,9 @@ fn run_map(a: &BakeArgs, job: &BakeJob, total: std::time::Instant) -> Result<Exi
     for w in &done.warnings {
         eprintln!("umbra: warning: {}: {w}", a.file.display());
     }
+    request(a)
+        .write_usd_out(&done.map.camera)
+        .map_err(crate::common::flag_error)?;
     Ok(ExitCode::SUCCESS)
 }
 
