@@ -130,25 +130,26 @@ pub(super) fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> Bat
     }
 }
 
-/// The frames `[first, last]` by `step` of a sequence (bounded by [`MAX_FRAMES`]).
+/// The frames `[first, last]` by `step` (default 1) of a sequence, bounded by [`MAX_FRAMES`];
+/// `key` names an entry's keys (`inputs[0].frames`) in errors.
 fn frame_list(
     path: &Path,
-    key: &str,
+    key: &dyn Fn(&str) -> String,
     [first, last]: [i64; 2],
     step: Option<i64>,
 ) -> Result<Vec<i64>, BatchError> {
     let step = step.unwrap_or(1);
     if step < 1 {
-        return Err(err(path, key, "step must be at least 1"));
+        return Err(err(path, &key("step"), "must be at least 1"));
     }
     if last < first {
-        return Err(err(path, key, "last frame before the first"));
+        return Err(err(path, &key("frames"), "last frame before the first"));
     }
     let count = (i128::from(last) - i128::from(first)) / i128::from(step) + 1;
     if count > i128::from(MAX_FRAMES) {
         return Err(err(
             path,
-            key,
+            &key("frames"),
             format!("{count} frames; at most {MAX_FRAMES} per sequence"),
         ));
     }
@@ -255,7 +256,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 match inp.frames {
                     None => inputs.push((resolve(u), None, i)),
                     Some(frames) => {
-                        for f in frame_list(&path, &key("frames"), frames, inp.step)? {
+                        for f in frame_list(&path, &key, frames, inp.step)? {
                             inputs.push((resolve(u), Some(f), i));
                         }
                     }
@@ -279,13 +280,6 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                         "a pattern needs frames = [first, last]",
                     )
                 })?;
-                let step = inp.step.unwrap_or(1);
-                if step < 1 {
-                    return Err(err(&path, &key("step"), "must be at least 1"));
-                }
-                if last < first {
-                    return Err(err(&path, &key("frames"), "last frame before the first"));
-                }
                 match pattern_pad(p) {
                     None => {
                         return Err(err(
@@ -303,22 +297,9 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                     }
                     Some(_) => {}
                 }
-                let count = (i128::from(last) - i128::from(first)) / i128::from(step) + 1;
-                if count > i128::from(MAX_FRAMES) {
-                    return Err(err(
-                        &path,
-                        &key("frames"),
-                        format!("{count} frames; at most {MAX_FRAMES} per sequence"),
-                    ));
-                }
-                let mut f = first;
-                loop {
+                for f in frame_list(&path, &key, [first, last], inp.step)? {
                     let name = expand_pattern(p, f).unwrap_or_default();
                     inputs.push((resolve(&name), Some(f), i));
-                    match f.checked_add(step) {
-                        Some(next) if next <= last => f = next,
-                        _ => break,
-                    }
                 }
             }
             _ => {
