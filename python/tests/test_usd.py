@@ -263,9 +263,18 @@ def test_broken_stage_files_are_errors_not_crashes(cli, umbra_bin, tmp_path):
         (tmp_path / "cut.usdc").write_bytes(data[:n])
         e = _err(cli, "bake", tmp_path / "cut.usdc", *flags)
         assert "cut.usdc" in e, e
-    # Not tested: a .usdc whose bytes are flipped inside its compressed sections. openusd 0.6
-    # trusts an lz4 size field there and asks for petabytes, which aborts the process (an
-    # allocation failure cannot be caught); see docs/usd.md, "Limits".
+    # A size field inside a compressed section that asks for terabytes (openusd 0.6 would
+    # allocate it and abort): umbra's guard names the file. Every value type, every byte:
+    # tests/usd_guard.rs.
+    toc = int.from_bytes(data[16:24], "little")
+    sections = {data[toc + 8 + 32 * i: toc + 24 + 32 * i].rstrip(b"\0").decode():
+                int.from_bytes(data[toc + 24 + 32 * i: toc + 32 + 32 * i], "little")
+                for i in range(int.from_bytes(data[toc:toc + 8], "little"))}
+    lying = bytearray(data)
+    lying[sections["TOKENS"] + 8: sections["TOKENS"] + 16] = (1 << 42).to_bytes(8, "little")
+    (tmp_path / "lying.usdc").write_bytes(bytes(lying))
+    e = _err(cli, "bake", tmp_path / "lying.usdc", *flags)
+    assert "lying.usdc" in e and "TOKENS" in e, e
     (tmp_path / "bad.usdz").write_bytes(b"PK\x03\x04" + b"\x00" * 40)
     e = _err(cli, "bake", tmp_path / "bad.usdz", *flags)
     assert "bad.usdz" in e, e
@@ -280,6 +289,22 @@ def test_broken_stage_files_are_errors_not_crashes(cli, umbra_bin, tmp_path):
                        capture_output=True, text=True, timeout=60)
     assert p.returncode == 1 and "panicked" not in p.stderr, p.stderr
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_a_stage_with_every_value_type_reads(cli, tmp_path):
+    """The guard in front of the .usdc reader refuses nothing usd-core writes: a layer with a
+    value of every crate type, in every encoding (tests/usd/make_every_value.py), written by
+    the usd-core installed today, reads and traces."""
+    import importlib.util
+    src = pathlib.Path(__file__).resolve().parents[2] / "tests" / "usd" / "make_every_value.py"
+    spec = importlib.util.spec_from_file_location("make_every_value", src)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    mod.main(str(tmp_path / "every.usdc"))
+    shutil.copy(CLOUD, tmp_path / "cloud.vdb")
+    _, out, _ = cli("query", tmp_path / "every.usdc", "--frame", 2, "--light", "sun",
+                    "--at", "0,0,0", "--json")
+    assert 0.0 < json.loads(out)["T"] <= 1.0
 
 
 def test_time_sampled_assets_in_usda_say_how_to_convert(cli, tmp_path):

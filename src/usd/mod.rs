@@ -25,6 +25,8 @@
 //! scene loader decodes only those grids (`scene::file`).
 
 #[cfg(feature = "usd")]
+mod guard;
+#[cfg(feature = "usd")]
 mod read;
 
 use crate::error::{Error, Result};

@@ -3,6 +3,7 @@
 use super::{resolve_asset, Asset, Emitter, Selection, Shot, StageLight, StageVolume};
 use crate::error::{Error, Result};
 use crate::xform::Xform;
+use openusd::ar;
 use openusd::gf::Matrix4d;
 use openusd::schemas::geom::{Imageable, Visibility, Xformable};
 use openusd::sdf::Value;
@@ -384,7 +385,8 @@ fn open_stage(path: &Path) -> Result<Stage> {
         .to_str()
         .ok_or_else(|| fail("the path is not UTF-8".into()))?
         .to_string();
-    let opened = std::panic::catch_unwind(|| Stage::open(&s));
+    let opened =
+        std::panic::catch_unwind(|| Stage::builder().resolver(Guarded::default()).open(&s));
     match opened {
         Ok(Ok(stage)) => Ok(stage),
         Ok(Err(e)) => {
@@ -403,6 +405,81 @@ fn open_stage(path: &Path) -> Result<Stage> {
             "cannot open the stage: the USD reader failed ({})",
             panic_text(&p)
         ))),
+    }
+}
+
+/// The default resolver, with every crate layer it hands the reader (on its own or as a
+/// member of a `.usdz` package) checked first by [`super::guard`]: a layer whose counts lie
+/// is an error naming it instead of an allocation that aborts.
+#[derive(Default)]
+struct Guarded(ar::DefaultResolver);
+
+impl Guarded {
+    fn check(resolved: &ar::ResolvedPath, bytes: &[u8]) -> std::io::Result<()> {
+        let bad = |what: &str, reason: String| {
+            std::io::Error::new(std::io::ErrorKind::InvalidData, format!("{what}: {reason}"))
+        };
+        let name = resolved.display().to_string();
+        if bytes.starts_with(b"PXR-USDC") {
+            return super::guard::check(bytes).map_err(|r| bad(&name, r));
+        }
+        if bytes.starts_with(b"PK\x03\x04") {
+            // A package: its crate members, each read (stored, as the format requires) and
+            // checked. A package zip cannot read is left to the reader's own error.
+            let Ok(mut zip) = zip::ZipArchive::new(std::io::Cursor::new(bytes)) else {
+                return Ok(());
+            };
+            for i in 0..zip.len() {
+                let Ok(mut entry) = zip.by_index(i) else {
+                    continue;
+                };
+                let mut head = [0u8; 8];
+                if entry.size() < 88 || std::io::Read::read_exact(&mut entry, &mut head).is_err() {
+                    continue;
+                }
+                if &head == b"PXR-USDC" {
+                    let member = format!("{name}[{}]", entry.name());
+                    let mut all = head.to_vec();
+                    std::io::Read::read_to_end(&mut entry, &mut all)
+                        .map_err(|e| bad(&member, e.to_string()))?;
+                    super::guard::check(&all).map_err(|r| bad(&member, r))?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+impl ar::Resolver for Guarded {
+    fn create_identifier(&self, asset_path: &str, anchor: Option<&ar::ResolvedPath>) -> String {
+        self.0.create_identifier(asset_path, anchor)
+    }
+    fn resolve(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
+        self.0.resolve(asset_path)
+    }
+    fn resolve_for_new_asset(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
+        self.0.resolve_for_new_asset(asset_path)
+    }
+    fn open_asset(&self, resolved: &ar::ResolvedPath) -> std::io::Result<Box<dyn ar::Asset>> {
+        let bytes = self.0.open_asset(resolved)?.read_all()?;
+        Self::check(resolved, &bytes)?;
+        Ok(Box::new(std::io::Cursor::new(bytes)))
+    }
+    fn get_extension<'a>(&self, asset_path: &'a str) -> &'a str {
+        self.0.get_extension(asset_path)
+    }
+    fn get_asset_info(&self, asset_path: &str, resolved: &ar::ResolvedPath) -> ar::AssetInfo {
+        self.0.get_asset_info(asset_path, resolved)
+    }
+    fn get_modification_timestamp(
+        &self,
+        asset_path: &str,
+        resolved: &ar::ResolvedPath,
+    ) -> Option<std::time::SystemTime> {
+        self.0.get_modification_timestamp(asset_path, resolved)
+    }
+    fn identity(&self) -> String {
+        self.0.identity()
     }
 }
 
