@@ -381,6 +381,45 @@ def test_a_batch_job_reads_frames_and_lights_from_the_stage(cli, tmp_path):
     assert not (tmp_path / "miss" / "lamp.0002.exr").exists()
 
 
+def test_a_job_puts_every_map_on_its_light(cli, tmp_path):
+    """bake.usd_out in a job: one layer with every stage light's maps, time-sampled by frame,
+    built from the maps on disk, so shards run one after the other end with all of them."""
+    _stage(tmp_path / "shot.usdc")
+    job = tmp_path / "job.toml"
+    job.write_text('output = "out/{light}.{frame:04}.exr"\n'
+                   '[[inputs]]\nusd = "shot.usdc"\nframes = [1, 2]\n'
+                   '[bake]\nres = 24\nframing = "per-frame"\nusd_out = "shadows.usda"\n')
+    cli("batch", job, "--shard", "1/2", "--quiet")
+    first = Sdf.Layer.OpenAsAnonymous(str(tmp_path / "shadows.usda"))
+    held = lambda layer: sum(len(layer.ListTimeSamplesForPath(
+        f"/Lights/{l}.umbra:shadowMap")) for l in ("sun", "lamp"))
+    assert 0 < held(first) < 4
+    _, out, _ = cli("batch", job, "--shard", "2/2", "--quiet")
+    assert "4 maps on their stage lights" in out, out
+    root = Sdf.Layer.CreateAnonymous(".usda")
+    root.subLayerPaths = [str(tmp_path / "shadows.usda"), str(tmp_path / "shot.usdc")]
+    st = Usd.Stage.Open(root)
+    for light in ("sun", "lamp"):
+        prim = st.GetPrimAtPath(f"/Lights/{light}")
+        for f in (1, 2):
+            m = prim.GetAttribute("umbra:shadowMap").Get(f)
+            want = tmp_path / "out" / f"{light}.{f:04d}.exr"
+            assert pathlib.Path(m.resolvedPath) == want, m
+            w2s = np.array(prim.GetAttribute("umbra:worldToShadow").Get(f))
+            with OpenEXR.File(str(want)) as x:
+                header = np.array(x.header()["worldToNDC"], dtype=np.float64)
+            assert np.allclose(w2s, header, rtol=1e-6, atol=1e-7), (light, f)
+    # Refused when the job is read, before any work.
+    for bad, word in (('usd_out = "s.usdc"', ".usda"),
+                      ('usd_out = "s.usda"\n[[lights]]\nname = "top"\ndir = [0, -1, 0]', "none")):
+        job.write_text('output = "bad/{light}.{frame:04}.exr"\n'
+                       '[[inputs]]\nusd = "shot.usdc"\nframes = [1, 2]\n'
+                       f'[bake]\nres = 24\nframing = "per-frame"\n{bad}\n')
+        code, _, err = cli("batch", job, check=False)
+        assert code == 1 and "bake.usd_out" in err and word in err, err
+        assert not (tmp_path / "bad").exists()
+
+
 def test_usd_out_puts_the_map_and_its_camera_on_the_light(cli, tmp_path):
     _stage(tmp_path / "shot.usdc")
     (tmp_path / "maps").mkdir()

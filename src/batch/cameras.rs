@@ -113,9 +113,10 @@ impl Job {
                     &self.path,
                     &format!("lights '{}'", t.light),
                     format!(
-                        "the stage light moves between frames {:?} and {:?}: a shared camera \
+                        "the stage light moves between frames {} and {}: a shared camera \
                          cannot follow it; set framing = \"per-frame\" in [bake]",
-                        t.frame, o.frame
+                        t.time().map_or_else(|| "start".into(), |f| f.to_string()),
+                        o.time().map_or_else(|| "start".into(), |f| f.to_string())
                     ),
                 ));
             }

@@ -55,11 +55,12 @@
 //! older than its input's; outputs are written atomically, so an existing output is complete.
 
 mod cameras;
+mod layer;
 mod patterns;
 mod runner;
 mod schema;
 pub use patterns::{expand_pattern, fill_output, MAX_FRAMES, MAX_FRAME_PAD};
-pub use runner::{run, Progress, RunOptions, RunReport, Silent};
+pub use runner::{run, Progress, RunOptions, RunReport, Silent, UsdOut};
 #[cfg(feature = "schema")]
 pub use schema::job_schema;
 pub use schema::{parse_job, InputSpec, JobFile, LightSpec};
@@ -145,6 +146,9 @@ pub struct Job {
     pub camera: Option<Camera>,
     /// Transmittance volumes instead of maps (an output pattern ending in `.vdb`).
     pub volume: bool,
+    /// `bake.usd_out`: one `.usda` layer that puts every stage-light task's map and camera on
+    /// its light, time-sampled by frame, rewritten after each run ([`layer`]).
+    pub usd_out: Option<PathBuf>,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
     pub shared: std::sync::OnceLock<std::collections::BTreeMap<(usize, String), Camera>>,

@@ -66,8 +66,19 @@ pub struct RunReport {
     pub threads_per_task: usize,
     /// The log written.
     pub log: PathBuf,
+    /// The job's USD layer (`bake.usd_out`), rewritten after the run.
+    pub usd_out: Option<UsdOut>,
     /// Every selected task's record, in task order.
     pub records: Vec<Record>,
+}
+
+/// The layer a run wrote for `bake.usd_out`.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct UsdOut {
+    /// The `.usda` layer.
+    pub layer: PathBuf,
+    /// Maps it puts on their lights (every stage-light task's map on disk).
+    pub maps: usize,
 }
 
 /// Run `job` as `opts` asks (module docs).
@@ -226,6 +237,13 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     let failed = failed.into_inner();
     let mut records = records.into_inner().unwrap_or_default();
     records.sort_by_key(|r| r.task);
+    let usd_out = match &job.usd_out {
+        Some(layer) => Some(UsdOut {
+            maps: super::layer::write(job, layer)?,
+            layer: layer.clone(),
+        }),
+        None => None,
+    };
     Ok(RunReport {
         selected: selected.len(),
         baked: todo.len() - failed,
@@ -235,6 +253,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         workers,
         threads_per_task: per_task,
         log: log_path,
+        usd_out,
         records,
     })
 }

@@ -512,6 +512,11 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     options.frame = None;
     options.preview = None;
     let framing = options.framing.take().unwrap_or_default();
+    // One layer for the whole job, written by the runner: no task writes its own.
+    let usd_out = options
+        .usd_out
+        .take()
+        .map(|u| resolve(&u.to_string_lossy()));
     if let Some(crate::request::CameraSource::File(c)) = &mut options.camera {
         *c = resolve(&c.to_string_lossy());
     }
@@ -545,6 +550,9 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         BakePlan::Volume(_) => (true, None),
     };
     options.camera = None;
+    if let Some(u) = &usd_out {
+        check_usd_out(&path, u, volume, &tasks)?;
+    }
     Ok(Job {
         path,
         grid,
@@ -554,8 +562,28 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         framing,
         camera,
         volume,
+        usd_out,
         shared: std::sync::OnceLock::new(),
     })
+}
+
+/// `bake.usd_out` names a `.usda` layer, for maps, of a job with stage lights.
+fn check_usd_out(path: &Path, u: &Path, volume: bool, tasks: &[Task]) -> Result<(), BatchError> {
+    let usda = u
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("usda"));
+    let reason = if !usda {
+        format!("{} is not a .usda layer", u.display())
+    } else if volume {
+        "puts maps on their stage lights; transmittance volumes (.vdb) have no camera".into()
+    } else if tasks.iter().all(|t| t.usd_light.is_none()) {
+        "puts maps on their stage lights, and this job bakes from none (give [[inputs]] usd = \
+         with its lights)"
+            .into()
+    } else {
+        return crate::output::check_target(u, true).map_err(|e| err(path, "bake.usd_out", e));
+    };
+    Err(err(path, "bake.usd_out", reason))
 }
 
 /// `p` with `.` and `name/..` components removed lexically (no file system access), so two

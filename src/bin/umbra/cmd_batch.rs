@@ -110,6 +110,13 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         report.threads_per_task,
         report.log.display()
     );
+    if let Some(u) = &report.usd_out {
+        println!(
+            "umbra batch: {} maps on their stage lights in {}",
+            u.maps,
+            u.layer.display()
+        );
+    }
     Ok(if report.failed > 0 {
         ExitCode::from(3)
     } else {
