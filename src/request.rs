@@ -338,6 +338,10 @@ pub const VOLUME_OPTIONS: &[&str] = &[
     "global_majorant",
     "threads",
     "force",
+    "frame",
+    "volume",
+    "field",
+    "light",
 ];
 
 /// The options only a transmittance volume reads; a map refuses them.
@@ -703,7 +707,7 @@ impl BakeRequest {
                 format!("give a stage light or {other}, not both"),
             ));
         }
-        if explicit || o.camera.is_some() || is_volume_output(&self.output) {
+        if explicit || o.camera.is_some() {
             return Ok(None);
         }
         let shot = crate::usd::lights_at(&self.input, o.frame)?;
@@ -719,7 +723,8 @@ impl BakeRequest {
                 None
             }
         };
-        if options.up.is_none() {
+        // A transmittance volume has no view, so no up.
+        if options.up.is_none() && !is_volume_output(&self.output) {
             let u = shot.up;
             let parallel =
                 dir.is_some_and(|d| (d[0] * u[0] + d[1] * u[1] + d[2] * u[2]).abs() > 0.999);
@@ -762,16 +767,29 @@ impl BakeRequest {
 
     fn plan_volume(&self) -> Result<VolumeJob> {
         let o = &self.options;
-        if crate::usd::is_stage(&self.input) {
-            return Err(bad(
-                "output",
-                format!(
-                    "a transmittance volume (.vdb) is made from one density grid; {} is a USD \
-                     stage (bake its volume's .vdb with its xform)",
-                    self.input.display()
-                ),
-            ));
-        }
+        // A stage's one volume: its grid, placement and scale (the stage places it: no xform,
+        // no grid; density-scale applies on top, as for scenes).
+        let stage = if crate::usd::is_stage(&self.input) {
+            if let Some(k) = [("xform", o.xform.is_some()), ("grid", o.grid != "density")]
+                .iter()
+                .find(|(_, g)| *g)
+            {
+                return Err(bad(
+                    k.0,
+                    "the stage places its volumes and names their grids (volume, field)",
+                ));
+            }
+            let shot = crate::usd::read(&self.input, &o.stage_selection())?;
+            let v = shot.single_volume()?;
+            Some((
+                v.file()?.to_path_buf(),
+                v.grid.clone(),
+                o.density_scale * v.grey_scale()?,
+                v.xform,
+            ))
+        } else {
+            None
+        };
         if crate::scene::is_scene_file(&self.input) {
             return Err(bad(
                 "output",
@@ -801,11 +819,20 @@ impl BakeRequest {
             }
         };
         let (estimator, options) = o.estimator()?;
+        let (input, grid, density_scale, xform) = match stage {
+            Some((f, g, s, x)) => (f, g, s, Some(x)),
+            None => (
+                self.input.clone(),
+                o.grid.clone(),
+                o.density_scale,
+                o.xform()?,
+            ),
+        };
         Ok(VolumeJob {
-            input: self.input.clone(),
-            grid: o.grid.clone(),
-            density_scale: o.density_scale,
-            xform: o.xform()?,
+            input,
+            grid,
+            density_scale,
+            xform,
             light,
             estimator,
             options,

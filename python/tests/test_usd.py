@@ -123,6 +123,65 @@ def test_a_usd_bake_is_the_vdb_bake_usd_core_describes(cli, tmp_path):
         _same_pixels(tmp_path / "u.exr", tmp_path / "v.exr")
 
 
+def _light_meta(b):
+    """A transmittance volume's bytes split around its light metadata string (a 4-byte length,
+    then `directional [x, y, z]` or `point [x, y, z]`), and the light's numbers."""
+    i = max(b.find(b"directional ["), b.find(b"point ["))
+    j = b.index(b"]", i) + 1
+    nums = [float(x) for x in b[b.index(b"[", i) + 1:j - 1].split(b",")]
+    return b[:i - 4], nums, b[j:]
+
+
+def test_a_transmittance_volume_from_a_stage_is_the_vdb_one(cli, tmp_path):
+    """-o X.vdb from a stage: its one volume's grid, placed and lit as usd-core says, equals the
+    transmittance volume of the .vdb with that --xform and --light-dir / --light-pos."""
+    st = _stage(tmp_path / "shot.usdc")
+    stage = tmp_path / "shot.usdc"
+    vdb = tmp_path / "cloud.0002.vdb"
+    for light, flag in (("sun", f"--light-dir={_sun(st, '/Lights/sun', 2)}"),
+                        ("lamp", f"--light-pos={_origin(st, '/Lights/lamp', 2)}")):
+        cli("bake", stage, "--frame", 2, "--light", light, "-o", tmp_path / "u.vdb", "--force")
+        cli("bake", vdb, f"--xform={_xform(st, '/World/cloud', 2)}", flag,
+            "-o", tmp_path / "v.vdb", "--force")
+        u, v = (tmp_path / "u.vdb").read_bytes(), (tmp_path / "v.vdb").read_bytes()
+        # Every voxel (all that follows the light's metadata and the grid's transform) byte for
+        # byte. usd-core and openusd compose the rotations to within an ulp, so the light's
+        # metadata string may differ in its last digit and the transform's doubles in their
+        # last bits; the file's UUID and the grid's offsets differ too.
+        (u0, lu, u1), (v0, lv, v1) = _light_meta(u), _light_meta(v)
+        assert len(u1) == len(v1) > 600_000 and len(u0) == len(v0), light
+        at = u1.index(b"AffineMap") + 9 + 4 * 8 * 4
+        assert u1[at:] == v1[at:], light
+        ma = np.frombuffer(u1[at - 128:at], dtype="<f8")
+        mb = np.frombuffer(v1[at - 128:at], dtype="<f8")
+        assert np.allclose(ma, mb, rtol=1e-14, atol=1e-15), (ma, mb)
+        assert np.allclose(lu, lv, rtol=1e-15, atol=1e-15), (lu, lv)
+    # The stage places the volume: --xform is refused; a map option too.
+    e = _err(cli, "bake", stage, "--light", "sun", "-o", tmp_path / "w.vdb",
+             f"--xform={_xform(st, '/World/cloud', 2)}")
+    assert "'--xform'" in e and "stage places" in e, e
+    assert not (tmp_path / "w.vdb").exists()
+
+
+def test_compare_on_a_stage_traces_its_volume(cli, tmp_path):
+    """compare on a stage: the one volume, placed as usd-core places it, gives the report of
+    the .vdb with that --xform (same rays, same exact answers)."""
+    st = _stage(tmp_path / "shot.usdc")
+    args = ["--estimators", "regular", "--rays", "24", "--repeats", "1", "--quiet"]
+    cli("compare", tmp_path / "shot.usdc", "--frame", 2, "-o", tmp_path / "u", *args)
+    cli("compare", tmp_path / "cloud.0002.vdb", f"--xform={_xform(st, '/World/cloud', 2)}",
+        "-o", tmp_path / "v", *args)
+    u = json.loads((tmp_path / "u" / "report.json").read_text())
+    v = json.loads((tmp_path / "v" / "report.json").read_text())
+    assert u["meta"]["reference"] == v["meta"]["reference"]
+    # The two USD implementations place the volume to within an ulp: a ray that grazes a
+    # voxel face may take one lookup more or less.
+    assert abs(u["rows"][0]["lookups"] - v["rows"][0]["lookups"]) <= 0.01 * v["rows"][0]["lookups"]
+    assert "/World/cloud" in u["meta"]["source"]
+    e = _err(cli, "compare", tmp_path / "shot.usdc", "--light", "sun", "-o", tmp_path / "w")
+    assert "'--light'" in e, e
+
+
 def test_usda_usdc_and_usdz_give_the_same_map(cli, tmp_path):
     # A static asset path: umbra's USD reader (openusd 0.6) cannot parse time-sampled asset
     # values in a text layer (see test_time_sampled_assets_in_usda_say_how_to_convert).

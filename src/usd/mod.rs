@@ -186,6 +186,52 @@ pub struct StageVolume {
     pub solid: bool,
 }
 
+impl StageVolume {
+    /// Its extinction per unit value when it is one grey fog, as a product made from one
+    /// density grid needs it (a transmittance volume, an estimator comparison):
+    /// `mu_t = densityScale x sigmaT x value`.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `volume`) for a colour `umbra:sigmaT` or a solid.
+    pub fn grey_scale(&self) -> Result<f64> {
+        let refuse = |what: &str| Error::InvalidArgument {
+            name: "volume".into(),
+            reason: format!(
+                "{} is {what}; this product is made from one grey density grid (bake a map \
+                 for the whole shot)",
+                self.prim
+            ),
+        };
+        if self.solid {
+            return Err(refuse("a solid (umbra:kind = \"solid\")"));
+        }
+        match self.sigma_t {
+            Some(_) if self.rgb => Err(refuse("coloured (umbra:sigmaT is a color3f)")),
+            Some(s) => Ok(self.density_scale * s[0]),
+            None => Ok(self.density_scale),
+        }
+    }
+
+    /// The `.vdb` file its grid is read from.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `volume`) for an asset packaged in a `.usdz`.
+    pub fn file(&self) -> Result<&Path> {
+        match &self.asset {
+            Asset::File(p) => Ok(p),
+            Asset::Packaged { .. } => Err(Error::InvalidArgument {
+                name: "volume".into(),
+                reason: format!(
+                    "{}'s density is packaged inside {}: unpack the package to make a \
+                     transmittance volume from it",
+                    self.prim,
+                    self.asset.display()
+                ),
+            }),
+        }
+    }
+}
+
 /// How a USD light shines, as umbra traces it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Emitter {
@@ -307,6 +353,30 @@ impl Shot {
                  RectLight and CylinderLight (points)",
                 chosen.prim, chosen.type_name
             ))),
+        }
+    }
+
+    /// The shot's one volume, for a product made from one density grid.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `volume`) listing the volumes when there are several.
+    pub fn single_volume(&self) -> Result<&StageVolume> {
+        match self.volumes.as_slice() {
+            [one] => Ok(one),
+            many => Err(Error::InvalidArgument {
+                name: "volume".into(),
+                reason: format!(
+                    "{} has {} volumes at time {} ({}): this product is made from one density \
+                     grid; name one",
+                    self.path.display(),
+                    many.len(),
+                    self.time,
+                    many.iter()
+                        .map(|v| v.prim.as_str())
+                        .collect::<Vec<_>>()
+                        .join(", ")
+                ),
+            }),
         }
     }
 

@@ -11,7 +11,8 @@ use umbra::{Interp, Volume};
 /// Arguments of `umbra compare`.
 #[derive(Debug, clap::Args)]
 pub struct CompareArgs {
-    /// The .vdb file (optional with --stress alone).
+    /// The .vdb file, or a USD stage with one volume (or --volume naming one) at --frame
+    /// (optional with --stress alone).
     file: Option<PathBuf>,
     /// Grid to trace.
     #[arg(long, default_value = "density")]
@@ -64,6 +65,9 @@ pub struct CompareArgs {
     /// No progress messages.
     #[arg(long, short)]
     quiet: bool,
+    /// A USD stage input: which volume, at which time code.
+    #[command(flatten)]
+    stage: crate::common::StageArgs,
 }
 
 fn machine() -> String {
@@ -156,18 +160,11 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
                 file.display()
             );
         }
-        let mut vol = Volume::load(file, &a.grid, a.density_scale)
-            .with_context(|| format!("loading grid '{}'", a.grid))?;
-        if let Some(x) = &a.xform {
-            vol = vol.with_xform(x).map_err(crate::common::flag_error)?;
-        }
+        a.stage.check(file)?;
+        let (vol, source) = load(a, file)?;
         let rays = compare::random_rays(&vol, a.rays, a.seed);
         if rays.is_empty() {
-            anyhow::bail!(
-                "{}: grid '{}' is empty, nothing to compare",
-                file.display(),
-                a.grid
-            );
+            anyhow::bail!("{source} is empty, nothing to compare");
         }
         let options = Options {
             interp,
@@ -186,7 +183,7 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         let mean_t = exact.iter().sum::<f64>() / exact.len() as f64;
         let taus: Vec<f64> = exact.iter().map(|t| -t.ln() + 0.0).collect();
         let meta = Meta {
-            source: format!("{} grid '{}'", file.display(), a.grid),
+            source,
             rays: rays.len(),
             threads,
             repeats: a.repeats,
@@ -244,4 +241,47 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The volume `compare` traces, and how the report names it: a grid of a `.vdb`, or the one
+/// volume of a USD stage (its grid, placement and grey scale; `--density-scale` on top).
+fn load(a: &CompareArgs, file: &std::path::Path) -> Result<(Volume, String)> {
+    if !umbra::usd::is_stage(file) {
+        let mut vol = Volume::load(file, &a.grid, a.density_scale)
+            .with_context(|| format!("loading grid '{}'", a.grid))?;
+        if let Some(x) = &a.xform {
+            vol = vol.with_xform(x).map_err(crate::common::flag_error)?;
+        }
+        return Ok((vol, format!("{} grid '{}'", file.display(), a.grid)));
+    }
+    if a.stage.light.is_some() {
+        anyhow::bail!("invalid argument '--light': compare traces random rays, not toward a light");
+    }
+    if a.xform.is_some() || a.grid != "density" {
+        anyhow::bail!(
+            "invalid argument '{}': the stage places its volumes and names their grids \
+             (--volume, --field)",
+            if a.xform.is_some() {
+                "--xform"
+            } else {
+                "--grid"
+            }
+        );
+    }
+    let shot = umbra::usd::read(file, &a.stage.selection()).map_err(crate::common::flag_error)?;
+    let v = shot.single_volume().map_err(crate::common::flag_error)?;
+    let scale = v.grey_scale().map_err(crate::common::flag_error)? * a.density_scale;
+    let path = v.asset.open()?;
+    let vol = Volume::load(path.path(), &v.grid, scale)
+        .with_context(|| format!("loading grid '{}' of {}", v.grid, v.asset.display()))?
+        .with_xform(&v.xform)?;
+    let source = format!(
+        "{} at time {}: {} ({} grid '{}')",
+        file.display(),
+        shot.time,
+        v.prim,
+        v.asset.display(),
+        v.grid
+    );
+    Ok((vol, source))
 }
