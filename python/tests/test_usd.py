@@ -182,6 +182,30 @@ def test_compare_on_a_stage_traces_its_volume(cli, tmp_path):
     assert "'--light'" in e, e
 
 
+def test_info_on_a_stage_says_what_umbra_reads(cli, tmp_path):
+    """info on a stage: each volume's asset, grid, placement (usd-core's) and the grid's own
+    report; each light and how umbra traces it (usd-core's frames)."""
+    st = _stage(tmp_path / "shot.usdc")
+    _, out, _ = cli("info", tmp_path / "shot.usdc", "--frame", 2, "--json")
+    r = json.loads(out)
+    assert r["time"] == 2 and r["up"] == [0, 0, 1]
+    [v] = r["volumes"]
+    assert v["prim"] == "/World/cloud" and v["asset"] == str(tmp_path / "cloud.0002.vdb")
+    want = [float(x) for x in _xform(st, "/World/cloud", 2).split(",")]
+    assert np.allclose(v["xform"], want, rtol=1e-12, atol=1e-12)
+    _, grid, _ = cli("info", tmp_path / "cloud.0002.vdb", "--grid", "density", "--json")
+    assert v["info"]["active_voxels"] == json.loads(grid)["grids"][0]["active_voxels"]
+    lights = {l["prim"]: l for l in r["lights"]}
+    sun = [float(x) for x in _sun(st, "/Lights/sun", 2).split(",")]
+    assert np.allclose(lights["/Lights/sun"]["traced"]["directional"], sun, atol=1e-12)
+    lamp = [float(x) for x in _origin(st, "/Lights/lamp", 2).split(",")]
+    assert np.allclose(lights["/Lights/lamp"]["traced"]["point"], lamp, atol=1e-12)
+    _, text, _ = cli("info", tmp_path / "shot.usdc", "--frame", 2)
+    assert "/World/cloud" in text and "DistantLight" in text and "up +Z" in text, text
+    e = _err(cli, "info", tmp_path / "shot.usdc", "--light", "sun")
+    assert "'--light'" in e, e
+
+
 def test_usda_usdc_and_usdz_give_the_same_map(cli, tmp_path):
     # A static asset path: umbra's USD reader (openusd 0.6) cannot parse time-sampled asset
     # values in a text layer (see test_time_sampled_assets_in_usda_say_how_to_convert).

@@ -12,7 +12,8 @@ use umbra::text::escape;
 /// Arguments of `umbra info`.
 #[derive(Debug, clap::Args)]
 pub struct InfoArgs {
-    /// The .vdb files.
+    /// The .vdb files, or one USD stage (.usd, .usda, .usdc, .usdz): its volumes and lights
+    /// at --frame.
     #[arg(required = true)]
     files: Vec<PathBuf>,
     /// Everything about each grid: transform, bounding boxes, tiles, statistics, memory.
@@ -24,11 +25,28 @@ pub struct InfoArgs {
     /// Only this grid (display name such as `density[1]`, or the stored name).
     #[arg(long)]
     grid: Option<String>,
+    /// A USD stage: the time code and the volumes to report.
+    #[command(flatten)]
+    stage: crate::common::StageArgs,
 }
 
 /// Print the reports. Exit code 3 when some grid or file could not be read but others could;
 /// a single file that cannot be opened is an error (1).
 pub fn run(a: &InfoArgs) -> Result<ExitCode> {
+    if let Some(stage) = a.files.iter().find(|f| umbra::usd::is_stage(f)) {
+        if a.files.len() > 1 || a.grid.is_some() || a.verbose {
+            anyhow::bail!(
+                "{}: info reports on one USD stage alone, without --grid or --verbose (its \
+                 volumes are chosen with --volume and --field)",
+                stage.display()
+            );
+        }
+        crate::info_stage::print(stage, &a.stage, a.json)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    if let Some(f) = a.files.first() {
+        a.stage.check(f)?;
+    }
     let mut reports = Vec::new();
     let mut file_errors = Vec::new();
     for file in &a.files {
@@ -84,7 +102,7 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
 
 /// A number as a person reads it: integers plainly, others with 6 significant digits
 /// (scientific where that is shorter), `inf`/`nan` as words.
-fn num(v: f64) -> String {
+pub fn num(v: f64) -> String {
     if v.is_nan() {
         return "nan".into();
     }

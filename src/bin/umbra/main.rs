@@ -9,6 +9,7 @@ mod cmd_estimators;
 mod cmd_info;
 mod cmd_query;
 mod common;
+mod info_stage;
 mod plot;
 
 use anyhow::Result;

@@ -1,0 +1,135 @@
+//! `umbra info SHOT.usd`: what umbra reads of a USD stage at a time code: its volumes (prim,
+//! asset, grid, placement, options, and the grid's own one-line report) and its lights (type,
+//! and how umbra traces them).
+
+use anyhow::{bail, Context, Result};
+use serde_json::{json, Value};
+use std::io::Write;
+use std::path::Path;
+use umbra::usd::{Emitter, StageLight};
+
+/// The stage's report as JSON (what `--json` prints; the text form is drawn from it).
+fn report(file: &Path, stage: &crate::common::StageArgs) -> Result<Value> {
+    if stage.light.is_some() {
+        bail!("invalid argument '--light': info lists every light of the stage");
+    }
+    let sel = stage.selection();
+    let shot = umbra::usd::read(file, &sel).map_err(crate::common::flag_error)?;
+    let lights = umbra::usd::lights_at(file, Some(shot.time))?;
+    let mut volumes = Vec::new();
+    for v in &shot.volumes {
+        let opened = v.asset.open()?;
+        let grid = umbra::info::FileInfo::read(opened.path(), Some(&v.grid))
+            .with_context(|| format!("{}: reading {}", v.prim, v.asset.display()))?;
+        let m: Vec<f64> = v.xform.rows().iter().flatten().copied().collect();
+        volumes.push(json!({
+            "prim": v.prim,
+            "field": v.field_prim,
+            "asset": v.asset.display(),
+            "grid": v.grid,
+            "xform": m,
+            "density_scale": v.density_scale,
+            "sigma_t": v.sigma_t,
+            "kind": if v.solid { "solid" } else { "fog" },
+            "info": grid.grids.first(),
+        }));
+    }
+    let lights: Vec<Value> = lights.lights.iter().map(light).collect();
+    Ok(json!({
+        "stage": file.display().to_string(),
+        "time": shot.time,
+        "up": shot.up,
+        "volumes": volumes,
+        "lights": lights,
+    }))
+}
+
+fn light(l: &StageLight) -> Value {
+    let traced = match l.emitter {
+        Some(Emitter::Directional { dir }) => json!({ "directional": dir }),
+        Some(Emitter::Point { pos }) => json!({ "point": pos }),
+        None => Value::Null,
+    };
+    json!({ "prim": l.prim, "type": l.type_name, "traced": traced })
+}
+
+/// Print the stage's report (text, or JSON with `json`).
+pub fn print(file: &Path, stage: &crate::common::StageArgs, json: bool) -> Result<()> {
+    let r = report(file, stage)?;
+    let mut out = std::io::stdout().lock();
+    if json {
+        serde_json::to_writer_pretty(&mut out, &r).context("writing JSON")?;
+        writeln!(out)?;
+        return Ok(());
+    }
+    let vols = r["volumes"].as_array().map_or(&[][..], Vec::as_slice);
+    let lights = r["lights"].as_array().map_or(&[][..], Vec::as_slice);
+    let up = if r["up"][2].as_f64() == Some(1.0) {
+        "+Z"
+    } else {
+        "+Y"
+    };
+    writeln!(
+        out,
+        "{} at time {} (up {up}): {} volume{}, {} light{}",
+        file.display(),
+        n(&r["time"]),
+        vols.len(),
+        if vols.len() == 1 { "" } else { "s" },
+        lights.len(),
+        if lights.len() == 1 { "" } else { "s" }
+    )?;
+    for v in vols {
+        let g = &v["info"];
+        writeln!(
+            out,
+            "  {}: {} grid '{}' ({}, density scale {}), {} active voxels, values {} .. {}",
+            text(&v["prim"]),
+            text(&v["asset"]),
+            text(&v["grid"]),
+            text(&v["kind"]),
+            n(&v["density_scale"]),
+            g["active_voxels"],
+            n(&g["value_min"]),
+            n(&g["value_max"])
+        )?;
+        let m: Vec<String> = v["xform"]
+            .as_array()
+            .map_or(Vec::new(), |a| a.iter().map(n).collect());
+        writeln!(out, "    xform {}", m.join(","))?;
+    }
+    for l in lights {
+        let how = match &l["traced"] {
+            Value::Object(o) if o.contains_key("directional") => {
+                format!("a sun travelling along {}", vector(&o["directional"]))
+            }
+            Value::Object(o) if o.contains_key("point") => {
+                format!("a point at {}", vector(&o["point"]))
+            }
+            _ => "not traced by umbra".into(),
+        };
+        writeln!(
+            out,
+            "  light {} ({}): {how}",
+            text(&l["prim"]),
+            text(&l["type"])
+        )?;
+    }
+    Ok(())
+}
+
+fn text(v: &Value) -> String {
+    v.as_str().map_or_else(|| v.to_string(), str::to_string)
+}
+
+/// A number as `info` prints numbers (6 significant digits); other values as they are.
+fn n(v: &Value) -> String {
+    v.as_f64().map_or_else(|| text(v), crate::cmd_info::num)
+}
+
+fn vector(v: &Value) -> String {
+    let parts: Vec<String> = v
+        .as_array()
+        .map_or(Vec::new(), |a| a.iter().map(n).collect());
+    format!("({})", parts.join(", "))
+}
