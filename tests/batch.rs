@@ -608,3 +608,39 @@ fn shared_cameras_are_cached_for_farm_tasks() {
     assert_eq!(origin(), fresh);
     assert!(serde_json::from_slice::<serde_json::Value>(&std::fs::read(&cache).unwrap()).is_ok());
 }
+
+#[test]
+fn a_scene_input_is_stale_when_a_file_it_names_changes() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::copy(data("cloud.vdb"), d.join("a.vdb")).unwrap();
+    std::fs::write(
+        d.join("scene.toml"),
+        "[[volume]]\nfile = \"a.vdb\"\ngrid = \"density\"\n",
+    )
+    .unwrap();
+    let job = d.join("job.toml");
+    std::fs::write(
+        &job,
+        "output = \"out/{light}.exr\"\n[[inputs]]\nfile = \"scene.toml\"\n\
+         [[lights]]\nname = \"sun\"\ndir = [0.3, -1.0, 0.2]\n[bake]\nres = 16\n",
+    )
+    .unwrap();
+    let out = batch(&job, &[]);
+    assert!(out.status.success(), "{out:?}");
+    let out = batch(&job, &[]);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("0 baked, 1 skipped"));
+    // The scene file is untouched; the grid it names is re-simulated.
+    let later = std::time::SystemTime::now() + std::time::Duration::from_secs(5);
+    std::fs::File::options()
+        .write(true)
+        .open(d.join("a.vdb"))
+        .unwrap()
+        .set_modified(later)
+        .unwrap();
+    let out = batch(&job, &[]);
+    assert!(
+        String::from_utf8_lossy(&out.stdout).contains("1 baked, 0 skipped"),
+        "{out:?}"
+    );
+}

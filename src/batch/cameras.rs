@@ -215,11 +215,15 @@ impl Job {
     ) -> Option<std::collections::BTreeMap<(usize, String), Camera>> {
         let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
         let at = modified(cache)?;
-        let sources = std::iter::once(self.path.as_path())
-            .chain(self.tasks.iter().map(|t| t.input.as_path()));
-        for p in sources {
-            if modified(p)? > at {
-                return None;
+        // The job file, and every file each task reads (a stage's or a scene's assets too).
+        if modified(&self.path)? > at {
+            return None;
+        }
+        for t in &self.tasks {
+            for p in self.sources(t)? {
+                if modified(&p)? > at {
+                    return None;
+                }
             }
         }
         let stored: CameraCache = serde_json::from_slice(&std::fs::read(cache).ok()?).ok()?;

@@ -255,17 +255,30 @@ pub fn in_shard(index: usize, (i, n): (usize, usize)) -> bool {
     index % n == i - 1
 }
 
-/// Whether a task's output exists and is not older than its input.
-#[must_use]
-pub fn up_to_date(task: &Task) -> bool {
-    let mtime = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-    match (mtime(&task.output), mtime(&task.input)) {
-        (Some(out), Some(inp)) => out >= inp,
-        _ => false,
-    }
-}
-
 impl Job {
+    /// The files a task's result depends on: its input and, for a scene file or a USD stage,
+    /// the `.vdb` files its volumes name at the task's frame (`scene::file::sources`). `None`
+    /// when they cannot be listed (the bake will say why).
+    #[must_use]
+    pub fn sources(&self, task: &Task) -> Option<Vec<PathBuf>> {
+        let mut opts = self.scene_options();
+        opts.stage.time = task.time();
+        crate::scene::file::sources(&task.input, &opts).ok()
+    }
+
+    /// Whether a task's output exists and is not older than any of its sources
+    /// ([`Job::sources`]): a re-simulated cache behind an unchanged stage or scene file is
+    /// baked again.
+    #[must_use]
+    pub fn up_to_date(&self, task: &Task) -> bool {
+        let mtime = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+        let Some(out) = mtime(&task.output) else {
+            return false;
+        };
+        self.sources(task)
+            .is_some_and(|s| s.iter().all(|p| mtime(p).is_some_and(|input| out >= input)))
+    }
+
     /// The request of one task, as `umbra bake INPUT ... -o OUTPUT` would make it: the job's
     /// options with the task's light, preview and `threads`.
     #[must_use]

@@ -9,7 +9,7 @@
 //! remaining tasks in index order, each with `cores / workers` threads of its own. A failed task
 //! is logged with its error and the others go on.
 
-use super::{in_shard, up_to_date, valid_shard, BatchError, Job, Record, Task};
+use super::{in_shard, valid_shard, BatchError, Job, Record, Task};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -126,8 +126,9 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             format!("no directory {} (create it first)", d.display()),
         ));
     }
-    let (todo, skipped): (Vec<&Task>, Vec<&Task>) =
-        selected.iter().partition(|t| opts.force || !up_to_date(t));
+    let (todo, skipped): (Vec<&Task>, Vec<&Task>) = selected
+        .iter()
+        .partition(|t| opts.force || !job.up_to_date(t));
     if !todo.is_empty() {
         // Missing frames and grids fail the job up front; then one camera per light over every
         // input (not just this shard's), so shards agree. Both before anything is created.

@@ -252,6 +252,26 @@ fn stage_entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)>
     Ok((entries, rgb))
 }
 
+/// The files a load of `path` reads: the file itself and, for a scene file or a USD stage, the
+/// `.vdb` files (or `.usdz` packages) its volumes name at the selection's time code. A baked
+/// output older than any of them is stale.
+///
+/// # Errors
+/// As reading the scene file or the stage.
+pub fn sources(path: &Path, opts: &SceneOptions) -> Result<Vec<PathBuf>> {
+    let mut out = vec![path.to_path_buf()];
+    if is_scene_file(path) || crate::usd::is_stage(path) {
+        for e in entries(path, opts)?.0 {
+            out.push(match e.file {
+                crate::usd::Asset::File(p) => p,
+                crate::usd::Asset::Packaged { package, .. } => package,
+            });
+        }
+    }
+    out.dedup();
+    Ok(out)
+}
+
 /// The grids of a scene file or a USD stage.
 fn entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
     if crate::usd::is_stage(path) {
