@@ -679,12 +679,17 @@ impl BakeRequest {
         }
         let explicit = o.light_dir.is_some() || o.light_pos.is_some();
         if let Some(u) = &o.usd_out {
-            if explicit || o.camera.is_some() {
+            if explicit {
                 return Err(bad(
                     "usd-out",
                     "puts the map on its stage light: bake from the stage's light (light), not \
-                     light-dir / light-pos / camera",
+                     light-dir / light-pos",
                 ));
+            }
+            if o.camera.is_some() {
+                // A reused camera fixes the view; the layer still needs the light it belongs
+                // to, named (or the stage's only one), checked before any work.
+                crate::usd::lights_at(&self.input, o.frame)?.light(o.light.as_deref())?;
             }
             let usda = u
                 .extension()
@@ -696,15 +701,17 @@ impl BakeRequest {
                 ));
             }
         }
-        if o.light.is_some() && (explicit || o.camera.is_some()) {
-            let other = if explicit {
-                "light-dir / light-pos"
-            } else {
-                "camera"
-            };
+        if o.light.is_some() && explicit {
             return Err(bad(
                 "light",
-                format!("give a stage light or {other}, not both"),
+                "give a stage light or light-dir / light-pos, not both",
+            ));
+        }
+        if o.light.is_some() && o.camera.is_some() && o.usd_out.is_none() {
+            return Err(bad(
+                "light",
+                "a reused camera fixes the view: the light only names the prim a --usd-out \
+                 layer puts the map on (give usd-out, or drop light)",
             ));
         }
         if explicit || o.camera.is_some() {

@@ -533,6 +533,27 @@ def test_usd_out_puts_the_map_and_its_camera_on_the_light(cli, tmp_path):
             header = np.array(f.header()["worldToNDC"], dtype=np.float64)
         # The EXR header keeps it as floats: the same matrix, rounded.
         assert np.allclose(w2s, header, rtol=1e-6, atol=1e-7), (w2s, header)
+    # A reused camera (frame 2's sun map) for frame 1: the view is the camera's, the light
+    # names the prim the layer puts the map on.
+    cam = tmp_path / "maps" / "sun.0002.exr"
+    out = tmp_path / "maps" / "sun.0001.exr"
+    cli("bake", tmp_path / "shot.usdc", "--frame", 1, "--light", "sun", "--camera", cam,
+        "-o", out, "--usd-out", tmp_path / "reused.usda", "--quiet")
+    lay = Sdf.Layer.OpenAsAnonymous(str(tmp_path / "reused.usda"))
+    w2s = np.array(lay.QueryTimeSample("/Lights/sun.umbra:worldToShadow", 1))
+    with OpenEXR.File(str(out)) as f:
+        header = np.array(f.header()["worldToNDC"], dtype=np.float64)
+    assert np.allclose(w2s, header, rtol=1e-6, atol=1e-7)
+    # The camera's view (x, y); its depth range follows the frame's volume.
+    with OpenEXR.File(str(cam)) as f:
+        reused = np.array(f.header()["worldToNDC"], dtype=np.float64)
+    assert np.allclose(w2s[:, [0, 1, 3]], reused[:, [0, 1, 3]], rtol=1e-6, atol=1e-7)
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--light", "sun", "--camera", cam,
+             "-o", tmp_path / "x.exr")
+    assert "'--light'" in e and "usd-out" in e, e
+    e = _err(cli, "bake", tmp_path / "shot.usdc", "--camera", cam, "-o", tmp_path / "x.exr",
+             "--usd-out", tmp_path / "r2.usda")
+    assert "'--light'" in e and "which light" in e, e
     # Refused before any work: a layer that is not .usda, or a light not from the stage.
     e = _err(cli, "bake", tmp_path / "shot.usdc", "--light", "sun", "-o", tmp_path / "x.exr",
              "--usd-out", tmp_path / "s.usdc")
