@@ -644,3 +644,77 @@ fn a_scene_input_is_stale_when_a_file_it_names_changes() {
         "{out:?}"
     );
 }
+
+#[test]
+fn status_reports_done_failed_and_missing_from_outputs_and_logs() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "");
+    let status = |extra: &[&str]| {
+        let mut a = vec!["batch", job.to_str().unwrap(), "--status", "--json"];
+        a.extend_from_slice(extra);
+        let out = umbra(&a);
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        let tasks = |k: &str| -> Vec<u64> {
+            v[k].as_array()
+                .unwrap()
+                .iter()
+                .map(|t| t["task"].as_u64().unwrap())
+                .collect()
+        };
+        (
+            out.status.code(),
+            tasks("done"),
+            tasks("failed"),
+            tasks("missing"),
+            v,
+        )
+    };
+    // Nothing run yet: everything missing.
+    let (code, done, failed, missing, _) = status(&[]);
+    assert_eq!(
+        (code, done.len(), failed.len(), missing.len()),
+        (Some(3), 0, 0, 6)
+    );
+    // Frame 2 corrupt; shard 1/2 writes its log elsewhere, shard 2/2 to the default log.
+    let bad = dir.path().join("cloud.0002.vdb");
+    let good = std::fs::read(&bad).unwrap();
+    std::fs::write(&bad, &good[..good.len() / 3]).unwrap();
+    let elsewhere = dir.path().join("shard1.jsonl");
+    batch(
+        &job,
+        &["--shard", "1/2", "--log", elsewhere.to_str().unwrap()],
+    );
+    batch(&job, &["--shard", "2/2"]);
+    // Without the other log, shard 1's failures are unknown (missing); with it, named.
+    let (_, _, failed_default, _, _) = status(&[]);
+    let (code, done, failed, missing, v) = status(&["--log", elsewhere.to_str().unwrap()]);
+    assert_eq!(code, Some(3));
+    assert_eq!((done.len(), failed.len(), missing.len()), (4, 2, 0), "{v}");
+    assert!(failed_default.len() < 2);
+    for f in v["failed"].as_array().unwrap() {
+        assert!(
+            f["input"].as_str().unwrap().ends_with("cloud.0002.vdb"),
+            "{f}"
+        );
+        assert!(!f["error"].as_str().unwrap().is_empty(), "{f}");
+    }
+    // A deleted output is missing again; the text form names it; fixed and re-run: all done.
+    std::fs::remove_file(dir.path().join("out/shadow_sun.0001.exr")).unwrap();
+    let out = umbra(&[
+        "batch",
+        job.to_str().unwrap(),
+        "--status",
+        "--log",
+        elsewhere.to_str().unwrap(),
+    ]);
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("3 done, 2 failed, 1 not yet run"), "{text}");
+    assert!(
+        text.contains("shadow_sun.0001.exr") && text.contains("cloud.0002.vdb"),
+        "{text}"
+    );
+    std::fs::write(&bad, &good).unwrap();
+    assert_eq!(batch(&job, &[]).status.code(), Some(0));
+    let (code, done, _, _, _) = status(&[]);
+    assert_eq!((code, done.len()), (Some(0), 6));
+}

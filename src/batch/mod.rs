@@ -59,11 +59,13 @@ mod layer;
 mod patterns;
 mod runner;
 mod schema;
+mod status;
 pub use patterns::{expand_pattern, fill_output, MAX_FRAMES, MAX_FRAME_PAD};
 pub use runner::{run, Progress, RunOptions, RunReport, Silent, UsdOut};
 #[cfg(feature = "schema")]
 pub use schema::job_schema;
 pub use schema::{parse_job, InputSpec, JobFile, LightSpec};
+pub use status::{status, Status, TaskState};
 
 use crate::bake::{BakeJob, BakeReport, Camera, Resolution};
 pub use crate::request::Framing;

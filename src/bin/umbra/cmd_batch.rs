@@ -31,8 +31,17 @@ pub struct BatchArgs {
     #[arg(long)]
     force: bool,
     /// JSON-lines log (default: the job's `log`, else umbra_batch.jsonl beside the outputs).
+    /// With --status: more logs to read (repeatable; the job's own is always read).
     #[arg(long)]
-    log: Option<PathBuf>,
+    log: Vec<PathBuf>,
+    /// Report where the job stands and exit: tasks done (output on disk and up to date),
+    /// failed (with the error a log records) and not yet run. Exit 0 when all are done, 3
+    /// otherwise.
+    #[arg(long, conflicts_with_all = ["plan", "task", "shard", "force"])]
+    status: bool,
+    /// With --status: one JSON object with arrays done, failed and missing.
+    #[arg(long, requires = "status")]
+    json: bool,
     /// Tasks baked at once (0: as many as cores, at most the number of tasks); the cores are
     /// split among them.
     #[arg(long, short, default_value_t = 0)]
@@ -78,11 +87,19 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         }
         return Ok(ExitCode::SUCCESS);
     }
+    if a.status {
+        return status(&job, a);
+    }
+    if a.log.len() > 1 {
+        anyhow::bail!(
+            "invalid argument '--log': a run writes one log (several are read by --status)"
+        );
+    }
     let opts = RunOptions {
         task: a.task,
         shard: a.shard,
         force: a.force,
-        log: a.log.clone(),
+        log: a.log.first().cloned(),
         jobs: a.jobs,
     };
     let bar = Bar {
@@ -181,4 +198,48 @@ impl Progress for Bar {
             self.failed.load(Ordering::Relaxed)
         ));
     }
+}
+
+/// `--status`: the library's report ([`umbra::batch::status`]) as text or JSON.
+fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
+    let s = umbra::batch::status(job, &a.log);
+    let mut out = std::io::stdout().lock();
+    if a.json {
+        serde_json::to_writer_pretty(&mut out, &s)?;
+        writeln!(out)?;
+    } else {
+        writeln!(
+            out,
+            "umbra batch: {} tasks: {} done, {} failed, {} not yet run",
+            job.tasks.len(),
+            s.done.len(),
+            s.failed.len(),
+            s.missing.len()
+        )?;
+        for t in &s.failed {
+            writeln!(
+                out,
+                "failed  task {} ({}, light {}): {}",
+                t.task,
+                t.input.display(),
+                t.light,
+                umbra::text::escape(t.error.as_deref().unwrap_or(""))
+            )?;
+        }
+        for t in &s.missing {
+            writeln!(
+                out,
+                "missing task {} ({}, light {}) -> {}",
+                t.task,
+                t.input.display(),
+                t.light,
+                t.output.display()
+            )?;
+        }
+    }
+    Ok(if s.complete() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(3)
+    })
 }
