@@ -49,17 +49,71 @@ pub struct BatchArgs {
     /// No progress bar.
     #[arg(long, short)]
     quiet: bool,
+    /// Print a farm spec that runs the job and exit: `openjd` (an Open Job Description
+    /// template; JSON, which is also YAML) or `slurm` (an sbatch array script).
+    #[arg(long, value_enum, conflicts_with_all = ["plan", "status", "task", "shard"])]
+    emit: Option<Engine>,
+    /// With --emit: write the spec to this file (atomically; --force to replace it).
+    #[arg(short = 'o', long = "output", requires = "emit")]
+    output: Option<PathBuf>,
+    /// With --emit: farm tasks of up to N job tasks each (run as shards).
+    #[arg(long, requires = "emit", value_name = "N")]
+    chunk: Option<usize>,
 }
 
-fn shell_quote(s: &str) -> String {
-    if !s.is_empty()
-        && s.chars()
-            .all(|c| c.is_ascii_alphanumeric() || "/._-+=:,@".contains(c))
-    {
-        s.to_string()
-    } else {
-        format!("'{}'", s.replace('\'', "'\\''"))
+/// Farm engines `--emit` writes specs for.
+#[derive(Debug, Clone, Copy, clap::ValueEnum)]
+enum Engine {
+    /// Open Job Description (AWS Deadline Cloud): `openjd check` / `openjd run` it.
+    Openjd,
+    /// A Slurm job-array script: `sbatch` it.
+    Slurm,
+}
+
+use umbra::batch::emit::shell_quote;
+
+/// `--emit`: the spec on stdout, or written atomically to `-o`.
+fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCode> {
+    let exe = std::env::current_exe()?;
+    if let Some(o) = &a.output {
+        umbra::output::check_target(o, a.force)?;
     }
+    if a.chunk == Some(0) {
+        anyhow::bail!("invalid argument '--chunk': give N >= 1 job tasks per farm task");
+    }
+    let chunks = umbra::batch::emit::Chunks::of(job, a.chunk);
+    let dir = match &a.output {
+        Some(o) => o.parent(),
+        None => job.path.parent(),
+    }
+    .filter(|d| !d.as_os_str().is_empty())
+    .unwrap_or(std::path::Path::new("."))
+    .to_path_buf();
+    if matches!(engine, Engine::Openjd) {
+        let rel = umbra::batch::emit::relative(&job.path, &dir);
+        if rel.starts_with("..") {
+            anyhow::bail!(
+                "invalid argument '--output': an Open Job Description template's path defaults \
+                 are relative to its directory and may not climb out of it: write the template \
+                 in {} or a directory above it",
+                job.path
+                    .parent()
+                    .unwrap_or(std::path::Path::new("."))
+                    .display()
+            );
+        }
+    }
+    let text = match engine {
+        Engine::Openjd => umbra::batch::emit::openjd(job, &exe, &dir, chunks),
+        Engine::Slurm => umbra::batch::emit::slurm(job, &exe, chunks),
+    };
+    match &a.output {
+        Some(o) => umbra::output::write_atomic(o, a.force, |w| {
+            w.write_all(text.as_bytes()).map_err(|e| e.to_string())
+        })?,
+        None => std::io::stdout().lock().write_all(text.as_bytes())?,
+    }
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Run the job (or print its plan): the library's runner ([`umbra::batch::run`]) with a
@@ -89,6 +143,9 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     }
     if a.status {
         return status(&job, a);
+    }
+    if let Some(engine) = a.emit {
+        return emit(&job, a, engine);
     }
     if a.log.len() > 1 {
         anyhow::bail!(
