@@ -153,6 +153,42 @@ fn run_job(
     serde_json::to_string(&report).map_err(|e| raise(Class::Other, e.to_string()))
 }
 
+/// Where a job stands (`umbra batch JOB --status --json`), reading the job's log and `logs`.
+#[pyfunction]
+fn job_status(py: Python<'_>, path: PathBuf, logs: Vec<PathBuf>) -> PyResult<String> {
+    let job = py
+        .detach(|| umbra::batch::load_job(&path))
+        .map_err(|e| raise(Class::File, e.to_string()))?;
+    let s = py.detach(|| umbra::batch::status(&job, &logs));
+    serde_json::to_string(&s).map_err(|e| raise(Class::Other, e.to_string()))
+}
+
+/// A farm spec for a job (`umbra batch JOB --emit ENGINE`): `engine` `openjd` or `slurm`,
+/// running the umbra CLI at `exe`, its path defaults relative to `directory` (openjd).
+#[pyfunction]
+#[pyo3(signature = (path, engine, exe, directory, chunk))]
+fn emit_job(
+    py: Python<'_>,
+    path: PathBuf,
+    engine: &str,
+    exe: PathBuf,
+    directory: PathBuf,
+    chunk: Option<usize>,
+) -> PyResult<String> {
+    let job = py
+        .detach(|| umbra::batch::load_job(&path))
+        .map_err(|e| raise(Class::File, e.to_string()))?;
+    let chunks = umbra::batch::emit::Chunks::of(&job, chunk);
+    match engine {
+        "openjd" => umbra::batch::emit::openjd(&job, &exe, &directory, chunks).map_err(py_err),
+        "slurm" => Ok(umbra::batch::emit::slurm(&job, &exe, chunks)),
+        other => Err(raise(
+            Class::Argument,
+            format!("invalid argument 'engine': {other:?}: give \"openjd\" or \"slurm\""),
+        )),
+    }
+}
+
 /// The runner's progress as calls of a Python callable `progress(done, total)`.
 struct PyProgress {
     callback: Option<Py<PyAny>>,
@@ -1177,6 +1213,8 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(estimators_json, m)?)?;
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(run_job, m)?)?;
+    m.add_function(wrap_pyfunction!(job_status, m)?)?;
+    m.add_function(wrap_pyfunction!(emit_job, m)?)?;
     m.add_function(wrap_pyfunction!(bake_file, m)?)?;
     m.add_function(wrap_pyfunction!(usd_lights_json, m)?)?;
     m.add_class::<NativeVolume>()?;

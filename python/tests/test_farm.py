@@ -121,3 +121,18 @@ def test_chunks_and_slurm_scripts(cli, tmp_path):
     code, _, err = cli("batch", job, "--emit", "openjd", "-o",
                        tmp_path / "shot" / "farm" / "job.yaml", check=False)
     assert code == 1 and "'--output'" in err, err
+
+
+def test_python_emits_and_reports_as_the_cli_does(cli, umbra_bin, tmp_path):
+    import umbra
+    job = _job(tmp_path / "shot", corrupt=3)
+    for engine in ("openjd", "slurm"):
+        _, out, _ = cli("batch", job, "--emit", engine, "--chunk", "2")
+        got = umbra.emit_job(job, engine, umbra=pathlib.Path(umbra_bin).resolve(), chunk=2)
+        assert got == out, engine
+    with pytest.raises(umbra.InvalidArgument, match="engine"):
+        umbra.emit_job(job, "tractor", umbra=umbra_bin)
+    cli("batch", job, "--quiet", check=False)
+    _, out, _ = cli("batch", job, "--status", "--json", check=False)
+    assert umbra.job_status(job) == json.loads(out)
+    assert [t["task"] for t in umbra.job_status(job)["failed"]] == [4, 5]

@@ -37,8 +37,10 @@ __all__ = [
     "InvalidArgument",
     "Volume",
     "bake",
+    "emit_job",
     "estimators",
     "info",
+    "job_status",
     "run_job",
     "usd_lights",
     "write_exr",
@@ -233,6 +235,40 @@ def run_job(
         _path("path", path), task, shard, bool(force), log_path, _count("jobs", jobs), progress
     )
     return json.loads(report)
+
+
+def job_status(path: PathLike, *, logs: Sequence[PathLike] = ()) -> Dict[str, Any]:
+    """Where a batch job stands, as ``umbra batch PATH --status --json`` reports it: lists
+    ``done`` (output on disk and up to date), ``failed`` (with the ``error`` a log records) and
+    ``missing``, one dict per task (``task``, ``input``, ``light``, ``output``). Reads the
+    job's own log and ``logs`` (those shards or task runs wrote elsewhere)."""
+    paths = [_path("logs", p) for p in logs]
+    return json.loads(_umbra.job_status(_path("path", path), paths))
+
+
+def emit_job(
+    path: PathLike,
+    engine: str,
+    *,
+    umbra: Optional[PathLike] = None,
+    directory: Optional[PathLike] = None,
+    chunk: Optional[int] = None,
+) -> str:
+    """The farm spec ``umbra batch PATH --emit ENGINE`` prints: ``"openjd"`` (an Open Job
+    Description template; JSON, which is also YAML) or ``"slurm"`` (an sbatch array script),
+    for a pipeline to submit with the engine's own client. ``umbra``: the CLI the farm runs
+    (default: ``umbra`` found on ``PATH``, made absolute); ``directory``: where the template
+    will be written (default: the job file's; its path defaults are relative to it); ``chunk``:
+    farm tasks of up to that many job tasks."""
+    import shutil
+    exe = _path("umbra", umbra) if umbra is not None else shutil.which("umbra")
+    if exe is None:
+        raise _invalid("umbra", "no umbra on PATH: give the path of the umbra CLI the farm runs")
+    job = _path("path", path)
+    where = _path("directory", directory) if directory is not None else os.path.dirname(
+        os.path.abspath(job))
+    n = None if chunk is None else _count("chunk", chunk)
+    return _umbra.emit_job(job, str(engine), os.path.abspath(exe), where, n)
 
 
 def bake(

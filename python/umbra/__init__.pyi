@@ -14,8 +14,10 @@ __all__ = [
     "InvalidArgument",
     "Volume",
     "bake",
+    "emit_job",
     "estimators",
     "info",
+    "job_status",
     "run_job",
     "usd_lights",
     "write_exr",
@@ -99,6 +101,15 @@ def run_job(
     jobs: int = ...,
     progress: Optional[Callable[[int, int], Any]] = ...,
 ) -> Dict[str, Any]: ...
+def job_status(path: PathLike, *, logs: Sequence[PathLike] = ...) -> Dict[str, Any]: ...
+def emit_job(
+    path: PathLike,
+    engine: str,
+    *,
+    umbra: Optional[PathLike] = ...,
+    directory: Optional[PathLike] = ...,
+    chunk: Optional[int] = ...,
+) -> str: ...
 def write_exr(
     path: PathLike,
     image: npt.ArrayLike,

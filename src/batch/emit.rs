@@ -72,9 +72,23 @@ pub fn relative(to: &Path, from: &Path) -> PathBuf {
 
 /// The job's Open Job Description template. `exe`: the umbra to run; `dir`: the directory the
 /// template will be written to (its parameters' defaults are relative to it).
-#[must_use]
-pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> String {
+///
+/// # Errors
+/// [`crate::Error::InvalidArgument`] (name `output`) when `dir` is below the job file's
+/// directory: the spec's path defaults may not climb out of the template's directory.
+pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crate::Result<String> {
     let job_dir = job.path.parent().unwrap_or(Path::new("."));
+    if relative(&job.path, dir).starts_with("..") {
+        return Err(crate::Error::InvalidArgument {
+            name: "output".into(),
+            reason: format!(
+                "an Open Job Description template's path defaults are relative to its \
+                 directory and may not climb out of it: write the template in {} or a \
+                 directory above it",
+                job_dir.display()
+            ),
+        });
+    }
     let name = job
         .path
         .file_stem()
@@ -149,7 +163,7 @@ pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> Stri
         ],
         "steps": [step]
     });
-    serde_json::to_string_pretty(&template).unwrap_or_default() + "\n"
+    Ok(serde_json::to_string_pretty(&template).unwrap_or_default() + "\n")
 }
 
 /// `s` quoted for a POSIX shell (single quotes; `'` as `'\''`).

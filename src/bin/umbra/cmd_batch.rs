@@ -89,22 +89,9 @@ fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCo
     .filter(|d| !d.as_os_str().is_empty())
     .unwrap_or(std::path::Path::new("."))
     .to_path_buf();
-    if matches!(engine, Engine::Openjd) {
-        let rel = umbra::batch::emit::relative(&job.path, &dir);
-        if rel.starts_with("..") {
-            anyhow::bail!(
-                "invalid argument '--output': an Open Job Description template's path defaults \
-                 are relative to its directory and may not climb out of it: write the template \
-                 in {} or a directory above it",
-                job.path
-                    .parent()
-                    .unwrap_or(std::path::Path::new("."))
-                    .display()
-            );
-        }
-    }
     let text = match engine {
-        Engine::Openjd => umbra::batch::emit::openjd(job, &exe, &dir, chunks),
+        Engine::Openjd => umbra::batch::emit::openjd(job, &exe, &dir, chunks)
+            .map_err(crate::common::flag_error)?,
         Engine::Slurm => umbra::batch::emit::slurm(job, &exe, chunks),
     };
     match &a.output {
