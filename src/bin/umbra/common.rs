@@ -319,3 +319,23 @@ impl StageArgs {
         })
     }
 }
+
+/// A number as a person reads it: integers plainly, others with 6 significant digits
+/// (scientific where that is shorter), `inf`/`nan` as words.
+pub fn num(v: f64) -> String {
+    if v.is_nan() {
+        return "nan".into();
+    }
+    if v.is_infinite() {
+        return if v > 0.0 { "inf" } else { "-inf" }.into();
+    }
+    if v == v.trunc() && v.abs() < 1e15 {
+        return format!("{v:.0}");
+    }
+    let a = v.abs();
+    if !(1e-4..1e6).contains(&a) {
+        return format!("{v:.5e}");
+    }
+    let s = format!("{v:.6}");
+    s.trim_end_matches('0').trim_end_matches('.').to_string()
+}

@@ -124,7 +124,7 @@ fn text(v: &Value) -> String {
 
 /// A number as `info` prints numbers (6 significant digits); other values as they are.
 fn n(v: &Value) -> String {
-    v.as_f64().map_or_else(|| text(v), crate::cmd_info::num)
+    v.as_f64().map_or_else(|| text(v), crate::common::num)
 }
 
 fn vector(v: &Value) -> String {
