@@ -215,13 +215,14 @@ pub fn slurm(job: &Job, exe: &Path, chunks: Option<Chunks>) -> String {
     format!(
         "#!/bin/bash\n\
          # Shadow maps of {job} ({n} tasks): one array element per task, written by umbra {v}.\n\
-         # Submit: sbatch THIS_FILE. Where the job stands: {exe_q} batch {job_q} --status\n\
+         # Submit: sbatch THIS_FILE. Where the job stands: umbra batch JOB.toml --status\n\
          #SBATCH --job-name=umbra_{safe_name}\n\
          #SBATCH --array={range}\n\
          {cpus}\
          set -euo pipefail\n\
          exec {exe_q} batch {job_q} --quiet {select}\n",
-        job = job.path.display(),
+        // The comment lines hold the path escaped (a newline in it would end the comment).
+        job = crate::text::escape(&job.path.display().to_string()),
         n = job.tasks.len(),
         v = env!("CARGO_PKG_VERSION"),
         exe_q = shell_quote(&exe.display().to_string()),
