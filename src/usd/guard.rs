@@ -110,15 +110,16 @@ impl Crate<'_> {
         }
     }
 
-    /// An LZ4 block at `at`: its end and its decompressed length.
-    fn block(&self, at: u64, what: &str) -> Result<(u64, u64), String> {
+    /// An LZ4 block at `at`: its end, its decompressed length and its raw LZ4 bytes (after
+    /// the chunk-count byte; empty for an empty block).
+    fn block(&self, at: u64, what: &str) -> Result<(u64, u64, &[u8]), String> {
         let n = self.u64_at(at, what)?;
         let data = self.bytes(at + 8, n, what)?;
         let end = at + 8 + n;
         match data.split_first() {
-            None => Ok((end, 0)),
+            None => Ok((end, 0, data)),
             Some((0, block)) => match lz4_len(block) {
-                Some(d) => Ok((end, d as u64)),
+                Some(d) => Ok((end, d as u64, block)),
                 None => Err(format!("{what} at byte {at}: a corrupt LZ4 block")),
             },
             Some(_) => Err(format!(
@@ -129,7 +130,7 @@ impl Crate<'_> {
 
     /// `n` integer-coded values in the LZ4 block at `at`; the block's end.
     fn ints(&self, at: u64, n: u64, what: &str) -> Result<u64, String> {
-        let (end, d) = self.block(at, what)?;
+        let (end, d, _) = self.block(at, what)?;
         let least = if n == 0 { 0 } else { 4 + n.div_ceil(4) };
         if least > d {
             return Err(format!(
@@ -161,7 +162,7 @@ impl Crate<'_> {
         let find = |n: &str| sections.iter().find(|s| s.name == n).map(|s| s.start);
         if let Some(at) = find("TOKENS") {
             let size = self.u64_at(at + 8, "TOKENS")?;
-            let (_, d) = self.block(at + 16, "TOKENS")?;
+            let (_, d, _) = self.block(at + 16, "TOKENS")?;
             if size > d {
                 return Err(format!(
                     "TOKENS claims {size} bytes of tokens, more than its {d} decompressed bytes"
@@ -206,14 +207,15 @@ impl Crate<'_> {
 
     /// The `n` value reps of the FIELDS section, decompressed from the block at `at`.
     fn reps(&self, at: u64, n: u64) -> Result<Vec<u64>, String> {
-        let (_, d) = self.block(at, "FIELDS")?;
+        let (_, d, block) = self.block(at, "FIELDS")?;
         if n.checked_mul(8).map_or(true, |b| b > d) {
             return Err(format!(
                 "FIELDS claims {n} values, more than its {d} decompressed bytes hold"
             ));
         }
-        let size = self.u64_at(at, "FIELDS")?;
-        let block = &self.bytes(at + 8, size, "FIELDS")?[1..];
+        if d == 0 {
+            return Ok(Vec::new());
+        }
         // `d` is what the block truly decompresses to, and at most 255 times the block.
         let mut out = vec![0u8; d as usize];
         lz4_flex::block::decompress_into(block, &mut out)
