@@ -195,6 +195,31 @@ fn three_shards_equal_one_run_bit_identical() {
     assert_eq!(outputs(sharded.path()), reference);
 }
 
+/// `--task I-J` runs consecutive tasks as one process (OpenCue's chunks, Deadline's); a range
+/// outside the job names the flag, a backward one is a usage error.
+#[test]
+fn task_ranges_run_consecutive_tasks() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "");
+    let out = batch(&job, &["--task", "1-3"]);
+    assert!(out.status.success(), "{out:?}");
+    assert!(String::from_utf8_lossy(&out.stdout).contains("3 baked, 0 skipped"));
+    let mut rows: Vec<u64> = log_records(dir.path())
+        .iter()
+        .filter_map(|r| r["task"].as_u64())
+        .collect();
+    rows.sort_unstable();
+    assert_eq!(rows, [1, 2, 3]);
+    let out = batch(&job, &["--task", "4-9"]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("'--task'") && err.contains("4-9") && err.contains("6 tasks"),
+        "{err}"
+    );
+    assert_eq!(batch(&job, &["--task", "3-1"]).status.code(), Some(2));
+}
+
 #[test]
 fn plan_lists_one_command_per_task() {
     let dir = tempfile::tempdir().unwrap();

@@ -136,7 +136,7 @@ fn run_job(
         .detach(|| umbra::batch::load_job(&path))
         .map_err(batch_err)?;
     let opts = umbra::batch::RunOptions {
-        task,
+        task: task.map(|i| (i, i)),
         shard,
         force,
         log,
@@ -163,10 +163,12 @@ fn job_status(py: Python<'_>, path: PathBuf, logs: Vec<PathBuf>) -> PyResult<Str
     serde_json::to_string(&s).map_err(|e| raise(Class::Other, e.to_string()))
 }
 
-/// A farm spec for a job (`umbra batch JOB --emit ENGINE`): `engine` `openjd` or `slurm`,
-/// running the umbra CLI at `exe`, its path defaults relative to `directory` (openjd).
+/// A farm spec for a job (`umbra batch JOB --emit ENGINE`): `engine` `openjd`, `opencue` or
+/// `slurm`, running the umbra CLI at `exe`, its path defaults relative to `directory`
+/// (openjd); `cue`: OpenCue's (show, shot, user, uid).
 #[pyfunction]
-#[pyo3(signature = (path, engine, exe, directory, chunk))]
+#[pyo3(signature = (path, engine, exe, directory, chunk, cue))]
+#[allow(clippy::too_many_arguments)]
 fn emit_job(
     py: Python<'_>,
     path: PathBuf,
@@ -174,6 +176,7 @@ fn emit_job(
     exe: PathBuf,
     directory: PathBuf,
     chunk: Option<usize>,
+    cue: (String, String, String, Option<u32>),
 ) -> PyResult<String> {
     let job = py
         .detach(|| umbra::batch::load_job(&path))
@@ -181,10 +184,18 @@ fn emit_job(
     let chunks = umbra::batch::emit::Chunks::of(&job, chunk);
     match engine {
         "openjd" => umbra::batch::emit::openjd(&job, &exe, &directory, chunks).map_err(py_err),
+        "opencue" => {
+            let (show, shot, user, uid) = cue;
+            let id =
+                umbra::batch::emit::CueIdentity::new(&show, &shot, &user, uid).map_err(py_err)?;
+            umbra::batch::emit::opencue(&job, &exe, chunk.unwrap_or(1), &id).map_err(py_err)
+        }
         "slurm" => Ok(umbra::batch::emit::slurm(&job, &exe, chunks)),
         other => Err(raise(
             Class::Argument,
-            format!("invalid argument 'engine': {other:?}: give \"openjd\" or \"slurm\""),
+            format!(
+                "invalid argument 'engine': {other:?}: give \"openjd\", \"opencue\" or \"slurm\""
+            ),
         )),
     }
 }

@@ -1,20 +1,28 @@
 """Farm specs emitted by `umbra batch --emit`, run by the engines' own tools: an Open Job
 Description template checked and run to completion by `openjd` (openjd-cli, the reference
 implementation AWS Deadline Cloud's workers follow), its maps equal to a local run's byte for
-byte, a corrupt frame's tasks failing with their error, and `--status` naming them."""
+byte, a corrupt frame's tasks failing with their error, and `--status` naming them; an
+OpenCue spec equal to the one opencue-pyoutline writes for the same job, run chunk by chunk
+as OpenCue's RQD runs a layer's frames; a Slurm array script submitted with a plain `sbatch`
+to a one-node Slurm (Debian's slurm-wlm) the test starts."""
 
 import json
+import os
 import pathlib
+import shlex
 import shutil
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
 
 import pytest
 
 from conftest import DATA
 
 OPENJD = pathlib.Path(sys.executable).with_name("openjd")
-pytestmark = pytest.mark.skipif(not OPENJD.exists(), reason="openjd-cli (pip install openjd-cli)")
+SLURM = [shutil.which(t) for t in ("munged", "slurmctld", "slurmd", "sbatch", "squeue")]
+needs_openjd = pytest.mark.skipif(not OPENJD.exists(),
+                                  reason="openjd-cli (pip install openjd-cli)")
 
 JOB = """output = "out/shadow_{light}.{frame:04}.exr"
 [[inputs]]
@@ -50,6 +58,7 @@ def _maps(dir):
     return {p.name: p.read_bytes() for p in sorted((dir / "out").glob("*.exr"))}
 
 
+@needs_openjd
 def test_an_openjd_template_runs_the_job_as_a_local_run_does(cli, tmp_path):
     # A directory name with a space and a quote, and non-ASCII: the template quotes nothing
     # by hand, the engine passes arguments as they are.
@@ -123,12 +132,14 @@ def test_chunks_and_slurm_scripts(cli, tmp_path):
     assert code == 1 and "'--output'" in err, err
 
 
-def test_python_emits_and_reports_as_the_cli_does(cli, umbra_bin, tmp_path):
+def test_python_emits_and_reports_as_the_cli_does(cli, umbra_bin, tmp_path, monkeypatch):
     import umbra
+    monkeypatch.setenv("USER", "td_bob")
     job = _job(tmp_path / "shot", corrupt=3)
-    for engine in ("openjd", "slurm"):
-        _, out, _ = cli("batch", job, "--emit", engine, "--chunk", "2")
-        got = umbra.emit_job(job, engine, umbra=pathlib.Path(umbra_bin).resolve(), chunk=2)
+    for engine in ("openjd", "opencue", "slurm"):
+        _, out, _ = cli("batch", job, "--emit", engine, "--chunk", "2", "--shot", "sh020")
+        got = umbra.emit_job(job, engine, umbra=pathlib.Path(umbra_bin).resolve(), chunk=2,
+                             shot="sh020")
         assert got == out, engine
     with pytest.raises(umbra.InvalidArgument, match="engine"):
         umbra.emit_job(job, "tractor", umbra=umbra_bin)
@@ -136,3 +147,185 @@ def test_python_emits_and_reports_as_the_cli_does(cli, umbra_bin, tmp_path):
     _, out, _ = cli("batch", job, "--status", "--json", check=False)
     assert umbra.job_status(job) == json.loads(out)
     assert [t["task"] for t in umbra.job_status(job)["failed"]] == [4, 5]
+
+
+def _cue_tree(element):
+    """An XML element as nested (tag, attributes, text, children), whitespace ignored; a
+    command as the argument vector a shell makes of it."""
+    text = (element.text or "").strip()
+    if element.tag == "cmd":
+        text = shlex.split(text)
+    return (element.tag, element.attrib, text, [_cue_tree(c) for c in element])
+
+
+def _rqd(spec_xml, cwd):
+    """Run every frame of every layer as OpenCue's RQD does: frames in chunks of `chunk`
+    consecutive frames, `#IFRAME#`/`#FRAME_START#` the chunk's first frame, `#FRAME_END#` its
+    last, the command through a shell. The exit code of each chunk, by its first frame."""
+    codes = {}
+    for layer in ET.fromstring(spec_xml.split("\n", 2)[2]).iter("layer"):
+        first, last = map(int, layer.find("range").text.split("-"))
+        chunk = int(layer.find("chunk").text)
+        for start in range(first, last + 1, chunk):
+            end = min(start + chunk - 1, last)
+            cmd = (layer.find("cmd").text.replace("#IFRAME#", str(start))
+                   .replace("#FRAME_START#", str(start)).replace("#FRAME_END#", str(end)))
+            codes[start] = subprocess.run(["/bin/sh", "-c", cmd], cwd=cwd, capture_output=True,
+                                          timeout=600).returncode
+    return codes
+
+
+def test_an_opencue_spec_is_the_one_pyoutline_writes_and_runs_as_rqd_runs_it(
+        umbra_bin, cli, tmp_path):
+    pytest.importorskip("outline", reason="opencue-pyoutline (pip install opencue-pyoutline)")
+    import outline
+    import outline.cuerun
+    import outline.modules.shell
+    from outline.backend import cue
+
+    farm = _job(tmp_path / "it's a shot é", corrupt=2)
+    exe = pathlib.Path(umbra_bin).resolve()
+    env = dict(os.environ, USER="td_alice", SHOW="ignored", SHOT="ignored")
+    for chunk in (1, 2):
+        p = subprocess.run([str(exe), "batch", str(farm), "--emit", "opencue", "--show",
+                            "mars", "--shot", "sh010", "--chunk", str(chunk)], env=env,
+                           capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        ours = p.stdout
+        # The same job built with pyoutline: one Shell layer over tasks 0-5 in chunks, one
+        # core (the job's threads), the command a TD would write with the chunk's tokens.
+        tokens = "#IFRAME#" if chunk == 1 else "#FRAME_START#-#FRAME_END#"
+        command = " ".join([shlex.quote(str(exe)), "batch", shlex.quote(str(farm)), "--quiet",
+                            "--task", tokens])
+        ol = outline.Outline("umbra_job", show="mars", shot="sh010", user="td_alice")
+        ol.add_layer(outline.modules.shell.Shell("bake", command=command, range="0-5",
+                                                 chunk=chunk, cores=1))
+        launcher = outline.cuerun.OutlineLauncher(ol, show="mars", shot="sh010",
+                                                  user="td_alice", nomail=True)
+        theirs = cue.serialize_simple(launcher)
+        # umbra leaves out the facility (cuebot then uses its default one; pyoutline writes
+        # its config's "local") and never makes up an e-mail address.
+        root = ET.fromstring(theirs.split(">", 2)[2])
+        for tag in ("facility", "email"):
+            for e in root.findall(tag):
+                root.remove(e)
+        assert ours.split("\n", 2)[:2] == [theirs[:21], theirs[21:theirs.index("<spec>")]]
+        assert _cue_tree(ET.fromstring(ours.split("\n", 2)[2])) == _cue_tree(root)
+    # Chunks of two: frame 2's chunk (tasks 2 and 3, the corrupt cache) fails, the others bake.
+    codes = _rqd(ours, tmp_path)
+    assert codes[0] == 0 and codes[4] == 0 and codes[2] != 0, codes
+    code, out, _ = cli("batch", farm, "--status", "--json", check=False)
+    assert code == 3
+    s = json.loads(out)
+    assert sorted(f["task"] for f in s["failed"]) == [2, 3] and len(s["done"]) == 4
+    by_engine = _maps(farm.parent)
+    code, _, _ = cli("batch", farm, "--force", "--quiet", check=False)
+    assert code == 3 and _maps(farm.parent) == by_engine and len(by_engine) == 4
+    # A name cuebot cannot take is refused, naming the flag; without USER the user is the
+    # password database's name of this uid, as pyoutline's getpass finds it.
+    p = subprocess.run([str(exe), "batch", str(farm), "--emit", "opencue", "--show", "my show"],
+                       capture_output=True, text=True, env=env)
+    assert p.returncode == 1 and "'--show'" in p.stderr and not p.stdout, p.stderr
+    import pwd
+    p = subprocess.run([str(exe), "batch", str(farm), "--emit", "opencue"], capture_output=True,
+                       text=True, env={k: v for k, v in env.items()
+                                       if k not in ("USER", "LOGNAME")})
+    assert p.returncode == 0, p.stderr
+    user = ET.fromstring(p.stdout.split("\n", 2)[2]).find("user").text
+    assert user == pwd.getpwuid(os.getuid()).pw_name
+
+
+@pytest.fixture
+def slurm(tmp_path_factory):
+    """A one-node Slurm cluster of this machine (munged, slurmctld, slurmd on 127.0.0.1, its
+    own key, ports, state and logs in a temporary directory): the environment `sbatch` and
+    `squeue` need to reach it. Stopped afterwards. CI installs slurm-wlm, so there a missing
+    Slurm fails the test."""
+    if not all(SLURM):
+        if os.environ.get("CI"):
+            pytest.fail("slurm-wlm is not installed (.ci/run installs it)")
+        pytest.skip("slurm-wlm (apt-get install slurm-wlm)")
+    import getpass
+    import socket
+    d = tmp_path_factory.mktemp("slurm")
+    (d / "state").mkdir()
+    (d / "spool").mkdir()
+    (d / "munge").mkdir(mode=0o700)
+    key = d / "munge" / "munge.key"
+    key.write_bytes(os.urandom(1024))
+    key.chmod(0o400)
+    sock = d / "munge" / "munge.sock"
+    ports = []
+    for _ in range(2):
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            ports.append(s.getsockname()[1])
+    user, host = getpass.getuser(), socket.gethostname().split(".")[0]
+    conf = d / "slurm.conf"
+    conf.write_text("\n".join([
+        "ClusterName=umbratest", f"SlurmctldHost={host}(127.0.0.1)",
+        f"SlurmctldPort={ports[0]}", f"SlurmdPort={ports[1]}",
+        f"SlurmUser={user}", f"SlurmdUser={user}",
+        "AuthType=auth/munge", f"AuthInfo=socket={sock}", "CredType=cred/munge",
+        f"StateSaveLocation={d}/state", f"SlurmdSpoolDir={d}/spool",
+        f"SlurmctldPidFile={d}/slurmctld.pid", f"SlurmdPidFile={d}/slurmd.pid",
+        f"SlurmctldLogFile={d}/slurmctld.log", f"SlurmdLogFile={d}/slurmd.log",
+        "ProctrackType=proctrack/linuxproc", "TaskPlugin=task/none",
+        "JobAcctGatherType=jobacct_gather/none", "AccountingStorageType=accounting_storage/none",
+        "SchedulerType=sched/builtin", "SelectType=select/cons_tres",
+        "SelectTypeParameters=CR_Core", "ReturnToService=2", "MpiDefault=none",
+        f"NodeName=umbranode NodeAddr=127.0.0.1 CPUs={os.cpu_count() or 1} State=UNKNOWN",
+        "PartitionName=umbra Nodes=ALL Default=YES MaxTime=INFINITE State=UP", ""]))
+    env = dict(os.environ, SLURM_CONF=str(conf))
+    munged, slurmctld, slurmd, _, squeue = SLURM
+    subprocess.run([munged, "--force", f"--key-file={key}", f"--socket={sock}",
+                    f"--pid-file={d}/munge/munged.pid", f"--log-file={d}/munge/munged.log",
+                    f"--seed-file={d}/munge/seed"], check=True, env=env)
+    try:
+        subprocess.run([slurmctld, "-i"], check=True, env=env)
+        subprocess.run([slurmd, "-N", "umbranode"], check=True, env=env)
+        import time
+        deadline = time.monotonic() + 60
+        while True:
+            p = subprocess.run([shutil.which("sinfo") or "sinfo", "-h", "-o", "%t"], env=env,
+                               capture_output=True, text=True)
+            if p.stdout.strip() == "idle":
+                break
+            if time.monotonic() > deadline:
+                logs = "".join(f.read_text() for f in d.glob("*.log"))
+                pytest.fail(f"the test's Slurm did not come up: {p.stdout}{p.stderr}\n{logs}")
+            time.sleep(0.5)
+        yield env
+    finally:
+        subprocess.run([shutil.which("scontrol") or "scontrol", "shutdown"], env=env,
+                       capture_output=True)
+        for pid in (d / "slurmd.pid", d / "slurmctld.pid", d / "munge" / "munged.pid"):
+            try:
+                os.kill(int(pid.read_text()), 15)
+            except (OSError, ValueError):
+                pass
+
+
+def test_an_emitted_slurm_script_runs_on_slurm(cli, slurm, tmp_path):
+    import time
+    farm = _job(tmp_path / "it's a shot é", corrupt=3)
+    script = farm.parent / "job.sbatch"
+    cli("batch", farm, "--emit", "slurm", "-o", script)
+    p = subprocess.run([SLURM[3], "--parsable", str(script)], env=slurm, cwd=farm.parent,
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    job_id = p.stdout.strip().split(";")[0]
+    deadline = time.monotonic() + 600
+    while subprocess.run([SLURM[4], "-h", "-j", job_id], env=slurm, capture_output=True,
+                         text=True).stdout.strip():
+        assert time.monotonic() < deadline, "the Slurm job did not finish in 10 minutes"
+        time.sleep(0.5)
+    # One output file per array element (Slurm's default name in the submit directory).
+    assert len(list(farm.parent.glob(f"slurm-{job_id}_*.out"))) == 6
+    code, out, _ = cli("batch", farm, "--status", "--json", check=False)
+    s = json.loads(out)
+    assert code == 3 and sorted(f["task"] for f in s["failed"]) == [4, 5], s
+    by_slurm = _maps(farm.parent)
+    assert len(by_slurm) == 4
+    code, _, _ = cli("batch", farm, "--force", "--quiet", check=False)
+    assert code == 3 and _maps(farm.parent) == by_slurm

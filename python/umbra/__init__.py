@@ -246,6 +246,19 @@ def job_status(path: PathLike, *, logs: Sequence[PathLike] = ()) -> Dict[str, An
     return json.loads(_umbra.job_status(_path("path", path), paths))
 
 
+def _user() -> str:
+    """The user a farm job runs as: ``$USER``, ``$LOGNAME``, else the password database's name
+    for this process's uid (as the CLI finds it)."""
+    name = os.environ.get("USER") or os.environ.get("LOGNAME")
+    if name:
+        return name
+    try:
+        import pwd
+        return pwd.getpwuid(os.getuid()).pw_name
+    except (ImportError, KeyError):
+        return ""
+
+
 def emit_job(
     path: PathLike,
     engine: str,
@@ -253,13 +266,17 @@ def emit_job(
     umbra: Optional[PathLike] = None,
     directory: Optional[PathLike] = None,
     chunk: Optional[int] = None,
+    show: Optional[str] = None,
+    shot: Optional[str] = None,
 ) -> str:
     """The farm spec ``umbra batch PATH --emit ENGINE`` prints: ``"openjd"`` (an Open Job
-    Description template; JSON, which is also YAML) or ``"slurm"`` (an sbatch array script),
-    for a pipeline to submit with the engine's own client. ``umbra``: the CLI the farm runs
-    (default: ``umbra`` found on ``PATH``, made absolute); ``directory``: where the template
-    will be written (default: the job file's; its path defaults are relative to it); ``chunk``:
-    farm tasks of up to that many job tasks."""
+    Description template; JSON, which is also YAML), ``"opencue"`` (an OpenCue job spec, the
+    XML pyoutline writes) or ``"slurm"`` (an sbatch array script), for a pipeline to submit
+    with the engine's own client. ``umbra``: the CLI the farm runs (default: ``umbra`` found on
+    ``PATH``, made absolute); ``directory``: where the template will be written (default: the
+    job file's; its path defaults are relative to it); ``chunk``: farm tasks of up to that many
+    job tasks; ``show``, ``shot`` (OpenCue; default ``$SHOW``/``$SHOT``, else ``testing`` and
+    ``default`` as pyoutline), the user from ``$USER``."""
     import shutil
     exe = _path("umbra", umbra) if umbra is not None else shutil.which("umbra")
     if exe is None:
@@ -268,7 +285,13 @@ def emit_job(
     where = _path("directory", directory) if directory is not None else os.path.dirname(
         os.path.abspath(job))
     n = None if chunk is None else _count("chunk", chunk)
-    return _umbra.emit_job(job, str(engine), os.path.abspath(exe), where, n)
+    cue = (
+        str(show if show is not None else os.environ.get("SHOW") or "testing"),
+        str(shot if shot is not None else os.environ.get("SHOT") or "default"),
+        _user(),
+        os.getuid() if hasattr(os, "getuid") else None,
+    )
+    return _umbra.emit_job(job, str(engine), os.path.abspath(exe), where, n, cue)
 
 
 def bake(

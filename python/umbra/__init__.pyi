@@ -109,6 +109,8 @@ def emit_job(
     umbra: Optional[PathLike] = ...,
     directory: Optional[PathLike] = ...,
     chunk: Optional[int] = ...,
+    show: Optional[str] = ...,
+    shot: Optional[str] = ...,
 ) -> str: ...
 def write_exr(
     path: PathLike,

@@ -246,6 +246,21 @@ pub fn parse_shard(s: &str) -> Result<(usize, usize), String> {
     }
 }
 
+/// Parse a task selection `I` or `I-J` (0-based, inclusive, `I <= J`) into `(I, J)`.
+///
+/// # Errors
+/// When it is neither.
+pub fn parse_tasks(s: &str) -> Result<(usize, usize), String> {
+    let parsed = match s.split_once('-') {
+        Some((a, b)) => a.trim().parse().ok().zip(b.trim().parse().ok()),
+        None => s.trim().parse().ok().map(|i| (i, i)),
+    };
+    match parsed {
+        Some((a, b)) if a <= b => Ok((a, b)),
+        _ => Err(format!("expected I or I-J with I <= J, got '{s}'")),
+    }
+}
+
 /// Whether `(i, n)` names a shard: `1 <= i <= n`.
 #[must_use]
 pub fn valid_shard((i, n): (usize, usize)) -> bool {

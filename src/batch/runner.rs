@@ -18,8 +18,8 @@ use std::sync::Mutex;
 /// Which tasks to run and how (the options of `umbra batch`).
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct RunOptions {
-    /// Only this task (0-based, as `--plan` numbers them).
-    pub task: Option<usize>,
+    /// Only tasks `first..=last` (0-based, as `--plan` numbers them; one task: `(i, i)`).
+    pub task: Option<(usize, usize)>,
     /// Only shard `(I, N)`, 1-based: the tasks whose index `% N == I - 1`.
     pub shard: Option<(usize, usize)>,
     /// Re-bake outputs that are up to date.
@@ -96,17 +96,22 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         ));
     }
     let selected: Vec<&Task> = match (opts.task, opts.shard) {
-        (Some(i), _) => match job.tasks.get(i) {
-            Some(t) => vec![t],
-            None => {
+        (Some((first, last)), _) => match job.tasks.get(first..=last) {
+            Some(tasks) if first <= last => tasks.iter().collect(),
+            _ => {
+                let n = job.tasks.len();
+                let which = if first == last {
+                    format!("{first}")
+                } else {
+                    format!("{first}-{last}")
+                };
                 return Err(invalid(
                     "task",
                     format!(
-                        "{i}: the job has {} tasks (0..{})",
-                        job.tasks.len(),
-                        job.tasks.len()
+                        "{which}: the job has {n} tasks (0..{})",
+                        n.saturating_sub(1)
                     ),
-                ))
+                ));
             }
         },
         (None, Some(s)) => job.tasks.iter().filter(|t| in_shard(t.index, s)).collect(),

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::OnceLock;
-use umbra::batch::{load_job, parse_shard, BatchError, Progress, Record, RunOptions};
+use umbra::batch::{load_job, parse_shard, parse_tasks, BatchError, Progress, Record, RunOptions};
 
 /// Arguments of `umbra batch`.
 #[derive(Debug, clap::Args)]
@@ -21,9 +21,9 @@ pub struct BatchArgs {
     /// Print one self-contained `umbra batch JOB --task I` command per task and exit.
     #[arg(long)]
     plan: bool,
-    /// Run only task I (0-based, as `--plan` numbers them).
-    #[arg(long, conflicts_with = "shard")]
-    task: Option<usize>,
+    /// Run only task I, or tasks I to J (0-based, as `--plan` numbers them).
+    #[arg(long, conflicts_with = "shard", value_parser = parse_tasks, value_name = "I[-J]")]
+    task: Option<(usize, usize)>,
     /// Run only shard I of N (1-based): the tasks whose index % N == I-1.
     #[arg(long, value_parser = parse_shard)]
     shard: Option<(usize, usize)>,
@@ -50,15 +50,23 @@ pub struct BatchArgs {
     #[arg(long, short)]
     quiet: bool,
     /// Print a farm spec that runs the job and exit: `openjd` (an Open Job Description
-    /// template; JSON, which is also YAML) or `slurm` (an sbatch array script).
+    /// template; JSON, which is also YAML), `opencue` (an OpenCue job spec, XML) or `slurm`
+    /// (an sbatch array script).
     #[arg(long, value_enum, conflicts_with_all = ["plan", "status", "task", "shard"])]
     emit: Option<Engine>,
     /// With --emit: write the spec to this file (atomically; --force to replace it).
     #[arg(short = 'o', long = "output", requires = "emit")]
     output: Option<PathBuf>,
-    /// With --emit: farm tasks of up to N job tasks each (run as shards).
+    /// With --emit: farm tasks of up to N job tasks each (shards; OpenCue's own chunks of N
+    /// consecutive tasks).
     #[arg(long, requires = "emit", value_name = "N")]
     chunk: Option<usize>,
+    /// With --emit opencue: the show (default: $SHOW, else `testing`, as pyoutline).
+    #[arg(long, requires = "emit")]
+    show: Option<String>,
+    /// With --emit opencue: the shot (default: $SHOT, else `default`, as pyoutline).
+    #[arg(long, requires = "emit")]
+    shot: Option<String>,
 }
 
 /// Farm engines `--emit` writes specs for.
@@ -66,6 +74,8 @@ pub struct BatchArgs {
 enum Engine {
     /// Open Job Description (AWS Deadline Cloud): `openjd check` / `openjd run` it.
     Openjd,
+    /// OpenCue: the job spec pyoutline would write (`cueadmin`/pycue `launchSpec` it).
+    Opencue,
     /// A Slurm job-array script: `sbatch` it.
     Slurm,
 }
@@ -92,6 +102,31 @@ fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCo
     let text = match engine {
         Engine::Openjd => umbra::batch::emit::openjd(job, &exe, &dir, chunks)
             .map_err(crate::common::flag_error)?,
+        Engine::Opencue => {
+            let env = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
+            let show = a.show.clone().or_else(|| env("SHOW"));
+            let shot = a.shot.clone().or_else(|| env("SHOT"));
+            let Some(user) = env("USER")
+                .or_else(|| env("LOGNAME"))
+                .or_else(|| uid().and_then(passwd_name))
+            else {
+                anyhow::bail!("--emit opencue: set USER to the user the job runs as");
+            };
+            let id = umbra::batch::emit::CueIdentity::new(
+                show.as_deref().unwrap_or("testing"),
+                shot.as_deref().unwrap_or("default"),
+                &user,
+                uid(),
+            )
+            .map_err(|e| match e {
+                umbra::Error::InvalidArgument { name, reason } if name == "user" => {
+                    anyhow::anyhow!("the environment's USER: {reason}")
+                }
+                e => crate::common::flag_error(e).into(),
+            })?;
+            umbra::batch::emit::opencue(job, &exe, a.chunk.unwrap_or(1), &id)
+                .map_err(crate::common::flag_error)?
+        }
         Engine::Slurm => umbra::batch::emit::slurm(job, &exe, chunks),
     };
     match &a.output {
@@ -101,6 +136,30 @@ fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCo
         None => std::io::stdout().lock().write_all(text.as_bytes())?,
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The user id this process runs as (OpenCue's RQD runs a job's frames as it).
+fn uid() -> Option<u32> {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        std::fs::metadata("/proc/self").ok().map(|m| m.uid())
+    }
+    #[cfg(not(unix))]
+    {
+        None
+    }
+}
+
+/// The login name of user `uid` in `/etc/passwd` (what `getpass.getuser()`, pyoutline's
+/// fallback, finds when `USER` is unset, as on many farm containers).
+fn passwd_name(uid: u32) -> Option<String> {
+    let text = std::fs::read_to_string("/etc/passwd").ok()?;
+    text.lines().find_map(|l| {
+        let mut f = l.split(':');
+        let name = f.next()?;
+        (f.nth(1)?.parse() == Ok(uid)).then(|| name.to_string())
+    })
 }
 
 /// Run the job (or print its plan): the library's runner ([`umbra::batch::run`]) with a
