@@ -23,7 +23,7 @@
 //! request that would silently ignore an option cannot be planned.
 
 use crate::bake::{
-    BakeJob, BakeSettings, Camera, Depths, ExrLayout, Product, Projection, Resolution, View,
+    BakeJob, BakeSettings, Camera, Depths, ExrLayout, Omni, Product, Projection, Resolution, View,
     VolumeJob, DEFAULT_DEEP_ERROR, DEFAULT_OUT_GRID,
 };
 use crate::error::{Error, Result};
@@ -115,6 +115,11 @@ pub struct BakeOptions {
     /// With light-pos: an orthographic map whose image plane passes through the light.
     #[cfg_attr(feature = "cli", arg(long))]
     pub ortho: bool,
+    /// With light-pos: an omnidirectional map around the light, inside, beside or outside the
+    /// volume, in the world's axes: `cube` (six N x N faces in one N x 6N image, OpenEXR's
+    /// `envmap = cube`) or `latlong` (2N x N, `envmap = latlong`); res gives N (default 512).
+    #[cfg_attr(feature = "cli", arg(long, value_enum))]
+    pub omni: Option<Omni>,
     /// Perspective field of view across the longer image side, degrees in (0, 180) (default:
     /// just holds the volume box).
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
@@ -275,6 +280,7 @@ impl Default for BakeOptions {
             light_dir: None,
             light_pos: None,
             ortho: false,
+            omni: None,
             fov: None,
             up: None,
             frame_box: None,
@@ -509,8 +515,44 @@ impl BakeOptions {
         Ok(())
     }
 
+    /// The view of an omnidirectional map: a light position and a size, nothing that aims or
+    /// frames.
+    fn omni_view(&self, omni: Omni) -> Result<View> {
+        if self.light_pos.is_none() {
+            return Err(bad(
+                "omni",
+                "an omnidirectional map is seen from a point light: give light-pos",
+            ));
+        }
+        let aims = [
+            ("light-dir", self.light_dir.is_some()),
+            ("ortho", self.ortho),
+            ("fov", self.fov.is_some()),
+            ("up", self.up.is_some()),
+            ("frame-box", self.frame_box.is_some()),
+            ("mipmap", self.mipmap),
+            ("usd-out", self.usd_out.is_some()),
+        ];
+        if let Some((k, _)) = aims.iter().find(|(_, set)| *set) {
+            return Err(bad(
+                k,
+                "does not apply to an omnidirectional map (every direction from the light, in \
+                 the world's axes, one mip level)",
+            ));
+        }
+        Ok(View {
+            projection: omni.projection(),
+            light_pos: self.light_pos,
+            res: self.res,
+            ..View::default()
+        })
+    }
+
     /// The camera request of a map (no fixed camera): the light-to-projection rule.
     fn view(&self) -> Result<View> {
+        if let Some(omni) = self.omni {
+            return self.omni_view(omni);
+        }
         let projection = match (self.light_dir, self.light_pos) {
             (None, None) => {
                 return Err(bad(
@@ -871,6 +913,7 @@ impl BakeRequest {
                     ("fov", o.fov.is_some()),
                     ("up", o.up.is_some()),
                     ("frame-box", o.frame_box.is_some()),
+                    ("omni", o.omni.is_some()),
                 ];
                 if let Some((k, _)) = fixed.iter().find(|(_, set)| *set) {
                     return Err(bad(

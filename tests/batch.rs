@@ -565,6 +565,7 @@ fn pixel_of(c: &umbra::bake::Camera, p: glam::DVec3) -> (f64, f64) {
             let q = v / z - DVec3::from(c.direction());
             (q.dot(sx) / s2, q.dot(sy) / s2)
         }
+        other => panic!("a batch job's shared camera is ortho or perspective, not {other:?}"),
     }
 }
 

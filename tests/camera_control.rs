@@ -183,6 +183,7 @@ fn with_resolution_keeps_the_window() {
         let (old, new) = match projection {
             Projection::Ortho => (v(c.origin()), v(d.origin()) + half),
             Projection::Perspective => (v(c.direction()), v(d.direction()) + half),
+            other => panic!("{other:?} is not framed here"),
         };
         assert!(
             (old - new).length() < 1e-12,

@@ -36,8 +36,9 @@ mod trace;
 
 pub(crate) use camera::CameraParts;
 pub use camera::{
-    camera_from_json, check_res, read_camera, world_box_corners, Camera, CameraSpec, Outside,
-    Projection, Resolution, View, DEFAULT_LONG_SIDE, MAX_PIXELS, MAX_SIDE,
+    camera_from_json, check_res, is_omni, read_camera, world_box_corners, Camera, CameraSpec, Omni,
+    Outside, Projection, Resolution, View, DEFAULT_LONG_SIDE, DEFAULT_OMNI_SIDE, MAX_PIXELS,
+    MAX_SIDE,
 };
 pub use encode::deep_exr::{
     encode_deep_exr, write_deep_exr, DeepAttributes, DeepImage, RESERVED_ATTRIBUTES,

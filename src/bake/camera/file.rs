@@ -129,6 +129,8 @@ fn from_exr(path: &Path) -> Result<(CameraSpec, Option<(u32, u32)>)> {
         Some(AttributeValue::Text(t)) => match t.to_string().as_str() {
             "ortho" => Projection::Ortho,
             "perspective" => Projection::Perspective,
+            "cube" => Projection::Cube,
+            "latlong" => Projection::LatLong,
             other => return Err(bad(path, format!("unknown umbra:camera_kind '{other}'"))),
         },
         Some(_) => return Err(bad(path, "umbra:camera_kind is not text")),

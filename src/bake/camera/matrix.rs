@@ -13,7 +13,7 @@ impl Camera {
                     + (v(self.step_x) * (0.5 * f64::from(self.width) - 0.5)
                         + v(self.step_y) * (0.5 * f64::from(self.height) - 0.5))
             }
-            Projection::Perspective => v(self.origin),
+            _ => v(self.origin),
         }
     }
 
@@ -56,7 +56,7 @@ impl Camera {
                 lin(c[2], 1.0 / self.t_max.max(f64::MIN_POSITIVE), one, 0.0),
                 one,
             ],
-            Projection::Perspective => [
+            _ => [
                 lin(c[0], 1.0 / ws, c[2], 0.5),
                 lin(c[1], -1.0 / hs, c[2], 0.5),
                 one,

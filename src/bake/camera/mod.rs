@@ -18,12 +18,19 @@
 //!   pixel (0, 0)'s centre on the image plane at distance 1 from `P` (not unit length), and
 //!   `step_x = s r`, `step_y = -s u` are pixel steps on that plane.
 //!
+//! - **Cube** and **latlong** (`kind = "cube"`, `"latlong"`): omnidirectional maps around a
+//!   point light: every ray starts at `origin = P` along the direction of its texel in
+//!   OpenEXR's environment-map layouts ([`omni`]); `direction`, `step_x`, `step_y` hold the
+//!   map's axes (`forward`, `right` and `-up` times a nominal texel size).
+//!
 //! `t` is world distance along the unit ray direction, as everywhere in umbra.
 
 pub(crate) mod file;
 mod matrix;
+pub mod omni;
 pub(crate) mod reach;
 pub use file::{camera_from_json, read_camera};
+pub use omni::{is_omni, Omni, DEFAULT_OMNI_SIDE};
 pub use reach::Outside;
 
 use crate::error::{Error, Result};
@@ -46,6 +53,13 @@ pub enum Projection {
     Ortho,
     /// Rays from a point light through a pinhole image plane.
     Perspective,
+    /// Rays from a point light in every direction: six cube faces stacked in one `N x 6N`
+    /// image, as OpenEXR's `envmap = cube` ([`omni`]).
+    Cube,
+    /// Rays from a point light in every direction: a `2N x N` latitude-longitude image, as
+    /// OpenEXR's `envmap = latlong` ([`omni`]).
+    #[serde(rename = "latlong")]
+    LatLong,
 }
 
 /// What the user asked the camera to be.
@@ -367,7 +381,7 @@ impl Camera {
         };
         let u = -u_neg;
         let centre = match c.kind {
-            Projection::Ortho => dir,
+            Projection::Ortho | Projection::Cube | Projection::LatLong => dir,
             Projection::Perspective => {
                 dir + sx * (0.5 * (f64::from(c.width) - 1.0))
                     + sy * (0.5 * (f64::from(c.height) - 1.0))
@@ -403,7 +417,7 @@ impl Camera {
                     c.direction
                 }
                 Projection::Ortho => clean(f),
-                Projection::Perspective => c.direction,
+                Projection::Perspective | Projection::Cube | Projection::LatLong => c.direction,
             },
             t_max: c.t_max,
             t_near: 0.0,
@@ -562,6 +576,9 @@ impl Camera {
         if let Some(r) = view.res {
             r.check()?;
         }
+        if is_omni(view.projection) {
+            return Self::frame_omni(view, corners);
+        }
         let volume = corners;
         let boxed;
         let corners = match view.frame_box {
@@ -638,6 +655,7 @@ impl Camera {
                 };
                 Self::ortho(f, up, view, corners, &depth)
             }
+            Projection::Cube | Projection::LatLong => Self::frame_omni(view, corners),
             Projection::Perspective => {
                 let p = DVec3::from_array(view.light_pos.ok_or_else(|| {
                     bad(
@@ -747,7 +765,8 @@ impl Camera {
                         "light-pos",
                         format!(
                             "the light at {:?} is inside or beside the volume box, so no view \
-                             from it holds the whole box; give --fov DEG (and --light-dir to aim)",
+                             from it holds the whole box; give --omni cube|latlong (every direction), or --fov DEG \
+                             (and --light-dir to aim)",
                             p.to_array()
                         ),
                     ));
@@ -792,6 +811,15 @@ impl Camera {
     /// [`Error::InvalidArgument`] naming `res` for a size out of range.
     pub fn with_resolution(&self, res: Resolution) -> Result<Self> {
         res.check()?;
+        if is_omni(self.kind) {
+            let mut c = Self::omni(self.kind, self.origin, Some(res), &[])?;
+            (c.t_max, c.right, c.up, c.forward) = (self.t_max, self.right, self.up, self.forward);
+            let s = c.pixel_size;
+            let v = DVec3::from_array;
+            (c.step_x, c.step_y) = (clean(v(c.right) * s), clean(v(c.up) * -s));
+            c.direction = c.forward;
+            return Ok(c);
+        }
         let s = self.pixel_size;
         let (ex, ey) = (f64::from(self.width) * s, f64::from(self.height) * s);
         let (w, h) = Resolution::size(Some(res), ex, ey);
@@ -802,7 +830,7 @@ impl Camera {
         let (r, u) = (v(self.right), v(self.up));
         let anchor = match self.kind {
             Projection::Ortho => v(self.origin),
-            Projection::Perspective => v(self.direction),
+            _ => v(self.direction),
         };
         let half = |n: u32| 0.5 * (f64::from(n) - 1.0);
         let centre =
@@ -814,9 +842,34 @@ impl Camera {
         (c.step_x, c.step_y) = (clean(r * s2), clean(u * -s2));
         match self.kind {
             Projection::Ortho => c.origin = clean(moved),
-            Projection::Perspective => c.direction = clean(moved),
+            _ => c.direction = clean(moved),
         }
         Ok(c)
+    }
+
+    /// [`Camera::frame`] for an omnidirectional view: the light position and the size only.
+    fn frame_omni(view: &View, corners: &[DVec3]) -> Result<Self> {
+        let Some(pos) = view.light_pos else {
+            return Err(bad(
+                "omni",
+                "an omnidirectional map is seen from a point light: give --light-pos".into(),
+            ));
+        };
+        let set = [
+            ("light-dir", view.light_dir.is_some()),
+            ("fov", view.fov_deg.is_some()),
+            ("frame-box", view.frame_box.is_some()),
+            ("up", view.up.is_some()),
+        ];
+        if let Some((name, _)) = set.iter().find(|(_, on)| *on) {
+            return Err(bad(
+                name,
+                "an omnidirectional map sees every direction from the light, in the world's \
+                 axes: leave it out"
+                    .into(),
+            ));
+        }
+        Self::omni(view.projection, pos, view.res, corners)
     }
 
     /// Pixel count `W x H`.
@@ -839,6 +892,10 @@ impl Camera {
             }
             Projection::Perspective => {
                 Ray::new(v(self.origin), v(self.direction) + offset, 0.0, self.t_max)
+            }
+            Projection::Cube | Projection::LatLong => {
+                let d = self.omni_direction(i, j).unwrap_or(DVec3::Z);
+                Ray::new(v(self.origin), d, 0.0, self.t_max)
             }
         }
     }

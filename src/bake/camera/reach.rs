@@ -68,6 +68,17 @@ impl Camera {
                 }
                 (c, delta)
             }
+            Projection::Cube | Projection::LatLong => {
+                let p = v(self.origin);
+                let far = corners
+                    .iter()
+                    .map(|c| (*c - p).length())
+                    .fold(0.0, f64::max);
+                if far > self.t_max * (1.0 + 1e-9) {
+                    c.t_max = far;
+                }
+                (c, 0.0)
+            }
             Projection::Perspective => {
                 let p = v(self.origin);
                 let far = corners
@@ -108,6 +119,10 @@ impl Camera {
             pixels: 0.0,
             world: 0.0,
         };
+        if super::is_omni(self.kind) {
+            // Every direction is in the map.
+            return None;
+        }
         for c in corners {
             let (rel, scale) = match self.kind {
                 Projection::Ortho => (*c - v(self.origin), s),
@@ -122,6 +137,7 @@ impl Camera {
                     }
                     (d / z - v(self.direction), s * z)
                 }
+                Projection::Cube | Projection::LatLong => return None,
             };
             let (x, y) = (rel.dot(r) / s, -rel.dot(u) / s);
             let out = (-0.5 - x)

@@ -159,9 +159,12 @@ fn encode_exr(
 ) -> std::result::Result<Vec<u8>, String> {
     let c = &map.camera;
     let size = (c.width as usize, c.height as usize);
+    // An omnidirectional map has no image plane: `envmap` instead of the camera matrices.
+    let omni = crate::bake::camera::is_omni(c.kind);
     let mut a = LayerAttributes {
-        world_to_camera: Some(m44f(c.world_to_camera())),
-        world_to_normalized_device: Some(m44f(c.world_to_ndc())),
+        world_to_camera: (!omni).then(|| m44f(c.world_to_camera())),
+        world_to_normalized_device: (!omni).then(|| m44f(c.world_to_ndc())),
+        environment_map: envmap(c.kind),
         software_name: Some(Text::from(concat!("umbra ", env!("CARGO_PKG_VERSION")))),
         comments: Some(Text::from(
             "T = exp(-tau) along each pixel's ray; see the umbra:* attributes",
@@ -232,6 +235,15 @@ fn encode_exr(
     Ok(bytes)
 }
 
+/// OpenEXR's `envmap` of an omnidirectional map (`None` for others).
+pub(crate) fn envmap(kind: Projection) -> Option<exr::meta::attribute::EnvironmentMap> {
+    match kind {
+        Projection::Cube => Some(exr::meta::attribute::EnvironmentMap::Cube),
+        Projection::LatLong => Some(exr::meta::attribute::EnvironmentMap::LatitudeLongitude),
+        _ => None,
+    }
+}
+
 /// The `umbra:*` header attributes of a map (camera, estimator, provenance, slice depths), by
 /// full name: what flat and deep maps both carry.
 pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, AttributeValue)> {
@@ -240,6 +252,8 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
     let kind = match c.kind {
         Projection::Ortho => "ortho",
         Projection::Perspective => "perspective",
+        Projection::Cube => "cube",
+        Projection::LatLong => "latlong",
     };
     let mut attrs: Vec<(String, AttributeValue)> = vec![
         ("camera_kind".into(), text(kind)),
@@ -281,6 +295,17 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
     }
     if let Some(s) = prov.sigma_t {
         attrs.push(("sigma_t".into(), v3d(s)));
+    }
+    if crate::bake::camera::is_omni(c.kind) {
+        // The map's axes in the world (module `camera::omni`): X_m = -right, Y_m = up,
+        // Z_m = forward.
+        let r = c.right();
+        attrs.push((
+            "omni_x".into(),
+            v3d([-r[0] + 0.0, -r[1] + 0.0, -r[2] + 0.0]),
+        ));
+        attrs.push(("omni_y".into(), v3d(c.up())));
+        attrs.push(("omni_z".into(), v3d(c.forward())));
     }
     if let Some((h, _)) = c.fov_deg() {
         attrs.push(("fov_deg".into(), AttributeValue::F64(h)));

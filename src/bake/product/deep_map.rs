@@ -378,15 +378,20 @@ fn estimated_profile(flat: &Map, p: usize) -> PixelProfile {
 #[must_use]
 pub fn deep_attributes(flat: &Map, prov: &Provenance, stats: &DeepStats) -> DeepAttributes {
     let c = &flat.camera;
-    let mut extra = vec![
-        (
-            "worldToCamera".to_string(),
-            AttributeValue::Matrix4x4(m44f(c.world_to_camera())),
-        ),
-        (
-            "worldToNDC".to_string(),
-            AttributeValue::Matrix4x4(m44f(c.world_to_ndc())),
-        ),
+    let mut extra = match crate::bake::encode::exr::envmap(c.kind) {
+        Some(e) => vec![("envmap".to_string(), AttributeValue::EnvironmentMap(e))],
+        None => vec![
+            (
+                "worldToCamera".to_string(),
+                AttributeValue::Matrix4x4(m44f(c.world_to_camera())),
+            ),
+            (
+                "worldToNDC".to_string(),
+                AttributeValue::Matrix4x4(m44f(c.world_to_ndc())),
+            ),
+        ],
+    };
+    extra.extend([
         (
             "software".to_string(),
             AttributeValue::Text(Text::from(concat!("umbra ", env!("CARGO_PKG_VERSION")))),
@@ -402,7 +407,7 @@ pub fn deep_attributes(flat: &Map, prov: &Provenance, stats: &DeepStats) -> Deep
             "umbra:deep_error".to_string(),
             AttributeValue::F64(stats.max_error),
         ),
-    ];
+    ]);
     extra.extend(
         umbra_attributes(flat, prov)
             .into_iter()

@@ -719,7 +719,7 @@ impl BakeJob {
         if light_dir.is_none() && light_pos.is_none() {
             match camera.kind() {
                 crate::bake::Projection::Ortho => light_dir = Some(camera.direction()),
-                crate::bake::Projection::Perspective => light_pos = Some(camera.origin()),
+                _ => light_pos = Some(camera.origin()),
             }
         }
         let provenance = Provenance {

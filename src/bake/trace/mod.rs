@@ -109,7 +109,7 @@ impl Px {
 
 impl BakeStats {
     /// Add the counts of `o` (pixels, bands) to these; `rays` and `seconds` are the caller's.
-    fn absorb(&mut self, o: &BakeStats) {
+    pub(crate) fn absorb(&mut self, o: &BakeStats) {
         self.samples += o.samples;
         self.lookups += o.lookups;
         self.capped += o.capped;

@@ -175,6 +175,8 @@ fn report(
             match c.kind() {
                 Projection::Ortho => "ortho",
                 Projection::Perspective => "perspective",
+                Projection::Cube => "cube",
+                Projection::LatLong => "latlong",
             },
             prov.source_file,
             prov.grid,

@@ -27,8 +27,11 @@
 //!   from `P` through `D + i s_x + j s_y`). Each row narrows that to a column span (linear in
 //!   the column for parallel rays; for a pinhole, where the row's plane cuts the box's edges),
 //!   and each pixel's ray is then clipped to the box exactly, so the footprint decides nothing.
-//!   A pinhole not strictly behind the whole clip box (a light inside or beside the volume)
-//!   would give unbounded footprints: such maps trace rays.
+//!   A pinhole inside or beside the clip box (a light in the smoke) is swept too: a block
+//!   reaching to or behind the pinhole's plane projects without bound where it crosses that
+//!   plane, so its footprint runs to the image's edge on those sides (`straddling_rect`);
+//!   only the few blocks around the light's plane are that wide. Cube maps go face by face
+//!   (`render_cube`), six pinholes at the light.
 //! - **Slices.** Slice `k` (depth `t_k`) is the optical depth of `[0, t_k]`: a block's chord
 //!   `[a, b]` counts whole when `b <= t_k`, and a chord that straddles `t_k` adds one more lane
 //!   integrating `[a, t_k]`.
@@ -113,6 +116,10 @@ impl Rays {
     /// index space, or a pinhole that is not strictly behind the whole clip box (then some
     /// block's footprint is unbounded and the rays are traced instead).
     fn new(vol: &Volume, camera: &Camera) -> Result<Option<Self>> {
+        if crate::bake::camera::is_omni(camera.kind) {
+            // Not one projection: a cube map is swept face by face (`render_cube`).
+            return Ok(None);
+        }
         let r0 = camera.pixel_ray(0, 0)?;
         let (q0, d) = lookup_ray(vol, &r0, Interp::Trilinear);
         let (q0, d) = (DVec3::from(q0), DVec3::from(d));
@@ -125,9 +132,7 @@ impl Rays {
         };
         let m = match camera.kind {
             Projection::Ortho => DMat3::from_cols(qx, qy, d),
-            Projection::Perspective => {
-                DMat3::from_cols(vol.to_index_dir(DVec3::from(camera.direction)), qx, qy)
-            }
+            _ => DMat3::from_cols(vol.to_index_dir(DVec3::from(camera.direction)), qx, qy),
         };
         let det = m.determinant();
         if !(det.is_finite() && det != 0.0) {
@@ -143,15 +148,9 @@ impl Rays {
                 inv_d: d.recip(),
                 inv,
             }),
-            Projection::Perspective => {
-                let in_front = box_corners([clip_lo, clip_hi])
-                    .iter()
-                    .all(|&c| (inv * (c - q0)).x > 0.0);
-                if !in_front {
-                    return Ok(None);
-                }
-                Layout::Pinhole { p: q0, inv }
-            }
+            // A pinhole inside or beside the clip box too: the blocks that reach behind its
+            // plane get the footprint of `pinhole_rect`.
+            _ => Layout::Pinhole { p: q0, inv },
         };
         Ok(Some(Self {
             layout,
@@ -177,13 +176,20 @@ impl Rays {
     /// (along the rays, or through the pinhole), grown by a pixel.
     fn footprint(&self, o: [i64; 3], dim: i64) -> Option<[u32; 4]> {
         let (blo, bhi) = self.clipped(o, dim)?;
+        if let &Layout::Pinhole { p, inv } = &self.layout {
+            let corners = box_corners([blo, bhi]).map(|c| inv * (c - p));
+            if corners.iter().any(|v| v.x <= 0.0) {
+                return self.straddling_rect(&corners);
+            }
+        }
         let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
         for c in box_corners([blo, bhi]) {
             // (column, row, t) of the corner; `t` only for parallel rays.
             let v = match &self.layout {
                 Layout::Parallel(par) => par.inv * (c - par.q0),
                 &Layout::Pinhole { p, inv } => {
-                    // `v0 > 0`: the clip box is in front of the pinhole (`Rays::new`).
+                    // `v0 > 0`: a box reaching behind the pinhole's plane went to
+                    // `straddling_rect`.
                     let v = inv * (c - p);
                     DVec3::new(v.y / v.x, v.z / v.x, 0.0)
                 }
@@ -203,6 +209,56 @@ impl Rays {
         };
         let (i0, i1) = range(lo.x, hi.x, self.width)?;
         let (j0, j1) = range(lo.y, hi.y, self.height)?;
+        Some([i0, i1, j0, j1])
+    }
+
+    /// The footprint of a box that reaches to or behind the pinhole's plane (`v0 <= 0` at some
+    /// corner `v = [D sx sy]^-1 (c - p)`), or `None` when it lies wholly there (rays run
+    /// `v = t (1, i, j)`, `t >= 0`, so they never enter `v0 < 0`). The part in front projects
+    /// to the corners with `v0 > 0` and, where the box crosses the plane `v0 = 0` at a point
+    /// `w`, without bound in the directions of `(w1, w2)`: the rect runs to the image's edge
+    /// on the side of each sign (both sides for 0).
+    fn straddling_rect(&self, corners: &[DVec3; 8]) -> Option<[u32; 4]> {
+        if corners.iter().all(|v| v.x <= 0.0) {
+            return None;
+        }
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        let mut open = |w: DVec3| {
+            for (k, c) in [w.y, w.z].into_iter().enumerate() {
+                if c >= 0.0 {
+                    hi[k] = f64::INFINITY;
+                }
+                if c <= 0.0 {
+                    lo[k] = f64::NEG_INFINITY;
+                }
+            }
+        };
+        for k in 0..8 {
+            let v = corners[k];
+            if v.x == 0.0 {
+                open(v);
+            }
+            for bit in [1, 2, 4] {
+                let m = k | bit;
+                let u = corners[m];
+                if m != k && (v.x > 0.0) != (u.x > 0.0) && v.x != 0.0 && u.x != 0.0 {
+                    open(v + (u - v) * (v.x / (v.x - u.x)));
+                }
+            }
+        }
+        for v in corners.iter().filter(|v| v.x > 0.0) {
+            for (k, c) in [v.y / v.x, v.z / v.x].into_iter().enumerate() {
+                lo[k] = lo[k].min(c);
+                hi[k] = hi[k].max(c);
+            }
+        }
+        let range = |a: f64, b: f64, n: u32| {
+            let (a, b) = ((a - 1.0).floor(), (b + 1.0).ceil());
+            (b >= 0.0 && a <= f64::from(n) - 1.0)
+                .then(|| (a.max(0.0) as u32, b.min(f64::from(n) - 1.0) as u32))
+        };
+        let (i0, i1) = range(lo[0], hi[0], self.width)?;
+        let (j0, j1) = range(lo[1], hi[1], self.height)?;
         Some([i0, i1, j0, j1])
     }
 
@@ -247,11 +303,17 @@ impl Rays {
 }
 
 /// The columns of `[i0, i1]` whose rays in row `j` can cross a box in front of a pinhole,
-/// given its corners as `v = [D sx sy]^-1 (c - p)` (see [`Layout::Pinhole`]; every `v0 > 0`):
+/// given its corners as `v = [D sx sy]^-1 (c - p)` (see [`Layout::Pinhole`]; when some
+/// `v0 <= 0` the whole `[i0, i1]`):
 /// row `j`'s rays fill the plane `g(v) = v2 - j v0 = 0`, which cuts the box in a convex polygon
 /// whose vertices lie on the box's edges; their columns `v1 / v0` bound the span, grown by a
 /// column ([`PixelDir::clip`] decides), or `None` when the plane misses the box.
 fn pinhole_span(corners: &[DVec3; 8], j: u32, [i0, i1]: [u32; 2]) -> Option<[u32; 2]> {
+    if corners.iter().any(|v| v.x <= 0.0) {
+        // A box reaching behind the pinhole's plane: its footprint's columns
+        // (`Rays::straddling_rect`); each ray is clipped to the box all the same.
+        return Some([i0, i1]);
+    }
     let y = f64::from(j);
     let g = corners.map(|v| v.z - y * v.x);
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -974,6 +1036,9 @@ pub(crate) fn render(
     rows: u32,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<Map>> {
+    if let Some(faces) = camera.cube_faces() {
+        return render_cube(vol, camera, &faces, s, depths, progress);
+    }
     let start = std::time::Instant::now();
     let Some(sweep) = Sweep::new(vol, camera, rows, depths)? else {
         return Ok(None);
@@ -993,6 +1058,44 @@ pub(crate) fn render(
         })
         .collect::<Result<_>>()?;
     Ok(Some(assemble(camera, s, depths, t_image, &bands, start)))
+}
+
+/// A cube map swept face by face ([`Camera::cube_faces`]: six pinholes at the light whose
+/// images, stacked, are the cube's), or `None` when a face cannot be swept.
+fn render_cube(
+    vol: &Volume,
+    camera: &Camera,
+    faces: &[Camera; 6],
+    s: &BakeSettings,
+    depths: &[f64],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Option<Map>> {
+    let rows = super::band_rows(faces[0].height, rayon::current_num_threads());
+    let mut cube: Option<Map> = None;
+    for face in faces {
+        let Some(m) = render(vol, face, s, depths, rows, progress)? else {
+            return Ok(None);
+        };
+        match &mut cube {
+            None => cube = Some(m),
+            Some(c) => {
+                c.t.extend_from_slice(&m.t);
+                if let (Some(a), Some(b)) = (&mut c.std_err, &m.std_err) {
+                    a.extend_from_slice(b);
+                }
+                for (a, b) in c.slices.iter_mut().zip(&m.slices) {
+                    a.extend_from_slice(b);
+                }
+                c.stats.absorb(&m.stats);
+                c.stats.rays += m.stats.rays;
+                c.stats.seconds += m.stats.seconds;
+            }
+        }
+    }
+    Ok(cube.map(|mut c| {
+        c.camera = *camera;
+        c
+    }))
 }
 
 /// A finished band of rows from `y0`: `T = exp(-tau)` of each pixel into `t_band`, and its
@@ -1222,6 +1325,18 @@ pub(crate) fn tau_image(
     rows: u32,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<(Vec<f64>, u64)>> {
+    if let Some(faces) = camera.cube_faces() {
+        let rows = super::band_rows(faces[0].height, rayon::current_num_threads());
+        let (mut tau, mut lookups) = (Vec::new(), 0);
+        for face in &faces {
+            let Some((t, l)) = tau_image(vol, face, depths, rows, progress)? else {
+                return Ok(None);
+            };
+            tau.extend_from_slice(&t);
+            lookups += l;
+        }
+        return Ok(Some((tau, lookups)));
+    }
     let Some(sweep) = Sweep::new(vol, camera, rows, depths)? else {
         return Ok(None);
     };
