@@ -41,6 +41,7 @@ __all__ = [
     "estimators",
     "info",
     "job_status",
+    "sample_omni",
     "run_job",
     "usd_lights",
     "write_exr",
@@ -237,6 +238,89 @@ def run_job(
     return json.loads(report)
 
 
+def sample_omni(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
+    """Look an omnidirectional map (``umbra bake --omni cube|latlong``) up toward world
+    ``points``: for each point ``p``, the map's value along the ray from the light ``P`` through
+    ``p`` (T of that whole ray, as the map holds it), bilinear between the texels around the
+    direction, as OpenEXR's ``ImfEnvmap`` places them.
+
+    ``image``: the map as read, ``(H, W)`` or ``(H, W, C)``. ``header``: the EXR's attributes
+    as OpenImageIO's ``spec.extra_attribs`` give them (``umbra:camera_kind``,
+    ``umbra:camera_origin``, ``umbra:omni_x``/``_y``/``_z``), or the dict ``bake`` and
+    ``Volume.bake`` return (its ``camera``). ``points``: ``(3,)`` or ``(K, 3)``. Returns
+    ``(K,)`` (or ``(K, C)``).
+
+    The direction ``d = p - P`` in the map's axes, ``(x, y, z) = (d . X_m, d . Y_m, d . Z_m)``,
+    lands at (the inverse of the texel directions of ``docs/omni.md``):
+
+    - latlong (``W x H``): ``lat = asin(y / |d|)``, ``lon = atan2(x, z)``, at
+      ``(W - 1) (1/2 - lon / 2 pi), (H - 1) (1/2 - lat / pi)``;
+    - cube (``N x 6N``): the face of the largest ``|component|`` (``+X, -X, +Y, -Y, +Z, -Z``
+      from the top); in it OpenEXR's ``faceAndPixelPosition`` and ``pixelPosition``.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim not in (2, 3):
+        raise _invalid("image", f"expected (H, W) or (H, W, C), got shape {img.shape}")
+    h, w = img.shape[:2]
+    if "camera" in header and isinstance(header["camera"], dict):
+        cam = header["camera"]
+        kind, origin = cam.get("kind"), cam.get("origin")
+        fwd = np.asarray(cam.get("direction", (0, 0, 1)), dtype=np.float64)
+        sx = np.asarray(cam.get("step_x", (-1, 0, 0)), dtype=np.float64)
+        sy = np.asarray(cam.get("step_y", (0, -1, 0)), dtype=np.float64)
+        axes = (-sx / np.linalg.norm(sx), -sy / np.linalg.norm(sy), fwd / np.linalg.norm(fwd))
+    else:
+        kind, origin = header.get("umbra:camera_kind"), header.get("umbra:camera_origin")
+        axes = tuple(np.asarray(header.get(f"umbra:omni_{a}", e), dtype=np.float64)
+                     for a, e in (("x", (1, 0, 0)), ("y", (0, 1, 0)), ("z", (0, 0, 1))))
+    if kind not in ("cube", "latlong") or origin is None:
+        raise _invalid("header", f"not an omnidirectional map (camera kind {kind!r})")
+    p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise _invalid("points", f"expected (3,) or (K, 3), got shape {np.shape(points)}")
+    d = p - np.asarray(origin, dtype=np.float64)
+    x, y, z = (d @ a for a in axes)
+    if kind == "latlong":
+        n = np.sqrt(x * x + y * y + z * z)
+        lat = np.arcsin(np.clip(np.divide(y, n, out=np.zeros_like(y), where=n > 0), -1, 1))
+        lon = np.where((x == 0) & (z == 0), 0.0, np.arctan2(x, z))
+        px = (w - 1) * (0.5 - lon / (2 * np.pi))
+        py = (h - 1) * (0.5 - lat / np.pi)
+        lo = np.zeros_like(px)
+        hi_x, hi_y = np.full_like(px, w - 1.0), np.full_like(py, h - 1.0)
+        y0 = lo
+    else:
+        sof = w
+        m = sof - 1.0
+        ax, ay, az = np.abs(x), np.abs(y), np.abs(z)
+        face = np.where((ax >= ay) & (ax >= az), np.where(x > 0, 0, 1),
+                        np.where(ay >= az, np.where(y > 0, 2, 3), np.where(z > 0, 4, 5)))
+        big = np.choose(np.minimum(face // 2, 2), [ax, ay, az])
+        big = np.where(big == 0, 1.0, big)
+        u = np.choose(face // 2, [y, x, x]) / big
+        v = np.choose(face // 2, [z, z, y]) / big
+        pif_x, pif_y = (u + 1) / 2 * m, (v + 1) / 2 * m
+        # OpenEXR's pixelPosition, per face, within the face's rows [f N, f N + m].
+        fx = np.choose(face, [pif_y, m - pif_y, pif_x, pif_x, m - pif_x, pif_x])
+        fy = np.choose(face, [m - pif_x, m - pif_x, m - pif_y, pif_y, m - pif_y, m - pif_y])
+        y0 = face * float(sof)
+        px, py = fx, y0 + fy
+        lo = np.zeros_like(px)
+        hi_x, hi_y = np.full_like(px, m), y0 + m
+    px = np.clip(px, lo, hi_x)
+    py = np.clip(py, y0, hi_y)
+    i0 = np.floor(px).astype(np.int64)
+    j0 = np.floor(py).astype(np.int64)
+    i1 = np.minimum(i0 + 1, hi_x.astype(np.int64))
+    j1 = np.minimum(j0 + 1, hi_y.astype(np.int64))
+    fx_, fy_ = px - i0, py - j0
+    if img.ndim == 3:
+        fx_, fy_ = fx_[:, None], fy_[:, None]
+    out = ((img[j0, i0] * (1 - fx_) + img[j0, i1] * fx_) * (1 - fy_)
+           + (img[j1, i0] * (1 - fx_) + img[j1, i1] * fx_) * fy_)
+    return out
+
+
 def job_status(path: PathLike, *, logs: Sequence[PathLike] = ()) -> Dict[str, Any]:
     """Where a batch job stands, as ``umbra batch PATH --status --json`` reports it: lists
     ``done`` (output on disk and up to date), ``failed`` (with the ``error`` a log records) and
@@ -302,6 +386,7 @@ def bake(
     light_dir: Optional[Vec3] = None,
     light_pos: Optional[Vec3] = None,
     ortho: bool = False,
+    omni: Optional[str] = None,
     fov: Optional[float] = None,
     up: Optional[Vec3] = None,
     frame_box: Any = None,
@@ -370,7 +455,8 @@ def bake(
         _path("input", input),
         _path("output", output),
         _options(
-            grid=grid, light_dir=light_dir, light_pos=light_pos, ortho=ortho, fov=fov, up=up,
+            grid=grid, light_dir=light_dir, light_pos=light_pos, ortho=ortho, omni=omni,
+            fov=fov, up=up,
             frame_box=frame_box, xform=xform, frame=frame,
             volume=None if volume is None else [str(v) for v in volume], field=field,
             light=light, usd_out=usd_out, camera=camera, res=res, tile=tile,
@@ -759,6 +845,7 @@ class Volume:
         up: Optional[Vec3] = None,
         *,
         ortho: bool = False,
+        omni: Optional[str] = None,
         fov: Optional[float] = None,
         frame_box: Any = None,
         camera: Union[None, Dict[str, Any], PathLike] = None,
@@ -781,7 +868,8 @@ class Volume:
         ``xform`` are this Volume's. ``light_dir``: an orthographic map along the direction the
         light travels, framing the volume; ``light_pos``: a perspective map from the light
         (``ortho=True``: an orthographic one whose image plane passes through it; ``fov`` in
-        degrees across the long side). ``res``: ``(W, H)``, or ``N`` pixels on the long side
+        degrees across the long side; ``omni="cube"`` or ``"latlong"``: every direction around
+        it, :func:`sample_omni` reads it). ``res``: ``(W, H)``, or ``N`` pixels on the long side
         (default 1024). ``up``: the world direction up in the map. ``frame_box``: frame this
         world box ``[[x0, y0, z0], [x1, y1, z1]]`` instead of the volume's. ``camera``: reuse
         exactly an earlier map's camera (its dict, or the path of its EXR or JSON), so maps of
@@ -798,8 +886,9 @@ class Volume:
         out = self._v.bake(
             _options(
                 light_dir=light_dir, light_pos=light_pos, res=res, estimator=estimator,
-                samples=samples, seed=seed, up=up, ortho=ortho, fov=fov, frame_box=frame_box,
-                camera=camera, target_error=target_error, max_spp=max_spp, stderr=stderr,
+                samples=samples, seed=seed, up=up, ortho=ortho, omni=omni, fov=fov,
+                frame_box=frame_box, camera=camera, target_error=target_error, max_spp=max_spp,
+                stderr=stderr,
                 step=step, kernel=kernel, points=points, granularity=granularity,
                 global_majorant=global_majorant, threads=threads,
             )

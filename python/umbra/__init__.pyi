@@ -18,6 +18,7 @@ __all__ = [
     "estimators",
     "info",
     "job_status",
+    "sample_omni",
     "run_job",
     "usd_lights",
     "write_exr",
@@ -50,6 +51,7 @@ def bake(
     light_dir: Optional[Vec3] = None,
     light_pos: Optional[Vec3] = None,
     ortho: bool = False,
+    omni: Optional[str] = None,
     fov: Optional[float] = None,
     up: Optional[Vec3] = None,
     frame_box: Optional[npt.ArrayLike] = None,
@@ -101,6 +103,9 @@ def run_job(
     jobs: int = ...,
     progress: Optional[Callable[[int, int], Any]] = ...,
 ) -> Dict[str, Any]: ...
+def sample_omni(
+    image: npt.ArrayLike, header: Dict[str, Any], points: npt.ArrayLike
+) -> npt.NDArray[np.float64]: ...
 def job_status(path: PathLike, *, logs: Sequence[PathLike] = ...) -> Dict[str, Any]: ...
 def emit_job(
     path: PathLike,
@@ -285,6 +290,7 @@ class Volume:
         up: Optional[Vec3] = None,
         *,
         ortho: bool = False,
+        omni: Optional[str] = None,
         fov: Optional[float] = None,
         frame_box: Optional[npt.ArrayLike] = None,
         camera: Union[None, _Camera, PathLike] = None,
@@ -312,6 +318,7 @@ class Volume:
         up: Optional[Vec3] = None,
         *,
         ortho: bool = False,
+        omni: Optional[str] = None,
         fov: Optional[float] = None,
         frame_box: Optional[npt.ArrayLike] = None,
         camera: Union[None, _Camera, PathLike] = None,
@@ -339,6 +346,7 @@ class Volume:
         up: Optional[Vec3] = None,
         *,
         ortho: bool = False,
+        omni: Optional[str] = None,
         fov: Optional[float] = None,
         frame_box: Optional[npt.ArrayLike] = None,
         camera: Union[None, _Camera, PathLike] = None,

@@ -284,26 +284,35 @@ fn footprints_cover_what_the_rays_cross() {
     }
 }
 
-/// A light inside the volume's box (framed with a field of view) has blocks beside and behind
-/// it, whose footprints are unbounded: the sweep declines and the map traces rays.
+/// A light inside the volume's box (framed with a field of view, looking along each axis and
+/// obliquely) has blocks beside and behind it: those that reach behind the pinhole's plane get
+/// footprints running to the image's edge, and every pixel still equals the ray path. The
+/// light also sits exactly on a lattice corner of the grid.
 #[test]
-fn a_light_inside_the_box_traces_rays() {
+fn a_light_inside_the_box_is_swept_exactly() {
     let fbm =
         std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus/gen/cloud_fbm.vdb");
     let vol = Volume::load(&fbm, "density", 5.0).expect("cloud_fbm");
     let corners = vol.box_corners().expect("box");
     let centre = corners.iter().fold(DVec3::ZERO, |a, &c| a + c) / 8.0;
-    let view = View {
-        projection: Projection::Perspective,
-        light_dir: Some([0.0, 0.0, -1.0]),
-        light_pos: Some(centre.to_array()),
-        fov_deg: Some(60.0),
-        res: Some(Resolution::Exact(16, 16)),
-        up: None,
-        frame_box: None,
-    };
-    let camera = Camera::frame(&view, &corners).expect("camera");
-    assert!(Sweep::new(&vol, &camera, 16, &[]).expect("plan").is_none());
+    let lattice = vol.to_world(vol.to_index(centre).round());
+    for light in [centre, lattice] {
+        for dir in [[0.0, 0.0, -1.0], [1.0, 0.0, 0.0], [0.3, -0.8, 0.5]] {
+            let view = View {
+                projection: Projection::Perspective,
+                light_dir: Some(dir),
+                light_pos: Some(light.to_array()),
+                fov_deg: Some(100.0),
+                res: Some(Resolution::Exact(24, 20)),
+                up: None,
+                frame_box: None,
+            };
+            let camera = Camera::frame(&view, &corners).expect("camera");
+            assert!(Sweep::new(&vol, &camera, 16, &[]).expect("plan").is_some());
+            let (_, hit) = check(&vol, &camera, &format!("inside {light} looking {dir:?}"));
+            assert!(hit > 300, "{hit}");
+        }
+    }
 }
 
 /// Slices: pixel `n`'s slice `k` is the optical depth of `[0, t_k]`, including a depth inside
