@@ -744,3 +744,37 @@ fn status_reports_done_failed_and_missing_from_outputs_and_logs() {
     let (code, done, _, _, _) = status(&[]);
     assert_eq!((code, done.len()), (Some(0), 6));
 }
+
+/// A job of point lights takes `omni` like every bake option: each task writes a cube map
+/// (N x 6N, `envmap = cube`) around its light; a sun cannot have one and the job says so
+/// before anything runs.
+#[test]
+fn omni_jobs_bake_environment_maps_around_point_lights() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::copy(data("cloud.vdb"), dir.path().join("cloud.0001.vdb")).unwrap();
+    let job = dir.path().join("job.toml");
+    let text = |light: &str| {
+        format!(
+            "output = \"out/omni_{{light}}.{{frame:04}}.exr\"\n[[inputs]]\npattern = \
+             \"cloud.$F4.vdb\"\nframes = [1, 1]\n[[lights]]\n{light}\n[bake]\nomni = \
+             \"cube\"\nres = 8\n"
+        )
+    };
+    std::fs::write(&job, text("name = \"lamp\"\npos = [0.0, 1.5, 0.0]")).unwrap();
+    let out = batch(&job, &[]);
+    assert!(out.status.success(), "{out:?}");
+    let meta =
+        exr::meta::MetaData::read_from_file(dir.path().join("out/omni_lamp.0001.exr"), false)
+            .unwrap();
+    let h = &meta.headers[0];
+    assert_eq!((h.layer_size.0, h.layer_size.1), (8, 48));
+    assert_eq!(
+        h.own_attributes.environment_map,
+        Some(exr::meta::attribute::EnvironmentMap::Cube)
+    );
+    std::fs::write(&job, text("name = \"sun\"\ndir = [0.0, -1.0, 0.0]")).unwrap();
+    let out = batch(&job, &["--force"]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("omni") && err.contains("light-pos"), "{err}");
+}

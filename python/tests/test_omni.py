@@ -110,7 +110,7 @@ def test_openimageio_environment_lookup_agrees_with_the_latlong_map(cli, tmp_pat
     theirs = np.array(json.loads(p.stdout))
     t, header = _read(out)
     ours = umbra.sample_omni(t, header, np.asarray(LIGHT) + d)
-    assert np.abs(theirs - ours).max() < 1e-5, np.abs(theirs - ours).max()
+    assert np.abs(theirs - ours).max() < 1e-6, np.abs(theirs - ours).max()
 
 
 def test_omni_options_are_refused_where_they_do_not_apply(cli, tmp_path):
