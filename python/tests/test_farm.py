@@ -137,10 +137,17 @@ def test_python_emits_and_reports_as_the_cli_does(cli, umbra_bin, tmp_path, monk
     monkeypatch.setenv("USER", "td_bob")
     job = _job(tmp_path / "shot", corrupt=3)
     for engine in ("openjd", "opencue", "slurm"):
-        _, out, _ = cli("batch", job, "--emit", engine, "--chunk", "2", "--shot", "sh020")
+        cue = dict(shot="sh020") if engine == "opencue" else {}
+        _, out, _ = cli("batch", job, "--emit", engine, "--chunk", "2",
+                        *(["--shot", "sh020"] if cue else []))
         got = umbra.emit_job(job, engine, umbra=pathlib.Path(umbra_bin).resolve(), chunk=2,
-                             shot="sh020")
+                             **cue)
         assert got == out, engine
+    # Show and shot are OpenCue's: elsewhere they are refused, not ignored.
+    code, _, err = cli("batch", job, "--emit", "slurm", "--show", "mars", check=False)
+    assert code == 1 and "'--show'" in err, err
+    with pytest.raises(umbra.InvalidArgument, match="shot"):
+        umbra.emit_job(job, "openjd", umbra=umbra_bin, shot="sh010")
     with pytest.raises(umbra.InvalidArgument, match="engine"):
         umbra.emit_job(job, "tractor", umbra=umbra_bin)
     cli("batch", job, "--quiet", check=False)

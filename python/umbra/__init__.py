@@ -369,6 +369,10 @@ def emit_job(
     where = _path("directory", directory) if directory is not None else os.path.dirname(
         os.path.abspath(job))
     n = None if chunk is None else _count("chunk", chunk)
+    if str(engine) != "opencue":
+        for name, given in (("show", show), ("shot", shot)):
+            if given is not None:
+                raise _invalid(name, "applies to the \"opencue\" engine")
     cue = (
         str(show if show is not None else os.environ.get("SHOW") or "testing"),
         str(shot if shot is not None else os.environ.get("SHOT") or "default"),

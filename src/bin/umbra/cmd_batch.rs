@@ -91,6 +91,10 @@ fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCo
     if a.chunk == Some(0) {
         anyhow::bail!("invalid argument '--chunk': give N >= 1 job tasks per farm task");
     }
+    if !matches!(engine, Engine::Opencue) && (a.show.is_some() || a.shot.is_some()) {
+        let flag = if a.show.is_some() { "--show" } else { "--shot" };
+        anyhow::bail!("invalid argument '{flag}': applies to --emit opencue");
+    }
     let chunks = umbra::batch::emit::Chunks::of(job, a.chunk);
     let dir = match &a.output {
         Some(o) => o.parent(),
