@@ -202,13 +202,8 @@ impl Rays {
         if behind || !(lo.is_finite() && hi.is_finite()) {
             return None;
         }
-        let range = |a: f64, b: f64, n: u32| {
-            let (a, b) = ((a - 1.0).floor(), (b + 1.0).ceil());
-            (b >= 0.0 && a <= f64::from(n) - 1.0)
-                .then(|| (a.max(0.0) as u32, b.min(f64::from(n) - 1.0) as u32))
-        };
-        let (i0, i1) = range(lo.x, hi.x, self.width)?;
-        let (j0, j1) = range(lo.y, hi.y, self.height)?;
+        let (i0, i1) = pixel_range(lo.x, hi.x, self.width)?;
+        let (j0, j1) = pixel_range(lo.y, hi.y, self.height)?;
         Some([i0, i1, j0, j1])
     }
 
@@ -252,13 +247,8 @@ impl Rays {
                 hi[k] = hi[k].max(c);
             }
         }
-        let range = |a: f64, b: f64, n: u32| {
-            let (a, b) = ((a - 1.0).floor(), (b + 1.0).ceil());
-            (b >= 0.0 && a <= f64::from(n) - 1.0)
-                .then(|| (a.max(0.0) as u32, b.min(f64::from(n) - 1.0) as u32))
-        };
-        let (i0, i1) = range(lo[0], hi[0], self.width)?;
-        let (j0, j1) = range(lo[1], hi[1], self.height)?;
+        let (i0, i1) = pixel_range(lo[0], hi[0], self.width)?;
+        let (j0, j1) = pixel_range(lo[1], hi[1], self.height)?;
         Some([i0, i1, j0, j1])
     }
 
@@ -303,17 +293,12 @@ impl Rays {
 }
 
 /// The columns of `[i0, i1]` whose rays in row `j` can cross a box in front of a pinhole,
-/// given its corners as `v = [D sx sy]^-1 (c - p)` (see [`Layout::Pinhole`]; when some
-/// `v0 <= 0` the whole `[i0, i1]`):
+/// given its corners as `v = [D sx sy]^-1 (c - p)` (see [`Layout::Pinhole`]; every `v0 > 0`,
+/// the caller takes the whole span of a box reaching behind the pinhole's plane):
 /// row `j`'s rays fill the plane `g(v) = v2 - j v0 = 0`, which cuts the box in a convex polygon
 /// whose vertices lie on the box's edges; their columns `v1 / v0` bound the span, grown by a
 /// column ([`PixelDir::clip`] decides), or `None` when the plane misses the box.
 fn pinhole_span(corners: &[DVec3; 8], j: u32, [i0, i1]: [u32; 2]) -> Option<[u32; 2]> {
-    if corners.iter().any(|v| v.x <= 0.0) {
-        // A box reaching behind the pinhole's plane: its footprint's columns
-        // (`Rays::straddling_rect`); each ray is clipped to the box all the same.
-        return Some([i0, i1]);
-    }
     let y = f64::from(j);
     let g = corners.map(|v| v.z - y * v.x);
     let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
@@ -340,6 +325,14 @@ fn pinhole_span(corners: &[DVec3; 8], j: u32, [i0, i1]: [u32; 2]) -> Option<[u32
         (hi + 1.0).ceil().min(f64::from(i1)),
     );
     (lo <= hi).then_some([lo as u32, hi as u32])
+}
+
+/// The pixels `[a - 1, b + 1]` (rounded out) of a side of `n`, clipped to it; `None` when
+/// they miss it. Infinite bounds run to the edge.
+fn pixel_range(a: f64, b: f64, n: u32) -> Option<(u32, u32)> {
+    let (a, b) = ((a - 1.0).floor(), (b + 1.0).ceil());
+    (b >= 0.0 && a <= f64::from(n) - 1.0)
+        .then(|| (a.max(0.0) as u32, b.min(f64::from(n) - 1.0) as u32))
 }
 
 /// One perspective pixel's ray in lookup space: its direction and `1 / d` per axis.
@@ -865,8 +858,16 @@ impl<'a> Sweep<'a> {
                     return;
                 };
                 let corners = box_corners([bx.0, bx.1]).map(|c| inv * (c - q));
+                // A box reaching behind the pinhole's plane: its footprint's columns
+                // (`Rays::straddling_rect`); each ray is clipped to the box all the same.
+                let straddles = corners.iter().any(|v| v.x <= 0.0);
                 for j in ja..=jb {
-                    let Some([i0, i1]) = pinhole_span(&corners, j, [i0, i1]) else {
+                    let span = if straddles {
+                        Some([i0, i1])
+                    } else {
+                        pinhole_span(&corners, j, [i0, i1])
+                    };
+                    let Some([i0, i1]) = span else {
                         continue;
                     };
                     for i in i0..=i1 {
