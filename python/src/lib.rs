@@ -145,7 +145,7 @@ fn run_job(
     let callback = PyProgress {
         callback: progress,
         total: std::sync::atomic::AtomicU64::new(0),
-        done: std::sync::atomic::AtomicU64::new(0),
+        done: std::sync::Mutex::new(0),
     };
     let report = py
         .detach(|| umbra::batch::run(&job, &opts, &callback))
@@ -201,24 +201,27 @@ fn emit_job(
 }
 
 /// The runner's progress as calls of a Python callable `progress(done, total)`.
+///
+/// The runner's threads finish work in any order; the count is kept under a lock that is held
+/// while the callable runs, so the calls see `done` rise monotonically (lock order: this lock,
+/// then the GIL, on every thread).
 struct PyProgress {
     callback: Option<Py<PyAny>>,
     total: std::sync::atomic::AtomicU64,
-    done: std::sync::atomic::AtomicU64,
+    done: std::sync::Mutex<u64>,
 }
 
 impl umbra::batch::Progress for PyProgress {
     fn start(&self, _tasks: usize, units: u64) {
         self.total
             .store(units, std::sync::atomic::Ordering::Relaxed);
-        self.call(0);
+        let done = self.done.lock().unwrap_or_else(|p| p.into_inner());
+        self.call(*done);
     }
     fn advance(&self, units: u64) {
-        let done = self
-            .done
-            .fetch_add(units, std::sync::atomic::Ordering::Relaxed)
-            + units;
-        self.call(done);
+        let mut done = self.done.lock().unwrap_or_else(|p| p.into_inner());
+        *done += units;
+        self.call(*done);
     }
 }
 
