@@ -79,14 +79,37 @@ pub struct Volume {
 }
 
 fn sanitize(v: &mut f32, s: &mut Sanitized) {
-    if v.is_nan() {
-        s.nan += 1;
+    if s.tally(*v) {
         *v = 0.0;
-    } else if *v < 0.0 {
-        s.negative += 1;
-        *v = 0.0;
-    } else if *v == f32::INFINITY {
-        s.pos_inf += 1;
+    }
+}
+
+impl Sanitized {
+    /// Count `v` as the bad-voxel policy treats it (NaN and negative values are set to 0,
+    /// +Inf is kept as opaque); true when the policy replaces it.
+    pub(crate) fn tally(&mut self, v: f32) -> bool {
+        if v.is_nan() {
+            self.nan += 1;
+            true
+        } else if v < 0.0 {
+            self.negative += 1;
+            true
+        } else {
+            if v == f32::INFINITY {
+                self.pos_inf += 1;
+            }
+            false
+        }
+    }
+
+    /// Both counts together.
+    #[must_use]
+    pub fn merged(self, o: Self) -> Self {
+        Self {
+            nan: self.nan + o.nan,
+            negative: self.negative + o.negative,
+            pos_inf: self.pos_inf + o.pos_inf,
+        }
     }
 }
 

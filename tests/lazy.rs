@@ -550,6 +550,41 @@ fn bakes_in_parts_equal_whole_bakes_bit_for_bit() {
     }
     // Smaller budgets take more parts.
     assert!(parts[0] > parts[2] && parts[2] >= 2, "{parts:?}");
+    // A pinhole outside the cache and a cube map around a light inside it (six faces, each
+    // part swept into every face) are the same bytes in parts too.
+    use umbra::bake::{Projection, Resolution};
+    let views = [
+        (
+            Projection::Perspective,
+            [1.0, 20.0, 0.5],
+            Resolution::Exact(200, 160),
+        ),
+        (Projection::Cube, [1.0, 1.0, 0.5], Resolution::LongSide(48)),
+    ];
+    for (projection, at, res) in views {
+        let job = |name: &str, budget| {
+            let mut j = bake_job(&path, dir.path().join(name), budget);
+            j.view.projection = projection;
+            j.view.light_pos = Some(at);
+            j.view.light_dir = None;
+            j.view.res = Some(res);
+            j
+        };
+        let whole = job("view.exr", None).run(&|_| {}).unwrap();
+        let r = job("view-parts.exr", Some(least + (4 << 20)))
+            .run(&|_| {})
+            .unwrap();
+        assert!(
+            r.map.stats.parts >= 2,
+            "{projection:?}: {}",
+            r.map.stats.parts
+        );
+        assert!(r.map.stats.sweep, "{projection:?}");
+        assert_eq!(r.map.stats.lookups, whole.map.stats.lookups);
+        let a = std::fs::read(dir.path().join("view.exr")).unwrap();
+        let b = std::fs::read(dir.path().join("view-parts.exr")).unwrap();
+        assert!(a == b, "{projection:?}: the EXR files differ");
+    }
 }
 
 #[test]
@@ -603,6 +638,93 @@ fn ray_path_bakes_in_parts_equal_whole_bakes_bit_for_bit() {
         let reference = std::fs::read(dir.path().join("whole.exr")).unwrap();
         assert!(written == reference, "{name}: the EXR files differ");
     }
+}
+
+/// `path` with NaN, negative and +Inf voxels written into some of its clouds (pyopenvdb).
+fn with_bad_voxels(path: &std::path::Path, out: &std::path::Path) {
+    let script = r#"
+import sys, pyopenvdb as vdb
+g = vdb.read(sys.argv[1], "density")
+(lo, hi) = g.evalActiveVoxelBoundingBox()
+acc = g.getAccessor()
+bad = [float("nan")] * 3 + [-2.5, -0.25] + [float("inf")]
+for k, v in enumerate(bad):
+    t = (k + 0.5) / len(bad)
+    ijk = tuple(int(lo[a] + t * (hi[a] - lo[a])) for a in range(3))
+    acc.setValueOn(ijk, v)
+vdb.write(sys.argv[2], grids=[g])
+"#;
+    let o = std::process::Command::new("/usr/bin/python3")
+        .args(["-c", script])
+        .arg(path)
+        .arg(out)
+        .output()
+        .expect("python3-openvdb (Debian) writes the test cache");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
+#[test]
+fn bakes_in_parts_report_the_bad_voxels_a_whole_bake_reports() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bad.vdb");
+    with_bad_voxels(&tiled_cloud(dir.path()), &path);
+    let whole = bake_job(&path, dir.path().join("whole.exr"), None)
+        .run(&|_| {})
+        .unwrap();
+    let least = match bake_job(&path, dir.path().join("p.exr"), Some(1 << 20)).plan_bounded() {
+        Err(umbra::Error::InvalidArgument { reason, .. }) => {
+            let at_least = reason.split("at least ").nth(1).unwrap();
+            let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
+            (mib * f64::from(1 << 20)) as u64
+        }
+        other => panic!("{other:?}"),
+    };
+    let parts = bake_job(&path, dir.path().join("parts.exr"), Some(least + (4 << 20)))
+        .run(&|_| {})
+        .unwrap();
+    assert!(parts.map.stats.parts >= 2, "{}", parts.map.stats.parts);
+    let text = |r: &umbra::bake::BakeReport| format!("{:?}", r.warnings);
+    // 3 NaN and 2 negative voxels set to 0 (the +Inf one is kept, without a warning).
+    assert_eq!(text(&whole), "[BadVoxels { nan: 3, negative: 2 }]");
+    assert_eq!(text(&parts), text(&whole));
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&parts.map.t), bits(&whole.map.t));
+}
+
+/// Without `--max-memory`, an exact map of a cache that decodes to more than the implied
+/// budget (1 GiB) is swept in parts, never held whole: the same bytes as a whole bake (asked
+/// for with a budget it fits in).
+#[test]
+fn a_big_cache_is_swept_in_parts_without_a_budget() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("big.vdb");
+    let script = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tools/make_hero.py");
+    let o = std::process::Command::new("/usr/bin/python3")
+        .arg(&script)
+        .arg(&out)
+        .args(["--copies", "11", "10", "10"])
+        .output()
+        .expect("python3-openvdb (Debian) makes the test cache");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(std::fs::metadata(&out).unwrap().len() >= 64 << 20);
+    let job = |name: &str, budget| bake_job(&out, dir.path().join(name), budget);
+    let implied = job("implied.exr", None).run(&|_| {}).unwrap();
+    assert!(
+        implied.map.stats.parts >= 2,
+        "{} parts",
+        implied.map.stats.parts
+    );
+    let whole = job("whole.exr", Some(64 << 30)).run(&|_| {}).unwrap();
+    assert_eq!(whole.map.stats.parts, 0);
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&implied.map.t), bits(&whole.map.t));
+    let a = std::fs::read(dir.path().join("implied.exr")).unwrap();
+    let b = std::fs::read(dir.path().join("whole.exr")).unwrap();
+    assert!(a == b, "the EXR files differ");
+    // Other estimators load it whole, as before.
+    let mut ratio = job("ratio.exr", None);
+    ratio.settings.estimator = Estimator::from_name("ratio").unwrap();
+    assert!(ratio.plan_bounded().unwrap().is_none());
 }
 
 #[test]

@@ -9,12 +9,14 @@
 mod accessor;
 mod bounds;
 mod build;
+mod region;
 mod stats;
 
 pub use accessor::Accessor;
 pub(crate) use accessor::Block;
 pub use bounds::Bounds;
 pub use build::TreeBuilder;
+pub(crate) use region::{RegionIndex, REGION_LEAF_BYTES, REGION_LOWER_BYTES, REGION_UPPER_BYTES};
 pub use stats::TreeStats;
 
 /// log2 of a leaf's edge in voxels.

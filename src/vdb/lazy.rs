@@ -221,13 +221,65 @@ impl LazyGrid {
     /// holds it (after [`LazyGrid::take_shell`]).
     pub(crate) fn load_from(&self, topology: &crate::tree::Tree, leaves: &[u32]) -> Result<Grid> {
         let ids = self.check_leaves(leaves)?;
+        self.check_topology(topology)?;
+        self.decode(&ids, topology.clone())
+    }
+
+    /// The region of `topology` (this grid's, as [`LazyGrid::load_from`]) made of the lower
+    /// nodes `lowers` ([`crate::tree::Tree::region`]), with the values of `leaves` (topology
+    /// indices, each in a kept lower node) decoded and its bounds computed over the region
+    /// alone: what a part of a bake in parts holds, in place of a copy of the whole topology.
+    ///
+    /// # Errors
+    /// As [`LazyGrid::load`]; [`crate::Error::InvalidArgument`] for a leaf outside the kept
+    /// lower nodes.
+    pub(crate) fn load_region(
+        &self,
+        topology: &crate::tree::Tree,
+        lowers: &[u32],
+        leaves: &[u32],
+    ) -> Result<(Grid, crate::tree::RegionIndex)> {
+        let ids = self.check_leaves(leaves)?;
+        self.check_topology(topology)?;
+        let (mut tree, index) = topology.region(lowers);
+        let mut at = Vec::with_capacity(ids.len());
+        for &l in &ids {
+            at.push(index.leaf(l).ok_or_else(|| crate::Error::InvalidArgument {
+                name: "leaves".into(),
+                reason: format!("leaf {l} is outside the region's lower nodes"),
+            })?);
+        }
+        let mut values = vec![[0f32; 512]; ids.len()];
+        let precision = decode::decode_leaves(
+            &self.file,
+            &self.path,
+            self.stream,
+            topology,
+            &self.offsets,
+            &ids,
+            &mut values,
+        )?;
+        for (k, &r) in at.iter().enumerate() {
+            tree.leaves[r as usize].data = k as u32;
+        }
+        tree.values = values;
+        tree.shell = false;
+        tree.compute_bounds();
+        let mut grid = self.shell.clone_without_tree();
+        grid.tree = tree;
+        grid.precision_loss = self.with_topology_precision(precision);
+        Ok((grid, index))
+    }
+
+    /// An error unless `topology` has this grid's leaf count.
+    fn check_topology(&self, topology: &crate::tree::Tree) -> Result<()> {
         if topology.leaves.len() + 1 != self.offsets.len() {
             return Err(crate::Error::InvalidArgument {
                 name: "topology".into(),
                 reason: "not this grid's topology".into(),
             });
         }
-        self.decode(&ids, topology.clone())
+        Ok(())
     }
 
     /// [`LazyGrid::load`], giving up the lazy grid (its topology becomes the grid's tree

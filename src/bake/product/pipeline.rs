@@ -307,17 +307,20 @@ impl BakeJob {
 
     /// With a memory budget ([`BakeJob::max_memory`]) that the whole decoded grid and the
     /// image would exceed: the plan of a bake in parts (the grid opened lazily, the camera
-    /// framed from its topology, how many leaves a part may hold). `None` without a budget or
-    /// when everything fits: [`BakeJob::prepare`] and [`BakeJob::run_on`] then bake as usual.
+    /// framed from its topology, how big a part may be). Without a budget, an exact map the
+    /// sweep takes of an input of 64 MiB or more on disk is planned against
+    /// [`IMPLIED_BUDGET`] (1 GiB): a hero cache is swept a region at a time, never held
+    /// whole. `None` when everything fits (or, without a budget, when the map is not such a
+    /// sweep or one part would not fit): [`BakeJob::prepare`] and [`BakeJob::run_on`] then
+    /// bake as usual.
     ///
-    /// The budget counts the topology (kept while the parts come and go), one part's copy of
-    /// the tree with its neighbour tables and faces, the image, and the part's leaf values
-    /// (2 KiB each); the process's own code and stacks are outside it.
-    ///
-    /// Exact trilinear maps the sweep takes go in tree order, a group of lower nodes at a time
-    /// (`sweep::render_streamed`); every other map of one grid (any estimator, nearest
-    /// lookups, a light inside the volume, extinction above lower nodes) goes by runs of image
-    /// rows on the ray path, each run decoding the leaves its pixel rays touch. Scene files and
+    /// The budget counts the topology (kept while the parts come and go), the image and one
+    /// part; the process's own code and stacks are outside it. Exact trilinear maps the sweep
+    /// takes go in the sweep's order, a region of the tree at a time (`sweep::render_streamed`:
+    /// a part holds the lower nodes its blocks read, their leaves' topology and the values of
+    /// the leaves it decodes); every other map of one grid (any estimator, nearest lookups,
+    /// extinction above lower nodes) goes by runs of image rows on the ray path, each run
+    /// decoding the leaves its pixel rays touch onto a copy of the topology. Scene files and
     /// colour maps load whole.
     ///
     /// # Errors
@@ -326,8 +329,15 @@ impl BakeJob {
     /// whose rays touch more leaves than a part holds is baked as one part all the same);
     /// loading errors of the topology.
     pub fn plan_bounded(&self) -> Result<Option<BoundedPlan>> {
-        let Some(budget) = self.max_memory else {
-            return Ok(None);
+        let implied = self.max_memory.is_none();
+        let budget = match self.max_memory {
+            Some(b) => b,
+            // Without a budget, big caches the sweep takes go in parts all the same
+            // ([`IMPLIED_BUDGET`]); the size on disk is the cheap first test.
+            None if self.is_exact_sweep() && file_len(&self.input) >= IMPLIED_MIN_FILE => {
+                IMPLIED_BUDGET
+            }
+            None => return Ok(None),
         };
         self.check_outputs()?;
         self.settings.validate()?;
@@ -341,7 +351,7 @@ impl BakeJob {
         }
         let archive = crate::vdb::open(&self.input)?;
         let mut lazy = archive.open_lazy(archive.find_grid(&self.grid)?)?;
-        // The topology is kept once, in the shell volume; parts are decoded onto copies of it.
+        // The topology is kept once, in the shell volume.
         let loaded = lazy.loaded_memory_bytes();
         let leaves = lazy.leaf_count() as u64;
         let topology = lazy.shell().tree.memory_bytes();
@@ -364,62 +374,93 @@ impl BakeJob {
             return Ok(None);
         }
         let leaf = std::mem::size_of::<[f32; 512]>() as u64;
-        // Held throughout: the topology (in the shell volume). Per part: a copy of the tree
-        // with neighbour tables, faces and halos, and what computing its bounds holds for a
-        // moment (per leaf a halo, its neighbours and its bounds).
-        let tree_copy = loaded - leaves * leaf;
-        let transient = leaves * BOUNDS_SCRATCH_PER_LEAF;
-        let fixed = topology + tree_copy + transient + image + PROCESS_SLACK;
         // Exact trilinear maps the sweep takes go in tree order (the sweep's own order);
         // every other map by runs of image rows on the ray path.
-        let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR
-            && self.settings.options.interp == crate::volume::Interp::Trilinear
-            && self.settings.order == crate::bake::Order::Auto;
         let sweep = match shell.fogs().first() {
-            Some(f) => exact && crate::bake::trace::sweep::streams(f.volume(), &camera)?,
+            Some(f) => {
+                self.is_exact_sweep() && crate::bake::trace::sweep::streams(f.volume(), &camera)?
+            }
             None => false,
         };
-        // The least part: the lower node with the most leaves in its `[o, o + 128]` box.
+        if implied && !sweep {
+            // Only the sweep goes in parts at no cost in time: the rest loads whole.
+            return Ok(None);
+        }
         let Some(topo) = shell.fogs().first().map(|f| f.volume().tree()) else {
             return Ok(None);
         };
-        let widest = topo
-            .lowers()
-            .iter()
-            .map(|n| {
-                let o = n.origin.map(i64::from);
-                let mut k = 0u64;
-                topo.leaves_in_box(o, o.map(|c| c + 128), &mut |_| k += 1);
-                k
-            })
-            .max()
-            .unwrap_or(0);
-        let least = (fixed + widest * leaf).min(whole);
+        // Held throughout: the topology (in the shell volume), the image and the process.
+        let held = topology + image + PROCESS_SLACK;
+        let (least, what, group_leaves, part_bytes) = if sweep {
+            // A sweep's part is a region of the tree: the lower nodes its blocks read with
+            // their leaves' topology, the upper nodes above them, and its leaves' values
+            // (`sweep::part_bytes`). The least part holds one lower node.
+            let uppers = topo.uppers().len() as u64 * crate::tree::REGION_UPPER_BYTES;
+            let fixed = held + uppers;
+            let widest = (0..topo.lowers().len())
+                .map(|l| crate::bake::trace::sweep::part_bytes(topo, l))
+                .max()
+                .unwrap_or(0);
+            let least = (fixed + widest).min(whole);
+            let part = budget.saturating_sub(fixed);
+            (
+                least,
+                format!("the largest part's region, {}", mib(widest)),
+                0,
+                part,
+            )
+        } else {
+            // Per part on the ray path: a copy of the tree with neighbour tables, faces and
+            // halos, and what computing its bounds holds for a moment (per leaf a halo, its
+            // neighbours and its bounds).
+            let tree_copy = loaded - leaves * leaf;
+            let transient = leaves * BOUNDS_SCRATCH_PER_LEAF;
+            let fixed = held + tree_copy + transient;
+            // The least part: the lower node with the most leaves in its `[o, o + 128]` box.
+            let widest = topo
+                .lowers()
+                .iter()
+                .map(|n| {
+                    let o = n.origin.map(i64::from);
+                    let mut k = 0u64;
+                    topo.leaves_in_box(o, o.map(|c| c + 128), &mut |_| k += 1);
+                    k
+                })
+                .max()
+                .unwrap_or(0);
+            let least = (fixed + widest * leaf).min(whole);
+            let group = usize::try_from(budget.saturating_sub(fixed) / leaf).unwrap_or(usize::MAX);
+            let what = format!("a part's copy of the tree and the largest part's {widest} leaves");
+            (least, what, group, 0)
+        };
+        if budget < least && implied {
+            return Ok(None);
+        }
         if budget < least {
             return Err(refuse(format!(
-                "{} is below what baking {} needs: at least {} in parts (its topology, a \
-                 part's copy of the tree, the image and the largest part's {widest} leaves; \
-                 the whole grid and the image need {})",
+                "{} is below what baking {} needs: at least {} in parts (its topology, the \
+                 image, {what}; the whole grid and the image need {})",
                 mib(budget),
                 self.input.display(),
                 mib(least),
                 mib(whole)
             )));
         }
-        let group_leaves = usize::try_from((budget - fixed) / leaf).unwrap_or(usize::MAX);
         Ok(Some(BoundedPlan {
             lazy,
             shell,
             camera,
             depth_shift,
             group_leaves,
+            part_bytes,
             sweep,
         }))
     }
 
     /// Bake a `BoundedPlan`: the map the whole-grid bake would make, bit for bit, holding a
-    /// part of the grid at a time. Bad-voxel counts are not reported in this mode (the parts
-    /// overlap; each part's policy is the whole grid's).
+    /// part of the grid at a time. The sweep reports the bad voxels of the leaves its parts
+    /// decoded (each leaf once: every leaf of a map that frames the whole grid) and of the
+    /// tiles; the ray path those of the tiles only (its runs overlap).
     ///
     /// # Errors
     /// As [`BakeJob::run`].
@@ -436,17 +477,17 @@ impl BakeJob {
             });
         };
         let settings = self.settings_shifted(plan.depth_shift);
-        let map = if plan.sweep {
+        let (map, leaves) = if plan.sweep {
             let baked = crate::bake::trace::bake_streamed(
                 &plan.lazy,
                 shell,
                 &volume_of,
                 &plan.camera,
                 &settings,
-                plan.group_leaves,
+                plan.part_bytes,
                 progress,
             )?;
-            let Some((map, _)) = baked else {
+            let Some((map, streamed)) = baked else {
                 return Err(Error::InvalidArgument {
                     name: "max-memory".into(),
                     reason: format!(
@@ -455,7 +496,7 @@ impl BakeJob {
                     ),
                 });
             };
-            map
+            (map, streamed.sanitized)
         } else {
             let load = |ids: &[u32]| self.volume_of(plan.lazy.load_from(shell.tree(), ids)?);
             let (mut map, parts) = crate::bake::trace::bake_rows_streamed(
@@ -467,9 +508,17 @@ impl BakeJob {
                 progress,
             )?;
             map.stats.parts = parts;
-            map
+            (map, crate::volume::Sanitized::default())
         };
-        self.finish(map, plan.shell, plan.camera)
+        self.finish_with(map, plan.shell, plan.camera, leaves)
+    }
+
+    /// Whether this job's map is one the sweep makes: exact regular tracking with trilinear
+    /// lookups, in the automatic order.
+    fn is_exact_sweep(&self) -> bool {
+        self.settings.estimator == crate::estimate::Estimator::REGULAR
+            && self.settings.options.interp == crate::volume::Interp::Trilinear
+            && self.settings.order == crate::bake::Order::Auto
     }
 
     /// The grid `g` of the input as this job traces it (density scale, transform).
@@ -667,7 +716,19 @@ impl BakeJob {
 
     /// Warnings, provenance and the written map: the common tail of every bake.
     fn finish(&self, map: Map, scene: Scene, camera: Camera) -> Result<BakeReport> {
-        let report = self.describe(map, &scene, camera);
+        self.finish_with(map, scene, camera, crate::volume::Sanitized::default())
+    }
+
+    /// [`BakeJob::finish`] with what the bad-voxel policy changed in leaves `scene` does not
+    /// hold (a bake in parts: `scene` is the shell).
+    fn finish_with(
+        &self,
+        map: Map,
+        scene: Scene,
+        camera: Camera,
+        leaves: crate::volume::Sanitized,
+    ) -> Result<BakeReport> {
+        let report = self.describe_with(map, &scene, camera, leaves);
         drop(scene);
         write_map(
             &self.output,
@@ -682,7 +743,18 @@ impl BakeJob {
 
     /// The warnings and the provenance of a finished map.
     fn describe(&self, map: Map, scene: &Scene, camera: Camera) -> BakeReport {
-        let mut warnings = volume_warnings(&scene.sanitized());
+        self.describe_with(map, scene, camera, crate::volume::Sanitized::default())
+    }
+
+    /// [`BakeJob::describe`], counting `leaves` with the scene's bad voxels.
+    fn describe_with(
+        &self,
+        map: Map,
+        scene: &Scene,
+        camera: Camera,
+        leaves: crate::volume::Sanitized,
+    ) -> BakeReport {
+        let mut warnings = volume_warnings(&scene.sanitized().merged(leaves));
         let diagonal = scene.box_corners().map_or(0.0, |c| {
             let (lo, hi) = c.iter().fold(
                 (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),
@@ -753,6 +825,20 @@ impl BakeJob {
 /// Bytes per leaf that computing a tree's bounds holds for a moment (a leaf's halo with its
 /// neighbour table, its bounds, its faces on the way), counted against `--max-memory`.
 const BOUNDS_SCRATCH_PER_LEAF: u64 = 96;
+/// The budget a bake without `--max-memory` takes when its map is one the sweep makes in
+/// parts: a grid whose decoded size (with the image) passes it is swept a region at a time,
+/// at about the whole bake's speed, instead of being held whole. A larger `--max-memory`
+/// loads it whole.
+pub const IMPLIED_BUDGET: u64 = 1 << 30;
+/// Inputs smaller than this on disk are loaded whole without a budget (no topology is read
+/// twice for them); a grid that decodes to more than [`IMPLIED_BUDGET`] is far larger.
+const IMPLIED_MIN_FILE: u64 = 64 << 20;
+
+/// The size of `path` on disk (0 when it cannot be read: the load reports that).
+fn file_len(path: &std::path::Path) -> u64 {
+    std::fs::metadata(path).map_or(0, |m| m.len())
+}
+
 /// What the process takes besides its data (code, thread stacks, allocator), counted against
 /// `--max-memory`.
 const PROCESS_SLACK: u64 = 24 << 20;
@@ -766,7 +852,10 @@ pub struct BoundedPlan {
     camera: Camera,
     /// How far the camera's ray start moved back to cover the grid ([`Camera::covering`]).
     depth_shift: f64,
+    /// Ray path: most leaves a run of rows decodes.
     group_leaves: usize,
+    /// Sweep: most bytes a part's region holds.
+    part_bytes: u64,
     /// In tree order by the sweep (exact maps it takes), else by runs of rows on the ray path.
     sweep: bool,
 }

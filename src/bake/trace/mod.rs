@@ -325,11 +325,11 @@ fn check_work(vols: &[&Volume], camera: &Camera, settings: &BakeSettings) -> Res
     Ok(())
 }
 
-/// [`bake`] of a lazily opened grid in bounded memory, by the sweep in groups of lower nodes
-/// of at most about `group_leaves` leaves ([`crate::bake::trace::sweep::render_streamed`]): the same map,
-/// bit for bit. `volume_of` makes a volume of each decoded part (density scale, transform).
-/// `None` when this map cannot be swept in parts (not an exact trilinear map, a pinhole inside
-/// the volume, extinction outside lower nodes).
+/// [`bake`] of a lazily opened grid in bounded memory, by the sweep in parts of at most about
+/// `part_bytes` each, each a region of the tree ([`crate::bake::trace::sweep::render_streamed`]):
+/// the same map, bit for bit. `volume_of` makes a volume of each decoded part (density scale,
+/// transform). `None` when this map cannot be swept in parts (not an exact trilinear map,
+/// extinction outside lower nodes).
 ///
 /// # Errors
 /// As [`bake`], and decoding errors of the leaves.
@@ -339,7 +339,7 @@ pub(crate) fn bake_streamed(
     volume_of: &(dyn Fn(crate::vdb::Grid) -> Result<Volume> + Sync),
     camera: &Camera,
     settings: &BakeSettings,
-    group_leaves: usize,
+    part_bytes: u64,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<(Map, crate::bake::trace::sweep::Streamed)>> {
     crate::bake::check_res(camera.width, camera.height)?;
@@ -351,15 +351,7 @@ pub(crate) fn bake_streamed(
     let run = || {
         let rows = band_rows(camera.height, rayon::current_num_threads());
         crate::bake::trace::sweep::render_streamed(
-            lazy,
-            shell,
-            volume_of,
-            camera,
-            settings,
-            &depths,
-            rows,
-            group_leaves,
-            progress,
+            lazy, shell, volume_of, camera, settings, &depths, rows, part_bytes, progress,
         )
     };
     in_pool(settings.threads, run)

@@ -45,6 +45,9 @@
 //! dual cell of a block, 4 for each further one.
 
 mod kernel;
+mod streamed;
+
+pub(crate) use streamed::{part_bytes, render_streamed, streams, Streamed};
 
 use crate::bake::camera::{Camera, Projection};
 use crate::bake::map::{BakeSettings, BakeStats, Map};
@@ -87,6 +90,7 @@ struct Parallel {
 }
 
 /// How pixel `(i, j)`'s ray runs in lookup space.
+#[derive(Clone, Copy)]
 enum Layout {
     /// Orthographic.
     Parallel(Parallel),
@@ -99,6 +103,7 @@ enum Layout {
 }
 
 /// The map's rays in lookup space, `t` in `[t_min, t_max]` (world units along each ray).
+#[derive(Clone, Copy)]
 struct Rays {
     layout: Layout,
     t_min: f64,
@@ -1072,11 +1077,21 @@ fn render_cube(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<Map>> {
     let rows = super::band_rows(faces[0].height, rayon::current_num_threads());
-    let mut cube: Option<Map> = None;
+    let mut maps = Vec::with_capacity(6);
     for face in faces {
         let Some(m) = render(vol, face, s, depths, rows, progress)? else {
             return Ok(None);
         };
+        maps.push(m);
+    }
+    Ok(stack_faces(camera, maps))
+}
+
+/// The cube map `camera` from the maps of its faces, in order: their images stacked, their
+/// statistics summed.
+fn stack_faces(camera: &Camera, maps: Vec<Map>) -> Option<Map> {
+    let mut cube: Option<Map> = None;
+    for m in maps {
         match &mut cube {
             None => cube = Some(m),
             Some(c) => {
@@ -1093,10 +1108,10 @@ fn render_cube(
             }
         }
     }
-    Ok(cube.map(|mut c| {
+    cube.map(|mut c| {
         c.camera = *camera;
         c
-    }))
+    })
 }
 
 /// A finished band of rows from `y0`: `T = exp(-tau)` of each pixel into `t_band`, and its
@@ -1158,161 +1173,6 @@ fn assemble(
             ..BakeStats::default()
         },
     }
-}
-
-/// Whether [`render_streamed`] can take `camera`'s map of `vol` (a shell is enough: only the
-/// topology, the tiles and the transform are read): no extinction outside lower nodes, and
-/// rays the sweep takes.
-///
-/// # Errors
-/// Camera errors.
-pub(crate) fn streams(vol: &Volume, camera: &Camera) -> Result<bool> {
-    Ok(!needs_rest(vol) && Rays::new(vol, camera)?.is_some())
-}
-
-/// What a streamed sweep ([`render_streamed`]) read.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct Streamed {
-    /// Groups of lower nodes decoded one after the other (the shell blocks' pass included).
-    pub groups: u64,
-    /// Leaves decoded over all groups (a leaf next to two groups is decoded twice).
-    pub leaves_decoded: u64,
-    /// Most leaves one group held.
-    pub max_group_leaves: u64,
-}
-
-/// The sweep's map of a lazily opened grid in bounded memory: the lower nodes the map sees are
-/// taken in tree order, in groups of at most about `group_leaves` leaves (each with the leaves
-/// of its `[o, o + 128]` box, what its blocks' halos read); a group is decoded
-/// ([`crate::vdb::LazyGrid::load`]), made a volume by `volume_of` (density scale, transform;
-/// `shell` is the lazy grid's shell made a volume the same way),
-/// swept into the whole image's optical depth and dropped; the shell blocks come last, as in
-/// [`render`]. Every pixel adds the same pieces in the same order as [`render`] does on the
-/// whole grid, so the map is bit-identical. `None` when the sweep cannot take this map in
-/// pieces: its rays ([`Rays::new`]), or extinction outside lower nodes (a non-zero background
-/// or tiles above lower nodes, which the rays walk whole).
-///
-/// # Errors
-/// Decoding errors of the groups' leaves, and those of [`render`].
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn render_streamed(
-    lazy: &crate::vdb::LazyGrid,
-    shell: &Volume,
-    volume_of: &(dyn Fn(crate::vdb::Grid) -> Result<Volume> + Sync),
-    camera: &Camera,
-    s: &BakeSettings,
-    depths: &[f64],
-    rows: u32,
-    group_leaves: usize,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<Option<(Map, Streamed)>> {
-    let start = std::time::Instant::now();
-    if needs_rest(shell) {
-        return Ok(None);
-    }
-    let Some(rays) = Rays::new(shell, camera)? else {
-        return Ok(None);
-    };
-    let topo = shell.tree();
-    // Groups of lower nodes in tree order, with the leaves their pieces read.
-    let mut groups: Vec<(Vec<usize>, Vec<u32>)> = Vec::new();
-    let (mut lowers, mut leaves) = (Vec::new(), Vec::new());
-    for (l, node) in topo.lowers.iter().enumerate() {
-        let o = node.origin.map(i64::from);
-        if rays.footprint(o, 128).is_none() {
-            continue;
-        }
-        let mut mine = Vec::new();
-        topo.leaves_in_box(o, o.map(|c| c + 128), &mut |leaf| mine.push(leaf));
-        if !lowers.is_empty() && leaves.len() + mine.len() > group_leaves {
-            groups.push((std::mem::take(&mut lowers), std::mem::take(&mut leaves)));
-        }
-        lowers.push(l);
-        leaves.extend(mine);
-    }
-    if !lowers.is_empty() {
-        groups.push((lowers, leaves));
-    }
-    let stride = 1 + depths.len();
-    let mut tau = vec![0.0f64; camera.pixels() as usize * stride];
-    let mut lookups = 0;
-    let mut stats = Streamed::default();
-    let mut entered_set = std::collections::HashSet::new();
-    let mut bases = Vec::new();
-    let mut sweep_with = |ids: &[u32], pieces: &dyn Fn(&Volume, &Rays) -> Vec<Piece>| {
-        let vol = volume_of(lazy.load_from(shell.tree(), ids)?)?;
-        stats.groups += 1;
-        stats.leaves_decoded += vol.tree().loaded_leaf_count() as u64;
-        stats.max_group_leaves = stats
-            .max_group_leaves
-            .max(vol.tree().loaded_leaf_count() as u64);
-        let Some(rays) = Rays::new(&vol, camera)? else {
-            return Ok(None);
-        };
-        let pieces = pieces(&vol, &rays);
-        let sweep = Sweep::from_pieces(&vol, camera, rays, pieces, false, rows, depths);
-        lookups += sweep.add_all(&mut tau)?;
-        Ok(Some(vol))
-    };
-    for (lowers, leaves) in &groups {
-        let pieces = |vol: &Volume, rays: &Rays| {
-            let mut out = Vec::new();
-            for &l in lowers {
-                lower_pieces(vol, rays, l, &mut out);
-            }
-            out
-        };
-        let Some(vol) = sweep_with(leaves, &pieces)? else {
-            return Ok(None);
-        };
-        // Every lower node of a group is in view (grouping skipped the others).
-        for &l in lowers {
-            let node = &vol.tree().lowers[l];
-            if entered(vol.tree(), node) {
-                entered_set.insert(node.origin);
-                bases.push(l);
-            }
-        }
-    }
-    // The shell blocks next to the entered lower nodes, after every lower node's pieces.
-    let mut outside = std::collections::BTreeSet::new();
-    for &l in &bases {
-        shell_blocks(
-            &entered_set,
-            topo.lowers[l].origin.map(i64::from),
-            &mut outside,
-        );
-    }
-    if !outside.is_empty() {
-        let mut ids = Vec::new();
-        for o in &outside {
-            topo.leaves_in_box(*o, o.map(|c| c + 8), &mut |leaf| ids.push(leaf));
-        }
-        let pieces = |vol: &Volume, rays: &Rays| {
-            let mut out = Vec::new();
-            shell_pieces(vol, rays, &outside, &mut out);
-            out
-        };
-        if sweep_with(&ids, &pieces)?.is_none() {
-            return Ok(None);
-        }
-    }
-    let w = camera.width as usize;
-    let mut t_image = vec![0.0f32; camera.pixels() as usize];
-    let bands: Vec<(u64, Vec<f32>)> = t_image
-        .par_chunks_mut(rows as usize * w)
-        .zip(tau.par_chunks(rows as usize * w * stride))
-        .enumerate()
-        .map(|(b, (t_band, tau))| {
-            let slices = finish_band(camera, b as u32 * rows, tau, stride, t_band)?;
-            progress(t_band.len() as u64);
-            Ok((0, slices))
-        })
-        .collect::<Result<_>>()?;
-    let mut map = assemble(camera, s, depths, t_image, &bands, start);
-    map.stats.lookups = lookups;
-    map.stats.parts = stats.groups;
-    Ok(Some((map, stats)))
 }
 
 /// The exact optical depth of every pixel of `camera`'s map of `vol`, in object order:
