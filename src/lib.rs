@@ -63,6 +63,7 @@ pub mod estimate;
 pub mod info;
 pub mod light;
 pub mod math;
+mod memory;
 pub mod output;
 pub mod ray;
 pub mod regular;

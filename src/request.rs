@@ -260,8 +260,10 @@ pub struct BakeOptions {
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub threads: usize,
     /// Memory budget (bytes, or with K, M, G: `512M`, `1.5G`; powers of 1024). When the
-    /// decoded grid and the image would not fit, an exact map is baked a part of the grid at
-    /// a time (the same map, bit for bit); other maps are refused before any work.
+    /// decoded grid and the image would not fit, the map is baked a part of the grid at a time
+    /// (the same map, bit for bit); a budget below the least part is refused before any work.
+    /// Without it, exact maps of caches over 1 GiB decoded go in parts of 1 GiB; a larger
+    /// budget holds them whole.
     #[cfg_attr(feature = "cli", arg(long, value_parser = parse_size))]
     pub max_memory: Option<String>,
     /// Replace existing outputs (alias overwrite).

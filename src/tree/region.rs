@@ -13,13 +13,14 @@
 use super::{Bounds, Internal, Leaf, Neighbour, RootEntry, RootSlot, Tree, UNLOADED};
 
 /// Bytes a region holds per leaf of its kept lower nodes besides the values: the leaf, its
-/// neighbour table and faces, and what computing its bounds holds for a moment (a halo, its
-/// neighbours and its bounds).
+/// neighbour table and faces, and what computing its bounds holds for a moment (its bounds, and
+/// a halo with its neighbours in a per-node vector that may have grown to twice its length).
 pub(crate) const REGION_LEAF_BYTES: u64 = (std::mem::size_of::<Leaf>()
-    + 2 * std::mem::size_of::<[Neighbour; 7]>()
+    + std::mem::size_of::<[Neighbour; 7]>()
     + std::mem::size_of::<[Bounds; 7]>()
-    + 2 * std::mem::size_of::<Bounds>()
-    + 4) as u64;
+    + std::mem::size_of::<Bounds>()
+    + 2 * std::mem::size_of::<(u32, Bounds, [Neighbour; 7])>())
+    as u64;
 
 /// Bytes a region holds per kept lower node: its masks, slots, tile-slot halos and faces.
 pub(crate) const REGION_LOWER_BYTES: u64 = (std::mem::size_of::<Internal>()

@@ -350,7 +350,12 @@ impl BakeJob {
             return Ok(None);
         }
         let archive = crate::vdb::open(&self.input)?;
-        let mut lazy = archive.open_lazy(archive.find_grid(&self.grid)?)?;
+        let gd = archive.find_grid(&self.grid)?;
+        let mut lazy = archive.open_lazy(gd)?;
+        // Opening held the grid's head and topology bytes as read from the file beside the
+        // tree they became, and the leaf buffers' offsets twice (as the file's delayed-load
+        // table and as the lazy grid keeps them).
+        let head_bytes = gd.block_pos.saturating_sub(gd.grid_pos);
         // The topology is kept once, in the shell volume.
         let loaded = lazy.loaded_memory_bytes();
         let leaves = lazy.leaf_count() as u64;
@@ -390,7 +395,9 @@ impl BakeJob {
             return Ok(None);
         };
         // Held throughout: the topology (in the shell volume), the image and the process.
-        let held = topology + image + PROCESS_SLACK;
+        let offsets = (lazy.leaf_count() as u64 + 1) * 8;
+        let held = topology + offsets + image + PROCESS_SLACK;
+        let opening = topology + head_bytes + 2 * offsets + PROCESS_SLACK;
         let (least, what, group_leaves, part_bytes) = if sweep {
             // A sweep's part is a region of the tree: the lower nodes its blocks read with
             // their leaves' topology, the upper nodes above them, and its leaves' values
@@ -401,7 +408,7 @@ impl BakeJob {
                 .map(|l| crate::bake::trace::sweep::part_bytes(topo, l))
                 .max()
                 .unwrap_or(0);
-            let least = (fixed + widest).min(whole);
+            let least = (fixed + widest).max(opening).min(whole);
             let part = budget.saturating_sub(fixed);
             (
                 least,
@@ -428,7 +435,7 @@ impl BakeJob {
                 })
                 .max()
                 .unwrap_or(0);
-            let least = (fixed + widest * leaf).min(whole);
+            let least = (fixed + widest * leaf).max(opening).min(whole);
             let group = usize::try_from(budget.saturating_sub(fixed) / leaf).unwrap_or(usize::MAX);
             let what = format!("a part's copy of the tree and the largest part's {widest} leaves");
             (least, what, group, 0)
@@ -439,10 +446,11 @@ impl BakeJob {
         if budget < least {
             return Err(refuse(format!(
                 "{} is below what baking {} needs: at least {} in parts (its topology, the \
-                 image, {what}; the whole grid and the image need {})",
+                 image, {what}; opening it takes {}; the whole grid and the image need {})",
                 mib(budget),
                 self.input.display(),
                 mib(least),
+                mib(opening),
                 mib(whole)
             )));
         }

@@ -132,31 +132,32 @@ struct Lists {
 }
 
 /// Split `units` (each reading the voxels `[o, o + dim]`) into runs whose parts take at most
-/// `part_bytes` (a unit larger than that is a part of its own).
+/// `part_bytes` (a unit larger than that is a part of its own), handing each run to `each` as
+/// soon as it is gathered (so only one run's lists are held at a time).
 fn runs<T>(
     topo: &Tree,
     units: impl IntoIterator<Item = (T, [i64; 3])>,
     dim: i64,
     part_bytes: u64,
-) -> Vec<(Vec<T>, Lists)> {
-    let mut out = Vec::new();
+    each: &mut dyn FnMut(Vec<T>, Lists) -> Result<()>,
+) -> Result<()> {
     let (mut items, mut part) = (Vec::new(), Part::default());
     for (item, o) in units {
         let mut extra = part.extra(topo, o, dim);
         if !part.is_empty() && part.bytes + extra.0 > part_bytes {
-            out.push((
+            each(
                 std::mem::take(&mut items),
                 std::mem::take(&mut part).lists(),
-            ));
+            )?;
             extra = part.extra(topo, o, dim);
         }
         part.take(extra);
         items.push(item);
     }
     if !items.is_empty() {
-        out.push((items, part.lists()));
+        each(items, part.lists())?;
     }
-    out
+    Ok(())
 }
 
 /// What the bad-voxel policy will change in the leaves `leaves` of `tree` (values as decoded),
@@ -232,7 +233,6 @@ pub(crate) fn render_streamed(
         .enumerate()
         .map(|(l, n)| (l as u32, n.origin.map(i64::from)))
         .filter(|(_, o)| rays.iter().any(|r| r.footprint(*o, 128).is_some()));
-    let groups = runs(topo, seen, 128, part_bytes);
     let stride = 1 + depths.len();
     // Each view's image of f64 optical depths, one after the other.
     let view_len = views[0].pixels() as usize * stride;
@@ -280,15 +280,15 @@ pub(crate) fn render_streamed(
     let mut entered_set = HashSet::new();
     // Per view, the entered lower nodes it sees, whose shell blocks it sweeps.
     let mut bases = vec![Vec::new(); views.len()];
-    for (lowers, part) in &groups {
-        let (vol, index) = sweep_part(part, &|vol, index, v| {
+    runs(topo, seen, 128, part_bytes, &mut |lowers, part| {
+        let (vol, index) = sweep_part(&part, &|vol, index, v| {
             let mut out = Vec::new();
-            for &l in lowers {
+            for &l in &lowers {
                 lower_pieces(vol, &rays[v], own(index, l)?, &mut out);
             }
             Ok(out)
         })?;
-        for &l in lowers {
+        for &l in &lowers {
             let node = &vol.tree().lowers[own(&index, l)?];
             if entered(vol.tree(), node) {
                 entered_set.insert(node.origin);
@@ -299,7 +299,10 @@ pub(crate) fn render_streamed(
                 }
             }
         }
-    }
+        drop(vol);
+        crate::memory::release_freed();
+        Ok(())
+    })?;
     // The shell blocks next to the entered lower nodes, after every lower node's pieces, in
     // their sorted order (per view; the parts take them all in that order).
     let mut outside = vec![BTreeSet::new(); views.len()];
@@ -312,8 +315,13 @@ pub(crate) fn render_streamed(
             );
         }
     }
-    let all: BTreeSet<[i64; 3]> = outside.iter().flatten().copied().collect();
-    for (blocks, part) in runs(topo, all.iter().map(|&o| (o, o)), 8, part_bytes) {
+    // One view sweeps its own blocks; a cube map's parts take the union, each face its own.
+    let all: std::borrow::Cow<'_, BTreeSet<[i64; 3]>> = match outside.as_slice() {
+        [one] => std::borrow::Cow::Borrowed(one),
+        many => std::borrow::Cow::Owned(many.iter().flatten().copied().collect()),
+    };
+    let blocks = all.iter().map(|&o| (o, o));
+    runs(topo, blocks, 8, part_bytes, &mut |blocks, part| {
         sweep_part(&part, &|vol, _, v| {
             let mine: BTreeSet<[i64; 3]> = blocks
                 .iter()
@@ -324,7 +332,9 @@ pub(crate) fn render_streamed(
             shell_pieces(vol, &rays[v], &mine, &mut out);
             Ok(out)
         })?;
-    }
+        crate::memory::release_freed();
+        Ok(())
+    })?;
     let mut maps = Vec::with_capacity(views.len());
     for (view, tau) in views.iter().zip(tau.chunks(view_len)) {
         let w = view.width as usize;
