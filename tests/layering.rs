@@ -9,7 +9,10 @@ use std::path::{Path, PathBuf};
 /// The layers from the bottom, with their modules (top-level modules of `src/`). A module may
 /// import its own layer and those below it. ARCHITECTURE.md's table lists the same.
 const LAYERS: &[(&str, &[&str])] = &[
-    ("foundation", &["error", "math", "text", "rng", "output"]),
+    (
+        "foundation",
+        &["error", "math", "text", "rng", "output", "memory"],
+    ),
     ("data", &["tree", "ray", "xform"]),
     ("input", &["vdb", "usd"]),
     ("model", &["volume"]),

@@ -1,6 +1,7 @@
 //! Blosc decompression through c-blosc (the library OpenVDB itself writes with), via the
-//! `blosc-src` crate. This is the only `unsafe` in umbra: two FFI calls, each guarded so that the
-//! C code never reads or writes outside the Rust buffers it is given.
+//! `blosc-src` crate: two FFI calls, each guarded so that the C code never reads or writes outside
+//! the Rust buffers it is given (with the AVX2 kernel and `memory`'s `malloc_trim`, umbra's only
+//! `unsafe`).
 #![allow(unsafe_code)]
 
 use crate::error::{DecodeError, DecodeResult};
