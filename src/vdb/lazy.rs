@@ -241,7 +241,7 @@ impl LazyGrid {
     ) -> Result<(Grid, crate::tree::RegionIndex)> {
         let ids = self.check_leaves(leaves)?;
         self.check_topology(topology)?;
-        let (mut tree, index) = topology.region(lowers);
+        let (tree, index) = topology.region(lowers);
         let mut at = Vec::with_capacity(ids.len());
         for &l in &ids {
             at.push(index.leaf(l).ok_or_else(|| crate::Error::InvalidArgument {
@@ -249,26 +249,8 @@ impl LazyGrid {
                 reason: format!("leaf {l} is outside the region's lower nodes"),
             })?);
         }
-        let mut values = vec![[0f32; 512]; ids.len()];
-        let precision = decode::decode_leaves(
-            &self.file,
-            &self.path,
-            self.stream,
-            topology,
-            &self.offsets,
-            &ids,
-            &mut values,
-        )?;
-        for (k, &r) in at.iter().enumerate() {
-            tree.leaves[r as usize].data = k as u32;
-        }
-        tree.values = values;
-        tree.shell = false;
-        tree.compute_bounds();
-        let mut grid = self.shell.clone_without_tree();
-        grid.tree = tree;
-        grid.precision_loss = self.with_topology_precision(precision);
-        Ok((grid, index))
+        let (values, precision) = self.read_values(topology, &ids)?;
+        Ok((self.grid_of(tree, &at, values, precision), index))
     }
 
     /// An error unless `topology` has this grid's leaf count.
@@ -320,18 +302,40 @@ impl LazyGrid {
         self.decode(&ids, tree)
     }
 
-    fn decode(&self, ids: &[u32], mut tree: crate::tree::Tree) -> Result<Grid> {
+    fn decode(&self, ids: &[u32], tree: crate::tree::Tree) -> Result<Grid> {
+        let (values, precision) = self.read_values(&tree, ids)?;
+        Ok(self.grid_of(tree, ids, values, precision))
+    }
+
+    /// The values of the topology's leaves `ids` (sorted), decoded, with their double-to-float
+    /// cost.
+    fn read_values(
+        &self,
+        topology: &crate::tree::Tree,
+        ids: &[u32],
+    ) -> Result<(Vec<[f32; 512]>, Option<crate::vdb::PrecisionLoss>)> {
         let mut values = vec![[0f32; 512]; ids.len()];
         let precision = decode::decode_leaves(
             &self.file,
             &self.path,
             self.stream,
-            &tree,
+            topology,
             &self.offsets,
             ids,
             &mut values,
         )?;
-        for (k, &l) in ids.iter().enumerate() {
+        Ok((values, precision))
+    }
+
+    /// The grid of `tree` holding `values[k]` at its leaf `at[k]`, bounds computed.
+    fn grid_of(
+        &self,
+        mut tree: crate::tree::Tree,
+        at: &[u32],
+        values: Vec<[f32; 512]>,
+        precision: Option<crate::vdb::PrecisionLoss>,
+    ) -> Grid {
+        for (k, &l) in at.iter().enumerate() {
             tree.leaves[l as usize].data = k as u32;
         }
         tree.values = values;
@@ -340,7 +344,7 @@ impl LazyGrid {
         let mut grid = self.shell.clone_without_tree();
         grid.tree = tree;
         grid.precision_loss = self.with_topology_precision(precision);
-        Ok(grid)
+        grid
     }
 
     /// The leaves' double-to-float cost and the topology's together (double grids only).
