@@ -134,10 +134,13 @@ for step in 0.5 1 2; do
         -light "$(echo "$DIR" | awk -F, '{ printf "%s,%s,%s", -$1, -$2, -$3 }')" -cpus "$THREADS" -v
 done
 for step in 0.5 1 1.5 2; do
-    entry "umbra_riemann_$step" "umbra riemann step $step" "midpoint rule per HDDA segment, biased" \
+    entry "umbra_riemann_$step" "umbra riemann step $step" "midpoint rule per block chord, object-order sweep, biased" \
         "$OUT/umbra_riemann_$step.exr:T" "$REF" \
         "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --estimator riemann --step "$step" --out "$OUT/umbra_riemann_$step.exr"
 done
+entry umbra_riemann_rays_1 "umbra riemann step 1, ray order" "the same points, one HDDA walk per pixel (before the sweep marched)" \
+    "$OUT/umbra_riemann_rays_1.exr:T" "$REF" \
+    "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --estimator riemann --step 1 --order rays --out "$OUT/umbra_riemann_rays_1.exr"
 # The unbiased estimators: residual ratio tracking (minorant control) and unbiased ray marching,
 # the most efficient unbiased one on this cloud (1 / (MSE x time), docs/performance.md).
 for est in residual-ratio unbiased-raymarch; do

@@ -6,7 +6,9 @@
 //! - samples per ray: at most [`MAX_SAMPLES_PER_RAY`] (`--samples`, `--spp`, `--max-spp`);
 //! - samples per job: `rays x samples <= `[`MAX_SAMPLES_PER_JOB`] (a bake's rays are its pixels,
 //!   its samples `max(spp, max-spp)` when adaptive);
-//! - ray-marching lookups: `steps = reach / step` per sample, `reach` being
+//! - ray-marching lookups: `steps = reach / step + 3 (reach / 8 + 1)` per sample (each chord
+//!   of an `8^3` block may add a piece, and a ray crosses at most `reach / 8 + 1` block
+//!   planes per axis), `reach` being
 //!   [`Volume::data_reach`] (the longest index-space length a ray can spend in non-background
 //!   nodes, so a sparse grid spanning the index range is not charged for its empty space);
 //!   `samples x steps <= `[`MAX_LOOKUPS_PER_RAY`] and `rays x samples x steps <=
@@ -58,7 +60,14 @@ pub fn check_samples(name: &str, samples: u64) -> Result<()> {
 /// Marching steps per sample for `est` on `vol` (`None` for estimators without a step).
 #[must_use]
 pub fn steps_per_sample(vol: &Volume, est: &Estimator) -> Option<f64> {
-    est.param("step").map(|step| vol.data_reach() / step + 1.0)
+    est.param("step")
+        .map(|step| vol.data_reach() / step + chord_pieces(vol))
+}
+
+/// The pieces a march may add to `reach / step` per sample: one per `8^3` block chord, at
+/// most `reach / 8 + 1` block planes crossed per axis.
+fn chord_pieces(vol: &Volume) -> f64 {
+    3.0 * (vol.data_reach() / 8.0 + 1.0)
 }
 
 /// Check one ray's cost: `samples` samples of `est` on `vol`.
@@ -102,7 +111,14 @@ fn check_steps(vol: &Volume, est: &Estimator, samples: f64, budget: f64, per: &s
     };
     let lookups = samples * steps;
     if lookups > budget {
-        let smallest = vol.data_reach() * samples / budget;
+        // `samples (reach / step + extra) <= budget`; past `budget / samples <= extra` no step
+        // fits, and the message says so with an infinite step.
+        let room = budget / samples - chord_pieces(vol);
+        let smallest = if room > 0.0 {
+            vol.data_reach() / room
+        } else {
+            f64::INFINITY
+        };
         return Err(refuse(
             "step",
             format!(

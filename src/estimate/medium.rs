@@ -20,6 +20,14 @@ pub trait Extinction {
     /// Index-space length of one world unit along the ray (the finest grid's, for a scene):
     /// converts marching steps given in voxels to world units.
     fn voxels_per_world_unit(&self) -> f64;
+    /// The ray in lookup space, `(q, d)` with the point `q + d t` at world distance `t`, when
+    /// ray marching cuts its spans into the chords of the `8^3` blocks of that space
+    /// ([`block_chords`]: the blocks a map's object-order sweep visits, so a march takes the
+    /// same points ray by ray or block by block). `None` (a scene's several grids): spans are
+    /// marched whole.
+    fn lattice(&self) -> Option<([f64; 3], [f64; 3])> {
+        None
+    }
 }
 
 impl Extinction for RayMedium<'_> {
@@ -32,6 +40,64 @@ impl Extinction for RayMedium<'_> {
     }
     fn voxels_per_world_unit(&self) -> f64 {
         RayMedium::voxels_per_world_unit(self)
+    }
+    fn lattice(&self) -> Option<([f64; 3], [f64; 3])> {
+        Some((self.q, self.d))
+    }
+}
+
+/// Side of the blocks marching restarts its pieces in (lookup-space cells).
+pub(crate) const BLOCK_SIDE: f64 = 8.0;
+
+/// The chords of `[t0, t1]` in the `8^3` blocks of lookup space along the line `q + d t`:
+/// `f(a, b)` for each, in order, cut where the line crosses a plane `x_k = 8 m`. The cut `t`
+/// of a plane is `(8 m - q_k) / d_k`, whichever block is asked: neighbouring chords share it.
+pub(crate) fn block_chords(
+    q: [f64; 3],
+    d: [f64; 3],
+    t0: f64,
+    t1: f64,
+    f: &mut dyn FnMut(f64, f64),
+) {
+    if t1.partial_cmp(&t0) != Some(std::cmp::Ordering::Greater) {
+        return;
+    }
+    // Per axis: the next plane's index (in units of the block side), its step and its `t`.
+    let mut plane = [0.0f64; 3];
+    let mut step = [0.0f64; 3];
+    let mut next = [f64::INFINITY; 3];
+    for k in 0..3 {
+        if d[k] == 0.0 || !d[k].is_finite() {
+            continue;
+        }
+        let x = (q[k] + d[k] * t0) / BLOCK_SIDE;
+        (plane[k], step[k]) = if d[k] > 0.0 {
+            (x.floor() + 1.0, 1.0)
+        } else {
+            (x.ceil() - 1.0, -1.0)
+        };
+        next[k] = (plane[k] * BLOCK_SIDE - q[k]) / d[k];
+    }
+    let mut a = t0;
+    loop {
+        let k = if next[0] <= next[1] && next[0] <= next[2] {
+            0
+        } else if next[1] <= next[2] {
+            1
+        } else {
+            2
+        };
+        let cut = next[k];
+        if cut.partial_cmp(&t1) != Some(std::cmp::Ordering::Less) {
+            f(a, t1);
+            return;
+        }
+        if cut > a {
+            f(a, cut);
+            a = cut;
+        }
+        plane[k] += step[k];
+        next[k] = (plane[k] * BLOCK_SIDE - q[k]) / d[k];
     }
 }
 

@@ -25,7 +25,7 @@
 //! before sampling, so a single 1e6 spike in a near-empty leaf costs a few lookups, not 1e6.
 
 pub mod budget;
-mod marching;
+pub(crate) mod marching;
 mod medium;
 mod null_collision;
 mod power_series;
@@ -153,7 +153,15 @@ pub const REFINE_NULL_COLLISIONS: f64 = 8.0;
 #[must_use]
 pub fn prepare(vol: &Volume, ray: &Ray, opts: &Options, medium: &mut RayMedium<'_>) -> Prepared {
     let mut p = Prepared::default();
-    prepare_into(vol, ray, opts, medium, &mut Scratch::default(), &mut p);
+    prepare_into(
+        vol,
+        ray,
+        opts,
+        true,
+        medium,
+        &mut Scratch::default(),
+        &mut p,
+    );
     p
 }
 
@@ -171,11 +179,14 @@ thread_local! {
         std::cell::RefCell::new((Scratch::default(), Prepared::default()));
 }
 
-/// [`prepare`] into `p` (cleared first), with `scratch` for the intermediate segments.
+/// [`prepare`] into `p` (cleared first), with `scratch` for the intermediate segments;
+/// `refine`: split high-contrast segments into cells (what null collisions need; ray marching
+/// does not, and marches whole blocks so that its points are the object-order sweep's).
 fn prepare_into(
     vol: &Volume,
     ray: &Ray,
     opts: &Options,
+    refine: bool,
     medium: &mut RayMedium<'_>,
     scratch: &mut Scratch,
     p: &mut Prepared,
@@ -220,7 +231,11 @@ fn prepare_into(
         // High-contrast nodes (a 1e6 spike in a near-empty leaf) would cost millions of null
         // collisions: refine them to per-cell bounds, unless the global baseline is asked for.
         cells.clear();
-        if !global && sampled(s) && (s.mu_maj - s.mu_min) * s.length() > REFINE_NULL_COLLISIONS {
+        if refine
+            && !global
+            && sampled(s)
+            && (s.mu_maj - s.mu_min) * s.length() > REFINE_NULL_COLLISIONS
+        {
             medium.refine(s, cells);
         } else {
             cells.push(*s);
@@ -303,12 +318,15 @@ fn estimate_unchecked(
     BUFFERS.with(|cell| match cell.try_borrow_mut() {
         Ok(mut bufs) => {
             let (scratch, prep) = &mut *bufs;
-            prepare_into(vol, ray, opts, &mut medium, scratch, prep);
+            prepare_into(vol, ray, opts, !est.marches(), &mut medium, scratch, prep);
             Ok(sample_prepared(est, prep, medium, ray_id, opts))
         }
         // Re-entered on this thread (not done today): fresh buffers rather than a panic.
         Err(_) => {
-            let prep = prepare(vol, ray, opts, &mut medium);
+            let mut prep = Prepared::default();
+            let refine = !est.marches();
+            let scratch = &mut Scratch::default();
+            prepare_into(vol, ray, opts, refine, &mut medium, scratch, &mut prep);
             Ok(sample_prepared(est, &prep, medium, ray_id, opts))
         }
     })

@@ -522,6 +522,13 @@ impl Estimator {
     }
 
     /// The algorithm and the first parameter value (crate-private dispatch).
+    /// True for the ray marchers (`riemann`, `mc`, `jittered`): point lookups on a grid of
+    /// pieces per block chord, no majorants.
+    #[must_use]
+    pub fn marches(&self) -> bool {
+        matches!(self.spec().algo, Algo::Riemann | Algo::Mc | Algo::Jittered)
+    }
+
     pub(crate) fn algo(&self) -> (Algo, f64) {
         (self.spec().algo, self.values[0])
     }

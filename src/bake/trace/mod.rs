@@ -459,18 +459,20 @@ fn render(
     let h = camera.height;
     let nc = src.channels();
     let rows = band_rows(h, rayon::current_num_threads());
-    if s.order == Order::Auto && crate::bake::trace::sweep::applies(s) {
+    if s.order == Order::Auto {
+        let exact = crate::bake::trace::sweep::applies(s);
         match src {
-            Source::Volume(vol) => {
+            Source::Volume(vol) if exact || crate::bake::trace::sweep::marches(s).is_some() => {
                 if let Some(map) =
                     crate::bake::trace::sweep::render(vol, camera, s, depths, rows, progress)?
                 {
                     return Ok(map);
                 }
             }
-            Source::Scene(scene) => {
+            Source::Scene(scene) if exact => {
                 return crate::bake::trace::scene::exact(scene, camera, s, depths, rows, progress);
             }
+            _ => {}
         }
     }
     let (t_image, bands) = render_rows(src, camera, s, depths, (0, h), rows, progress)?;

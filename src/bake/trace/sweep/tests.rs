@@ -380,3 +380,142 @@ fn slices_match_prefix_optical_depths() {
         );
     }
 }
+
+/// The ray path's Riemann optical depth of one ray (`-ln T` of its estimate).
+fn riemann_tau(vol: &Volume, ray: &crate::ray::Ray, step: f64) -> f64 {
+    let est =
+        crate::estimate::Estimator::with_params("riemann", &[("step", step)]).expect("riemann");
+    let opts = crate::estimate::Options::default();
+    let e = crate::estimate::estimate(vol, ray, 0, &est, &opts).expect("estimate");
+    -e.value.ln()
+}
+
+/// The sweep's midpoint march of `step` voxels, every pixel (and slice) against the ray
+/// path's Riemann estimate of the same ray: the same points, so within the kernel's f32
+/// positions (`1e-6 tau + 1e-7 M`, as [`check`]).
+fn check_march(
+    vol: &Volume,
+    camera: &Camera,
+    step: f64,
+    depths: &[f64],
+    what: &str,
+) -> Option<usize> {
+    let rows = 16;
+    let planned = Sweep::new(vol, camera, rows, depths)
+        .expect("plan")
+        .expect("frame");
+    let rest = planned.rest_needed;
+    let Some(sweep) = planned.marching(Some(step)) else {
+        assert!(
+            rest,
+            "{what}: a march declined without extinction above lower nodes"
+        );
+        return None;
+    };
+    let s = sweep.stride();
+    let mut buf = vec![0.0; camera.pixels() as usize * s];
+    for (b, chunk) in buf
+        .chunks_mut(rows as usize * camera.width as usize * s)
+        .enumerate()
+    {
+        sweep.band(b, chunk, &mut 0).expect("band");
+    }
+    let mut hit = 0;
+    for n in 0..camera.pixels() as usize {
+        let (i, j) = (n as u32 % camera.width, n as u32 / camera.width);
+        let ray = camera.pixel_ray(i, j).expect("ray");
+        let mut maj = 0.0;
+        crate::traverse::walk(vol, &ray, Interp::Trilinear, Granularity::Leaf, |s| {
+            maj += s.mu_maj.abs() * s.length();
+            ControlFlow::Continue(())
+        });
+        let ends = std::iter::once(None).chain(depths.iter().map(Some));
+        for (k, end) in ends.enumerate() {
+            let r = match end {
+                Some(&t) => ray.with_range(0.0, t).expect("range"),
+                None => ray,
+            };
+            let want = riemann_tau(vol, &r, step);
+            let got = buf[n * s + k];
+            // The ray path gives `T`: past tau = 745 it is 0, and `-ln T` infinite.
+            if want.is_infinite() || got.is_infinite() {
+                assert_eq!(
+                    (-got).exp(),
+                    0.0,
+                    "{what}: pixel ({i}, {j}) slot {k}: {got}"
+                );
+                assert_eq!(
+                    (-want).exp(),
+                    0.0,
+                    "{what}: pixel ({i}, {j}) slot {k}: {want}"
+                );
+                continue;
+            }
+            assert!(
+                (got - want).abs() <= 1e-6 * want + 1e-7 * maj,
+                "{what}: pixel ({i}, {j}) slot {k}: sweep {got} rays {want} majorant {maj}"
+            );
+            hit += usize::from(k == 0 && want > 0.0);
+        }
+    }
+    Some(hit)
+}
+
+/// Riemann maps swept block by block take the ray path's points: corpus clouds and smokes,
+/// extreme media, both projections, steps on and off the voxel grid, slices.
+#[test]
+fn marches_match_the_ray_path() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus");
+    let files = [
+        ("gen/cloud_fbm.vdb", 5.0),
+        ("gen/tiles_mixed.vdb", 3.0),
+        ("gen/extreme_nan_inf.vdb", 3.0),
+        ("gen/extreme_thick_1e6.vdb", 3.0),
+        ("gen/xform_affine_rotated.vdb", 3.0),
+        ("real/openvdb_smoke1_houdini_v222.vdb", 0.3),
+    ];
+    let mut checked = 0;
+    for (file, scale) in files {
+        let vol = Volume::load(root.join(file), "density", scale).expect(file);
+        for (what, camera) in cameras(&vol, 40) {
+            let mid = 0.5 * (camera.t_near + camera.t_max);
+            for step in [1.0, 0.37, 2.0] {
+                let what = format!("{file} {what} step {step}");
+                if let Some(hit) = check_march(&vol, &camera, step, &[mid], &what) {
+                    assert!(hit > 0, "{what}: no pixel saw the volume");
+                    checked += 1;
+                }
+            }
+        }
+    }
+    // Every file but the one with tiles above lower nodes (which goes by rays).
+    assert_eq!(checked, 5 * 8 * 3);
+    // Synthetic: leaves around 8^3 tiles inside lower nodes (the walk splits their chords),
+    // and data on the - faces of a lower node (shell blocks before it).
+    let mut b = TreeBuilder::new(0.0);
+    b.tile([8, 8, 8], 3, 1.5);
+    b.tile([24, 8, 8], 3, 0.0);
+    for k in 0..20 * 20 * 20 {
+        b.set([k % 20, (k / 20) % 20, k / 400], (k % 7) as f32 * 0.3);
+    }
+    for k in 0..27 {
+        b.set(
+            [128 + k % 3, 128 + (k / 3) % 3, 128 + k / 9],
+            1.0 + k as f32,
+        );
+    }
+    let m = [
+        [0.5, 0.0, 0.0, 0.0],
+        [0.0, 0.5, 0.0, 0.0],
+        [0.0, 0.0, 0.5, 0.0],
+    ];
+    let vol = Volume::from_tree("tiles".into(), b.build(), m, 0.8).expect("volume");
+    for (what, camera) in cameras(&vol, 48) {
+        let mid = 0.5 * (camera.t_near + camera.t_max);
+        for step in [1.0, 0.5] {
+            let what = format!("tiles and shells {what} step {step}");
+            let hit = check_march(&vol, &camera, step, &[mid], &what).expect("swept");
+            assert!(hit > 20, "{what}: {hit}");
+        }
+    }
+}
