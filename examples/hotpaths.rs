@@ -2,6 +2,10 @@
 //! noise. `cargo run --release --example hotpaths -- MODE [FILE] [REPS]`, MODE one of
 //! `nearest`, `trilinear`, `vdbrs` (vdb-rs bare parse) (exact regular tracking of 2000 random rays crossing the grid's box,
 //! REPS times) or `load` (full load of FILE's `density` grid, REPS times).
+//! `segments FILE CSV SCALE REPS [OUT]`: a query batch as `umbra query --rays CSV` and Python's
+//! `Volume.transmittance` trace it (every row's exact transmittance from `o` to `e`, rows in
+//! parallel on rayon's threads), the trace alone timed (median of REPS); one JSON line, and the
+//! T of every row as f32 into OUT (bench/queries.py compares them with NanoVDB's).
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use rand::{Rng, SeedableRng};
@@ -41,6 +45,10 @@ fn main() {
         );
         return;
     }
+    if mode == "segments" {
+        segments(&args);
+        return;
+    }
     let interp = if mode == "nearest" {
         Interp::Nearest
     } else {
@@ -78,5 +86,52 @@ fn main() {
         cells as f64 / n,
         segs as f64 / n,
         s * 1e9 / cells as f64
+    );
+}
+
+fn segments(args: &[String]) {
+    use rayon::prelude::*;
+    let (file, csv) = (&args[2], &args[3]);
+    let scale: f64 = args.get(4).and_then(|s| s.parse().ok()).unwrap_or(1.0);
+    let reps: usize = args.get(5).and_then(|s| s.parse().ok()).unwrap_or(1);
+    let vol = Volume::load(file, "density", scale).unwrap();
+    let rays: Vec<Ray> = std::fs::read_to_string(csv)
+        .unwrap()
+        .lines()
+        .filter_map(|l| {
+            let v: Vec<f64> = l.split(',').filter_map(|x| x.trim().parse().ok()).collect();
+            (v.len() == 6).then(|| Ray::between([v[0], v[1], v[2]], [v[3], v[4], v[5]]).unwrap())
+        })
+        .collect();
+    let (est, opts) = (
+        umbra::estimate::Estimator::REGULAR,
+        umbra::estimate::Options::default(),
+    );
+    let mut times = Vec::new();
+    let mut t = Vec::new();
+    for _ in 0..reps {
+        let start = std::time::Instant::now();
+        t = rays
+            .par_iter()
+            .enumerate()
+            .map(|(k, r)| {
+                umbra::estimate::estimate(&vol, r, k as u64, &est, &opts)
+                    .unwrap()
+                    .value as f32
+            })
+            .collect::<Vec<f32>>();
+        times.push(start.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    let secs = times[times.len() / 2];
+    if let Some(out) = args.get(6) {
+        let bytes: Vec<u8> = t.iter().flat_map(|x| x.to_le_bytes()).collect();
+        std::fs::write(out, bytes).unwrap();
+    }
+    println!(
+        "{{\"segments\":{},\"threads\":{},\"trace_s\":{secs:.6},\"mrays_per_s\":{:.4}}}",
+        rays.len(),
+        rayon::current_num_threads(),
+        rays.len() as f64 / secs / 1e6
     );
 }
