@@ -5,13 +5,16 @@
 //! points); a chord of length `L` is cut into `n = ceil(L / h)` equal pieces of length
 //! `L / n <= h`, `h` being the step converted from voxels to world units.
 //! - `riemann`: midpoint of each piece (deterministic; error O(h^2) for smooth media).
-//! - `monte_carlo`: `n` independent uniform points (tau_hat unbiased, variance O(h)).
+//! - `monte_carlo`: `n` independent uniform points per chord (tau_hat unbiased, variance O(h)).
 //! - `jittered`: one uniform point per piece (stratified; variance O(h^3) for smooth media).
+//!
+//! The random points of a chord come from the sample's stream forked by the chord's block
+//! ([`Rng::fork`]), so they do not depend on the chords before it.
 //!
 //! `exp(-tau_hat)` is biased upward for the random variants: `E[exp(-X)] >= exp(-E[X])`
 //! (Jensen), so they overestimate transmittance.
 
-use super::medium::{block_chords, Extinction};
+use super::medium::{block_chords, Extinction, BLOCK_SIDE};
 use crate::rng::Rng;
 use crate::traverse::Segment;
 
@@ -65,23 +68,45 @@ pub(crate) fn step_world(voxels_per_world_unit: f64, step_voxels: f64) -> f64 {
 }
 
 /// Every chord of the sampled segments, in ray order (spans cut at the block lattice of
-/// `lattice`, [`block_chords`], or whole): `f(a, n, dt)` with its start and its `n` pieces of
-/// length `dt`.
+/// `lattice`, [`block_chords`], or whole): `f(a, n, dt, block)` with its start, its `n` pieces
+/// of length `dt` and the `8^3` block it lies in (`None` without a lattice).
 fn for_chords(
     segs: &[Segment],
     lattice: Option<([f64; 3], [f64; 3])>,
     h: f64,
-    mut f: impl FnMut(f64, u64, f64),
+    mut f: impl FnMut(f64, u64, f64, Option<[i64; 3]>),
 ) {
-    let mut chord = |a: f64, b: f64| {
-        let (n, dt) = pieces(b - a, h);
-        f(a, n, dt);
-    };
     for s in spans(segs) {
         match lattice {
-            Some((q, d)) => block_chords(q, d, s.t_min, s.t_max, &mut chord),
-            None => chord(s.t_min, s.t_max),
+            Some((q, d)) => block_chords(q, d, s.t_min, s.t_max, &mut |a, b| {
+                let (n, dt) = pieces(b - a, h);
+                f(a, n, dt, Some(block_of(q, d, 0.5 * (a + b))));
+            }),
+            None => {
+                let (n, dt) = pieces(s.length(), h);
+                f(s.t_min, n, dt, None);
+            }
         }
+    }
+}
+
+/// The `8^3` block (lookup-space origin over 8) holding the point at `t` of `q + d t`.
+pub(crate) fn block_of(q: [f64; 3], d: [f64; 3], t: f64) -> [i64; 3] {
+    [0, 1, 2].map(|k| crate::math::floor_i64((q[k] + d[k] * t) / BLOCK_SIDE))
+}
+
+/// The random stream of one chord: the sample's stream forked by the chord's block (so a map
+/// swept block by block draws the same points), or the sample's stream itself, drawn along
+/// the ray, without a lattice (a scene).
+fn chord_rng<'r>(
+    base: &Rng,
+    block: Option<[i64; 3]>,
+    own: &'r mut Option<Rng>,
+    shared: &'r mut Rng,
+) -> &'r mut Rng {
+    match block {
+        Some(b) => own.insert(base.fork(b)),
+        None => shared,
     }
 }
 
@@ -89,7 +114,7 @@ fn for_chords(
 pub(crate) fn riemann(segs: &[Segment], m: &mut impl Extinction, step: f64) -> f64 {
     let h = step_world(m.voxels_per_world_unit(), step);
     let mut tau = 0.0;
-    for_chords(segs, m.lattice(), h, |a, n, dt| {
+    for_chords(segs, m.lattice(), h, |a, n, dt, _| {
         for k in 0..n {
             tau += m.mu(a + (k as f64 + 0.5) * dt) * dt;
         }
@@ -106,10 +131,13 @@ pub(crate) fn monte_carlo(
 ) -> f64 {
     let h = step_world(m.voxels_per_world_unit(), step);
     let mut tau = 0.0;
-    for_chords(segs, m.lattice(), h, |a, n, dt| {
+    let base = rng.clone();
+    let mut own = None;
+    for_chords(segs, m.lattice(), h, |a, n, dt, block| {
+        let r = chord_rng(&base, block, &mut own, rng);
         let len = n as f64 * dt;
         for _ in 0..n {
-            tau += m.mu(a + rng.uniform() * len) * dt;
+            tau += m.mu(a + r.uniform() * len) * dt;
         }
     });
     (-tau).exp()
@@ -119,9 +147,12 @@ pub(crate) fn monte_carlo(
 pub(crate) fn jittered(segs: &[Segment], m: &mut impl Extinction, rng: &mut Rng, step: f64) -> f64 {
     let h = step_world(m.voxels_per_world_unit(), step);
     let mut tau = 0.0;
-    for_chords(segs, m.lattice(), h, |a, n, dt| {
+    let base = rng.clone();
+    let mut own = None;
+    for_chords(segs, m.lattice(), h, |a, n, dt, block| {
+        let r = chord_rng(&base, block, &mut own, rng);
         for k in 0..n {
-            tau += m.mu(a + (k as f64 + rng.uniform()) * dt) * dt;
+            tau += m.mu(a + (k as f64 + r.uniform()) * dt) * dt;
         }
     });
     (-tau).exp()

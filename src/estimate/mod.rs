@@ -376,6 +376,28 @@ fn sample_prepared(
     }
 }
 
+/// Sample `sample` of the marcher `est` along `ray` (ray id `ray_id`): its optical depth (the
+/// closed-form part plus `-ln` of the marched part) and the lookups spent. What a map swept in
+/// object order asks of the ray path for a block it does not march itself (a shell block
+/// inside a tile above lower nodes), so that block's points are the ray path's.
+pub(crate) fn march_sample(
+    vol: &Volume,
+    ray: &Ray,
+    ray_id: u64,
+    est: &Estimator,
+    opts: &Options,
+    sample: u32,
+) -> (f64, u64) {
+    let mut medium = RayMedium::new(vol, ray, opts.interp);
+    let mut prep = Prepared::default();
+    let scratch = &mut Scratch::default();
+    prepare_into(vol, ray, opts, false, &mut medium, scratch, &mut prep);
+    let mut rng = Rng::new(opts.seed, ray_id, u64::from(sample));
+    let mut cap = Cap::new(opts.max_collisions);
+    let t = sample_once(est, &prep.segs, &mut medium, &mut rng, &mut cap);
+    (prep.tau_known - t.ln(), medium.lookups())
+}
+
 /// Collision budget of one sample, and the bound violations it met.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Cap {

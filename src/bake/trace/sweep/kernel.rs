@@ -84,16 +84,23 @@ impl Kernel {
         portable(block, lanes)
     }
 
-    /// The midpoint rule along every used lane: `n[l]` pieces of length `dt[l]` (a lane with
-    /// `n = 0` is unused); `Sums::cells` counts the points read.
-    pub(crate) fn march(self, block: &[f32; BLOCK], lanes: &Lanes, steps: &Steps) -> Sums {
+    /// A march along every used lane: `n[l]` pieces of length `dt[l]` (a lane with `n = 0` is
+    /// unused), point `j` at `s = (j + w) dt` with `w = offsets[j][l]`, or the midpoint
+    /// `w = 1/2` without offsets (at least `max n` rows); `Sums::cells` counts the points read.
+    pub(crate) fn march(
+        self,
+        block: &[f32; BLOCK],
+        lanes: &Lanes,
+        steps: &Steps,
+        offsets: Option<&[[f32; LANES]]>,
+    ) -> Sums {
         #[cfg(target_arch = "x86_64")]
         if self.simd {
             // SAFETY: `simd` is set only when the CPU reports AVX2 and FMA.
             #[allow(unsafe_code)]
-            return unsafe { avx2::march(block, lanes, steps) };
+            return unsafe { avx2::march(block, lanes, steps, offsets) };
         }
-        portable_march(block, lanes, steps)
+        portable_march(block, lanes, steps, offsets)
     }
 }
 
@@ -119,7 +126,12 @@ fn trilinear(v: &[f32; 8], w: [f32; 3]) -> f32 {
 
 /// The portable midpoint march: one lane after the other, the AVX2 version's operations in
 /// order.
-fn portable_march(block: &[f32; BLOCK], lanes: &Lanes, steps: &Steps) -> Sums {
+fn portable_march(
+    block: &[f32; BLOCK],
+    lanes: &Lanes,
+    steps: &Steps,
+    offsets: Option<&[[f32; LANES]]>,
+) -> Sums {
     let mut out = Sums::default();
     for l in 0..LANES {
         let (n, dt) = (steps.n[l], steps.dt[l]);
@@ -129,7 +141,8 @@ fn portable_march(block: &[f32; BLOCK], lanes: &Lanes, steps: &Steps) -> Sums {
         let d_lo = [lanes.d_lo[0][l], lanes.d_lo[1][l], lanes.d_lo[2][l]];
         let mut acc = 0.0f64;
         for j in 0..n {
-            let s = (j as f32 + 0.5) * dt;
+            let off = offsets.map_or(0.5, |o| o[j as usize][l]);
+            let s = (j as f32 + off) * dt;
             let mut w = [0.0f32; 3];
             let mut idx = 0.0f32;
             for a in 0..3 {
@@ -479,7 +492,12 @@ mod avx2 {
     /// # Safety
     /// The CPU must support AVX2 and FMA.
     #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn march(block: &[f32; BLOCK], lanes: &Lanes, steps: &Steps) -> Sums {
+    pub(super) unsafe fn march(
+        block: &[f32; BLOCK],
+        lanes: &Lanes,
+        steps: &Steps,
+        offsets: Option<&[[f32; LANES]]>,
+    ) -> Sums {
         // SAFETY (every load below): reads of `LANES` f32 or i32 from arrays of that length.
         let ld = |v: &[f32; LANES]| unsafe { _mm256_loadu_ps(v.as_ptr()) };
         let e = [ld(&lanes.e[0]), ld(&lanes.e[1]), ld(&lanes.e[2])];
@@ -501,7 +519,11 @@ mod avx2 {
         for j in 0..most {
             let jf = _mm256_set1_ps(j as f32);
             let active = _mm256_cmp_ps::<_CMP_LT_OQ>(jf, n);
-            let s = _mm256_mul_ps(_mm256_add_ps(jf, half), dt);
+            let off = match offsets {
+                Some(o) => ld(&o[j as usize]),
+                None => half,
+            };
+            let s = _mm256_mul_ps(_mm256_add_ps(jf, off), dt);
             let mut w = [one; 3];
             let mut idx = _mm256_setzero_ps();
             for a in 0..3 {
@@ -655,15 +677,21 @@ mod tests {
                 steps.n[l] = n as u32;
                 steps.dt[l] = ((b - a) / n.max(1) as f64) as f32;
             }
-            let got = Kernel::new().march(&block, &lanes, &steps);
-            let portable = Kernel::portable().march(&block, &lanes, &steps);
+            // Odd rounds: random points in their pieces (jittered marching).
+            let offsets: Vec<[f32; LANES]> = (0..14)
+                .map(|_| [0; LANES].map(|_| lcg(&mut st) as f32))
+                .collect();
+            let offsets = (round % 2 == 1).then_some(&offsets[..]);
+            let got = Kernel::new().march(&block, &lanes, &steps, offsets);
+            let portable = Kernel::portable().march(&block, &lanes, &steps, offsets);
             assert_eq!(got, portable, "AVX2 and portable differ");
             for (l, d) in dirs.iter().enumerate() {
                 let e = [0, 1, 2].map(|k| f64::from(lanes.e[k][l]) + f64::from(lanes.e_lo[k][l]));
                 let dt = f64::from(steps.dt[l]);
                 let want: f64 = (0..steps.n[l])
                     .map(|j| {
-                        let t = (f64::from(j) + 0.5) * dt;
+                        let w = offsets.map_or(0.5, |o| f64::from(o[j as usize][l]));
+                        let t = (f64::from(j) + w) * dt;
                         field(&block, [0, 1, 2].map(|k| e[k] + d[k] * t)) * dt
                     })
                     .sum();

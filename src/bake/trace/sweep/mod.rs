@@ -45,8 +45,11 @@
 //! dual cell of a block, 4 for each further one.
 
 mod kernel;
+mod march;
 mod streamed;
 
+pub(crate) use march::marches;
+use march::{finish_samples, March};
 pub(crate) use streamed::{part_bytes, render_streamed, streams, Streamed};
 
 use crate::bake::camera::{Camera, Projection};
@@ -59,7 +62,7 @@ use crate::traverse::lookup_ray;
 use crate::tree::{Accessor, Block, Neighbour, RootSlot, Tree};
 use crate::volume::{Interp, Volume};
 use glam::{DMat3, DVec3};
-use kernel::{Kernel, Lanes, Steps, BLOCK, LANES, SIDE};
+use kernel::{Kernel, Lanes, BLOCK, LANES, SIDE};
 use rayon::prelude::*;
 
 /// Most values a block may hold in magnitude for the f32 kernel (no overflow in `h (f + f)`).
@@ -74,17 +77,6 @@ const CHORD_RANGE: (f64, f64) = (1e-15, 1e15);
 /// map whose pinhole is inside the clip box or whose frame is degenerate).
 pub(crate) fn applies(s: &BakeSettings) -> bool {
     s.estimator == Estimator::REGULAR && s.options.interp == Interp::Trilinear
-}
-
-/// The step (voxels) of a midpoint ray march the sweep renders for one grid (`riemann` with
-/// trilinear lookups): its points are the ray path's, the midpoints of the pieces of each
-/// block chord ([`crate::estimate::marching`]), read from the block in L1 instead of down the
-/// tree ([`Kernel::march`]). `None` for any other estimator.
-pub(crate) fn marches(s: &BakeSettings) -> Option<f64> {
-    let riemann = s.estimator.marches() && s.estimator.is_deterministic();
-    (riemann && s.options.interp == Interp::Trilinear)
-        .then(|| s.estimator.param("step"))
-        .flatten()
 }
 
 /// Orthographic rays in lookup space: pixel `(i, j)`'s is `q0 + i qx + j qy + t d`;
@@ -754,8 +746,8 @@ struct Sweep<'a> {
     rows: u32,
     /// Slice depths `t_k` (world distance along each ray), increasing.
     depths: Vec<f64>,
-    /// `Some(step)`: a midpoint march of `step` voxels instead of the exact integral.
-    march: Option<f64>,
+    /// A ray march ([`March`]) instead of the exact integral.
+    march: Option<March>,
 }
 
 impl<'a> Sweep<'a> {
@@ -802,14 +794,14 @@ impl<'a> Sweep<'a> {
         }
     }
 
-    /// This sweep as a midpoint march of `step` voxels (`None`: exact), or `None` when a
-    /// march cannot be swept: extinction outside lower nodes, which the sweep integrates
-    /// exactly per pixel, where the ray path marches it.
-    fn marching(mut self, step: Option<f64>) -> Option<Self> {
-        if step.is_some() && self.rest_needed {
+    /// This sweep as the march `m` (`None`: exact), or `None` when a march cannot be swept:
+    /// extinction outside lower nodes, which the sweep integrates exactly per pixel, where
+    /// the ray path marches it.
+    fn marching(mut self, m: Option<March>) -> Option<Self> {
+        if m.is_some() && self.rest_needed {
             return None;
         }
-        self.march = step;
+        self.march = m;
         Some(self)
     }
 
@@ -830,9 +822,36 @@ impl<'a> Sweep<'a> {
             .sum())
     }
 
-    /// Values per pixel in a band's buffer: the full optical depth, then one per slice.
+    /// Values per pixel in a band's buffer: per sample (one but for a random march), the full
+    /// optical depth, then one per slice.
     fn stride(&self) -> usize {
-        1 + self.depths.len()
+        self.samples() * (1 + self.depths.len())
+    }
+
+    /// Samples per pixel: a random march's, else one.
+    fn samples(&self) -> usize {
+        self.march.map_or(1, |m| m.samples())
+    }
+
+    /// Each pixel's lookup-space direction through a pinhole, rows `y0..=y1`, as the ray path
+    /// computes it (empty for parallel rays).
+    fn pixel_dirs(&self, y0: u32, y1: u32) -> Result<Vec<PixelDir>> {
+        let (vol, camera, w) = (self.vol, self.camera, self.rays.width);
+        let mut dirs = Vec::new();
+        if matches!(self.rays.layout, Layout::Pinhole { .. }) {
+            dirs.reserve(((y1 - y0 + 1) * w) as usize);
+            for j in y0..=y1 {
+                for i in 0..w {
+                    let (_, d) = lookup_ray(vol, &camera.pixel_ray(i, j)?, Interp::Trilinear);
+                    let d = DVec3::from(d);
+                    dirs.push(PixelDir {
+                        d,
+                        inv_d: d.recip(),
+                    });
+                }
+            }
+        }
+        Ok(dirs)
     }
 
     /// Add a piece's contribution to pixel `n`'s full optical depth and to every slice whose
@@ -915,6 +934,9 @@ impl<'a> Sweep<'a> {
     /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth into `tau`,
     /// [`Sweep::stride`] values a pixel (the full ray, then each slice `[0, t_k]`).
     fn band(&self, b: usize, tau: &mut [f64], lookups: &mut u64) -> Result<()> {
+        if let Some(m) = &self.march {
+            return self.band_march(m, b, tau, lookups);
+        }
         let (vol, camera, rays) = (self.vol, self.camera, &self.rays);
         let (pieces, ids, y0) = (&self.pieces, &self.bins[b], b as u32 * self.rows);
         let tree = vol.tree();
@@ -925,20 +947,7 @@ impl<'a> Sweep<'a> {
         let mut acc = Accessor::new(tree);
         let mut n = Counts::default();
         // Perspective: each pixel's lookup-space direction, as the ray path computes it.
-        let mut dirs = Vec::new();
-        if matches!(rays.layout, Layout::Pinhole { .. }) {
-            dirs.reserve(((y1 - y0 + 1) * w) as usize);
-            for j in y0..=y1 {
-                for i in 0..w {
-                    let (_, d) = lookup_ray(vol, &camera.pixel_ray(i, j)?, Interp::Trilinear);
-                    let d = DVec3::from(d);
-                    dirs.push(PixelDir {
-                        d,
-                        inv_d: d.recip(),
-                    });
-                }
-            }
-        }
+        let dirs = self.pixel_dirs(y0, y1)?;
         if self.rest_needed {
             for j in y0..=y1 {
                 for i in 0..w {
@@ -957,154 +966,82 @@ impl<'a> Sweep<'a> {
             }
         }
         let kernel = Kernel::new();
-        let mut consts: Vec<(usize, f64, f64)> = Vec::new();
-        // A march's pieces per chord, counted in f64 as the ray path counts them.
-        // The step in world units: one for parallel rays, per pixel through a pinhole.
-        let h_parallel = match (&rays.layout, self.march) {
-            (Layout::Parallel(par), Some(step)) => Some(step_world(par.d.length(), step)),
-            _ => None,
-        };
-        let pieces_of = |d: DVec3, len: f64| {
-            self.march.map(|step| {
-                let h = h_parallel.unwrap_or_else(|| step_world(d.length(), step));
-                crate::estimate::marching::pieces(len, h)
-            })
-        };
         let mut block = [0f32; BLOCK];
         for &id in ids {
             let p = &pieces[id as usize];
             let [_, _, j0, j1] = p.rect;
             let rows = (j0.max(y0), j1.min(y1), y0);
-            // A march takes only leaves through the kernel: the ray walk splits a tile (and
-            // the tile a shell block lies in) into the constant box its lookups read from it
-            // alone and the halo cells around it, and marches only those, so such a block is
-            // marched as the ray path marches it ([`Sweep::march_ray`]).
-            let on_kernel = match p.part {
-                Part::Leaf { fast, .. } => fast,
-                Part::Tile { fast, .. } => fast,
-                Part::Shell { fast } => fast && self.march.is_none(),
-                Part::Const(_) => false,
-            };
             match p.part {
-                _ if on_kernel => {
+                Part::Leaf { fast: true, .. }
+                | Part::Tile { fast: true, .. }
+                | Part::Shell { fast: true } => {
                     fill(&neighbourhood(tree, &mut acc, p), &mut block);
                     let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
                     // The rays that cross the block, 8 at a time (lanes packed across rows); a
                     // slice depth inside a chord adds a lane for the chord up to it.
                     let mut lanes = Lanes::default();
-                    let mut steps = Steps::default();
                     // Per lane: the pixel, 0 (the whole chord) or 1 + k (slice k's part), and
                     // the chord's end.
                     let mut at = [(0usize, 0usize, 0.0f64); LANES];
                     let mut used = 0;
-                    // A marched tile's constant inner part, per pixel: `(pixel, a, b)`.
-                    consts.clear();
-                    let mut flush = |lanes: &mut Lanes,
-                                     steps: &mut Steps,
-                                     at: &[(usize, usize, f64); LANES],
-                                     used: &mut usize| {
-                        let sums = match self.march {
-                            Some(_) => kernel.march(&block, lanes, steps),
-                            None => kernel.integrate(&block, lanes),
-                        };
-                        for (l, &(px, slot, end)) in at.iter().enumerate().take(*used) {
-                            if sums.cells[l] == 0 {
-                                continue;
-                            }
-                            let v = scale * sums.tau[l];
-                            *lookups += match self.march {
-                                Some(_) => u64::from(sums.cells[l]),
-                                None => 4 + 4 * u64::from(sums.cells[l]),
-                            };
-                            if slot > 0 {
-                                tau[px * stride + slot] += v;
-                                continue;
-                            }
-                            tau[px * stride] += v;
-                            for (k, &t) in self.depths.iter().enumerate() {
-                                if t >= end {
-                                    tau[px * stride + 1 + k] += v;
+                    let mut flush =
+                        |lanes: &mut Lanes, at: &[(usize, usize, f64); LANES], used: &mut usize| {
+                            let sums = kernel.integrate(&block, lanes);
+                            for (l, &(px, slot, end)) in at.iter().enumerate().take(*used) {
+                                if sums.cells[l] == 0 {
+                                    continue;
+                                }
+                                let v = scale * sums.tau[l];
+                                *lookups += 4 + 4 * u64::from(sums.cells[l]);
+                                if slot > 0 {
+                                    tau[px * stride + slot] += v;
+                                    continue;
+                                }
+                                tau[px * stride] += v;
+                                for (k, &t) in self.depths.iter().enumerate() {
+                                    if t >= end {
+                                        tau[px * stride + 1 + k] += v;
+                                    }
                                 }
                             }
-                        }
-                        *lanes = Lanes::default();
-                        *steps = Steps::default();
-                        *used = 0;
-                    };
-                    let marched_tile = self.march.is_some() && matches!(p.part, Part::Tile { .. });
+                            *lanes = Lanes::default();
+                            *used = 0;
+                        };
                     self.chords(p, rows, &dirs, |px, q, d, a, b| {
-                        let parts = if marched_tile {
-                            let (parts, inner) = tile_split(q, d, p.origin, (a, b));
-                            consts.extend(inner.map(|(ia, ib)| (px, ia, ib)));
-                            parts
-                        } else {
-                            [Some((a, b)), None]
-                        };
-                        for (a, b) in parts.into_iter().flatten() {
-                            let e = ((q - centre) + d * a).to_array();
-                            let cuts = self
-                                .depths
-                                .iter()
-                                .enumerate()
-                                .filter(|(_, &t)| t > a && t < b);
-                            for (slot, end) in
-                                std::iter::once((0, b)).chain(cuts.map(|(k, &t)| (1 + k, t)))
-                            {
-                                lanes.set(used, e, d.to_array(), end - a);
-                                if let Some((n, dt)) = pieces_of(d, end - a) {
-                                    steps.n[used] = n as u32;
-                                    steps.dt[used] = dt as f32;
-                                }
-                                at[used] = (px, slot, b);
-                                used += 1;
-                                if used == LANES {
-                                    flush(&mut lanes, &mut steps, &at, &mut used);
-                                }
+                        let e = ((q - centre) + d * a).to_array();
+                        let cuts = self
+                            .depths
+                            .iter()
+                            .enumerate()
+                            .filter(|(_, &t)| t > a && t < b);
+                        for (slot, end) in
+                            std::iter::once((0, b)).chain(cuts.map(|(k, &t)| (1 + k, t)))
+                        {
+                            lanes.set(used, e, d.to_array(), end - a);
+                            at[used] = (px, slot, b);
+                            used += 1;
+                            if used == LANES {
+                                flush(&mut lanes, &at, &mut used);
                             }
                         }
                     });
                     if used > 0 {
-                        flush(&mut lanes, &mut steps, &at, &mut used);
-                    }
-                    if let Part::Tile { lower, slot, .. } = p.part {
-                        let v = tree.lowers[lower as usize].tile_value(slot as usize);
-                        let mu = if v == tree.background {
-                            vol.mu_background()
-                        } else {
-                            crate::math::scaled(scale, f64::from(v))
-                        };
-                        for &(px, ia, ib) in &consts {
-                            self.add(tau, px, (ia, ib), mu * (ib - ia), |t| mu * (t - ia));
-                        }
+                        flush(&mut lanes, &at, &mut used);
                     }
                 }
                 // Closed form, or the f64 ray code: pixel by pixel.
-                _ => {
+                Part::Const(_)
+                | Part::Leaf { fast: false, .. }
+                | Part::Tile { fast: false, .. }
+                | Part::Shell { fast: false } => {
                     self.chords(p, rows, &dirs, |px, q, d, a, b| {
                         let (q, d, lin) = (q.to_array(), d.to_array(), Interp::Trilinear);
-                        let mut part = |t1: f64| match (p.part, pieces_of(DVec3::from(d), t1 - a)) {
-                            (Part::Const(mu), _) => mu * (t1 - a),
-                            // An infinite majorant: the ray path integrates it exactly.
-                            (Part::Leaf { leaf, .. }, Some((pieces, dt)))
-                                if crate::math::scaled(
-                                    scale,
-                                    f64::from(tree.leaves[leaf as usize].halo.max),
-                                )
-                                .is_finite() =>
-                            {
-                                n.reads += pieces;
-                                march_f64(&mut acc, q, d, (a, pieces, dt), scale)
+                        let mut part = |t1: f64| match p.part {
+                            Part::Const(mu) => mu * (t1 - a),
+                            Part::Leaf { leaf, .. } => {
+                                scale * leaf_integral(&mut acc, leaf, q, d, a, t1, lin, &mut n)
                             }
-                            (Part::Tile { .. } | Part::Shell { .. }, Some(_)) => {
-                                let (i, j) = (px as u32 % w, y0 + px as u32 / w);
-                                self.march_ray(i, j, (a, t1), &mut n.reads)
-                            }
-                            (part, _) => match part {
-                                Part::Leaf { leaf, .. } => {
-                                    scale * leaf_integral(&mut acc, leaf, q, d, a, t1, lin, &mut n)
-                                }
-                                _ => scale * cells_integral(&mut acc, q, d, a, t1, lin, &mut n),
-                            },
+                            _ => scale * cells_integral(&mut acc, q, d, a, t1, lin, &mut n),
                         };
                         let full = part(b);
                         self.add(tau, px, (a, b), full, part);
@@ -1114,79 +1051,6 @@ impl<'a> Sweep<'a> {
         }
         *lookups += n.reads;
         Ok(())
-    }
-}
-
-/// How the ray walk splits a tile's chord `[a, b]` (`crate::traverse::hdda`'s `tile`): the
-/// inner box `[o, o + 7]^3` where every trilinear lookup reads the tile alone is constant, the
-/// rest (the halo cells on its + faces) is sampled. Returns the sampled parts (before and after
-/// the inner box) and the inner part, or the whole chord sampled when the ray misses the box.
-#[allow(clippy::type_complexity)]
-fn tile_split(
-    q: DVec3,
-    d: DVec3,
-    o: [i64; 3],
-    (a, b): (f64, f64),
-) -> ([Option<(f64, f64)>; 2], Option<(f64, f64)>) {
-    let lo = DVec3::from(o.map(|c| c as f64));
-    match crate::ray::clip_box(q, d, lo, lo + DVec3::splat(7.0)) {
-        Some((ia, ib)) if ia.max(a) < ib.min(b) => {
-            let (ia, ib) = (ia.max(a), ib.min(b));
-            let part = |x: f64, y: f64| (x < y).then_some((x, y));
-            // The ray path merges sampled segments that touch within round-off into one span
-            // (`marching::spans`): a ray grazing the inner box is marched whole.
-            if a < ia && ib < b && ib <= ia + 1e-12 * ia.abs().max(1.0) {
-                return ([Some((a, b)), None], Some((ia, ib)));
-            }
-            ([part(a, ia), part(ib, b)], Some((ia, ib)))
-        }
-        _ => ([Some((a, b)), None], None),
-    }
-}
-
-/// The world length of a march step of `step` voxels along a ray crossing `voxels` voxels
-/// per world unit (as the ray path converts it).
-fn step_world(voxels: f64, step: f64) -> f64 {
-    crate::estimate::marching::step_world(voxels, step)
-}
-
-/// The midpoint march of one chord in f64 (blocks the f32 kernel does not take): `n` pieces
-/// of `dt` from `a` along `q + d t`, each point's `mu` scaled as the ray path scales it.
-fn march_f64(
-    acc: &mut Accessor<'_>,
-    q: [f64; 3],
-    d: [f64; 3],
-    (a, n, dt): (f64, u64, f64),
-    scale: f64,
-) -> f64 {
-    (0..n)
-        .map(|k| {
-            let t = a + (k as f64 + 0.5) * dt;
-            let v = acc.trilinear([0, 1, 2].map(|i| q[i] + d[i] * t));
-            crate::math::scaled(scale, f64::from(v)) * dt
-        })
-        .sum()
-}
-
-impl Sweep<'_> {
-    /// The ray path's midpoint march of pixel `(i, j)`'s ray over `[a, b]` (one block's
-    /// chord): its optical depth, NaN when the ray path fails (reported by [`finish_band`]).
-    fn march_ray(&self, i: u32, j: u32, (a, b): (f64, f64), reads: &mut u64) -> f64 {
-        let (Some(step), Ok(est)) = (self.march, Estimator::from_name("riemann")) else {
-            return f64::NAN;
-        };
-        let estimate = est.set("step", step).and_then(|est| {
-            let ray = self.camera.pixel_ray(i, j)?.with_range(a, b)?;
-            let opts = crate::estimate::Options::default();
-            crate::estimate::estimate(self.vol, &ray, 0, &est, &opts)
-        });
-        match estimate {
-            Ok(e) => {
-                *reads += e.lookups;
-                -e.value.ln()
-            }
-            Err(_) => f64::NAN,
-        }
     }
 }
 
@@ -1213,6 +1077,11 @@ pub(crate) fn render(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<Map>> {
     if let Some(faces) = camera.cube_faces() {
+        // A random march's streams follow the ray path's pixel ids of the whole cube image,
+        // which a face's sweep does not know: such maps go by rays.
+        if marches(s).is_some_and(|m| m.random()) {
+            return Ok(None);
+        }
         return render_cube(vol, camera, &faces, s, depths, progress);
     }
     let start = std::time::Instant::now();
@@ -1222,21 +1091,46 @@ pub(crate) fn render(
     let Some(sweep) = sweep.marching(marches(s)) else {
         return Ok(None);
     };
-    let (w, stride) = (camera.width, sweep.stride());
+    let (w, stride, samples) = (camera.width, sweep.stride(), sweep.samples());
     let mut t_image = vec![0.0f32; camera.pixels() as usize];
-    let bands: Vec<(u64, Vec<f32>)> = t_image
+    let done: Vec<(u64, Vec<f32>, Vec<f32>)> = t_image
         .par_chunks_mut(rows as usize * w as usize)
         .enumerate()
         .map(|(b, t_band)| {
             let mut tau = vec![0.0f64; t_band.len() * stride];
             let mut lookups = 0;
             sweep.band(b, &mut tau, &mut lookups)?;
-            let slices = finish_band(camera, b as u32 * rows, &tau, stride, t_band)?;
+            let y0 = b as u32 * rows;
+            let mut err = vec![0.0f32; if s.std_err { t_band.len() } else { 0 }];
+            let slices = if samples > 1 {
+                finish_samples(
+                    camera,
+                    y0,
+                    &tau,
+                    stride / samples,
+                    samples,
+                    t_band,
+                    &mut err,
+                )?
+            } else {
+                finish_band(camera, y0, &tau, stride, t_band)?
+            };
             progress(t_band.len() as u64);
-            Ok((lookups, slices))
+            Ok((lookups, slices, err))
         })
         .collect::<Result<_>>()?;
-    Ok(Some(assemble(camera, s, depths, t_image, &bands, start)))
+    let mut bands = Vec::with_capacity(done.len());
+    let mut errs = Vec::with_capacity(done.len());
+    for (lookups, slices, err) in done {
+        bands.push((lookups, slices));
+        errs.push(err);
+    }
+    let mut map = assemble(camera, s, depths, t_image, &bands, start);
+    if samples > 1 {
+        map.stats.samples = camera.pixels() * samples as u64;
+        map.std_err = s.std_err.then(|| errs.concat());
+    }
+    Ok(Some(map))
 }
 
 /// A cube map swept face by face ([`Camera::cube_faces`]: six pinholes at the light whose

@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::bake::{Resolution, View};
+use crate::estimate::Estimator;
 use crate::traverse::Granularity;
 use crate::tree::TreeBuilder;
 use std::ops::ControlFlow;
@@ -381,22 +382,25 @@ fn slices_match_prefix_optical_depths() {
     }
 }
 
-/// The ray path's Riemann optical depth of one ray (`-ln T` of its estimate).
-fn riemann_tau(vol: &Volume, ray: &crate::ray::Ray, step: f64) -> f64 {
-    let est =
-        crate::estimate::Estimator::with_params("riemann", &[("step", step)]).expect("riemann");
-    let opts = crate::estimate::Options::default();
-    let e = crate::estimate::estimate(vol, ray, 0, &est, &opts).expect("estimate");
-    -e.value.ln()
+/// The march the sweep renders for estimator `name` at `step` voxels, `spp` samples.
+fn march_of(name: &str, step: f64, spp: u32) -> March {
+    let est = Estimator::with_params(name, &[("step", step)]).expect("estimator");
+    let opts = crate::estimate::Options {
+        samples: spp,
+        seed: 7,
+        ..crate::estimate::Options::default()
+    };
+    marches(&BakeSettings::new(est, opts)).expect("a march")
 }
 
-/// The sweep's midpoint march of `step` voxels, every pixel (and slice) against the ray
-/// path's Riemann estimate of the same ray: the same points, so within the kernel's f32
-/// positions (`1e-6 tau + 1e-7 M`, as [`check`]).
+/// The sweep's march `m` of every pixel and slice against the ray path's estimate of the same
+/// ray (the pixel's ray id, slice `k`'s `(64 + k) npix + p`): the same points, so within the
+/// kernel's f32 positions, in `T` (`1e-6 (1 + tau) + 1e-7 M`, `M` the majorant optical depth,
+/// as [`check`]). Returns how many pixels saw the volume, or `None` when the sweep declines.
 fn check_march(
     vol: &Volume,
     camera: &Camera,
-    step: f64,
+    m: March,
     depths: &[f64],
     what: &str,
 ) -> Option<usize> {
@@ -405,23 +409,26 @@ fn check_march(
         .expect("plan")
         .expect("frame");
     let rest = planned.rest_needed;
-    let Some(sweep) = planned.marching(Some(step)) else {
+    let Some(sweep) = planned.marching(Some(m)) else {
         assert!(
             rest,
             "{what}: a march declined without extinction above lower nodes"
         );
         return None;
     };
-    let s = sweep.stride();
-    let mut buf = vec![0.0; camera.pixels() as usize * s];
+    let (stride, samples) = (sweep.stride(), sweep.samples());
+    let per = stride / samples;
+    let mut buf = vec![0.0; camera.pixels() as usize * stride];
     for (b, chunk) in buf
-        .chunks_mut(rows as usize * camera.width as usize * s)
+        .chunks_mut(rows as usize * camera.width as usize * stride)
         .enumerate()
     {
         sweep.band(b, chunk, &mut 0).expect("band");
     }
+    let (est, opts) = m.estimator();
+    let npix = camera.pixels();
     let mut hit = 0;
-    for n in 0..camera.pixels() as usize {
+    for n in 0..npix as usize {
         let (i, j) = (n as u32 % camera.width, n as u32 / camera.width);
         let ray = camera.pixel_ray(i, j).expect("ray");
         let mut maj = 0.0;
@@ -431,31 +438,41 @@ fn check_march(
         });
         let ends = std::iter::once(None).chain(depths.iter().map(Some));
         for (k, end) in ends.enumerate() {
-            let r = match end {
-                Some(&t) => ray.with_range(0.0, t).expect("range"),
-                None => ray,
+            let (r, id) = match end {
+                Some(&t) => (
+                    ray.with_range(0.0, t).expect("range"),
+                    (64 + k as u64 - 1) * npix + n as u64,
+                ),
+                None => (ray, n as u64),
             };
-            let want = riemann_tau(vol, &r, step);
-            let got = buf[n * s + k];
-            // The ray path gives `T`: past tau = 745 it is 0, and `-ln T` infinite.
-            if want.is_infinite() || got.is_infinite() {
-                assert_eq!(
-                    (-got).exp(),
-                    0.0,
-                    "{what}: pixel ({i}, {j}) slot {k}: {got}"
-                );
-                assert_eq!(
-                    (-want).exp(),
-                    0.0,
-                    "{what}: pixel ({i}, {j}) slot {k}: {want}"
-                );
-                continue;
-            }
+            let e = crate::estimate::estimate(vol, &r, id, &est, &opts).expect("estimate");
+            let want = e.value;
+            let mut err = vec![0.0f32; 1];
+            let mut t = [0.0f32];
+            let est_of = &buf[n * stride..(n + 1) * stride];
+            let got = finish_samples(camera, 0, est_of, per, samples, &mut t, &mut err)
+                .map(|slices| {
+                    if k == 0 {
+                        f64::from(t[0])
+                    } else {
+                        f64::from(slices[k - 1])
+                    }
+                })
+                .expect("finite");
+            let tol = 1e-6 * (1.0 - want.ln()) + 1e-7 * maj + 1e-7;
             assert!(
-                (got - want).abs() <= 1e-6 * want + 1e-7 * maj,
-                "{what}: pixel ({i}, {j}) slot {k}: sweep {got} rays {want} majorant {maj}"
+                (got - want).abs() <= tol,
+                "{what}: pixel ({i}, {j}) slot {k}: sweep T {got} rays {want} majorant {maj}"
             );
-            hit += usize::from(k == 0 && want > 0.0);
+            if k == 0 && samples > 1 {
+                let err = f64::from(err[0]);
+                assert!(
+                    (err - e.std_err).abs() <= 2.0 * tol,
+                    "{what}: pixel ({i}, {j}): std err {err} vs {}",
+                    e.std_err
+                );
+            }
+            hit += usize::from(k == 0 && want < 1.0);
         }
     }
     Some(hit)
@@ -481,7 +498,8 @@ fn marches_match_the_ray_path() {
             let mid = 0.5 * (camera.t_near + camera.t_max);
             for step in [1.0, 0.37, 2.0] {
                 let what = format!("{file} {what} step {step}");
-                if let Some(hit) = check_march(&vol, &camera, step, &[mid], &what) {
+                let m = march_of("riemann", step, 1);
+                if let Some(hit) = check_march(&vol, &camera, m, &[mid], &what) {
                     assert!(hit > 0, "{what}: no pixel saw the volume");
                     checked += 1;
                 }
@@ -514,8 +532,35 @@ fn marches_match_the_ray_path() {
         let mid = 0.5 * (camera.t_near + camera.t_max);
         for step in [1.0, 0.5] {
             let what = format!("tiles and shells {what} step {step}");
-            let hit = check_march(&vol, &camera, step, &[mid], &what).expect("swept");
+            let m = march_of("riemann", step, 1);
+            let hit = check_march(&vol, &camera, m, &[mid], &what).expect("swept");
             assert!(hit > 20, "{what}: {hit}");
         }
     }
+}
+
+/// Jittered and Monte Carlo maps swept block by block draw the ray path's points (each chord's
+/// stream forked by its block): several samples per pixel, slices with their own streams,
+/// both projections, tiles.
+#[test]
+fn random_marches_match_the_ray_path() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus");
+    let mut checked = 0;
+    for (file, scale) in [
+        ("gen/cloud_fbm.vdb", 5.0),
+        ("gen/extreme_thick_1e6.vdb", 3.0),
+    ] {
+        let vol = Volume::load(root.join(file), "density", scale).expect(file);
+        for (what, camera) in cameras(&vol, 24).into_iter().take(4) {
+            let mid = 0.5 * (camera.t_near + camera.t_max);
+            for (name, step, spp) in [("jittered", 1.0, 3), ("mc", 0.7, 2), ("jittered", 2.0, 1)] {
+                let what = format!("{file} {what} {name} step {step} spp {spp}");
+                let m = march_of(name, step, spp);
+                let hit = check_march(&vol, &camera, m, &[mid], &what).expect("swept");
+                assert!(hit > 0, "{what}");
+                checked += 1;
+            }
+        }
+    }
+    assert_eq!(checked, 2 * 4 * 3);
 }

@@ -1,0 +1,445 @@
+//! Ray marching in object order: `riemann`, `jittered` and `mc` maps swept block by block.
+//!
+//! The ray path's marchers ([`crate::estimate::marching`]) cut every ray into the chords of the
+//! `8^3` blocks of lookup space and lay `n = ceil(L / h)` equal pieces of length `dt` on each
+//! chord; point `j` of a chord starting at `a` is at `a + (j + w_j) dt`, with `w_j = 1/2`
+//! (`riemann`), a uniform `u_j` (`jittered`) or `n u_j - j` (`mc`: `n` uniform points on the
+//! chord), the `u_j` drawn from the sample's stream forked by the chord's block
+//! ([`crate::rng::Rng::fork`]). A chord's points therefore depend on its block, its pixel's
+//! ray id and the sample alone, and the sweep reads them from the block's `9^3` corners in L1
+//! ([`Kernel::march`], 8 chords per AVX2 register), adding `scale x sum_j f(x_j) dt` to the
+//! pixel's optical depth.
+//!
+//! What the ray walk does not march, the sweep does not either: blocks whose halo is one value
+//! are closed form, a tile's inner box (where every lookup reads the tile alone) is closed form
+//! and only its halo cells are marched ([`tile_split`]), a leaf with an infinite value is
+//! integrated exactly. A shell block (its chord inside a tile above lower nodes) is marched by
+//! the ray path itself over its chord ([`crate::estimate::march_sample`]).
+//!
+//! **Samples and slices.** A random march keeps `samples x (1 + K)` optical depths per pixel
+//! (`K` slices); `T` is the mean of `exp(-tau_i)` over samples and its standard error that of
+//! the mean, as the ray path computes them. The ray path estimates slice `k` (`[0, t_k]`) as
+//! its own ray with ray id `(64 + k) npix + p`, so a random march gives every chord before
+//! `t_k` a lane of slice `k`'s stream; the midpoint march shares a whole chord's sum with
+//! every slice past its end and adds a lane only for a chord a slice depth cuts.
+//!
+//! Every pixel and slice equals the ray path's estimate to within the kernel's f32 positions
+//! (`marches_match_the_ray_path` in the sweep's tests).
+
+use super::kernel::{Kernel, Lanes, Steps, BLOCK, LANES};
+use super::{fill, neighbourhood, Layout, Part, Piece, Sweep};
+use crate::bake::camera::Camera;
+use crate::bake::map::BakeSettings;
+use crate::error::Result;
+use crate::estimate::marching::{pieces, step_world};
+use crate::estimate::{Estimator, Options};
+use crate::regular::{leaf_integral, Counts};
+use crate::rng::Rng;
+use crate::tree::Accessor;
+use crate::volume::Interp;
+use glam::DVec3;
+
+/// Where a march puts its points in their pieces.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Points {
+    /// `riemann`: the midpoints.
+    Midpoint,
+    /// `jittered`: one uniform point per piece.
+    Jittered,
+    /// `mc`: `n` uniform points on the chord.
+    Uniform,
+}
+
+/// A ray march the sweep renders: the estimator, its options and step, where its points lie.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct March {
+    est: Estimator,
+    opts: Options,
+    step: f64,
+    points: Points,
+}
+
+impl March {
+    /// The estimator and its options.
+    #[cfg(test)]
+    pub(super) fn estimator(&self) -> (Estimator, Options) {
+        (self.est, self.opts)
+    }
+
+    /// True for the random marches (`jittered`, `mc`).
+    pub(crate) fn random(&self) -> bool {
+        self.points != Points::Midpoint
+    }
+
+    /// Estimates per pixel: one for the midpoint march, `--spp` for a random one.
+    pub(super) fn samples(&self) -> usize {
+        match self.points {
+            Points::Midpoint => 1,
+            _ => self.opts.samples.max(1) as usize,
+        }
+    }
+}
+
+/// The march the sweep renders for these settings: `riemann`, `jittered` or `mc` with
+/// trilinear lookups and a fixed sample count. `None` for any other estimator.
+pub(crate) fn marches(s: &BakeSettings) -> Option<March> {
+    if !s.estimator.marches() || s.options.interp != Interp::Trilinear || s.target_error.is_some() {
+        return None;
+    }
+    let points = match s.estimator.name() {
+        "riemann" => Points::Midpoint,
+        "jittered" => Points::Jittered,
+        _ => Points::Uniform,
+    };
+    Some(March {
+        est: s.estimator,
+        opts: s.options,
+        step: s.estimator.param("step")?,
+        points,
+    })
+}
+
+/// One estimate a chord feeds: the value it adds to (offset in the pixel's sample block), where
+/// its part of the chord ends, the ray id of its stream, and whether every slice past its end
+/// shares it (the midpoint march's whole chords).
+#[derive(Debug, Clone, Copy)]
+struct Job {
+    slot: usize,
+    end: f64,
+    ray_id: u64,
+    shared: bool,
+}
+
+/// Up to [`LANES`] chords waiting for the kernel: their lanes, pieces, point offsets, and per
+/// lane the band buffer index it adds to, whether slices share it, and its end.
+struct Batch {
+    lanes: Lanes,
+    steps: Steps,
+    offsets: Vec<[f32; LANES]>,
+    at: [(usize, bool, f64); LANES],
+    used: usize,
+}
+
+impl Batch {
+    fn new() -> Self {
+        Self {
+            lanes: Lanes::default(),
+            steps: Steps::default(),
+            offsets: Vec::new(),
+            at: [(0, false, 0.0); LANES],
+            used: 0,
+        }
+    }
+}
+
+impl Sweep<'_> {
+    /// The estimates chord `[a, b]` of image pixel `p` feeds (see [`Job`]).
+    fn jobs(&self, m: &March, (a, b): (f64, f64), p: u64, out: &mut Vec<Job>) {
+        out.clear();
+        let npix = u64::from(self.camera.width) * u64::from(self.camera.height);
+        let random = m.points != Points::Midpoint;
+        out.push(Job {
+            slot: 0,
+            end: b,
+            ray_id: p,
+            shared: !random,
+        });
+        for (k, &t) in self.depths.iter().enumerate() {
+            let cut = t > a && t < b;
+            if cut || (random && t >= b) {
+                out.push(Job {
+                    slot: 1 + k,
+                    end: t.min(b),
+                    ray_id: (64 + k as u64).wrapping_mul(npix).wrapping_add(p),
+                    shared: false,
+                });
+            }
+        }
+    }
+
+    /// Band `b` of a march: every pixel's (and sample's, and slice's) optical depth into `tau`.
+    pub(super) fn band_march(
+        &self,
+        m: &March,
+        b: usize,
+        tau: &mut [f64],
+        lookups: &mut u64,
+    ) -> Result<()> {
+        let (vol, rays) = (self.vol, &self.rays);
+        let (ids, y0) = (&self.bins[b], b as u32 * self.rows);
+        let tree = vol.tree();
+        let (w, stride) = (rays.width, self.stride());
+        let per = 1 + self.depths.len();
+        let y1 = y0 + (tau.len() / stride / w as usize) as u32 - 1;
+        let scale = vol.density_scale();
+        let mut acc = Accessor::new(tree);
+        let mut n = Counts::default();
+        let dirs = self.pixel_dirs(y0, y1)?;
+        // The step in world units: one for parallel rays, per pixel through a pinhole.
+        let h_parallel = match &rays.layout {
+            Layout::Parallel(par) => Some(step_world(par.d.length(), m.step)),
+            Layout::Pinhole { .. } => None,
+        };
+        let h_of = |d: DVec3| h_parallel.unwrap_or_else(|| step_world(d.length(), m.step));
+        let pixel_id = |px: usize| u64::from(y0) * u64::from(w) + px as u64;
+        let kernel = Kernel::new();
+        let mut block = [0f32; BLOCK];
+        let mut batch = Batch::new();
+        let mut jobs = Vec::new();
+        let mut consts: Vec<(usize, f64, f64)> = Vec::new();
+        let samples = m.samples();
+        for &id in ids {
+            let p = &self.pieces[id as usize];
+            let [_, _, j0, j1] = p.rect;
+            let rows = (j0.max(y0), j1.min(y1), y0);
+            let key = p.origin.map(|c| c >> 3);
+            let on_kernel = matches!(
+                p.part,
+                Part::Leaf { fast: true, .. } | Part::Tile { fast: true, .. }
+            );
+            if !on_kernel {
+                self.chords(p, rows, &dirs, |px, q, d, a, b| {
+                    self.jobs(m, (a, b), pixel_id(px), &mut jobs);
+                    for job in &jobs {
+                        for i in 0..samples {
+                            let part = (a, job.end, job.ray_id, i as u32);
+                            let v =
+                                self.scalar(m, p, (q, d), part, key, (px, y0), &mut acc, &mut n);
+                            self.credit(tau, px * stride + i * per + job.slot, *job, v);
+                        }
+                    }
+                });
+                continue;
+            }
+            fill(&neighbourhood(tree, &mut acc, p), &mut block);
+            let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
+            let marched_tile = matches!(p.part, Part::Tile { .. });
+            consts.clear();
+            let mut flush = |batch: &mut Batch| {
+                let offsets = (m.points != Points::Midpoint).then_some(&batch.offsets[..]);
+                let sums = kernel.march(&block, &batch.lanes, &batch.steps, offsets);
+                for (l, &(at, shared, end)) in batch.at.iter().enumerate().take(batch.used) {
+                    *lookups += u64::from(sums.cells[l]);
+                    let job = Job {
+                        slot: 0,
+                        end,
+                        ray_id: 0,
+                        shared,
+                    };
+                    self.credit(tau, at, job, scale * sums.tau[l]);
+                }
+                batch.lanes = Lanes::default();
+                batch.steps = Steps::default();
+                batch.used = 0;
+            };
+            self.chords(p, rows, &dirs, |px, q, d, a, b| {
+                let parts = if marched_tile {
+                    let (parts, inner) = tile_split(q, d, p.origin, (a, b));
+                    consts.extend(inner.map(|(ia, ib)| (px, ia, ib)));
+                    parts
+                } else {
+                    [Some((a, b)), None]
+                };
+                let h = h_of(d);
+                for (a, b) in parts.into_iter().flatten() {
+                    let e = ((q - centre) + d * a).to_array();
+                    self.jobs(m, (a, b), pixel_id(px), &mut jobs);
+                    for job in &jobs {
+                        let (count, dt) = pieces(job.end - a, h);
+                        for i in 0..samples {
+                            let l = batch.used;
+                            batch.lanes.set(l, e, d.to_array(), job.end - a);
+                            batch.steps.n[l] = count as u32;
+                            batch.steps.dt[l] = dt as f32;
+                            if m.points != Points::Midpoint {
+                                let rows = count as usize;
+                                if batch.offsets.len() < rows {
+                                    batch.offsets.resize(rows, [0.0; LANES]);
+                                }
+                                let mut rng = Rng::new(m.opts.seed, job.ray_id, i as u64).fork(key);
+                                for (j, row) in batch.offsets.iter_mut().take(rows).enumerate() {
+                                    let u = rng.uniform();
+                                    row[l] = match m.points {
+                                        Points::Uniform => (count as f64 * u - j as f64) as f32,
+                                        _ => u as f32,
+                                    };
+                                }
+                            }
+                            batch.at[l] = (px * stride + i * per + job.slot, job.shared, job.end);
+                            batch.used += 1;
+                            if batch.used == LANES {
+                                flush(&mut batch);
+                            }
+                        }
+                    }
+                }
+            });
+            if batch.used > 0 {
+                flush(&mut batch);
+            }
+            // A marched tile's inner box: the tile's value in closed form, in every estimate.
+            if let Part::Tile { lower, slot, .. } = p.part {
+                let v = tree.lowers[lower as usize].tile_value(slot as usize);
+                let mu = if v == tree.background {
+                    vol.mu_background()
+                } else {
+                    crate::math::scaled(scale, f64::from(v))
+                };
+                for &(px, ia, ib) in &consts {
+                    self.jobs(m, (ia, ib), pixel_id(px), &mut jobs);
+                    for job in &jobs {
+                        for i in 0..samples {
+                            let at = px * stride + i * per + job.slot;
+                            self.credit(tau, at, *job, mu * (job.end - ia));
+                        }
+                    }
+                }
+            }
+        }
+        *lookups += n.reads;
+        Ok(())
+    }
+
+    /// Add `v` to `tau[at]`, and to every slice of that estimate past the job's end when the
+    /// slices share it.
+    fn credit(&self, tau: &mut [f64], at: usize, job: Job, v: f64) {
+        tau[at] += v;
+        if job.shared {
+            for (k, &t) in self.depths.iter().enumerate() {
+                if t >= job.end {
+                    tau[at + 1 + k] += v;
+                }
+            }
+        }
+    }
+
+    /// One estimate of a block the kernel does not take, over `[a, end]` of pixel `px`'s ray
+    /// (`q + d t` in lookup space), with the stream of `ray_id` and sample `i`: closed form for
+    /// a constant block, exact for a leaf with an infinite value, the f64 march of the ray path
+    /// for other leaves, the ray path itself for tiles and shell blocks.
+    #[allow(clippy::too_many_arguments)]
+    fn scalar(
+        &self,
+        m: &March,
+        p: &Piece,
+        (q, d): (DVec3, DVec3),
+        (a, end, ray_id, i): (f64, f64, u64, u32),
+        key: [i64; 3],
+        (px, y0): (usize, u32),
+        acc: &mut Accessor<'_>,
+        n: &mut Counts,
+    ) -> f64 {
+        let tree = self.vol.tree();
+        let scale = self.vol.density_scale();
+        let (qa, da) = (q.to_array(), d.to_array());
+        match p.part {
+            Part::Const(mu) => mu * (end - a),
+            Part::Leaf { leaf, .. }
+                if !crate::math::scaled(scale, f64::from(tree.leaves[leaf as usize].halo.max))
+                    .is_finite() =>
+            {
+                scale * leaf_integral(acc, leaf, qa, da, a, end, Interp::Trilinear, n)
+            }
+            Part::Leaf { .. } => {
+                let h = step_world(d.length(), m.step);
+                let (count, dt) = pieces(end - a, h);
+                n.reads += count;
+                let mut rng = Rng::new(m.opts.seed, ray_id, u64::from(i)).fork(key);
+                let mut sum = 0.0;
+                for j in 0..count {
+                    let t = match m.points {
+                        Points::Midpoint => a + (j as f64 + 0.5) * dt,
+                        Points::Jittered => a + (j as f64 + rng.uniform()) * dt,
+                        Points::Uniform => a + rng.uniform() * (count as f64 * dt),
+                    };
+                    let v = acc.trilinear([0, 1, 2].map(|k| qa[k] + da[k] * t));
+                    sum += crate::math::scaled(scale, f64::from(v)) * dt;
+                }
+                sum
+            }
+            Part::Tile { .. } | Part::Shell { .. } => {
+                let w = self.rays.width;
+                let (x, y) = (px as u32 % w, y0 + px as u32 / w);
+                let ray = self
+                    .camera
+                    .pixel_ray(x, y)
+                    .and_then(|r| r.with_range(a, end));
+                match ray {
+                    Ok(ray) => {
+                        let (tau, reads) = crate::estimate::march_sample(
+                            self.vol, &ray, ray_id, &m.est, &m.opts, i,
+                        );
+                        n.reads += reads;
+                        tau
+                    }
+                    // Reported as a NaN optical depth by `finish_band` / `finish_samples`.
+                    Err(_) => f64::NAN,
+                }
+            }
+        }
+    }
+}
+
+/// How the ray walk splits a tile's chord `[a, b]` (`crate::traverse::hdda`'s `tile`): the
+/// inner box `[o, o + 7]^3` where every trilinear lookup reads the tile alone is constant, the
+/// rest (the halo cells on its + faces) is sampled. Returns the sampled parts (before and after
+/// the inner box) and the inner part, or the whole chord sampled when the ray misses the box.
+#[allow(clippy::type_complexity)]
+fn tile_split(
+    q: DVec3,
+    d: DVec3,
+    o: [i64; 3],
+    (a, b): (f64, f64),
+) -> ([Option<(f64, f64)>; 2], Option<(f64, f64)>) {
+    let lo = DVec3::from(o.map(|c| c as f64));
+    match crate::ray::clip_box(q, d, lo, lo + DVec3::splat(7.0)) {
+        Some((ia, ib)) if ia.max(a) < ib.min(b) => {
+            let (ia, ib) = (ia.max(a), ib.min(b));
+            let part = |x: f64, y: f64| (x < y).then_some((x, y));
+            // The ray path merges sampled segments that touch within round-off into one span
+            // (`marching::spans`): a ray grazing the inner box is marched whole.
+            if a < ia && ib < b && ib <= ia + 1e-12 * ia.abs().max(1.0) {
+                return ([Some((a, b)), None], Some((ia, ib)));
+            }
+            ([part(a, ia), part(ib, b)], Some((ia, ib)))
+        }
+        _ => ([Some((a, b)), None], None),
+    }
+}
+
+/// A band of a random march finished: per pixel, `T` the mean over its `samples` estimates of
+/// `exp(-tau_i)` (each estimate `per` values: the full ray, then its slices) into `t_band`, the
+/// standard error of that mean into `err` (when it is not empty), and the slices' means
+/// (pixel-major) returned. A NaN optical depth is the ray's error.
+pub(super) fn finish_samples(
+    camera: &Camera,
+    y0: u32,
+    tau: &[f64],
+    per: usize,
+    samples: usize,
+    t_band: &mut [f32],
+    err: &mut [f32],
+) -> Result<Vec<f32>> {
+    let w = camera.width;
+    let mut slices = Vec::with_capacity(t_band.len() * (per - 1));
+    for (px, est) in tau.chunks(per * samples).enumerate() {
+        if est.iter().any(|x| x.is_nan()) {
+            let (i, j) = (px as u32 % w, y0 + px as u32 / w);
+            let ray = camera.pixel_ray(i, j)?;
+            return Err(crate::Error::nan_on_ray("optical depth", &ray));
+        }
+        let mean_of = |slot: usize| {
+            let t = move |i: usize| (-est[i * per + slot]).exp();
+            let mean = (0..samples).map(t).sum::<f64>() / samples as f64;
+            (mean, t)
+        };
+        let (mean, t) = mean_of(0);
+        t_band[px] = mean as f32;
+        if !err.is_empty() && samples > 1 {
+            let ss: f64 = (0..samples).map(|i| (t(i) - mean).powi(2)).sum();
+            err[px] = (ss / (samples - 1) as f64 / samples as f64).sqrt() as f32;
+        }
+        slices.extend((1..per).map(|k| mean_of(k).0 as f32));
+    }
+    Ok(slices)
+}
