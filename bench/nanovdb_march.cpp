@@ -516,6 +516,20 @@ void writeExr(const std::string& path, const std::string& channel, int w, int h,
         throw std::runtime_error("cannot write " + path);
 }
 
+// Run work(0..threads-1) on that many threads (the caller's as thread 0); the wall seconds.
+template<typename Work>
+double timedOnThreads(int threads, const Work& work)
+{
+    const auto t0 = std::chrono::steady_clock::now();
+    std::vector<std::thread> pool;
+    for (int k = 1; k < threads; ++k)
+        pool.emplace_back(work, k);
+    work(0);
+    for (auto& th : pool)
+        th.join();
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
 template<bool LeafSampler>
 double render(const GridT& grid, const std::map<std::string, std::string>& opt, int threads, std::vector<float>& img,
               int w, int hgt, Counters& total)
@@ -563,14 +577,7 @@ double render(const GridT& grid, const std::map<std::string, std::string>& opt, 
             }
         }
     };
-    const auto t0 = std::chrono::steady_clock::now();
-    std::vector<std::thread> pool;
-    for (int k = 1; k < threads; ++k)
-        pool.emplace_back(work, k);
-    work(0);
-    for (auto& th : pool)
-        th.join();
-    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double secs = timedOnThreads(threads, work);
     total = Counters{};
     for (const auto& c : counters) {
         total.samples += c.samples;
@@ -622,14 +629,7 @@ double segments(const GridT& grid, const std::vector<double>& rows, double scale
             }
         }
     };
-    const auto t0 = std::chrono::steady_clock::now();
-    std::vector<std::thread> pool;
-    for (int k = 1; k < threads; ++k)
-        pool.emplace_back(work, k);
-    work(0);
-    for (auto& th : pool)
-        th.join();
-    const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const double secs = timedOnThreads(threads, work);
     total = Counters{};
     voxels = 0.0;
     for (int k = 0; k < threads; ++k) {

@@ -33,7 +33,7 @@ pub mod registry;
 
 pub use medium::{Extinction, RayMedium};
 pub use null_collision::BOUND_TOLERANCE;
-use registry::Algo;
+pub(crate) use registry::Algo;
 pub use registry::{names, Estimator, Kind, Param, Spec, REGISTRY};
 
 use crate::error::Result;
@@ -389,13 +389,22 @@ pub(crate) fn march_sample(
     sample: u32,
 ) -> (f64, u64) {
     let mut medium = RayMedium::new(vol, ray, opts.interp);
-    let mut prep = Prepared::default();
-    let scratch = &mut Scratch::default();
-    prepare_into(vol, ray, opts, false, &mut medium, scratch, &mut prep);
-    let mut rng = Rng::new(opts.seed, ray_id, u64::from(sample));
-    let mut cap = Cap::new(opts.max_collisions);
-    let t = sample_once(est, &prep.segs, &mut medium, &mut rng, &mut cap);
-    (prep.tau_known - t.ln(), medium.lookups())
+    let mut run = |scratch: &mut Scratch, prep: &mut Prepared| {
+        prepare_into(vol, ray, opts, false, &mut medium, scratch, prep);
+        let mut rng = Rng::new(opts.seed, ray_id, u64::from(sample));
+        let mut cap = Cap::new(opts.max_collisions);
+        let t = sample_once(est, &prep.segs, &mut medium, &mut rng, &mut cap);
+        prep.tau_known - t.ln()
+    };
+    // The per-thread buffers of [`estimate`]; fresh ones if this thread is already in them.
+    let tau = BUFFERS.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut bufs) => {
+            let (scratch, prep) = &mut *bufs;
+            run(scratch, prep)
+        }
+        Err(_) => run(&mut Scratch::default(), &mut Prepared::default()),
+    });
+    (tau, medium.lookups())
 }
 
 /// Collision budget of one sample, and the bound violations it met.

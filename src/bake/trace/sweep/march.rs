@@ -32,7 +32,7 @@ use crate::bake::camera::Camera;
 use crate::bake::map::BakeSettings;
 use crate::error::Result;
 use crate::estimate::marching::{pieces, step_world};
-use crate::estimate::{Estimator, Options};
+use crate::estimate::{Algo, Estimator, Options};
 use crate::regular::{leaf_integral, Counts};
 use crate::rng::Rng;
 use crate::tree::Accessor;
@@ -86,9 +86,9 @@ pub(crate) fn marches(s: &BakeSettings) -> Option<March> {
     if !s.estimator.marches() || s.options.interp != Interp::Trilinear || s.target_error.is_some() {
         return None;
     }
-    let points = match s.estimator.name() {
-        "riemann" => Points::Midpoint,
-        "jittered" => Points::Jittered,
+    let points = match s.estimator.algo().0 {
+        Algo::Riemann => Points::Midpoint,
+        Algo::Jittered => Points::Jittered,
         _ => Points::Uniform,
     };
     Some(March {
@@ -205,7 +205,12 @@ impl Sweep<'_> {
                             let part = (a, job.end, job.ray_id, i as u32);
                             let v =
                                 self.scalar(m, p, (q, d), part, key, (px, y0), &mut acc, &mut n);
-                            self.credit(tau, px * stride + i * per + job.slot, *job, v);
+                            self.credit(
+                                tau,
+                                px * stride + i * per + job.slot,
+                                (job.shared, job.end),
+                                v,
+                            );
                         }
                     }
                 });
@@ -220,13 +225,7 @@ impl Sweep<'_> {
                 let sums = kernel.march(&block, &batch.lanes, &batch.steps, offsets);
                 for (l, &(at, shared, end)) in batch.at.iter().enumerate().take(batch.used) {
                     *lookups += u64::from(sums.cells[l]);
-                    let job = Job {
-                        slot: 0,
-                        end,
-                        ray_id: 0,
-                        shared,
-                    };
-                    self.credit(tau, at, job, scale * sums.tau[l]);
+                    self.credit(tau, at, (shared, end), scale * sums.tau[l]);
                 }
                 batch.lanes = Lanes::default();
                 batch.steps = Steps::default();
@@ -290,7 +289,7 @@ impl Sweep<'_> {
                     for job in &jobs {
                         for i in 0..samples {
                             let at = px * stride + i * per + job.slot;
-                            self.credit(tau, at, *job, mu * (job.end - ia));
+                            self.credit(tau, at, (job.shared, job.end), mu * (job.end - ia));
                         }
                     }
                 }
@@ -300,13 +299,13 @@ impl Sweep<'_> {
         Ok(())
     }
 
-    /// Add `v` to `tau[at]`, and to every slice of that estimate past the job's end when the
-    /// slices share it.
-    fn credit(&self, tau: &mut [f64], at: usize, job: Job, v: f64) {
+    /// Add `v` to `tau[at]`, and to every slice of that estimate past `end` when the slices
+    /// share it.
+    fn credit(&self, tau: &mut [f64], at: usize, (shared, end): (bool, f64), v: f64) {
         tau[at] += v;
-        if job.shared {
+        if shared {
             for (k, &t) in self.depths.iter().enumerate() {
-                if t >= job.end {
+                if t >= end {
                     tau[at + 1 + k] += v;
                 }
             }
