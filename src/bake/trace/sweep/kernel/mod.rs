@@ -14,7 +14,7 @@
 //! `int_s^s' f = h (f(m - h / sqrt3) + f(m + h / sqrt3))`, `m = (s + s') / 2`, `h = (s' - s) / 2`,
 //! the point at `t` being `u = (e - c) + d t` in the cell's own coordinates.
 //!
-//! **Precision.** The cell arithmetic is f32 (8 lanes per AVX2 register); each cell's integral is
+//! **Precision.** The cell arithmetic is f32 (16 lanes per AVX-512 register, 8 per AVX2 one); each cell's integral is
 //! widened to f64 and summed in f64. Positions are block-centred, so a lane's coordinates have
 //! absolute error below `2^-22 |e| + |d t| 2^-24` (under `1e-6` voxels); the trilinear field is
 //! continuous across cell faces, so misplacing a face by `dt` changes the integral by
@@ -31,13 +31,17 @@
 //! [`crate::estimate::marching`] on the same chord. A point's cell is `floor(e + d s)` clamped
 //! to the block, its weights `(e - c) + d s` with the same split entry and direction as above.
 //!
-//! **Dispatch.** [`Kernel::integrate`] runs the AVX2 + FMA version where the CPU has it and a portable
-//! version elsewhere. Both do the same f32 operations in the same order, with fused
-//! multiply-adds at the same places (`f32::mul_add` in the portable one), so they agree bit for
-//! bit (checked by a unit test on machines with AVX2).
+//! **Dispatch.** A batch holds [`LANES`] = 16 rays. [`Kernel`] runs the AVX-512F version (the 16
+//! lanes in one register, lane masks) where the CPU has it, else the AVX2 + FMA version (two
+//! registers of 8, one after the other), else a portable one ([`Simd::active`]; the environment
+//! variable `UMBRA_SIMD=portable|avx2|avx512` caps the choice, for benchmarks and for checking
+//! a result on another machine's path). All do the same f32 operations per lane in the same
+//! order, with fused multiply-adds at the same places (`f32::mul_add` in the portable one) and
+//! IEEE-exact division, floor and min/max with the same operand order, so they agree bit for
+//! bit (unit tests compare every version the CPU runs).
 
-/// Rays integrated side by side.
-pub(crate) const LANES: usize = 8;
+/// Rays integrated side by side: one AVX-512 register, two AVX2 registers.
+pub(crate) const LANES: usize = 16;
 /// Side of the padded block: the 8 cells of a block edge plus the corners on its + face.
 pub(crate) const SIDE: usize = 9;
 /// Values in a padded block.
@@ -52,34 +56,134 @@ const GAUSS: f32 = 0.577_350_26;
 /// per axis that would leave the block early (round-off) and ends that axis instead.
 const MAX_STEPS: usize = 25;
 
-/// Which version of the kernel runs.
-#[derive(Debug, Clone, Copy)]
-pub(crate) struct Kernel {
-    /// Run the AVX2 + FMA version.
-    simd: bool,
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod avx2;
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod avx512;
+
+/// An instruction set the kernel has a version for, narrowest first. Every version does the
+/// same f32 operations per lane in the same order, so all give the same bits.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Simd {
+    /// Plain Rust, one lane after the other (`f32::mul_add` where the others fuse).
+    Portable,
+    /// AVX2 + FMA: 8 lanes a register, a batch in two halves.
+    Avx2,
+    /// AVX-512F: the 16 lanes of a batch in one register, lane masks instead of blends.
+    Avx512,
 }
 
-impl Kernel {
-    /// The fastest version this CPU runs.
-    pub(crate) fn new() -> Self {
-        Self {
-            simd: simd_available(),
+impl Simd {
+    /// The name `UMBRA_SIMD` takes and reports give: `portable`, `avx2` or `avx512`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Simd::Portable => "portable",
+            Simd::Avx2 => "avx2",
+            Simd::Avx512 => "avx512",
         }
     }
 
-    /// The portable version (tests compare the two).
+    /// The widest version this CPU runs, capped by the environment variable `UMBRA_SIMD`
+    /// (`portable`, `avx2` or `avx512`; a level the CPU lacks falls to the widest it has; an
+    /// unknown value is ignored). Decided once per process.
+    pub fn active() -> Simd {
+        static ACTIVE: std::sync::OnceLock<Simd> = std::sync::OnceLock::new();
+        *ACTIVE.get_or_init(|| {
+            let best = Simd::detected();
+            let cap = std::env::var("UMBRA_SIMD")
+                .ok()
+                .and_then(|v| Simd::parse(&v));
+            cap.map_or(best, |c| c.min(best))
+        })
+    }
+
+    /// The level named `s` (see [`Simd::name`]).
+    pub fn parse(s: &str) -> Option<Simd> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "portable" | "scalar" | "none" => Some(Simd::Portable),
+            "avx2" => Some(Simd::Avx2),
+            "avx512" | "avx-512" | "avx512f" => Some(Simd::Avx512),
+            _ => None,
+        }
+    }
+
+    /// The widest version the CPU supports.
+    #[cfg(target_arch = "x86_64")]
+    pub fn detected() -> Simd {
+        let avx2 = std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma");
+        if avx2 && std::arch::is_x86_feature_detected!("avx512f") {
+            Simd::Avx512
+        } else if avx2 {
+            Simd::Avx2
+        } else {
+            Simd::Portable
+        }
+    }
+
+    /// The widest version the CPU supports.
+    #[cfg(not(target_arch = "x86_64"))]
+    pub fn detected() -> Simd {
+        Simd::Portable
+    }
+}
+
+/// Which version of the kernel runs.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Kernel {
+    simd: Simd,
+}
+
+impl Kernel {
+    /// The version [`Simd::active`] picks.
+    pub(crate) fn new() -> Self {
+        Self {
+            simd: Simd::active(),
+        }
+    }
+
+    /// Every version this CPU runs (tests compare them).
+    #[cfg(test)]
+    pub(crate) fn every() -> Vec<Self> {
+        [Simd::Portable, Simd::Avx2, Simd::Avx512]
+            .into_iter()
+            .filter(|&s| s <= Simd::detected())
+            .map(|simd| Self { simd })
+            .collect()
+    }
+
+    /// The portable version (tests compare the others with it).
     #[cfg(test)]
     pub(crate) fn portable() -> Self {
-        Self { simd: false }
+        Self {
+            simd: Simd::Portable,
+        }
     }
 
     /// Integrate the block's field along every used lane.
     pub(crate) fn integrate(self, block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
         #[cfg(target_arch = "x86_64")]
-        if self.simd {
-            // SAFETY: `simd` is set only when the CPU reports AVX2 and FMA.
+        match self.simd {
+            // SAFETY: `Avx512` is chosen only when the CPU reports AVX-512F, AVX2 and FMA.
             #[allow(unsafe_code)]
-            return unsafe { avx2::integrate(block, lanes) };
+            Simd::Avx512 => return unsafe { avx512::integrate(block, lanes) },
+            Simd::Avx2 => {
+                let mut out = Sums::default();
+                for l0 in (0..LANES).step_by(avx2::WIDTH) {
+                    if lanes.len[l0..l0 + avx2::WIDTH].iter().any(|&x| x > 0.0) {
+                        // SAFETY: `Avx2` is chosen only when the CPU reports AVX2 and FMA;
+                        // `l0 + WIDTH <= LANES`.
+                        #[allow(unsafe_code)]
+                        unsafe {
+                            avx2::integrate(block, lanes, l0, &mut out)
+                        };
+                    }
+                }
+                return out;
+            }
+            Simd::Portable => {}
         }
         portable(block, lanes)
     }
@@ -95,10 +199,24 @@ impl Kernel {
         offsets: Option<&[[f32; LANES]]>,
     ) -> Sums {
         #[cfg(target_arch = "x86_64")]
-        if self.simd {
-            // SAFETY: `simd` is set only when the CPU reports AVX2 and FMA.
+        match self.simd {
+            // SAFETY: `Avx512` is chosen only when the CPU reports AVX-512F, AVX2 and FMA.
             #[allow(unsafe_code)]
-            return unsafe { avx2::march(block, lanes, steps, offsets) };
+            Simd::Avx512 => return unsafe { avx512::march(block, lanes, steps, offsets) },
+            Simd::Avx2 => {
+                let mut out = Sums::default();
+                for l0 in (0..LANES).step_by(avx2::WIDTH) {
+                    if steps.n[l0..l0 + avx2::WIDTH].iter().any(|&n| n > 0) {
+                        // SAFETY: as in `integrate`.
+                        #[allow(unsafe_code)]
+                        unsafe {
+                            avx2::march(block, lanes, steps, offsets, l0, &mut out)
+                        };
+                    }
+                }
+                return out;
+            }
+            Simd::Portable => {}
         }
         portable_march(block, lanes, steps, offsets)
     }
@@ -158,16 +276,6 @@ fn portable_march(
         out.cells[l] = n;
     }
     out
-}
-
-#[cfg(target_arch = "x86_64")]
-fn simd_available() -> bool {
-    std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
-}
-
-#[cfg(not(target_arch = "x86_64"))]
-fn simd_available() -> bool {
-    false
 }
 
 /// Up to [`LANES`] rays through one block. A lane with `len <= 0` is unused.
@@ -303,260 +411,6 @@ fn portable(block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
     out
 }
 
-#[cfg(target_arch = "x86_64")]
-#[allow(unsafe_code)]
-mod avx2 {
-    use super::{start, Lanes, Steps, Sums, BLOCK, CORNERS, GAUSS, LANES, MAX_STEPS, STRIDE};
-    use std::arch::x86_64::*;
-
-    /// The AVX2 + FMA version: the 8 lanes in one register each.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2 and FMA.
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn integrate(block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
-        let mut cx = [0f32; LANES];
-        let mut cy = [0f32; LANES];
-        let mut cz = [0f32; LANES];
-        let mut ix = [0i32; LANES];
-        let mut t = [[0f32; LANES]; 3];
-        for l in 0..LANES {
-            let (c, idx, tn) = start(
-                [lanes.e[0][l], lanes.e[1][l], lanes.e[2][l]],
-                [lanes.d[0][l], lanes.d[1][l], lanes.d[2][l]],
-            );
-            (cx[l], cy[l], cz[l], ix[l]) = (c[0], c[1], c[2], idx);
-            for a in 0..3 {
-                t[a][l] = tn[a];
-            }
-        }
-        // SAFETY (every load below): reads of `LANES` f32 or i32 from arrays of that length.
-        let ld = |v: &[f32; LANES]| unsafe { _mm256_loadu_ps(v.as_ptr()) };
-        let len = ld(&lanes.len);
-        let zero = _mm256_setzero_ps();
-        let mut active = _mm256_cmp_ps::<_CMP_GT_OQ>(len, zero);
-        let e = [ld(&lanes.e[0]), ld(&lanes.e[1]), ld(&lanes.e[2])];
-        let e_lo = [ld(&lanes.e_lo[0]), ld(&lanes.e_lo[1]), ld(&lanes.e_lo[2])];
-        let mut c = [ld(&cx), ld(&cy), ld(&cz)];
-        let mut tn = [ld(&t[0]), ld(&t[1]), ld(&t[2])];
-        let mut idx = unsafe { _mm256_loadu_si256(ix.as_ptr().cast()) };
-        let d = [ld(&lanes.d[0]), ld(&lanes.d[1]), ld(&lanes.d[2])];
-        let d_lo = [ld(&lanes.d_lo[0]), ld(&lanes.d_lo[1]), ld(&lanes.d_lo[2])];
-        let (gm, gp) = (_mm256_set1_ps(1.0 - GAUSS), _mm256_set1_ps(1.0 + GAUSS));
-        // Per lane and axis: the cell step (the sign of `d`: +1, -1 or 0), the `t` between two
-        // faces `|1 / d|` (infinite where `d = 0`) and the step's offset in the block.
-        let (one, neg_one) = (_mm256_set1_ps(1.0), _mm256_set1_ps(-1.0));
-        let sign_bit = _mm256_set1_ps(-0.0);
-        let mut step = [zero; 3];
-        let mut delta = [zero; 3];
-        let mut stride = [_mm256_setzero_si256(); 3];
-        for a in 0..3 {
-            let pos = _mm256_cmp_ps::<_CMP_GT_OQ>(d[a], zero);
-            let neg = _mm256_cmp_ps::<_CMP_LT_OQ>(d[a], zero);
-            step[a] = _mm256_or_ps(_mm256_and_ps(pos, one), _mm256_and_ps(neg, neg_one));
-            delta[a] = _mm256_andnot_ps(sign_bit, _mm256_div_ps(one, d[a]));
-            let (up, down) = (_mm256_set1_epi32(STRIDE[a]), _mm256_set1_epi32(-STRIDE[a]));
-            stride[a] = _mm256_or_si256(
-                _mm256_and_si256(_mm256_castps_si256(pos), up),
-                _mm256_and_si256(_mm256_castps_si256(neg), down),
-            );
-        }
-        let pair = [0, 2, 4, 6].map(|k| CORNERS[k]);
-        let base: *const f32 = block.as_ptr();
-        let (lo, hi) = (_mm256_set1_ps(-4.0), _mm256_set1_ps(3.0));
-        let half = _mm256_set1_ps(0.5);
-        let inf = _mm256_set1_ps(f32::INFINITY);
-        let mut s = zero;
-        let mut acc_lo = _mm256_setzero_pd();
-        let mut acc_hi = _mm256_setzero_pd();
-        let mut cells = _mm256_setzero_si256();
-        for _ in 0..MAX_STEPS {
-            if _mm256_movemask_ps(active) == 0 {
-                break;
-            }
-            let tm = _mm256_min_ps(tn[0], _mm256_min_ps(tn[1], tn[2]));
-            let te = _mm256_min_ps(tm, len);
-            let h = _mm256_mul_ps(half, _mm256_sub_ps(te, s));
-            let (hm, hp) = (_mm256_mul_ps(h, gm), _mm256_mul_ps(h, gp));
-            let mut um = [zero; 3];
-            let mut up = [zero; 3];
-            for a in 0..3 {
-                let local = _mm256_add_ps(_mm256_sub_ps(e[a], c[a]), e_lo[a]);
-                let us = _mm256_fmadd_ps(d[a], s, local);
-                let us = _mm256_fmadd_ps(d_lo[a], s, us);
-                um[a] = _mm256_fmadd_ps(d[a], hm, us);
-                up[a] = _mm256_fmadd_ps(d[a], hp, us);
-            }
-            // Corners come in z pairs (`v[2k]`, `v[2k + 1]` adjacent in the block): each lane
-            // loads its 4 pairs as 64-bit scalars (AVX2 gathers are slow on some cores; plain
-            // loads run 2-3 a cycle everywhere). Inactive lanes read pair 0 (index masked to 0).
-            let at = _mm256_and_si256(idx, _mm256_castps_si256(active));
-            let mut ix = [0i32; LANES];
-            // SAFETY: a store of 8 i32 into an array of 8.
-            unsafe { _mm256_storeu_si256(ix.as_mut_ptr().cast(), at) };
-            let v = pair.map(|k| {
-                // SAFETY: an active lane's cell is in -4..=3 on every axis (checked when it
-                // steps), so `ix + k + 1 <= 637 + 90 + 1 < BLOCK`; inactive lanes read 0..1.
-                let at = |l: usize| unsafe { base.add((ix[l] + k) as usize).cast::<f64>() };
-                let q = |a: usize| unsafe {
-                    _mm_loadh_pd(_mm_loadl_pd(_mm_setzero_pd(), at(a)), at(a + 1))
-                };
-                // [a0 b0 a1 b1 | a4 b4 a5 b5] and [a2 b2 a3 b3 | a6 b6 a7 b7]: one in-lane
-                // shuffle each gives the evens and the odds with the lanes in order.
-                let lo = _mm256_castpd_ps(_mm256_set_m128d(q(4), q(0)));
-                let hi = _mm256_castpd_ps(_mm256_set_m128d(q(6), q(2)));
-                (
-                    _mm256_shuffle_ps::<0x88>(lo, hi),
-                    _mm256_shuffle_ps::<0xDD>(lo, hi),
-                )
-            });
-            let v = [
-                v[0].0, v[0].1, v[1].0, v[1].1, v[2].0, v[2].1, v[3].0, v[3].1,
-            ];
-            let f = |w: [__m256; 3]| {
-                let lerp = |a: __m256, b: __m256, w: __m256| {
-                    _mm256_fmadd_ps(b, w, _mm256_mul_ps(a, _mm256_sub_ps(one, w)))
-                };
-                let z = |a: __m256, b: __m256| lerp(a, b, w[2]);
-                let (z0, z1, z2, z3) = (z(v[0], v[1]), z(v[2], v[3]), z(v[4], v[5]), z(v[6], v[7]));
-                lerp(lerp(z0, z1, w[1]), lerp(z2, z3, w[1]), w[0])
-            };
-            let r = _mm256_and_ps(_mm256_mul_ps(h, _mm256_add_ps(f(um), f(up))), active);
-            acc_lo = _mm256_add_pd(acc_lo, _mm256_cvtps_pd(_mm256_castps256_ps128(r)));
-            acc_hi = _mm256_add_pd(acc_hi, _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(r)));
-            cells = _mm256_sub_epi32(cells, _mm256_castps_si256(active));
-            // Step the lanes that go on: the axis of the nearest face (ties to the lower axis).
-            active = _mm256_and_ps(active, _mm256_cmp_ps::<_CMP_LT_OQ>(tm, len));
-            let le = |a: __m256, b: __m256| _mm256_cmp_ps::<_CMP_LE_OQ>(a, b);
-            let mx = _mm256_and_ps(le(tn[0], tn[1]), le(tn[0], tn[2]));
-            let my = _mm256_andnot_ps(mx, le(tn[1], tn[2]));
-            let mz = _mm256_andnot_ps(_mm256_or_ps(mx, my), _mm256_cmp_ps::<_CMP_EQ_OQ>(s, s));
-            for (a, mask) in [mx, my, mz].into_iter().enumerate() {
-                let next = _mm256_add_ps(c[a], step[a]);
-                let ok = _mm256_and_ps(le(lo, next), le(next, hi));
-                let go = _mm256_and_ps(_mm256_and_ps(mask, active), ok);
-                let stop = _mm256_andnot_ps(ok, _mm256_and_ps(mask, active));
-                c[a] = _mm256_blendv_ps(c[a], next, go);
-                tn[a] = _mm256_add_ps(tn[a], _mm256_and_ps(go, delta[a]));
-                tn[a] = _mm256_blendv_ps(tn[a], inf, stop);
-                idx = _mm256_add_epi32(idx, _mm256_and_si256(_mm256_castps_si256(go), stride[a]));
-            }
-            s = te;
-        }
-        let mut out = Sums::default();
-        let mut n = [0i32; LANES];
-        // SAFETY: stores of 4 f64 / 8 i32 into arrays of that length.
-        unsafe {
-            _mm256_storeu_pd(out.tau.as_mut_ptr(), acc_lo);
-            _mm256_storeu_pd(out.tau.as_mut_ptr().add(4), acc_hi);
-            _mm256_storeu_si256(n.as_mut_ptr().cast(), cells);
-        }
-        out.cells = n.map(|x| x as u32);
-        out
-    }
-
-    /// Each lane's 8 cell corners (`v[x << 2 | y << 1 | z]`) at padded-block index `idx`
-    /// (masked to 0 where `active` is clear).
-    ///
-    /// # Safety
-    /// AVX2; every active lane's `idx` is a cell of the block (`idx + 91 < BLOCK`).
-    #[inline]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn corners(block: &[f32; BLOCK], idx: __m256i, active: __m256) -> [__m256; 8] {
-        let pair = [0, 2, 4, 6].map(|k| CORNERS[k]);
-        let base: *const f32 = block.as_ptr();
-        let at = _mm256_and_si256(idx, _mm256_castps_si256(active));
-        let mut ix = [0i32; LANES];
-        // SAFETY: a store of 8 i32 into an array of 8.
-        unsafe { _mm256_storeu_si256(ix.as_mut_ptr().cast(), at) };
-        let v = pair.map(|k| {
-            // SAFETY: as the caller promises; inactive lanes read 0..1.
-            let at = |l: usize| unsafe { base.add((ix[l] + k) as usize).cast::<f64>() };
-            let q = |a: usize| unsafe {
-                _mm_loadh_pd(_mm_loadl_pd(_mm_setzero_pd(), at(a)), at(a + 1))
-            };
-            let lo = _mm256_castpd_ps(_mm256_set_m128d(q(4), q(0)));
-            let hi = _mm256_castpd_ps(_mm256_set_m128d(q(6), q(2)));
-            (
-                _mm256_shuffle_ps::<0x88>(lo, hi),
-                _mm256_shuffle_ps::<0xDD>(lo, hi),
-            )
-        });
-        [
-            v[0].0, v[0].1, v[1].0, v[1].1, v[2].0, v[2].1, v[3].0, v[3].1,
-        ]
-    }
-
-    /// The AVX2 + FMA midpoint march: lane `l`'s point `j` while `j < n[l]`.
-    ///
-    /// # Safety
-    /// The CPU must support AVX2 and FMA.
-    #[target_feature(enable = "avx2,fma")]
-    pub(super) unsafe fn march(
-        block: &[f32; BLOCK],
-        lanes: &Lanes,
-        steps: &Steps,
-        offsets: Option<&[[f32; LANES]]>,
-    ) -> Sums {
-        // SAFETY (every load below): reads of `LANES` f32 or i32 from arrays of that length.
-        let ld = |v: &[f32; LANES]| unsafe { _mm256_loadu_ps(v.as_ptr()) };
-        let e = [ld(&lanes.e[0]), ld(&lanes.e[1]), ld(&lanes.e[2])];
-        let e_lo = [ld(&lanes.e_lo[0]), ld(&lanes.e_lo[1]), ld(&lanes.e_lo[2])];
-        let d = [ld(&lanes.d[0]), ld(&lanes.d[1]), ld(&lanes.d[2])];
-        let d_lo = [ld(&lanes.d_lo[0]), ld(&lanes.d_lo[1]), ld(&lanes.d_lo[2])];
-        let dt = ld(&steps.dt);
-        let n = _mm256_cvtepi32_ps(unsafe { _mm256_loadu_si256(steps.n.as_ptr().cast()) });
-        let most = steps.n.iter().copied().max().unwrap_or(0);
-        let (one, half) = (_mm256_set1_ps(1.0), _mm256_set1_ps(0.5));
-        let (lo, hi, four) = (
-            _mm256_set1_ps(-4.0),
-            _mm256_set1_ps(3.0),
-            _mm256_set1_ps(4.0),
-        );
-        let stride = STRIDE.map(|k| _mm256_set1_ps(k as f32));
-        let mut acc_lo = _mm256_setzero_pd();
-        let mut acc_hi = _mm256_setzero_pd();
-        for j in 0..most {
-            let jf = _mm256_set1_ps(j as f32);
-            let active = _mm256_cmp_ps::<_CMP_LT_OQ>(jf, n);
-            let off = match offsets {
-                Some(o) => ld(&o[j as usize]),
-                None => half,
-            };
-            let s = _mm256_mul_ps(_mm256_add_ps(jf, off), dt);
-            let mut w = [one; 3];
-            let mut idx = _mm256_setzero_ps();
-            for a in 0..3 {
-                let p = _mm256_fmadd_ps(d[a], s, e[a]);
-                let c = _mm256_min_ps(_mm256_max_ps(_mm256_floor_ps(p), lo), hi);
-                let local = _mm256_add_ps(_mm256_sub_ps(e[a], c), e_lo[a]);
-                let u = _mm256_fmadd_ps(d[a], s, local);
-                w[a] = _mm256_fmadd_ps(d_lo[a], s, u);
-                idx = _mm256_add_ps(idx, _mm256_mul_ps(_mm256_add_ps(c, four), stride[a]));
-            }
-            // SAFETY: every cell is clamped into the block.
-            let v = unsafe { corners(block, _mm256_cvttps_epi32(idx), active) };
-            let lerp = |a: __m256, b: __m256, w: __m256| {
-                _mm256_fmadd_ps(b, w, _mm256_mul_ps(a, _mm256_sub_ps(one, w)))
-            };
-            let z = |a: __m256, b: __m256| lerp(a, b, w[2]);
-            let (z0, z1, z2, z3) = (z(v[0], v[1]), z(v[2], v[3]), z(v[4], v[5]), z(v[6], v[7]));
-            let f = lerp(lerp(z0, z1, w[1]), lerp(z2, z3, w[1]), w[0]);
-            let r = _mm256_and_ps(_mm256_mul_ps(f, dt), active);
-            acc_lo = _mm256_add_pd(acc_lo, _mm256_cvtps_pd(_mm256_castps256_ps128(r)));
-            acc_hi = _mm256_add_pd(acc_hi, _mm256_cvtps_pd(_mm256_extractf128_ps::<1>(r)));
-        }
-        let mut out = Sums::default();
-        // SAFETY: stores of 4 f64 into an array of 8, twice.
-        unsafe {
-            _mm256_storeu_pd(out.tau.as_mut_ptr(), acc_lo);
-            _mm256_storeu_pd(out.tau.as_mut_ptr().add(4), acc_hi);
-        }
-        out.cells = steps.n;
-        out
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -588,7 +442,7 @@ mod tests {
     }
 
     /// Random blocks and rays: the kernel against fine midpoint quadrature of the f64 field,
-    /// and the AVX2 version bit for bit against the portable one.
+    /// and every SIMD version this CPU runs bit for bit against the portable one.
     #[test]
     fn kernel_integrates_the_trilinear_field() {
         let mut st = 7u64;
@@ -620,9 +474,15 @@ mod tests {
                 let e = [0, 1, 2].map(|k| p[k] + d[k] * a);
                 lanes.set(l, e, *d, if l == 5 { 0.0 } else { b - a });
             }
-            let got = Kernel::new().integrate(&block, &lanes);
-            let portable = Kernel::portable().integrate(&block, &lanes);
-            assert_eq!(got, portable, "AVX2 and portable differ");
+            let got = Kernel::portable().integrate(&block, &lanes);
+            for k in Kernel::every() {
+                assert_eq!(
+                    k.integrate(&block, &lanes),
+                    got,
+                    "{:?} and portable differ",
+                    k.simd
+                );
+            }
             for (l, d) in dirs.iter().enumerate() {
                 let len = f64::from(lanes.len[l]);
                 let e = [0, 1, 2].map(|k| f64::from(lanes.e[k][l]) + f64::from(lanes.e_lo[k][l]));
@@ -650,7 +510,7 @@ mod tests {
     }
 
     /// Random blocks and chords: the midpoint march against the same points read from the f64
-    /// field, and the AVX2 version bit for bit against the portable one.
+    /// field, and every SIMD version this CPU runs bit for bit against the portable one.
     #[test]
     fn march_reads_the_midpoints() {
         let mut st = 11u64;
@@ -682,9 +542,11 @@ mod tests {
                 .map(|_| [0; LANES].map(|_| lcg(&mut st) as f32))
                 .collect();
             let offsets = (round % 2 == 1).then_some(&offsets[..]);
-            let got = Kernel::new().march(&block, &lanes, &steps, offsets);
-            let portable = Kernel::portable().march(&block, &lanes, &steps, offsets);
-            assert_eq!(got, portable, "AVX2 and portable differ");
+            let got = Kernel::portable().march(&block, &lanes, &steps, offsets);
+            for k in Kernel::every() {
+                let other = k.march(&block, &lanes, &steps, offsets);
+                assert_eq!(other, got, "{:?} and portable differ", k.simd);
+            }
             for (l, d) in dirs.iter().enumerate() {
                 let e = [0, 1, 2].map(|k| f64::from(lanes.e[k][l]) + f64::from(lanes.e_lo[k][l]));
                 let dt = f64::from(steps.dt[l]);
@@ -717,11 +579,75 @@ mod tests {
             // 8 voxels at 2 voxels per unit t.
             lanes.set(l, [0.25, -1.5, 4.0], [0.0, 0.0, -2.0], 4.0);
         }
-        let got = Kernel::new().integrate(&block, &lanes);
-        // int_0^4 (8 - 2 t) dt = 16.
-        for l in 0..LANES {
-            assert!((got.tau[l] - 16.0).abs() < 1e-5, "{}", got.tau[l]);
-            assert_eq!(got.cells[l], 8);
+        for k in Kernel::every() {
+            let got = k.integrate(&block, &lanes);
+            // int_0^4 (8 - 2 t) dt = 16.
+            for l in 0..LANES {
+                assert!((got.tau[l] - 16.0).abs() < 1e-5, "{}", got.tau[l]);
+                assert_eq!(got.cells[l], 8);
+            }
         }
+    }
+
+    /// Rays on the lattice: entries on cell faces, edges and corners (`e` an integer, so a
+    /// first face time of `-0`), directions with zero and negative components, grazing a face,
+    /// unused lanes in either half of the batch and a whole half unused: every SIMD version bit
+    /// for bit against the portable one, exact and marched.
+    #[test]
+    fn lattice_rays_agree_bit_for_bit() {
+        let mut st = 23u64;
+        let mut block = [0f32; BLOCK];
+        for v in &mut block {
+            *v = (lcg(&mut st) * 2.0) as f32;
+        }
+        let pick = |st: &mut u64, from: &[f64]| from[(lcg(st) * from.len() as f64) as usize];
+        for round in 0..200 {
+            let mut lanes = Lanes::default();
+            let mut steps = Steps::default();
+            let used = match round % 4 {
+                0 => LANES,
+                1 => LANES / 2,
+                2 => 3,
+                _ => LANES - 1,
+            };
+            for l in 0..used {
+                let d = [0; 3].map(|_| pick(&mut st, &[0.0, 0.0, 1.0, -1.0, 0.5, -2.0, 0.3]));
+                let d = if d == [0.0; 3] { [0.0, 0.0, -1.0] } else { d };
+                let e = [0; 3].map(|_| pick(&mut st, &[-4.0, -3.0, 0.0, 2.0, 3.5, 4.0, -0.5]));
+                let len = pick(&mut st, &[0.0, 0.25, 1.0, 3.0, 8.0]);
+                lanes.set(l, e, d, len);
+                let n = if len > 0.0 { 1 + (l + round) % 9 } else { 0 };
+                steps.n[l] = n as u32;
+                steps.dt[l] = (len / n.max(1) as f64) as f32;
+            }
+            let (whole, marched) = (
+                Kernel::portable().integrate(&block, &lanes),
+                Kernel::portable().march(&block, &lanes, &steps, None),
+            );
+            for k in Kernel::every() {
+                assert_eq!(
+                    k.integrate(&block, &lanes),
+                    whole,
+                    "{:?}, round {round}",
+                    k.simd
+                );
+                let m = k.march(&block, &lanes, &steps, None);
+                assert_eq!(m, marched, "{:?} march, round {round}", k.simd);
+            }
+            for l in used..LANES {
+                assert_eq!((whole.tau[l], whole.cells[l]), (0.0, 0));
+            }
+        }
+    }
+
+    /// `UMBRA_SIMD`'s names, and the level in use is one the CPU runs.
+    #[test]
+    fn simd_levels() {
+        for s in [Simd::Portable, Simd::Avx2, Simd::Avx512] {
+            assert_eq!(Simd::parse(s.name()), Some(s));
+        }
+        assert_eq!(Simd::parse("AVX-512"), Some(Simd::Avx512));
+        assert_eq!(Simd::parse("sse9"), None);
+        assert!(Simd::active() <= Simd::detected());
     }
 }
