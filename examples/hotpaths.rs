@@ -3,8 +3,10 @@
 //! `nearest`, `trilinear`, `vdbrs` (vdb-rs bare parse) (exact regular tracking of 2000 random rays crossing the grid's box,
 //! REPS times) or `load` (full load of FILE's `density` grid, REPS times).
 //! `segments FILE CSV SCALE REPS [OUT]`: a query batch as `umbra query --rays CSV` and Python's
-//! `Volume.transmittance` trace it (every row's exact transmittance from `o` to `e`, rows in
-//! parallel on rayon's threads), the trace alone timed (median of REPS); one JSON line, and the
+//! `Volume.transmittance` trace it (every row's exact transmittance from `o` to `e`:
+//! `umbra::regular::optical_depths`, leaf chords in object order on the SIMD kernel;
+//! `segments-rays`: each row's own walk, `estimate::estimate`, rows in parallel on rayon's
+//! threads), the trace alone timed (median of REPS); one JSON line, and the
 //! T of every row as f32 into OUT (bench/queries.py compares them with NanoVDB's).
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
@@ -45,8 +47,8 @@ fn main() {
         );
         return;
     }
-    if mode == "segments" {
-        segments(&args);
+    if mode == "segments" || mode == "segments-rays" {
+        segments(&args, mode == "segments-rays");
         return;
     }
     let interp = if mode == "nearest" {
@@ -89,7 +91,7 @@ fn main() {
     );
 }
 
-fn segments(args: &[String]) {
+fn segments(args: &[String], by_ray: bool) {
     use rayon::prelude::*;
     let (file, csv) = (&args[2], &args[3]);
     let scale: f64 = args.get(4).and_then(|s| s.parse().ok()).unwrap_or(1.0);
@@ -111,15 +113,21 @@ fn segments(args: &[String]) {
     let mut t = Vec::new();
     for _ in 0..reps {
         let start = std::time::Instant::now();
-        t = rays
-            .par_iter()
-            .enumerate()
-            .map(|(k, r)| {
-                umbra::estimate::estimate(&vol, r, k as u64, &est, &opts)
-                    .unwrap()
-                    .value as f32
-            })
-            .collect::<Vec<f32>>();
+        t = if by_ray {
+            rays.par_iter()
+                .enumerate()
+                .map(|(k, r)| {
+                    umbra::estimate::estimate(&vol, r, k as u64, &est, &opts)
+                        .unwrap()
+                        .value as f32
+                })
+                .collect::<Vec<f32>>()
+        } else {
+            umbra::regular::optical_depths(&vol, &rays, Interp::Trilinear)
+                .into_iter()
+                .map(|od| od.unwrap().transmittance() as f32)
+                .collect()
+        };
         times.push(start.elapsed().as_secs_f64());
     }
     times.sort_by(f64::total_cmp);
@@ -129,8 +137,9 @@ fn segments(args: &[String]) {
         std::fs::write(out, bytes).unwrap();
     }
     println!(
-        "{{\"segments\":{},\"threads\":{},\"trace_s\":{secs:.6},\"mrays_per_s\":{:.4}}}",
+        "{{\"segments\":{},\"by_ray\":{by_ray},\"simd\":\"{}\",\"threads\":{},\"trace_s\":{secs:.6},\"mrays_per_s\":{:.4}}}",
         rays.len(),
+        umbra::regular::Simd::active().name(),
         rayon::current_num_threads(),
         rays.len() as f64 / secs / 1e6
     );

@@ -269,7 +269,7 @@ impl FileInfo {
             None => None,
         };
         Ok(Self::from_archive_grids(&archive, |gd| {
-            only.as_ref().map_or(true, |s| *s == gd.stored_name)
+            only.as_ref().is_none_or(|s| *s == gd.stored_name)
         }))
     }
 

@@ -24,7 +24,11 @@ use crate::tree::{Accessor, Block, Neighbour};
 use crate::volume::{Interp, Volume};
 use std::ops::ControlFlow;
 
+mod batch;
+pub(crate) mod kernel;
 mod profile;
+pub use batch::optical_depths;
+pub use kernel::Simd;
 pub use profile::{optical_depth_profile, optical_depth_profile_tau, Profile, MAX_PIECES};
 
 /// Exact optical depth along a ray and what it cost.

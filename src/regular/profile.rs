@@ -304,7 +304,7 @@ mod tests {
                 for z in -3..5 {
                     s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
                     let v = ((s >> 40) as f32 / (1u64 << 24) as f32) * 3.0;
-                    b.set([x, y, z], if (s >> 20) % 5 == 0 { 0.0 } else { v });
+                    b.set([x, y, z], if (s >> 20).is_multiple_of(5) { 0.0 } else { v });
                 }
             }
         }

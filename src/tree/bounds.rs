@@ -266,7 +266,7 @@ impl Tree {
         let mark = |c: &mut [u64], s: usize| c[s >> 6] |= 1 << (s & 63);
         // Are all tiles one value? (Usually: the background.)
         let first_tile = (0..n.slots.len()).find(|&s| !n.has_child(s));
-        let uniform = first_tile.map_or(true, |f| {
+        let uniform = first_tile.is_none_or(|f| {
             let v = n.slots[f];
             n.child_mask.iter().enumerate().all(|(w, &cw)| {
                 let s = &n.slots[w * 64..w * 64 + 64];

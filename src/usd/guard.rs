@@ -208,7 +208,7 @@ impl Crate<'_> {
     /// The `n` value reps of the FIELDS section, decompressed from the block at `at`.
     fn reps(&self, at: u64, n: u64) -> Result<Vec<u64>, String> {
         let (_, d, block) = self.block(at, "FIELDS")?;
-        if n.checked_mul(8).map_or(true, |b| b > d) {
+        if n.checked_mul(8).is_none_or(|b| b > d) {
             return Err(format!(
                 "FIELDS claims {n} values, more than its {d} decompressed bytes hold"
             ));

@@ -26,13 +26,13 @@
 //! Every pixel and slice equals the ray path's estimate to within the kernel's f32 positions
 //! (`marches_match_the_ray_path` in the sweep's tests).
 
-use super::kernel::{Kernel, Lanes, Steps, BLOCK, LANES};
 use super::{fill, neighbourhood, Layout, Part, Piece, Sweep};
 use crate::bake::camera::Camera;
 use crate::bake::map::BakeSettings;
 use crate::error::Result;
 use crate::estimate::marching::{pieces, step_world};
 use crate::estimate::{Algo, Estimator, Options};
+use crate::regular::kernel::{Kernel, Lanes, Steps, BLOCK, LANES};
 use crate::regular::{leaf_integral, Counts};
 use crate::rng::Rng;
 use crate::tree::Accessor;

@@ -44,7 +44,6 @@
 //! corpus files. Lookups are counted as the ray path counts them: 8 corner reads for the first
 //! dual cell of a block, 4 for each further one.
 
-mod kernel;
 mod march;
 mod streamed;
 
@@ -57,20 +56,15 @@ use crate::bake::map::{BakeSettings, BakeStats, Map};
 use crate::error::Result;
 use crate::estimate::Estimator;
 use crate::math::box_corners;
+use crate::regular::kernel::{
+    blocks_around, fill, kernel_ok, max_chord, Kernel, Lanes, BLOCK, LANES,
+};
 use crate::regular::{cells_integral, leaf_integral, optical_depth_above_lowers, Counts};
 use crate::traverse::lookup_ray;
-use crate::tree::{Accessor, Block, Neighbour, RootSlot, Tree};
+use crate::tree::{Accessor, Block, RootSlot, Tree};
 use crate::volume::{Interp, Volume};
 use glam::{DMat3, DVec3};
-use kernel::{Kernel, Lanes, BLOCK, LANES, SIDE};
 use rayon::prelude::*;
-
-/// Most values a block may hold in magnitude for the f32 kernel (no overflow in `h (f + f)`).
-const KERNEL_MAX: f64 = 1e20;
-/// Least non-zero magnitude for the f32 kernel (no subnormal products).
-const KERNEL_MIN: f64 = 1e-20;
-/// Range of a block's largest chord (world units) the f32 kernel accepts.
-const CHORD_RANGE: (f64, f64) = (1e-15, 1e15);
 
 /// True when the sweep renders maps with these settings: exact regular tracking with trilinear
 /// lookups (depth slices included), orthographic or perspective ([`render`] still declines a
@@ -490,29 +484,6 @@ struct Piece {
     rect: [u32; 4],
 }
 
-/// An upper bound on the world length of a ray inside an 8^3 block: its diagonal `8 sqrt3`
-/// index units times the largest world length of an index unit, `||W||_2 <= ||W||_F` for the
-/// linear part `W` of world-from-index.
-fn max_chord(vol: &Volume) -> f64 {
-    let m = DMat3::from_cols(
-        vol.to_index_dir(DVec3::X),
-        vol.to_index_dir(DVec3::Y),
-        vol.to_index_dir(DVec3::Z),
-    );
-    let w = m.inverse();
-    let frobenius =
-        (w.x_axis.length_squared() + w.y_axis.length_squared() + w.z_axis.length_squared()).sqrt();
-    8.0 * 3f64.sqrt() * frobenius
-}
-
-/// Whether a block with halo values up to `m` in magnitude goes on the f32 kernel.
-fn kernel_ok(min: f32, max: f32, chord: f64) -> bool {
-    let m = f64::from(min.abs().max(max.abs()));
-    m.is_finite()
-        && (KERNEL_MIN..=KERNEL_MAX).contains(&m)
-        && (CHORD_RANGE.0..=CHORD_RANGE.1).contains(&chord)
-}
-
 /// Every block of every lower node the ray walk would enter, in tree order; then, with
 /// `shells`, the blocks outside lower nodes whose trilinear corners read them (sorted by
 /// origin).
@@ -693,45 +664,18 @@ fn needs_rest(vol: &Volume) -> bool {
 /// The 8 blocks whose values a block's trilinear corners read: itself (`k = 0`) and its + face,
 /// edge and corner neighbours (`k` = bits x, y, z).
 fn neighbourhood<'t>(tree: &'t Tree, acc: &mut Accessor<'t>, p: &Piece) -> [Block<'t>; 8] {
-    let mut b = [Block::Const(tree.background); 8];
-    let nb = match p.part {
-        Part::Leaf { leaf, .. } => {
-            b[0] = Block::Leaf(tree.leaf_values(leaf));
-            tree.neighbours.get(leaf as usize)
-        }
-        Part::Tile { lower, slot, .. } => {
-            b[0] = Block::Const(tree.lowers[lower as usize].tile_value(slot as usize));
-            None
-        }
-        Part::Const(_) | Part::Shell { .. } => {
-            b[0] = acc.block_at(p.origin);
-            None
-        }
+    let (first, nb) = match p.part {
+        Part::Leaf { leaf, .. } => (
+            Block::Leaf(tree.leaf_values(leaf)),
+            tree.neighbours.get(leaf as usize),
+        ),
+        Part::Tile { lower, slot, .. } => (
+            Block::Const(tree.lowers[lower as usize].tile_value(slot as usize)),
+            None,
+        ),
+        Part::Const(_) | Part::Shell { .. } => (acc.block_at(p.origin), None),
     };
-    for (k, block) in b.iter_mut().enumerate().skip(1) {
-        *block = match nb.map(|n| n[k - 1]) {
-            Some(Neighbour::Leaf(i)) => Block::Leaf(tree.leaf_values(i)),
-            Some(Neighbour::Const(c)) => Block::Const(c),
-            _ => acc.block_at([0, 1, 2].map(|a| p.origin[a] + 8 * ((k >> (2 - a)) & 1) as i64)),
-        };
-    }
-    b
-}
-
-/// Copy a block's `9^3` corner values (`x * 81 + y * 9 + z`) into `out`.
-fn fill(src: &[Block<'_>; 8], out: &mut [f32; BLOCK]) {
-    for x in 0..SIDE {
-        for y in 0..SIDE {
-            let row = (x * SIDE + y) * SIDE;
-            let k = ((x >> 3) << 2) | ((y >> 3) << 1);
-            let n = ((x & 7) << 6) | ((y & 7) << 3);
-            match src[k] {
-                Block::Leaf(v) => out[row..row + 8].copy_from_slice(&v[n..n + 8]),
-                Block::Const(c) => out[row..row + 8].fill(c),
-            }
-            out[row + 8] = src[k | 1].get(n);
-        }
-    }
+    blocks_around(tree, acc, p.origin, first, nb)
 }
 
 /// A planned sweep: the map's rays, its pieces binned by band, and whether the rays also need

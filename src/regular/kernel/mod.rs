@@ -40,6 +40,10 @@
 //! IEEE-exact division, floor and min/max with the same operand order, so they agree bit for
 //! bit (unit tests compare every version the CPU runs).
 
+use crate::tree::{Accessor, Block, Neighbour, Tree};
+use crate::volume::Volume;
+use glam::{DMat3, DVec3};
+
 /// Rays integrated side by side: one AVX-512 register, two AVX2 registers.
 pub(crate) const LANES: usize = 16;
 /// Side of the padded block: the 8 cells of a block edge plus the corners on its + face.
@@ -219,6 +223,76 @@ impl Kernel {
             Simd::Portable => {}
         }
         portable_march(block, lanes, steps, offsets)
+    }
+}
+
+/// Most values a block may hold in magnitude for the f32 kernel (no overflow in `h (f + f)`).
+const KERNEL_MAX: f64 = 1e20;
+/// Least non-zero magnitude for the f32 kernel (no subnormal products).
+const KERNEL_MIN: f64 = 1e-20;
+/// Range of a block's largest chord (world units) the f32 kernel accepts.
+const CHORD_RANGE: (f64, f64) = (1e-15, 1e15);
+
+/// Whether a block whose halo values lie in `[min, max]` goes on the f32 kernel, for a volume
+/// whose chords through a block are at most `chord` world units long ([`max_chord`]): its
+/// largest magnitude finite and in `[1e-20, 1e20]`, the chord in `[1e-15, 1e15]`. Other
+/// blocks take the f64 per-ray code.
+pub(crate) fn kernel_ok(min: f32, max: f32, chord: f64) -> bool {
+    let m = f64::from(min.abs().max(max.abs()));
+    m.is_finite()
+        && (KERNEL_MIN..=KERNEL_MAX).contains(&m)
+        && (CHORD_RANGE.0..=CHORD_RANGE.1).contains(&chord)
+}
+
+/// An upper bound on the world length of a ray inside an 8^3 block: its diagonal `8 sqrt3`
+/// index units times the largest world length of an index unit, `||W||_2 <= ||W||_F` for the
+/// linear part `W` of world-from-index.
+pub(crate) fn max_chord(vol: &Volume) -> f64 {
+    let m = DMat3::from_cols(
+        vol.to_index_dir(DVec3::X),
+        vol.to_index_dir(DVec3::Y),
+        vol.to_index_dir(DVec3::Z),
+    );
+    let w = m.inverse();
+    let frobenius =
+        (w.x_axis.length_squared() + w.y_axis.length_squared() + w.z_axis.length_squared()).sqrt();
+    8.0 * 3f64.sqrt() * frobenius
+}
+
+/// The 8 blocks whose values the trilinear corners of the block at `origin` read: `first`
+/// (itself, `k = 0`) and its + face, edge and corner neighbours (`k` = bits x, y, z), from a
+/// leaf's neighbour table where there is one, else looked up.
+pub(crate) fn blocks_around<'t>(
+    tree: &'t Tree,
+    acc: &mut Accessor<'t>,
+    origin: [i64; 3],
+    first: Block<'t>,
+    neighbours: Option<&[Neighbour; 7]>,
+) -> [Block<'t>; 8] {
+    let mut b = [first; 8];
+    for (k, block) in b.iter_mut().enumerate().skip(1) {
+        *block = match neighbours.map(|n| n[k - 1]) {
+            Some(Neighbour::Leaf(i)) => Block::Leaf(tree.leaf_values(i)),
+            Some(Neighbour::Const(c)) => Block::Const(c),
+            _ => acc.block_at([0, 1, 2].map(|a| origin[a] + 8 * ((k >> (2 - a)) & 1) as i64)),
+        };
+    }
+    b
+}
+
+/// Copy a block's `9^3` corner values (`x * 81 + y * 9 + z`) into `out`.
+pub(crate) fn fill(src: &[Block<'_>; 8], out: &mut [f32; BLOCK]) {
+    for x in 0..SIDE {
+        for y in 0..SIDE {
+            let row = (x * SIDE + y) * SIDE;
+            let k = ((x >> 3) << 2) | ((y >> 3) << 1);
+            let n = ((x & 7) << 6) | ((y & 7) << 3);
+            match src[k] {
+                Block::Leaf(v) => out[row..row + 8].copy_from_slice(&v[n..n + 8]),
+                Block::Const(c) => out[row..row + 8].fill(c),
+            }
+            out[row + 8] = src[k | 1].get(n);
+        }
     }
 }
 
