@@ -753,3 +753,58 @@ fn batch_jobs_take_colour_and_scene_inputs() {
     let err = String::from_utf8_lossy(&o.get_output().stderr);
     assert!(err.contains("bake.levelset"), "{err}");
 }
+
+/// `scene::estimate_many` (what `query --rays` and Python's array queries call) against
+/// `scene::estimate` ray by ray: exact trilinear answers within `2e-6 tau + 1e-7` (the kernel's
+/// f32 positions; `regular::batch`'s unit test holds the general bound `1e-6 tau + 1e-7 M`)
+/// on one grey volume, a two-volume scene and an RGB one; stochastic and nearest answers bit
+/// for bit (they still go ray by ray, with the ids given).
+#[test]
+fn a_batch_of_rays_answers_as_each_ray_alone() {
+    let dir = tempfile::tempdir().unwrap();
+    let grey = scene::load(data("cloud.vdb"), &SceneOptions::default()).unwrap();
+    let two = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    let sub = tempfile::tempdir().unwrap();
+    let rgb = scene::load(
+        two_clouds(sub.path(), Some(([0.5, 1.0, 2.0], [2.0, 1.0, 0.25]))),
+        &SceneOptions::default(),
+    )
+    .unwrap();
+    let rays = rays(300);
+    for (what, s) in [("grey", &grey), ("two", &two), ("rgb", &rgb)] {
+        let ids: Vec<u64> = (0..rays.len() as u64).map(|i| 7 + i).collect();
+        let exact = scene::estimate_many(s, &rays, &ids, &Estimator::REGULAR, &Options::default());
+        let mut crossed = 0;
+        for (i, (r, got)) in rays.iter().zip(&exact).enumerate() {
+            let got = got.as_ref().unwrap();
+            let want =
+                scene::estimate(s, r, 7 + i as u64, &Estimator::REGULAR, &Options::default())
+                    .unwrap();
+            assert_eq!(got.channels, want.channels);
+            for c in 0..3 {
+                let (g, w) = (got.tau.unwrap()[c], want.tau.unwrap()[c]);
+                assert!(
+                    (g - w).abs() <= 2e-6 * w + 1e-7,
+                    "{what} ray {i} channel {c}: {g} vs {w}"
+                );
+                assert_eq!(got.value[c], (-g).exp());
+            }
+            assert_eq!(got.segments, want.segments, "{what} ray {i}");
+            crossed += usize::from(want.tau.unwrap()[0] > 0.05);
+        }
+        assert!(crossed > 100, "{what}: {crossed} rays cross the cloud");
+        for (name, interp) in [("ratio", Interp::Trilinear), ("regular", Interp::Nearest)] {
+            let est = Estimator::from_name(name).unwrap();
+            let opts = Options {
+                samples: 4,
+                interp,
+                ..Options::default()
+            };
+            let many = scene::estimate_many(s, &rays[..40], &ids[..40], &est, &opts);
+            for (i, (r, got)) in rays.iter().zip(&many).enumerate() {
+                let want = scene::estimate(s, r, 7 + i as u64, &est, &opts).unwrap();
+                assert_eq!(*got.as_ref().unwrap(), want, "{what} {name} ray {i}");
+            }
+        }
+    }
+}

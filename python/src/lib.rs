@@ -417,6 +417,10 @@ struct Traced {
     violations: u64,
 }
 
+/// Rows handed to the library in one call by `trace_rays` (their rays held meanwhile: about
+/// 100 bytes a row).
+const ROWS_PER_CALL: usize = 65_536;
+
 /// Counters and the first failure (lowest row) of a batch.
 #[derive(Default)]
 struct Tally {
@@ -506,8 +510,9 @@ impl NativeVolume {
     }
 
     /// Trace `n` rays, row `row` along `ray_of(row)` with ray id `ray_id + row`; a ray that
-    /// could not be made is its row's failure. Rays are made on the worker threads, row by
-    /// row, never stored.
+    /// could not be made is its row's failure. Rows go in chunks of [`ROWS_PER_CALL`]: each
+    /// chunk's rays are made on the worker threads and handed to the library together
+    /// (`scene::estimate_many`: exact queries in batches on the SIMD kernel), then dropped.
     fn trace_rays(
         &self,
         n: usize,
@@ -519,32 +524,37 @@ impl NativeVolume {
     ) -> Result<Traced, String> {
         let c = self.scene.channels();
         let (mut t, mut err, mut tau) = (vec![0.0; n * c], vec![0.0; n * c], vec![0.0; n * c]);
-        let tally = t
-            .par_chunks_mut(c)
-            .zip(err.par_chunks_mut(c))
-            .zip(tau.par_chunks_mut(c))
-            .enumerate()
-            .map(|(row, ((t, e), tau))| {
-                if cancel.load(Ordering::Relaxed) {
-                    return Tally::default();
-                }
-                let r = ray_of(row).and_then(|ray| {
-                    umbra::scene::estimate(
-                        &self.scene,
-                        &ray,
-                        ray_id.wrapping_add(row as u64),
-                        est,
-                        opts,
-                    )
-                    .map_err(|e| e.to_string())
+        let mut tally = Tally::default();
+        for start in (0..n).step_by(ROWS_PER_CALL) {
+            if cancel.load(Ordering::Relaxed) {
+                break;
+            }
+            let end = (start + ROWS_PER_CALL).min(n);
+            let made: Vec<Result<Ray, String>> = (start..end).into_par_iter().map(ray_of).collect();
+            let (rays, ids): (Vec<Ray>, Vec<u64>) = made
+                .iter()
+                .enumerate()
+                .filter_map(|(k, r)| {
+                    let id = ray_id.wrapping_add((start + k) as u64);
+                    r.as_ref().ok().map(|r| (*r, id))
+                })
+                .unzip();
+            let mut answers =
+                umbra::scene::estimate_many(&self.scene, &rays, &ids, est, opts).into_iter();
+            for (k, made) in made.into_iter().enumerate() {
+                let row = start + k;
+                let at = row * c..(row + 1) * c;
+                let r = made.and_then(|_| match answers.next() {
+                    Some(a) => a.map_err(|e| e.to_string()),
+                    None => Err("no answer for this row".to_string()),
                 });
-                match r {
+                let one = match r {
                     Ok(v) => {
-                        t.copy_from_slice(&v.value[..c]);
-                        e.copy_from_slice(&v.std_err[..c]);
+                        t[at.clone()].copy_from_slice(&v.value[..c]);
+                        err[at.clone()].copy_from_slice(&v.std_err[..c]);
                         match v.tau {
-                            Some(x) => tau.copy_from_slice(&x[..c]),
-                            None => tau.fill(f64::NAN),
+                            Some(x) => tau[at].copy_from_slice(&x[..c]),
+                            None => tau[at].fill(f64::NAN),
                         }
                         Tally {
                             capped: v.capped,
@@ -553,18 +563,19 @@ impl NativeVolume {
                         }
                     }
                     Err(msg) => {
-                        t.fill(f64::NAN);
-                        e.fill(f64::NAN);
-                        tau.fill(f64::NAN);
+                        t[at.clone()].fill(f64::NAN);
+                        err[at.clone()].fill(f64::NAN);
+                        tau[at].fill(f64::NAN);
                         Tally {
                             failed: 1,
                             first: Some((row, msg)),
                             ..Tally::default()
                         }
                     }
-                }
-            })
-            .reduce(Tally::default, Tally::merge);
+                };
+                tally = tally.merge(one);
+            }
+        }
         if let Some((row, msg)) = tally.first {
             return Err(format!(
                 "{} of {n} rays failed (first: row {row}: {msg})",

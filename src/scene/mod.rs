@@ -8,9 +8,11 @@
 //! any solid. A grey scene has one channel (`sigma` only scales it); a scene with any RGB
 //! `sigma_t` has three (R, G, B).
 
+mod batch;
 mod estimate;
 pub mod file;
 
+pub use batch::estimate_many;
 pub use estimate::{estimate, SceneEstimate};
 pub use file::{is_scene_file, load, read_box_corners, SceneOptions};
 

@@ -5,7 +5,6 @@ use crate::common::{
     flag_error, load_scene, load_scene_for, parse_vec3, thread_pool, EstimatorArgs, InterpArg,
 };
 use anyhow::{anyhow, bail, Context, Result};
-use rayon::prelude::*;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -199,14 +198,31 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         .map_err(flag_error)?;
     }
     let answers: Vec<Answer> = if let Some(rows) = batch {
-        let one = |(n, (line, seg)): (usize, &(usize, Result<Ray, String>))| Answer {
-            line: Some(*line),
-            result: seg.clone().and_then(|ray| {
-                answer(vol, &ray, a.ray_id.wrapping_add(n as u64), &est, &opts)
-                    .map_err(|e| format!("{e:#}"))
-            }),
-        };
-        pool.install(|| rows.par_iter().enumerate().map(one).collect())
+        // Row `n` has ray id `ray_id + n`; its rays go to the library together (exact queries
+        // in batches on the SIMD kernel), a row's `seconds` is the batch's time per ray.
+        let (rays, ids): (Vec<Ray>, Vec<u64>) = rows
+            .iter()
+            .enumerate()
+            .filter_map(|(n, (_, seg))| {
+                seg.as_ref()
+                    .ok()
+                    .map(|r| (*r, a.ray_id.wrapping_add(n as u64)))
+            })
+            .unzip();
+        let start = std::time::Instant::now();
+        let results = pool.install(|| umbra::scene::estimate_many(vol, &rays, &ids, &est, &opts));
+        let per_ray = start.elapsed().as_secs_f64() / rays.len().max(1) as f64;
+        let mut results = rays.into_iter().zip(results);
+        rows.iter()
+            .map(|(line, seg)| Answer {
+                line: Some(*line),
+                result: seg.clone().and_then(|_| match results.next() {
+                    Some((ray, Ok(e))) => Ok((ray, e, per_ray)),
+                    Some((_, Err(e))) => Err(format!("{:#}", anyhow::Error::from(e))),
+                    None => Err("no answer for this row".to_string()),
+                }),
+            })
+            .collect()
     } else {
         let Some(ray) = rays.first() else {
             bail!("nothing to query");
