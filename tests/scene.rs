@@ -600,7 +600,8 @@ fn the_cli_bakes_and_queries_scenes_in_colour() {
             "iinfo (Debian openimageio-tools) is not installed; set UMBRA_SKIP_OIIO=1 to skip"
         ),
     }
-    // query --json: T and tau per channel, equal to the library's.
+    // query --json: T and tau per channel, equal to the library's (`estimate_many`, what every
+    // query of the CLI and the Python module goes through).
     let o = umbra()
         .arg("query")
         .arg(&path)
@@ -610,7 +611,10 @@ fn the_cli_bakes_and_queries_scenes_in_colour() {
     let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
     let scene = scene::load(&path, &SceneOptions::default()).unwrap();
     let r = Ray::between([-2.0, 0.0, 0.0], [2.0, 0.5, 0.0]).unwrap();
-    let e = scene::estimate(&scene, &r, 0, &Estimator::REGULAR, &Options::default()).unwrap();
+    let e = scene::estimate_many(&scene, &[r], &[0], &Estimator::REGULAR, &Options::default())
+        .pop()
+        .unwrap()
+        .unwrap();
     for c in 0..3 {
         assert_eq!(v["T"][c].as_f64().unwrap(), e.value[c]);
         assert_eq!(v["tau"][c].as_f64().unwrap(), e.tau.unwrap()[c]);

@@ -243,8 +243,11 @@ fn answer(
     est: &Estimator,
     opts: &Options,
 ) -> Result<(Ray, SceneEstimate, f64)> {
+    // Through the batch entry point like `--rays` rows and Python's arrays, so one segment
+    // gets the same number however it is asked.
     let start = std::time::Instant::now();
-    let e = umbra::scene::estimate(scene, ray, ray_id, est, opts)?;
+    let mut e = umbra::scene::estimate_many(scene, std::slice::from_ref(ray), &[ray_id], est, opts);
+    let e = e.pop().context("no answer for the query")??;
     Ok((*ray, e, start.elapsed().as_secs_f64()))
 }
 
