@@ -157,8 +157,20 @@ fn integrate_chords<'t>(
     acc: &mut Accessor<'t>,
 ) -> (Vec<f64>, Vec<u32>) {
     let tree = vol.tree();
-    let mut order: Vec<u32> = (0..chords.len() as u32).collect();
-    order.sort_unstable_by_key(|&i| chords[i as usize].leaf);
+    // The chords grouped by leaf (a counting sort: linear in chords and leaves).
+    let mut start = vec![0u32; tree.leaves.len() + 1];
+    for c in chords {
+        start[c.leaf as usize + 1] += 1;
+    }
+    for i in 1..start.len() {
+        start[i] += start[i - 1];
+    }
+    let mut order = vec![0u32; chords.len()];
+    for (i, c) in chords.iter().enumerate() {
+        let at = &mut start[c.leaf as usize];
+        order[*at as usize] = i as u32;
+        *at += 1;
+    }
     let dirs: Vec<[f64; 3]> = rays
         .iter()
         .map(|r| lookup_ray(vol, r, Interp::Trilinear).1)
