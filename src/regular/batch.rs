@@ -7,7 +7,7 @@
 //! code), except that the chord of every leaf the kernel takes ([`kernel_ok`] on the leaf's
 //! halo) is set aside: `(leaf, entry e, direction d, length)`. The chords are then grouped by
 //! leaf; each leaf's `9^3` trilinear corners are copied into L1 once and its chords integrated
-//! [`LANES`] at a time ([`Kernel::integrate`]: exact per dual cell, f32 cells summed in f64,
+//! 16 (AVX-512) or 8 at a time ([`Kernel::integrate`]: exact per dual cell, f32 cells summed in f64,
 //! AVX-512 / AVX2 / portable, bit for bit the same). A ray's optical depth is the sum of its
 //! walked parts plus its chords' integrals in the order the walk met them, so it depends on the
 //! ray alone: not on the other rays of the batch, their order or the thread count.
@@ -19,7 +19,7 @@
 //! **Memory.** Rays go in chunks of [`CHUNK`] (about 40 bytes a chord, a chord per leaf a ray
 //! crosses), chunks in parallel on rayon's threads.
 
-use super::kernel::{blocks_around, fill, kernel_ok, max_chord, Kernel, Lanes, BLOCK, LANES};
+use super::kernel::{blocks_around, fill, kernel_ok, max_chord, Kernel, Lanes, BLOCK};
 use super::{leaf_integral, walk_tau, Counts, OpticalDepth};
 use crate::error::Result;
 use crate::math::non_empty;
@@ -149,7 +149,7 @@ fn chunk_depths(vol: &Volume, rays: &[Ray]) -> Vec<Result<OpticalDepth>> {
 }
 
 /// Each chord's unscaled integral and dual cells, in the chords' order: leaf by leaf, each
-/// leaf's corners filled once and its chords run [`LANES`] at a time.
+/// leaf's corners filled once and its chords run [`Kernel::width`] at a time.
 fn integrate_chords<'t>(
     vol: &'t Volume,
     rays: &[Ray],
@@ -184,8 +184,10 @@ fn integrate_chords<'t>(
         let first = Block::Leaf(tree.leaf_values(leaf));
         let around = blocks_around(tree, acc, origin, first, tree.neighbours.get(leaf as usize));
         fill(&around, &mut block);
-        for batch in group.chunks(LANES) {
-            let mut lanes = Lanes::default();
+        let mut lanes = Lanes::default();
+        for batch in group.chunks(kernel.width()) {
+            // Lanes this batch leaves unfilled read as unused.
+            lanes.len = [0.0; super::kernel::LANES];
             for (l, &i) in batch.iter().enumerate() {
                 let c = &chords[i as usize];
                 lanes.set(l, c.e, dirs[c.ray as usize], c.len);

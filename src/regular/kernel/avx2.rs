@@ -12,7 +12,12 @@ pub(super) const WIDTH: usize = 8;
 /// # Safety
 /// The CPU must support AVX2 and FMA; `l0 + 8 <= LANES`.
 #[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn integrate(block: &[f32; BLOCK], lanes: &Lanes, l0: usize, out: &mut Sums) {
+pub(super) unsafe fn integrate<const L0: usize>(
+    block: &[f32; BLOCK],
+    lanes: &Lanes,
+    out: &mut Sums,
+) {
+    let l0 = L0;
     debug_assert!(l0 + WIDTH <= LANES);
     let mut cx = [0f32; WIDTH];
     let mut cy = [0f32; WIDTH];
@@ -193,14 +198,14 @@ unsafe fn corners(block: &[f32; BLOCK], idx: __m256i, active: __m256) -> [__m256
 /// # Safety
 /// The CPU must support AVX2 and FMA; `l0 + 8 <= LANES`.
 #[target_feature(enable = "avx2,fma")]
-pub(super) unsafe fn march(
+pub(super) unsafe fn march<const L0: usize>(
     block: &[f32; BLOCK],
     lanes: &Lanes,
     steps: &Steps,
     offsets: Option<&[[f32; LANES]]>,
-    l0: usize,
     out: &mut Sums,
 ) {
+    let l0 = L0;
     debug_assert!(l0 + WIDTH <= LANES);
     // SAFETY (every load below): reads of 8 f32 or i32 from `l0` in arrays of `LANES >= l0 + 8`.
     let ld = |v: &[f32; LANES]| unsafe { _mm256_loadu_ps(v.as_ptr().add(l0)) };

@@ -31,9 +31,10 @@
 //! [`crate::estimate::marching`] on the same chord. A point's cell is `floor(e + d s)` clamped
 //! to the block, its weights `(e - c) + d s` with the same split entry and direction as above.
 //!
-//! **Dispatch.** A batch holds [`LANES`] = 16 rays. [`Kernel`] runs the AVX-512F version (the 16
-//! lanes in one register, lane masks) where the CPU has it, else the AVX2 + FMA version (two
-//! registers of 8, one after the other), else a portable one ([`Simd::active`]; the environment
+//! **Dispatch.** A batch holds up to [`LANES`] = 16 rays. [`Kernel`] runs the AVX-512F version
+//! (the 16 lanes in one register, lane masks) where the CPU has it, else the AVX2 + FMA version
+//! (8 lanes a register: callers fill [`Kernel::width`] = 8 lanes, a batch of 16 runs as two
+//! registers one after the other), else a portable one ([`Simd::active`]; the environment
 //! variable `UMBRA_SIMD=portable|avx2|avx512` caps the choice, for benchmarks and for checking
 //! a result on another machine's path). All do the same f32 operations per lane in the same
 //! order, with fused multiply-adds at the same places (`f32::mul_add` in the portable one) and
@@ -166,6 +167,16 @@ impl Kernel {
         }
     }
 
+    /// Lanes a batch should fill: 16 for AVX-512 (one register), 8 otherwise (one AVX2
+    /// register; the portable version does the AVX2 one's lanes in order). Callers that fill
+    /// only these lanes leave the rest unused (`len = 0`, `n = 0`), which every version skips.
+    pub(crate) fn width(self) -> usize {
+        match self.simd {
+            Simd::Avx512 => LANES,
+            Simd::Avx2 | Simd::Portable => LANES / 2,
+        }
+    }
+
     /// Integrate the block's field along every used lane.
     pub(crate) fn integrate(self, block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
         #[cfg(target_arch = "x86_64")]
@@ -175,14 +186,14 @@ impl Kernel {
             Simd::Avx512 => return unsafe { avx512::integrate(block, lanes) },
             Simd::Avx2 => {
                 let mut out = Sums::default();
-                for l0 in (0..LANES).step_by(avx2::WIDTH) {
-                    if lanes.len[l0..l0 + avx2::WIDTH].iter().any(|&x| x > 0.0) {
-                        // SAFETY: `Avx2` is chosen only when the CPU reports AVX2 and FMA;
-                        // `l0 + WIDTH <= LANES`.
-                        #[allow(unsafe_code)]
-                        unsafe {
-                            avx2::integrate(block, lanes, l0, &mut out)
-                        };
+                let used = |l0: usize| lanes.len[l0..l0 + avx2::WIDTH].iter().any(|&x| x > 0.0);
+                // SAFETY: `Avx2` is chosen only when the CPU reports AVX2 and FMA; both halves
+                // lie in the batch (`8 + WIDTH <= LANES`).
+                #[allow(unsafe_code)]
+                unsafe {
+                    avx2::integrate::<0>(block, lanes, &mut out);
+                    if used(avx2::WIDTH) {
+                        avx2::integrate::<{ avx2::WIDTH }>(block, lanes, &mut out);
                     }
                 }
                 return out;
@@ -209,13 +220,13 @@ impl Kernel {
             Simd::Avx512 => return unsafe { avx512::march(block, lanes, steps, offsets) },
             Simd::Avx2 => {
                 let mut out = Sums::default();
-                for l0 in (0..LANES).step_by(avx2::WIDTH) {
-                    if steps.n[l0..l0 + avx2::WIDTH].iter().any(|&n| n > 0) {
-                        // SAFETY: as in `integrate`.
-                        #[allow(unsafe_code)]
-                        unsafe {
-                            avx2::march(block, lanes, steps, offsets, l0, &mut out)
-                        };
+                let used = |l0: usize| steps.n[l0..l0 + avx2::WIDTH].iter().any(|&n| n > 0);
+                // SAFETY: as in `integrate`.
+                #[allow(unsafe_code)]
+                unsafe {
+                    avx2::march::<0>(block, lanes, steps, offsets, &mut out);
+                    if used(avx2::WIDTH) {
+                        avx2::march::<{ avx2::WIDTH }>(block, lanes, steps, offsets, &mut out);
                     }
                 }
                 return out;
@@ -665,8 +676,8 @@ mod tests {
 
     /// Rays on the lattice: entries on cell faces, edges and corners (`e` an integer, so a
     /// first face time of `-0`), directions with zero and negative components, grazing a face,
-    /// unused lanes in either half of the batch and a whole half unused: every SIMD version bit
-    /// for bit against the portable one, exact and marched.
+    /// unused lanes (holding a stale ray) in either half of the batch and a whole half unused:
+    /// every SIMD version bit for bit against the portable one, exact and marched.
     #[test]
     fn lattice_rays_agree_bit_for_bit() {
         let mut st = 23u64;
@@ -693,6 +704,11 @@ mod tests {
                 let n = if len > 0.0 { 1 + (l + round) % 9 } else { 0 };
                 steps.n[l] = n as u32;
                 steps.dt[l] = (len / n.max(1) as f64) as f32;
+            }
+            // Unused lanes keep a stale ray (callers reset only `len` and `n`).
+            for l in used..LANES {
+                lanes.set(l, [1.5, -2.0, 0.25], [0.3, 0.0, -1.0], 0.0);
+                steps.dt[l] = 0.5;
             }
             let (whole, marched) = (
                 Kernel::portable().integrate(&block, &lanes),

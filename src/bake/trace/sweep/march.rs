@@ -183,6 +183,7 @@ impl Sweep<'_> {
         let h_of = |d: DVec3| h_parallel.unwrap_or_else(|| step_world(d.length(), m.step));
         let pixel_id = |px: usize| u64::from(y0) * u64::from(w) + px as u64;
         let kernel = Kernel::new();
+        let width = kernel.width();
         let mut block = [0f32; BLOCK];
         let mut batch = Batch::new();
         let mut jobs = Vec::new();
@@ -227,8 +228,9 @@ impl Sweep<'_> {
                     *lookups += u64::from(sums.cells[l]);
                     self.credit(tau, at, (shared, end), scale * sums.tau[l]);
                 }
-                batch.lanes = Lanes::default();
-                batch.steps = Steps::default();
+                // Lanes the next batch leaves unfilled must read as unused (`n = 0`; the march
+                // reads no other field of an unused lane unmasked).
+                batch.steps.n = [0; LANES];
                 batch.used = 0;
             };
             self.chords(p, rows, &dirs, |px, q, d, a, b| {
@@ -266,7 +268,7 @@ impl Sweep<'_> {
                             }
                             batch.at[l] = (px * stride + i * per + job.slot, job.shared, job.end);
                             batch.used += 1;
-                            if batch.used == LANES {
+                            if batch.used == width {
                                 flush(&mut batch);
                             }
                         }

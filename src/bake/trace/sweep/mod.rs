@@ -910,6 +910,7 @@ impl<'a> Sweep<'a> {
             }
         }
         let kernel = Kernel::new();
+        let width = kernel.width();
         let mut block = [0f32; BLOCK];
         for &id in ids {
             let p = &pieces[id as usize];
@@ -921,7 +922,7 @@ impl<'a> Sweep<'a> {
                 | Part::Shell { fast: true } => {
                     fill(&neighbourhood(tree, &mut acc, p), &mut block);
                     let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
-                    // The rays that cross the block, 8 at a time (lanes packed across rows); a
+                    // The rays that cross the block, `width` at a time (lanes packed across rows); a
                     // slice depth inside a chord adds a lane for the chord up to it.
                     let mut lanes = Lanes::default();
                     // Per lane: the pixel, 0 (the whole chord) or 1 + k (slice k's part), and
@@ -948,7 +949,9 @@ impl<'a> Sweep<'a> {
                                     }
                                 }
                             }
-                            *lanes = Lanes::default();
+                            // Lanes the next batch leaves unfilled must read as unused
+                            // (`len = 0`); their other fields are never read unmasked.
+                            lanes.len = [0.0; LANES];
                             *used = 0;
                         };
                     self.chords(p, rows, &dirs, |px, q, d, a, b| {
@@ -964,7 +967,7 @@ impl<'a> Sweep<'a> {
                             lanes.set(used, e, d.to_array(), end - a);
                             at[used] = (px, slot, b);
                             used += 1;
-                            if used == LANES {
+                            if used == width {
                                 flush(&mut lanes, &at, &mut used);
                             }
                         }
