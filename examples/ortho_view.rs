@@ -311,7 +311,7 @@ fn main() {
         "{}",
         serde_json::json!({
             "file": file, "estimator": est.name(), "step": step, "interp": format!("{interp:?}"),
-            "threads": nthreads, "res": [w, h],
+            "threads": nthreads, "res": [w, h], "simd": umbra::regular::Simd::active().name(),
             "load_s": load_s, "render_s": render_s, "render_s_all": times,
             "thread_counts": thread_list, "render_s_by_threads": medians,
             "rays_per_s": rays / render_s, "lookups_per_ray": lookups as f64 / rays,

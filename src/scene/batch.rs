@@ -108,36 +108,14 @@ pub fn estimate_many(
     hits.iter()
         .map(|hit| {
             if let Some(t) = hit {
-                return Ok(SceneEstimate {
-                    channels,
-                    value: [0.0; 3],
-                    std_err: [0.0; 3],
-                    tau: Some([f64::INFINITY; 3]),
-                    lookups: 0,
-                    segments: 0,
-                    samples: 1,
-                    capped: 0,
-                    majorant_violations: 0,
-                    hit: Some(*t),
-                });
+                return Ok(SceneEstimate::behind_solid(channels, *t, true));
             }
             // One sum per open ray, taken in order.
             let Some(sum) = open_sums.next() else {
                 return Err(crate::Error::nan_on_ray("optical depth", &rays[0]));
             };
             let (tau, lookups, segments) = sum?;
-            Ok(SceneEstimate {
-                channels,
-                value: tau.map(|t| (-t).exp()),
-                std_err: [0.0; 3],
-                tau: Some(tau),
-                lookups,
-                segments,
-                samples: 1,
-                capped: 0,
-                majorant_violations: 0,
-                hit: None,
-            })
+            Ok(SceneEstimate::exact(channels, tau, lookups, segments))
         })
         .collect()
 }

@@ -85,6 +85,39 @@ impl SceneEstimate {
         }
     }
 
+    /// The exact answer from optical depths per channel: `T_c = exp(-tau_c)`.
+    pub(crate) fn exact(channels: usize, tau: [f64; 3], lookups: u64, segments: u64) -> Self {
+        Self {
+            channels,
+            value: tau.map(|t| (-t).exp()),
+            std_err: [0.0; 3],
+            tau: Some(tau),
+            lookups,
+            segments,
+            samples: 1,
+            capped: 0,
+            majorant_violations: 0,
+            hit: None,
+        }
+    }
+
+    /// A ray that enters a solid at `t`: `T = 0` in every channel, `tau = inf` when the
+    /// estimator is deterministic (none otherwise).
+    pub(crate) fn behind_solid(channels: usize, t: f64, deterministic: bool) -> Self {
+        Self {
+            channels,
+            value: [0.0; 3],
+            std_err: [0.0; 3],
+            tau: deterministic.then_some([f64::INFINITY; 3]),
+            lookups: 0,
+            segments: 0,
+            samples: 1,
+            capped: 0,
+            majorant_violations: 0,
+            hit: Some(t),
+        }
+    }
+
     pub(crate) fn grey(e: &Estimate) -> Self {
         Self {
             channels: 1,
@@ -124,18 +157,11 @@ pub fn estimate(
         .filter_map(|s| s.first_hit(ray))
         .min_by(f64::total_cmp);
     if let Some(t) = hit {
-        return Ok(SceneEstimate {
+        return Ok(SceneEstimate::behind_solid(
             channels,
-            value: [0.0; 3],
-            std_err: [0.0; 3],
-            tau: est.is_deterministic().then_some([f64::INFINITY; 3]),
-            lookups: 0,
-            segments: 0,
-            samples: 1,
-            capped: 0,
-            majorant_violations: 0,
-            hit: Some(t),
-        });
+            t,
+            est.is_deterministic(),
+        ));
     }
     if let Some(vol) = scene.single() {
         return Ok(SceneEstimate::grey(&estimate_one(
@@ -169,19 +195,12 @@ fn exact(scene: &Scene, ray: &Ray, opts: &Options) -> Result<SceneEstimate> {
         lookups += od.lookups;
         segments += od.segments;
     }
-    let value = tau.map(|t| (-t).exp());
-    Ok(SceneEstimate {
-        channels: scene.channels(),
-        value,
-        std_err: [0.0; 3],
-        tau: Some(tau),
+    Ok(SceneEstimate::exact(
+        scene.channels(),
+        tau,
         lookups,
         segments,
-        samples: 1,
-        capped: 0,
-        majorant_violations: 0,
-        hit: None,
-    })
+    ))
 }
 
 /// An elementary interval of the merged segments: `[t0, t1]` and the volumes sampled there.

@@ -20,7 +20,9 @@
 //! field is `v_k` for half the step and `v_{k+1}` for the other half), along other lattice
 //! vectors regular tracking's cell walk over the index segment `[c, c + w]`. A gap of more than
 //! a few steps starts a fresh ray (which skips empty space). Any other light (point lights,
-//! suns off the lattice) traces one exact ray per voxel, in parallel; stochastic estimators
+//! suns off the lattice) traces one exact ray per voxel, the rays of 32 leaves at a time in a
+//! query batch (`regular::optical_depths`: each leaf's chords together on the SIMD kernel, the
+//! f64 walk's answer to the kernel's f32 positions; nearest lookups ray by ray); stochastic estimators
 //! estimate every voxel's ray on its own (ray id: the voxel's index in the output, leaf by
 //! leaf, 512 per leaf).
 //!
@@ -35,7 +37,7 @@ use crate::estimate::{Estimator, Options};
 use crate::light::Light;
 use crate::tree::{bit, Accessor};
 use crate::vdb::LeafOut;
-use crate::volume::Volume;
+use crate::volume::{Interp, Volume};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 
@@ -278,6 +280,9 @@ pub fn transmittance_leaves(
                     None => by_lattice(vol, light, opts, &mut leaves, w, progress),
                 }
             }
+            None if *est == Estimator::REGULAR && opts.interp == Interp::Trilinear => {
+                by_ray_batches(vol, light, &mut leaves, progress)
+            }
             None => by_rays(vol, light, est, opts, &mut leaves, progress),
         }
     };
@@ -317,6 +322,49 @@ pub fn transmittance_leaves(
     }
     stats.seconds = start.elapsed().as_secs_f64();
     Ok((leaves, stats))
+}
+
+/// Leaves whose voxels' rays [`by_ray_batches`] hands over together: at most 16,384 rays, one
+/// chunk of [`crate::regular::optical_depths`].
+const LEAVES_PER_BATCH: usize = 32;
+
+/// Exact trilinear T of every voxel by its own ray, the rays of [`LEAVES_PER_BATCH`] leaves at
+/// a time through [`crate::regular::optical_depths`] (every leaf's chords together on the SIMD
+/// kernel; the f64 walk's answer to the kernel's f32 positions, as exact maps), groups of
+/// leaves in parallel. Each voxel's T depends on its ray alone.
+fn by_ray_batches(
+    vol: &Volume,
+    light: &Light,
+    leaves: &mut [LeafOut],
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<(u64, u64)> {
+    leaves
+        .par_chunks_mut(LEAVES_PER_BATCH)
+        .map(|group| {
+            let (mut rays, mut at) = (Vec::new(), Vec::new());
+            for (g, leaf) in group.iter().enumerate() {
+                for n in (0..512usize).filter(|&n| bit(&leaf.active, n)) {
+                    let ijk = [
+                        leaf.origin[0] + (n >> 6) as i32,
+                        leaf.origin[1] + ((n >> 3) & 7) as i32,
+                        leaf.origin[2] + (n & 7) as i32,
+                    ];
+                    let p = vol.to_world(glam::DVec3::from_array(ijk.map(f64::from)));
+                    rays.push(light.ray_from(vol, p.to_array())?);
+                    at.push((g, n));
+                }
+            }
+            let mut lookups = 0u64;
+            let depths = crate::regular::optical_depths(vol, &rays, Interp::Trilinear);
+            for ((g, n), od) in at.into_iter().zip(depths) {
+                let od = od?;
+                lookups += od.lookups;
+                group[g].values[n] = od.transmittance() as f32;
+            }
+            progress(rays.len() as u64);
+            Ok((rays.len() as u64, lookups))
+        })
+        .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
 }
 
 /// One ray (or estimate) per voxel, leaves in parallel.

@@ -143,6 +143,7 @@ fn report(
             "rays_per_second": rays_per_second, "lookups": st.lookups,
             "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
             "order": if st.sweep { "sweep" } else { "rays" }, "parts": st.parts,
+            "simd": umbra::regular::Simd::active().name(),
             "capped": st.capped, "majorant_violations": st.majorant_violations,
             "unconverged": st.unconverged, "max_std_err": st.max_std_err,
             "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
