@@ -1,6 +1,7 @@
-//! The lane kernel of the sweep: the exact integral of the trilinear field of one 8^3 block of
-//! dual cells along up to [`LANES`] rays at once (parallel ones for an orthographic map, rays
-//! from one point for a perspective map: each lane carries its own direction).
+//! The lane kernel of exact maps and query batches: the exact integral of the trilinear field of
+//! one 8^3 block of dual cells along up to [`LANES`] rays at once (parallel ones for an
+//! orthographic map, rays from one point for a perspective map, any rays for a query batch
+//! ([`super::batch`]): each lane carries its own entry point and direction).
 //!
 //! **Block.** The lookup cells `[o, o + 7]^3` of a leaf or tile and the corners they read, the
 //! values at `o + (x, y, z)`, `x, y, z in 0..=8`, copied into a padded `9^3` array
