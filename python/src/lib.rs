@@ -417,9 +417,12 @@ struct Traced {
     violations: u64,
 }
 
-/// Rows handed to the library in one call by `trace_rays` (their rays held meanwhile: about
-/// 100 bytes a row).
+/// Rows handed to the library in one call by `trace_rays` for exact answers (their rays held
+/// meanwhile: about 100 bytes a row): enough for full batches on the kernel.
 const ROWS_PER_CALL: usize = 65_536;
+/// Rows a call for a stochastic or nearest estimate (ray by ray in the library): few, so Ctrl-C
+/// is seen between calls within a fraction of a second even at many samples.
+const ROWS_PER_CALL_BY_RAY: usize = 1_024;
 
 /// Counters and the first failure (lowest row) of a batch.
 #[derive(Default)]
@@ -510,9 +513,10 @@ impl NativeVolume {
     }
 
     /// Trace `n` rays, row `row` along `ray_of(row)` with ray id `ray_id + row`; a ray that
-    /// could not be made is its row's failure. Rows go in chunks of [`ROWS_PER_CALL`]: each
-    /// chunk's rays are made on the worker threads and handed to the library together
-    /// (`scene::estimate_many`: exact queries in batches on the SIMD kernel), then dropped.
+    /// could not be made is its row's failure. Rows go in chunks of [`ROWS_PER_CALL`] (exact)
+    /// or [`ROWS_PER_CALL_BY_RAY`]: each chunk's rays are made on the worker threads and handed
+    /// to the library together (`scene::estimate_many`: exact queries in batches on the SIMD
+    /// kernel), then dropped; Ctrl-C is seen between chunks.
     fn trace_rays(
         &self,
         n: usize,
@@ -525,11 +529,16 @@ impl NativeVolume {
         let c = self.scene.channels();
         let (mut t, mut err, mut tau) = (vec![0.0; n * c], vec![0.0; n * c], vec![0.0; n * c]);
         let mut tally = Tally::default();
-        for start in (0..n).step_by(ROWS_PER_CALL) {
+        let per_call = if *est == Estimator::REGULAR && opts.interp == Interp::Trilinear {
+            ROWS_PER_CALL
+        } else {
+            ROWS_PER_CALL_BY_RAY
+        };
+        for start in (0..n).step_by(per_call) {
             if cancel.load(Ordering::Relaxed) {
                 break;
             }
-            let end = (start + ROWS_PER_CALL).min(n);
+            let end = (start + per_call).min(n);
             let made: Vec<Result<Ray, String>> = (start..end).into_par_iter().map(ray_of).collect();
             let (rays, ids): (Vec<Ray>, Vec<u64>) = made
                 .iter()
