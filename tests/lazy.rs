@@ -393,6 +393,56 @@ fn a_query_decodes_what_it_needs_and_answers_like_eager() {
         json(&["--json", "--load", "lazy"]),
         json(&["--json", "--load", "eager"])
     );
+    // Exact rows go in batches on the kernel, which copies every + neighbour of a leaf: the
+    // leaves a lazy load decodes for them give the eager answers bit for bit.
+    let rows: String = (0..200)
+        .map(|i| {
+            let a = f64::from(i) * 0.731;
+            format!(
+                "{},{},{},{},{},{}\n",
+                2.5 * a.cos(),
+                -1.0 + f64::from(i % 17) * 0.12,
+                2.5 * a.sin(),
+                -2.0 * (a + 0.5).cos(),
+                1.2 - f64::from(i % 13) * 0.15,
+                -2.0 * (a + 0.5).sin()
+            )
+        })
+        .collect();
+    let exact = |load: &str| {
+        let o = assert_cmd::Command::cargo_bin("umbra")
+            .unwrap()
+            .args([
+                "query",
+                path.to_str().unwrap(),
+                "--rays",
+                "-",
+                "--json",
+                "--load",
+                load,
+            ])
+            .write_stdin(rows.clone())
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let taus: Vec<f64> = String::from_utf8(o.stdout)
+            .unwrap()
+            .lines()
+            .map(|l| {
+                serde_json::from_str::<serde_json::Value>(l).unwrap()["tau"]
+                    .as_f64()
+                    .unwrap()
+            })
+            .collect();
+        taus
+    };
+    let lazy = exact("lazy");
+    assert_eq!(lazy.len(), 200);
+    assert!(
+        lazy.iter().filter(|&&t| t > 0.05).count() > 50,
+        "rays cross the cloud"
+    );
+    assert_eq!(lazy, exact("eager"));
 }
 
 #[test]
