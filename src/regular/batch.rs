@@ -56,6 +56,8 @@ struct Walked {
     end: usize,
     segments: u64,
     counts: (u64, u64),
+    /// Lookup-space direction (what the kernel's lanes take).
+    d: [f64; 3],
 }
 
 /// Exact optical depth of every ray of `rays` through `vol` ([`super::optical_depth`] of each,
@@ -122,9 +124,10 @@ fn chunk_depths(vol: &Volume, rays: &[Ray]) -> Vec<Result<OpticalDepth>> {
             end: chords.len(),
             segments: w.segments,
             counts: (n.cells, n.reads),
+            d,
         };
     }
-    let (values, cells) = integrate_chords(vol, rays, &chords, &mut acc);
+    let (values, cells) = integrate_chords(vol, &walked, &chords, &mut acc);
     rays.iter()
         .zip(&walked)
         .map(|(ray, w)| {
@@ -152,7 +155,7 @@ fn chunk_depths(vol: &Volume, rays: &[Ray]) -> Vec<Result<OpticalDepth>> {
 /// leaf's corners filled once and its chords run [`Kernel::width`] at a time.
 fn integrate_chords<'t>(
     vol: &'t Volume,
-    rays: &[Ray],
+    walked: &[Walked],
     chords: &[Chord],
     acc: &mut Accessor<'t>,
 ) -> (Vec<f64>, Vec<u32>) {
@@ -171,10 +174,6 @@ fn integrate_chords<'t>(
         order[*at as usize] = i as u32;
         *at += 1;
     }
-    let dirs: Vec<[f64; 3]> = rays
-        .iter()
-        .map(|r| lookup_ray(vol, r, Interp::Trilinear).1)
-        .collect();
     let kernel = Kernel::new();
     let mut block = [0f32; BLOCK];
     let (mut values, mut cells) = (vec![0.0f64; chords.len()], vec![0u32; chords.len()]);
@@ -190,7 +189,7 @@ fn integrate_chords<'t>(
             lanes.len = [0.0; super::kernel::LANES];
             for (l, &i) in batch.iter().enumerate() {
                 let c = &chords[i as usize];
-                lanes.set(l, c.e, dirs[c.ray as usize], c.len);
+                lanes.set(l, c.e, walked[c.ray as usize].d, c.len);
             }
             let sums = kernel.integrate(&block, &lanes);
             for (l, &i) in batch.iter().enumerate() {
