@@ -40,6 +40,17 @@ impl Rng {
         Self { state: k }
     }
 
+    /// The stream of sample `sample` of a chord whose block and ray are keyed by `chord`
+    /// ([`chord_key`]): one more SplitMix64 mix, so the samples of one chord are drawn side by
+    /// side without walking any other stream (a null-collision map swept block by block).
+    #[must_use]
+    #[inline]
+    pub fn of_chord(chord: u64, sample: u64) -> Self {
+        Self {
+            state: mix(chord ^ sample.wrapping_add(1).wrapping_mul(0xA076_1D64_78BD_642F)),
+        }
+    }
+
     /// Next 64 random bits.
     #[inline]
     pub fn next_u64(&mut self) -> u64 {
@@ -58,6 +69,25 @@ impl Rng {
     pub fn exponential(&mut self, mu: f64) -> f64 {
         -(1.0 - self.uniform()).ln() / mu
     }
+}
+
+/// The key of a block under `seed`: three SplitMix64 mixes of its coordinates, computed once
+/// per block and shared by every chord through it ([`chord_key`]).
+#[must_use]
+pub fn block_key(seed: u64, block: [i64; 3]) -> u64 {
+    let k = mix(seed ^ 0x2545_F491_4F6C_DD1D);
+    let k = mix(k ^ (block[0] as u64).wrapping_mul(0xE703_7ED1_A0B4_28DB));
+    let k = mix(k ^ (block[1] as u64).wrapping_mul(0x8EBC_6AF0_9C88_C6E3));
+    mix(k ^ (block[2] as u64).wrapping_mul(0x5899_65CC_7537_4CC3))
+}
+
+/// The key of the chord of ray `ray` through the block keyed `block` ([`block_key`]): the
+/// samples' streams are [`Rng::of_chord`] of it. A mix is a bijection of 64-bit words and ray
+/// ids enter multiplied by an odd constant, so two rays through one block never share a key.
+#[must_use]
+#[inline]
+pub fn chord_key(block: u64, ray: u64) -> u64 {
+    mix(block ^ ray.wrapping_mul(0xD6E8_FEB8_6659_FD93))
 }
 
 impl rand_core::RngCore for Rng {

@@ -388,23 +388,52 @@ pub(crate) fn march_sample(
     opts: &Options,
     sample: u32,
 ) -> (f64, u64) {
+    let mut rng = Rng::new(opts.seed, ray_id, u64::from(sample));
+    let (known, t, lookups, _) = part_sample(vol, ray, est, opts, &mut rng, false);
+    (known - t.ln(), lookups)
+}
+
+/// One sample of the null-collision estimator `est` along `ray` (usually one block's chord)
+/// with the stream `rng`: `(tau_known, T, lookups, capped)`, the closed-form optical depth
+/// and the sampled part's transmittance estimate `T` (the sample is `exp(-tau_known) T`),
+/// whether it hit the collision budget. High-contrast segments are refined to per-cell
+/// bounds as [`estimate`] refines them. What a null-collision map swept in object order asks
+/// of the ray path for a block it does not fly through itself.
+pub(crate) fn flight_sample(
+    vol: &Volume,
+    ray: &Ray,
+    est: &Estimator,
+    opts: &Options,
+    rng: &mut Rng,
+) -> (f64, f64, u64, bool) {
+    part_sample(vol, ray, est, opts, rng, true)
+}
+
+/// [`prepare_into`] (`refine` as it says) and one [`sample_once`] with `rng`, in the
+/// per-thread buffers of [`estimate`] (fresh ones if this thread is already inside them).
+fn part_sample(
+    vol: &Volume,
+    ray: &Ray,
+    est: &Estimator,
+    opts: &Options,
+    rng: &mut Rng,
+    refine: bool,
+) -> (f64, f64, u64, bool) {
     let mut medium = RayMedium::new(vol, ray, opts.interp);
     let mut run = |scratch: &mut Scratch, prep: &mut Prepared| {
-        prepare_into(vol, ray, opts, false, &mut medium, scratch, prep);
-        let mut rng = Rng::new(opts.seed, ray_id, u64::from(sample));
+        prepare_into(vol, ray, opts, refine, &mut medium, scratch, prep);
         let mut cap = Cap::new(opts.max_collisions);
-        let t = sample_once(est, &prep.segs, &mut medium, &mut rng, &mut cap);
-        prep.tau_known - t.ln()
+        let t = sample_once(est, &prep.segs, &mut medium, rng, &mut cap);
+        (prep.tau_known, t, cap.hit)
     };
-    // The per-thread buffers of [`estimate`]; fresh ones if this thread is already in them.
-    let tau = BUFFERS.with(|cell| match cell.try_borrow_mut() {
+    let (known, t, capped) = BUFFERS.with(|cell| match cell.try_borrow_mut() {
         Ok(mut bufs) => {
             let (scratch, prep) = &mut *bufs;
             run(scratch, prep)
         }
         Err(_) => run(&mut Scratch::default(), &mut Prepared::default()),
     });
-    (tau, medium.lookups())
+    (known, t, medium.lookups(), capped)
 }
 
 /// Collision budget of one sample, and the bound violations it met.

@@ -462,7 +462,11 @@ fn render(
     if s.order == Order::Auto {
         let exact = crate::bake::trace::sweep::applies(s);
         match src {
-            Source::Volume(vol) if exact || crate::bake::trace::sweep::marches(s).is_some() => {
+            Source::Volume(vol)
+                if exact
+                    || crate::bake::trace::sweep::marches(s).is_some()
+                    || crate::bake::trace::sweep::flights(s).is_some() =>
+            {
                 if let Some(map) =
                     crate::bake::trace::sweep::render(vol, camera, s, depths, rows, progress)?
                 {

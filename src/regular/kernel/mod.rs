@@ -328,6 +328,31 @@ fn trilinear(v: &[f32; 8], w: [f32; 3]) -> f32 {
     lerp(lerp(z0, z1, w[1]), lerp(z2, z3, w[1]), w[0])
 }
 
+/// The block's trilinear field at the block-centred point `u` (lookup space minus `o + 4`),
+/// in f64: the cell `c = floor(u)` clamped to the block, weights `w = u - c`, and
+/// `sum_k v_k prod_a (w_a or 1 - w_a)` as nested `a (1 - w) + b w` (no cancellation for values
+/// of one sign). A point a round-off outside the block reads the nearest cell, extrapolated by
+/// that round-off. Plain arithmetic (no `floor` or fused multiply-add calls, which are library
+/// calls without those instruction sets at build time): what a null-collision map swept in
+/// object order reads at each tentative collision.
+#[inline]
+pub(crate) fn point(block: &[f32; BLOCK], u: [f64; 3]) -> f64 {
+    let mut w = [0.0f64; 3];
+    let mut idx = 0i32;
+    for a in 0..3 {
+        // floor by truncation (|u| <= 4 + round-off), then the block's cells -4..=3.
+        let t = u[a] as i32;
+        let c = (t - i32::from(f64::from(t) > u[a])).clamp(-4, 3);
+        w[a] = u[a] - f64::from(c);
+        idx += (c + 4) * STRIDE[a];
+    }
+    let v = CORNERS.map(|k| f64::from(block[(idx + k) as usize]));
+    let lerp = |a: f64, b: f64, w: f64| a * (1.0 - w) + b * w;
+    let z = |a: f64, b: f64| lerp(a, b, w[2]);
+    let (z0, z1, z2, z3) = (z(v[0], v[1]), z(v[2], v[3]), z(v[4], v[5]), z(v[6], v[7]));
+    lerp(lerp(z0, z1, w[1]), lerp(z2, z3, w[1]), w[0])
+}
+
 /// The portable midpoint march: one lane after the other, the AVX2 version's operations in
 /// order.
 fn portable_march(

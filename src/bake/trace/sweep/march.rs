@@ -103,10 +103,10 @@ pub(crate) fn marches(s: &BakeSettings) -> Option<March> {
 /// its part of the chord ends, the ray id of its stream, and whether every slice past its end
 /// shares it (the midpoint march's whole chords).
 #[derive(Debug, Clone, Copy)]
-struct Job {
-    slot: usize,
-    end: f64,
-    ray_id: u64,
+pub(super) struct Job {
+    pub(super) slot: usize,
+    pub(super) end: f64,
+    pub(super) ray_id: u64,
     shared: bool,
 }
 
@@ -133,11 +133,11 @@ impl Batch {
 }
 
 impl Sweep<'_> {
-    /// The estimates chord `[a, b]` of image pixel `p` feeds (see [`Job`]).
-    fn jobs(&self, m: &March, (a, b): (f64, f64), p: u64, out: &mut Vec<Job>) {
+    /// The estimates chord `[a, b]` of image pixel `p` feeds (see [`Job`]); `random`: every
+    /// slice past the chord is an estimate of its own (random marches, null collisions).
+    pub(super) fn jobs(&self, random: bool, (a, b): (f64, f64), p: u64, out: &mut Vec<Job>) {
         out.clear();
         let npix = u64::from(self.camera.width) * u64::from(self.camera.height);
-        let random = m.points != Points::Midpoint;
         out.push(Job {
             slot: 0,
             end: b,
@@ -200,7 +200,7 @@ impl Sweep<'_> {
             );
             if !on_kernel {
                 self.chords(p, rows, &dirs, |px, q, d, a, b| {
-                    self.jobs(m, (a, b), pixel_id(px), &mut jobs);
+                    self.jobs(m.random(), (a, b), pixel_id(px), &mut jobs);
                     for job in &jobs {
                         for i in 0..samples {
                             let part = (a, job.end, job.ray_id, i as u32);
@@ -244,7 +244,7 @@ impl Sweep<'_> {
                 let h = h_of(d);
                 for (a, b) in parts.into_iter().flatten() {
                     let e = ((q - centre) + d * a).to_array();
-                    self.jobs(m, (a, b), pixel_id(px), &mut jobs);
+                    self.jobs(m.random(), (a, b), pixel_id(px), &mut jobs);
                     for job in &jobs {
                         let (count, dt) = pieces(job.end - a, h);
                         for i in 0..samples {
@@ -287,7 +287,7 @@ impl Sweep<'_> {
                     crate::math::scaled(scale, f64::from(v))
                 };
                 for &(px, ia, ib) in &consts {
-                    self.jobs(m, (ia, ib), pixel_id(px), &mut jobs);
+                    self.jobs(m.random(), (ia, ib), pixel_id(px), &mut jobs);
                     for job in &jobs {
                         for i in 0..samples {
                             let at = px * stride + i * per + job.slot;
@@ -386,7 +386,7 @@ impl Sweep<'_> {
 /// rest (the halo cells on its + faces) is sampled. Returns the sampled parts (before and after
 /// the inner box) and the inner part, or the whole chord sampled when the ray misses the box.
 #[allow(clippy::type_complexity)]
-fn tile_split(
+pub(super) fn tile_split(
     q: DVec3,
     d: DVec3,
     o: [i64; 3],
@@ -408,16 +408,17 @@ fn tile_split(
     }
 }
 
-/// A band of a random march finished: per pixel, `T` the mean over its `samples` estimates of
-/// `exp(-tau_i)` (each estimate `per` values: the full ray, then its slices) into `t_band`, the
-/// standard error of that mean into `err` (when it is not empty), and the slices' means
-/// (pixel-major) returned. A NaN optical depth is the ray's error.
+/// A band of a random march or a null-collision map finished: per pixel, `T` the mean over its
+/// `samples` estimates (each estimate `per` values: the full ray, then its slices; optical
+/// depths `tau_i`, taken as `exp(-tau_i)`, or with `direct` the transmittance estimates
+/// themselves) into `t_band`, the standard error of that mean into `err` (when it is not
+/// empty), and the slices' means (pixel-major) returned. A NaN value is the ray's error.
 pub(super) fn finish_samples(
     camera: &Camera,
     y0: u32,
     tau: &[f64],
-    per: usize,
-    samples: usize,
+    (per, samples): (usize, usize),
+    direct: bool,
     t_band: &mut [f32],
     err: &mut [f32],
 ) -> Result<Vec<f32>> {
@@ -427,10 +428,22 @@ pub(super) fn finish_samples(
         if est.iter().any(|x| x.is_nan()) {
             let (i, j) = (px as u32 % w, y0 + px as u32 / w);
             let ray = camera.pixel_ray(i, j)?;
-            return Err(crate::Error::nan_on_ray("optical depth", &ray));
+            let what = if direct {
+                "transmittance estimate"
+            } else {
+                "optical depth"
+            };
+            return Err(crate::Error::nan_on_ray(what, &ray));
         }
         let mean_of = |slot: usize| {
-            let t = move |i: usize| (-est[i * per + slot]).exp();
+            let t = move |i: usize| {
+                let v = est[i * per + slot];
+                if direct {
+                    v
+                } else {
+                    (-v).exp()
+                }
+            };
             let mean = (0..samples).map(t).sum::<f64>() / samples as f64;
             (mean, t)
         };

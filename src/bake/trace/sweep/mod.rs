@@ -44,9 +44,12 @@
 //! corpus files. Lookups are counted as the ray path counts them: 8 corner reads for the first
 //! dual cell of a block, 4 for each further one.
 
+mod flight;
 mod march;
 mod streamed;
 
+pub(crate) use flight::flights;
+use flight::Flight;
 pub(crate) use march::marches;
 use march::{finish_samples, March};
 pub(crate) use streamed::{part_bytes, render_streamed, streams, Streamed};
@@ -692,6 +695,10 @@ struct Sweep<'a> {
     depths: Vec<f64>,
     /// A ray march ([`March`]) instead of the exact integral.
     march: Option<March>,
+    /// A null-collision estimator ([`Flight`]) instead of the exact integral.
+    flight: Option<Flight>,
+    /// Set when an estimate ran out of its collision budget: the map is then traced instead.
+    capped: std::sync::atomic::AtomicBool,
 }
 
 impl<'a> Sweep<'a> {
@@ -735,17 +742,20 @@ impl<'a> Sweep<'a> {
             rows,
             depths: depths.to_vec(),
             march: None,
+            flight: None,
+            capped: std::sync::atomic::AtomicBool::new(false),
         }
     }
 
-    /// This sweep as the march `m` (`None`: exact), or `None` when a march cannot be swept:
-    /// extinction outside lower nodes, which the sweep integrates exactly per pixel, where
-    /// the ray path marches it.
-    fn marching(mut self, m: Option<March>) -> Option<Self> {
-        if m.is_some() && self.rest_needed {
+    /// This sweep as the march `m` or the null-collision estimator `f` (both `None`: exact),
+    /// or `None` when it cannot be swept: extinction outside lower nodes, which the sweep
+    /// integrates exactly per pixel, where the ray path samples it.
+    fn marching(mut self, m: Option<March>, f: Option<Flight>) -> Option<Self> {
+        if (m.is_some() || f.is_some()) && self.rest_needed {
             return None;
         }
         self.march = m;
+        self.flight = if m.is_some() { None } else { f };
         Some(self)
     }
 
@@ -772,9 +782,13 @@ impl<'a> Sweep<'a> {
         self.samples() * (1 + self.depths.len())
     }
 
-    /// Samples per pixel: a random march's, else one.
+    /// Samples per pixel: a random march's or a null-collision estimator's, else one.
     fn samples(&self) -> usize {
-        self.march.map_or(1, |m| m.samples())
+        match (&self.march, &self.flight) {
+            (Some(m), _) => m.samples(),
+            (None, Some(f)) => f.samples(),
+            (None, None) => 1,
+        }
     }
 
     /// Each pixel's lookup-space direction through a pinhole, rows `y0..=y1`, as the ray path
@@ -880,6 +894,9 @@ impl<'a> Sweep<'a> {
     fn band(&self, b: usize, tau: &mut [f64], lookups: &mut u64) -> Result<()> {
         if let Some(m) = &self.march {
             return self.band_march(m, b, tau, lookups);
+        }
+        if let Some(f) = &self.flight {
+            return self.band_flight(f, b, tau, lookups);
         }
         let (vol, camera, rays) = (self.vol, self.camera, &self.rays);
         let (pieces, ids, y0) = (&self.pieces, &self.bins[b], b as u32 * self.rows);
@@ -1024,9 +1041,9 @@ pub(crate) fn render(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Option<Map>> {
     if let Some(faces) = camera.cube_faces() {
-        // A random march's streams follow the ray path's pixel ids of the whole cube image,
-        // which a face's sweep does not know: such maps go by rays.
-        if marches(s).is_some_and(|m| m.random()) {
+        // A random march's or a null-collision map's streams follow the ray path's pixel ids
+        // of the whole cube image, which a face's sweep does not know: such maps go by rays.
+        if marches(s).is_some_and(|m| m.random()) || flights(s).is_some() {
             return Ok(None);
         }
         return render_cube(vol, camera, &faces, s, depths, progress);
@@ -1035,7 +1052,7 @@ pub(crate) fn render(
     let Some(sweep) = Sweep::new(vol, camera, rows, depths)? else {
         return Ok(None);
     };
-    let Some(sweep) = sweep.marching(marches(s)) else {
+    let Some(sweep) = sweep.marching(marches(s), flights(s)) else {
         return Ok(None);
     };
     let (w, stride, samples) = (camera.width, sweep.stride(), sweep.samples());
@@ -1049,13 +1066,13 @@ pub(crate) fn render(
             sweep.band(b, &mut tau, &mut lookups)?;
             let y0 = b as u32 * rows;
             let mut err = vec![0.0f32; if s.std_err { t_band.len() } else { 0 }];
-            let slices = if samples > 1 {
+            let slices = if samples > 1 || sweep.flight.is_some() {
                 finish_samples(
                     camera,
                     y0,
                     &tau,
-                    stride / samples,
-                    samples,
+                    (stride / samples, samples),
+                    sweep.flight.is_some(),
                     t_band,
                     &mut err,
                 )?
@@ -1066,6 +1083,10 @@ pub(crate) fn render(
             Ok((lookups, slices, err))
         })
         .collect::<Result<_>>()?;
+    if sweep.capped.load(std::sync::atomic::Ordering::Relaxed) {
+        // An estimate ran out of its collision budget: the ray path caps it where it stands.
+        return Ok(None);
+    }
     let mut bands = Vec::with_capacity(done.len());
     let mut errs = Vec::with_capacity(done.len());
     for (lookups, slices, err) in done {

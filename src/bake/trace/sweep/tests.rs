@@ -62,7 +62,7 @@ fn check(vol: &Volume, camera: &Camera, what: &str) -> (f64, usize) {
     (worst, hit)
 }
 
-fn ortho(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
+pub(super) fn ortho(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
     let view = View {
         projection: Projection::Ortho,
         light_dir: Some(dir),
@@ -77,7 +77,7 @@ fn ortho(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
 
 /// A perspective camera from a light outside the box, looking along `dir` at its centre from
 /// twice its diagonal away.
-fn persp(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
+pub(super) fn persp(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
     let corners = vol.box_corners().expect("box");
     let (lo, hi) = corners.iter().fold(
         (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
@@ -98,7 +98,7 @@ fn persp(vol: &Volume, dir: [f64; 3], res: u32) -> Camera {
 }
 
 /// Both projections of each direction.
-fn cameras(vol: &Volume, res: u32) -> Vec<(String, Camera)> {
+pub(super) fn cameras(vol: &Volume, res: u32) -> Vec<(String, Camera)> {
     DIRS.iter()
         .flat_map(|&dir| {
             [
@@ -409,7 +409,7 @@ fn check_march(
         .expect("plan")
         .expect("frame");
     let rest = planned.rest_needed;
-    let Some(sweep) = planned.marching(Some(m)) else {
+    let Some(sweep) = planned.marching(Some(m), None) else {
         assert!(
             rest,
             "{what}: a march declined without extinction above lower nodes"
@@ -450,7 +450,7 @@ fn check_march(
             let mut err = vec![0.0f32; 1];
             let mut t = [0.0f32];
             let est_of = &buf[n * stride..(n + 1) * stride];
-            let got = finish_samples(camera, 0, est_of, per, samples, &mut t, &mut err)
+            let got = finish_samples(camera, 0, est_of, (per, samples), false, &mut t, &mut err)
                 .map(|slices| {
                     if k == 0 {
                         f64::from(t[0])
