@@ -149,6 +149,15 @@ for est in residual-ratio unbiased-raymarch; do
             "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --estimator "$est" --spp "$spp" --out "$OUT/umbra_${est}_$spp.exr"
     done
 done
+# Null-collision maps swept block by block against the same maps traced ray by ray (before).
+for est in ratio residual-ratio track-length; do
+    [ "$est" = residual-ratio ] || entry "umbra_${est}_16" "umbra $est, 16 spp" "unbiased, object-order sweep" \
+        "$OUT/umbra_${est}_16.exr:T" "$REF" \
+        "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --estimator "$est" --spp 16 --out "$OUT/umbra_${est}_16.exr"
+    entry "umbra_${est}_rays_16" "umbra $est, 16 spp, ray order" "unbiased, one HDDA walk per pixel (before the sweep)" \
+        "$OUT/umbra_${est}_rays_16.exr:T" "$REF" \
+        "$UMBRA" "$FILE" "${VIEW[@]}" --threads "$THREADS" --estimator "$est" --spp 16 --order rays --out "$OUT/umbra_${est}_rays_16.exr"
+done
 
 # NanoVDB (NANOVDB=0 skips it): the grid converted once with nanovdb_convert (untimed), then
 # bench/nanovdb_march.cpp built with g++ -O3 -march=native. Same voxel convention as OpenVDB.

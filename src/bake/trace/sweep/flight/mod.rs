@@ -152,6 +152,10 @@ struct Estimates<'a> {
     samples: usize,
 }
 
+/// Largest expected point count of a chord (`samples x r x L`) drawn by inverting the Poisson
+/// distribution; above it the points are drawn as exponential gaps.
+const POISSON_INVERSION: f64 = 30.0;
+
 impl Chord<'_> {
     /// Fly every sample through the chord with the stream `rng` (see the module docs): the
     /// tentative collisions of all samples as one Poisson process of rate `samples x r`, each
@@ -159,11 +163,40 @@ impl Chord<'_> {
     /// collisions reach `budget` stops. Returns the collisions evaluated and whether a sample
     /// was capped.
     fn fly(&self, rule: Rule, mut rng: Rng, budget: u32, est: &mut Estimates<'_>) -> (u64, bool) {
-        let total = self.rate * est.samples as f64;
-        let (inv_total, inv_rate) = (1.0 / total, 1.0 / self.rate);
-        let (mut t, mut n, mut capped) = (0.0f64, 0u64, false);
+        let samples = est.samples as f64;
+        let lambda = self.rate * self.len * samples;
+        let mut out = (0u64, false);
+        let u = rng.uniform();
+        // No point when `u <= exp(-lambda)`; `1 - lambda <= exp(-lambda)` decides most chords
+        // without an exponential.
+        if u <= 1.0 - lambda {
+            return out;
+        }
+        if lambda <= POISSON_INVERSION {
+            // The count by inversion, then that many uniform points (their order does not
+            // matter: a product of factors, or any real collision, is the same in any order).
+            let (mut k, mut p) = (0u32, (-lambda).exp());
+            let mut cdf = p;
+            while u > cdf && k < 1000 {
+                k += 1;
+                p *= lambda / f64::from(k);
+                cdf += p;
+            }
+            for _ in 0..k {
+                // One draw gives both: the sample `floor(S x)` and `t = L frac(S x)`.
+                let m = u128::from(rng.next_u64()) * est.samples as u128;
+                let frac = (m as u64) as f64 * (1.0 / 18_446_744_073_709_551_616.0);
+                let i = (m >> 64) as usize;
+                self.collide(rule, frac * self.len, i, &mut rng, budget, est, &mut out);
+            }
+            return out;
+        }
+        // Many points: exponential gaps `E / (S r)`, `E = -ln(1 - u) >= u` (past the end when
+        // `u` is).
+        let total = self.rate * samples;
+        let inv_total = 1.0 / total;
+        let mut t = 0.0f64;
         loop {
-            // The next point `E / total` on, `E = -ln(1 - u) >= u`: past the end when `u` is.
             let u = rng.uniform();
             if u >= total * (self.len - t) {
                 break;
@@ -173,36 +206,54 @@ impl Chord<'_> {
                 break;
             }
             let i = ((u128::from(rng.next_u64()) * est.samples as u128) >> 64) as usize;
-            let at = est.base + i * est.per;
-            if est.prod[at] == 0.0 {
-                continue;
-            }
-            if est.spent[at] >= budget {
-                capped = true;
-                continue;
-            }
-            est.spent[at] += 1;
-            n += 1;
-            let p = [0, 1, 2].map(|a| self.e[a] + self.d[a] * t);
-            // `scale > 0` here (a zero scale has rate 0 and no collisions).
-            let v = self.scale * point(self.block, p);
-            let mu = if v > self.hi {
-                self.hi
-            } else if v < self.lo {
-                self.lo
-            } else {
-                v
-            } - self.mu_c;
-            match rule {
-                Rule::Ratio => est.prod[at] *= 1.0 - mu * inv_rate,
-                Rule::Delta => {
-                    if rng.uniform() * self.rate < mu {
-                        est.prod[at] = 0.0;
-                    }
+            self.collide(rule, t, i, &mut rng, budget, est, &mut out);
+        }
+        out
+    }
+
+    /// A tentative collision of sample `i` at `t`: its factor into the sample's product
+    /// (nothing for a sample already at 0; none past the budget, which marks it capped);
+    /// `out` counts the collisions evaluated.
+    #[allow(clippy::too_many_arguments)]
+    #[inline]
+    fn collide(
+        &self,
+        rule: Rule,
+        t: f64,
+        i: usize,
+        rng: &mut Rng,
+        budget: u32,
+        est: &mut Estimates<'_>,
+        out: &mut (u64, bool),
+    ) {
+        let at = est.base + i * est.per;
+        if est.prod[at] == 0.0 {
+            return;
+        }
+        if est.spent[at] >= budget {
+            out.1 = true;
+            return;
+        }
+        est.spent[at] += 1;
+        out.0 += 1;
+        let p = [0, 1, 2].map(|a| self.e[a] + self.d[a] * t);
+        // `scale > 0` here (a zero scale has rate 0 and no collisions).
+        let v = self.scale * point(self.block, p);
+        let mu = if v > self.hi {
+            self.hi
+        } else if v < self.lo {
+            self.lo
+        } else {
+            v
+        } - self.mu_c;
+        match rule {
+            Rule::Ratio => est.prod[at] *= 1.0 - mu / self.rate,
+            Rule::Delta => {
+                if rng.uniform() * self.rate < mu {
+                    est.prod[at] = 0.0;
                 }
             }
         }
-        (n, capped)
     }
 }
 
