@@ -23,8 +23,8 @@
 //! request that would silently ignore an option cannot be planned.
 
 use crate::bake::{
-    BakeJob, BakeSettings, Camera, Depths, ExrLayout, Omni, Product, Projection, Resolution, View,
-    VolumeJob, DEFAULT_DEEP_ERROR, DEFAULT_OUT_GRID,
+    BakeJob, BakeSettings, Camera, Depths, ExrLayout, Omni, Order, Product, Projection, Resolution,
+    View, VolumeJob, DEFAULT_DEEP_ERROR, DEFAULT_OUT_GRID,
 };
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
@@ -256,6 +256,11 @@ pub struct BakeOptions {
     /// One majorant for the whole grid (the naive baseline).
     #[cfg_attr(feature = "cli", arg(long))]
     pub global_majorant: bool,
+    /// Tracing order of a map: `auto` (object order where the sweep takes the map: exact,
+    /// ray-marched and null-collision maps) or `rays` (one ray per pixel; a pixel of a
+    /// null-collision map is then what `query --ray-id` answers).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "auto"))]
+    pub order: Order,
     /// Worker threads (0: all cores).
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub threads: usize,
@@ -318,6 +323,7 @@ impl Default for BakeOptions {
             points: None,
             granularity: Granularity::Leaf,
             global_majorant: false,
+            order: Order::Auto,
             threads: 0,
             max_memory: None,
             force: false,
@@ -948,6 +954,7 @@ impl BakeRequest {
             depths,
             std_err: o.stderr,
             threads: o.threads,
+            order: o.order,
             ..BakeSettings::new(estimator, options)
         };
         settings.validate()?;

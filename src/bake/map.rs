@@ -71,12 +71,15 @@ pub struct BakeSettings {
 }
 
 /// The order in which a map is traced.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Order {
-    /// Object order (the sweep: each 8^3 block adds its exact integral to the pixels it covers)
-    /// for exact trilinear maps (slices included; orthographic, or perspective with the light
-    /// outside the volume's clip box); ray order for everything else.
+    /// Object order (the sweep: each 8^3 block adds its exact integral, its marched points or
+    /// its samples' null-collision flights to the pixels it covers) for trilinear maps of the
+    /// exact, marching and null-collision estimators (slices included; orthographic,
+    /// perspective and cube maps); ray order for everything else.
     #[default]
     Auto,
     /// One ray per pixel, walked down the tree.
