@@ -59,7 +59,14 @@ fn header_attributes_rebuild_rays_that_query_reproduces() {
         ),
         (
             "ratio.exr",
-            &["--light-dir", "0.2,-1,0.1", "--res", "20x16", "--order", "rays"],
+            &[
+                "--light-dir",
+                "0.2,-1,0.1",
+                "--res",
+                "20x16",
+                "--order",
+                "rays",
+            ],
             &ratio,
         ),
     ];

@@ -87,6 +87,7 @@ def bake(
     points: Optional[float] = None,
     granularity: str = "leaf",
     global_majorant: bool = False,
+    order: str = "auto",
     threads: int = 0,
     max_memory: Union[None, int, str] = None,
     force: bool = False,

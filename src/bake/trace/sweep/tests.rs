@@ -478,6 +478,30 @@ fn check_march(
     Some(hit)
 }
 
+/// A synthetic tree: leaves around 8^3 tiles inside a lower node (the walk splits their chords
+/// into halo cells and a constant inner box) and data on the - faces of another lower node
+/// (shell blocks before it, outside every lower node).
+pub(super) fn tiles_and_shells() -> Volume {
+    let mut b = TreeBuilder::new(0.0);
+    b.tile([8, 8, 8], 3, 1.5);
+    b.tile([24, 8, 8], 3, 0.0);
+    for k in 0..20 * 20 * 20 {
+        b.set([k % 20, (k / 20) % 20, k / 400], (k % 7) as f32 * 0.3);
+    }
+    for k in 0..27 {
+        b.set(
+            [128 + k % 3, 128 + (k / 3) % 3, 128 + k / 9],
+            1.0 + k as f32,
+        );
+    }
+    let m = [
+        [0.5, 0.0, 0.0, 0.0],
+        [0.0, 0.5, 0.0, 0.0],
+        [0.0, 0.0, 0.5, 0.0],
+    ];
+    Volume::from_tree("tiles".into(), b.build(), m, 0.8).expect("volume")
+}
+
 /// Riemann maps swept block by block take the ray path's points: corpus clouds and smokes,
 /// extreme media, both projections, steps on and off the voxel grid, slices.
 #[test]
@@ -508,26 +532,7 @@ fn marches_match_the_ray_path() {
     }
     // Every file but the one with tiles above lower nodes (which goes by rays).
     assert_eq!(checked, 5 * 8 * 3);
-    // Synthetic: leaves around 8^3 tiles inside lower nodes (the walk splits their chords),
-    // and data on the - faces of a lower node (shell blocks before it).
-    let mut b = TreeBuilder::new(0.0);
-    b.tile([8, 8, 8], 3, 1.5);
-    b.tile([24, 8, 8], 3, 0.0);
-    for k in 0..20 * 20 * 20 {
-        b.set([k % 20, (k / 20) % 20, k / 400], (k % 7) as f32 * 0.3);
-    }
-    for k in 0..27 {
-        b.set(
-            [128 + k % 3, 128 + (k / 3) % 3, 128 + k / 9],
-            1.0 + k as f32,
-        );
-    }
-    let m = [
-        [0.5, 0.0, 0.0, 0.0],
-        [0.0, 0.5, 0.0, 0.0],
-        [0.0, 0.0, 0.5, 0.0],
-    ];
-    let vol = Volume::from_tree("tiles".into(), b.build(), m, 0.8).expect("volume");
+    let vol = tiles_and_shells();
     for (what, camera) in cameras(&vol, 48) {
         let mid = 0.5 * (camera.t_near + camera.t_max);
         for step in [1.0, 0.5] {

@@ -1,10 +1,9 @@
 //! Null-collision maps swept block by block against the exact optical depth: unbiased within
 //! their standard errors, the same bits whatever the bands or threads.
 
-use super::super::tests::cameras;
+use super::super::tests::{cameras, tiles_and_shells};
 use super::*;
 use crate::bake::camera::Camera;
-use crate::tree::TreeBuilder;
 use crate::volume::Volume;
 
 /// The flight the sweep renders for estimator `name` at `spp` samples.
@@ -100,30 +99,6 @@ fn student_t(s: &[f64]) -> f64 {
     } else {
         mean / (sd / n.sqrt())
     }
-}
-
-/// A tree with 8^3 tiles inside a lower node (leaves around them: tile halos flown, inner
-/// boxes closed form) and data on the - faces of another lower node (shell blocks before it:
-/// the ray path per chord).
-fn tiles_and_shells() -> Volume {
-    let mut b = TreeBuilder::new(0.0);
-    b.tile([8, 8, 8], 3, 1.5);
-    b.tile([24, 8, 8], 3, 0.0);
-    for k in 0..20 * 20 * 20 {
-        b.set([k % 20, (k / 20) % 20, k / 400], (k % 7) as f32 * 0.3);
-    }
-    for k in 0..27 {
-        b.set(
-            [128 + k % 3, 128 + (k / 3) % 3, 128 + k / 9],
-            1.0 + k as f32,
-        );
-    }
-    let m = [
-        [0.5, 0.0, 0.0, 0.0],
-        [0.0, 0.5, 0.0, 0.0],
-        [0.0, 0.0, 0.5, 0.0],
-    ];
-    Volume::from_tree("tiles".into(), b.build(), m, 0.8).expect("volume")
 }
 
 const ESTIMATORS: [&str; 5] = [
