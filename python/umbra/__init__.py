@@ -426,6 +426,7 @@ def bake(
     points: Optional[float] = None,
     granularity: str = "leaf",
     global_majorant: bool = False,
+    order: str = "auto",
     threads: int = 0,
     max_memory: Union[None, int, str] = None,
     force: bool = False,
@@ -470,7 +471,7 @@ def bake(
             density_scale=density_scale, sigma_t=sigma_t, levelset=levelset,
             estimator=estimator, samples=samples, seed=seed, step=step, kernel=kernel,
             points=points, granularity=granularity, global_majorant=global_majorant,
-            threads=threads, max_memory=max_memory, force=force,
+            order=order, threads=threads, max_memory=max_memory, force=force,
         ),
     )
     _warn(warns)
@@ -861,6 +862,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
         return_stderr: Optional[bool] = None,
@@ -894,7 +896,7 @@ class Volume:
                 frame_box=frame_box, camera=camera, target_error=target_error, max_spp=max_spp,
                 stderr=stderr,
                 step=step, kernel=kernel, points=points, granularity=granularity,
-                global_majorant=global_majorant, threads=threads,
+                global_majorant=global_majorant, order=order, threads=threads,
             )
         )
         return_stderr = bool(stderr)
@@ -935,6 +937,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        order: str = "auto",
         spp: Optional[int] = None,
         overwrite: Optional[bool] = None,
     ) -> Tuple[Dict[str, Any], Dict[str, Any]]:
@@ -962,7 +965,7 @@ class Volume:
                 samples=samples, seed=seed, up=up, ortho=ortho, fov=fov, frame_box=frame_box,
                 camera=camera, deep_error=deep_error, force=force, threads=threads,
                 step=step, kernel=kernel, points=points, granularity=granularity,
-                global_majorant=global_majorant,
+                global_majorant=global_majorant, order=order,
             ),
         )
         _warn(warns)
