@@ -344,13 +344,7 @@ fn by_ray_batches(
             let (mut rays, mut at) = (Vec::new(), Vec::new());
             for (g, leaf) in group.iter().enumerate() {
                 for n in (0..512usize).filter(|&n| bit(&leaf.active, n)) {
-                    let ijk = [
-                        leaf.origin[0] + (n >> 6) as i32,
-                        leaf.origin[1] + ((n >> 3) & 7) as i32,
-                        leaf.origin[2] + (n & 7) as i32,
-                    ];
-                    let p = vol.to_world(glam::DVec3::from_array(ijk.map(f64::from)));
-                    rays.push(light.ray_from(vol, p.to_array())?);
+                    rays.push(voxel_ray(vol, light, leaf, n)?);
                     at.push((g, n));
                 }
             }
@@ -365,6 +359,17 @@ fn by_ray_batches(
             Ok((rays.len() as u64, lookups))
         })
         .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
+}
+
+/// The ray from voxel `n` of `leaf` (its centre in world space) toward the light.
+fn voxel_ray(vol: &Volume, light: &Light, leaf: &LeafOut, n: usize) -> Result<crate::Ray> {
+    let ijk = [
+        leaf.origin[0] + (n >> 6) as i32,
+        leaf.origin[1] + ((n >> 3) & 7) as i32,
+        leaf.origin[2] + (n & 7) as i32,
+    ];
+    let p = vol.to_world(glam::DVec3::from_array(ijk.map(f64::from)));
+    light.ray_from(vol, p.to_array())
 }
 
 /// One ray (or estimate) per voxel, leaves in parallel.
@@ -386,13 +391,7 @@ fn by_rays(
                 if !bit(&leaf.active, n) {
                     continue;
                 }
-                let ijk = [
-                    leaf.origin[0] + (n >> 6) as i32,
-                    leaf.origin[1] + ((n >> 3) & 7) as i32,
-                    leaf.origin[2] + (n & 7) as i32,
-                ];
-                let p = vol.to_world(glam::DVec3::from_array(ijk.map(f64::from)));
-                let ray = light.ray_from(vol, p.to_array())?;
+                let ray = voxel_ray(vol, light, leaf, n)?;
                 let t = if exact {
                     let od = crate::regular::optical_depth(vol, &ray, opts.interp)?;
                     lookups += od.lookups;

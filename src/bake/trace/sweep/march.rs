@@ -166,11 +166,11 @@ impl Sweep<'_> {
         lookups: &mut u64,
     ) -> Result<()> {
         let (vol, rays) = (self.vol, &self.rays);
-        let (ids, y0) = (&self.bins[b], b as u32 * self.rows);
+        let ids = &self.bins[b];
+        let (y0, y1) = self.band_span(b, tau.len());
         let tree = vol.tree();
         let (w, stride) = (rays.width, self.stride());
         let per = 1 + self.depths.len();
-        let y1 = y0 + (tau.len() / stride / w as usize) as u32 - 1;
         let scale = vol.density_scale();
         let mut acc = Accessor::new(tree);
         let mut n = Counts::default();

@@ -754,8 +754,9 @@ impl<'a> Sweep<'a> {
         if (m.is_some() || f.is_some()) && self.rest_needed {
             return None;
         }
+        // `marches` and `flights` take disjoint estimators: at most one is set.
         self.march = m;
-        self.flight = if m.is_some() { None } else { f };
+        self.flight = f;
         Some(self)
     }
 
@@ -784,11 +785,19 @@ impl<'a> Sweep<'a> {
 
     /// Samples per pixel: a random march's or a null-collision estimator's, else one.
     fn samples(&self) -> usize {
-        match (&self.march, &self.flight) {
-            (Some(m), _) => m.samples(),
-            (None, Some(f)) => f.samples(),
-            (None, None) => 1,
-        }
+        self.march
+            .map(|m| m.samples())
+            .or(self.flight.map(|f| f.samples()))
+            .unwrap_or(1)
+    }
+
+    /// The image rows `y0..=y1` of band `b`, whose buffer holds `len` values.
+    fn band_span(&self, b: usize, len: usize) -> (u32, u32) {
+        let y0 = b as u32 * self.rows;
+        (
+            y0,
+            y0 + (len / self.stride() / self.rays.width as usize) as u32 - 1,
+        )
     }
 
     /// Each pixel's lookup-space direction through a pinhole, rows `y0..=y1`, as the ray path
@@ -899,11 +908,11 @@ impl<'a> Sweep<'a> {
             return self.band_flight(f, b, tau, lookups);
         }
         let (vol, camera, rays) = (self.vol, self.camera, &self.rays);
-        let (pieces, ids, y0) = (&self.pieces, &self.bins[b], b as u32 * self.rows);
+        let (pieces, ids) = (&self.pieces, &self.bins[b]);
+        let (y0, y1) = self.band_span(b, tau.len());
         let tree = vol.tree();
         let w = rays.width;
         let stride = self.stride();
-        let y1 = y0 + (tau.len() / stride / w as usize) as u32 - 1;
         let scale = vol.density_scale();
         let mut acc = Accessor::new(tree);
         let mut n = Counts::default();

@@ -131,6 +131,7 @@ pub(crate) fn flights(s: &BakeSettings) -> Option<Flight> {
 /// One chord's flight: the block, the chord (block-centred entry `e`, lookup direction `d`,
 /// world length `len`) and the block's bounds, control and rate.
 struct Chord<'b> {
+    rule: Rule,
     block: &'b [f32; BLOCK],
     e: [f64; 3],
     d: [f64; 3],
@@ -143,13 +144,17 @@ struct Chord<'b> {
 }
 
 /// Where a chord's samples keep their state: the product of their chord factors and the
-/// collisions they spent, sample `i` at `base + i per`.
+/// collisions they spent, sample `i` at `base + i per`; the budget of collisions per estimate,
+/// and what the chord's flight did: the collisions it evaluated, whether a sample was capped.
 struct Estimates<'a> {
     prod: &'a mut [f64],
     spent: &'a mut [u32],
     base: usize,
     per: usize,
     samples: usize,
+    budget: u32,
+    evaluated: u64,
+    capped: bool,
 }
 
 /// Largest expected point count of a chord (`samples x r x L`) drawn by inverting the Poisson
@@ -160,17 +165,15 @@ impl Chord<'_> {
     /// Fly every sample through the chord with the stream `rng` (see the module docs): the
     /// tentative collisions of all samples as one Poisson process of rate `samples x r`, each
     /// point given to a uniform sample. A sample already at 0 stays there; one whose
-    /// collisions reach `budget` stops. Returns the collisions evaluated and whether a sample
-    /// was capped.
-    fn fly(&self, rule: Rule, mut rng: Rng, budget: u32, est: &mut Estimates<'_>) -> (u64, bool) {
+    /// collisions reach the budget stops.
+    fn fly(&self, mut rng: Rng, est: &mut Estimates<'_>) {
         let samples = est.samples as f64;
         let lambda = self.rate * self.len * samples;
-        let mut out = (0u64, false);
         let u = rng.uniform();
         // No point when `u <= exp(-lambda)`; `1 - lambda <= exp(-lambda)` decides most chords
         // without an exponential.
         if u <= 1.0 - lambda {
-            return out;
+            return;
         }
         if lambda <= POISSON_INVERSION {
             // The count by inversion, then that many uniform points (their order does not
@@ -187,9 +190,9 @@ impl Chord<'_> {
                 let m = u128::from(rng.next_u64()) * est.samples as u128;
                 let frac = (m as u64) as f64 * (1.0 / 18_446_744_073_709_551_616.0);
                 let i = (m >> 64) as usize;
-                self.collide(rule, frac * self.len, i, &mut rng, budget, est, &mut out);
+                self.collide(frac * self.len, i, &mut rng, est);
             }
-            return out;
+            return;
         }
         // Many points: exponential gaps `E / (S r)`, `E = -ln(1 - u) >= u` (past the end when
         // `u` is).
@@ -206,36 +209,24 @@ impl Chord<'_> {
                 break;
             }
             let i = ((u128::from(rng.next_u64()) * est.samples as u128) >> 64) as usize;
-            self.collide(rule, t, i, &mut rng, budget, est, &mut out);
+            self.collide(t, i, &mut rng, est);
         }
-        out
     }
 
     /// A tentative collision of sample `i` at `t`: its factor into the sample's product
-    /// (nothing for a sample already at 0; none past the budget, which marks it capped);
-    /// `out` counts the collisions evaluated.
-    #[allow(clippy::too_many_arguments)]
+    /// (nothing for a sample already at 0; none past the budget, which marks it capped).
     #[inline]
-    fn collide(
-        &self,
-        rule: Rule,
-        t: f64,
-        i: usize,
-        rng: &mut Rng,
-        budget: u32,
-        est: &mut Estimates<'_>,
-        out: &mut (u64, bool),
-    ) {
+    fn collide(&self, t: f64, i: usize, rng: &mut Rng, est: &mut Estimates<'_>) {
         let at = est.base + i * est.per;
         if est.prod[at] == 0.0 {
             return;
         }
-        if est.spent[at] >= budget {
-            out.1 = true;
+        if est.spent[at] >= est.budget {
+            est.capped = true;
             return;
         }
         est.spent[at] += 1;
-        out.0 += 1;
+        est.evaluated += 1;
         let p = [0, 1, 2].map(|a| self.e[a] + self.d[a] * t);
         // `scale > 0` here (a zero scale has rate 0 and no collisions).
         let v = self.scale * point(self.block, p);
@@ -246,7 +237,7 @@ impl Chord<'_> {
         } else {
             v
         } - self.mu_c;
-        match rule {
+        match self.rule {
             Rule::Ratio => est.prod[at] *= 1.0 - mu / self.rate,
             Rule::Delta => {
                 if rng.uniform() * self.rate < mu {
@@ -275,20 +266,20 @@ impl Sweep<'_> {
         lookups: &mut u64,
     ) -> Result<()> {
         let (vol, rays) = (self.vol, &self.rays);
-        let (ids, y0) = (&self.bins[b], b as u32 * self.rows);
+        let ids = &self.bins[b];
+        let (y0, y1) = self.band_span(b, tau.len());
         let tree = vol.tree();
         let (w, stride) = (rays.width, self.stride());
         let per = 1 + self.depths.len();
         let npx = tau.len() / stride;
-        let y1 = y0 + (npx / w as usize) as u32 - 1;
         let scale = vol.density_scale();
         let mut acc = Accessor::new(tree);
         let mut n = Counts::default();
         let dirs = self.pixel_dirs(y0, y1)?;
         let pixel_id = |px: usize| u64::from(y0) * u64::from(w) + px as u64;
         let samples = f.samples();
-        // The closed-form optical depth of each pixel's estimates (shared by its samples), and
-        // the tentative collisions each estimate has spent.
+        // Per pixel and slot, the closed-form optical depth its samples share; per estimate,
+        // the tentative collisions it has spent and the product of its chord factors.
         let (mut det, mut spent, mut prod) = BUFFERS.take();
         det.clear();
         det.resize(npx * per, 0.0);
@@ -380,6 +371,7 @@ impl Sweep<'_> {
                             continue;
                         }
                         let chord = Chord {
+                            rule: f.rule,
                             block: &block,
                             e,
                             d: d.to_array(),
@@ -396,11 +388,14 @@ impl Sweep<'_> {
                             base: px * stride + job.slot,
                             per,
                             samples,
+                            budget,
+                            evaluated: 0,
+                            capped: false,
                         };
                         let rng = Rng::of_chord(chord_key(kb, job.ray_id), part as u64);
-                        let (evaluated, capped) = chord.fly(f.rule, rng, budget, &mut est);
-                        *lookups += evaluated;
-                        if capped {
+                        chord.fly(rng, &mut est);
+                        *lookups += est.evaluated;
+                        if est.capped {
                             self.capped.store(true, Ordering::Relaxed);
                         }
                     }
