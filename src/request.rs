@@ -182,6 +182,11 @@ pub struct BakeOptions {
     /// With deep: the bound E on |T_deep(z) - T(z)| at every depth z (default 0.002).
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub deep_error: Option<f64>,
+    /// A deep map at a fixed size per texel, as channels of a flat EXR next to T:
+    /// fourier:K (K odd, 3-63), moments:4, moments:6 or avsm:K (K nodes, 2-32); the error in
+    /// T it reaches is in the header (umbra:deep_max_error).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "FORMAT"))]
+    pub deep_format: Option<String>,
     /// A transmittance volume (.vdb output): the name of the written grid (default
     /// `transmittance`).
     #[cfg_attr(feature = "cli", arg(long))]
@@ -303,6 +308,7 @@ impl Default for BakeOptions {
             mipmap: false,
             deep: false,
             deep_error: None,
+            deep_format: None,
             out_grid: None,
             half: false,
             preview: None,
@@ -963,10 +969,25 @@ impl BakeRequest {
             mipmap: o.mipmap,
         };
         layout.validate()?;
-        let product = match (o.deep, o.deep_error) {
-            (false, Some(_)) => return Err(bad("deep-error", "applies to deep maps: add deep")),
-            (false, None) => Product::Map,
-            (true, e) => {
+        let format = o
+            .deep_format
+            .as_deref()
+            .map(str::parse::<crate::bake::DeepFormat>)
+            .transpose()?;
+        let product = match (format, o.deep, o.deep_error) {
+            (Some(_), _, Some(_)) => {
+                return Err(bad(
+                    "deep-error",
+                    "bounds Lokovic-Veach deep samples; a deep format reports the error it \
+                     reaches instead (umbra:deep_max_error)",
+                ))
+            }
+            (Some(format), _, None) => Product::Fixed { format },
+            (None, false, Some(_)) => {
+                return Err(bad("deep-error", "applies to deep maps: add deep"))
+            }
+            (None, false, None) => Product::Map,
+            (None, true, e) => {
                 let max_error = e.unwrap_or(DEFAULT_DEEP_ERROR);
                 crate::bake::check_deep_error(max_error)?;
                 Product::Deep { max_error }

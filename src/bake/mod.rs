@@ -7,8 +7,8 @@
 //! | vocabulary | `map` | what a map is and how it is asked for: [`BakeSettings`], [`Depths`], [`Map`], channel names |
 //! | vocabulary | `camera` | [`View`] -> [`Camera`]: framing, OpenEXR matrices, cameras reused from earlier maps, how far a volume reaches outside a fixed camera |
 //! | stages | `trace` | making a [`Map`] in memory: the parallel tile renderer (one estimate per pixel), the exact sweep in object order (`trace/sweep`, AVX2 lanes), scenes channel by channel |
-//! | stages | `encode` | writing bytes: EXR scanline / tiled / mip-mapped ([`write_exr`]), deep EXR ([`DeepImage`]), PNG, the map as data ([`MapSummary`]), the greedy deep-sample fit |
-//! | products | `product` | [`BakeJob`] (file to written map), [`bake_deep`] (deep maps), [`VolumeJob`] (transmittance volumes) |
+//! | stages | `encode` | writing bytes: EXR scanline / tiled / mip-mapped ([`write_exr`]), deep EXR ([`DeepImage`]), fixed-size deep formats ([`DeepFormat`]), PNG, the map as data ([`MapSummary`]), the greedy deep-sample fit |
+//! | products | `product` | [`BakeJob`] (file to written map), [`bake_deep`] (deep maps), [`bake_fixed`] (deep maps at a fixed size per texel), [`VolumeJob`] (transmittance volumes) |
 //!
 //! A bake is asked for through [`crate::request`], which plans one of these products.
 //!
@@ -46,6 +46,7 @@ pub use encode::deep_exr::{
 pub use encode::deep_fit::{
     check_deep_error, fit_profile, fit_spans, fitted_transmittance, DeepSample, DEFAULT_DEEP_ERROR,
 };
+pub use encode::fixed::{texel_error, DeepFormat, NormProfile, TexelError, TAU_CAP};
 pub use encode::exr::{write_exr, write_exr_as, write_map, write_png, Provenance};
 pub use encode::layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
 pub use encode::summary::{MapSummary, SummaryCamera};
@@ -54,6 +55,7 @@ pub use map::{
     Order, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
 };
 pub use product::deep_map::{bake_deep, deep_attributes, DeepMap, DeepStats, STOCHASTIC_DEPTHS};
+pub use product::fixed_map::{bake_fixed, FixedMap, FixedStats, PROFILE_ERROR};
 pub use product::pipeline::{map_warnings, volume_warnings, BakeJob, BakeReport, Product, Warning};
 pub use product::transmittance_volume::{
     output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,

@@ -157,6 +157,21 @@ fn encode_exr(
     prov: &Provenance,
     layout: &ExrLayout,
 ) -> std::result::Result<Vec<u8>, String> {
+    encode_exr_with(map, prov, layout, &[], Vec::new())
+}
+
+/// [`encode_exr`] with more channels (one value per pixel each; scanline and tiled layouts,
+/// not mip levels) and more header attributes.
+pub(crate) fn encode_exr_with(
+    map: &Map,
+    prov: &Provenance,
+    layout: &ExrLayout,
+    planes: &[(String, Vec<f32>)],
+    attrs: Vec<(String, AttributeValue)>,
+) -> std::result::Result<Vec<u8>, String> {
+    if layout.mipmap && !planes.is_empty() {
+        return Err("extra channels are written without mip levels".into());
+    }
     let c = &map.camera;
     let size = (c.width as usize, c.height as usize);
     // An omnidirectional map has no image plane: `envmap` instead of the camera matrices.
@@ -171,7 +186,7 @@ fn encode_exr(
         )),
         ..LayerAttributes::default()
     };
-    for (k, v) in umbra_attributes(map, prov) {
+    for (k, v) in umbra_attributes(map, prov).into_iter().chain(attrs) {
         a.other.insert(Text::from(k.as_str()), v);
     }
     let enc = Encoding {
@@ -213,7 +228,11 @@ fn encode_exr(
         }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
         encode!(image)
-    } else if map.std_err.is_none() && map.slices.is_empty() && map.color.is_none() {
+    } else if map.std_err.is_none()
+        && map.slices.is_empty()
+        && map.color.is_none()
+        && planes.is_empty()
+    {
         // The common single-channel map is read straight from `map.t` (no copy of the image).
         let width = size.0;
         let channels = SpecificChannels::build()
@@ -226,6 +245,10 @@ fn encode_exr(
         for (name, data) in channel_planes(map) {
             list.push(AnyChannel::new(name, FlatSamples::F32(data.to_vec())));
         }
+        for (name, data) in planes {
+            let name = Text::new_or_none(name.as_str()).ok_or("a channel name that is not ASCII")?;
+            list.push(AnyChannel::new(name, FlatSamples::F32(data.clone())));
+        }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
         encode!(image)
     };
@@ -233,6 +256,26 @@ fn encode_exr(
     let mut bytes = buf.into_inner();
     sort_attributes(&mut bytes)?;
     Ok(bytes)
+}
+
+/// The header attributes of a fixed-size deep map (`bake --deep-format`): its format, the
+/// bound on its error in T over every texel and depth (rounded up to a float), its RMS error,
+/// the profile's share of the bound, and the depth range the texels' depth is normalised to.
+pub(crate) fn fixed_attributes(s: &crate::bake::FixedStats) -> Vec<(String, AttributeValue)> {
+    vec![
+        ("umbra:deep_format".into(), text(&s.format)),
+        (
+            "umbra:deep_max_error".into(),
+            AttributeValue::F32(crate::bake::encode::fixed::f32_up(s.max_error)),
+        ),
+        ("umbra:deep_rms_error".into(), AttributeValue::F32(s.rms_error as f32)),
+        (
+            "umbra:deep_profile_error".into(),
+            AttributeValue::F32(s.profile_error as f32),
+        ),
+        ("umbra:deep_near".into(), AttributeValue::F64(s.near)),
+        ("umbra:deep_far".into(), AttributeValue::F64(s.far)),
+    ]
 }
 
 /// OpenEXR's `envmap` of an omnidirectional map (`None` for others).

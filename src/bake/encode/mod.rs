@@ -6,5 +6,6 @@
 pub(crate) mod deep_exr;
 pub(crate) mod deep_fit;
 pub(crate) mod exr;
+pub(crate) mod fixed;
 pub(crate) mod layout;
 pub(crate) mod summary;

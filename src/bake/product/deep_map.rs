@@ -39,7 +39,7 @@ use rayon::prelude::*;
 /// Depths at which a stochastic estimator's deep function is estimated.
 pub const STOCHASTIC_DEPTHS: usize = MAX_SLICES;
 /// Share of the error bound the piecewise-linear profile may use.
-const PROFILE_SHARE: f64 = 0.25;
+pub(crate) const PROFILE_SHARE: f64 = 0.25;
 /// Share of the error bound the fit may use.
 const FIT_SHARE: f64 = 0.5;
 
@@ -85,11 +85,27 @@ pub struct DeepMap {
 
 /// One pixel's profile: depths, per-channel optical depths (`taus[c][k]`), where it turns
 /// opaque.
-struct PixelProfile {
-    t: Vec<f64>,
-    taus: Vec<Vec<f64>>,
-    opaque_at: Option<f64>,
+pub(crate) struct PixelProfile {
+    pub(crate) t: Vec<f64>,
+    pub(crate) taus: Vec<Vec<f64>>,
+    pub(crate) opaque_at: Option<f64>,
     coarse: u64,
+}
+
+/// Pixel `(i, j)`'s profile: exact (regular tracking, within `max_error / 4` in T) or the
+/// stochastic map's slices.
+pub(crate) fn pixel_profile(
+    scene: &Scene,
+    flat: &Map,
+    (i, j): (u32, u32),
+    max_error: f64,
+) -> Result<PixelProfile> {
+    if flat.settings.estimator == Estimator::REGULAR {
+        exact_profile(scene, &flat.camera.pixel_ray(i, j)?, flat, max_error)
+    } else {
+        let p = u64::from(j) * u64::from(flat.camera.width()) + u64::from(i);
+        Ok(estimated_profile(flat, p as usize))
+    }
 }
 
 /// The deep map of `scene` seen by `flat`'s camera with `flat`'s settings. `flat` is the
@@ -129,12 +145,7 @@ pub fn bake_deep(
             .map(|j| {
                 let mut row = Row::new(colour);
                 for i in 0..w {
-                    let p = u64::from(j) * u64::from(w) + u64::from(i);
-                    let prof = if exact {
-                        exact_profile(scene, &camera.pixel_ray(i, j)?, flat, max_error)?
-                    } else {
-                        estimated_profile(flat, p as usize)
-                    };
+                    let prof = pixel_profile(scene, flat, (i, j), max_error)?;
                     row.push(&prof, max_error * FIT_SHARE)?;
                 }
                 progress(u64::from(w));

@@ -63,6 +63,12 @@ pub enum Product {
         /// The bound `E` on `|T_deep(z) - T(z)|`.
         max_error: f64,
     },
+    /// A flat OpenEXR map with the transmittance function of every pixel in a fixed number of
+    /// channels ([`crate::bake::bake_fixed`]; `--deep-format`), next to `T`.
+    Fixed {
+        /// The encoding.
+        format: crate::bake::DeepFormat,
+    },
 }
 
 /// Something a finished bake wants its user to know.
@@ -229,6 +235,8 @@ pub struct BakeReport {
     pub warnings: Vec<Warning>,
     /// The deep map's counts, for [`Product::Deep`].
     pub deep: Option<crate::bake::DeepStats>,
+    /// The fixed-size deep map's counts and errors, for [`Product::Fixed`].
+    pub fixed: Option<crate::bake::FixedStats>,
 }
 
 impl BakeJob {
@@ -251,6 +259,8 @@ impl BakeJob {
         self.layout.validate()?;
         if let Product::Deep { max_error } = self.product {
             crate::bake::check_deep_error(max_error)?;
+        }
+        if self.product != Product::Map {
             let flat_only = |flag: &str, what: &str| Error::InvalidArgument {
                 name: flag.into(),
                 reason: format!(
@@ -582,11 +592,8 @@ impl BakeJob {
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<BakeReport> {
         self.check_outputs()?;
-        if let Product::Deep { max_error } = self.product {
-            let (map, deep) = self.bake_deep_map(&scene, camera, max_error, progress)?;
-            let report = self.describe(map, &scene, camera);
-            drop(scene);
-            return self.write_deep(report, &deep);
+        if self.product != Product::Map {
+            return self.deep_product(&scene, camera, progress);
         }
         let (camera, settings) = self.aimed(&scene, camera);
         let map = bake_scene(&scene, &camera, &settings, progress)?;
@@ -629,10 +636,8 @@ impl BakeJob {
         progress: &(dyn Fn(u64) + Sync),
     ) -> Result<BakeReport> {
         self.check_outputs()?;
-        if let Product::Deep { max_error } = self.product {
-            let (map, deep) = self.bake_deep_map(scene, camera, max_error, progress)?;
-            let report = self.describe(map, scene, camera);
-            return self.write_deep(report, &deep);
+        if self.product != Product::Map {
+            return self.deep_product(scene, camera, progress);
         }
         let (camera, settings) = self.aimed(scene, camera);
         let map = bake_scene(scene, &camera, &settings, progress)?;
@@ -648,37 +653,17 @@ impl BakeJob {
         Ok(report)
     }
 
-    /// Write a deep map and the preview of its flat map together.
-    fn write_deep(
-        &self,
-        mut report: BakeReport,
-        deep: &crate::bake::DeepMap,
-    ) -> Result<BakeReport> {
-        let attrs = crate::bake::deep_attributes(&report.map, &report.provenance, &deep.stats);
-        let bytes = crate::bake::encode_deep_exr(&deep.image, &attrs);
-        crate::bake::encode::exr::write_with_preview(
-            &self.output,
-            &bytes,
-            self.preview.as_deref(),
-            &report.map,
-            self.overwrite,
-        )?;
-        report.deep = Some(deep.stats);
-        Ok(report)
-    }
-
-    /// The flat map (for the summary, the preview and the warnings) and the deep map of a
-    /// [`Product::Deep`] job. A stochastic estimator's flat map carries the
-    /// [`crate::bake::STOCHASTIC_DEPTHS`] slices its deep function is fitted to (removed from the
-    /// returned map); an exact map is swept first, then the deep pass traces every pixel's
-    /// profile (progress counts the deep pass).
-    fn bake_deep_map(
+    /// Bake and write a deep product ([`Product::Deep`] or [`Product::Fixed`]) of `scene`
+    /// seen by `camera`. The flat map is traced first: with regular tracking as asked, and a
+    /// stochastic estimator's with the [`crate::bake::STOCHASTIC_DEPTHS`] slices its deep
+    /// function comes from (removed from the written map); then the deep pass (which
+    /// `progress` counts for exact maps, the flat pass for stochastic ones).
+    fn deep_product(
         &self,
         scene: &Scene,
         camera: Camera,
-        max_error: f64,
         progress: &(dyn Fn(u64) + Sync),
-    ) -> Result<(Map, crate::bake::DeepMap)> {
+    ) -> Result<BakeReport> {
         let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR;
         let none = |_: u64| {};
         let (camera, settings) = self.aimed(scene, camera);
@@ -691,8 +676,18 @@ impl BakeJob {
             };
             bake_scene(scene, &camera, &settings, progress)?
         };
-        let deep =
-            crate::bake::bake_deep(scene, &map, max_error, if exact { progress } else { &none })?;
+        let deep_progress = if exact { progress } else { &none };
+        let (deep, fixed) = match self.product {
+            Product::Deep { max_error } => (
+                Some(crate::bake::bake_deep(scene, &map, max_error, deep_progress)?),
+                None,
+            ),
+            Product::Fixed { format } => (
+                None,
+                Some(crate::bake::bake_fixed(scene, &map, format, deep_progress)?),
+            ),
+            Product::Map => (None, None),
+        };
         map.settings.depths = crate::bake::Depths::None;
         map.depths.clear();
         map.slices.clear();
@@ -701,7 +696,42 @@ impl BakeJob {
                 ch.slices.clear();
             }
         }
-        Ok((map, deep))
+        let mut report = self.describe(map, scene, camera);
+        if let Some(deep) = deep {
+            let attrs = crate::bake::deep_attributes(&report.map, &report.provenance, &deep.stats);
+            let bytes = crate::bake::encode_deep_exr(&deep.image, &attrs);
+            crate::bake::encode::exr::write_with_preview(
+                &self.output,
+                &bytes,
+                self.preview.as_deref(),
+                &report.map,
+                self.overwrite,
+            )?;
+            report.deep = Some(deep.stats);
+        }
+        if let Some(fixed) = fixed {
+            let attrs = crate::bake::encode::exr::fixed_attributes(&fixed.stats);
+            let bytes = crate::bake::encode::exr::encode_exr_with(
+                &report.map,
+                &report.provenance,
+                &self.layout,
+                &fixed.planes,
+                attrs,
+            )
+            .map_err(|e| Error::Output {
+                path: self.output.clone(),
+                reason: e,
+            })?;
+            crate::bake::encode::exr::write_with_preview(
+                &self.output,
+                &bytes,
+                self.preview.as_deref(),
+                &report.map,
+                self.overwrite,
+            )?;
+            report.fixed = Some(fixed.stats);
+        }
+        Ok(report)
     }
 
     /// The map of `scene` seen by `camera`, in memory: nothing is read from `input` or
@@ -826,6 +856,7 @@ impl BakeJob {
             provenance,
             warnings,
             deep: None,
+            fixed: None,
         }
     }
 }

@@ -5,7 +5,7 @@ use anyhow::{Context, Result};
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use umbra::bake::{BakeJob, Map, Projection, Provenance, VolumeJob};
+use umbra::bake::{BakeJob, Projection, VolumeJob};
 use umbra::request::{BakeOptions, BakePlan, BakeRequest};
 
 /// Arguments of `umbra bake`: the input, the output and the library's [`BakeOptions`] (every
@@ -88,15 +88,7 @@ fn run_map(a: &BakeArgs, job: &BakeJob, total: std::time::Instant) -> Result<Exi
         umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
         other => other,
     })?;
-    report(
-        a,
-        job,
-        &done.map,
-        &done.provenance,
-        done.deep.as_ref(),
-        &done.warnings,
-        total.elapsed().as_secs_f64(),
-    )?;
+    report(a, job, &done, total.elapsed().as_secs_f64())?;
     for w in &done.warnings {
         eprintln!("umbra: warning: {}: {w}", a.file.display());
     }
@@ -106,16 +98,9 @@ fn run_map(a: &BakeArgs, job: &BakeJob, total: std::time::Instant) -> Result<Exi
     Ok(ExitCode::SUCCESS)
 }
 
-#[allow(clippy::too_many_arguments)]
-fn report(
-    a: &BakeArgs,
-    job: &BakeJob,
-    map: &Map,
-    prov: &Provenance,
-    deep: Option<&umbra::bake::DeepStats>,
-    warnings: &[umbra::bake::Warning],
-    total: f64,
-) -> Result<()> {
+fn report(a: &BakeArgs, job: &BakeJob, done: &umbra::bake::BakeReport, total: f64) -> Result<()> {
+    let (map, prov, warnings) = (&done.map, &done.provenance, &done.warnings);
+    let (deep, fixed) = (done.deep.as_ref(), done.fixed.as_ref());
     let c = &map.camera;
     let st = &map.stats;
     let rays_per_second = st.rays as f64 / st.seconds.max(1e-9);
@@ -153,6 +138,7 @@ fn report(
                 "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
                 "coarse_cells": d.coarse_cells, "seconds": d.seconds,
             })),
+            "deep_format": fixed,
             // Each warning as data (its `kind` and fields) with the line stderr prints.
             "warnings": warnings.iter().map(|w| {
                 let mut v = serde_json::to_value(w).unwrap_or_default();
@@ -197,6 +183,22 @@ fn report(
                 out,
                 "{} pixels stopped at --max-spp above the target error (largest std_err {:.2e})",
                 st.unconverged, st.max_std_err
+            )?;
+        }
+        if let Some(f) = fixed {
+            writeln!(
+                out,
+                "deep format {}: {} channels ({} bytes) per texel, error in T at most {:.2e} \
+                 (RMS {:.2e}) over depths {:.4}..{:.4}, {} texels refined ({:.3} s)",
+                f.format,
+                f.channels,
+                f.bytes_per_texel,
+                f.max_error,
+                f.rms_error,
+                f.near,
+                f.far,
+                f.refined_texels,
+                f.seconds
             )?;
         }
         if let Some(d) = deep {

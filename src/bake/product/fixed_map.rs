@@ -1,0 +1,217 @@
+//! Deep maps at a fixed size per texel (`bake --deep-format`): every pixel's transmittance
+//! function encoded by a [`DeepFormat`] into a fixed number of f32 channels of a flat OpenEXR
+//! map (see `bake/encode/fixed/` for the formats and the error bound).
+//!
+//! **Source.** The profile a texel is built from is the deep map's
+//! ([`crate::bake::bake_deep`]): exact with regular tracking (piecewise linear within
+//! [`PROFILE_ERROR`] in T of the exact `tau(t)`), else the estimator's own deep function from
+//! its 64 slices. A colour map encodes each of R, G, B on its own.
+//!
+//! **Error.** Two passes. The first encodes every texel and bounds its error on a coarse grid
+//! (`texel_error` without refinement), giving the largest error seen at any evaluated depth,
+//! `G`. The second revisits only the texels whose coarse bound exceeds `1.01 G + 1e-6` and
+//! refines their intervals until each bound is below that threshold. So the reported
+//! `umbra:deep_max_error` is an upper bound on `sup |T_rec - T_prof|` over every texel and
+//! depth, within 1 % of the true supremum, plus [`PROFILE_ERROR`] for exact maps (the profile
+//! against the exact `T`). `umbra:deep_rms_error` is the root mean square of the error at 65
+//! uniform depths of every texel (and colour channel) whose ray meets extinction.
+
+use super::deep_map::{pixel_profile, PROFILE_SHARE};
+use crate::bake::encode::fixed::{texel_error, DeepFormat, NormProfile, ERROR_GRID};
+use crate::bake::trace::in_pool;
+use crate::bake::{Map, STOCHASTIC_DEPTHS};
+use crate::error::{Error, Result};
+use crate::estimate::Estimator;
+use crate::scene::Scene;
+use rayon::prelude::*;
+
+/// The bound in T on an exact profile a fixed-size texel is built from.
+pub const PROFILE_ERROR: f64 = 1e-4;
+
+/// What a fixed-size deep map holds and what it cost.
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct FixedStats {
+    /// The format, as `--deep-format` spells it.
+    pub format: String,
+    /// f32 channels per texel (all colour channels; the flat `T` or `R`, `G`, `B` not counted).
+    pub channels: usize,
+    /// Bytes per texel of those channels.
+    pub bytes_per_texel: usize,
+    /// Upper bound on `|T_rec(z) - T(z)|` over every texel and depth (module docs).
+    pub max_error: f64,
+    /// RMS of the error over 65 uniform depths of every texel (and colour channel) whose ray
+    /// meets extinction.
+    pub rms_error: f64,
+    /// The part of `max_error` that is the profile's own bound (0 for a stochastic map).
+    pub profile_error: f64,
+    /// The depth range `[near, far]` the texels' depth is normalised to.
+    pub near: f64,
+    /// See `near`.
+    pub far: f64,
+    /// Texels the second pass refined.
+    pub refined_texels: u64,
+    /// Wall time of the deep pass, seconds.
+    pub seconds: f64,
+}
+
+/// A baked fixed-size deep map: its channels (name, one value per pixel) and counts.
+#[derive(Debug)]
+pub struct FixedMap {
+    /// The format.
+    pub format: DeepFormat,
+    /// The channels, named `deep.<name>` (grey) or `deepR.<name>`, ... (colour).
+    pub planes: Vec<(String, Vec<f32>)>,
+    /// Counts and cost.
+    pub stats: FixedStats,
+}
+
+/// Layer names of the channels of a map with `channels` colours.
+fn layers(channels: usize) -> &'static [&'static str] {
+    if channels == 3 {
+        &["deepR", "deepG", "deepB"]
+    } else {
+        &["deep"]
+    }
+}
+
+/// One row's texels: per colour channel and format channel, the values; per pixel the coarse
+/// bound; the largest error seen and the squared errors.
+struct Row {
+    values: Vec<Vec<f32>>,
+    coarse: Vec<f64>,
+    seen: f64,
+    sum_sq: f64,
+    lit: u64,
+}
+
+/// The fixed-size deep map of `scene` seen by `flat`'s camera in `format` (`flat` as for
+/// [`crate::bake::bake_deep`]). `progress` gets finished pixel counts.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (name `deep`) for a stochastic map without its slices; tracing
+/// errors of a pixel.
+pub fn bake_fixed(
+    scene: &Scene,
+    flat: &Map,
+    format: DeepFormat,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<FixedMap> {
+    let start = std::time::Instant::now();
+    let exact = flat.settings.estimator == Estimator::REGULAR;
+    if !exact && flat.slices.len() != STOCHASTIC_DEPTHS {
+        return Err(Error::InvalidArgument {
+            name: "deep".into(),
+            reason: format!(
+                "a {} deep map is built from {STOCHASTIC_DEPTHS} depth slices; the map has {}",
+                flat.settings.estimator.name(),
+                flat.slices.len()
+            ),
+        });
+    }
+    let camera = &flat.camera;
+    let range = (camera.t_near().max(0.0), camera.t_max());
+    let colours = flat.channels();
+    let per = format.channels();
+    let (w, h) = (camera.width(), camera.height());
+    let profile_bound = PROFILE_ERROR / PROFILE_SHARE;
+    // The texel's normalised profiles, one per colour channel.
+    let texel = |i: u32, j: u32| -> Result<Vec<NormProfile>> {
+        let prof = pixel_profile(scene, flat, (i, j), profile_bound)?;
+        prof.taus
+            .iter()
+            .map(|tau| NormProfile::new(&prof.t, tau, prof.opaque_at, range))
+            .collect()
+    };
+    let first = || {
+        (0..h)
+            .into_par_iter()
+            .map(|j| {
+                let mut row = Row {
+                    values: vec![Vec::with_capacity(w as usize); colours * per],
+                    coarse: Vec::with_capacity(w as usize),
+                    seen: 0.0,
+                    sum_sq: 0.0,
+                    lit: 0,
+                };
+                for i in 0..w {
+                    let mut bound = 0.0f64;
+                    for (c, p) in texel(i, j)?.iter().enumerate() {
+                        let v = format.encode(p);
+                        let e = texel_error(format, &v, p, f64::INFINITY);
+                        bound = bound.max(e.bound);
+                        row.seen = row.seen.max(e.seen);
+                        if p.total() > 0.0 {
+                            row.sum_sq += e.sum_sq;
+                            row.lit += 1;
+                        }
+                        for (k, x) in v.into_iter().enumerate() {
+                            row.values[c * per + k].push(x);
+                        }
+                    }
+                    row.coarse.push(bound);
+                }
+                progress(u64::from(w));
+                Ok(row)
+            })
+            .collect::<Result<Vec<Row>>>()
+    };
+    let rows = in_pool(flat.settings.threads, first)?;
+    let seen = rows.iter().map(|r| r.seen).fold(0.0, f64::max);
+    let sum_sq: f64 = rows.iter().map(|r| r.sum_sq).sum();
+    let lit: u64 = rows.iter().map(|r| r.lit).sum();
+    let threshold = 1.01 * seen + 1e-6;
+    let mut values: Vec<Vec<f32>> = vec![Vec::with_capacity(camera.pixels() as usize); colours * per];
+    let mut coarse = Vec::with_capacity(camera.pixels() as usize);
+    for r in rows {
+        for (d, s) in values.iter_mut().zip(r.values) {
+            d.extend(s);
+        }
+        coarse.extend(r.coarse);
+    }
+    // Second pass: the texels whose coarse bound is above the threshold, refined.
+    let flagged: Vec<usize> = (0..coarse.len()).filter(|&p| coarse[p] > threshold).collect();
+    let second = || {
+        flagged
+            .par_iter()
+            .map(|&p| {
+                let (i, j) = ((p % w as usize) as u32, (p / w as usize) as u32);
+                let mut bound = 0.0f64;
+                for (c, prof) in texel(i, j)?.iter().enumerate() {
+                    let v: Vec<f32> = (0..per).map(|k| values[c * per + k][p]).collect();
+                    bound = bound.max(texel_error(format, &v, prof, threshold).bound);
+                }
+                Ok(bound)
+            })
+            .collect::<Result<Vec<f64>>>()
+    };
+    let refined = in_pool(flat.settings.threads, second)?;
+    let unflagged = coarse
+        .iter()
+        .filter(|&&b| b <= threshold)
+        .fold(0.0f64, |a, &b| a.max(b));
+    let fitted = refined.iter().fold(seen.max(unflagged), |a, &b| a.max(b));
+    let profile_error = if exact { PROFILE_ERROR } else { 0.0 };
+    let samples = lit as f64 * (ERROR_GRID + 1) as f64;
+    let names = format.channel_names();
+    let planes = values
+        .into_iter()
+        .enumerate()
+        .map(|(n, v)| (format!("{}.{}", layers(colours)[n / per], names[n % per]), v))
+        .collect();
+    Ok(FixedMap {
+        format,
+        planes,
+        stats: FixedStats {
+            format: format.to_string(),
+            channels: colours * per,
+            bytes_per_texel: 4 * colours * per,
+            max_error: (fitted + profile_error).min(1.0),
+            rms_error: (sum_sq / samples.max(1.0)).sqrt(),
+            profile_error,
+            near: range.0,
+            far: range.1,
+            refined_texels: flagged.len() as u64,
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    })
+}
