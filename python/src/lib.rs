@@ -1087,7 +1087,7 @@ impl NativeVolume {
         options: &str,
     ) -> PyResult<(String, String, Vec<String>)> {
         let mut request = self.request(options, path)?;
-        request.options.deep = true;
+        request.options.deep = request.options.deep_format.is_none();
         let threads = request.options.threads;
         // The CLI's order: the request is planned (a camera file read), the outputs checked,
         // then the camera framed.
@@ -1100,11 +1100,15 @@ impl NativeVolume {
                 on_threads(threads, || job.run_loaded(&self.scene, camera, &|_| {}))?
             })
             .map_err(py_err)?;
-        let Some(d) = report.deep.as_ref() else {
-            return Err(raise(Class::Other, "the bake made no deep map".into()));
+        let deep = match (report.deep.as_ref(), report.fixed.as_ref()) {
+            (Some(d), _) => deep_json(d),
+            (None, Some(f)) => {
+                serde_json::to_value(f).map_err(|e| raise(Class::Other, e.to_string()))?
+            }
+            _ => return Err(raise(Class::Other, "the bake made no deep map".into())),
         };
         let warnings = report.warnings.iter().map(ToString::to_string).collect();
-        Ok((summary_json(&report)?, deep_json(d).to_string(), warnings))
+        Ok((summary_json(&report)?, deep.to_string(), warnings))
     }
 }
 
@@ -1216,6 +1220,10 @@ fn bake_file(
                     .map_err(|e| raise(Class::Other, e.to_string()))?;
             if let (Some(o), Some(d)) = (summary.as_object_mut(), report.deep.as_ref()) {
                 o.insert("deep".into(), deep_json(d));
+            }
+            if let (Some(o), Some(f)) = (summary.as_object_mut(), report.fixed.as_ref()) {
+                let v = serde_json::to_value(f).map_err(|e| raise(Class::Other, e.to_string()))?;
+                o.insert("deep_format".into(), v);
             }
             let warnings = report.warnings.iter().map(ToString::to_string).collect();
             Ok((summary.to_string(), warnings))

@@ -37,6 +37,8 @@ __all__ = [
     "InvalidArgument",
     "Volume",
     "bake",
+    "deep_lookup",
+    "deep_transmittance",
     "emit_job",
     "estimators",
     "info",
@@ -321,6 +323,187 @@ def sample_omni(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
     return out
 
 
+# The constants of umbra's moment reconstruction (src/bake/encode/fixed/moments.rs).
+_MOMENT_BIAS = {4: 5e-7, 6: 5e-6}
+_OVERESTIMATION = 0.25
+
+
+def _fourier_tau(c: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Fejer-windowed Fourier optical depth at ``u`` (``c``: ``(K, 2N + 1)``)."""
+    n = (c.shape[1] - 1) // 2
+    tau = c[:, 0] * u
+    for i in range(1, n + 1):
+        w = 2 * np.pi * i
+        f = 1.0 - i / (n + 1)
+        tau = tau + f * (c[:, 2 * i - 1] * np.sin(w * u) + c[:, 2 * i] * (1 - np.cos(w * u))) / w
+    return np.maximum(tau, 0.0)
+
+
+def _moments_tau(c: np.ndarray, u: np.ndarray, k: int) -> np.ndarray:
+    """Moment-bound optical depth ``b0 F(x)`` at ``u`` (``c``: ``(K, k + 1)``)."""
+    b0 = c[:, 0]
+    n = k // 2
+    x = np.clip(2 * u - 1, -1.0, 1.0)
+    beta = _MOMENT_BIAS[k]
+    star = np.array([1.0 / (j + 1) if j % 2 == 0 else 0.0 for j in range(2 * n + 1)])
+    m = np.empty((len(x), 2 * n + 1))
+    m[:, 0] = 1.0
+    m[:, 1:] = (1 - beta) * c[:, 1:2 * n + 1] + beta * star[1:]
+    hankel = np.stack([np.stack([m[:, i + j] for j in range(n + 1)], -1) for i in range(n + 1)], -2)
+    rhs = np.stack([x ** j for j in range(n + 1)], -1)
+    with np.errstate(all="ignore"):
+        coef = np.linalg.solve(hankel, rhs[..., None])[..., 0]
+        if n == 2:
+            a, b, cc = coef[:, 2], coef[:, 1], coef[:, 0]
+            disc = np.maximum(b * b - 4 * a * cc, 0.0)
+            q = -0.5 * (b + np.where(b >= 0, 1.0, -1.0) * np.sqrt(disc))
+            roots = np.stack([q / a, cc / q], -1)
+        else:
+            a = coef[:, 3]
+            b, cc, d = coef[:, 2] / a, coef[:, 1] / a, coef[:, 0] / a
+            p = np.minimum(cc - b * b / 3, -1e-300)
+            q = 2 * b ** 3 / 27 - b * cc / 3 + d
+            r = 2 * np.sqrt(-p / 3)
+            phi = np.arccos(np.clip(3 * q / (p * r), -1, 1)) / 3
+            roots = np.stack([r * np.cos(phi - 2 * np.pi * i / 3) - b / 3 for i in range(3)], -1)
+        z = np.concatenate([x[:, None], roots], -1)
+        vals = np.concatenate([np.full((len(x), 1), _OVERESTIMATION),
+                               (roots < x[:, None]).astype(np.float64)], -1)
+        d = n
+        dd = vals.copy()
+        for lvl in range(1, d + 1):
+            for i in range(d, lvl - 1, -1):
+                dd[:, i] = (dd[:, i] - dd[:, i - 1]) / (z[:, i] - z[:, i - lvl])
+        poly = np.zeros((len(x), d + 1))
+        poly[:, 0] = dd[:, d]
+        for i in range(d - 1, -1, -1):
+            for j in range(d - i, 0, -1):
+                poly[:, j] = poly[:, j - 1] - z[:, i] * poly[:, j]
+            poly[:, 0] = dd[:, i] - z[:, i] * poly[:, 0]
+        f = np.sum(poly * m[:, :d + 1], -1)
+    bad = ~np.isfinite(f)
+    f = np.where(bad, (x >= m[:, 1]).astype(np.float64), np.clip(f, 0.0, 1.0))
+    return np.where(b0 > 0, b0 * f, 0.0)
+
+
+def _avsm_tau(c: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Node optical depth at ``u`` (``c``: ``(K, 2k)``, ``z0, tau0, z1, tau1, ...``)."""
+    z, t = c[:, 0::2], c[:, 1::2]
+    k = z.shape[1]
+    idx = np.sum(z <= u[:, None], axis=1)
+    rows = np.arange(len(u))
+    hi = np.minimum(idx, k - 1)
+    lo = np.maximum(idx - 1, 0)
+    z0, z1, t0, t1 = z[rows, lo], z[rows, hi], t[rows, lo], t[rows, hi]
+    with np.errstate(all="ignore"):
+        w = np.clip(np.where(z1 > z0, (u - z0) / (z1 - z0), 1.0), 0.0, 1.0)
+    tau = np.where(idx == 0, 0.0, np.where(idx >= k, t[:, -1], t0 + (t1 - t0) * w))
+    return np.maximum(tau, 0.0)
+
+
+def deep_transmittance(fmt: str, coefficients: Any, u: Any) -> np.ndarray:
+    """``T`` of texels of a fixed-size deep map (``umbra bake --deep-format FORMAT``) at
+    normalised depths ``u`` (``(z - near) / (far - near)``, ``near``/``far`` the header's
+    ``umbra:deep_near``/``umbra:deep_far``): ``coefficients`` ``(K, C)`` are the texels'
+    channels in the format's order (:func:`deep_lookup` gathers them by name), ``u`` ``(K,)``.
+    The reconstructions, each written out in ``docs/deep_formats.md``:
+
+    - ``fourier:K``: ``tau(u) = a0 u + sum_k f_k (a_k sin(w u) + b_k (1 - cos(w u))) / w``,
+      ``w = 2 pi k``, ``f_k = 1 - k / (N + 1)`` (Fejer), ``N = (K - 1) / 2``;
+    - ``moments:4|6``: ``tau = b0 F(2u - 1)``, ``F`` the Hamburger moment bound (moments biased
+      toward the uniform distribution's, overestimation 1/4);
+    - ``avsm:K``: ``tau`` linear between the nodes ``(z_i, tau_i)``, 0 before the first.
+
+    ``T = exp(-tau)`` is in ``[0, 1]`` and never grows with depth."""
+    c = np.atleast_2d(np.asarray(coefficients, dtype=np.float32)).astype(np.float64)
+    uu = np.broadcast_to(np.asarray(u, dtype=np.float64), (c.shape[0],)).copy()
+    name, _, k = str(fmt).partition(":")
+    if name == "fourier":
+        tau = _fourier_tau(c, np.clip(uu, 0.0, 1.0))
+    elif name == "moments" and k in ("4", "6"):
+        tau = _moments_tau(c, uu, int(k))
+    elif name == "avsm":
+        tau = _avsm_tau(c, uu)
+    else:
+        raise _invalid("format", f"{fmt!r}: expected fourier:K, moments:4, moments:6 or avsm:K")
+    return np.exp(-tau)
+
+
+def _channel_order(fmt: str) -> List[str]:
+    name, _, k = fmt.partition(":")
+    k = int(k)
+    if name == "fourier":
+        return ["a0"] + [f"{ab}{i}" for i in range(1, k // 2 + 1) for ab in "ab"]
+    if name == "moments":
+        return ["b0"] + [f"m{i}" for i in range(1, k + 1)]
+    return [f"{zt}{i}" for i in range(k) for zt in ("z", "tau")]
+
+
+def deep_lookup(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
+    """``T`` at world ``points`` from a fixed-size deep map (``umbra bake --deep-format``):
+    the light's transmittance from the map's camera plane (orthographic) or pinhole
+    (perspective) to each point, the map's texels around the point's projection
+    reconstructed at the point's depth along their rays and blended bilinearly.
+
+    ``image``: the pixels as read, ``(H, W, C)``, channels in the order of the header's
+    ``channelnames``. ``header``: the EXR's attributes as OpenImageIO's ``spec.extra_attribs``
+    give them (``umbra:deep_format``, ``umbra:deep_near``, ``umbra:deep_far``,
+    ``umbra:camera_kind``, ``umbra:camera_origin``, ``umbra:camera_step_x``,
+    ``umbra:camera_step_y``, ``umbra:camera_direction``) plus ``channelnames``. ``points``:
+    ``(3,)`` or ``(K, 3)``. Returns ``(K,)``, or ``(K, 3)`` for a colour map (R, G, B).
+
+    A point at pixel coordinates ``(i, j)`` (pixel ``(i, j)``'s ray starts at
+    ``origin + i step_x + j step_y``) and distance ``t`` along the ray: orthographic
+    ``i = v . s_x / |s_x|^2``, ``j = v . s_y / |s_y|^2``, ``t = v . d`` (``v = p - origin``);
+    perspective ``v = k (d + i s_x + j s_y)`` with ``k = v . f`` (``f`` the unit forward axis,
+    ``d . f = 1``), ``t = |v|``. ``u = (t - near) / (far - near)``; see
+    :func:`deep_transmittance` for the formats."""
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim != 3:
+        raise _invalid("image", f"expected (H, W, C), got shape {img.shape}")
+    names = list(header.get("channelnames", []))
+    fmt = header.get("umbra:deep_format")
+    if fmt is None or len(names) != img.shape[2]:
+        raise _invalid("header", "not a fixed-size deep map read with its channelnames "
+                       "(umbra:deep_format and one channel name per image channel)")
+    kind = header.get("umbra:camera_kind")
+    if kind not in ("ortho", "perspective"):
+        raise _invalid("header", f"deep_lookup reads orthographic and perspective maps, not {kind!r}")
+    vec = lambda k: np.asarray(header[f"umbra:camera_{k}"], dtype=np.float64)
+    o, sx, sy, d = vec("origin"), vec("step_x"), vec("step_y"), vec("direction")
+    near, far = float(header["umbra:deep_near"]), float(header["umbra:deep_far"])
+    p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise _invalid("points", f"expected (3,) or (K, 3), got shape {np.shape(points)}")
+    v = p - o
+    if kind == "ortho":
+        dn = d / np.linalg.norm(d)
+        i, j, t = v @ sx / (sx @ sx), v @ sy / (sy @ sy), v @ dn
+    else:
+        f = np.cross(sx, sy)
+        f = f / np.linalg.norm(f)
+        f = f if f @ d > 0 else -f
+        k = v @ f / (d @ f)
+        with np.errstate(all="ignore"):
+            q = v / k[:, None] - d
+        i, j, t = q @ sx / (sx @ sx), q @ sy / (sy @ sy), np.linalg.norm(v, axis=1)
+    h, w = img.shape[:2]
+    u = (t - near) / (far - near)
+    layers = ["deepR", "deepG", "deepB"] if any(n.startswith("deepR.") for n in names) else ["deep"]
+    order = _channel_order(fmt)
+    px, py = np.clip(i, 0, w - 1), np.clip(j, 0, h - 1)
+    i0, j0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
+    i1, j1 = np.minimum(i0 + 1, w - 1), np.minimum(j0 + 1, h - 1)
+    fx, fy = px - i0, py - j0
+    out = []
+    for layer in layers:
+        cols = [names.index(f"{layer}.{c}") for c in order]
+        at = lambda jj, ii: deep_transmittance(fmt, img[jj, ii][:, cols], u)
+        out.append((at(j0, i0) * (1 - fx) + at(j0, i1) * fx) * (1 - fy)
+                   + (at(j1, i0) * (1 - fx) + at(j1, i1) * fx) * fy)
+    return out[0] if len(out) == 1 else np.stack(out, -1)
+
+
 def job_status(path: PathLike, *, logs: Sequence[PathLike] = ()) -> Dict[str, Any]:
     """Where a batch job stands, as ``umbra batch PATH --status --json`` reports it: lists
     ``done`` (output on disk and up to date), ``failed`` (with the ``error`` a log records) and
@@ -406,6 +589,7 @@ def bake(
     mipmap: bool = False,
     deep: bool = False,
     deep_error: Optional[float] = None,
+    deep_format: Optional[str] = None,
     out_grid: Optional[str] = None,
     half: bool = False,
     preview: Optional[PathLike] = None,
@@ -436,7 +620,8 @@ def bake(
     """Bake ``input`` (a ``.vdb`` file, a ``.toml`` scene or a USD stage: its volumes and the
     light ``light`` at time code ``frame``) to ``output`` exactly as
     ``umbra bake INPUT -o OUTPUT ...`` does, byte for byte: an OpenEXR map (flat, tiled with
-    ``tile``/``mipmap``, deep with ``deep``/``deep_error``, with ``slices``/``depths`` and
+    ``tile``/``mipmap``, deep with ``deep``/``deep_error``, at a fixed size per texel with
+    ``deep_format`` (read it with :func:`deep_lookup`), with ``slices``/``depths`` and
     ``stderr`` channels, RGB with ``sigma_t`` or a scene's colours), or, for an output ending in
     ``.vdb``, a transmittance volume (``out_grid``, ``half``).
 
@@ -448,7 +633,8 @@ def bake(
     unless ``force``.
 
     Returns what ``--json`` reports about the product: a map's camera dict (with ``deep``, the
-    deep map's statistics, for a deep map), or a transmittance volume's statistics
+    deep map's statistics, for a deep map; ``deep_format``, the format's errors and depth
+    range, for a fixed-size one), or a transmittance volume's statistics
     (``voxels``, ``T_min``, ``T_max``, ``T_mean``, ...). Warnings (bad voxels, a camera that
     misses part of the volume) are Python warnings.
     """
@@ -465,7 +651,8 @@ def bake(
             frame_box=frame_box, xform=xform, frame=frame,
             volume=None if volume is None else [str(v) for v in volume], field=field,
             light=light, usd_out=usd_out, camera=camera, res=res, tile=tile,
-            mipmap=mipmap, deep=deep, deep_error=deep_error, out_grid=out_grid, half=half,
+            mipmap=mipmap, deep=deep, deep_error=deep_error, deep_format=deep_format,
+            out_grid=out_grid, half=half,
             preview=preview, slices=slices, depths=depths, stderr=stderr,
             target_error=target_error, max_spp=max_spp, interp=interp,
             density_scale=density_scale, sigma_t=sigma_t, levelset=levelset,
@@ -929,7 +1116,8 @@ class Volume:
         fov: Optional[float] = None,
         frame_box: Any = None,
         camera: Union[None, Dict[str, Any], PathLike] = None,
-        deep_error: float = 0.002,
+        deep_error: Optional[float] = None,
+        deep_format: Optional[str] = None,
         force: bool = False,
         threads: int = 0,
         step: Optional[float] = None,
@@ -945,7 +1133,9 @@ class Volume:
         [--deep-error E] -o PATH`` writes for this volume, byte for byte. Per pixel it holds
         the whole transmittance function along the pixel's ray (volumetric deep samples,
         ``A``/``Z``/``ZBack``; ``AR``/``AG``/``AB`` and ``A`` for an RGB scene), within
-        ``deep_error`` in T at every depth (``--deep-error``, between 0 and 1).
+        ``deep_error`` in T at every depth (``--deep-error``, between 0 and 1; default 0.002).
+        With ``deep_format`` (``fourier:K``, ``moments:4``, ``moments:6``, ``avsm:K``) it writes
+        the fixed-size map of ``--deep-format`` instead (read it with :func:`deep_lookup`).
 
         The other keywords are :meth:`bake`'s (``camera=`` reuses an earlier map's camera,
         and :meth:`bake` takes the camera dict returned here). The file is written atomically;
@@ -954,7 +1144,9 @@ class Volume:
         Returns ``(camera, deep)``: the camera dict :meth:`bake` returns, and the ``deep``
         object of ``umbra bake --deep --json`` (``max_error``, ``samples``,
         ``mean_samples_per_pixel``, ``max_samples_per_pixel``, ``empty_pixels``,
-        ``profile_breakpoints``, ``coarse_cells``, ``seconds``).
+        ``profile_breakpoints``, ``coarse_cells``, ``seconds``), or with ``deep_format`` its
+        ``deep_format`` object (``format``, ``channels``, ``bytes_per_texel``, ``max_error``,
+        ``rms_error``, ``profile_error``, ``near``, ``far``, ``refined_texels``, ``seconds``).
         """
         samples = _alias("samples", samples, "spp", spp, 64)
         force = _alias("force", force, "overwrite", overwrite, False)
@@ -963,7 +1155,8 @@ class Volume:
             _options(
                 light_dir=light_dir, light_pos=light_pos, res=res, estimator=estimator,
                 samples=samples, seed=seed, up=up, ortho=ortho, fov=fov, frame_box=frame_box,
-                camera=camera, deep_error=deep_error, force=force, threads=threads,
+                camera=camera, deep_error=deep_error, deep_format=deep_format, force=force,
+                threads=threads,
                 step=step, kernel=kernel, points=points, granularity=granularity,
                 global_majorant=global_majorant, order=order,
             ),

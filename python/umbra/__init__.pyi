@@ -14,6 +14,8 @@ __all__ = [
     "InvalidArgument",
     "Volume",
     "bake",
+    "deep_lookup",
+    "deep_transmittance",
     "emit_job",
     "estimators",
     "info",
@@ -67,6 +69,7 @@ def bake(
     mipmap: bool = False,
     deep: bool = False,
     deep_error: Optional[float] = None,
+    deep_format: Optional[str] = None,
     out_grid: Optional[str] = None,
     half: bool = False,
     preview: Optional[PathLike] = None,
@@ -105,6 +108,12 @@ def run_job(
     progress: Optional[Callable[[int, int], Any]] = ...,
 ) -> Dict[str, Any]: ...
 def sample_omni(
+    image: npt.ArrayLike, header: Dict[str, Any], points: npt.ArrayLike
+) -> npt.NDArray[np.float64]: ...
+def deep_transmittance(
+    fmt: str, coefficients: npt.ArrayLike, u: npt.ArrayLike
+) -> npt.NDArray[np.float64]: ...
+def deep_lookup(
     image: npt.ArrayLike, header: Dict[str, Any], points: npt.ArrayLike
 ) -> npt.NDArray[np.float64]: ...
 def job_status(path: PathLike, *, logs: Sequence[PathLike] = ...) -> Dict[str, Any]: ...
@@ -381,7 +390,8 @@ class Volume:
         fov: Optional[float] = None,
         frame_box: Optional[npt.ArrayLike] = None,
         camera: Union[None, _Camera, PathLike] = None,
-        deep_error: float = 0.002,
+        deep_error: Optional[float] = None,
+        deep_format: Optional[str] = None,
         force: bool = False,
         threads: int = 0,
         step: Optional[float] = None,

@@ -46,8 +46,8 @@ pub use encode::deep_exr::{
 pub use encode::deep_fit::{
     check_deep_error, fit_profile, fit_spans, fitted_transmittance, DeepSample, DEFAULT_DEEP_ERROR,
 };
-pub use encode::fixed::{texel_error, DeepFormat, NormProfile, TexelError, TAU_CAP};
 pub use encode::exr::{write_exr, write_exr_as, write_map, write_png, Provenance};
+pub use encode::fixed::{texel_error, DeepFormat, NormProfile, TexelError, TAU_CAP};
 pub use encode::layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
 pub use encode::summary::{MapSummary, SummaryCamera};
 pub use map::{

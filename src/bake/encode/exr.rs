@@ -246,7 +246,8 @@ pub(crate) fn encode_exr_with(
             list.push(AnyChannel::new(name, FlatSamples::F32(data.to_vec())));
         }
         for (name, data) in planes {
-            let name = Text::new_or_none(name.as_str()).ok_or("a channel name that is not ASCII")?;
+            let name =
+                Text::new_or_none(name.as_str()).ok_or("a channel name that is not ASCII")?;
             list.push(AnyChannel::new(name, FlatSamples::F32(data.clone())));
         }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
@@ -268,7 +269,10 @@ pub(crate) fn fixed_attributes(s: &crate::bake::FixedStats) -> Vec<(String, Attr
             "umbra:deep_max_error".into(),
             AttributeValue::F32(crate::bake::encode::fixed::f32_up(s.max_error)),
         ),
-        ("umbra:deep_rms_error".into(), AttributeValue::F32(s.rms_error as f32)),
+        (
+            "umbra:deep_rms_error".into(),
+            AttributeValue::F32(s.rms_error as f32),
+        ),
         (
             "umbra:deep_profile_error".into(),
             AttributeValue::F32(s.profile_error as f32),

@@ -160,7 +160,8 @@ pub fn bake_fixed(
     let sum_sq: f64 = rows.iter().map(|r| r.sum_sq).sum();
     let lit: u64 = rows.iter().map(|r| r.lit).sum();
     let threshold = 1.01 * seen + 1e-6;
-    let mut values: Vec<Vec<f32>> = vec![Vec::with_capacity(camera.pixels() as usize); colours * per];
+    let mut values: Vec<Vec<f32>> =
+        vec![Vec::with_capacity(camera.pixels() as usize); colours * per];
     let mut coarse = Vec::with_capacity(camera.pixels() as usize);
     for r in rows {
         for (d, s) in values.iter_mut().zip(r.values) {
@@ -169,7 +170,9 @@ pub fn bake_fixed(
         coarse.extend(r.coarse);
     }
     // Second pass: the texels whose coarse bound is above the threshold, refined.
-    let flagged: Vec<usize> = (0..coarse.len()).filter(|&p| coarse[p] > threshold).collect();
+    let flagged: Vec<usize> = (0..coarse.len())
+        .filter(|&p| coarse[p] > threshold)
+        .collect();
     let second = || {
         flagged
             .par_iter()
@@ -196,7 +199,12 @@ pub fn bake_fixed(
     let planes = values
         .into_iter()
         .enumerate()
-        .map(|(n, v)| (format!("{}.{}", layers(colours)[n / per], names[n % per]), v))
+        .map(|(n, v)| {
+            (
+                format!("{}.{}", layers(colours)[n / per], names[n % per]),
+                v,
+            )
+        })
         .collect();
     Ok(FixedMap {
         format,

@@ -679,7 +679,12 @@ impl BakeJob {
         let deep_progress = if exact { progress } else { &none };
         let (deep, fixed) = match self.product {
             Product::Deep { max_error } => (
-                Some(crate::bake::bake_deep(scene, &map, max_error, deep_progress)?),
+                Some(crate::bake::bake_deep(
+                    scene,
+                    &map,
+                    max_error,
+                    deep_progress,
+                )?),
                 None,
             ),
             Product::Fixed { format } => (

@@ -49,8 +49,9 @@ pub fn encode(p: &NormProfile, k: u32) -> Vec<f32> {
     let mut guard = 0.0;
     for i in 1..=n {
         let f = window(i, n);
-        guard += f * ((f64::from(out[2 * i - 1]) - c[2 * i - 1]).abs()
-            + (f64::from(out[2 * i]) - c[2 * i]).abs());
+        guard += f
+            * ((f64::from(out[2 * i - 1]) - c[2 * i - 1]).abs()
+                + (f64::from(out[2 * i]) - c[2 * i]).abs());
     }
     out[0] = f32_up(c[0] + guard);
     out

@@ -60,7 +60,8 @@ impl std::str::FromStr for DeepFormat {
 
     /// `fourier:K` (K odd, 3..=63), `moments:4`, `moments:6`, `avsm:K` (2..=32).
     fn from_str(s: &str) -> Result<Self> {
-        let expect = "expected fourier:K (K odd, 3 to 63), moments:4, moments:6 or avsm:K (K 2 to 32)";
+        let expect =
+            "expected fourier:K (K odd, 3 to 63), moments:4, moments:6 or avsm:K (K 2 to 32)";
         let (name, k) = s.split_once(':').ok_or_else(|| bad_format(s, expect))?;
         let k: u32 = k.trim().parse().map_err(|_| bad_format(s, expect))?;
         let f = match name.trim().to_ascii_lowercase().as_str() {
@@ -183,13 +184,20 @@ impl NormProfile {
             return Err(bad("the map's depth range is empty"));
         }
         let norm = |z: f64| ((z - near) / (far - near)).clamp(0.0, 1.0);
-        let (mut us, mut taus) = (Vec::with_capacity(t.len() + 2), Vec::with_capacity(t.len() + 2));
+        let (mut us, mut taus) = (
+            Vec::with_capacity(t.len() + 2),
+            Vec::with_capacity(t.len() + 2),
+        );
         let mut run = 0.0f64;
         for (&z, &v) in t.iter().zip(tau) {
             if opaque_at.is_some_and(|o| z >= o) {
                 break;
             }
-            let v = if v.is_nan() { run } else { v.clamp(run, TAU_CAP) };
+            let v = if v.is_nan() {
+                run
+            } else {
+                v.clamp(run, TAU_CAP)
+            };
             run = v;
             us.push(norm(z).max(us.last().copied().unwrap_or(0.0)));
             taus.push(v);
@@ -327,9 +335,11 @@ pub fn texel_error(format: DeepFormat, c: &[f32], p: &NormProfile, threshold: f6
         out.seen = out.seen.max((rl - ql).abs()).max((rr - qr).abs());
     }
     out.bound = out.seen;
-    let gap = |(_, rec_a): (f64, f64), (_, prof_a): (f64, f64), (rec_b, _): (f64, f64), (prof_b, _): (f64, f64)| {
-        (rec_a - prof_b).max(prof_a - rec_b).max(0.0)
-    };
+    let gap =
+        |(_, rec_a): (f64, f64),
+         (_, prof_a): (f64, f64),
+         (rec_b, _): (f64, f64),
+         (prof_b, _): (f64, f64)| { (rec_a - prof_b).max(prof_a - rec_b).max(0.0) };
     let mut stack: Vec<(f64, f64, _, _)> = pts
         .windows(2)
         .zip(vals.windows(2))

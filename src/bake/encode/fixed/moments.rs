@@ -75,7 +75,11 @@ pub fn tau(c: &[f32], u: f64, k: u32) -> f64 {
     let mut m = [0.0f64; 7];
     m[0] = 1.0;
     for j in 1..=2 * n {
-        let star = if j % 2 == 0 { 1.0 / (j + 1) as f64 } else { 0.0 };
+        let star = if j % 2 == 0 {
+            1.0 / (j + 1) as f64
+        } else {
+            0.0
+        };
         m[j] = (1.0 - beta) * f64::from(c[j]) + beta * star;
     }
     let f = fraction_before(&m[..=2 * n], x);

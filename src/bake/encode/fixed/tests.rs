@@ -27,7 +27,11 @@ fn profiles() -> Vec<NormProfile> {
         mk(&[], &[], None),
         mk(&[0.0, 4.0, 4.5, 10.0], &[0.0, 0.0, 0.3, 0.3], None),
         mk(&[0.0, 2.0, 8.0, 10.0], &[0.0, 0.0, 12.0, 12.0], None),
-        mk(&[0.0, 1.0, 2.0, 6.0, 7.0, 10.0], &[0.0, 0.0, 1.0, 1.0, 1.5, 1.5], None),
+        mk(
+            &[0.0, 1.0, 2.0, 6.0, 7.0, 10.0],
+            &[0.0, 0.0, 1.0, 1.0, 1.5, 1.5],
+            None,
+        ),
         mk(&[0.0, 10.0], &[0.0, 3.0], None),
         mk(&[0.0, 3.0, 5.0, 10.0], &[0.0, 0.0, 0.5, 0.5], Some(6.0)),
         mk(&[0.0, 10.0], &[0.0, 1.0], Some(0.0)),
@@ -62,7 +66,16 @@ fn formats_parse_and_name_their_channels() {
         assert_eq!(back, f);
         assert_eq!(f.channel_names().len(), f.channels());
     }
-    for bad in ["fourier:4", "fourier:1", "moments:5", "avsm:1", "avsm:33", "avsm", "x:3", "avsm:k"] {
+    for bad in [
+        "fourier:4",
+        "fourier:1",
+        "moments:5",
+        "avsm:1",
+        "avsm:33",
+        "avsm",
+        "x:3",
+        "avsm:k",
+    ] {
         let e = bad.parse::<DeepFormat>().unwrap_err().to_string();
         assert!(e.contains("deep-format"), "{e}");
     }
@@ -117,7 +130,11 @@ fn nodes_that_suffice_are_exact_and_fourier_ends_at_the_total() {
     for p in profiles() {
         let c = DeepFormat::Fourier(15).encode(&p);
         let far = fourier::tau(&c, 1.0);
-        assert!((far - p.total()).abs() <= 1e-5 * p.total().max(1.0), "{far} vs {}", p.total());
+        assert!(
+            (far - p.total()).abs() <= 1e-5 * p.total().max(1.0),
+            "{far} vs {}",
+            p.total()
+        );
     }
 }
 
