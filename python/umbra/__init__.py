@@ -1144,7 +1144,7 @@ class Volume:
         Returns ``(camera, deep)``: the camera dict :meth:`bake` returns, and the ``deep``
         object of ``umbra bake --deep --json`` (``max_error``, ``samples``,
         ``mean_samples_per_pixel``, ``max_samples_per_pixel``, ``empty_pixels``,
-        ``profile_breakpoints``, ``coarse_cells``, ``seconds``), or with ``deep_format`` its
+        ``profile_breakpoints``, ``coarse_cells``, ``rms_error``, ``seconds``), or with ``deep_format`` its
         ``deep_format`` object (``format``, ``channels``, ``bytes_per_texel``, ``max_error``,
         ``rms_error``, ``profile_error``, ``near``, ``far``, ``refined_texels``, ``seconds``).
         """

@@ -8,6 +8,7 @@
 //! the times vary between runs.
 
 mod report;
+pub mod deep;
 pub mod stress;
 
 pub use report::{markdown, write_reports, Meta};

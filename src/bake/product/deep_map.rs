@@ -62,6 +62,10 @@ pub struct DeepStats {
     /// Trilinear cells whose profile was cut into the most pieces allowed, where the bound
     /// does not hold (0 in every case we know of).
     pub coarse_cells: u64,
+    /// RMS of `T_deep - T_profile` at 65 uniform depths of the map's depth range, over every
+    /// pixel (and colour channel) whose ray meets extinction: what `compare --deep` sets
+    /// against the fixed-size formats' `rms_error`.
+    pub rms_error: f64,
     /// Wall time of the deep pass, seconds.
     pub seconds: f64,
 }
@@ -139,6 +143,7 @@ pub fn bake_deep(
     }
     let colour = scene.channels() == 3;
     let (w, h) = (camera.width(), camera.height());
+    let range = (camera.t_near().max(0.0), camera.t_max());
     let run = || {
         (0..h)
             .into_par_iter()
@@ -146,7 +151,7 @@ pub fn bake_deep(
                 let mut row = Row::new(colour);
                 for i in 0..w {
                     let prof = pixel_profile(scene, flat, (i, j), max_error)?;
-                    row.push(&prof, max_error * FIT_SHARE)?;
+                    row.push(&prof, max_error * FIT_SHARE, range)?;
                 }
                 progress(u64::from(w));
                 Ok(row)
@@ -162,7 +167,10 @@ pub fn bake_deep(
     let names = channel_names(colour);
     let mut counts = Vec::with_capacity(camera.pixels() as usize);
     let mut data: Vec<Vec<f32>> = vec![Vec::new(); names.len()];
+    let (mut sum_sq, mut lit) = (0.0, 0u64);
     for r in rows {
+        sum_sq += r.sum_sq;
+        lit += r.lit;
         stats.breakpoints += r.breakpoints;
         stats.coarse_cells += r.coarse;
         counts.extend_from_slice(&r.counts);
@@ -170,6 +178,7 @@ pub fn bake_deep(
             d.extend(c);
         }
     }
+    stats.rms_error = (sum_sq / (lit as f64 * RMS_DEPTHS as f64).max(1.0)).sqrt();
     stats.samples = counts.iter().map(|&c| u64::from(c)).sum();
     stats.max_samples = counts.iter().copied().max().unwrap_or(0);
     stats.empty_pixels = counts.iter().filter(|&&c| c == 0).count() as u64;
@@ -196,6 +205,42 @@ struct Row {
     data: Vec<Vec<f32>>,
     breakpoints: u64,
     coarse: u64,
+    sum_sq: f64,
+    lit: u64,
+}
+
+/// Uniform depths of the RMS error ([`DeepStats::rms_error`]).
+const RMS_DEPTHS: usize = 65;
+
+/// `tau` at `z` of the breakpoints `(t_k, tau_k)`, linear between them, constant outside.
+fn tau_at(t: &[f64], tau: &[f64], z: f64) -> f64 {
+    let k = t.partition_point(|&x| x <= z);
+    if k == 0 {
+        return tau.first().copied().unwrap_or(0.0);
+    }
+    if k == t.len() {
+        return tau[k - 1];
+    }
+    let (t0, t1) = (t[k - 1], t[k]);
+    let w = if t1 > t0 { (z - t0) / (t1 - t0) } else { 1.0 };
+    tau[k - 1] + (tau[k] - tau[k - 1]) * w
+}
+
+/// `tau` at `z` of deep samples `spans` (breakpoint pairs of `t`, `tau`): linear inside a
+/// sample, constant between samples, 0 before the first.
+fn fitted_tau(spans: &[(usize, usize)], t: &[f64], tau: &[f64], z: f64) -> f64 {
+    let mut v = 0.0;
+    for &(i, j) in spans {
+        if z >= t[j] {
+            v = tau[j];
+        } else if z > t[i] {
+            let w = (z - t[i]) / (t[j] - t[i]);
+            return tau[i] + (tau[j] - tau[i]) * w;
+        } else {
+            break;
+        }
+    }
+    v
 }
 
 impl Row {
@@ -206,11 +251,13 @@ impl Row {
             data: vec![Vec::new(); channel_names(colour).len()],
             breakpoints: 0,
             coarse: 0,
+            sum_sq: 0.0,
+            lit: 0,
         }
     }
 
     /// Fit `prof` and append its samples as the row's next pixel.
-    fn push(&mut self, prof: &PixelProfile, fit_error: f64) -> Result<()> {
+    fn push(&mut self, prof: &PixelProfile, fit_error: f64, (near, far): (f64, f64)) -> Result<()> {
         self.breakpoints += prof.t.len() as u64;
         self.coarse += prof.coarse;
         // The fitted channels: grey tau, or R, G, B and their mean (for A).
@@ -223,6 +270,22 @@ impl Row {
             fitted.push(&mean);
         }
         let spans = fit_spans(&prof.t, &fitted, fit_error)?;
+        // The RMS error at uniform depths, per colour channel (T = 0 past an opaque depth in
+        // both the profile and the samples).
+        for tau in &prof.taus {
+            if tau.last().is_none_or(|&v| v <= 0.0) && prof.opaque_at.is_none() {
+                continue;
+            }
+            self.lit += 1;
+            for k in 0..RMS_DEPTHS {
+                let z = near + (far - near) * k as f64 / (RMS_DEPTHS - 1) as f64;
+                if prof.opaque_at.is_some_and(|o| z >= o) {
+                    continue;
+                }
+                let e = (-tau_at(&prof.t, tau, z)).exp() - (-fitted_tau(&spans, &prof.t, tau, z)).exp();
+                self.sum_sq += e * e;
+            }
+        }
         let alpha = |tau: &[f64], i: usize, j: usize| -(-(tau[j] - tau[i])).exp_m1() as f32;
         let z = self.data.len() - 2;
         for &(i, j) in &spans {

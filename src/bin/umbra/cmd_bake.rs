@@ -136,7 +136,7 @@ fn report(a: &BakeArgs, job: &BakeJob, done: &umbra::bake::BakeReport, total: f6
                 "max_error": d.max_error, "samples": d.samples,
                 "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
                 "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
-                "coarse_cells": d.coarse_cells, "seconds": d.seconds,
+                "coarse_cells": d.coarse_cells, "rms_error": d.rms_error, "seconds": d.seconds,
             })),
             "deep_format": fixed,
             // Each warning as data (its `kind` and fields) with the line stderr prints.

@@ -59,6 +59,18 @@ pub struct CompareArgs {
     /// Also run the stress catalogue and write stress.{md,json}.
     #[arg(long)]
     stress: bool,
+    /// Compare deep encodings instead of estimators: one exact map of FILE baked as deep
+    /// samples (three error bounds) and in every fixed-size format and size, each against the
+    /// exact profile of every texel: deep.{md,json}, deep_error_vs_bytes.svg and the maps in
+    /// DIR/maps/.
+    #[arg(long)]
+    deep: bool,
+    /// With --deep: the direction the light travels (default 0,-1,0: a sun overhead).
+    #[arg(long, value_parser = umbra::request::parse_vec3, allow_hyphen_values = true)]
+    light_dir: Option<[f64; 3]>,
+    /// With --deep: the maps' resolution, N pixels on the long side.
+    #[arg(long, default_value_t = 128)]
+    res: u32,
     /// Samples per ray in the stress suite.
     #[arg(long, default_value_t = 16)]
     stress_samples: u32,
@@ -152,6 +164,13 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
             eprintln!("umbra compare: {m}");
         }
     };
+    if a.deep {
+        let Some(file) = &a.file else {
+            anyhow::bail!("compare --deep needs a .vdb file");
+        };
+        run_deep(a, file, threads, &say)?;
+        return Ok(ExitCode::SUCCESS);
+    }
     if let Some(file) = &a.file {
         if umbra::scene::is_scene_file(file) {
             anyhow::bail!(
@@ -241,6 +260,70 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         }
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// `compare --deep`: every deep encoding of one exact map (see `umbra::compare::deep`).
+fn run_deep(a: &CompareArgs, file: &std::path::Path, threads: usize, say: &dyn Fn(&str)) -> Result<()> {
+    if umbra::scene::is_scene_file(file) || umbra::usd::is_stage(file) {
+        anyhow::bail!("{}: compare --deep takes one grid of a .vdb file", file.display());
+    }
+    let maps = a.out.join("maps");
+    std::fs::create_dir_all(&maps).with_context(|| format!("creating {}", maps.display()))?;
+    let mut rows = Vec::new();
+    for product in compare::deep::deep_products() {
+        let (name, deep, deep_error, deep_format) = match product {
+            umbra::bake::Product::Deep { max_error } => {
+                (format!("lokovic_veach_{max_error}"), true, Some(max_error), None)
+            }
+            umbra::bake::Product::Fixed { format } => {
+                (format.to_string().replace(':', "_"), false, None, Some(format.to_string()))
+            }
+            umbra::bake::Product::Map => continue,
+        };
+        let options = umbra::request::BakeOptions {
+            grid: a.grid.clone(),
+            light_dir: Some(a.light_dir.unwrap_or([0.0, -1.0, 0.0])),
+            res: Some(umbra::bake::Resolution::LongSide(a.res)),
+            density_scale: a.density_scale,
+            xform: a.xform.map(|x| x.rows().iter().flatten().copied().collect()),
+            interp: a.interp.into(),
+            deep,
+            deep_error,
+            deep_format,
+            threads,
+            force: true,
+            ..umbra::request::BakeOptions::default()
+        };
+        let request = umbra::request::BakeRequest {
+            input: file.to_path_buf(),
+            output: maps.join(format!("{name}.exr")),
+            options,
+        };
+        let umbra::request::BakePlan::Map(job) = request.plan().map_err(crate::common::flag_error)? else {
+            anyhow::bail!("compare --deep bakes maps");
+        };
+        say(&format!("deep encoding {name}"));
+        rows.push(compare::deep::deep_row(&job)?);
+    }
+    let source = format!("{} grid '{}'", file.display(), a.grid);
+    let md = compare::deep::deep_markdown(&rows, &source);
+    let json = serde_json::to_string_pretty(&serde_json::json!({
+        "source": source, "machine": machine(), "threads": threads, "res": a.res,
+        "light_dir": a.light_dir.unwrap_or([0.0, -1.0, 0.0]), "rows": rows,
+    }))?;
+    let svg = crate::plot::deep_svg(&rows)?;
+    let mut staged = Vec::new();
+    for (name, text) in [("deep.md", &md), ("deep.json", &json), ("deep_error_vs_bytes.svg", &svg)] {
+        staged.push(umbra::output::stage(&a.out.join(name), true, |w| {
+            std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
+        })?);
+    }
+    umbra::output::commit_all(staged)?;
+    say(&format!(
+        "wrote {}/deep.{{md,json}} and deep_error_vs_bytes.svg",
+        a.out.display()
+    ));
+    Ok(())
 }
 
 /// The volume `compare` traces, and how the report names it: a grid of a `.vdb`, or the one

@@ -74,3 +74,100 @@ pub fn svg(rows: &[Row]) -> Result<String> {
     }
     Ok(out)
 }
+
+/// `deep_error_vs_bytes.svg` of `umbra compare --deep`: error in T against bytes per texel
+/// (log-log), one line per family through its RMS errors (filled dots) and its max errors
+/// (crosses, dashed), each point labelled with its budget; the legend beside the plot.
+pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
+    let mut out = String::new();
+    {
+        let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("drawing the plot: {e}");
+        let root = SVGBackend::with_string(&mut out, (1040, 640)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let (plot, legend) = root.split_horizontally(800);
+        let pts: Vec<_> = rows
+            .iter()
+            .filter(|r| r.bytes_per_texel > 0.0 && r.rms_error > 0.0 && r.max_error > 0.0)
+            .collect();
+        let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64);
+        for r in &pts {
+            x0 = x0.min(r.bytes_per_texel);
+            x1 = x1.max(r.bytes_per_texel);
+            y0 = y0.min(r.rms_error.min(r.max_error));
+            y1 = y1.max(r.rms_error.max(r.max_error));
+        }
+        if pts.is_empty() {
+            (x0, x1, y0, y1) = (1.0, 100.0, 1e-4, 1.0);
+        }
+        let mut chart = ChartBuilder::on(&plot)
+            .caption("Error in T against bytes per texel (log-log)", ("sans-serif", 22))
+            .margin(20)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d(
+                (x0 / 1.4..x1 * 1.4).log_scale(),
+                (y0 / 1.6..y1 * 1.6).log_scale(),
+            )
+            .map_err(|e| err(&e))?;
+        chart
+            .configure_mesh()
+            .x_desc("bytes per texel (the encoding's own, before compression)")
+            .y_desc("error in T")
+            .draw()
+            .map_err(|e| err(&e))?;
+        let mut families: Vec<&str> = pts.iter().map(|r| r.family.as_str()).collect();
+        families.dedup();
+        let mut keys = Vec::new();
+        for (i, fam) in families.iter().enumerate() {
+            let color = Palette99::pick(i).to_rgba();
+            let mine: Vec<_> = pts.iter().filter(|r| r.family == *fam).collect();
+            let rms: Vec<(f64, f64)> = mine.iter().map(|r| (r.bytes_per_texel, r.rms_error)).collect();
+            let max: Vec<(f64, f64)> = mine.iter().map(|r| (r.bytes_per_texel, r.max_error)).collect();
+            chart
+                .draw_series(LineSeries::new(rms.clone(), color.stroke_width(2)))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(rms.iter().map(|&p| Circle::new(p, 4, color.filled())))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(DashedLineSeries::new(max.clone(), 6, 4, color.stroke_width(1)))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(max.iter().map(|&p| Cross::new(p, 4, color.stroke_width(2))))
+                .map_err(|e| err(&e))?;
+            for r in &mine {
+                let label = r.encoding.split(':').nth(1).unwrap_or(&r.encoding).replace("--deep-error ", "E=");
+                chart
+                    .draw_series(std::iter::once(Text::new(
+                        label,
+                        (r.bytes_per_texel * 1.05, r.rms_error * 1.15),
+                        ("sans-serif", 13).into_font().color(&color),
+                    )))
+                    .map_err(|e| err(&e))?;
+            }
+            keys.push((fam.to_string(), color));
+        }
+        // The legend, beside the plot.
+        let style = ("sans-serif", 16).into_font();
+        for (i, (name, color)) in keys.iter().enumerate() {
+            let y = 80 + 28 * i as i32;
+            legend
+                .draw(&PathElement::new(vec![(10, y), (40, y)], color.stroke_width(2)))
+                .map_err(|e| err(&e))?;
+            legend
+                .draw(&Text::new(name.clone(), (48, y - 8), style.clone()))
+                .map_err(|e| err(&e))?;
+        }
+        let y = 80 + 28 * keys.len() as i32 + 20;
+        for (k, text) in ["dot, solid: RMS error", "cross, dashed: max error", "label: budget"]
+            .iter()
+            .enumerate()
+        {
+            legend
+                .draw(&Text::new(*text, (10, y + 22 * k as i32), ("sans-serif", 14).into_font()))
+                .map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(out)
+}
