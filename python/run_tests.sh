@@ -9,7 +9,7 @@ venv="$target/py-venv"
 rm -rf "$venv"
 "${PYTHON:-python3}" -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip
-"$venv/bin/python" -m pip install -q "$repo/python" pytest "OpenEXR>=3.2" mypy usd-core openjd-cli opencue-pyoutline packaging
+"$venv/bin/python" -m pip install -q "$repo/python" pytest "OpenEXR>=3.2" mypy usd-core openjd-cli opencue-pyoutline packaging moderngl
 cargo build --release --bin umbra --manifest-path "$repo/Cargo.toml"
 # From outside the checkout, so `import umbra` is the installed package, not python/umbra.
 cd "$target"

@@ -326,6 +326,25 @@ def sample_omni(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
 # The constants of umbra's moment reconstruction (src/bake/encode/fixed/moments.rs).
 _MOMENT_BIAS = {4: 5e-7, 6: 5e-6}
 _OVERESTIMATION = 0.25
+_FAR_ROOT = 1e3
+
+
+def _interpolated_share(z: np.ndarray, m: np.ndarray, x: float) -> float:
+    """``sum_j q_j m_j`` for the polynomial ``q`` through ``(x, 1/4)`` and ``(z_i, [z_i < x])``
+    (one query, any number of roots)."""
+    atoms = np.concatenate([[x], z])
+    d = len(z)
+    dd = np.concatenate([[_OVERESTIMATION], (z < x).astype(np.float64)])
+    for lvl in range(1, d + 1):
+        for i in range(d, lvl - 1, -1):
+            dd[i] = (dd[i] - dd[i - 1]) / (atoms[i] - atoms[i - lvl])
+    poly = np.zeros(d + 1)
+    poly[0] = dd[d]
+    for i in range(d - 1, -1, -1):
+        for j in range(d - i, 0, -1):
+            poly[j] = poly[j - 1] - atoms[i] * poly[j]
+        poly[0] = dd[i] - atoms[i] * poly[0]
+    return float(np.sum(poly * m[:d + 1]))
 
 
 def _fourier_tau(c: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -359,13 +378,27 @@ def _moments_tau(c: np.ndarray, u: np.ndarray, k: int) -> np.ndarray:
             q = -0.5 * (b + np.where(b >= 0, 1.0, -1.0) * np.sqrt(disc))
             roots = np.stack([q / a, cc / q], -1)
         else:
-            a = coef[:, 3]
-            b, cc, d = coef[:, 2] / a, coef[:, 1] / a, coef[:, 0] / a
-            p = np.minimum(cc - b * b / 3, -1e-300)
+            # The largest root by the trigonometric solution, polished by Newton, then the
+            # quadratic left from the constant term up (moments.rs's `cubic`).
+            a3, a2, a1, a0 = coef[:, 3], coef[:, 2], coef[:, 1], coef[:, 0]
+            b, cc, d = a2 / a3, a1 / a3, a0 / a3
+            p = cc - b * b / 3
             q = 2 * b ** 3 / 27 - b * cc / 3 + d
-            r = 2 * np.sqrt(-p / 3)
-            phi = np.arccos(np.clip(3 * q / (p * r), -1, 1)) / 3
-            roots = np.stack([r * np.cos(phi - 2 * np.pi * i / 3) - b / 3 for i in range(3)], -1)
+            m3 = 2 * np.sqrt(np.maximum(-p / 3, 0.0))
+            phi = np.arccos(np.clip(3 * q / (p * m3), -1, 1)) / 3
+            trig = np.stack([m3 * np.cos(phi - 2 * np.pi * i / 3) - b / 3 for i in range(3)], -1)
+            big = trig[np.arange(len(x)), np.argmax(np.abs(trig), axis=1)]
+            r = np.where(p >= 0, np.cbrt(-q) - b / 3, big)
+            for _ in range(2):
+                f = ((a3 * r + a2) * r + a1) * r + a0
+                df = (3 * a3 * r + 2 * a2) * r + a1
+                r = np.where(df != 0, r - f / df, r)
+            qc = -a0 / r
+            qb = (qc - a1) / r
+            qa = (qb - a2) / r
+            disc = np.maximum(qb * qb - 4 * qa * qc, 0.0)
+            qq = -0.5 * (qb + np.where(qb >= 0, 1.0, -1.0) * np.sqrt(disc))
+            roots = np.stack([qq / qa, qc / qq, r], -1)
         z = np.concatenate([x[:, None], roots], -1)
         vals = np.concatenate([np.full((len(x), 1), _OVERESTIMATION),
                                (roots < x[:, None]).astype(np.float64)], -1)
@@ -381,6 +414,12 @@ def _moments_tau(c: np.ndarray, u: np.ndarray, k: int) -> np.ndarray:
                 poly[:, j] = poly[:, j - 1] - z[:, i] * poly[:, j]
             poly[:, 0] = dd[:, i] - z[:, i] * poly[:, 0]
         f = np.sum(poly * m[:, :d + 1], -1)
+        # A root far outside [-1, 1] is dropped (its weight is of order |y|^-2n): those
+        # queries one by one, the other roots interpolated.
+        far = np.any(~(np.abs(roots) <= _FAR_ROOT), axis=1)
+        for r in np.flatnonzero(far):
+            keep = roots[r][np.abs(roots[r]) <= _FAR_ROOT]
+            f[r] = _interpolated_share(keep, m[r], x[r])
     bad = ~np.isfinite(f)
     f = np.where(bad, (x >= m[:, 1]).astype(np.float64), np.clip(f, 0.0, 1.0))
     return np.where(b0 > 0, b0 * f, 0.0)

@@ -51,8 +51,11 @@ pub struct DeepRow {
     pub family: String,
     /// The budget as the flag spells it (`--deep-error 0.002`, `fourier:15`).
     pub encoding: String,
-    /// Bytes per texel of the encoding (module docs).
+    /// Bytes per texel of the encoding (module docs): the mean for deep samples.
     pub bytes_per_texel: f64,
+    /// The most bytes one texel takes (what a fixed-size buffer must hold): the same as
+    /// `bytes_per_texel` for a fixed format, the texel with the most samples for deep samples.
+    pub max_bytes_per_texel: f64,
     /// Bound on the error in T over every texel and depth.
     pub max_error: f64,
     /// RMS of the error in T at 65 depths of every lit texel.
@@ -75,6 +78,7 @@ pub fn deep_row(job: &BakeJob) -> Result<DeepRow> {
             family: "lokovic-veach".into(),
             encoding: format!("--deep-error {}", d.max_error),
             bytes_per_texel: (4.0 * channels * d.samples as f64 + 4.0 * pixels) / pixels,
+            max_bytes_per_texel: 4.0 * channels * f64::from(d.max_samples) + 4.0,
             max_error: d.max_error,
             rms_error: d.rms_error,
             seconds: map_seconds + d.seconds,
@@ -88,6 +92,7 @@ pub fn deep_row(job: &BakeJob) -> Result<DeepRow> {
         family: f.format.split(':').next().unwrap_or_default().to_string(),
         encoding: f.format.clone(),
         bytes_per_texel: f.bytes_per_texel as f64,
+        max_bytes_per_texel: f.bytes_per_texel as f64,
         max_error: f.max_error,
         rms_error: f.rms_error,
         seconds: map_seconds + f.seconds,
@@ -101,15 +106,29 @@ pub fn deep_markdown(rows: &[DeepRow], source: &str) -> String {
     let mut s = format!(
         "# Deep encodings of {source}\n\nEach encoding of the same exact map, against the exact \
          optical-depth profile of every texel (`umbra compare --deep`). Bytes per texel are the \
-         encoding's own, before compression.\n\n| encoding | bytes per texel | max error in T | \
-         RMS error in T | bake (s) |\n|---|---|---|---|---|\n"
+         encoding's own, before compression: the mean, and the most one texel takes (what a \
+         fixed-size buffer must hold).\n\n| encoding | bytes per texel | most bytes in a texel | \
+         max error in T | RMS error in T | bake (s) |\n|---|---|---|---|---|---|\n"
     );
     for r in rows {
         s += &format!(
-            "| {} | {:.1} | {:.2e} | {:.2e} | {:.3} |\n",
-            r.encoding, r.bytes_per_texel, r.max_error, r.rms_error, r.seconds
+            "| {} | {:.1} | {:.0} | {:.2e} | {:.2e} | {:.3} |\n",
+            r.encoding,
+            r.bytes_per_texel,
+            r.max_bytes_per_texel,
+            r.max_error,
+            r.rms_error,
+            r.seconds
         );
     }
+    let smallest_fixed = |ok: &dyn Fn(&DeepRow) -> bool| {
+        rows.iter()
+            .filter(|r| ok(r))
+            .min_by(|a, b| a.max_bytes_per_texel.total_cmp(&b.max_bytes_per_texel))
+            .map_or("none".to_string(), |r| {
+                format!("`{}` ({:.0} bytes)", r.encoding, r.max_bytes_per_texel)
+            })
+    };
     let smallest = |ok: &dyn Fn(&DeepRow) -> bool| {
         rows.iter()
             .filter(|r| ok(r))
@@ -119,10 +138,13 @@ pub fn deep_markdown(rows: &[DeepRow], source: &str) -> String {
             })
     };
     s += &format!(
-        "\nSmallest with an RMS error of 0.01 or less: {}. Smallest whose error is at most 0.01 \
-         at every depth: {}.\n",
+        "\nSmallest on average with an RMS error of 0.01 or less: {}. Smallest on average whose \
+         error is at most 0.01 at every depth: {}. Of a fixed size per texel (the most bytes \
+         in a texel), the same: {} and {}.\n",
         smallest(&|r| r.rms_error <= 0.01),
-        smallest(&|r| r.max_error <= 0.01)
+        smallest(&|r| r.max_error <= 0.01),
+        smallest_fixed(&|r| r.rms_error <= 0.01),
+        smallest_fixed(&|r| r.max_error <= 0.01)
     );
     s
 }

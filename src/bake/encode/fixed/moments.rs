@@ -20,7 +20,10 @@
 //! polynomial `q` of degree `n` interpolating `f(x) = 1/4` (the overestimation of Muenstermann
 //! et al.: a quarter of the mass that may lie at `x` counts as in front of it) and
 //! `f(y_i) = [y_i < x]`: `F = sum_j q_j m'_j`, clamped to `[0, 1]`. `F` is a distribution
-//! function's bound, so it grows with `x` and `T` never grows with depth.
+//! function's bound, so it grows with `x` and `T` never grows with depth. A root beyond
+//! [`FAR_ROOT`] (where the polynomial's leading coefficient nears 0) carries a weight of order
+//! `|y|^(-2n)`; it is dropped and `q` interpolates the other atoms, the bound's limit as the
+//! root goes to infinity (keeping it made the result depend on the last bits of the root).
 
 use super::NormProfile;
 
@@ -28,6 +31,8 @@ use super::NormProfile;
 pub const BIAS_4: f64 = 5e-7;
 /// Bias toward the uniform distribution for `moments:6` (f32 storage).
 pub const BIAS_6: f64 = 5e-6;
+/// Roots of the kernel polynomial beyond this are dropped (see [`fraction_before`]).
+pub const FAR_ROOT: f64 = 1e3;
 /// Share of the mass that may sit at the depth looked up that counts as in front of it.
 pub const OVERESTIMATION: f64 = 0.25;
 
@@ -109,8 +114,14 @@ fn fraction_before(m: &[f64], x: f64) -> f64 {
     let Some(roots) = roots else {
         return fallback(m, x);
     };
-    let d = roots.len();
-    atoms[1..=d].copy_from_slice(&roots);
+    // A root far outside [-1, 1] carries a weight of order |y|^(-2n) and makes the
+    // interpolation ill-conditioned (the leading coefficient near 0): drop it, the limit of the
+    // bound as it goes to infinity.
+    let mut d = 0;
+    for r in roots.into_iter().filter(|r| r.abs() <= FAR_ROOT) {
+        d += 1;
+        atoms[d] = r;
+    }
     let mut vals = [0.0f64; 4];
     vals[0] = OVERESTIMATION;
     for i in 1..=d {
@@ -209,27 +220,47 @@ fn quadratic(a: f64, b: f64, c: f64) -> Option<Vec<f64>> {
 }
 
 /// The real roots of `a y^3 + b y^2 + c y + d`, which has three (the kernel polynomial of a
-/// positive definite Hankel matrix): the trigonometric solution.
+/// positive definite Hankel matrix): the largest in magnitude by the trigonometric solution,
+/// polished by two Newton steps, then the other two from the quadratic left by dividing it out
+/// from the constant term (stable when that root is large: a root far outside `[-1, 1]`, where
+/// the trigonometric solution loses the small ones to cancellation).
 fn cubic(a: f64, b: f64, c: f64, d: f64) -> Option<Vec<f64>> {
     let scale = a.abs().max(b.abs()).max(c.abs()).max(d.abs());
     if a.abs() <= 1e-14 * scale {
         return quadratic(b, c, d);
     }
-    let (b, c, d) = (b / a, c / a, d / a);
-    let p = c - b * b / 3.0;
-    let q = 2.0 * b * b * b / 27.0 - b * c / 3.0 + d;
-    let shift = -b / 3.0;
-    if p >= 0.0 {
-        // A triple root (numerically): the cube root of -q.
-        let y = (-q).cbrt() + shift;
-        return Some(vec![y]);
-    }
-    let r = 2.0 * (-p / 3.0).sqrt();
-    let arg = (3.0 * q / (p * r)).clamp(-1.0, 1.0);
-    let phi = arg.acos() / 3.0;
-    Some(
+    let (b1, c1, d1) = (b / a, c / a, d / a);
+    let p = c1 - b1 * b1 / 3.0;
+    let q = 2.0 * b1 * b1 * b1 / 27.0 - b1 * c1 / 3.0 + d1;
+    let shift = -b1 / 3.0;
+    let mut r = if p >= 0.0 {
+        // One real root numerically: the cube root of -q.
+        (-q).cbrt() + shift
+    } else {
+        let m = 2.0 * (-p / 3.0).sqrt();
+        let phi = (3.0 * q / (p * m)).clamp(-1.0, 1.0).acos() / 3.0;
         (0..3)
-            .map(|k| r * (phi - 2.0 * std::f64::consts::PI * k as f64 / 3.0).cos() + shift)
-            .collect(),
-    )
+            .map(|k| m * (phi - 2.0 * std::f64::consts::PI * k as f64 / 3.0).cos() + shift)
+            .fold(0.0f64, |acc, y| if y.abs() > acc.abs() { y } else { acc })
+    };
+    for _ in 0..2 {
+        let f = ((a * r + b) * r + c) * r + d;
+        let df = (3.0 * a * r + 2.0 * b) * r + c;
+        if df != 0.0 {
+            r -= f / df;
+        }
+    }
+    if r == 0.0 {
+        return quadratic(a, b, c).map(|mut v| {
+            v.push(0.0);
+            v
+        });
+    }
+    // a y^3 + b y^2 + c y + d = (y - r)(qa y^2 + qb y + qc), from the constant term up.
+    let qc = -d / r;
+    let qb = (qc - c) / r;
+    let qa = (qb - b) / r;
+    let mut out = quadratic(qa, qb, qc)?;
+    out.push(r);
+    Some(out)
 }
