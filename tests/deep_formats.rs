@@ -49,13 +49,14 @@ fn job(input: &Path, out: PathBuf, format: DeepFormat, solid: bool) -> BakeJob {
     }
 }
 
-/// Every channel of the written map by name, and its `umbra:*` f32/f64 attributes.
-fn read(
-    path: &Path,
-) -> (
+/// A written map's channels (name, values) and its `umbra:*` f32/f64 attributes.
+type Read = (
     Vec<(String, Vec<f32>)>,
     std::collections::HashMap<String, f64>,
-) {
+);
+
+/// Every channel of the written map by name, and its `umbra:*` f32/f64 attributes.
+fn read(path: &Path) -> Read {
     let img = read_all_flat_layers_from_file(path).unwrap();
     let layer = &img.layer_data[0];
     let chans = layer

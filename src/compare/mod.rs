@@ -7,8 +7,8 @@
 //! efficiency `1 / (MSE x seconds)`. Results are deterministic (per-ray random streams); only
 //! the times vary between runs.
 
-mod report;
 pub mod deep;
+mod report;
 pub mod stress;
 
 pub use report::{markdown, write_reports, Meta};

@@ -263,21 +263,35 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
 }
 
 /// `compare --deep`: every deep encoding of one exact map (see `umbra::compare::deep`).
-fn run_deep(a: &CompareArgs, file: &std::path::Path, threads: usize, say: &dyn Fn(&str)) -> Result<()> {
+fn run_deep(
+    a: &CompareArgs,
+    file: &std::path::Path,
+    threads: usize,
+    say: &dyn Fn(&str),
+) -> Result<()> {
     if umbra::scene::is_scene_file(file) || umbra::usd::is_stage(file) {
-        anyhow::bail!("{}: compare --deep takes one grid of a .vdb file", file.display());
+        anyhow::bail!(
+            "{}: compare --deep takes one grid of a .vdb file",
+            file.display()
+        );
     }
     let maps = a.out.join("maps");
     std::fs::create_dir_all(&maps).with_context(|| format!("creating {}", maps.display()))?;
     let mut rows = Vec::new();
     for product in compare::deep::deep_products() {
         let (name, deep, deep_error, deep_format) = match product {
-            umbra::bake::Product::Deep { max_error } => {
-                (format!("lokovic_veach_{max_error}"), true, Some(max_error), None)
-            }
-            umbra::bake::Product::Fixed { format } => {
-                (format.to_string().replace(':', "_"), false, None, Some(format.to_string()))
-            }
+            umbra::bake::Product::Deep { max_error } => (
+                format!("lokovic_veach_{max_error}"),
+                true,
+                Some(max_error),
+                None,
+            ),
+            umbra::bake::Product::Fixed { format } => (
+                format.to_string().replace(':', "_"),
+                false,
+                None,
+                Some(format.to_string()),
+            ),
             umbra::bake::Product::Map => continue,
         };
         let options = umbra::request::BakeOptions {
@@ -285,7 +299,9 @@ fn run_deep(a: &CompareArgs, file: &std::path::Path, threads: usize, say: &dyn F
             light_dir: Some(a.light_dir.unwrap_or([0.0, -1.0, 0.0])),
             res: Some(umbra::bake::Resolution::LongSide(a.res)),
             density_scale: a.density_scale,
-            xform: a.xform.map(|x| x.rows().iter().flatten().copied().collect()),
+            xform: a
+                .xform
+                .map(|x| x.rows().iter().flatten().copied().collect()),
             interp: a.interp.into(),
             deep,
             deep_error,
@@ -299,7 +315,9 @@ fn run_deep(a: &CompareArgs, file: &std::path::Path, threads: usize, say: &dyn F
             output: maps.join(format!("{name}.exr")),
             options,
         };
-        let umbra::request::BakePlan::Map(job) = request.plan().map_err(crate::common::flag_error)? else {
+        let umbra::request::BakePlan::Map(job) =
+            request.plan().map_err(crate::common::flag_error)?
+        else {
             anyhow::bail!("compare --deep bakes maps");
         };
         say(&format!("deep encoding {name}"));
@@ -313,7 +331,11 @@ fn run_deep(a: &CompareArgs, file: &std::path::Path, threads: usize, say: &dyn F
     }))?;
     let svg = crate::plot::deep_svg(&rows)?;
     let mut staged = Vec::new();
-    for (name, text) in [("deep.md", &md), ("deep.json", &json), ("deep_error_vs_bytes.svg", &svg)] {
+    for (name, text) in [
+        ("deep.md", &md),
+        ("deep.json", &json),
+        ("deep_error_vs_bytes.svg", &svg),
+    ] {
         staged.push(umbra::output::stage(&a.out.join(name), true, |w| {
             std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
         })?);

@@ -100,7 +100,10 @@ pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
             (x0, x1, y0, y1) = (1.0, 100.0, 1e-4, 1.0);
         }
         let mut chart = ChartBuilder::on(&plot)
-            .caption("Error in T against bytes per texel (log-log)", ("sans-serif", 22))
+            .caption(
+                "Error in T against bytes per texel (log-log)",
+                ("sans-serif", 22),
+            )
             .margin(20)
             .x_label_area_size(45)
             .y_label_area_size(70)
@@ -121,8 +124,14 @@ pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
         for (i, fam) in families.iter().enumerate() {
             let color = Palette99::pick(i).to_rgba();
             let mine: Vec<_> = pts.iter().filter(|r| r.family == *fam).collect();
-            let rms: Vec<(f64, f64)> = mine.iter().map(|r| (r.bytes_per_texel, r.rms_error)).collect();
-            let max: Vec<(f64, f64)> = mine.iter().map(|r| (r.bytes_per_texel, r.max_error)).collect();
+            let rms: Vec<(f64, f64)> = mine
+                .iter()
+                .map(|r| (r.bytes_per_texel, r.rms_error))
+                .collect();
+            let max: Vec<(f64, f64)> = mine
+                .iter()
+                .map(|r| (r.bytes_per_texel, r.max_error))
+                .collect();
             chart
                 .draw_series(LineSeries::new(rms.clone(), color.stroke_width(2)))
                 .map_err(|e| err(&e))?;
@@ -130,13 +139,23 @@ pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
                 .draw_series(rms.iter().map(|&p| Circle::new(p, 4, color.filled())))
                 .map_err(|e| err(&e))?;
             chart
-                .draw_series(DashedLineSeries::new(max.clone(), 6, 4, color.stroke_width(1)))
+                .draw_series(DashedLineSeries::new(
+                    max.clone(),
+                    6,
+                    4,
+                    color.stroke_width(1),
+                ))
                 .map_err(|e| err(&e))?;
             chart
                 .draw_series(max.iter().map(|&p| Cross::new(p, 4, color.stroke_width(2))))
                 .map_err(|e| err(&e))?;
             for r in &mine {
-                let label = r.encoding.split(':').nth(1).unwrap_or(&r.encoding).replace("--deep-error ", "E=");
+                let label = r
+                    .encoding
+                    .split(':')
+                    .nth(1)
+                    .unwrap_or(&r.encoding)
+                    .replace("--deep-error ", "E=");
                 chart
                     .draw_series(std::iter::once(Text::new(
                         label,
@@ -152,19 +171,30 @@ pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
         for (i, (name, color)) in keys.iter().enumerate() {
             let y = 80 + 28 * i as i32;
             legend
-                .draw(&PathElement::new(vec![(10, y), (40, y)], color.stroke_width(2)))
+                .draw(&PathElement::new(
+                    vec![(10, y), (40, y)],
+                    color.stroke_width(2),
+                ))
                 .map_err(|e| err(&e))?;
             legend
                 .draw(&Text::new(name.clone(), (48, y - 8), style.clone()))
                 .map_err(|e| err(&e))?;
         }
         let y = 80 + 28 * keys.len() as i32 + 20;
-        for (k, text) in ["dot, solid: RMS error", "cross, dashed: max error", "label: budget"]
-            .iter()
-            .enumerate()
+        for (k, text) in [
+            "dot, solid: RMS error",
+            "cross, dashed: max error",
+            "label: budget",
+        ]
+        .iter()
+        .enumerate()
         {
             legend
-                .draw(&Text::new(*text, (10, y + 22 * k as i32), ("sans-serif", 14).into_font()))
+                .draw(&Text::new(
+                    *text,
+                    (10, y + 22 * k as i32),
+                    ("sans-serif", 14).into_font(),
+                ))
                 .map_err(|e| err(&e))?;
         }
         root.present().map_err(|e| err(&e))?;

@@ -71,7 +71,7 @@ pub fn encode(p: &NormProfile, k: u32) -> Vec<f32> {
 #[must_use]
 pub fn tau(c: &[f32], u: f64, k: u32) -> f64 {
     let b0 = f64::from(c[0]);
-    if !(b0 > 0.0) {
+    if b0.is_nan() || b0 <= 0.0 {
         return 0.0;
     }
     let x = (2.0 * u - 1.0).clamp(-1.0, 1.0);
@@ -179,7 +179,7 @@ fn solve_hankel(m: &[f64], n: usize, rhs: [f64; 4]) -> Option<[f64; 4]> {
                 v -= l[i][k] * l[j][k] * dg[k];
             }
             if i == j {
-                if !(v > 0.0) {
+                if v.is_nan() || v <= 0.0 {
                     return None;
                 }
                 dg[i] = v;
