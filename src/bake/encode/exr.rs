@@ -259,29 +259,6 @@ pub(crate) fn encode_exr_with(
     Ok(bytes)
 }
 
-/// The header attributes of a fixed-size deep map (`bake --deep-format`): its format, the
-/// bound on its error in T over every texel and depth (rounded up to a float), its RMS error,
-/// the profile's share of the bound, and the depth range the texels' depth is normalised to.
-pub(crate) fn fixed_attributes(s: &crate::bake::FixedStats) -> Vec<(String, AttributeValue)> {
-    vec![
-        ("umbra:deep_format".into(), text(&s.format)),
-        (
-            "umbra:deep_max_error".into(),
-            AttributeValue::F32(crate::bake::encode::fixed::f32_up(s.max_error)),
-        ),
-        (
-            "umbra:deep_rms_error".into(),
-            AttributeValue::F32(s.rms_error as f32),
-        ),
-        (
-            "umbra:deep_profile_error".into(),
-            AttributeValue::F32(s.profile_error as f32),
-        ),
-        ("umbra:deep_near".into(), AttributeValue::F64(s.near)),
-        ("umbra:deep_far".into(), AttributeValue::F64(s.far)),
-    ]
-}
-
 /// OpenEXR's `envmap` of an omnidirectional map (`None` for others).
 pub(crate) fn envmap(kind: Projection) -> Option<exr::meta::attribute::EnvironmentMap> {
     match kind {

@@ -23,6 +23,7 @@ use crate::bake::{Map, STOCHASTIC_DEPTHS};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::scene::Scene;
+use exr::meta::attribute::{AttributeValue, Text};
 use rayon::prelude::*;
 
 /// The bound in T on an exact profile a fixed-size texel is built from.
@@ -222,4 +223,30 @@ pub fn bake_fixed(
             seconds: start.elapsed().as_secs_f64(),
         },
     })
+}
+
+/// The header attributes of a fixed-size deep map (`bake --deep-format`): its format, the
+/// bound on its error in T over every texel and depth (rounded up to a float), its RMS error,
+/// the profile's share of the bound, and the depth range the texels' depth is normalised to.
+pub(crate) fn fixed_attributes(s: &FixedStats) -> Vec<(String, AttributeValue)> {
+    vec![
+        (
+            "umbra:deep_format".into(),
+            AttributeValue::Text(Text::from(s.format.as_str())),
+        ),
+        (
+            "umbra:deep_max_error".into(),
+            AttributeValue::F32(crate::bake::encode::fixed::f32_up(s.max_error)),
+        ),
+        (
+            "umbra:deep_rms_error".into(),
+            AttributeValue::F32(s.rms_error as f32),
+        ),
+        (
+            "umbra:deep_profile_error".into(),
+            AttributeValue::F32(s.profile_error as f32),
+        ),
+        ("umbra:deep_near".into(), AttributeValue::F64(s.near)),
+        ("umbra:deep_far".into(), AttributeValue::F64(s.far)),
+    ]
 }

@@ -715,7 +715,7 @@ impl BakeJob {
             report.deep = Some(deep.stats);
         }
         if let Some(fixed) = fixed {
-            let attrs = crate::bake::encode::exr::fixed_attributes(&fixed.stats);
+            let attrs = super::fixed_map::fixed_attributes(&fixed.stats);
             let bytes = crate::bake::encode::exr::encode_exr_with(
                 &report.map,
                 &report.provenance,

@@ -4,13 +4,19 @@ use anyhow::Result;
 use plotters::prelude::*;
 use umbra::compare::Row;
 
-/// The log-log plot of RMSE against wall time, one line per estimator, as SVG text.
+/// The log-log plot of RMSE against wall time, one line per estimator, each point labelled
+/// with its budget, exact regular tracking as a vertical line at its time (its error is 0, off
+/// a log axis), the legend beside the plot; as SVG text.
 pub fn svg(rows: &[Row]) -> Result<String> {
     let mut out = String::new();
     {
         let pts: Vec<&Row> = rows
             .iter()
             .filter(|r| r.rmse > 0.0 && r.seconds > 0.0)
+            .collect();
+        let exact: Vec<&Row> = rows
+            .iter()
+            .filter(|r| r.rmse == 0.0 && r.seconds > 0.0 && r.budget == "exact")
             .collect();
         let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64);
         for r in &pts {
@@ -19,13 +25,18 @@ pub fn svg(rows: &[Row]) -> Result<String> {
             y0 = y0.min(r.rmse);
             y1 = y1.max(r.rmse);
         }
+        for r in &exact {
+            x0 = x0.min(r.seconds);
+            x1 = x1.max(r.seconds);
+        }
         if pts.is_empty() {
             (x0, x1, y0, y1) = (1e-3, 1.0, 1e-4, 1.0);
         }
-        let root = SVGBackend::with_string(&mut out, (960, 640)).into_drawing_area();
+        let root = SVGBackend::with_string(&mut out, (1200, 700)).into_drawing_area();
         let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("drawing the plot: {e}");
         root.fill(&WHITE).map_err(|e| err(&e))?;
-        let mut chart = ChartBuilder::on(&root)
+        let (plot, legend) = root.split_horizontally(930);
+        let mut chart = ChartBuilder::on(&plot)
             .caption("RMSE of T against wall time (log-log)", ("sans-serif", 22))
             .margin(20)
             .x_label_area_size(45)
@@ -42,33 +53,74 @@ pub fn svg(rows: &[Row]) -> Result<String> {
             .draw()
             .map_err(|e| err(&e))?;
         let mut names: Vec<&str> = pts.iter().map(|r| r.estimator.as_str()).collect();
-        names.dedup();
         names.sort_unstable();
         names.dedup();
+        let mut keys = Vec::new();
+        for r in &exact {
+            let color = BLACK.mix(0.7);
+            let line = vec![(r.seconds, y0 / 1.5), (r.seconds, y1 * 1.5)];
+            chart
+                .draw_series(DashedLineSeries::new(line, 8, 5, color.stroke_width(2)))
+                .map_err(|e| err(&e))?;
+            keys.push((format!("{} (exact, RMSE 0)", r.estimator), color, true));
+        }
         for (i, name) in names.iter().enumerate() {
             let color = Palette99::pick(i).to_rgba();
-            let mut line: Vec<(f64, f64)> = pts
-                .iter()
-                .filter(|r| r.estimator == *name)
-                .map(|r| (r.seconds, r.rmse))
-                .collect();
-            line.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let mut line: Vec<&&Row> = pts.iter().filter(|r| r.estimator == *name).collect();
+            line.sort_by(|a, b| a.budget_value.total_cmp(&b.budget_value));
+            let xy: Vec<(f64, f64)> = line.iter().map(|r| (r.seconds, r.rmse)).collect();
             chart
-                .draw_series(LineSeries::new(line.clone(), color.stroke_width(2)))
-                .map_err(|e| err(&e))?
-                .label(*name)
-                .legend(move |(x, y)| {
-                    PathElement::new(vec![(x, y), (x + 18, y)], color.stroke_width(2))
-                });
+                .draw_series(LineSeries::new(xy.clone(), color.stroke_width(2)))
+                .map_err(|e| err(&e))?;
             chart
-                .draw_series(line.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                .draw_series(xy.iter().map(|&p| Circle::new(p, 3, color.filled())))
+                .map_err(|e| err(&e))?;
+            for r in &line {
+                let label = r.budget.split('=').nth(1).unwrap_or(&r.budget).to_string();
+                chart
+                    .draw_series(std::iter::once(Text::new(
+                        label,
+                        (r.seconds * 1.04, r.rmse * 1.12),
+                        ("sans-serif", 12).into_font().color(&color),
+                    )))
+                    .map_err(|e| err(&e))?;
+            }
+            keys.push(((*name).to_string(), color, false));
+        }
+        // The legend, beside the plot.
+        let style = ("sans-serif", 15).into_font();
+        for (i, (name, color, dashed)) in keys.iter().enumerate() {
+            let y = 70 + 24 * i as i32;
+            let seg = vec![(8, y), (36, y)];
+            if *dashed {
+                legend
+                    .draw(&PathElement::new(
+                        vec![(8, y), (18, y)],
+                        color.stroke_width(2),
+                    ))
+                    .map_err(|e| err(&e))?;
+                legend
+                    .draw(&PathElement::new(
+                        vec![(26, y), (36, y)],
+                        color.stroke_width(2),
+                    ))
+                    .map_err(|e| err(&e))?;
+            } else {
+                legend
+                    .draw(&PathElement::new(seg, color.stroke_width(2)))
+                    .map_err(|e| err(&e))?;
+            }
+            legend
+                .draw(&Text::new(name.clone(), (44, y - 8), style.clone()))
                 .map_err(|e| err(&e))?;
         }
-        chart
-            .configure_series_labels()
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()
+        let y = 70 + 24 * keys.len() as i32 + 16;
+        legend
+            .draw(&Text::new(
+                "labels: the budget (spp, step, points)",
+                (8, y),
+                ("sans-serif", 13).into_font(),
+            ))
             .map_err(|e| err(&e))?;
         root.present().map_err(|e| err(&e))?;
     }
