@@ -218,3 +218,34 @@ def test_glsl_reconstructions_agree_with_python(cli, tmp_path):
     # bound (a 4x4 solve and a cubic in f32) to 1e-4.
     for fmt, e in worst.items():
         assert e <= (1e-4 if fmt.startswith("moments") else 2e-5), worst
+
+
+def test_compare_deep_reports_every_encoding(cli, tmp_path):
+    """`umbra compare --deep`: one row per encoding, each row what its map's header and
+    `bake --json` say (bytes per texel, errors), the maps kept, the plot with its legend."""
+    out = tmp_path / "cmp"
+    cli("compare", DATA / "cloud.vdb", "--deep", "--density-scale", "4", "--light-dir",
+        "0.3,-1,0.2", "--res", "24", "-o", out, "-q")
+    report = json.loads((out / "deep.json").read_text())
+    rows = report["rows"]
+    assert [r["encoding"] for r in rows] == [
+        "--deep-error 0.02", "--deep-error 0.005", "--deep-error 0.002", "fourier:3",
+        "fourier:7", "fourier:15", "fourier:31", "moments:4", "moments:6", "avsm:2", "avsm:4",
+        "avsm:8", "avsm:16"]
+    for r in rows:
+        assert 0 < r["rms_error"] <= r["max_error"] < 1 and r["seconds"] > 0, r
+        if r["family"] == "lokovic-veach":
+            assert r["max_error"] == float(r["encoding"].split()[-1])
+            assert r["max_bytes_per_texel"] >= r["bytes_per_texel"] > 4
+            continue
+        img, header = oiio_read(out / "maps" / (r["encoding"].replace(":", "_") + ".exr"))
+        assert float(header["umbra:deep_max_error"]) == pytest.approx(r["max_error"], rel=1e-6)
+        assert r["bytes_per_texel"] == r["max_bytes_per_texel"] == 4 * (img.shape[2] - 1)
+    # More channels of one family never do worse on RMS here.
+    for fam in ("fourier", "avsm"):
+        rms = [r["rms_error"] for r in rows if r["family"] == fam]
+        assert rms == sorted(rms, reverse=True), (fam, rms)
+    md = (out / "deep.md").read_text()
+    assert "| avsm:8 |" in md and "Smallest on average" in md
+    svg = (out / "deep_error_vs_bytes.svg").read_text()
+    assert "lokovic-veach" in svg and "avsm" in svg and "RMS error" in svg

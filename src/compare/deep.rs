@@ -121,30 +121,30 @@ pub fn deep_markdown(rows: &[DeepRow], source: &str) -> String {
             r.seconds
         );
     }
-    let smallest_fixed = |ok: &dyn Fn(&DeepRow) -> bool| {
+    // The row with the fewest bytes (mean, or most in a texel with `most`) among those `ok`.
+    let smallest = |ok: &dyn Fn(&DeepRow) -> bool, most: bool| {
+        let bytes = |r: &DeepRow| {
+            if most {
+                r.max_bytes_per_texel
+            } else {
+                r.bytes_per_texel
+            }
+        };
         rows.iter()
             .filter(|r| ok(r))
-            .min_by(|a, b| a.max_bytes_per_texel.total_cmp(&b.max_bytes_per_texel))
+            .min_by(|a, b| bytes(a).total_cmp(&bytes(b)))
             .map_or("none".to_string(), |r| {
-                format!("`{}` ({:.0} bytes)", r.encoding, r.max_bytes_per_texel)
-            })
-    };
-    let smallest = |ok: &dyn Fn(&DeepRow) -> bool| {
-        rows.iter()
-            .filter(|r| ok(r))
-            .min_by(|a, b| a.bytes_per_texel.total_cmp(&b.bytes_per_texel))
-            .map_or("none".to_string(), |r| {
-                format!("`{}` ({:.1} bytes)", r.encoding, r.bytes_per_texel)
+                format!("`{}` ({:.1} bytes)", r.encoding, bytes(r))
             })
     };
     s += &format!(
         "\nSmallest on average with an RMS error of 0.01 or less: {}. Smallest on average whose \
          error is at most 0.01 at every depth: {}. Of a fixed size per texel (the most bytes \
          in a texel), the same: {} and {}.\n",
-        smallest(&|r| r.rms_error <= 0.01),
-        smallest(&|r| r.max_error <= 0.01),
-        smallest_fixed(&|r| r.rms_error <= 0.01),
-        smallest_fixed(&|r| r.max_error <= 0.01)
+        smallest(&|r| r.rms_error <= 0.01, false),
+        smallest(&|r| r.max_error <= 0.01, false),
+        smallest(&|r| r.rms_error <= 0.01, true),
+        smallest(&|r| r.max_error <= 0.01, true)
     );
     s
 }

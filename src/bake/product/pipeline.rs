@@ -702,21 +702,14 @@ impl BakeJob {
             }
         }
         let mut report = self.describe(map, scene, camera);
-        if let Some(deep) = deep {
+        let bytes = if let Some(deep) = deep {
             let attrs = crate::bake::deep_attributes(&report.map, &report.provenance, &deep.stats);
-            let bytes = crate::bake::encode_deep_exr(&deep.image, &attrs);
-            crate::bake::encode::exr::write_with_preview(
-                &self.output,
-                &bytes,
-                self.preview.as_deref(),
-                &report.map,
-                self.overwrite,
-            )?;
             report.deep = Some(deep.stats);
-        }
-        if let Some(fixed) = fixed {
+            crate::bake::encode_deep_exr(&deep.image, &attrs)
+        } else if let Some(fixed) = fixed {
             let attrs = super::fixed_map::fixed_attributes(&fixed.stats);
-            let bytes = crate::bake::encode::exr::encode_exr_with(
+            report.fixed = Some(fixed.stats);
+            crate::bake::encode::exr::encode_exr_with(
                 &report.map,
                 &report.provenance,
                 &self.layout,
@@ -726,16 +719,17 @@ impl BakeJob {
             .map_err(|e| Error::Output {
                 path: self.output.clone(),
                 reason: e,
-            })?;
-            crate::bake::encode::exr::write_with_preview(
-                &self.output,
-                &bytes,
-                self.preview.as_deref(),
-                &report.map,
-                self.overwrite,
-            )?;
-            report.fixed = Some(fixed.stats);
-        }
+            })?
+        } else {
+            return Ok(report);
+        };
+        crate::bake::encode::exr::write_with_preview(
+            &self.output,
+            &bytes,
+            self.preview.as_deref(),
+            &report.map,
+            self.overwrite,
+        )?;
         Ok(report)
     }
 
