@@ -115,6 +115,17 @@ fn peak_rss() -> u64 {
 
 fn main() {
     let args: Vec<String> = std::env::args().skip(1).collect();
+    if args.is_empty() || args.iter().any(|a| a == "--help" || a == "-h") {
+        // The usage is the module comment's example.
+        println!(
+            "usage: ortho_view FILE --grid density --scale 5 --dir=DX,DY,DZ --center=X,Y,Z \
+             --up=X,Y,Z --frame F --res WxH [--estimator NAME] [--step S] [--spp N] [--seed S] \
+             [--interp trilinear|nearest] [--threads N[,M]] [--reps R] [--index-offset O] \
+             [--out t.exr] [--order auto|rays] [--check 1] [--slices K] [--pinhole DIST]\n       \
+             ortho_view --compare A.exr:CH B.exr:CH"
+        );
+        return;
+    }
     if args.first().map(String::as_str) == Some("--compare") && args.len() == 3 {
         compare(&args[1], &args[2]);
         return;
@@ -128,7 +139,11 @@ fn main() {
             if let Some((k, v)) = k.split_once('=') {
                 opt.insert(k.to_string(), v.to_string());
             } else {
-                opt.insert(k.to_string(), args[i + 1].clone());
+                let Some(v) = args.get(i + 1) else {
+                    eprintln!("ortho_view: --{k} needs a value (see --help)");
+                    std::process::exit(2);
+                };
+                opt.insert(k.to_string(), v.clone());
                 i += 1;
             }
         } else {

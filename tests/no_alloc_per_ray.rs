@@ -1,12 +1,15 @@
 //! The hot paths allocate nothing per ray once a thread is warm: a counting global allocator
 //! wraps the system one, and after one warm-up ray per estimator, 200 more rays through
-//! `data/cloud.vdb` (several samples each) must not allocate at all.
+//! `data/cloud.vdb` (several samples each) must not allocate at all. Only the test's own thread
+//! is counted, and only while it traces: the test harness's threads may allocate meanwhile
+//! (a process-wide count failed once on a loaded machine).
 //!
 //! Excluded, and why: the power-series family (`unbiased-raymarch`, `jackknife`: per-sample
 //! coefficient vectors whose length is the random series order).
 #![allow(unsafe_code, clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::sync::atomic::{AtomicU64, Ordering};
 use umbra::estimate::{estimate, Estimator, Options};
 use umbra::{Interp, Ray, Volume};
@@ -15,17 +18,30 @@ struct Counting;
 
 static ALLOCS: AtomicU64 = AtomicU64::new(0);
 
+thread_local! {
+    /// Whether this thread's allocations are counted (const-initialised: reading it never
+    /// allocates).
+    static COUNTING: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Count an allocation of the current thread if it is being counted.
+fn count() {
+    if COUNTING.try_with(Cell::get).unwrap_or(false) {
+        ALLOCS.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
 // SAFETY: forwards every call to the system allocator unchanged; only counts.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        count();
         System.alloc(layout)
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
         System.dealloc(ptr, layout);
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        ALLOCS.fetch_add(1, Ordering::Relaxed);
+        count();
         System.realloc(ptr, layout, new_size)
     }
 }
@@ -72,9 +88,11 @@ fn estimators_do_not_allocate_per_ray() {
             }
             let before = ALLOCS.load(Ordering::Relaxed);
             let mut sum = 0.0;
+            COUNTING.with(|c| c.set(true));
             for (i, r) in rays.iter().enumerate() {
                 sum += estimate(&vol, r, i as u64, &est, &opts).unwrap().value;
             }
+            COUNTING.with(|c| c.set(false));
             let allocs = ALLOCS.load(Ordering::Relaxed) - before;
             assert!(sum.is_finite() && sum > 0.0, "{name}: {sum}");
             assert_eq!(
