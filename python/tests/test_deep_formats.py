@@ -249,3 +249,30 @@ def test_compare_deep_reports_every_encoding(cli, tmp_path):
     assert "| avsm:8 |" in md and "Smallest on average" in md
     svg = (out / "deep_error_vs_bytes.svg").read_text()
     assert "lokovic-veach" in svg and "avsm" in svg and "RMS error" in svg
+
+
+@pytest.mark.parametrize("kind", ["cube", "latlong"])
+def test_omni_maps_hold_their_error_along_every_texel(cli, tmp_path, kind):
+    """A light inside the cloud: a cube or latlong fixed-size map looked up along every texel's
+    direction (as OpenEXR's ImfEnvmap places texels) at 12 depths, within the header's bound
+    of the exact T of the segment from the light."""
+    from test_omni import _texel_dirs
+
+    out = tmp_path / "omni.exr"
+    cli("bake", DATA / "cloud.vdb", "--light-pos", "0,1.5,0", "--omni", kind, "--res", "12",
+        "--density-scale", "4", "--deep-format", "avsm:8", "-o", out, "--quiet")
+    img, header = oiio_read(out)
+    h, w = img.shape[:2]
+    axes = np.stack([np.asarray(header[f"umbra:omni_{a}"], dtype=np.float64) for a in "xyz"])
+    dirs = _texel_dirs(kind, w, h).reshape(-1, 3) @ axes
+    dirs /= np.linalg.norm(dirs, axis=1)[:, None]
+    near, far = float(header["umbra:deep_near"]), float(header["umbra:deep_far"])
+    depths = near + (far - near) * (np.arange(12) + 0.5) / 12
+    light = np.asarray(header["umbra:camera_origin"], dtype=np.float64)
+    pts = (light + dirs[:, None, :] * depths[None, :, None]).reshape(-1, 3)
+    got = umbra.deep_lookup(img, header, pts)
+    vol = umbra.Volume(str(DATA / "cloud.vdb"), density_scale=4)
+    exact = vol.transmittance(np.broadcast_to(light, pts.shape), pts)
+    bound = float(header["umbra:deep_max_error"])
+    assert np.abs(got - exact).max() <= bound + 1e-6, (np.abs(got - exact).max(), bound)
+    assert np.abs(got - exact).max() > 0

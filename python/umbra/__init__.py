@@ -240,30 +240,10 @@ def run_job(
     return json.loads(report)
 
 
-def sample_omni(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
-    """Look an omnidirectional map (``umbra bake --omni cube|latlong``) up toward world
-    ``points``: for each point ``p``, the map's value along the ray from the light ``P`` through
-    ``p`` (T of that whole ray, as the map holds it), bilinear between the texels around the
-    direction, as OpenEXR's ``ImfEnvmap`` places them.
-
-    ``image``: the map as read, ``(H, W)`` or ``(H, W, C)``. ``header``: the EXR's attributes
-    as OpenImageIO's ``spec.extra_attribs`` give them (``umbra:camera_kind``,
-    ``umbra:camera_origin``, ``umbra:omni_x``/``_y``/``_z``), or the dict ``bake`` and
-    ``Volume.bake`` return (its ``camera``). ``points``: ``(3,)`` or ``(K, 3)``. Returns
-    ``(K,)`` (or ``(K, C)``).
-
-    The direction ``d = p - P`` in the map's axes, ``(x, y, z) = (d . X_m, d . Y_m, d . Z_m)``,
-    lands at (the inverse of the texel directions of ``docs/omni.md``):
-
-    - latlong (``W x H``): ``lat = asin(y / |d|)``, ``lon = atan2(x, z)``, at
-      ``(W - 1) (1/2 - lon / 2 pi), (H - 1) (1/2 - lat / pi)``;
-    - cube (``N x 6N``): the face of the largest ``|component|`` (``+X, -X, +Y, -Y, +Z, -Z``
-      from the top); in it OpenEXR's ``faceAndPixelPosition`` and ``pixelPosition``.
-    """
-    img = np.asarray(image, dtype=np.float64)
-    if img.ndim not in (2, 3):
-        raise _invalid("image", f"expected (H, W) or (H, W, C), got shape {img.shape}")
-    h, w = img.shape[:2]
+def _omni_coords(header: Dict[str, Any], points: Any, h: int, w: int):
+    """Where world ``points`` land in an omnidirectional map of ``h x w`` texels (see
+    :func:`sample_omni`): the texels around each ``(i0, j0, i1, j1)``, the bilinear weights
+    ``(fx, fy)`` and each point's distance from the light."""
     if "camera" in header and isinstance(header["camera"], dict):
         cam = header["camera"]
         kind, origin = cam.get("kind"), cam.get("origin")
@@ -315,7 +295,35 @@ def sample_omni(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
     j0 = np.floor(py).astype(np.int64)
     i1 = np.minimum(i0 + 1, hi_x.astype(np.int64))
     j1 = np.minimum(j0 + 1, hi_y.astype(np.int64))
-    fx_, fy_ = px - i0, py - j0
+    fx, fy = px - i0, py - j0
+    return i0, j0, i1, j1, fx, fy, np.sqrt(x * x + y * y + z * z)
+
+
+def sample_omni(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
+    """Look an omnidirectional map (``umbra bake --omni cube|latlong``) up toward world
+    ``points``: for each point ``p``, the map's value along the ray from the light ``P`` through
+    ``p`` (T of that whole ray, as the map holds it), bilinear between the texels around the
+    direction, as OpenEXR's ``ImfEnvmap`` places them.
+
+    ``image``: the map as read, ``(H, W)`` or ``(H, W, C)``. ``header``: the EXR's attributes
+    as OpenImageIO's ``spec.extra_attribs`` give them (``umbra:camera_kind``,
+    ``umbra:camera_origin``, ``umbra:omni_x``/``_y``/``_z``), or the dict ``bake`` and
+    ``Volume.bake`` return (its ``camera``). ``points``: ``(3,)`` or ``(K, 3)``. Returns
+    ``(K,)`` (or ``(K, C)``).
+
+    The direction ``d = p - P`` in the map's axes, ``(x, y, z) = (d . X_m, d . Y_m, d . Z_m)``,
+    lands at (the inverse of the texel directions of ``docs/omni.md``):
+
+    - latlong (``W x H``): ``lat = asin(y / |d|)``, ``lon = atan2(x, z)``, at
+      ``(W - 1) (1/2 - lon / 2 pi), (H - 1) (1/2 - lat / pi)``;
+    - cube (``N x 6N``): the face of the largest ``|component|`` (``+X, -X, +Y, -Y, +Z, -Z``
+      from the top); in it OpenEXR's ``faceAndPixelPosition`` and ``pixelPosition``.
+    """
+    img = np.asarray(image, dtype=np.float64)
+    if img.ndim not in (2, 3):
+        raise _invalid("image", f"expected (H, W) or (H, W, C), got shape {img.shape}")
+    h, w = img.shape[:2]
+    i0, j0, i1, j1, fx_, fy_, _ = _omni_coords(header, points, h, w)
     if img.ndim == 3:
         fx_, fy_ = fx_[:, None], fy_[:, None]
     out = ((img[j0, i0] * (1 - fx_) + img[j0, i1] * fx_) * (1 - fy_)
@@ -488,14 +496,17 @@ def deep_lookup(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
     ``channelnames``. ``header``: the EXR's attributes as OpenImageIO's ``spec.extra_attribs``
     give them (``umbra:deep_format``, ``umbra:deep_near``, ``umbra:deep_far``,
     ``umbra:camera_kind``, ``umbra:camera_origin``, ``umbra:camera_step_x``,
-    ``umbra:camera_step_y``, ``umbra:camera_direction``) plus ``channelnames``. ``points``:
-    ``(3,)`` or ``(K, 3)``. Returns ``(K,)``, or ``(K, 3)`` for a colour map (R, G, B).
+    ``umbra:camera_step_y``, ``umbra:camera_direction``; ``umbra:omni_x``/``_y``/``_z`` for
+    an omnidirectional map) plus ``channelnames``. ``points``: ``(3,)`` or ``(K, 3)``. Returns
+    ``(K,)``, or ``(K, 3)`` for a colour map (R, G, B).
 
     A point at pixel coordinates ``(i, j)`` (pixel ``(i, j)``'s ray starts at
     ``origin + i step_x + j step_y``) and distance ``t`` along the ray: orthographic
     ``i = v . s_x / |s_x|^2``, ``j = v . s_y / |s_y|^2``, ``t = v . d`` (``v = p - origin``);
     perspective ``v = k (d + i s_x + j s_y)`` with ``k = v . f`` (``f`` the unit forward axis,
-    ``d . f = 1``), ``t = |v|``. ``u = (t - near) / (far - near)``; see
+    ``d . f = 1``), ``t = |v|``; cube and latlong maps place the direction from the light as
+    :func:`sample_omni` does, ``t`` the distance from the light. ``u = (t - near) / (far -
+    near)``; see
     :func:`deep_transmittance` for the formats."""
     img = np.asarray(image, dtype=np.float32)
     if img.ndim != 3:
@@ -506,34 +517,37 @@ def deep_lookup(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
         raise _invalid("header", "not a fixed-size deep map read with its channelnames "
                        "(umbra:deep_format and one channel name per image channel)")
     kind = header.get("umbra:camera_kind")
-    if kind not in ("ortho", "perspective"):
-        raise _invalid("header", f"deep_lookup reads orthographic and perspective maps, not {kind!r}")
-    vec = lambda k: np.asarray(header[f"umbra:camera_{k}"], dtype=np.float64)
-    o, sx, sy, d = vec("origin"), vec("step_x"), vec("step_y"), vec("direction")
     near, far = float(header["umbra:deep_near"]), float(header["umbra:deep_far"])
-    p = np.atleast_2d(np.asarray(points, dtype=np.float64))
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise _invalid("points", f"expected (3,) or (K, 3), got shape {np.shape(points)}")
-    v = p - o
-    if kind == "ortho":
-        dn = d / np.linalg.norm(d)
-        i, j, t = v @ sx / (sx @ sx), v @ sy / (sy @ sy), v @ dn
-    else:
-        f = np.cross(sx, sy)
-        f = f / np.linalg.norm(f)
-        f = f if f @ d > 0 else -f
-        k = v @ f / (d @ f)
-        with np.errstate(all="ignore"):
-            q = v / k[:, None] - d
-        i, j, t = q @ sx / (sx @ sx), q @ sy / (sy @ sy), np.linalg.norm(v, axis=1)
     h, w = img.shape[:2]
+    if kind in ("cube", "latlong"):
+        i0, j0, i1, j1, fx, fy, t = _omni_coords(header, points, h, w)
+    elif kind in ("ortho", "perspective"):
+        vec = lambda k: np.asarray(header[f"umbra:camera_{k}"], dtype=np.float64)
+        o, sx, sy, d = vec("origin"), vec("step_x"), vec("step_y"), vec("direction")
+        p = np.atleast_2d(np.asarray(points, dtype=np.float64))
+        if p.ndim != 2 or p.shape[1] != 3:
+            raise _invalid("points", f"expected (3,) or (K, 3), got shape {np.shape(points)}")
+        v = p - o
+        if kind == "ortho":
+            dn = d / np.linalg.norm(d)
+            i, j, t = v @ sx / (sx @ sx), v @ sy / (sy @ sy), v @ dn
+        else:
+            f = np.cross(sx, sy)
+            f = f / np.linalg.norm(f)
+            f = f if f @ d > 0 else -f
+            k = v @ f / (d @ f)
+            with np.errstate(all="ignore"):
+                q = v / k[:, None] - d
+            i, j, t = q @ sx / (sx @ sx), q @ sy / (sy @ sy), np.linalg.norm(v, axis=1)
+        px, py = np.clip(i, 0, w - 1), np.clip(j, 0, h - 1)
+        i0, j0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
+        i1, j1 = np.minimum(i0 + 1, w - 1), np.minimum(j0 + 1, h - 1)
+        fx, fy = px - i0, py - j0
+    else:
+        raise _invalid("header", f"not an umbra map (camera kind {kind!r})")
     u = (t - near) / (far - near)
     layers = ["deepR", "deepG", "deepB"] if any(n.startswith("deepR.") for n in names) else ["deep"]
     order = _channel_order(fmt)
-    px, py = np.clip(i, 0, w - 1), np.clip(j, 0, h - 1)
-    i0, j0 = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
-    i1, j1 = np.minimum(i0 + 1, w - 1), np.minimum(j0 + 1, h - 1)
-    fx, fy = px - i0, py - j0
     out = []
     for layer in layers:
         cols = [names.index(f"{layer}.{c}") for c in order]
