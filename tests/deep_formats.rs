@@ -154,3 +154,67 @@ fn extreme_media_give_monotone_bounded_texels_within_the_reported_error() {
         }
     }
 }
+
+#[test]
+fn the_stress_catalogue_gives_monotone_bounded_texels() {
+    // Every medium of `compare --stress` (densities 1e-8 to 1e6, spikes, majorant ratios of
+    // 1e6, NaN/-Inf/negative/+Inf voxels, half floats, huge coordinates, tiny and huge voxels,
+    // tiles only), baked in every format seen from above: each texel's T in [0, 1] and never
+    // growing at 200 depths, the header's bound finite and at most 1.
+    let dir = tempfile::tempdir().unwrap();
+    let mut baked = 0;
+    for case in umbra::compare::stress::catalogue(1).unwrap() {
+        let scene = umbra::scene::Scene::from_volume(case.volume);
+        let Ok(corners) = scene.box_corners() else {
+            continue; // the empty grid frames nothing
+        };
+        let view = View {
+            projection: Projection::Ortho,
+            light_dir: Some([0.3, -1.0, 0.2]),
+            res: Some(Resolution::Exact(12, 12)),
+            ..View::default()
+        };
+        let camera = umbra::bake::Camera::frame(&view, &corners).unwrap();
+        for f in FORMATS {
+            let format: DeepFormat = f.parse().unwrap();
+            let out = dir.path().join("s.exr");
+            let mut j = job(&corpus("extreme_tiny_1e-8.vdb"), out.clone(), format, false);
+            j.view = view.clone();
+            let report = j.run_loaded(&scene, camera.clone(), &|_| {}).unwrap();
+            let stats = report.fixed.unwrap();
+            assert!(
+                stats.max_error.is_finite() && stats.max_error <= 1.0,
+                "{}",
+                case.name
+            );
+            let (chans, _) = read(&out);
+            let cols: Vec<&Vec<f32>> = format
+                .channel_names()
+                .iter()
+                .map(|n| {
+                    &chans
+                        .iter()
+                        .find(|(c, _)| *c == format!("deep.{n}"))
+                        .unwrap()
+                        .1
+                })
+                .collect();
+            for p in 0..cols[0].len() {
+                let c: Vec<f32> = cols.iter().map(|v| v[p]).collect();
+                assert!(c.iter().all(|v| v.is_finite()), "{} {f}: {c:?}", case.name);
+                let mut prev = 1.0f64;
+                for k in 0..=200 {
+                    let t = format.transmittance(&c, f64::from(k) / 200.0);
+                    assert!(
+                        (0.0..=prev + 1e-12).contains(&t),
+                        "{} {f} texel {p}: {t}",
+                        case.name
+                    );
+                    prev = t;
+                }
+            }
+            baked += 1;
+        }
+    }
+    assert!(baked >= 10 * FORMATS.len(), "{baked} maps");
+}
