@@ -179,8 +179,8 @@ fn the_stress_catalogue_gives_monotone_bounded_texels() {
             let format: DeepFormat = f.parse().unwrap();
             let out = dir.path().join("s.exr");
             let mut j = job(&corpus("extreme_tiny_1e-8.vdb"), out.clone(), format, false);
-            j.view = view.clone();
-            let report = j.run_loaded(&scene, camera.clone(), &|_| {}).unwrap();
+            j.view = view;
+            let report = j.run_loaded(&scene, camera, &|_| {}).unwrap();
             let stats = report.fixed.unwrap();
             assert!(
                 stats.max_error.is_finite() && stats.max_error <= 1.0,
