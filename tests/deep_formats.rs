@@ -81,6 +81,35 @@ fn read(path: &Path) -> Read {
     (chans, attrs)
 }
 
+/// Every texel's stored values, in the order of the format's channel names (`deep.<name>`).
+fn texels(format: DeepFormat, chans: &[(String, Vec<f32>)]) -> Vec<Vec<f32>> {
+    let cols: Vec<&Vec<f32>> = format
+        .channel_names()
+        .iter()
+        .map(|n| {
+            &chans
+                .iter()
+                .find(|(c, _)| *c == format!("deep.{n}"))
+                .unwrap()
+                .1
+        })
+        .collect();
+    (0..cols[0].len())
+        .map(|p| cols.iter().map(|v| v[p]).collect())
+        .collect()
+}
+
+/// The texel's T in [0, 1] and never growing (beyond 1e-12) at 201 depths.
+fn monotone_and_bounded(format: DeepFormat, c: &[f32], what: &str) {
+    let mut prev = 1.0f64;
+    for k in 0..=200 {
+        let t = format.transmittance(c, f64::from(k) / 200.0);
+        assert!((0.0..=1.0).contains(&t), "{what}: T = {t}");
+        assert!(t <= prev + 1e-12, "{what}: T grows to {t}");
+        prev = t;
+    }
+}
+
 #[test]
 fn extreme_media_give_monotone_bounded_texels_within_the_reported_error() {
     let files = [
@@ -106,28 +135,11 @@ fn extreme_media_give_monotone_bounded_texels_within_the_reported_error() {
                 "{name} {f}: {bound}"
             );
             let (near, far) = (attrs["umbra:deep_near"], attrs["umbra:deep_far"]);
-            let names = format.channel_names();
-            let cols: Vec<&Vec<f32>> = names
-                .iter()
-                .map(|n| {
-                    &chans
-                        .iter()
-                        .find(|(c, _)| *c == format!("deep.{n}"))
-                        .unwrap()
-                        .1
-                })
-                .collect();
+            let texels = texels(format, &chans);
             let cam = &report.map.camera;
             let vol = (!solid).then(|| Volume::load(&input, "density", 1.0).unwrap());
-            for p in 0..cols[0].len() {
-                let c: Vec<f32> = cols.iter().map(|v| v[p]).collect();
-                let mut prev = 1.0f64;
-                for k in 0..=200 {
-                    let t = format.transmittance(&c, f64::from(k) / 200.0);
-                    assert!((0.0..=1.0).contains(&t), "{name} {f} texel {p}: T = {t}");
-                    assert!(t <= prev + 1e-12, "{name} {f} texel {p}: T grows to {t}");
-                    prev = t;
-                }
+            for (p, c) in texels.iter().enumerate() {
+                monotone_and_bounded(format, c, &format!("{name} {f} texel {p}"));
                 // The bound against exact regular tracking (fog volumes; the level set is a
                 // solid, whose first hit the deep profile holds).
                 let Some(vol) = vol.as_ref() else {
@@ -144,7 +156,7 @@ fn extreme_media_give_monotone_bounded_texels_within_the_reported_error() {
                     let exact = umbra::regular::optical_depth(vol, &cut, umbra::Interp::Trilinear)
                         .unwrap()
                         .transmittance();
-                    let got = format.transmittance(&c, (z - near) / (far - near));
+                    let got = format.transmittance(c, (z - near) / (far - near));
                     assert!(
                         (got - exact).abs() <= bound + 1e-6,
                         "{name} {f} texel {p} depth {z}: {got} vs exact {exact} (bound {bound})"
@@ -188,30 +200,10 @@ fn the_stress_catalogue_gives_monotone_bounded_texels() {
                 case.name
             );
             let (chans, _) = read(&out);
-            let cols: Vec<&Vec<f32>> = format
-                .channel_names()
-                .iter()
-                .map(|n| {
-                    &chans
-                        .iter()
-                        .find(|(c, _)| *c == format!("deep.{n}"))
-                        .unwrap()
-                        .1
-                })
-                .collect();
-            for p in 0..cols[0].len() {
-                let c: Vec<f32> = cols.iter().map(|v| v[p]).collect();
+            let texels = texels(format, &chans);
+            for (p, c) in texels.iter().enumerate() {
                 assert!(c.iter().all(|v| v.is_finite()), "{} {f}: {c:?}", case.name);
-                let mut prev = 1.0f64;
-                for k in 0..=200 {
-                    let t = format.transmittance(&c, f64::from(k) / 200.0);
-                    assert!(
-                        (0.0..=prev + 1e-12).contains(&t),
-                        "{} {f} texel {p}: {t}",
-                        case.name
-                    );
-                    prev = t;
-                }
+                monotone_and_bounded(format, c, &format!("{} {f} texel {p}", case.name));
             }
             baked += 1;
         }

@@ -173,16 +173,6 @@ void main() {
 """
 
 
-def channel_order(fmt):
-    name, _, k = fmt.partition(":")
-    k = int(k)
-    if name == "fourier":
-        return ["a0"] + [f"{ab}{i}" for i in range(1, k // 2 + 1) for ab in "ab"]
-    if name == "moments":
-        return ["b0"] + [f"m{i}" for i in range(1, k + 1)]
-    return [f"{zt}{i}" for i in range(k) for zt in ("z", "tau")]
-
-
 def test_glsl_reconstructions_agree_with_python(cli, tmp_path):
     """examples/deep_formats.glsl run on a GPU (Mesa's llvmpipe through EGL where there is no
     other) against umbra.deep_transmittance, on every texel of baked maps at 49 depths."""
@@ -198,7 +188,7 @@ def test_glsl_reconstructions_agree_with_python(cli, tmp_path):
             "--density-scale", "4", "--deep-format", fmt, "-o", out, "--quiet")
         ch = OpenEXR.File(str(out), separate_channels=True).channels()
         coef = np.stack([np.asarray(ch[f"deep.{n}"].pixels, dtype=np.float32).ravel()
-                         for n in channel_order(fmt)], -1)
+                         for n in umbra._channel_order(fmt)], -1)
         u = np.linspace(-0.05, 1.05, 49)
         c = np.repeat(coef, len(u), axis=0)
         uu = np.tile(u, len(coef))

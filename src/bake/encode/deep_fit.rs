@@ -48,18 +48,47 @@ impl DeepSample {
 /// linear inside each sample and constant between them (0 before the first).
 #[must_use]
 pub fn fitted_transmittance(samples: &[DeepSample], z: f64) -> f64 {
+    (-samples_tau(samples.iter().map(|s| (s.z0, s.z1, s.tau0, s.tau1)), z)).exp()
+}
+
+/// `tau_fit(z)` of sorted samples `(z0, z1, tau0, tau1)`: linear inside each, constant between
+/// them, 0 before the first (what [`fitted_transmittance`] exponentiates).
+pub(crate) fn samples_tau(samples: impl Iterator<Item = (f64, f64, f64, f64)>, z: f64) -> f64 {
     let mut tau = 0.0;
-    for s in samples {
-        if z >= s.z1 {
-            tau = s.tau1;
-        } else if z > s.z0 {
-            tau = s.tau0 + (s.tau1 - s.tau0) * (z - s.z0) / (s.z1 - s.z0);
+    for (z0, z1, tau0, tau1) in samples {
+        if z >= z1 {
+            tau = tau1;
+        } else if z > z0 {
+            tau = tau0 + (tau1 - tau0) * (z - z0) / (z1 - z0);
             break;
         } else {
             break;
         }
     }
-    (-tau).exp()
+    tau
+}
+
+/// `y` at `x` on the breakpoints `(xs_k, ys_k)` (`xs` sorted): linear between them, constant
+/// outside; at a repeated breakpoint (a jump) the value after it.
+pub(crate) fn linear_at(xs: &[f64], ys: &[f64], x: f64) -> f64 {
+    let n = xs.len();
+    let k = xs.partition_point(|&v| v <= x);
+    if n == 0 {
+        return 0.0;
+    }
+    if k == 0 {
+        return ys[0];
+    }
+    if k == n {
+        return ys[n - 1];
+    }
+    let (x0, x1) = (xs[k - 1], xs[k]);
+    let w = if x1 > x0 {
+        ((x - x0) / (x1 - x0)).clamp(0.0, 1.0)
+    } else {
+        1.0
+    };
+    ys[k - 1] + (ys[k] - ys[k - 1]) * w
 }
 
 /// The largest `|exp(-a(t)) - exp(-b(t))|` over `[t0, t1]` for `a` linear from `a0` to `a1`

@@ -157,7 +157,7 @@ fn encode_exr(
     prov: &Provenance,
     layout: &ExrLayout,
 ) -> std::result::Result<Vec<u8>, String> {
-    encode_exr_with(map, prov, layout, &[], Vec::new())
+    encode_exr_with(map, prov, layout, Vec::new(), Vec::new())
 }
 
 /// [`encode_exr`] with more channels (one value per pixel each; scanline and tiled layouts,
@@ -166,7 +166,7 @@ pub(crate) fn encode_exr_with(
     map: &Map,
     prov: &Provenance,
     layout: &ExrLayout,
-    planes: &[(String, Vec<f32>)],
+    planes: Vec<(String, Vec<f32>)>,
     attrs: Vec<(String, AttributeValue)>,
 ) -> std::result::Result<Vec<u8>, String> {
     if layout.mipmap && !planes.is_empty() {
@@ -248,7 +248,7 @@ pub(crate) fn encode_exr_with(
         for (name, data) in planes {
             let name =
                 Text::new_or_none(name.as_str()).ok_or("a channel name that is not ASCII")?;
-            list.push(AnyChannel::new(name, FlatSamples::F32(data.clone())));
+            list.push(AnyChannel::new(name, FlatSamples::F32(data)));
         }
         let image = Image::from_layer(Layer::new(size, a, enc, AnyChannels::sort(list)));
         encode!(image)

@@ -24,7 +24,7 @@
 //! between them, fitted within `E / 2`.
 
 use crate::bake::encode::deep_exr::{DeepAttributes, DeepImage};
-use crate::bake::encode::deep_fit::{check_deep_error, fit_spans};
+use crate::bake::encode::deep_fit::{check_deep_error, fit_spans, linear_at, samples_tau};
 use crate::bake::encode::exr::{m44f, umbra_attributes};
 use crate::bake::trace::in_pool;
 use crate::bake::{Map, Provenance, MAX_SLICES};
@@ -212,35 +212,9 @@ struct Row {
 /// Uniform depths of the RMS error ([`DeepStats::rms_error`]).
 const RMS_DEPTHS: usize = 65;
 
-/// `tau` at `z` of the breakpoints `(t_k, tau_k)`, linear between them, constant outside.
-fn tau_at(t: &[f64], tau: &[f64], z: f64) -> f64 {
-    let k = t.partition_point(|&x| x <= z);
-    if k == 0 {
-        return tau.first().copied().unwrap_or(0.0);
-    }
-    if k == t.len() {
-        return tau[k - 1];
-    }
-    let (t0, t1) = (t[k - 1], t[k]);
-    let w = if t1 > t0 { (z - t0) / (t1 - t0) } else { 1.0 };
-    tau[k - 1] + (tau[k] - tau[k - 1]) * w
-}
-
-/// `tau` at `z` of deep samples `spans` (breakpoint pairs of `t`, `tau`): linear inside a
-/// sample, constant between samples, 0 before the first.
+/// `tau` at `z` of deep samples `spans` (breakpoint pairs of `t`, `tau`).
 fn fitted_tau(spans: &[(usize, usize)], t: &[f64], tau: &[f64], z: f64) -> f64 {
-    let mut v = 0.0;
-    for &(i, j) in spans {
-        if z >= t[j] {
-            v = tau[j];
-        } else if z > t[i] {
-            let w = (z - t[i]) / (t[j] - t[i]);
-            return tau[i] + (tau[j] - tau[i]) * w;
-        } else {
-            break;
-        }
-    }
-    v
+    samples_tau(spans.iter().map(|&(i, j)| (t[i], t[j], tau[i], tau[j])), z)
 }
 
 impl Row {
@@ -283,7 +257,7 @@ impl Row {
                     continue;
                 }
                 let e =
-                    (-tau_at(&prof.t, tau, z)).exp() - (-fitted_tau(&spans, &prof.t, tau, z)).exp();
+                    (-linear_at(&prof.t, tau, z)).exp() - (-fitted_tau(&spans, &prof.t, tau, z)).exp();
                 self.sum_sq += e * e;
             }
         }

@@ -713,7 +713,7 @@ impl BakeJob {
                 &report.map,
                 &report.provenance,
                 &self.layout,
-                &fixed.planes,
+                fixed.planes,
                 attrs,
             )
             .map_err(|e| Error::Output {

@@ -258,14 +258,7 @@ impl NormProfile {
             }
             lerp(self.u[k - 1], self.u[k], self.tau[k - 1], self.tau[k], u)
         } else {
-            let k = self.u.partition_point(|&x| x <= u);
-            if k == 0 {
-                return self.tau[0];
-            }
-            if k == n {
-                return self.tau[n - 1];
-            }
-            lerp(self.u[k - 1], self.u[k], self.tau[k - 1], self.tau[k], u)
+            crate::bake::encode::deep_fit::linear_at(&self.u, &self.tau, u)
         }
     }
 
@@ -325,12 +318,14 @@ pub fn texel_error(format: DeepFormat, c: &[f32], p: &NormProfile, threshold: f6
     pts.sort_by(f64::total_cmp);
     pts.dedup();
     let mut out = TexelError::default();
-    for i in 0..=ERROR_GRID {
-        let u = i as f64 / ERROR_GRID as f64;
-        let ((_, r), (_, q)) = eval(u);
-        out.sum_sq += (r - q) * (r - q);
-    }
     let vals: Vec<_> = pts.iter().map(|&u| eval(u)).collect();
+    // The squared errors at the uniform depths (the points on the grid; a jump on a grid point
+    // is that point).
+    for (&u, ((_, r), (_, q))) in pts.iter().zip(&vals) {
+        if (u * ERROR_GRID as f64).fract() == 0.0 {
+            out.sum_sq += (r - q) * (r - q);
+        }
+    }
     for ((rl, rr), (ql, qr)) in &vals {
         out.seen = out.seen.max((rl - ql).abs()).max((rr - qr).abs());
     }

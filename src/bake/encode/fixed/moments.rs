@@ -118,7 +118,7 @@ fn fraction_before(m: &[f64], x: f64) -> f64 {
     // interpolation ill-conditioned (the leading coefficient near 0): drop it, the limit of the
     // bound as it goes to infinity.
     let mut d = 0;
-    for r in roots.into_iter().filter(|r| r.abs() <= FAR_ROOT) {
+    for &r in roots.iter().filter(|r| r.abs() <= FAR_ROOT) {
         d += 1;
         atoms[d] = r;
     }
@@ -206,17 +206,44 @@ fn solve_hankel(m: &[f64], n: usize, rhs: [f64; 4]) -> Option<[f64; 4]> {
     Some(y)
 }
 
+/// Up to three real roots, without an allocation (the reconstruction runs thousands of times
+/// per texel while its error is bounded).
+#[derive(Debug, Clone, Copy, Default)]
+struct Roots {
+    r: [f64; 3],
+    n: usize,
+}
+
+impl Roots {
+    fn of(r: &[f64]) -> Self {
+        let mut out = Self::default();
+        for &x in r {
+            out.push(x);
+        }
+        out
+    }
+
+    fn push(&mut self, x: f64) {
+        self.r[self.n] = x;
+        self.n += 1;
+    }
+
+    fn iter(&self) -> impl Iterator<Item = &f64> {
+        self.r[..self.n].iter()
+    }
+}
+
 /// The real roots of `a y^2 + b y + c` (two; a double root twice).
-fn quadratic(a: f64, b: f64, c: f64) -> Option<Vec<f64>> {
+fn quadratic(a: f64, b: f64, c: f64) -> Option<Roots> {
     if a == 0.0 {
-        return (b != 0.0).then(|| vec![-c / b]);
+        return (b != 0.0).then(|| Roots::of(&[-c / b]));
     }
     let disc = (b * b - 4.0 * a * c).max(0.0);
     let q = -0.5 * (b + b.signum() * disc.sqrt());
     if q == 0.0 {
-        return Some(vec![0.0, 0.0]);
+        return Some(Roots::of(&[0.0, 0.0]));
     }
-    Some(vec![q / a, c / q])
+    Some(Roots::of(&[q / a, c / q]))
 }
 
 /// The real roots of `a y^3 + b y^2 + c y + d`, which has three (the kernel polynomial of a
@@ -224,7 +251,7 @@ fn quadratic(a: f64, b: f64, c: f64) -> Option<Vec<f64>> {
 /// polished by two Newton steps, then the other two from the quadratic left by dividing it out
 /// from the constant term (stable when that root is large: a root far outside `[-1, 1]`, where
 /// the trigonometric solution loses the small ones to cancellation).
-fn cubic(a: f64, b: f64, c: f64, d: f64) -> Option<Vec<f64>> {
+fn cubic(a: f64, b: f64, c: f64, d: f64) -> Option<Roots> {
     let scale = a.abs().max(b.abs()).max(c.abs()).max(d.abs());
     if a.abs() <= 1e-14 * scale {
         return quadratic(b, c, d);
