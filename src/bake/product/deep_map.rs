@@ -256,8 +256,8 @@ impl Row {
                 if prof.opaque_at.is_some_and(|o| z >= o) {
                     continue;
                 }
-                let e =
-                    (-linear_at(&prof.t, tau, z)).exp() - (-fitted_tau(&spans, &prof.t, tau, z)).exp();
+                let e = (-linear_at(&prof.t, tau, z)).exp()
+                    - (-fitted_tau(&spans, &prof.t, tau, z)).exp();
                 self.sum_sq += e * e;
             }
         }
