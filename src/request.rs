@@ -27,7 +27,7 @@ use crate::bake::{
     View, VolumeJob, DEFAULT_DEEP_ERROR, DEFAULT_OUT_GRID,
 };
 use crate::error::{Error, Result};
-use crate::estimate::{Estimator, Options};
+use crate::estimate::{ColourWalk, Estimator, Options};
 use crate::traverse::Granularity;
 use crate::Interp;
 use serde::{Deserialize, Serialize};
@@ -261,6 +261,12 @@ pub struct BakeOptions {
     /// One majorant for the whole grid (the naive baseline).
     #[cfg_attr(feature = "cli", arg(long))]
     pub global_majorant: bool,
+    /// How a coloured medium's channels are tracked by a stochastic estimator: `shared` (one
+    /// walk under the largest channel's majorant, lookups shared), `split` (a walk per channel
+    /// on its own majorants), `auto` (the estimator's measured choice; docs/colour.md).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "auto"))]
+    #[serde(default)]
+    pub colour_walk: ColourWalk,
     /// Tracing order of a map: `auto` (object order where the sweep takes the map: exact,
     /// ray-marched and null-collision maps) or `rays` (one ray per pixel; a pixel of a
     /// null-collision map is then what `query --ray-id` answers).
@@ -329,6 +335,7 @@ impl Default for BakeOptions {
             points: None,
             granularity: Granularity::Leaf,
             global_majorant: false,
+            colour_walk: ColourWalk::Auto,
             order: Order::Auto,
             threads: 0,
             max_memory: None,
@@ -470,6 +477,7 @@ impl BakeOptions {
             seed: self.seed,
             granularity: self.granularity,
             global_majorant: self.global_majorant,
+            colour_walk: self.colour_walk,
             ..Options::default()
         };
         options.validate()?;

@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 use umbra::bake::{bake_scene, BakeSettings, Camera, Order, Projection, Resolution, View};
-use umbra::estimate::{estimate, Estimator, Kind, Options, REGISTRY};
+use umbra::estimate::{estimate, ColourWalk, Estimator, Kind, Options, REGISTRY};
 use umbra::regular::optical_depth;
 use umbra::scene::{self, Scene, SceneOptions};
 use umbra::{Interp, Ray, Volume};
@@ -224,8 +224,8 @@ fn unbiased() -> Vec<Estimator> {
         .collect()
 }
 
-/// Check every unbiased estimator against exact on `scene`, per channel.
-fn check_unbiased(scene: &Scene, what: &str) {
+/// Check every unbiased estimator against exact on `scene`, per channel, with `walk`.
+fn check_unbiased(scene: &Scene, what: &str, walk: ColourWalk) {
     let n = 3000;
     let mut failures = Vec::new();
     let (mut checks, mut informative) = (0, 0);
@@ -235,6 +235,7 @@ fn check_unbiased(scene: &Scene, what: &str) {
         let opts = Options {
             samples: n,
             seed: 77,
+            colour_walk: walk,
             ..Options::default()
         };
         for (i, r) in rays(10).iter().enumerate() {
@@ -255,7 +256,7 @@ fn check_unbiased(scene: &Scene, what: &str) {
                 }
                 if (e.value[c] - t).abs() > 4.0 * se {
                     failures.push(format!(
-                        "{what} {} ray {i} channel {c}: {} vs exact {t} (se {se:.2e}, {:.1} se)",
+                        "{what} {walk:?} {} ray {i} channel {c}: {} vs exact {t} (se {se:.2e}, {:.1} se)",
                         est.name(),
                         e.value[c],
                         (e.value[c] - t).abs() / se
@@ -264,7 +265,7 @@ fn check_unbiased(scene: &Scene, what: &str) {
             }
         }
     }
-    eprintln!("{what}: {checks} checks, {informative} informative");
+    eprintln!("{what} {walk:?}: {checks} checks, {informative} informative");
     assert!(
         informative * 2 > checks,
         "{informative} of {checks} informative"
@@ -277,7 +278,7 @@ fn check_unbiased(scene: &Scene, what: &str) {
 fn unbiased_estimators_on_a_two_volume_scene_match_exact() {
     let dir = tempfile::tempdir().unwrap();
     let scene = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
-    check_unbiased(&scene, "grey scene");
+    check_unbiased(&scene, "grey scene", ColourWalk::Auto);
 }
 
 #[test]
@@ -285,7 +286,6 @@ fn unbiased_estimators_on_rgb_match_exact_per_channel() {
     let dir = tempfile::tempdir().unwrap();
     let path = two_clouds(dir.path(), Some(([0.3, 1.0, 2.5], [1.5, 0.7, 0.1])));
     let scene = scene::load(&path, &SceneOptions::default()).unwrap();
-    check_unbiased(&scene, "RGB scene");
     // One volume in colour (the command line's --sigma-t on a .vdb).
     let one = scene::load(
         data("cloud.vdb"),
@@ -295,7 +295,80 @@ fn unbiased_estimators_on_rgb_match_exact_per_channel() {
         },
     )
     .unwrap();
-    check_unbiased(&one, "RGB volume");
+    // Both walks, whatever `auto` picks for each estimator: the shared walk (one majorant for
+    // every channel) and split walks (per-channel majorants).
+    for walk in [ColourWalk::Shared, ColourWalk::Split] {
+        check_unbiased(&scene, "RGB scene", walk);
+        check_unbiased(&one, "RGB volume", walk);
+    }
+}
+
+#[test]
+fn a_split_walk_is_the_single_channel_estimator_on_its_own_majorants() {
+    let tinted = |sigma: [f64; 3], density_scale: f64| {
+        scene::load(
+            data("cloud.vdb"),
+            &SceneOptions {
+                sigma_t: Some(sigma),
+                density_scale,
+                ..SceneOptions::default()
+            },
+        )
+        .unwrap()
+    };
+    let rgb = tinted([1.0; 3], 1.0);
+    for spec in REGISTRY.iter().filter(|s| !s.deterministic) {
+        let est = Estimator::from_name(spec.name).unwrap();
+        let opts = |walk| Options {
+            samples: 16,
+            seed: 9,
+            colour_walk: walk,
+            ..Options::default()
+        };
+        for (i, r) in rays(6).iter().enumerate() {
+            let id = i as u64;
+            let g = scene::estimate(&rgb, r, id, &est, &opts(ColourWalk::Shared)).unwrap();
+            let c = scene::estimate(&rgb, r, id, &est, &opts(ColourWalk::Split)).unwrap();
+            // Equal channels: the shared walk looks up once for all three; split walks are
+            // each the same single-channel walk from the same stream, three times the lookups.
+            assert_eq!(c.value, [g.value[0]; 3], "{} ray {i}", spec.name);
+            assert_eq!(c.lookups, 3 * g.lookups, "{} ray {i}", spec.name);
+        }
+    }
+    // A weak channel walks at its own rate: with blue and green at a tenth of red, the split
+    // delta tracker looks the medium up far less often than the shared one, whose weak
+    // channels sample at red's majorant once red's walk has stopped.
+    let red = tinted([1.0, 0.1, 0.1], 4.0);
+    let est = Estimator::from_name("track-length").unwrap();
+    let lookups = |walk| {
+        let opts = Options {
+            samples: 64,
+            seed: 3,
+            colour_walk: walk,
+            ..Options::default()
+        };
+        rays(12)
+            .iter()
+            .enumerate()
+            .map(|(i, r)| {
+                scene::estimate(&red, r, i as u64, &est, &opts)
+                    .unwrap()
+                    .lookups
+            })
+            .sum::<u64>()
+    };
+    let (shared, split) = (lookups(ColourWalk::Shared), lookups(ColourWalk::Split));
+    assert!(
+        (split as f64) < 0.8 * shared as f64,
+        "split {split} lookups, shared {shared}"
+    );
+    // `auto` is the registry's choice at this spread (0.1): split for the delta tracker.
+    assert_eq!(
+        ColourWalk::Auto.resolve(&est, 0.1),
+        ColourWalk::Split,
+        "track-length at spread 0.1"
+    );
+    assert_eq!(lookups(ColourWalk::Auto), split);
 }
 
 #[test]
@@ -313,6 +386,7 @@ fn the_shared_walk_looks_the_medium_up_once_for_all_channels() {
     let opts = Options {
         samples: 200,
         seed: 5,
+        colour_walk: ColourWalk::Shared,
         ..Options::default()
     };
     for (i, r) in rays(8).iter().enumerate() {

@@ -333,6 +333,7 @@ fn estimator(
     interp: Interp,
     samples: u32,
     seed: u64,
+    colour_walk: &str,
 ) -> PyResult<(Estimator, Options)> {
     let p: Vec<(&str, f64)> = params.iter().map(|(n, v)| (n.as_str(), *v)).collect();
     let est = Estimator::with_params(name, &p).map_err(py_err)?;
@@ -340,6 +341,7 @@ fn estimator(
         interp,
         samples,
         seed,
+        colour_walk: umbra::estimate::ColourWalk::from_name(colour_walk).map_err(py_err)?,
         ..Options::default()
     };
     opts.validate().map_err(py_err)?;
@@ -615,8 +617,16 @@ impl NativeVolume {
         seed: u64,
         ray_id: u64,
         threads: usize,
+        colour_walk: &str,
     ) -> PyResult<TraceOut<'py>> {
-        let (est, opts) = estimator(estimator_name, params, self.interp, samples, seed)?;
+        let (est, opts) = estimator(
+            estimator_name,
+            params,
+            self.interp,
+            samples,
+            seed,
+            colour_walk,
+        )?;
         let cancel = AtomicBool::new(false);
         let work = || {
             on_threads(threads, || {
@@ -911,7 +921,7 @@ impl NativeVolume {
 
     /// Transmittance along the segments `origins[n] -> ends[n]` (ray id `ray_id + n`).
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (origins, ends, estimator, params, samples, seed, ray_id, threads))]
+    #[pyo3(signature = (origins, ends, estimator, params, samples, seed, ray_id, threads, colour_walk = "auto"))]
     fn trace<'py>(
         &self,
         py: Python<'py>,
@@ -923,6 +933,7 @@ impl NativeVolume {
         seed: u64,
         ray_id: u64,
         threads: usize,
+        colour_walk: &str,
     ) -> PyResult<TraceOut<'py>> {
         let (o, e) = (points(&origins)?, points(&ends)?);
         if o.len() != e.len() {
@@ -935,13 +946,22 @@ impl NativeVolume {
         let n = o.len();
         let ray_of = |row: usize| Ray::between(o[row], e[row]).map_err(|e| e.to_string());
         self.run(
-            py, n, ray_of, estimator, &params, samples, seed, ray_id, threads,
+            py,
+            n,
+            ray_of,
+            estimator,
+            &params,
+            samples,
+            seed,
+            ray_id,
+            threads,
+            colour_walk,
         )
     }
 
     /// Transmittance from each point toward a light (`query --at`), ray id `ray_id + n`.
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (points_, light_dir, light_pos, estimator, params, samples, seed, ray_id, threads))]
+    #[pyo3(signature = (points_, light_dir, light_pos, estimator, params, samples, seed, ray_id, threads, colour_walk = "auto"))]
     fn trace_to_light<'py>(
         &self,
         py: Python<'py>,
@@ -954,6 +974,7 @@ impl NativeVolume {
         seed: u64,
         ray_id: u64,
         threads: usize,
+        colour_walk: &str,
     ) -> PyResult<TraceOut<'py>> {
         let light = match (light_dir, light_pos) {
             (Some(dir), None) => Light::Directional { dir },
@@ -981,7 +1002,16 @@ impl NativeVolume {
                 .map_err(|e| e.flag_named().to_string())
         };
         self.run(
-            py, n, ray_of, estimator, &params, samples, seed, ray_id, threads,
+            py,
+            n,
+            ray_of,
+            estimator,
+            &params,
+            samples,
+            seed,
+            ray_id,
+            threads,
+            colour_walk,
         )
     }
 

@@ -150,7 +150,8 @@ def _segments(origins: Any, ends: Any) -> Tuple[np.ndarray, np.ndarray]:
     return o, e
 
 
-def _sampling(estimator: str, params, samples: Any, seed: Any, ray_id: Any, threads: Any):
+def _sampling(estimator: str, params, samples: Any, seed: Any, ray_id: Any, threads: Any,
+              colour_walk: Any = "auto"):
     """The native trace calls' trailing arguments, checked."""
     return (
         str(estimator),
@@ -159,6 +160,7 @@ def _sampling(estimator: str, params, samples: Any, seed: Any, ray_id: Any, thre
         _count("seed", seed),
         _count("ray_id", ray_id),
         _count("threads", threads),
+        str(colour_walk),
     )
 
 
@@ -663,6 +665,7 @@ def bake(
     points: Optional[float] = None,
     granularity: str = "leaf",
     global_majorant: bool = False,
+    colour_walk: str = "auto",
     order: str = "auto",
     threads: int = 0,
     max_memory: Union[None, int, str] = None,
@@ -711,7 +714,8 @@ def bake(
             density_scale=density_scale, sigma_t=sigma_t, levelset=levelset,
             estimator=estimator, samples=samples, seed=seed, step=step, kernel=kernel,
             points=points, granularity=granularity, global_majorant=global_majorant,
-            order=order, threads=threads, max_memory=max_memory, force=force,
+            colour_walk=colour_walk, order=order, threads=threads, max_memory=max_memory,
+            force=force,
         ),
     )
     _warn(warns)
@@ -937,6 +941,7 @@ class Volume:
         kernel: Optional[float] = None,
         points: Optional[float] = None,
         threads: int = 0,
+        colour_walk: str = "auto",
     ):
         """Transmittance ``T = exp(-tau)`` along each segment ``origins[n] -> ends[n]`` (world
         points, (N, 3) arrays): an (N,) float64 array ((N, 3) for an RGB scene), and with
@@ -945,12 +950,13 @@ class Volume:
         ``estimator`` is any name of :func:`estimators` (``step``, ``kernel``, ``points``
         its parameters), ``samples`` independent samples per ray, ``seed`` the random
         streams: row ``n`` uses ray id ``ray_id + n``, so the answers equal ``umbra query
-        --rays`` line for line, bit for bit. ``threads``: 0 for every core.
+        --rays`` line for line, bit for bit. ``threads``: 0 for every core. ``colour_walk``
+        (an RGB scene): ``"auto"``, ``"shared"`` or ``"split"``, as ``--colour-walk``.
         """
         o, e = _segments(origins, ends)
         params = _params(step, kernel, points)
         t, err, _, warns = self._v.trace(
-            o, e, *_sampling(estimator, params, samples, seed, ray_id, threads)
+            o, e, *_sampling(estimator, params, samples, seed, ray_id, threads, colour_walk)
         )
         _warn(warns)
         return _finish(t, err, return_stderr)
@@ -979,20 +985,21 @@ class Volume:
         kernel: Optional[float] = None,
         points_per_estimate: Optional[float] = None,
         threads: int = 0,
+        colour_walk: str = "auto",
     ):
         """How much of a light reaches each point (what ``umbra query --at P`` answers):
         with ``light_dir`` (the direction the light travels) the ray from the point against it
         until it leaves every volume's box; with ``light_pos`` the segment to the light.
         ``points``: (N, 3) world points. Returns as :meth:`transmittance`; row ``n`` uses ray
         id ``ray_id + n`` (``--ray-id``). ``points_per_estimate`` is the jackknife's
-        ``--points``."""
+        ``--points``; ``colour_walk`` as in :meth:`transmittance`."""
         p = _points("points", points)
         d, q = _vec3("light_dir", light_dir), _vec3("light_pos", light_pos)
         if (d is None) == (q is None):
             raise _invalid("light_dir", "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them")
         params = _params(step, kernel, points_per_estimate)
         t, err, _, warns = self._v.trace_to_light(
-            p, d, q, *_sampling(estimator, params, samples, seed, ray_id, threads)
+            p, d, q, *_sampling(estimator, params, samples, seed, ray_id, threads, colour_walk)
         )
         _warn(warns)
         return _finish(t, err, return_stderr)
@@ -1102,6 +1109,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        colour_walk: str = "auto",
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -1136,7 +1144,8 @@ class Volume:
                 frame_box=frame_box, camera=camera, target_error=target_error, max_spp=max_spp,
                 stderr=stderr,
                 step=step, kernel=kernel, points=points, granularity=granularity,
-                global_majorant=global_majorant, order=order, threads=threads,
+                global_majorant=global_majorant, colour_walk=colour_walk, order=order,
+                threads=threads,
             )
         )
         return_stderr = bool(stderr)
@@ -1178,6 +1187,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        colour_walk: str = "auto",
         order: str = "auto",
         spp: Optional[int] = None,
         overwrite: Optional[bool] = None,
@@ -1211,7 +1221,7 @@ class Volume:
                 camera=camera, deep_error=deep_error, deep_format=deep_format, force=force,
                 threads=threads,
                 step=step, kernel=kernel, points=points, granularity=granularity,
-                global_majorant=global_majorant, order=order,
+                global_majorant=global_majorant, colour_walk=colour_walk, order=order,
             ),
         )
         _warn(warns)

@@ -90,6 +90,7 @@ def bake(
     points: Optional[float] = None,
     granularity: str = "leaf",
     global_majorant: bool = False,
+    colour_walk: str = "auto",
     order: str = "auto",
     threads: int = 0,
     max_memory: Union[None, int, str] = None,
@@ -202,6 +203,7 @@ class Volume:
         kernel: Optional[float] = None,
         points: Optional[float] = None,
         threads: int = 0,
+        colour_walk: str = "auto",
     ) -> npt.NDArray[np.float64]: ...
     @overload
     def transmittance(
@@ -218,6 +220,7 @@ class Volume:
         kernel: Optional[float] = None,
         points: Optional[float] = None,
         threads: int = 0,
+        colour_walk: str = "auto",
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
     def optical_depth(
         self, origins: _Points, ends: _Points, *, threads: int = 0
@@ -238,6 +241,7 @@ class Volume:
         kernel: Optional[float] = None,
         points_per_estimate: Optional[float] = None,
         threads: int = 0,
+        colour_walk: str = "auto",
     ) -> npt.NDArray[np.float64]: ...
     @overload
     def transmittance_to_light(
@@ -255,6 +259,7 @@ class Volume:
         kernel: Optional[float] = None,
         points_per_estimate: Optional[float] = None,
         threads: int = 0,
+        colour_walk: str = "auto",
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
     def transmittance_volume(
         self,
@@ -312,6 +317,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        colour_walk: str = "auto",
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -341,6 +347,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        colour_walk: str = "auto",
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -370,6 +377,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        colour_walk: str = "auto",
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -399,6 +407,7 @@ class Volume:
         points: Optional[float] = None,
         granularity: str = "leaf",
         global_majorant: bool = False,
+        colour_walk: str = "auto",
         order: str = "auto",
         spp: Optional[int] = None,
         overwrite: Optional[bool] = None,

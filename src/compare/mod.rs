@@ -7,6 +7,7 @@
 //! efficiency `1 / (MSE x seconds)`. Results are deterministic (per-ray random streams); only
 //! the times vary between runs.
 
+pub mod colour;
 pub mod deep;
 mod report;
 pub mod stress;
@@ -162,6 +163,17 @@ pub fn run_point(
             })
             .collect()
     };
+    let (last, seconds) = timed(repeats, run)?;
+    let values: Vec<f64> = last.iter().map(|x| x.0).collect();
+    let lookups = last.iter().map(|x| x.1).sum();
+    let capped = last.iter().map(|x| x.2).sum();
+    Ok((values, seconds, lookups, capped))
+}
+
+/// Time `run` (one pass over a ray set): one warm-up, then `repeats` timed repetitions, each
+/// running it `k` times where `k` makes it last at least [`MIN_TIMED`]. Returns the last
+/// pass's results and the median seconds per pass.
+fn timed<T>(repeats: usize, run: impl Fn() -> Result<Vec<T>>) -> Result<(Vec<T>, f64)> {
     let t0 = Instant::now();
     let mut last = run()?; // warm-up, and the pass count that reaches MIN_TIMED
     let once = t0.elapsed().as_secs_f64().max(1e-9);
@@ -175,10 +187,7 @@ pub fn run_point(
         times.push(t0.elapsed().as_secs_f64() / passes as f64);
     }
     times.sort_by(f64::total_cmp);
-    let values: Vec<f64> = last.iter().map(|x| x.0).collect();
-    let lookups = last.iter().map(|x| x.1).sum();
-    let capped = last.iter().map(|x| x.2).sum();
-    Ok((values, times[times.len() / 2], lookups, capped))
+    Ok((last, times[times.len() / 2]))
 }
 
 /// Error statistics of estimates against the exact values.

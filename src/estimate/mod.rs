@@ -54,6 +54,99 @@ pub enum Control {
     Midpoint,
 }
 
+/// How the channels of a coloured medium (`mu_c = sigma_c x rho`: `--sigma-t`, RGB scenes) are
+/// tracked by a stochastic estimator. Grey media have one channel and ignore it.
+///
+/// - `Shared` (spectral tracking with one walk): every channel is sampled under the shared
+///   majorant `max_c mu_maj,c` with the same random numbers, so tentative collisions fall at
+///   the same distances and one lookup serves all channels (Kutz et al. 2017; Miller et al.
+///   2019). Costs `max_c mu_maj,c x L` lookups per sample; a channel far below the largest
+///   is sampled at the largest channel's rate.
+/// - `Split` (per-channel majorants): channel `c` walks on its own per-node majorants
+///   `mu_maj,c = sigma_c x rho_max(node)` (and minorants), a walk of its own. Costs
+///   `sum_c mu_maj,c x L` lookups per sample, each channel at its own rate.
+/// - `Auto`: what the estimator's registry entry names ([`Spec::colour`], a [`ColourChoice`]
+///   chosen by measurement: `umbra compare --sigma-t`, docs/colour.md), per ray.
+///
+/// Each channel is the single-channel estimator with a valid majorant in both walks, so every
+/// unbiased estimator stays unbiased per channel.
+#[derive(
+    Debug, Clone, Copy, PartialEq, Eq, Hash, Default, serde::Serialize, serde::Deserialize,
+)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+#[serde(rename_all = "lowercase")]
+pub enum ColourWalk {
+    /// The estimator's measured choice.
+    #[default]
+    Auto,
+    /// One walk under the largest channel's majorant, lookups shared.
+    Shared,
+    /// One walk per channel under its own majorant.
+    Split,
+}
+
+impl ColourWalk {
+    /// The walk called `name`: `auto`, `shared` or `split`.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidArgument`] named `colour-walk` for any other name.
+    pub fn from_name(name: &str) -> Result<Self> {
+        match name {
+            "auto" => Ok(Self::Auto),
+            "shared" => Ok(Self::Shared),
+            "split" => Ok(Self::Split),
+            other => Err(crate::Error::InvalidArgument {
+                name: "colour-walk".into(),
+                reason: format!("'{other}': expected auto, shared or split"),
+            }),
+        }
+    }
+
+    /// The name [`ColourWalk::from_name`] reads.
+    #[must_use]
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Shared => "shared",
+            Self::Split => "split",
+        }
+    }
+
+    /// The walk `est` runs on a ray whose channels' majorants are `spread` apart (`sum len
+    /// min_c mu_maj,c / sum len max_c mu_maj,c`, in `[0, 1]`; `min sigma / max sigma` for one
+    /// volume): `Auto` becomes the estimator's registry choice.
+    #[must_use]
+    pub fn resolve(self, est: &Estimator, spread: f64) -> Self {
+        match self {
+            Self::Auto => match est.spec().colour {
+                ColourChoice::Shared => Self::Shared,
+                ColourChoice::Split => Self::Split,
+                ColourChoice::SplitBelow(s) if spread < s => Self::Split,
+                ColourChoice::SplitBelow(_) => Self::Shared,
+            },
+            w => w,
+        }
+    }
+}
+
+/// What [`ColourWalk::Auto`] runs for one estimator (its registry entry, by measurement).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ColourChoice {
+    /// Always the shared walk: the estimator's lookups fall at the same points in every channel
+    /// (marching), or its variance falls as its majorant grows (ratio tracking, whose weak
+    /// channels gain from the strong channel's majorant at no extra lookup).
+    Shared,
+    /// Always split walks: the shared majorant hurts the weak channels (a midpoint control
+    /// set from it, next-flight's terms) more than the lost replay costs.
+    Split,
+    /// Split when the channels' majorants are further apart than this ratio (a delta tracker:
+    /// its variance does not depend on the majorant, its cost does; near grey, the replay of
+    /// the shared walk is cheaper).
+    SplitBelow(f64),
+}
+
 /// Settings shared by every estimator.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct Options {
@@ -70,6 +163,8 @@ pub struct Options {
     /// Cap on tentative collisions per sample; a sample that hits it stops and is counted in
     /// [`Estimate::capped`] (its value is then biased).
     pub max_collisions: u64,
+    /// How a coloured medium's channels are tracked (ignored by grey media).
+    pub colour_walk: ColourWalk,
 }
 
 impl Options {
@@ -104,6 +199,7 @@ impl Default for Options {
             granularity: Granularity::Leaf,
             global_majorant: false,
             max_collisions: 10_000_000,
+            colour_walk: ColourWalk::Auto,
         }
     }
 }

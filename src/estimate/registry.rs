@@ -136,6 +136,9 @@ pub struct Spec {
     pub summary: &'static str,
     /// How `umbra compare` varies its cost.
     pub budget: Budget,
+    /// The walk a coloured medium gets by default ([`super::ColourWalk::Auto`]): whichever
+    /// `umbra compare --sigma-t` measured as more efficient (docs/colour.md).
+    pub colour: super::ColourChoice,
     #[serde(skip)]
     pub(crate) algo: Algo,
 }
@@ -182,6 +185,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "regular tracking: closed form per tile, per voxel (nearest) or exact cubic per dual cell (trilinear)",
         budget: Budget::Exact,
+        colour: super::ColourChoice::Shared,
         algo: Algo::Regular,
     },
     Spec {
@@ -191,6 +195,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[STEP],
         summary: "ray marching, midpoint rule at a fixed step (error O(step^2) in smooth media)",
         budget: Budget::Param,
+        colour: super::ColourChoice::Shared,
         algo: Algo::Riemann,
     },
     Spec {
@@ -200,6 +205,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[STEP],
         summary: "ray marching at uniform random points, one per step length (overestimates T)",
         budget: Budget::Param,
+        colour: super::ColourChoice::Shared,
         algo: Algo::Mc,
     },
     Spec {
@@ -209,6 +215,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[STEP],
         summary: "ray marching, one jittered point per step (stratified; overestimates T)",
         budget: Budget::Param,
+        colour: super::ColourChoice::Shared,
         algo: Algo::Jittered,
     },
     Spec {
@@ -218,6 +225,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "delta tracking on per-node majorants: 1 if the free flight passes the end (binary)",
         budget: Budget::Samples,
+        colour: super::ColourChoice::SplitBelow(0.75),
         algo: Algo::TrackLength,
     },
     Spec {
@@ -227,6 +235,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[KERNEL],
         summary: "delta tracking scored with a ramp kernel before the end (bias O(kernel))",
         budget: Budget::Samples,
+        colour: super::ColourChoice::SplitBelow(0.75),
         algo: Algo::Collision,
     },
     Spec {
@@ -236,6 +245,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "ratio tracking (Novak 2014): product of 1 - mu/mu_maj at tentative collisions",
         budget: Budget::Samples,
+        colour: super::ColourChoice::Shared,
         algo: Algo::Ratio,
     },
     Spec {
@@ -245,6 +255,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "residual ratio tracking, control = per-node minorant integrated exactly",
         budget: Budget::Samples,
+        colour: super::ColourChoice::Shared,
         algo: Algo::ResidualRatio(super::Control::Minorant),
     },
     Spec {
@@ -254,6 +265,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "residual ratio tracking, control = (minorant + majorant) / 2 (weights up to 2)",
         budget: Budget::Samples,
+        colour: super::ColourChoice::Split,
         algo: Algo::ResidualRatio(super::Control::Midpoint),
     },
     Spec {
@@ -263,6 +275,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "next-flight ratio tracking (Cramer 1978; Novak 2018); single estimates can exceed 1",
         budget: Budget::Samples,
+        colour: super::ColourChoice::Split,
         algo: Algo::NextFlight,
     },
     Spec {
@@ -272,6 +285,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "unbiased ray marching (Kettunen 2021): power series around ray-marched optical depths",
         budget: Budget::Samples,
+        colour: super::ColourChoice::Shared,
         algo: Algo::UnbiasedRaymarch,
     },
     Spec {
@@ -281,6 +295,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[],
         summary: "decomposition tracking (Kutz 2017): minorant in closed form, delta tracking on the residual",
         budget: Budget::Samples,
+        colour: super::ColourChoice::SplitBelow(0.75),
         algo: Algo::Decomposition,
     },
     Spec {
@@ -290,6 +305,7 @@ pub static REGISTRY: &[Spec] = &[
         params: &[POINTS],
         summary: "jackknife transmittance (Peters 2025): cos(|X1 - X2| / 2) exp(-(X1 + X2) / 2), fixed cost",
         budget: Budget::Param,
+        colour: super::ColourChoice::Split,
         algo: Algo::Jackknife,
     },
 ];

@@ -14,7 +14,7 @@
 //! The closed-form parts add `sum_k sigma_{k,c} tau_known_k`. Since `tau = known + sampled`
 //! exactly, every unbiased estimator stays unbiased on the union.
 //!
-//! **Colour (spectral tracking with a shared walk).** The three channels use the same random
+//! **Colour: the shared walk** ([`ColourWalk::Shared`], spectral tracking). The three channels use the same random
 //! numbers (sample `i` of ray `r` draws `Rng::new(seed, r, i)` for every channel) and the same
 //! majorant, so their tentative collisions fall at the same distances: the first channel's
 //! lookups are recorded (all three channels' extinction at once, one tree lookup per volume)
@@ -23,6 +23,15 @@
 //! medium up itself; each channel is the single-channel estimator with a valid majorant, so
 //! each is unbiased (Kutz et al. 2017, "Spectral and decomposition tracking"; Miller et al.
 //! 2019, "A null-scattering path integral formulation": a majorant shared by all wavelengths).
+//!
+//! **Colour: split walks** ([`ColourWalk::Split`], per-channel majorants). Channel `c` is
+//! sampled on its own per-node bounds `mu_min,c`, `mu_maj,c` (above), each channel a walk of
+//! its own from the same stream `Rng::new(seed, r, i)`; intervals where `mu_maj,c = 0` hold
+//! no extinction of channel `c` and are left out of its walk. Where one channel's extinction
+//! is 10x another's, the weak channel's walk costs a tenth of the strong one's instead of the
+//! same; the shared walk's replay is lost. Which wins depends on the estimator (a ratio
+//! tracker's variance falls as its majorant grows, a delta tracker's does not): `Auto` takes
+//! the estimator's measured choice ([`ColourWalk::resolve`]).
 //!
 //! **Solids.** The first point of the ray inside any solid (`phi < 0`) cuts the ray: `T = 0`
 //! for every channel if it is within `[t_min, t_max]`.
@@ -33,8 +42,8 @@
 use super::Scene;
 use crate::error::Result;
 use crate::estimate::{
-    budget, estimate as estimate_one, prepare, sample_once, Cap, Estimate, Estimator, Extinction,
-    Options, RayMedium,
+    budget, estimate as estimate_one, prepare, sample_once, Cap, ColourWalk, Estimate, Estimator,
+    Extinction, Options, RayMedium,
 };
 use crate::math::scaled;
 use crate::ray::Ray;
@@ -203,24 +212,23 @@ fn exact(scene: &Scene, ray: &Ray, opts: &Options) -> Result<SceneEstimate> {
     ))
 }
 
-/// An elementary interval of the merged segments: `[t0, t1]` and the volumes sampled there.
+/// An elementary interval of the merged segments: `[t0, t1]`, the volumes sampled there, and
+/// the per-channel bounds `mu_min,c = sum_k sigma_k,c mu_min,k`, `mu_maj,c = sum_k sigma_k,c
+/// mu_maj,k` over them (the per-node, per-channel majorants of a coloured medium).
 #[derive(Debug, Clone, Copy)]
 struct Piece {
     t0: f64,
     t1: f64,
     mask: u64,
+    lo: [f64; 3],
+    hi: [f64; 3],
+    level: u8,
 }
 
 /// Merge each volume's sampled segments into elementary intervals (every boundary of every
-/// volume's segments is a boundary), keeping those where at least one volume is sampled:
-/// the pieces (with their masks) and, per channel `c < channels`, their segments with
-/// `mu_min,c = sum_k sigma_k,c mu_min,k` and the shared majorant `max_c sum_k sigma_k,c
-/// mu_maj,k`. Each volume's segments are in ray order and do not overlap.
-fn merge(
-    per: &[Vec<Segment>],
-    sigma: &[[f64; 3]],
-    channels: usize,
-) -> (Vec<Piece>, [Vec<Segment>; 3]) {
+/// volume's segments is a boundary), keeping those where at least one volume is sampled.
+/// Each volume's segments are in ray order and do not overlap.
+fn merge(per: &[Vec<Segment>], sigma: &[[f64; 3]], channels: usize) -> Vec<Piece> {
     let mut cuts: Vec<f64> = per
         .iter()
         .flatten()
@@ -230,11 +238,16 @@ fn merge(
     cuts.dedup();
     let mut next = vec![0usize; per.len()];
     let mut pieces = Vec::new();
-    let mut segs: [Vec<Segment>; 3] = Default::default();
     for w in cuts.windows(2) {
         let (a, b) = (w[0], w[1]);
-        let mut mask = 0u64;
-        let (mut lo, mut hi, mut level) = ([0.0f64; 3], [0.0f64; 3], 0);
+        let mut p = Piece {
+            t0: a,
+            t1: b,
+            mask: 0,
+            lo: [0.0; 3],
+            hi: [0.0; 3],
+            level: 0,
+        };
         for (k, list) in per.iter().enumerate() {
             while next[k] < list.len() && list[next[k]].t_max <= a {
                 next[k] += 1;
@@ -242,29 +255,60 @@ fn merge(
             let Some(s) = list.get(next[k]).filter(|s| s.t_min <= a && s.t_max >= b) else {
                 continue;
             };
-            mask |= 1 << k;
-            level = level.max(s.level);
+            p.mask |= 1 << k;
+            p.level = p.level.max(s.level);
             for c in 0..channels {
-                lo[c] += scaled(sigma[k][c], s.mu_min);
-                hi[c] += scaled(sigma[k][c], s.mu_maj);
+                p.lo[c] += scaled(sigma[k][c], s.mu_min);
+                p.hi[c] += scaled(sigma[k][c], s.mu_maj);
             }
         }
-        if mask == 0 {
-            continue;
+        if p.mask != 0 {
+            pieces.push(p);
         }
-        pieces.push(Piece { t0: a, t1: b, mask });
-        let maj = hi[..channels].iter().copied().fold(0.0f64, f64::max);
+    }
+    pieces
+}
+
+/// How far apart the channels' majorants are along the ray: `sum_pieces len min_c mu_maj,c /
+/// sum_pieces len max_c mu_maj,c` in `[0, 1]` (1 for grey or nothing sampled). For one fog
+/// volume it is `min_c sigma_c / max_c sigma_c`.
+fn spread(pieces: &[Piece], channels: usize) -> f64 {
+    let (mut low, mut high) = (0.0, 0.0);
+    for p in pieces {
+        let hi = &p.hi[..channels];
+        let len = p.t1 - p.t0;
+        low += len * hi.iter().copied().fold(f64::INFINITY, f64::min);
+        high += len * hi.iter().copied().fold(0.0f64, f64::max);
+    }
+    if high > 0.0 && high.is_finite() {
+        (low / high).clamp(0.0, 1.0)
+    } else {
+        1.0
+    }
+}
+
+/// Per channel `c < channels`, the segments its walk samples: every piece with `mu_min,c` and
+/// the shared majorant `max_c mu_maj,c`, or with `split` the channel's own `mu_maj,c` (a piece
+/// where that is 0 holds none of channel `c`'s extinction and is left out).
+fn channel_segments(pieces: &[Piece], channels: usize, split: bool) -> [Vec<Segment>; 3] {
+    let mut segs: [Vec<Segment>; 3] = Default::default();
+    for p in pieces {
+        let shared = p.hi[..channels].iter().copied().fold(0.0f64, f64::max);
         for (c, list) in segs.iter_mut().enumerate().take(channels) {
+            let mu_maj = if split { p.hi[c] } else { shared };
+            if split && mu_maj == 0.0 {
+                continue;
+            }
             list.push(Segment {
-                t_min: a,
-                t_max: b,
-                mu_min: lo[c],
-                mu_maj: maj,
-                level,
+                t_min: p.t0,
+                t_max: p.t1,
+                mu_min: p.lo[c],
+                mu_maj,
+                level: p.level,
             });
         }
     }
-    (pieces, segs)
+    segs
 }
 
 /// The medium of a scene along one ray: the sum of the sampled volumes' extinction, per
@@ -398,7 +442,10 @@ fn sampled(
         media.push(m);
     }
     let sigma: Vec<[f64; 3]> = scene.fogs.iter().map(|f| f.sigma).collect();
-    let (pieces, segs) = merge(&per, &sigma, channels);
+    let pieces = merge(&per, &sigma, channels);
+    let split = channels > 1
+        && opts.colour_walk.resolve(est, spread(&pieces, channels)) == ColourWalk::Split;
+    let segs = channel_segments(&pieces, channels, split);
     let mut medium = SceneMedium {
         media,
         sigma,
@@ -410,7 +457,7 @@ fn sampled(
         replay: 0,
         voxels,
     };
-    let samples = if est.is_deterministic() || segs[0].is_empty() {
+    let samples = if est.is_deterministic() || segs.iter().all(Vec::is_empty) {
         1
     } else {
         opts.samples.max(1)
@@ -421,7 +468,7 @@ fn sampled(
         for c in 0..channels {
             let mut rng = Rng::new(opts.seed, ray_id, u64::from(i));
             let mut cap = Cap::new(opts.max_collisions);
-            medium.begin(c, c == 0 && channels > 1);
+            medium.begin(c, c == 0 && channels > 1 && !split);
             let x = (-known[c]).exp() * sample_once(est, &segs[c], &mut medium, &mut rng, &mut cap);
             capped += u64::from(cap.hit);
             violations += cap.violations;

@@ -72,7 +72,7 @@ pub(crate) fn m44f(m: [[f64; 4]; 4]) -> [f32; 16] {
 /// `--xform`, row-major, round-tripping f64), `fov_deg` (perspective), `estimator`,
 /// `estimator_params` (JSON), `interp`, `spp`, `target_error`, `max_spp`, `mean_spp`, `seed`
 /// (decimal text), `density_scale`, `source_file`, `grid`, `depth.NN` (double per slice),
-/// `ray_ids`. Same map, same bytes.
+/// `ray_ids`, `colour_walk` (a stochastic colour map). Same map, same bytes.
 ///
 /// # Errors
 /// [`Error::Output`] as [`write_atomic`], or if the encoder fails.
@@ -319,6 +319,9 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
     }
     if let Some(s) = prov.sigma_t {
         attrs.push(("sigma_t".into(), v3d(s)));
+    }
+    if map.channels() == 3 && !s.estimator.is_deterministic() {
+        attrs.push(("colour_walk".into(), text(s.options.colour_walk.name())));
     }
     if crate::bake::camera::is_omni(c.kind) {
         // The map's axes in the world (module `camera::omni`): X_m = -right, Y_m = up,

@@ -13,7 +13,7 @@ use crate::bake::encode::exr::Provenance;
 use crate::bake::map::channel_names;
 use crate::bake::map::{BakeSettings, BakeStats, Channel, Depths, Map};
 use crate::error::{Error, Result};
-use crate::estimate::{Estimator, Options};
+use crate::estimate::{ColourWalk, Estimator, Options};
 use crate::Interp;
 
 /// The camera object of a summary: what [`Camera::from_spec`] needs besides the size.
@@ -76,6 +76,9 @@ pub struct MapSummary {
     pub max_spp: u32,
     /// Seed of the random streams.
     pub seed: u64,
+    /// How a colour map's channels were tracked (`--colour-walk`).
+    #[serde(default)]
+    pub colour_walk: ColourWalk,
     /// `mu_t = density_scale x value`.
     pub density_scale: f64,
     /// Pixel rays traced.
@@ -120,6 +123,7 @@ impl MapSummary {
             target_error: s.target_error,
             max_spp: s.max_spp,
             seed: s.options.seed,
+            colour_walk: s.options.colour_walk,
             density_scale: prov.density_scale,
             rays: map.stats.rays,
             samples: map.stats.samples,
@@ -238,6 +242,7 @@ impl MapSummary {
             interp: self.interp,
             samples: self.spp,
             seed: self.seed,
+            colour_walk: self.colour_walk,
             ..Options::default()
         };
         let settings = BakeSettings {

@@ -71,6 +71,11 @@ pub struct CompareArgs {
     /// With --deep: the maps' resolution, N pixels on the long side.
     #[arg(long, default_value_t = 128)]
     res: u32,
+    /// Compare the colour walks instead: FILE's grid as a coloured medium (mu_c = sigma_t[c] x
+    /// density-scale x value), every non-exact estimator over its ladder with the shared walk
+    /// and with split walks (per-channel majorants): colour.{md,json}.
+    #[arg(long, value_parser = umbra::request::parse_vec3)]
+    sigma_t: Option<[f64; 3]>,
     /// Samples per ray in the stress suite.
     #[arg(long, default_value_t = 16)]
     stress_samples: u32,
@@ -196,6 +201,19 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
             threads,
             global_baseline: a.global_baseline,
         };
+        if let Some(sigma) = a.sigma_t {
+            return run_colour(
+                a,
+                vol,
+                &rays,
+                &estimators,
+                &settings,
+                sigma,
+                source,
+                &pool,
+                &say,
+            );
+        }
         let rows =
             pool.install(|| compare::compare(&vol, &rays, &estimators, &settings, |m| say(m)))?;
         let exact = pool.install(|| compare::reference(&vol, &rays, &options));
@@ -259,6 +277,72 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
             return Ok(ExitCode::from(3));
         }
     }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `compare --sigma-t`: the colour walks side by side (see `umbra::compare::colour`).
+#[allow(clippy::too_many_arguments)]
+fn run_colour(
+    a: &CompareArgs,
+    vol: Volume,
+    rays: &[umbra::Ray],
+    estimators: &[Estimator],
+    settings: &Settings,
+    sigma: [f64; 3],
+    source: String,
+    pool: &rayon::ThreadPool,
+    say: &(dyn Fn(&str) + Sync),
+) -> Result<ExitCode> {
+    if a.stress {
+        anyhow::bail!("invalid argument '--stress': run it without --sigma-t");
+    }
+    let fog = umbra::scene::Fog::new(vol, sigma).map_err(crate::common::flag_error)?;
+    let scene = umbra::scene::Scene::new(vec![fog], Vec::new(), true)?;
+    let rows = pool.install(|| {
+        compare::colour::compare_colour(&scene, rays, estimators, settings, |m| say(m))
+    })?;
+    let exact: Vec<[f64; 3]> = pool.install(|| {
+        use rayon::prelude::*;
+        rays.par_iter()
+            .enumerate()
+            .map(|(i, r)| {
+                umbra::scene::estimate(&scene, r, i as u64, &Estimator::REGULAR, &settings.options)
+                    .map_or([f64::NAN; 3], |e| e.value)
+            })
+            .collect()
+    });
+    let mean = |c: usize| exact.iter().map(|t| t[c]).sum::<f64>() / exact.len().max(1) as f64;
+    let meta = Meta {
+        source,
+        rays: rays.len(),
+        threads: settings.threads,
+        repeats: a.repeats,
+        medium: format!(
+            "{:?} lookups, density scale {}, seed {}",
+            settings.options.interp, a.density_scale, a.seed
+        ),
+        machine: machine(),
+        reference: format!(
+            "mean exact T: R {:.4}, G {:.4}, B {:.4}",
+            mean(0),
+            mean(1),
+            mean(2)
+        ),
+    };
+    let md = compare::colour::colour_markdown(&rows, &meta, sigma);
+    let json = serde_json::to_string_pretty(&serde_json::json!({
+        "meta": meta, "sigma_t": sigma,
+        "verdicts": compare::colour::verdicts(&rows, sigma), "rows": rows,
+    }))?;
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let mut staged = Vec::new();
+    for (name, text) in [("colour.md", &md), ("colour.json", &json)] {
+        staged.push(umbra::output::stage(&a.out.join(name), true, |w| {
+            std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
+        })?);
+    }
+    umbra::output::commit_all(staged)?;
+    say(&format!("wrote {}/colour.{{md,json}}", a.out.display()));
     Ok(ExitCode::SUCCESS)
 }
 

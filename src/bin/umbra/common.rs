@@ -46,6 +46,11 @@ pub struct EstimatorArgs {
     /// One majorant for the whole grid (the naive baseline).
     #[arg(long)]
     pub global_majorant: bool,
+    /// How a coloured medium's channels are tracked by a stochastic estimator: `shared` (one
+    /// walk under the largest channel's majorant, lookups shared), `split` (a walk per channel
+    /// on its own majorants), `auto` (the estimator's measured choice; docs/colour.md).
+    #[arg(long, value_enum, default_value = "auto")]
+    pub colour_walk: umbra::estimate::ColourWalk,
 }
 
 /// HDDA granularity, as the CLI spells it.
@@ -69,6 +74,7 @@ impl EstimatorArgs {
             seed: self.seed,
             granularity: self.granularity.into(),
             global_majorant: self.global_majorant,
+            colour_walk: self.colour_walk,
             ..Options::default()
         };
         opts.validate().map_err(flag_error)?;
