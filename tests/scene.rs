@@ -886,3 +886,152 @@ fn a_batch_of_rays_answers_as_each_ray_alone() {
         }
     }
 }
+
+#[test]
+fn the_colour_walk_is_asked_for_on_every_front_end() {
+    let dir = tempfile::tempdir().unwrap();
+    let cloud = data("cloud.vdb");
+    let split = |samples| Options {
+        samples,
+        seed: 0,
+        colour_walk: ColourWalk::Split,
+        ..Options::default()
+    };
+    // bake: the walk is in --json and in the EXR header of a stochastic colour map.
+    let out = dir.path().join("split.exr");
+    let o = umbra()
+        .arg("bake")
+        .arg(&cloud)
+        .args([
+            "--light-dir=0,-1,0",
+            "--res",
+            "24",
+            "--sigma-t",
+            "1,0.1,0.1",
+        ])
+        .args(["--estimator", "track-length", "--spp", "4"])
+        .args(["--colour-walk", "split", "--json", "-q", "-o"])
+        .arg(&out)
+        .assert()
+        .success();
+    let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
+    assert_eq!(v["colour_walk"], "split");
+    if let Ok(o) = std::process::Command::new("iinfo")
+        .arg("-v")
+        .arg(&out)
+        .output()
+    {
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(text.contains("umbra:colour_walk: \"split\""), "{text}");
+    }
+    // query: the library's split estimate, number for number.
+    let o = umbra()
+        .arg("query")
+        .arg(&cloud)
+        .args([
+            "--from",
+            "-2,0,0",
+            "--to",
+            "2,0.5,0",
+            "--sigma-t",
+            "1,0.1,0.1",
+        ])
+        .args(["--estimator", "track-length", "--spp", "256"])
+        .args(["--colour-walk", "split", "--json"])
+        .assert()
+        .success();
+    let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
+    let scene = scene::load(
+        &cloud,
+        &SceneOptions {
+            sigma_t: Some([1.0, 0.1, 0.1]),
+            ..SceneOptions::default()
+        },
+    )
+    .unwrap();
+    let r = Ray::between([-2.0, 0.0, 0.0], [2.0, 0.5, 0.0]).unwrap();
+    let est = Estimator::from_name("track-length").unwrap();
+    let e = scene::estimate(&scene, &r, 0, &est, &split(256)).unwrap();
+    let shared = Options {
+        colour_walk: ColourWalk::Shared,
+        ..split(256)
+    };
+    let s = scene::estimate(&scene, &r, 0, &est, &shared).unwrap();
+    assert_ne!(e.value, s.value, "the walks differ on this ray");
+    for c in 0..3 {
+        assert_eq!(v["T"][c].as_f64().unwrap(), e.value[c]);
+    }
+    // A walk that is not one is a usage error naming the flag.
+    let o = umbra()
+        .arg("query")
+        .arg(&cloud)
+        .args([
+            "--from",
+            "-2,0,0",
+            "--to",
+            "2,0.5,0",
+            "--colour-walk",
+            "both",
+        ])
+        .assert()
+        .code(2);
+    let err = String::from_utf8_lossy(&o.get_output().stderr).to_string();
+    assert!(err.contains("--colour-walk"), "{err}");
+    // Job files take the key (the schema names it).
+    let o = umbra().args(["batch", "--schema"]).assert().success();
+    let schema = String::from_utf8_lossy(&o.get_output().stdout).to_string();
+    assert!(schema.contains("colour_walk"), "schema without colour_walk");
+    // compare --sigma-t: both walks of every estimator on the same rays.
+    let report = dir.path().join("colour");
+    umbra()
+        .arg("compare")
+        .arg(&cloud)
+        .args([
+            "--sigma-t",
+            "1,0.1,0.1",
+            "--density-scale",
+            "4",
+            "--rays",
+            "48",
+        ])
+        .args([
+            "--repeats",
+            "1",
+            "--estimators",
+            "riemann,track-length,ratio",
+            "-q",
+            "-o",
+        ])
+        .arg(&report)
+        .assert()
+        .success();
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report.join("colour.json")).unwrap())
+            .unwrap();
+    let rows = v["rows"].as_array().unwrap();
+    assert_eq!(
+        rows.len(),
+        2 * (4 + 4 + 4),
+        "three ladders of four, two walks each"
+    );
+    for pair in rows.chunks(2) {
+        assert_eq!(pair[0]["walk"], "shared");
+        assert_eq!(pair[1]["walk"], "split");
+        assert_eq!(pair[0]["budget"], pair[1]["budget"]);
+        if pair[0]["estimator"] == "riemann" {
+            // Marching points do not depend on the majorant: the same numbers, a third of
+            // the lookups (one lookup serves three channels in the shared walk).
+            assert_eq!(pair[0]["rmse"], pair[1]["rmse"]);
+            let (a, b) = (pair[0]["lookups"].as_u64(), pair[1]["lookups"].as_u64());
+            assert_eq!(3 * a.unwrap(), b.unwrap());
+        }
+    }
+    let verdicts = v["verdicts"].as_array().unwrap();
+    let auto: Vec<&str> = verdicts
+        .iter()
+        .map(|x| x["auto"].as_str().unwrap())
+        .collect();
+    assert_eq!(auto, ["shared", "split", "shared"]);
+    let md = std::fs::read_to_string(report.join("colour.md")).unwrap();
+    assert!(md.contains("| track-length |"), "{md}");
+}

@@ -498,3 +498,77 @@ fn sampled(
         hit: None,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn piece(t0: f64, t1: f64, hi: [f64; 3]) -> Piece {
+        Piece {
+            t0,
+            t1,
+            mask: 1,
+            lo: [0.0; 3],
+            hi,
+            level: 0,
+        }
+    }
+
+    #[test]
+    fn spread_weighs_each_piece_by_its_length() {
+        assert_eq!(spread(&[], 3), 1.0);
+        assert_eq!(spread(&[piece(0.0, 1.0, [2.0, 1.0, 0.5])], 3), 0.25);
+        // 1 x min 1 + 3 x min 0 over 1 x max 2 + 3 x max 4: 1 / 14.
+        let p = [
+            piece(0.0, 1.0, [2.0, 1.0, 1.0]),
+            piece(1.0, 4.0, [4.0, 0.0, 1.0]),
+        ];
+        assert!((spread(&p, 3) - 1.0 / 14.0).abs() < 1e-15);
+        // Grey: one channel, spread 1.
+        assert_eq!(spread(&p, 1), 1.0);
+    }
+
+    #[test]
+    fn split_segments_carry_each_channels_majorant_and_skip_empty_ones() {
+        let p = [piece(0.0, 1.0, [2.0, 0.0, 0.5])];
+        let shared = channel_segments(&p, 3, false);
+        assert!(shared.iter().all(|s| s.len() == 1 && s[0].mu_maj == 2.0));
+        let split = channel_segments(&p, 3, true);
+        assert_eq!(split[0][0].mu_maj, 2.0);
+        assert!(
+            split[1].is_empty(),
+            "no extinction in green: nothing to walk"
+        );
+        assert_eq!(split[2][0].mu_maj, 0.5);
+    }
+
+    #[test]
+    fn auto_takes_the_registry_choice_at_the_rays_spread() {
+        let e = |n| Estimator::from_name(n).unwrap();
+        assert_eq!(
+            ColourWalk::Auto.resolve(&e("ratio"), 0.1),
+            ColourWalk::Shared
+        );
+        assert_eq!(
+            ColourWalk::Auto.resolve(&e("next-flight"), 0.9),
+            ColourWalk::Split
+        );
+        assert_eq!(
+            ColourWalk::Auto.resolve(&e("track-length"), 0.1),
+            ColourWalk::Split
+        );
+        assert_eq!(
+            ColourWalk::Auto.resolve(&e("track-length"), 0.9),
+            ColourWalk::Shared
+        );
+        assert_eq!(
+            ColourWalk::Shared.resolve(&e("next-flight"), 0.1),
+            ColourWalk::Shared
+        );
+        for w in [ColourWalk::Auto, ColourWalk::Shared, ColourWalk::Split] {
+            assert_eq!(ColourWalk::from_name(w.name()).unwrap(), w);
+        }
+        let err = ColourWalk::from_name("both").unwrap_err().to_string();
+        assert!(err.contains("colour-walk"), "{err}");
+    }
+}
