@@ -10,6 +10,16 @@ rm -rf "$venv"
 "${PYTHON:-python3}" -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip
 "$venv/bin/python" -m pip install -q "$repo/python" pytest "OpenEXR>=3.2" mypy usd-core openjd-cli opencue-pyoutline packaging moderngl
+# Blender as a Python module (the bpy wheel, Cycles built with OSL) runs
+# examples/deep_formats.osl in the tests. It pins its own numpy and wants CPython 3.11, so it
+# gets a venv of its own, kept between runs (the wheel is about 350 MB).
+bpy_venv="$target/bpy-venv"
+if ! "$bpy_venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
+  rm -rf "$bpy_venv"
+  "${PYTHON:-python3}" -m venv "$bpy_venv"
+  "$bpy_venv/bin/python" -m pip install -q "bpy==4.5.4"
+fi
+export UMBRA_BPY_PYTHON="$bpy_venv/bin/python"
 cargo build --release --bin umbra --manifest-path "$repo/Cargo.toml"
 # From outside the checkout, so `import umbra` is the installed package, not python/umbra.
 cd "$target"

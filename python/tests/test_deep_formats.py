@@ -210,6 +210,55 @@ def test_glsl_reconstructions_agree_with_python(cli, tmp_path):
         assert e <= (1e-4 if fmt.startswith("moments") else 2e-5), worst
 
 
+def bpy_python():
+    """The Python that has Blender's `bpy` (python/run_tests.sh makes it: a venv of its own,
+    since bpy pins its own numpy), from UMBRA_BPY_PYTHON."""
+    import os
+
+    path = os.environ.get("UMBRA_BPY_PYTHON", "")
+    if path and os.path.exists(path):
+        return path
+    if os.environ.get("UMBRA_SKIP_OSL") == "1":
+        pytest.skip("UMBRA_SKIP_OSL=1: no Blender with OSL")
+    pytest.fail("UMBRA_BPY_PYTHON names no Python with bpy (python/run_tests.sh installs it); "
+                "set UMBRA_SKIP_OSL=1 to skip")
+
+
+def test_osl_reconstructions_agree_with_python_through_cycles(cli, tmp_path):
+    """examples/deep_formats.osl compiled and run by Blender's Cycles (OSL on the CPU) against
+    umbra.deep_transmittance: 24 texels of baked maps (the lit ones spread over the map) at 49
+    depths, every format."""
+    cases, wants = [], []
+    for fmt in FORMATS + ["fourier:31", "avsm:16"]:
+        out = tmp_path / f"{fmt.replace(':', '_')}.exr"
+        cli("bake", DATA / "cloud.vdb", "--res", "24", "--light-dir", "0.3,-1,0.2",
+            "--density-scale", "4", "--deep-format", fmt, "-o", out, "--quiet")
+        ch = OpenEXR.File(str(out), separate_channels=True).channels()
+        coef = np.stack([np.asarray(ch[f"deep.{n}"].pixels, dtype=np.float32).ravel()
+                         for n in umbra._channel_order(fmt)], -1)
+        lit = np.flatnonzero(np.abs(coef).sum(-1) > 0)
+        pick = lit[np.linspace(0, len(lit) - 1, 24).astype(int)]
+        u = np.linspace(-0.05, 1.05, 49)
+        name, _, k = fmt.partition(":")
+        cases.append({"format": name, "size": int(k), "texels": coef[pick].tolist(),
+                      "u": u.tolist()})
+        c = np.repeat(coef[pick], len(u), axis=0)
+        wants.append(umbra.deep_transmittance(fmt, c, np.tile(u, len(pick)))
+                     .reshape(len(pick), len(u)))
+    job = {"osl": str(DATA.parent / "examples" / "deep_formats.osl"), "work": str(tmp_path),
+           "cases": cases}
+    p = subprocess.run([bpy_python(), str(DATA.parent / "python" / "tests" / "osl_cycles.py")],
+                       input=json.dumps(job), capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr[-3000:]
+    got = json.loads(p.stdout[p.stdout.rindex('{"T"'):])["T"]
+    worst = {}
+    for fmt, g, want in zip(FORMATS + ["fourier:31", "avsm:16"], got, wants):
+        worst[fmt] = float(np.abs(np.asarray(g, dtype=np.float64) - want).max())
+    # As the GLSL: float arithmetic against f64.
+    for fmt, e in worst.items():
+        assert e <= (1e-4 if fmt.startswith("moments") else 2e-5), worst
+
+
 def test_compare_deep_reports_every_encoding(cli, tmp_path):
     """`umbra compare --deep`: one row per encoding, each row what its map's header and
     `bake --json` say (bytes per texel, errors), the maps kept, the plot with its legend."""

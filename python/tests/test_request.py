@@ -47,6 +47,13 @@ CASES = [
     ),
     ("rgb-scene", None, ["--light-dir=-1,-1,0", "--res", "40x24"], ".exr"),
     (
+        "colour-split",
+        CLOUD,
+        ["--light-dir=0,-1,0", "--res", "20x16", "--sigma-t", "1,0.3,0.1", "--density-scale",
+         "4", "--estimator", "track-length", "--samples", "4", "--colour-walk", "split"],
+        ".exr",
+    ),
+    (
         "transmittance-volume",
         CLOUD,
         ["--light-dir=0.3,-1,0.2", "--out-grid", "shadow", "--half"],
@@ -243,3 +250,19 @@ def test_old_spellings_are_aliases(tmp_path):
     with pytest.raises(umbra.InvalidArgument, match="'spp'"):
         umbra.bake(CLOUD, b, samples=8, spp=4, force=True, **kw)
 
+
+
+def test_the_colour_walk_keyword_traces_as_the_command_line(cli, tmp_path):
+    v = umbra.Volume.from_scene(_scene(tmp_path), density_scale=4.0)
+    o, e = [[-2.0, 0.0, 0.0]], [[2.0, 0.5, 0.0]]
+    got = {}
+    for walk in ("shared", "split"):
+        t = v.transmittance(o, e, "track-length", 128, colour_walk=walk)
+        _, out, _ = cli("query", _scene(tmp_path), "--density-scale", "4", "--from", "-2,0,0",
+                        "--to", "2,0.5,0", "--estimator", "track-length", "--spp", "128",
+                        "--colour-walk", walk, "--json")
+        assert list(t[0]) == json.loads(out)["T"], walk
+        got[walk] = t
+    assert (got["shared"] != got["split"]).any()
+    with pytest.raises(umbra.InvalidArgument, match="colour_walk"):
+        v.transmittance(o, e, "ratio", 4, colour_walk="both")
