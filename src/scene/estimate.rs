@@ -257,9 +257,9 @@ fn merge(per: &[Vec<Segment>], sigma: &[[f64; 3]], channels: usize) -> Vec<Piece
             };
             p.mask |= 1 << k;
             p.level = p.level.max(s.level);
-            for c in 0..channels {
-                p.lo[c] += scaled(sigma[k][c], s.mu_min);
-                p.hi[c] += scaled(sigma[k][c], s.mu_maj);
+            for (c, &sig) in sigma[k].iter().enumerate().take(channels) {
+                p.lo[c] += scaled(sig, s.mu_min);
+                p.hi[c] += scaled(sig, s.mu_maj);
             }
         }
         if p.mask != 0 {
