@@ -887,6 +887,9 @@ fn a_batch_of_rays_answers_as_each_ray_alone() {
     }
 }
 
+/// The segment the colour-walk queries trace.
+const SEGMENT: [&str; 4] = ["--from", "-2,0,0", "--to", "2,0.5,0"];
+
 #[test]
 fn the_colour_walk_is_asked_for_on_every_front_end() {
     let dir = tempfile::tempdir().unwrap();
@@ -928,14 +931,8 @@ fn the_colour_walk_is_asked_for_on_every_front_end() {
     let o = umbra()
         .arg("query")
         .arg(&cloud)
-        .args([
-            "--from",
-            "-2,0,0",
-            "--to",
-            "2,0.5,0",
-            "--sigma-t",
-            "1,0.1,0.1",
-        ])
+        .args(SEGMENT)
+        .args(["--sigma-t", "1,0.1,0.1"])
         .args(["--estimator", "track-length", "--spp", "256"])
         .args(["--colour-walk", "split", "--json"])
         .assert()
@@ -965,14 +962,8 @@ fn the_colour_walk_is_asked_for_on_every_front_end() {
     let o = umbra()
         .arg("query")
         .arg(&cloud)
-        .args([
-            "--from",
-            "-2,0,0",
-            "--to",
-            "2,0.5,0",
-            "--colour-walk",
-            "both",
-        ])
+        .args(SEGMENT)
+        .args(["--colour-walk", "both"])
         .assert()
         .code(2);
     let err = String::from_utf8_lossy(&o.get_output().stderr).to_string();

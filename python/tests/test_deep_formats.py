@@ -173,6 +173,20 @@ void main() {
 """
 
 
+SHADER_FORMATS = FORMATS + ["fourier:31", "avsm:16"]
+
+
+def baked_texels(cli, tmp_path, fmt):
+    """Every texel's channels of a 24^2 map of the sample cloud in `fmt`, in the format's
+    order: (texels, channels) float32, as the EXR holds them."""
+    out = tmp_path / f"{fmt.replace(':', '_')}.exr"
+    cli("bake", DATA / "cloud.vdb", "--res", "24", "--light-dir", "0.3,-1,0.2",
+        "--density-scale", "4", "--deep-format", fmt, "-o", out, "--quiet", "--force")
+    ch = OpenEXR.File(str(out), separate_channels=True).channels()
+    return np.stack([np.asarray(ch[f"deep.{n}"].pixels, dtype=np.float32).ravel()
+                     for n in umbra._channel_order(fmt)], -1)
+
+
 def test_glsl_reconstructions_agree_with_python(cli, tmp_path):
     """examples/deep_formats.glsl run on a GPU (Mesa's llvmpipe through EGL where there is no
     other) against umbra.deep_transmittance, on every texel of baked maps at 49 depths."""
@@ -182,13 +196,8 @@ def test_glsl_reconstructions_agree_with_python(cli, tmp_path):
     glsl = (DATA.parent / "examples" / "deep_formats.glsl").read_text()
     prog = ctx.compute_shader("#version 450\n" + glsl + GLSL_MAIN)
     worst = {}
-    for fmt in FORMATS + ["fourier:31", "avsm:16"]:
-        out = tmp_path / f"{fmt.replace(':', '_')}.exr"
-        cli("bake", DATA / "cloud.vdb", "--res", "24", "--light-dir", "0.3,-1,0.2",
-            "--density-scale", "4", "--deep-format", fmt, "-o", out, "--quiet")
-        ch = OpenEXR.File(str(out), separate_channels=True).channels()
-        coef = np.stack([np.asarray(ch[f"deep.{n}"].pixels, dtype=np.float32).ravel()
-                         for n in umbra._channel_order(fmt)], -1)
+    for fmt in SHADER_FORMATS:
+        coef = baked_texels(cli, tmp_path, fmt)
         u = np.linspace(-0.05, 1.05, 49)
         c = np.repeat(coef, len(u), axis=0)
         uu = np.tile(u, len(coef))
@@ -229,13 +238,8 @@ def test_osl_reconstructions_agree_with_python_through_cycles(cli, tmp_path):
     umbra.deep_transmittance: 24 texels of baked maps (the lit ones spread over the map) at 49
     depths, every format."""
     cases, wants = [], []
-    for fmt in FORMATS + ["fourier:31", "avsm:16"]:
-        out = tmp_path / f"{fmt.replace(':', '_')}.exr"
-        cli("bake", DATA / "cloud.vdb", "--res", "24", "--light-dir", "0.3,-1,0.2",
-            "--density-scale", "4", "--deep-format", fmt, "-o", out, "--quiet")
-        ch = OpenEXR.File(str(out), separate_channels=True).channels()
-        coef = np.stack([np.asarray(ch[f"deep.{n}"].pixels, dtype=np.float32).ravel()
-                         for n in umbra._channel_order(fmt)], -1)
+    for fmt in SHADER_FORMATS:
+        coef = baked_texels(cli, tmp_path, fmt)
         lit = np.flatnonzero(np.abs(coef).sum(-1) > 0)
         pick = lit[np.linspace(0, len(lit) - 1, 24).astype(int)]
         u = np.linspace(-0.05, 1.05, 49)
@@ -252,7 +256,7 @@ def test_osl_reconstructions_agree_with_python_through_cycles(cli, tmp_path):
     assert p.returncode == 0, p.stderr[-3000:]
     got = json.loads(p.stdout[p.stdout.rindex('{"T"'):])["T"]
     worst = {}
-    for fmt, g, want in zip(FORMATS + ["fourier:31", "avsm:16"], got, wants):
+    for fmt, g, want in zip(SHADER_FORMATS, got, wants):
         worst[fmt] = float(np.abs(np.asarray(g, dtype=np.float64) - want).max())
     # As the GLSL: float arithmetic against f64.
     for fmt, e in worst.items():

@@ -169,6 +169,16 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
             eprintln!("umbra compare: {m}");
         }
     };
+    if a.sigma_t.is_some() && (a.deep || a.global_baseline) {
+        anyhow::bail!(
+            "invalid argument '--sigma-t': compares the colour walks; run {} without it",
+            if a.deep {
+                "--deep"
+            } else {
+                "--global-baseline"
+            }
+        );
+    }
     if a.deep {
         let Some(file) = &a.file else {
             anyhow::bail!("compare --deep needs a .vdb file");
