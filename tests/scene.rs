@@ -1025,4 +1025,8 @@ fn the_colour_walk_is_asked_for_on_every_front_end() {
     assert_eq!(auto, ["shared", "split", "shared"]);
     let md = std::fs::read_to_string(report.join("colour.md")).unwrap();
     assert!(md.contains("| track-length |"), "{md}");
+    let svg = std::fs::read_to_string(report.join("colour_walks.svg")).unwrap();
+    for name in ["riemann", "track-length", "ratio", "auto takes split here"] {
+        assert!(svg.contains(name), "the plot has no '{name}'");
+    }
 }

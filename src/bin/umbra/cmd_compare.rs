@@ -73,7 +73,7 @@ pub struct CompareArgs {
     res: u32,
     /// Compare the colour walks instead: FILE's grid as a coloured medium (mu_c = sigma_t[c] x
     /// density-scale x value), every non-exact estimator over its ladder with the shared walk
-    /// and with split walks (per-channel majorants): colour.{md,json}.
+    /// and with split walks (per-channel majorants): colour.{md,json}, colour_walks.svg.
     #[arg(long, value_parser = umbra::request::parse_vec3)]
     sigma_t: Option<[f64; 3]>,
     /// Samples per ray in the stress suite.
@@ -340,19 +340,27 @@ fn run_colour(
         ),
     };
     let md = compare::colour::colour_markdown(&rows, &meta, sigma);
+    let verdicts = compare::colour::verdicts(&rows, sigma);
     let json = serde_json::to_string_pretty(&serde_json::json!({
-        "meta": meta, "sigma_t": sigma,
-        "verdicts": compare::colour::verdicts(&rows, sigma), "rows": rows,
+        "meta": meta, "sigma_t": sigma, "verdicts": verdicts, "rows": rows,
     }))?;
+    let svg = crate::plot::colour_svg(&rows, &verdicts)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let mut staged = Vec::new();
-    for (name, text) in [("colour.md", &md), ("colour.json", &json)] {
+    for (name, text) in [
+        ("colour.md", &md),
+        ("colour.json", &json),
+        ("colour_walks.svg", &svg),
+    ] {
         staged.push(umbra::output::stage(&a.out.join(name), true, |w| {
             std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
         })?);
     }
     umbra::output::commit_all(staged)?;
-    say(&format!("wrote {}/colour.{{md,json}}", a.out.display()));
+    say(&format!(
+        "wrote {}/colour.{{md,json}} and colour_walks.svg",
+        a.out.display()
+    ));
     Ok(ExitCode::SUCCESS)
 }
 

@@ -253,3 +253,120 @@ pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
     }
     Ok(out)
 }
+
+/// `compare --sigma-t`'s plot: per estimator, `efficiency(split) / efficiency(shared)` at each
+/// budget (dots) and their geometric mean (a bar), on a log scale around 1; the colour says
+/// which walk `auto` takes. The legend is beside the plot.
+pub fn colour_svg(
+    rows: &[umbra::compare::colour::ColourRow],
+    verdicts: &[umbra::compare::colour::ColourVerdict],
+) -> Result<String> {
+    use umbra::estimate::ColourWalk;
+    let mut out = String::new();
+    {
+        let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("drawing the plot: {e}");
+        let root = SVGBackend::with_string(&mut out, (1040, 640)).into_drawing_area();
+        root.fill(&WHITE).map_err(|e| err(&e))?;
+        let (plot, legend) = root.split_horizontally(840);
+        // Per estimator, the ratio at each budget.
+        let ratios: Vec<Vec<f64>> = verdicts
+            .iter()
+            .map(|v| {
+                let mine = |walk| {
+                    rows.iter()
+                        .filter(move |r| r.estimator == v.estimator && r.walk == walk)
+                };
+                mine(ColourWalk::Shared)
+                    .zip(mine(ColourWalk::Split))
+                    .map(|(a, b)| b.efficiency / a.efficiency)
+                    .filter(|x| x.is_finite() && *x > 0.0)
+                    .collect()
+            })
+            .collect();
+        let all = ratios
+            .iter()
+            .flatten()
+            .chain(verdicts.iter().map(|v| &v.split_over_shared));
+        let (lo, hi) = all.fold((1.0f64, 1.0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+        let n = verdicts.len().max(1);
+        let names: Vec<String> = verdicts.iter().map(|v| v.estimator.clone()).collect();
+        // One row per estimator, the first on top.
+        let row = |i: usize| (n - 1 - i) as f64;
+        let mut chart = ChartBuilder::on(&plot)
+            .caption(
+                "Split walks against the shared walk, per estimator",
+                ("sans-serif", 22),
+            )
+            .margin(20)
+            .x_label_area_size(45)
+            .y_label_area_size(170)
+            .build_cartesian_2d((lo / 1.5..hi * 1.5).log_scale(), -0.5..n as f64 - 0.5)
+            .map_err(|e| err(&e))?;
+        chart
+            .configure_mesh()
+            .y_labels(n)
+            .y_label_formatter(&|y| {
+                let k = y.round();
+                if (y - k).abs() < 1e-6 && k >= 0.0 && (k as usize) < n {
+                    names[n - 1 - k as usize].clone()
+                } else {
+                    String::new()
+                }
+            })
+            .y_label_style(("sans-serif", 14))
+            .disable_y_mesh()
+            .x_desc("efficiency split / shared (right of 1: split wins)")
+            .draw()
+            .map_err(|e| err(&e))?;
+        chart
+            .draw_series(DashedLineSeries::new(
+                vec![(1.0, -0.5), (1.0, n as f64 - 0.5)],
+                6,
+                4,
+                BLACK.stroke_width(1),
+            ))
+            .map_err(|e| err(&e))?;
+        let colour = |w: ColourWalk| match w {
+            ColourWalk::Split => RGBColor(200, 60, 30),
+            _ => RGBColor(30, 90, 200),
+        };
+        for (i, (v, r)) in verdicts.iter().zip(&ratios).enumerate() {
+            let y = row(i);
+            let c = colour(v.auto);
+            chart
+                .draw_series(std::iter::once(Rectangle::new(
+                    [(1.0, y - 0.3), (v.split_over_shared, y + 0.3)],
+                    c.mix(0.35).filled(),
+                )))
+                .map_err(|e| err(&e))?;
+            chart
+                .draw_series(r.iter().map(|&x| Circle::new((x, y), 4, c.filled())))
+                .map_err(|e| err(&e))?;
+        }
+        let style = ("sans-serif", 15).into_font();
+        for (k, (text, c)) in [
+            ("auto takes split here", Some(colour(ColourWalk::Split))),
+            ("auto takes shared here", Some(colour(ColourWalk::Shared))),
+            ("bar: geometric mean", None),
+            ("dots: each budget", None),
+        ]
+        .iter()
+        .enumerate()
+        {
+            let y = 80 + 26 * k as i32;
+            if let Some(c) = c {
+                legend
+                    .draw(&Rectangle::new(
+                        [(10, y - 6), (34, y + 6)],
+                        c.mix(0.6).filled(),
+                    ))
+                    .map_err(|e| err(&e))?;
+            }
+            legend
+                .draw(&Text::new(*text, (42, y - 8), style.clone()))
+                .map_err(|e| err(&e))?;
+        }
+        root.present().map_err(|e| err(&e))?;
+    }
+    Ok(out)
+}
