@@ -89,7 +89,7 @@ pub fn compare_colour(
     for base in estimators.iter().filter(|e| **e != Estimator::REGULAR) {
         for (est, label, value) in super::ladder(base) {
             for walk in [ColourWalk::Shared, ColourWalk::Split] {
-                progress(&format!("{} {label} {walk:?}", base.name()));
+                progress(&format!("{} {label} {}", base.name(), walk.name()));
                 let mut opts = s.options;
                 opts.colour_walk = walk;
                 opts.samples = if label.starts_with("spp=") {

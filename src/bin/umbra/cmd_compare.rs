@@ -346,21 +346,15 @@ fn run_colour(
     }))?;
     let svg = crate::plot::colour_svg(&rows, &verdicts)?;
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-    let mut staged = Vec::new();
-    for (name, text) in [
-        ("colour.md", &md),
-        ("colour.json", &json),
-        ("colour_walks.svg", &svg),
-    ] {
-        staged.push(umbra::output::stage(&a.out.join(name), true, |w| {
-            std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
-        })?);
-    }
-    umbra::output::commit_all(staged)?;
-    say(&format!(
-        "wrote {}/colour.{{md,json}} and colour_walks.svg",
-        a.out.display()
-    ));
+    write_together(
+        &a.out,
+        &[
+            ("colour.md", &md),
+            ("colour.json", &json),
+            ("colour_walks.svg", &svg),
+        ],
+        say,
+    )?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -432,21 +426,33 @@ fn run_deep(
         "light_dir": a.light_dir.unwrap_or([0.0, -1.0, 0.0]), "rows": rows,
     }))?;
     let svg = crate::plot::deep_svg(&rows)?;
+    write_together(
+        &a.out,
+        &[
+            ("deep.md", &md),
+            ("deep.json", &json),
+            ("deep_error_vs_bytes.svg", &svg),
+        ],
+        say,
+    )
+}
+
+/// Write the text reports `files` (name, text) into `dir`, all of them or none (staged, then
+/// committed together), and say so.
+fn write_together(
+    dir: &std::path::Path,
+    files: &[(&str, &String)],
+    say: &dyn Fn(&str),
+) -> Result<()> {
     let mut staged = Vec::new();
-    for (name, text) in [
-        ("deep.md", &md),
-        ("deep.json", &json),
-        ("deep_error_vs_bytes.svg", &svg),
-    ] {
-        staged.push(umbra::output::stage(&a.out.join(name), true, |w| {
+    for (name, text) in files {
+        staged.push(umbra::output::stage(&dir.join(name), true, |w| {
             std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
         })?);
     }
     umbra::output::commit_all(staged)?;
-    say(&format!(
-        "wrote {}/deep.{{md,json}} and deep_error_vs_bytes.svg",
-        a.out.display()
-    ));
+    let names: Vec<&str> = files.iter().map(|f| f.0).collect();
+    say(&format!("wrote {} in {}", names.join(", "), dir.display()));
     Ok(())
 }
 
