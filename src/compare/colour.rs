@@ -59,8 +59,9 @@ pub struct ColourVerdict {
     pub auto: ColourWalk,
 }
 
-/// Exact transmittance of each ray, per channel.
-fn reference(scene: &Scene, rays: &[Ray], s: &Settings) -> Vec<[f64; 3]> {
+/// Exact transmittance of each ray, per channel (what [`compare_colour`] scores against).
+#[must_use]
+pub fn reference(scene: &Scene, rays: &[Ray], s: &Settings) -> Vec<[f64; 3]> {
     rays.par_iter()
         .enumerate()
         .map(|(i, r)| {
@@ -71,19 +72,19 @@ fn reference(scene: &Scene, rays: &[Ray], s: &Settings) -> Vec<[f64; 3]> {
 }
 
 /// Run every estimator of `estimators` (exact ones are skipped: they have no walk) over its
-/// ladder with both walks.
+/// ladder with both walks, scored against `exact` ([`reference`] of the same rays).
 ///
 /// # Errors
 /// Propagates estimator errors.
 pub fn compare_colour(
     scene: &Scene,
     rays: &[Ray],
+    exact: &[[f64; 3]],
     estimators: &[Estimator],
     s: &Settings,
     mut progress: impl FnMut(&str),
 ) -> Result<Vec<ColourRow>> {
     s.options.validate()?;
-    let exact = reference(scene, rays, s);
     let channels = scene.channels();
     let mut rows = Vec::new();
     for base in estimators.iter().filter(|e| **e != Estimator::REGULAR) {
@@ -187,9 +188,14 @@ pub fn verdicts(rows: &[ColourRow], sigma: [f64; 3]) -> Vec<ColourVerdict> {
         .collect()
 }
 
-/// The colour report as Markdown: the verdicts, then every point.
+/// The colour report as Markdown: the verdicts ([`verdicts`] of `rows`), then every point.
 #[must_use]
-pub fn colour_markdown(rows: &[ColourRow], meta: &super::Meta, sigma: [f64; 3]) -> String {
+pub fn colour_markdown(
+    rows: &[ColourRow],
+    verdicts: &[ColourVerdict],
+    meta: &super::Meta,
+    sigma: [f64; 3],
+) -> String {
     let mut md = String::new();
     let _ = writeln!(md, "# umbra colour walks: shared against split\n");
     let _ = writeln!(
@@ -217,7 +223,7 @@ pub fn colour_markdown(rows: &[ColourRow], meta: &super::Meta, sigma: [f64; 3]) 
         md,
         "| estimator | split / shared | winner here | auto | agrees |\n|---|---:|---|---|---|"
     );
-    for v in verdicts(rows, sigma) {
+    for v in verdicts {
         let _ = writeln!(
             md,
             "| {} | {:.2} | {} | {} | {} |",

@@ -308,19 +308,10 @@ fn run_colour(
     }
     let fog = umbra::scene::Fog::new(vol, sigma).map_err(crate::common::flag_error)?;
     let scene = umbra::scene::Scene::new(vec![fog], Vec::new(), true)?;
+    let exact = pool.install(|| compare::colour::reference(&scene, rays, settings));
     let rows = pool.install(|| {
-        compare::colour::compare_colour(&scene, rays, estimators, settings, |m| say(m))
+        compare::colour::compare_colour(&scene, rays, &exact, estimators, settings, |m| say(m))
     })?;
-    let exact: Vec<[f64; 3]> = pool.install(|| {
-        use rayon::prelude::*;
-        rays.par_iter()
-            .enumerate()
-            .map(|(i, r)| {
-                umbra::scene::estimate(&scene, r, i as u64, &Estimator::REGULAR, &settings.options)
-                    .map_or([f64::NAN; 3], |e| e.value)
-            })
-            .collect()
-    });
     let mean = |c: usize| exact.iter().map(|t| t[c]).sum::<f64>() / exact.len().max(1) as f64;
     let meta = Meta {
         source,
@@ -339,8 +330,8 @@ fn run_colour(
             mean(2)
         ),
     };
-    let md = compare::colour::colour_markdown(&rows, &meta, sigma);
     let verdicts = compare::colour::verdicts(&rows, sigma);
+    let md = compare::colour::colour_markdown(&rows, &verdicts, &meta, sigma);
     let json = serde_json::to_string_pretty(&serde_json::json!({
         "meta": meta, "sigma_t": sigma, "verdicts": verdicts, "rows": rows,
     }))?;
