@@ -6,7 +6,9 @@
 //! **Interruption.** Every temporary file is registered while it exists. A signal handler calls
 //! [`remove_temporaries`]: it waits for a commit in progress to finish (renames happen under the
 //! same lock, so a group of outputs is never half renamed), deletes every registered temporary
-//! file and refuses any later stage or commit; the caller then exits.
+//! file and refuses any later stage or commit; the caller then exits. It reports what is on
+//! disk ([`Interrupted`]): the temporaries removed and every output this process committed
+//! before the signal (a signal at the very end of a command finds them all in place).
 
 use crate::error::{Error, Result};
 use std::collections::BTreeSet;
@@ -15,16 +17,57 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Mutex, MutexGuard};
 
-/// Temporary files that exist now, and whether output has been shut down.
+/// Temporary files that exist now, the outputs committed so far, and whether output has been
+/// shut down.
 struct Live {
     temps: BTreeSet<PathBuf>,
+    committed: Vec<PathBuf>,
     closed: bool,
 }
 
 static LIVE: Mutex<Live> = Mutex::new(Live {
     temps: BTreeSet::new(),
+    committed: Vec::new(),
     closed: false,
 });
+
+/// What [`remove_temporaries`] found: how many temporary files it removed, and the outputs
+/// this process had committed (complete, in place) before it ran, in commit order.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Interrupted {
+    /// Temporary files removed.
+    pub removed: usize,
+    /// Outputs renamed into place before output was shut down.
+    pub committed: Vec<PathBuf>,
+}
+
+impl Interrupted {
+    /// One line for a user: what an interrupted command leaves on disk, naming at most
+    /// `show` committed outputs (`"no output was written"`, or `"2 outputs were complete and
+    /// stay: a.exr, a.png"`).
+    #[must_use]
+    pub fn describe(&self, show: usize) -> String {
+        let n = self.committed.len();
+        if n == 0 {
+            return "no output was written, no partial output left".into();
+        }
+        let mut names: Vec<String> = self
+            .committed
+            .iter()
+            .take(show)
+            .map(|p| crate::text::escape(&p.display().to_string()).into_owned())
+            .collect();
+        if n > show {
+            names.push(format!("and {} more", n - show));
+        }
+        format!(
+            "{n} output{} complete before the interrupt and stay{}: {}; no partial output left",
+            if n == 1 { " was" } else { "s were" },
+            if n == 1 { "s" } else { "" },
+            names.join(", ")
+        )
+    }
+}
 
 fn live() -> MutexGuard<'static, Live> {
     // A panic while holding the lock cannot leave the set inconsistent (single operations).
@@ -33,16 +76,19 @@ fn live() -> MutexGuard<'static, Live> {
 }
 
 /// Delete every temporary file of this process and refuse all later writes; returns how many
-/// files were removed. For signal handlers: call it, then exit. A commit in progress finishes
-/// first.
-pub fn remove_temporaries() -> usize {
+/// files were removed and which outputs were committed before. For signal handlers: call it,
+/// report it, then exit. A commit in progress finishes first.
+pub fn remove_temporaries() -> Interrupted {
     let mut l = live();
     l.closed = true;
-    let n = l.temps.len();
+    let removed = l.temps.len();
     for p in std::mem::take(&mut l.temps) {
         let _ = std::fs::remove_file(p);
     }
-    n
+    Interrupted {
+        removed,
+        committed: l.committed.clone(),
+    }
 }
 
 fn closed_err(path: &Path) -> Error {
@@ -104,6 +150,9 @@ impl Staged {
             let _ = std::fs::remove_file(&tmp);
         }
         l.temps.remove(&tmp);
+        if renamed.is_ok() {
+            l.committed.push(self.target.clone());
+        }
         renamed.map_err(|e| output_err(&self.target, format!("renaming into place: {e}")))
     }
 }

@@ -17,7 +17,10 @@
 //!    convex combination of the corners, which the segment's halo bounds) and is skipped. A
 //!    constant segment with a negative value is hit at its start.
 //! 3. Any other segment is cut into the trilinear dual cells it crosses (the unit DDA in index
-//!    space, where dual cell `c` is `floor(q + t d)`). Inside one cell, with local coordinates
+//!    space, where dual cell `c` is `floor(q + t d)`). A cell none of whose 8 corners is
+//!    negative is skipped (its field is a convex combination of them): where the field only
+//!    touches 0 (band voxels beside a background of 0, as Blender writes a liquid's `phi`)
+//!    round-off cannot make a hit. Inside one cell, with local coordinates
 //!    `u(s) = u0 + d s` (`s = t - t_a`, `t_a` the cell entry), the trilinear field
 //!    `f(x, y, z) = k + k_x x + k_y y + k_z z + k_xy xy + k_xz xz + k_yz yz + k_xyz xyz` is a cubic
 //!    polynomial `p(s) = c0 + c1 s + c2 s^2 + c3 s^3` with
@@ -59,8 +62,10 @@ const MAX_BISECTIONS: u32 = 200;
 ///
 /// The grid must hold a signed distance (negative inside, positive outside, as OpenVDB level
 /// sets do); its grid class is not checked because many files do not record one. A grid whose
-/// background is negative is "everything inside": [`Solid::first_hit`] returns `t_min` for
-/// every ray (an inverted or malformed level set; OpenVDB's backgrounds are positive).
+/// background is negative would be "everything inside" (an inverted or malformed level set;
+/// OpenVDB's backgrounds are positive) and is refused; a background of 0 (Blender's liquids)
+/// reads as on the surface outside the band and is traced as outside
+/// ([`crate::bake::Warning::SolidBackground`] says so).
 #[derive(Debug, Clone)]
 pub struct Solid {
     /// The raw signed distances (no bad-voxel policy), never traced as fog.
@@ -104,6 +109,10 @@ impl Solid {
                 path: path.to_path_buf(),
                 what: format!("grid '{shown}' cannot be traced: its transform: {reason}"),
             },
+            Error::InvalidArgument { name, reason } if name == "background" => Error::Unsupported {
+                path: path.to_path_buf(),
+                what: format!("a solid from grid '{shown}': {reason}"),
+            },
             other => other,
         })
     }
@@ -115,6 +124,18 @@ impl Solid {
     /// # Errors
     /// [`Error::InvalidArgument`] (name `transform`) for a map [`Volume::from_tree`] refuses.
     pub fn from_tree(name: String, tree: Tree, world_from_index: [[f64; 4]; 3]) -> Result<Self> {
+        let bg = tree.background();
+        if bg < 0.0 || bg.is_nan() {
+            return Err(Error::InvalidArgument {
+                name: "background".into(),
+                reason: format!(
+                    "level set '{}' has background {bg}: outside its narrow band it reads as \
+                     inside, so every ray would start in the solid (a level set's background is \
+                     its positive band half-width)",
+                    crate::text::escape(&name)
+                ),
+            });
+        }
         Ok(Self {
             vol: Volume::from_tree_raw(name, tree, world_from_index)?,
         })
@@ -136,6 +157,14 @@ impl Solid {
         self.vol.name()
     }
 
+    /// The grid's background: `phi` outside its narrow band (positive for OpenVDB's level
+    /// sets; 0 in Blender's liquids, where it reads as on the surface; never negative, which
+    /// [`Solid::from_tree`] refuses).
+    #[must_use]
+    pub fn background(&self) -> f64 {
+        f64::from(self.vol.tree().background())
+    }
+
     /// The 8 world corners of the box holding every value other than the background, grown by
     /// one voxel (see [`Volume::box_corners`]).
     ///
@@ -155,14 +184,10 @@ impl Solid {
     /// or `None` when the ray stays outside. The crossing is located to within
     /// [`BRACKET_VOXELS`] voxels of index-space length and the returned `t` is on the inside
     /// end of the final bracket (`phi(t) <= 0` up to round-off); a ray that starts inside gets
-    /// `t_min`. The method is in the module documentation. A solid with a negative background
-    /// returns `Some(t_min)` for every ray.
+    /// `t_min`. The method is in the module documentation.
     #[must_use]
     pub fn first_hit(&self, ray: &Ray) -> Option<f64> {
         let t_min = ray.t_min();
-        if self.vol.tree().background() < 0.0 {
-            return Some(t_min);
-        }
         let (q, d) = lookup_ray(&self.vol, ray, Interp::Trilinear);
         let mut acc = Accessor::new(self.vol.tree());
         let start = [0, 1, 2].map(|a| q[a] + d[a] * t_min);
@@ -240,6 +265,13 @@ fn cells_hit(
     let mut hit = None;
     let _ = dda(q, d, (t0, t1), &cells, |c, ta, tb| {
         let v = corners(acc, c);
+        // Trilinear interpolation is a convex combination of the corners: a cell without a
+        // negative corner holds no phi < 0. Skipping it exactly keeps the cubic's round-off
+        // (an end `s` a hair past the cell, where the polynomial extrapolates below a zero
+        // corner) from inventing a hit where the field only touches 0.
+        if v.iter().all(|&x| x >= 0.0) {
+            return ControlFlow::Continue(());
+        }
         let u0 = [0, 1, 2].map(|a| q[a] + d[a] * ta - c[a] as f64);
         hit = cell_hit(&cubic(&v, u0, d), ta, tb, index_speed);
         if hit.is_some() {

@@ -606,7 +606,7 @@ fn an_almost_empty_map_warns_and_suggests_a_density_scale() {
 
 /// Interrupt bakes (with and without a preview and slices) with SIGINT and SIGTERM at many
 /// moments: afterwards there is no temporary file and either no output at all or every output,
-/// complete and readable.
+/// complete and readable, and the message names what is on disk.
 #[test]
 fn interrupted_bakes_leave_no_temporary_or_partial_files() {
     let c = cloud();
@@ -710,6 +710,19 @@ fn interrupted_bakes_leave_no_temporary_or_partial_files() {
                     "{args:?} after {wait_ms} ms: {files:?}"
                 );
                 assert!(files.len() == have.len(), "{files:?}");
+                // The message says what is on disk: the outputs that were complete before the
+                // signal, or that nothing was written.
+                let err = String::from_utf8_lossy(&out.stderr);
+                if code.is_some() {
+                    if have.is_empty() {
+                        assert!(err.contains("no output was written"), "{err}");
+                    } else {
+                        assert!(err.contains("complete before the interrupt"), "{err}");
+                        for f in &have {
+                            assert!(err.contains(f), "{f} not named: {err}");
+                        }
+                    }
+                }
             }
         }
     }

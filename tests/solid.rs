@@ -400,7 +400,7 @@ fn a_translation_moves_the_hit() {
 
 #[test]
 fn grids_that_cannot_be_solids_are_refused() {
-    // Everything inside: a negative background.
+    // Everything inside: a negative background is refused, naming the grid.
     let mut b = TreeBuilder::new(-1.0);
     b.set([0, 0, 0], 2.0);
     let id = [
@@ -408,9 +408,17 @@ fn grids_that_cannot_be_solids_are_refused() {
         [0.0, 1.0, 0.0, 0.0],
         [0.0, 0.0, 1.0, 0.0],
     ];
-    let s = Solid::from_tree("inv".into(), b.build(), id).unwrap();
+    match Solid::from_tree("inv".into(), b.build(), id) {
+        Err(umbra::Error::InvalidArgument { name, reason }) => {
+            assert_eq!(name, "background");
+            assert!(
+                reason.contains("'inv'") && reason.contains("inside"),
+                "{reason}"
+            );
+        }
+        other => panic!("{other:?}"),
+    }
     let ray = Ray::new([50.0, 0.0, 0.0], [1.0, 0.0, 0.0], 2.5, 9.0).unwrap();
-    assert_eq!(s.first_hit(&ray), Some(2.5));
     // A singular map is an error, not a panic.
     let mut m = id;
     m[2][2] = 0.0;
@@ -450,4 +458,58 @@ fn corpus_grids_that_cannot_be_solids_are_refused() {
     let fog = Solid::load(dir.join("gen/sphere_fog.vdb"), "density").unwrap();
     let ray = Ray::new([-5.0, 0.0, 0.0], [1.0, 0.0, 0.0], 0.0, f64::INFINITY).unwrap();
     assert_eq!(fog.first_hit(&ray), None);
+}
+
+/// A level set whose background is 0 (a Blender liquid's `phi`): outside its band the field
+/// reads as "on the surface". Rays that only touch 0 (where band voxels meet the background,
+/// often at the ray's very end, on the clip box) are not hits: every ray that stays two voxels
+/// away from the one negative voxel misses, and rays through it hit.
+#[test]
+fn touching_zero_is_not_a_hit() {
+    let mut b = TreeBuilder::new(0.0);
+    for i in 0..16 {
+        for j in 0..16 {
+            for k in 0..16 {
+                b.set([i, j, k], 2.5);
+            }
+        }
+    }
+    b.set([12, 12, 12], -1.0);
+    let id = [
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+    ];
+    let s = Solid::from_tree("phi0".into(), b.build(), id).unwrap();
+    let mut rng = rand::rngs::StdRng::seed_from_u64(11);
+    let neg = DVec3::splat(12.0);
+    let (mut misses, mut hits) = (0, 0);
+    for _ in 0..20000 {
+        // From a point on a sphere around the block to a point on its faces or edges, often
+        // exactly on the planes where the band meets the background (15 and 16).
+        let d = unit(&mut rng);
+        let from = DVec3::splat(7.5) - 30.0 * d;
+        let pick = |r: &mut rand::rngs::StdRng| match r.gen_range(0..4) {
+            0 => 15.0,
+            1 => 16.0,
+            2 => -1.0,
+            _ => r.gen_range(-1.0..16.0),
+        };
+        let to = DVec3::new(pick(&mut rng), pick(&mut rng), pick(&mut rng));
+        let Ok(ray) = Ray::between(from.to_array(), to.to_array()) else {
+            continue;
+        };
+        // Distance of the negative voxel from the segment.
+        let u = ray.direction();
+        let o = ray.origin();
+        let t = (neg - o).dot(u).clamp(0.0, ray.t_max());
+        let far = (o + t * u - neg).length() > 2.0;
+        match s.first_hit(&ray) {
+            Some(t) if far => panic!("{ray:?}: a hit at {t} where phi only touches 0"),
+            Some(_) => hits += 1,
+            None if far => misses += 1,
+            None => {}
+        }
+    }
+    assert!(misses > 10000 && hits > 0, "{misses} misses, {hits} hits");
 }

@@ -285,6 +285,91 @@ fn the_collision_cap_stops_a_sample_and_is_counted() {
     assert!(e.value.is_finite());
 }
 
+/// A sample stopped by the collision cap finishes its ray with the exact optical depth of the
+/// rest. On a dense blob (exact T below 1e-7) every null-collision estimator stopped after a
+/// few collisions answers T <= 0.01, never "no attenuation". On a blob of exact T = 0.1 with a
+/// budget of one collision (nearly every sample capped) the unbiased trackers stay unbiased
+/// (the closed-form rest is the walk's conditional mean): within 4 standard errors of the
+/// exact T.
+#[test]
+fn a_capped_sample_finishes_its_ray_with_the_exact_rest() {
+    let id = [
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+    ];
+    let tree = || {
+        let mut b = TreeBuilder::new(0.0);
+        for i in 0..22 {
+            for j in 0..22 {
+                for k in 0..22 {
+                    let r2 = (i - 11) * (i - 11) + (j - 11) * (j - 11) + (k - 11) * (k - 11);
+                    b.set([i, j, k], (-f64::from(r2) / 30.0).exp() as f32);
+                }
+            }
+        }
+        b.build()
+    };
+    let ray = Ray::between([0.0, 0.0, 0.0], [21.0, 21.0, 21.0]).unwrap();
+    let tau = |v: &Volume| {
+        estimate(v, &ray, 0, &Estimator::REGULAR, &Options::default())
+            .unwrap()
+            .tau
+            .unwrap()
+    };
+    let dense = Volume::from_tree("dense".into(), tree(), id, 1e12).unwrap();
+    let unit = Volume::from_tree("unit".into(), tree(), id, 1.0).unwrap();
+    let scale = 10f64.ln() / tau(&unit);
+    let mid = Volume::from_tree("mid".into(), tree(), id, scale).unwrap();
+    let t_mid = (-tau(&mid)).exp();
+    assert!((t_mid - 0.1).abs() < 1e-6, "{t_mid}");
+    for name in [
+        "track-length",
+        "collision",
+        "ratio",
+        "residual-ratio",
+        "residual-ratio-midpoint",
+        "next-flight",
+        "decomposition",
+    ] {
+        let est = Estimator::from_name(name).unwrap();
+        let opts = Options {
+            samples: 16,
+            max_collisions: 3,
+            ..Options::default()
+        };
+        let e = estimate(&dense, &ray, 7, &est, &opts).unwrap();
+        assert!(
+            e.value <= 0.01,
+            "{name}: dense blob gives T = {} ({e:?})",
+            e.value
+        );
+        let opts = Options {
+            samples: 4000,
+            max_collisions: 1,
+            ..Options::default()
+        };
+        let e = estimate(&mid, &ray, 7, &est, &opts).unwrap();
+        assert!(
+            e.capped > 400,
+            "{name}: only {} of 4000 samples capped",
+            e.capped
+        );
+        let err = (e.value - t_mid).abs();
+        if est.kind() == Kind::Biased {
+            assert!(err < 0.05, "{name}: T = {} (exact {t_mid})", e.value);
+        } else {
+            assert!(
+                err < 4.0 * e.std_err,
+                "{name}: T = {} +- {} (exact {t_mid}, {} capped)",
+                e.value,
+                e.std_err,
+                e.capped
+            );
+        }
+    }
+}
+
 #[test]
 fn compare_writes_four_well_formed_reports() {
     let dir = tempfile::tempdir().unwrap();

@@ -67,11 +67,12 @@ def test_an_openjd_template_runs_the_job_as_a_local_run_does(cli, tmp_path):
     cli("batch", farm, "--emit", "openjd", "-o", template)
     t = json.loads(template.read_text())
     assert t["specificationVersion"] == "jobtemplate-2023-09"
-    assert [p["default"] for p in t["parameterDefinitions"]] == ["job.toml", "."]
+    exe, job_file, out_dir = [p["default"] for p in t["parameterDefinitions"]]
+    assert pathlib.Path(exe).is_absolute() and (job_file, out_dir) == ("job.toml", ".")
     [step] = t["steps"]
     assert step["parameterSpace"]["taskParameterDefinitions"][0]["range"] == "0-5"
     assert step["hostRequirements"]["amounts"][0]["min"] == 1
-    assert pathlib.Path(step["script"]["actions"]["onRun"]["command"]).is_absolute()
+    assert step["script"]["actions"]["onRun"]["command"] == "{{Param.Umbra}}"
     check = subprocess.run([str(OPENJD), "check", str(template)], capture_output=True, text=True)
     assert check.returncode == 0, check.stdout + check.stderr
     run = subprocess.run([str(OPENJD), "run", str(template), "--step", "bake"],
@@ -165,20 +166,35 @@ def _cue_tree(element):
     return (element.tag, element.attrib, text, [_cue_tree(c) for c in element])
 
 
+def _cuebot(command, job, layer, start, end, chunk):
+    """A frame's command as cuebot hands it to RQD (DispatchSupportService: every placeholder
+    replaced anywhere in the command, whatever surrounds it; the environment untouched)."""
+    frame = f"{start:04d}-{layer}"
+    for token, value in [("#ZFRAME#", f"{start:04d}"), ("#IFRAME#", str(start)),
+                         ("#FRAME_START#", str(start)), ("#FRAME_END#", str(end)),
+                         ("#FRAME_CHUNK#", str(chunk)), ("#LAYER#", layer), ("#JOB#", job),
+                         ("#FRAMESPEC#", f"{start}-{end}"), ("#FRAME#", frame)]:
+        command = command.replace(token, value)
+    return command
+
+
 def _rqd(spec_xml, cwd):
-    """Run every frame of every layer as OpenCue's RQD does: frames in chunks of `chunk`
-    consecutive frames, `#IFRAME#`/`#FRAME_START#` the chunk's first frame, `#FRAME_END#` its
-    last, the command through a shell. The exit code of each chunk, by its first frame."""
+    """Run every frame of every layer as OpenCue's cuebot and RQD do: frames in chunks of
+    `chunk` consecutive frames, cuebot's placeholders replaced in the command, the layer's
+    environment set, the command through a shell. The exit code of each chunk, by its first
+    frame."""
     codes = {}
-    for layer in ET.fromstring(spec_xml.split("\n", 2)[2]).iter("layer"):
+    root = ET.fromstring(spec_xml.split("\n", 2)[2])
+    job = root.find("job").get("name")
+    for layer in root.iter("layer"):
         first, last = map(int, layer.find("range").text.split("-"))
         chunk = int(layer.find("chunk").text)
+        env = dict(os.environ, **{k.get("name"): k.text or "" for k in layer.find("env")})
         for start in range(first, last + 1, chunk):
             end = min(start + chunk - 1, last)
-            cmd = (layer.find("cmd").text.replace("#IFRAME#", str(start))
-                   .replace("#FRAME_START#", str(start)).replace("#FRAME_END#", str(end)))
+            cmd = _cuebot(layer.find("cmd").text, job, layer.get("name"), start, end, chunk)
             codes[start] = subprocess.run(["/bin/sh", "-c", cmd], cwd=cwd, capture_output=True,
-                                          timeout=600).returncode
+                                          env=env, timeout=600).returncode
     return codes
 
 
@@ -201,12 +217,16 @@ def test_an_opencue_spec_is_the_one_pyoutline_writes_and_runs_as_rqd_runs_it(
         ours = p.stdout
         # The same job built with pyoutline: one Shell layer over tasks 0-5 in chunks, one
         # core (the job's threads), the command a TD would write with the chunk's tokens.
+        # The paths travel in the layer's environment (cuebot rewrites its placeholders
+        # anywhere in the command).
         tokens = "#IFRAME#" if chunk == 1 else "#FRAME_START#-#FRAME_END#"
-        command = " ".join([shlex.quote(str(exe)), "batch", shlex.quote(str(farm)), "--quiet",
-                            "--task", tokens])
+        command = f'"$UMBRA" batch "$UMBRA_JOB" --quiet --task {tokens}'
         ol = outline.Outline("umbra_job", show="mars", shot="sh010", user="td_alice")
-        ol.add_layer(outline.modules.shell.Shell("bake", command=command, range="0-5",
-                                                 chunk=chunk, cores=1))
+        layer = outline.modules.shell.Shell("bake", command=command, range="0-5", chunk=chunk,
+                                            cores=1)
+        layer.set_env("UMBRA", str(exe))
+        layer.set_env("UMBRA_JOB", str(farm))
+        ol.add_layer(layer)
         launcher = outline.cuerun.OutlineLauncher(ol, show="mars", shot="sh010",
                                                   user="td_alice", nomail=True)
         theirs = cue.serialize_simple(launcher)
@@ -240,6 +260,77 @@ def test_an_opencue_spec_is_the_one_pyoutline_writes_and_runs_as_rqd_runs_it(
     assert p.returncode == 0, p.stderr
     user = ET.fromstring(p.stdout.split("\n", 2)[2]).find("user").text
     assert user == pwd.getpwuid(os.getuid()).pw_name
+
+
+CUE_TOKENS = ["#ZFRAME#", "#IFRAME#", "#FRAME_START#", "#FRAME_END#", "#FRAME_CHUNK#",
+              "#LAYER#", "#JOB#", "#FRAMESPEC#", "#FRAME#"]
+
+
+def _hostile(tmp_path):
+    """A job in a folder, and an umbra in a folder, whose names hold every OpenCue placeholder
+    and OpenJD format strings; beside them the decoys an engine that expanded the names would
+    run instead (a job in `shot0...`, an umbra in `bin0...`), each of which would leave a
+    mark."""
+    name = "shot " + " ".join(CUE_TOKENS) + " {{Task.Param.Task}} {{Param.JobFile}}"
+    farm = _job(tmp_path / name)
+    exe_dir = tmp_path / ("bin#IFRAME#{{Task.Param.Task}}#JOB#")
+    exe_dir.mkdir()
+    return farm, exe_dir
+
+
+def test_farm_specs_run_the_job_they_name_whatever_its_paths_hold(umbra_bin, cli, tmp_path):
+    farm, exe_dir = _hostile(tmp_path)
+    exe = exe_dir / "umbra"
+    shutil.copy(umbra_bin, exe)
+    # Decoys: what the paths would become if an engine expanded its tokens in them.
+    decoy = tmp_path / "decoy_ran"
+    for d in [tmp_path / "bin0{{Task.Param.Task}}umbra_job", tmp_path / "bin0"]:
+        d.mkdir(exist_ok=True)
+        (d / "umbra").write_text(f"#!/bin/sh\ntouch '{decoy}'\n")
+        (d / "umbra").chmod(0o755)
+    # OpenCue: cuebot's substitution applied to the command, the layer's environment as is.
+    for chunk in (1, 2):
+        p = subprocess.run([str(exe), "batch", str(farm), "--emit", "opencue", "--chunk",
+                            str(chunk), "--show", "mars", "--shot", "sh010"],
+                           capture_output=True, text=True, env=dict(os.environ, USER="td"))
+        assert p.returncode == 0, p.stderr
+        for token in CUE_TOKENS:
+            assert token not in p.stdout.split("<cmd>")[1].split("</cmd>")[0].replace(
+                "#IFRAME#", "").replace("#FRAME_START#", "").replace("#FRAME_END#", "")
+        codes = _rqd(p.stdout, tmp_path)
+        assert set(codes.values()) == {0}, codes
+        assert len(_maps(farm.parent)) == 6 and not decoy.exists()
+        shutil.rmtree(farm.parent / "out")
+        for log in farm.parent.glob("*.jsonl"):
+            log.unlink()
+    # OpenJD: `openjd check` takes the template, `openjd run` bakes this job's maps.
+    if OPENJD.exists():
+        template = farm.parent / "job.json"
+        p = subprocess.run([str(exe), "batch", str(farm), "--emit", "openjd", "-o",
+                            str(template)], capture_output=True, text=True)
+        assert p.returncode == 0, p.stderr
+        check = subprocess.run([str(OPENJD), "check", str(template)], capture_output=True,
+                               text=True)
+        assert check.returncode == 0, check.stdout + check.stderr
+        run = subprocess.run([str(OPENJD), "run", str(template), "--step", "bake"],
+                             capture_output=True, text=True, cwd=tmp_path, timeout=600)
+        assert run.returncode == 0, run.stdout + run.stderr
+        assert len(_maps(farm.parent)) == 6 and not decoy.exists()
+    # A job file whose own name holds the tokens.
+    named = farm.parent / "job{{Task.Param.Task}}#IFRAME#.toml"
+    shutil.copy(farm, named)
+    shutil.rmtree(farm.parent / "out")
+    p = subprocess.run([str(exe), "batch", str(named), "--emit", "opencue"],
+                       capture_output=True, text=True, env=dict(os.environ, USER="td"))
+    assert p.returncode == 0, p.stderr
+    assert set(_rqd(p.stdout, tmp_path).values()) == {0}
+    assert len(_maps(farm.parent)) == 6 and not decoy.exists()
+    if OPENJD.exists():
+        template = farm.parent / "named.json"
+        cli("batch", named, "--emit", "openjd", "-o", template)
+        check = subprocess.run([str(OPENJD), "check", str(template)], capture_output=True,
+                               text=True)
+        assert check.returncode == 0, check.stdout + check.stderr
 
 
 @pytest.fixture

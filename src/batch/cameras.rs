@@ -56,7 +56,8 @@ impl Job {
             inputs.dedup();
             let mut union = Vec::new();
             for (input, time) in inputs {
-                let mut opts = self.scene_options();
+                // Every task of a sequence reads its files as its [[inputs]] entry says.
+                let mut opts = self.scene_options(tasks[0]);
                 opts.stage.time = time;
                 match crate::scene::read_box_corners(input, &opts) {
                     Ok(c) => union.extend(c),
@@ -189,6 +190,7 @@ impl Job {
                     t.pos,
                     &t.usd_light,
                     t.frame,
+                    (&t.grid, &t.xform, t.levelset),
                 )
             })
             .collect();

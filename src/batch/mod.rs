@@ -166,6 +166,14 @@ pub struct Task {
     pub sequence: usize,
     /// Input file.
     pub input: PathBuf,
+    /// Grid baked in the input (its `[[inputs]]` entry's, else the job's).
+    pub grid: String,
+    /// Density scale (its entry's, else `[bake]`'s).
+    pub density_scale: f64,
+    /// Level-set handling (its entry's, else `[bake]`'s).
+    pub levelset: Option<crate::request::LevelSet>,
+    /// Object transform, 16 numbers row-major (its entry's, else `[bake]`'s).
+    pub xform: Option<Vec<f64>>,
     /// Frame number for sequence inputs.
     pub frame: Option<i64>,
     /// Light name.
@@ -183,6 +191,15 @@ pub struct Task {
 }
 
 impl Task {
+    /// Put how this task reads its input (grid, density scale, level sets, transform) into
+    /// `options`.
+    pub fn read_into(&self, options: &mut BakeOptions) {
+        options.grid.clone_from(&self.grid);
+        options.density_scale = self.density_scale;
+        options.levelset = self.levelset;
+        options.xform.clone_from(&self.xform);
+    }
+
     /// The time code a USD stage input is read at: the task's frame (`None` for other inputs,
     /// and for a stage without `frames`: its start time code).
     #[must_use]
@@ -279,7 +296,7 @@ impl Job {
     /// when they cannot be listed (the bake will say why).
     #[must_use]
     pub fn sources(&self, task: &Task) -> Option<Vec<PathBuf>> {
-        let mut opts = self.scene_options();
+        let mut opts = self.scene_options(task);
         opts.stage.time = task.time();
         crate::scene::file::sources(&task.input, &opts).ok()
     }
@@ -302,6 +319,7 @@ impl Job {
     #[must_use]
     pub fn request(&self, task: &Task, threads: usize) -> BakeRequest {
         let mut options = self.options.clone();
+        task.read_into(&mut options);
         // With a fixed camera the light only names the outputs: the plan frames a view from it
         // that the fixed camera then replaces.
         options.light_dir = task.dir;
@@ -350,23 +368,24 @@ impl Job {
         }
     }
 
-    /// Check every input of the job before any task runs: the file exists and holds the job's
-    /// grid (its header and grid list only). A file that is there but cannot be parsed is left
-    /// to its own task, which fails alone.
+    /// Check every input of the job before any task runs: the file exists and holds its
+    /// task's grid (its header and grid list only). A file that is there but cannot be parsed
+    /// is left to its own task, which fails alone.
     ///
     /// # Errors
     /// [`BatchError::Task`] with [`crate::Error::Io`] or [`crate::Error::GridNotFound`],
     /// naming the first input that fails.
     pub fn check_inputs(&self) -> Result<(), BatchError> {
-        let mut inputs: Vec<&Path> = self.tasks.iter().map(|t| t.input.as_path()).collect();
-        inputs.dedup();
-        for input in inputs {
+        let mut inputs: Vec<&Task> = self.tasks.iter().collect();
+        inputs.dedup_by(|a, b| a.input == b.input && a.grid == b.grid);
+        for task in inputs {
+            let input = task.input.as_path();
             let found = if crate::usd::is_stage(input) {
                 crate::usd::lights_at(input, None).map(|_| ())
             } else if crate::scene::is_scene_file(input) {
-                crate::scene::read_box_corners(input, &self.scene_options()).map(|_| ())
+                crate::scene::read_box_corners(input, &self.scene_options(task)).map(|_| ())
             } else {
-                crate::vdb::open(input).and_then(|a| a.find_grid(&self.grid).map(|_| ()))
+                crate::vdb::open(input).and_then(|a| a.find_grid(&task.grid).map(|_| ()))
             };
             if let Err(
                 e @ (crate::Error::Io { .. }
@@ -381,18 +400,39 @@ impl Job {
         Ok(())
     }
 
-    /// How every task reads its input (grid, scale, colour, transform, level sets).
+    /// How `task` reads its input (grid, scale, colour, transform, level sets).
     #[must_use]
-    pub fn scene_options(&self) -> crate::scene::SceneOptions {
+    pub fn scene_options(&self, task: &Task) -> crate::scene::SceneOptions {
+        let xform = task
+            .xform
+            .as_deref()
+            .and_then(|x| crate::xform::Xform::from_row_major(x).ok());
         crate::scene::SceneOptions {
-            grid: self.grid.clone(),
-            density_scale: self.options.density_scale,
+            grid: task.grid.clone(),
+            density_scale: task.density_scale,
             sigma_t: self.options.sigma_t,
             // Checked when the job was parsed.
-            xform: self.options.xform().ok().flatten(),
-            levelset_solid: self.options.levelset == Some(crate::request::LevelSet::Solid),
+            xform,
+            levelset_solid: task.levelset == Some(crate::request::LevelSet::Solid),
             stage: self.options.stage_selection(),
         }
+    }
+
+    /// Check every task as a run would before it bakes anything: every input holds its
+    /// task's grid ([`Job::check_inputs`]) and every task's request plans
+    /// ([`BakeRequest::plan`]). What `--plan` runs.
+    ///
+    /// # Errors
+    /// As [`Job::check_inputs`]; [`BatchError::Invalid`] naming the first task whose request
+    /// cannot be planned (key `tasks[I]`) and why.
+    pub fn check_tasks(&self) -> Result<(), BatchError> {
+        self.check_inputs()?;
+        for task in &self.tasks {
+            self.request(task, 0)
+                .plan()
+                .map_err(|e| schema::err(&self.path, &format!("tasks[{}]", task.index), e))?;
+        }
+        Ok(())
     }
 
     /// Bake one task through the shared pipeline ([`BakeJob::run`]) and write its outputs

@@ -179,7 +179,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         }
     };
     for t in &skipped {
-        keep(record(job, t, "skipped", 0.0, 0.0, None));
+        keep(record(t, "skipped", 0.0, 0.0, None));
     }
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
     let workers = if opts.jobs == 0 { cores } else { opts.jobs }
@@ -222,11 +222,11 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
                 let rec = match result {
                     Ok((rate, warnings)) => Record {
                         warnings,
-                        ..record(job, t, "ok", secs, rate, None)
+                        ..record(t, "ok", secs, rate, None)
                     },
                     Err(e) => {
                         failed.fetch_add(1, Ordering::Relaxed);
-                        record(job, t, "failed", secs, 0.0, Some(e.to_string()))
+                        record(t, "failed", secs, 0.0, Some(e.to_string()))
                     }
                 };
                 progress.task(&rec);
@@ -272,7 +272,6 @@ fn invalid(option: &str, reason: String) -> BatchError {
 }
 
 fn record(
-    job: &Job,
     t: &Task,
     status: &'static str,
     seconds: f64,
@@ -282,7 +281,7 @@ fn record(
     Record {
         task: t.index,
         input: t.input.clone(),
-        grid: job.grid.clone(),
+        grid: t.grid.clone(),
         light: t.light.clone(),
         output: t.output.clone(),
         status,

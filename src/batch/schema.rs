@@ -5,7 +5,7 @@
 
 use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAMES, MAX_FRAME_PAD};
 use super::{BatchError, Job, Task};
-use crate::request::{BakeOptions, BakePlan, BakeRequest};
+use crate::request::{BakeOptions, BakePlan, BakeRequest, LevelSet};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
@@ -60,6 +60,26 @@ pub struct InputSpec {
     /// A USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`): its volumes at every frame of `frames`
     /// (time codes; without `frames`, its start time code).
     pub usd: Option<String>,
+    /// The grid to bake in this entry's files (default: the job's `grid`): a liquid's `phi`
+    /// beside a smoke's `density` in one job.
+    pub grid: Option<String>,
+    /// `density_scale` for this entry's files (default: `[bake]`'s).
+    pub density_scale: Option<f64>,
+    /// `levelset` for this entry's files (default: `[bake]`'s): `solid` traces its grid as
+    /// an opaque occluder.
+    pub levelset: Option<LevelSet>,
+    /// `xform` for this entry's files (default: `[bake]`'s): 16 numbers, row-major.
+    pub xform: Option<Vec<f64>>,
+}
+
+/// How the tasks of one `[[inputs]]` entry read their files: the entry's own values, else
+/// the job's.
+#[derive(Debug, Clone, PartialEq)]
+struct EntryRead {
+    grid: String,
+    density_scale: f64,
+    levelset: Option<LevelSet>,
+    xform: Option<Vec<f64>>,
 }
 
 /// One `[[lights]]` entry.
@@ -242,8 +262,10 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     }
     // (file, frame, index of its [[inputs]] entry)
     let mut inputs: Vec<(PathBuf, Option<i64>, usize)> = Vec::new();
+    let mut reads: Vec<EntryRead> = Vec::new();
     for (i, inp) in file.inputs.iter().enumerate() {
         let key = |k: &str| format!("inputs[{i}].{k}");
+        reads.push(entry_read(&path, &key, inp, &grid, b)?);
         match (&inp.file, &inp.pattern, &inp.usd) {
             (None, None, Some(u)) => {
                 if !crate::usd::is_stage(Path::new(u)) {
@@ -481,10 +503,15 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                     ),
                 ));
             }
+            let read = &reads[*sequence];
             tasks.push(Task {
                 index,
                 sequence: *sequence,
                 input: input.clone(),
+                grid: read.grid.clone(),
+                density_scale: read.density_scale,
+                levelset: read.levelset,
+                xform: read.xform.clone(),
                 frame: *frame,
                 light: l.name.clone(),
                 dir: l.dir,
@@ -522,6 +549,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     }
     let first = &tasks[0];
     let mut template = options.clone();
+    first.read_into(&mut template);
     template.preview.clone_from(&first.preview);
     if template.camera.is_none() {
         template.light_dir = first.dir;
@@ -564,6 +592,44 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         volume,
         usd_out,
         shared: std::sync::OnceLock::new(),
+    })
+}
+
+/// How the tasks of `[[inputs]]` entry `inp` read their files: its `grid`, `density_scale`,
+/// `levelset` and `xform`, each checked as `[bake]`'s are, else the job's (`grid`, `b`).
+fn entry_read(
+    path: &Path,
+    key: &dyn Fn(&str) -> String,
+    inp: &InputSpec,
+    grid: &str,
+    b: &BakeOptions,
+) -> Result<EntryRead, BatchError> {
+    if inp.grid.as_deref() == Some("") {
+        return Err(err(path, &key("grid"), "must not be empty"));
+    }
+    if let Some(s) = inp.density_scale {
+        if !(s.is_finite() && s >= 0.0) {
+            return Err(err(
+                path,
+                &key("density_scale"),
+                format!("{s} is not a finite scale >= 0"),
+            ));
+        }
+    }
+    if let Some(x) = &inp.xform {
+        crate::xform::Xform::from_row_major(x).map_err(|e| {
+            let reason = match e {
+                crate::Error::InvalidArgument { reason, .. } => reason,
+                other => other.to_string(),
+            };
+            err(path, &key("xform"), reason)
+        })?;
+    }
+    Ok(EntryRead {
+        grid: inp.grid.clone().unwrap_or_else(|| grid.to_string()),
+        density_scale: inp.density_scale.unwrap_or(b.density_scale),
+        levelset: inp.levelset.or(b.levelset),
+        xform: inp.xform.clone().or_else(|| b.xform.clone()),
     })
 }
 

@@ -550,11 +550,11 @@ impl Cap {
             violations: 0,
         }
     }
-    /// Spend one collision; false when the budget is exhausted.
+    /// Spend one collision; false when the budget is exhausted (the caller finishes the
+    /// sample and sets `hit`).
     #[inline]
     pub(crate) fn take(&mut self) -> bool {
         if self.left == 0 {
-            self.hit = true;
             return false;
         }
         self.left -= 1;

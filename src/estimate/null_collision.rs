@@ -5,9 +5,16 @@
 //! `mu_c` and a tentative-collision rate `r` (the majorant of the residual `mu - mu_c`).
 //! Tentative collisions are a Poisson process of rate `r`: `t += -ln(1 - U) / r` until `t`
 //! passes `s.t_max`. A segment with `r <= 0` has no collisions (its residual is zero: closed
-//! form). Each collision spends one unit of the collision budget ([`Cap`]); when it runs out the
-//! sample stops where it is and scores its running value (counted in
-//! [`super::Estimate::capped`]). Each collision reads `mu(t)` once and checks the segment's
+//! form). Each collision spends one unit of the collision budget ([`Cap`]); the collision at
+//! `t` that finds it spent is still taken, and then the sample finishes the rest of its ray
+//! deterministically (counted in [`super::Estimate::capped`]): the exact optical depth
+//! `tau_rest` of `[t, end]` ([`Extinction::exact`]) takes the place of the collisions not
+//! drawn, so the sample scores its running weight times `exp(-tau_rest)` (less the control
+//! already applied, see [`Tracker::capped`]). That is the conditional mean of what the walk
+//! would have scored from `t` on given its state (ratio and delta weights are products, and
+//! `E[W_rest] = T_rest` for the walk from a point), so a capped sample of an unbiased tracker
+//! stays unbiased (a Rao-Blackwellised tail), and a capped walk never reports "no
+//! attenuation". Each collision reads `mu(t)` once and checks the segment's
 //! bounds `mu_min <= mu <= mu_maj`: a value past them by more than float round-off (relative
 //! [`BOUND_TOLERANCE`]) is a *majorant violation*, counted in
 //! [`super::Estimate::majorant_violations`] (and a `debug_assert!` failure in debug builds) and
@@ -63,8 +70,33 @@ pub(crate) trait Tracker {
         rate: f64,
         rng: &mut Rng,
     ) -> ControlFlow<()>;
+    /// The collision budget ran out at `t`: finish the sample with the exact optical depth of
+    /// the rest of the ray (see [`Rest`]). A ratio or delta weight `w` becomes
+    /// `w exp(-(rest.tau - rest.control))`: the expected value of the walk from `t` on given
+    /// its state.
+    fn capped(&mut self, rest: Rest);
     /// The sample's value once the walk has ended (passed the end, stopped, or capped).
     fn value(&self) -> f64;
+}
+
+/// What is left of a ray when a sample's collision budget runs out at `t` inside segment `s`.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Rest {
+    /// Exact optical depth of `[t, end]`.
+    tau: f64,
+    /// Control optical depth of `[t, s.t_max]`, already applied on entering `s`.
+    control: f64,
+    /// Collision-rate optical depth of `[t, s.t_max]` (the majorant for next-flight).
+    rate: f64,
+}
+
+impl Rest {
+    /// `exp(-(tau - control))`, the transmittance of the rest beyond the control already
+    /// applied (above 1 where a midpoint control overshot the extinction: the weight the
+    /// walk would have regained on average).
+    fn factor(self) -> f64 {
+        (self.control - self.tau).exp()
+    }
 }
 
 /// `mu` checked against `[mu_min, mu_maj]`: round-off is clamped, a real violation is counted
@@ -107,7 +139,7 @@ pub(crate) fn free_flight(
     cap: &mut Cap,
     tr: &mut impl Tracker,
 ) -> f64 {
-    'segments: for s in segs {
+    'segments: for (i, s) in segs.iter().enumerate() {
         let (mu_c, rate) = tr.rates(s);
         if tr.enter(s, mu_c).is_break() {
             break;
@@ -121,11 +153,23 @@ pub(crate) fn free_flight(
             if t >= s.t_max {
                 break;
             }
-            if !cap.take() {
-                break 'segments;
-            }
+            let last = !cap.take();
             let mu = checked(m.mu(t), s, cap);
             if tr.collide(s, t, mu, mu_c, rate, rng).is_break() {
+                break 'segments;
+            }
+            if last {
+                // The budget ran out here: the rest of the ray in closed form.
+                cap.hit = true;
+                let mut tau_rest = m.exact(t, s.t_max);
+                for later in &segs[i + 1..] {
+                    tau_rest += m.exact(later.t_min, later.t_max);
+                }
+                tr.capped(Rest {
+                    tau: tau_rest,
+                    control: mu_c * (s.t_max - t),
+                    rate: rate * (s.t_max - t),
+                });
                 break 'segments;
             }
         }
@@ -173,6 +217,10 @@ impl<F: Fn(f64) -> f64> Tracker for Delta<F> {
             return ControlFlow::Break(());
         }
         ControlFlow::Continue(())
+    }
+    fn capped(&mut self, rest: Rest) {
+        // No real collision yet (a hit ends the walk before the cap): survive the rest.
+        self.w *= rest.factor();
     }
     fn value(&self) -> f64 {
         self.hit.unwrap_or(self.w)
@@ -279,6 +327,9 @@ impl Tracker for RatioTracker {
         }
         ControlFlow::Continue(())
     }
+    fn capped(&mut self, rest: Rest) {
+        self.w *= rest.factor();
+    }
     fn value(&self) -> f64 {
         self.w
     }
@@ -346,6 +397,12 @@ impl Tracker for NextFlightTracker {
         }
         self.est += self.w * (-(rate * (s.t_max - t) + self.tail)).exp();
         ControlFlow::Continue(())
+    }
+    fn capped(&mut self, rest: Rest) {
+        // The walk from here would add `w (T_rest - exp(-tau_maj,rest))` on average (its
+        // no-collision term is the one already scored at the last collision).
+        let maj_rest = self.tail + rest.rate;
+        self.est += self.w * ((-rest.tau).exp() - (-maj_rest).exp()).max(0.0);
     }
     fn value(&self) -> f64 {
         self.est

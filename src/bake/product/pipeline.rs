@@ -72,7 +72,7 @@ pub enum Product {
 }
 
 /// Something a finished bake wants its user to know.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
 #[serde(tag = "kind", rename_all = "kebab-case")]
 pub enum Warning {
     /// NaN or negative voxels were traced as 0 (the bad-voxel policy).
@@ -114,11 +114,40 @@ pub enum Warning {
         /// A density scale that would give the clearest pixel an optical depth of about 1.
         suggested_scale: f64,
     },
+    /// A level set traced as a solid has a background of 0: outside its narrow band the field
+    /// reads as on the surface (Blender writes liquids so). Traced as outside (a hit needs
+    /// `phi < 0`), which is right when the band holds the whole surface.
+    SolidBackground {
+        /// The grid.
+        grid: String,
+        /// Its background.
+        background: f64,
+    },
+    /// `max_memory` was given for a bake that does not go in parts (a colour map or a scene
+    /// file loads whole): the budget was not honoured.
+    MemoryBudgetIgnored {
+        /// What loads whole.
+        what: &'static str,
+    },
 }
 
 impl std::fmt::Display for Warning {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match *self {
+            Self::SolidBackground {
+                ref grid,
+                background,
+            } => write!(
+                f,
+                "level set '{}' has background {background}: outside its narrow band it reads \
+                 as on the surface; traced as outside (a hit needs phi < 0)",
+                crate::text::escape(grid)
+            ),
+            Self::MemoryBudgetIgnored { what } => write!(
+                f,
+                "--max-memory is not honoured: {what} load whole (the budget applies to maps of \
+                 one grey grid)"
+            ),
             Self::BadVoxels { nan, negative } => {
                 write!(f, "{nan} NaN and {negative} negative values treated as 0")
             }
@@ -209,6 +238,21 @@ pub fn map_warnings(map: &Map, density_scale: f64, v_max: f64, diagonal: f64) ->
         });
     }
     out
+}
+
+/// Warnings about a scene's solids: a level set whose background is 0
+/// ([`Warning::SolidBackground`]; a negative one is refused when it is loaded).
+#[must_use]
+pub fn solid_warnings(scene: &Scene) -> Vec<Warning> {
+    scene
+        .solids()
+        .iter()
+        .filter(|s| s.background() == 0.0)
+        .map(|s| Warning::SolidBackground {
+            grid: s.name().to_string(),
+            background: s.background(),
+        })
+        .collect()
 }
 
 /// Warnings about a volume's bad voxels.
@@ -792,6 +836,18 @@ impl BakeJob {
         leaves: crate::volume::Sanitized,
     ) -> BakeReport {
         let mut warnings = volume_warnings(&scene.sanitized().merged(leaves));
+        warnings.extend(solid_warnings(scene));
+        if self.max_memory.is_some() {
+            if crate::scene::is_scene_file(&self.input) {
+                warnings.push(Warning::MemoryBudgetIgnored {
+                    what: "scene files",
+                });
+            } else if self.sigma_t.is_some() {
+                warnings.push(Warning::MemoryBudgetIgnored {
+                    what: "colour maps (--sigma-t)",
+                });
+            }
+        }
         let diagonal = scene.box_corners().map_or(0.0, |c| {
             let (lo, hi) = c.iter().fold(
                 (glam::DVec3::INFINITY, glam::DVec3::NEG_INFINITY),

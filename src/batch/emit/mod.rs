@@ -3,14 +3,19 @@
 //! spec by hand.
 //!
 //! - **Open Job Description** (`jobtemplate-2023-09`, AWS Deadline Cloud; `openjd check` and
-//!   `openjd run` take it locally): job parameters `JobFile` (PATH, IN) and `OutputDir` (PATH,
-//!   OUT) whose defaults are relative to the template's directory (the spec's path mapping
-//!   moves them between hosts); one step whose task parameter spans the tasks (or the chunks);
+//!   `openjd run` take it locally): job parameters `Umbra` (STRING, the binary's absolute
+//!   path), `JobFile` (PATH, IN) and `OutputDir` (PATH, OUT) whose defaults are relative to the
+//!   template's directory (the spec's path mapping moves them between hosts), so no path is
+//!   ever part of a format string the engine expands (`{{...}}` in a path runs as written);
+//!   one step whose task parameter spans the tasks (or the chunks);
 //!   the job's thread count as a `amount.worker.vcpu` host requirement. Written as JSON, which
 //!   is also valid YAML: every path and argument is a JSON string, so spaces, quotes and
 //!   non-ASCII need no shell quoting (the engine passes arguments without a shell).
 //! - **OpenCue**: the job spec (`cjsl-1.15` XML) `opencue-pyoutline` writes for one layer whose
 //!   frames are the job's tasks, in the engine's own chunks (`--task #FRAME_START#-#FRAME_END#`).
+//!   cuebot replaces its `#TOKEN#` placeholders anywhere in a layer's command, so the paths
+//!   travel in the layer's environment (`UMBRA`, `UMBRA_JOB`), which it leaves alone, and the
+//!   command names them as `"$UMBRA"` and `"$UMBRA_JOB"`.
 //! - **Slurm**: a job-array script (`#SBATCH --array=0-N`) run by a plain `sbatch`.
 //!
 //! The command names umbra by the absolute path given (the CLI passes its own), as `--plan`

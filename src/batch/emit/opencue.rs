@@ -5,10 +5,16 @@
 //! chunk runs, replaces `#IFRAME#` (its first frame), `#FRAME_START#` and `#FRAME_END#` (its
 //! first and last) in the command, which RQD runs through a shell. So frame `I` is task `I`
 //! (`--plan`'s numbering), the range is `0-(N-1)`, and a chunk runs
-//! `umbra batch JOB --task #FRAME_START#-#FRAME_END#`. Paths are shell-quoted; the tokens stay
-//! bare words, as OpenCue's own submitters write them.
+//! `umbra batch JOB --task #FRAME_START#-#FRAME_END#`. The tokens stay bare words, as
+//! OpenCue's own submitters write them.
+//!
+//! cuebot replaces its placeholders (`#IFRAME#`, `#ZFRAME#`, `#FRAME#`, `#LAYER#`, `#JOB#`,
+//! ...) anywhere in the command, whatever surrounds them, so no path is written into it: the
+//! umbra binary and the job file travel in the layer's environment (`UMBRA`, `UMBRA_JOB`),
+//! which cuebot hands to RQD unchanged, and the command reads them as `"$UMBRA"` and
+//! `"$UMBRA_JOB"` (double-quoted: the shell expands them once, spaces and quotes intact).
 
-use super::{job_name, shell_quote, token};
+use super::{job_name, token};
 use crate::batch::Job;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -77,8 +83,8 @@ fn xml(s: &str) -> Option<String> {
 /// The job's OpenCue spec: one layer `bake` over frames `0-(N-1)` (frame `I` is task `I`) in
 /// chunks of `chunk` tasks, each running the umbra at `exe`; `cores` the job's thread count
 /// (`threadable` when it uses every core it is given); pyoutline's defaults for the rest
-/// (priority 1, 2 retries, not paused, no auto-eat, service `shell`). No environment, no
-/// e-mail address.
+/// (priority 1, 2 retries, not paused, no auto-eat, service `shell`). The layer's environment
+/// carries the two paths; no e-mail address.
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] when `chunk` is 0; [`crate::Error::Unsupported`] when the
@@ -95,11 +101,15 @@ pub fn opencue(job: &Job, exe: &Path, chunk: usize, id: &CueIdentity) -> crate::
     } else {
         "#IFRAME#"
     };
-    let cmd = format!(
-        "{} batch {} --quiet --task {frames}",
-        shell_quote(&exe.display().to_string()),
-        shell_quote(&job.path.display().to_string()),
-    );
+    let cmd = format!("\"$UMBRA\" batch \"$UMBRA_JOB\" --quiet --task {frames}");
+    let control = || crate::Error::Unsupported {
+        path: job.path.clone(),
+        what: "a control character in the umbra binary's or the job file's path: an OpenCue \
+               spec (XML 1.0) cannot carry it"
+            .into(),
+    };
+    let exe_xml = xml(&exe.display().to_string()).ok_or_else(control)?;
+    let job_xml = xml(&job.path.display().to_string()).ok_or_else(control)?;
     let mut s = String::from(
         "<?xml version=\"1.0\"?>\n<!DOCTYPE spec PUBLIC \"SPI Cue  Specification Language\" \
          \"http://localhost:8080/spcue/dtd/cjsl-1.15.dtd\">\n<spec>\n",
@@ -118,12 +128,6 @@ pub fn opencue(job: &Job, exe: &Path, chunk: usize, id: &CueIdentity) -> crate::
          <layer name=\"bake\" type=\"Render\">",
         token(&job_name(job))
     );
-    let cmd = xml(&cmd).ok_or_else(|| crate::Error::Unsupported {
-        path: job.path.clone(),
-        what: "a control character in the command's paths: an OpenCue spec (XML 1.0) cannot \
-               carry it"
-            .into(),
-    })?;
     let _ = writeln!(s, "        <cmd>{cmd}</cmd>");
     let _ = writeln!(
         s,
@@ -136,8 +140,13 @@ pub fn opencue(job: &Job, exe: &Path, chunk: usize, id: &CueIdentity) -> crate::
     } else {
         s.push_str("        <threadable>True</threadable>\n");
     }
+    let _ = writeln!(
+        s,
+        "        <env>\n          <key name=\"UMBRA\">{exe_xml}</key>\n          \
+         <key name=\"UMBRA_JOB\">{job_xml}</key>\n        </env>"
+    );
     s.push_str(
-        "        <env/>\n        <services>\n          <service>shell</service>\n        \
+        "        <services>\n          <service>shell</service>\n        \
          </services>\n        <outputs/>\n      </layer>\n    </layers>\n  </job>\n  \
          <depends/>\n</spec>\n",
     );

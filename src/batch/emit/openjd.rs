@@ -1,11 +1,18 @@
 //! Open Job Description (`jobtemplate-2023-09`: AWS Deadline Cloud) templates.
 
-use super::{job_name, relative, Chunks};
+use super::{job_name, relative, token, Chunks};
 use crate::batch::Job;
 use std::path::Path;
 
 /// The job's Open Job Description template. `exe`: the umbra to run; `dir`: the directory the
 /// template will be written to (its parameters' defaults are relative to it).
+///
+/// Every path goes in as a job parameter's default (`Umbra`, a `STRING`: OpenJD requires
+/// `PATH` defaults to be relative; `JobFile` and `OutputDir`, `PATH`s), never into a format
+/// string: OpenJD expands `{{...}}` in a step's `command` and `args` once, and substitutes a
+/// parameter's value without expanding it again, so a path holding `{{Task.Param.Task}}` runs
+/// as written. The job's `name` (a format string too) takes the job file's stem with every
+/// character but ASCII letters, digits, `_` and `-` as `_`.
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] (name `output`) when `dir` is below the job file's
@@ -56,7 +63,7 @@ pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crat
         },
         "script": {
             "actions": {
-                "onRun": { "command": exe.display().to_string(), "args": args }
+                "onRun": { "command": "{{Param.Umbra}}", "args": args }
             }
         }
     });
@@ -67,7 +74,7 @@ pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crat
     }
     let template = serde_json::json!({
         "specificationVersion": "jobtemplate-2023-09",
-        "name": format!("umbra batch {name}"),
+        "name": format!("umbra batch {}", token(&name)),
         "description": format!(
             "Shadow maps of {} ({} tasks), written by umbra {}.",
             job.path.display(),
@@ -75,6 +82,12 @@ pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crat
             env!("CARGO_PKG_VERSION")
         ),
         "parameterDefinitions": [
+            {
+                "name": "Umbra",
+                "type": "STRING",
+                "default": exe.display().to_string(),
+                "description": "The umbra binary the workers run (an absolute path)."
+            },
             {
                 "name": "JobFile",
                 "type": "PATH",

@@ -176,6 +176,8 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     };
     let job = load_job(path)?;
     if a.plan {
+        // Every task checked as the run would check it: an unrunnable job fails here.
+        job.check_tasks()?;
         let exe = std::env::current_exe()
             .map(|p| p.display().to_string())
             .unwrap_or_else(|_| "umbra".into());

@@ -233,7 +233,9 @@ fn load_error(e: umbra::Error, file: &Path, opts: &umbra::scene::SceneOptions) -
 }
 
 fn warn_sanitized(file: &Path, scene: &umbra::scene::Scene) {
-    for w in volume_warnings(&scene.sanitized()) {
+    let mut warnings = volume_warnings(&scene.sanitized());
+    warnings.extend(umbra::bake::solid_warnings(scene));
+    for w in warnings {
         eprintln!("umbra: warning: {}: {w}", file.display());
     }
 }

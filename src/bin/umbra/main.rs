@@ -23,7 +23,8 @@ const EXIT_CODES: &str = "Exit codes (every command):
   2    usage error: unknown flag, missing or malformed argument (clap's message)
   3    partial failure: some of many items failed (batch tasks, query lines, info grids or files,
        compare stress rows); the others were still answered
-  130  interrupted by SIGINT: no temporary or partial output is left behind
+  130  interrupted by SIGINT: no temporary or partial output is left behind (the message
+       names the outputs that were complete before the signal and stay)
   143  interrupted by SIGTERM: the same";
 
 #[derive(Parser, Debug)]
@@ -67,10 +68,11 @@ fn handle_signals() {
     };
     std::thread::spawn(move || {
         if let Some(sig) = signals.forever().next() {
-            umbra::output::remove_temporaries();
+            let left = umbra::output::remove_temporaries();
             eprintln!(
-                "umbra: interrupted ({}); no partial output left",
-                if sig == SIGINT { "SIGINT" } else { "SIGTERM" }
+                "umbra: interrupted ({}); {}",
+                if sig == SIGINT { "SIGINT" } else { "SIGTERM" },
+                left.describe(4)
             );
             std::process::exit(128 + sig);
         }
