@@ -2,6 +2,9 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 mod bake_support;
+// Only `corpus_dir` is used here.
+#[allow(unused_imports)]
+mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -777,4 +780,104 @@ fn omni_jobs_bake_environment_maps_around_point_lights() {
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("omni") && err.contains("light-pos"), "{err}");
+}
+
+/// A liquid (a level set, `ls_sphere`) and a smoke (`density`) in one job: each `[[inputs]]`
+/// entry carries its own `grid`, `density_scale`, `levelset` and `xform` (the job's values
+/// stay the default). Without them the job is unrunnable and `--plan` says so (exit 1, naming
+/// the input and the grid) before anything is made; with them `--plan` passes, the run bakes
+/// each input as `umbra bake` does with the same options, and the log records each task's
+/// grid.
+#[test]
+fn inputs_carry_their_own_grid_scale_levelset_and_xform() {
+    let Some(corpus) = common::corpus_dir() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::copy(data("cloud.vdb"), d.join("smoke.vdb")).unwrap();
+    std::fs::copy(corpus.join("gen/sphere_levelset.vdb"), d.join("liquid.vdb")).unwrap();
+    let job = |entries: &str| {
+        let text = format!(
+            r#"grid = "density"
+output = "out/{{stem}}.exr"
+{entries}
+[[lights]]
+name = "sun"
+dir = [0.3, -1.0, 0.2]
+[bake]
+res = 24
+density_scale = 2.0
+"#
+        );
+        std::fs::write(d.join("job.toml"), text).unwrap();
+        d.join("job.toml")
+    };
+    // One grid for both: the liquid has no `density`.
+    let j = job("[[inputs]]\nfile = \"smoke.vdb\"\n[[inputs]]\nfile = \"liquid.vdb\"\n");
+    let o = batch(&j, &["--plan"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("liquid.vdb") && err.contains("density"), "{err}");
+    assert!(o.stdout.is_empty() && !d.join("out").exists());
+    // Each entry its own.
+    let j = job(
+        "[[inputs]]\nfile = \"smoke.vdb\"\ndensity_scale = 3.0\n\
+         xform = [1, 0, 0, 0.5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]\n\
+         [[inputs]]\nfile = \"liquid.vdb\"\ngrid = \"ls_sphere\"\nlevelset = \"solid\"\n",
+    );
+    let o = batch(&j, &["--plan"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 2);
+    let o = batch(&j, &[]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let mut grids: Vec<(u64, String)> = log_records(d)
+        .iter()
+        .map(|r| {
+            let g = r["grid"].as_str().unwrap().to_string();
+            (r["task"].as_u64().unwrap(), g)
+        })
+        .collect();
+    grids.sort();
+    assert_eq!(
+        grids,
+        [(0, "density".to_string()), (1, "ls_sphere".to_string())]
+    );
+    for (input, extra) in [
+        (
+            "smoke",
+            &["--density-scale", "3", "--xform=1,0,0,0.5,0,1,0,0,0,0,1,0,0,0,0,1"][..],
+        ),
+        (
+            "liquid",
+            &["--density-scale", "2", "--grid", "ls_sphere", "--levelset", "solid"][..],
+        ),
+    ] {
+        let direct = d.join(format!("direct_{input}.exr"));
+        let file = d.join(format!("{input}.vdb"));
+        let mut args = vec![
+            "bake",
+            file.to_str().unwrap(),
+            "--light-dir=0.3,-1,0.2",
+            "--res",
+            "24",
+            "-q",
+            "-o",
+            direct.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let o = umbra(&args);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let (a, b) = (
+            bake_support::read_exr(&d.join(format!("out/{input}.exr"))),
+            bake_support::read_exr(&direct),
+        );
+        assert_eq!(a.ch["T"], b.ch["T"], "{input}");
+    }
+    // A bad entry value is named by its key.
+    let j = job("[[inputs]]\nfile = \"smoke.vdb\"\ndensity_scale = -1.0\n");
+    let o = batch(&j, &["--plan"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("inputs[0].density_scale"), "{err}");
 }

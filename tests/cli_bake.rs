@@ -384,3 +384,68 @@ fn bad_arguments_give_one_line_errors_and_write_nothing() {
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
 }
+
+/// An option a product does not honour is said by name: `--max-memory` on a colour map (which
+/// loads whole) is a warning on stderr and in `--json` `warnings`, naming the flag. A level set
+/// with background 0 baked as a solid (Blender's liquids write `phi` so) is warned about by
+/// name, and its map has no T = 0 pixel where the field only touches 0.
+#[test]
+fn unhonoured_options_and_zero_backgrounds_are_warned_about_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = umbra()
+        .args([
+            "bake",
+            "data/cloud.vdb",
+            "--light-dir=0,-1,0",
+            "--res",
+            "32",
+            "--sigma-t",
+            "1,2,3",
+            "--max-memory",
+            "64M",
+            "--json",
+            "-o",
+        ])
+        .arg(dir.path().join("c.exr"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("warning") && err.contains("--max-memory"), "{err}");
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let w = &v["warnings"][0];
+    assert_eq!(w["kind"], "memory-budget-ignored", "{v}");
+    assert!(w["message"].as_str().unwrap().contains("--max-memory"));
+    // Blender's real smoke-and-liquid cache: `phi_inflow` is a level set of background 0.
+    let file = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus/real/blender_smoke_fluid_data_0050.vdb");
+    if !file.exists() {
+        assert!(std::env::var("UMBRA_SKIP_CORPUS").as_deref() == Ok("1"));
+        return;
+    }
+    let o = umbra()
+        .arg("bake")
+        .arg(&file)
+        .args([
+            "--grid",
+            "phi_inflow",
+            "--levelset",
+            "solid",
+            "--light-dir=0,-1,0",
+            "--res",
+            "64",
+            "--json",
+            "-o",
+        ])
+        .arg(dir.path().join("phi.exr"))
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("level set 'phi_inflow' has background 0"),
+        "{err}"
+    );
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["warnings"][0]["kind"], "solid-background", "{v}");
+}
