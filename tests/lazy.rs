@@ -696,6 +696,81 @@ fn ray_path_bakes_in_parts_equal_whole_bakes_bit_for_bit() {
     }
 }
 
+/// Ray-marched maps (`riemann`, `jittered`, `mc`) in parts go in the sweep's order as the
+/// whole bake does, each pixel keeping its samples' marched optical depths across the parts:
+/// the same bytes (T, the standard error, slices). A random march whose samples do not fit
+/// beside a part goes by rows on the ray path instead, the same estimate to the kernel's f32
+/// positions: at most 1 ulp of T apart.
+#[test]
+fn marches_in_parts_equal_whole_bakes_bit_for_bit() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = tiled_cloud(dir.path());
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    for name in ["riemann", "jittered", "mc"] {
+        let job = |out: &str, m: Option<u64>| {
+            let mut j = bake_job(&path, dir.path().join(out), m);
+            j.settings.estimator = Estimator::from_name(name).unwrap();
+            j.settings.options.samples = 4;
+            j.settings.std_err = true;
+            j
+        };
+        let whole = job("whole.exr", None).run(&|_| {}).unwrap();
+        assert!(whole.map.stats.sweep, "{name}");
+        let least = match job("p.exr", Some(1 << 20)).plan_bounded() {
+            Err(umbra::Error::InvalidArgument { reason, .. }) => {
+                let at_least = reason.split("at least ").nth(1).unwrap();
+                let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
+                (mib * f64::from(1 << 20)) as u64
+            }
+            other => panic!("{name}: {other:?}"),
+        };
+        // The least budget is the ray path's; the sweep keeps the samples' image beside it
+        // (300 x 200 pixels x 4 depths x 3 more samples x 8 bytes, 5.5 MiB).
+        let r = job("parts.exr", Some(least + (8 << 20)))
+            .run(&|_| {})
+            .unwrap();
+        assert!(r.map.stats.parts >= 2, "{name}: {} parts", r.map.stats.parts);
+        assert!(r.map.stats.sweep, "{name}");
+        assert_eq!(bits(&r.map.t), bits(&whole.map.t), "{name}");
+        assert_eq!(
+            bits(r.map.std_err.as_ref().unwrap()),
+            bits(whole.map.std_err.as_ref().unwrap()),
+            "{name}"
+        );
+        for (a, b) in r.map.slices.iter().zip(&whole.map.slices) {
+            assert_eq!(bits(a), bits(b), "{name} slices");
+        }
+        let written = std::fs::read(dir.path().join("parts.exr")).unwrap();
+        let reference = std::fs::read(dir.path().join("whole.exr")).unwrap();
+        assert!(written == reference, "{name}: the EXR files differ");
+    }
+    // 64 samples of `mc` (16 MiB of optical depths at 100 x 80) do not fit beside a part at
+    // 2 MiB over the least budget: rows on the ray path, within an ulp.
+    let job = |out: &str, m: Option<u64>| {
+        let mut j = bake_job(&path, dir.path().join(out), m);
+        j.settings.estimator = Estimator::from_name("mc").unwrap();
+        j.settings.options.samples = 64;
+        j.view.res = Some(umbra::bake::Resolution::Exact(100, 80));
+        j
+    };
+    let whole = job("whole.exr", None).run(&|_| {}).unwrap();
+    let least = match job("p.exr", Some(1 << 20)).plan_bounded() {
+        Err(umbra::Error::InvalidArgument { reason, .. }) => {
+            let at_least = reason.split("at least ").nth(1).unwrap();
+            let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
+            (mib * f64::from(1 << 20)) as u64
+        }
+        other => panic!("{other:?}"),
+    };
+    let r = job("parts.exr", Some(least + (2 << 20)))
+        .run(&|_| {})
+        .unwrap();
+    assert!(r.map.stats.parts >= 2 && !r.map.stats.sweep);
+    for (a, b) in r.map.t.iter().zip(&whole.map.t) {
+        assert!(a.to_bits().abs_diff(b.to_bits()) <= 1, "{a} vs {b}");
+    }
+}
+
 /// `path` with NaN, negative and +Inf voxels written into some of its clouds (pyopenvdb).
 fn with_bad_voxels(path: &std::path::Path, out: &std::path::Path) {
     let script = r#"

@@ -437,7 +437,8 @@ impl BakeJob {
         // every other map by runs of image rows on the ray path.
         let sweep = match shell.fogs().first() {
             Some(f) => {
-                self.is_exact_sweep() && crate::bake::trace::sweep::streams(f.volume(), &camera)?
+                (self.is_exact_sweep() || self.is_march_sweep())
+                    && crate::bake::trace::sweep::streams(f.volume(), &camera)?
             }
             None => false,
         };
@@ -445,6 +446,10 @@ impl BakeJob {
             // Only the sweep goes in parts at no cost in time: the rest loads whole.
             return Ok(None);
         }
+        // A random march swept in parts keeps every sample's optical depths of every pixel
+        // until the last part (the whole bake keeps a band's at a time).
+        let samples = crate::bake::trace::sweep::marches(&self.settings).map_or(1, |m| m.samples());
+        let samples_image = camera.pixels() * (1 + depth_images) * 8 * (samples as u64 - 1);
         let Some(topo) = shell.fogs().first().map(|f| f.volume().tree()) else {
             return Ok(None);
         };
@@ -452,17 +457,17 @@ impl BakeJob {
         let offsets = (lazy.leaf_count() as u64 + 1) * 8;
         let held = topology + offsets + image + PROCESS_SLACK;
         let opening = topology + head_bytes + 2 * offsets + PROCESS_SLACK;
-        let (least, what, group_leaves, part_bytes) = if sweep {
+        let sweep_plan = || {
             // A sweep's part is a region of the tree: the lower nodes its blocks read with
             // their leaves' topology, the upper nodes above them, and its leaves' values
             // (`sweep::part_bytes`). The least part holds one lower node.
             let uppers = topo.uppers().len() as u64 * crate::tree::REGION_UPPER_BYTES;
-            let fixed = held + uppers;
+            let fixed = held + samples_image + uppers;
             let widest = (0..topo.lowers().len())
                 .map(|l| crate::bake::trace::sweep::part_bytes(topo, l))
                 .max()
                 .unwrap_or(0);
-            let least = (fixed + widest).max(opening).min(whole);
+            let least = (fixed + widest).max(opening).min(whole + samples_image);
             let part = budget.saturating_sub(fixed);
             (
                 least,
@@ -470,7 +475,8 @@ impl BakeJob {
                 0,
                 part,
             )
-        } else {
+        };
+        let ray_plan = || {
             // Per part on the ray path: a copy of the tree with neighbour tables, faces and
             // halos, and what computing its bounds holds for a moment (per leaf a halo, its
             // neighbours and its bounds).
@@ -493,6 +499,20 @@ impl BakeJob {
             let group = usize::try_from(budget.saturating_sub(fixed) / leaf).unwrap_or(usize::MAX);
             let what = format!("a part's copy of the tree and the largest part's {widest} leaves");
             (least, what, group, 0)
+        };
+        let mut sweep = sweep;
+        let (least, what, group_leaves, part_bytes) = if sweep {
+            let p = sweep_plan();
+            if samples > 1 && budget < p.0 {
+                // A random march whose samples do not fit beside a part goes by rows on the
+                // ray path: the same estimate to the kernel's f32 positions (docs/loading.md).
+                sweep = false;
+                ray_plan()
+            } else {
+                p
+            }
+        } else {
+            ray_plan()
         };
         if budget < least && implied {
             return Ok(None);
@@ -581,6 +601,13 @@ impl BakeJob {
         self.settings.estimator == crate::estimate::Estimator::REGULAR
             && self.settings.options.interp == crate::volume::Interp::Trilinear
             && self.settings.order == crate::bake::Order::Auto
+    }
+
+    /// Whether this job's map is a ray march the sweep makes (`riemann`, `jittered`, `mc` with
+    /// trilinear lookups and a fixed sample count, in the automatic order).
+    fn is_march_sweep(&self) -> bool {
+        self.settings.order == crate::bake::Order::Auto
+            && crate::bake::trace::sweep::marches(&self.settings).is_some()
     }
 
     /// The grid `g` of the input as this job traces it (density scale, transform).

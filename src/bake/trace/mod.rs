@@ -344,7 +344,9 @@ pub(crate) fn bake_streamed(
 ) -> Result<Option<(Map, crate::bake::trace::sweep::Streamed)>> {
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
-    if settings.order != Order::Auto || !crate::bake::trace::sweep::applies(settings) {
+    let marched = crate::bake::trace::sweep::marches(settings).is_some();
+    if settings.order != Order::Auto || !(crate::bake::trace::sweep::applies(settings) || marched)
+    {
         return Ok(None);
     }
     let depths = resolve_depths(&settings.depths, camera)?;

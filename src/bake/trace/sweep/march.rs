@@ -72,7 +72,7 @@ impl March {
     }
 
     /// Estimates per pixel: one for the midpoint march, `--spp` for a random one.
-    pub(super) fn samples(&self) -> usize {
+    pub(crate) fn samples(&self) -> usize {
         match self.points {
             Points::Midpoint => 1,
             _ => self.opts.samples.max(1) as usize,

@@ -8,7 +8,12 @@
 //! ([`crate::tree::Tree::region`]), bounds it, sweeps its pieces into the whole image's f64
 //! optical depth and drops it. Every pixel adds the same pieces in the same order as the
 //! whole-grid sweep, so the map is bit-identical; no part copies or bounds the whole topology.
+//! Ray-marched maps (`riemann`, `jittered`, `mc`) go the same way: a chord's points depend on
+//! its block, its pixel and the sample alone, and each pixel keeps its `samples x (1 + K)`
+//! marched optical depths across the parts, finished once at the end as the whole sweep
+//! finishes a band.
 
+use super::march::finish_samples;
 use super::{
     assemble, entered, finish_band, lower_pieces, needs_rest, shell_blocks, shell_pieces,
     stack_faces, Piece, Rays, Sweep,
@@ -233,7 +238,12 @@ pub(crate) fn render_streamed(
         .enumerate()
         .map(|(l, n)| (l as u32, n.origin.map(i64::from)))
         .filter(|(_, o)| rays.iter().any(|r| r.footprint(*o, 128).is_some()));
-    let stride = 1 + depths.len();
+    // A ray march ([`super::marches`]) keeps `samples x (1 + K)` optical depths per pixel, as
+    // the whole-grid sweep's bands do; every part adds its pieces' marches to them in the
+    // whole sweep's order, so the map is the whole bake's, bit for bit.
+    let march = super::marches(s);
+    let samples = march.map_or(1, |m| m.samples());
+    let stride = samples * (1 + depths.len());
     // Each view's image of f64 optical depths, one after the other.
     let view_len = views[0].pixels() as usize * stride;
     let mut tau = vec![0.0f64; view_len * views.len()];
@@ -262,7 +272,12 @@ pub(crate) fn render_streamed(
         stats.max_group_leaves = stats.max_group_leaves.max(loaded);
         for (v, image) in tau.chunks_mut(view_len).enumerate() {
             let pieces = pieces(&vol, &index, v)?;
-            let sweep = Sweep::from_pieces(&vol, &views[v], rays[v], pieces, false, rows, depths);
+            let sweep = Sweep::from_pieces(&vol, &views[v], rays[v], pieces, false, rows, depths)
+                .marching(march, None)
+                .ok_or_else(|| crate::Error::InvalidArgument {
+                    name: "max-memory".into(),
+                    reason: "a part of this map cannot be marched in object order".into(),
+                })?;
             lookups += sweep.add_all(image)?;
         }
         Ok((vol, index))
@@ -339,17 +354,37 @@ pub(crate) fn render_streamed(
     for (view, tau) in views.iter().zip(tau.chunks(view_len)) {
         let w = view.width as usize;
         let mut t_image = vec![0.0f32; view.pixels() as usize];
-        let bands: Vec<(u64, Vec<f32>)> = t_image
+        let done: Vec<((u64, Vec<f32>), Vec<f32>)> = t_image
             .par_chunks_mut(rows as usize * w)
             .zip(tau.par_chunks(rows as usize * w * stride))
             .enumerate()
             .map(|(b, (t_band, tau))| {
-                let slices = finish_band(view, b as u32 * rows, tau, stride, t_band)?;
+                let y0 = b as u32 * rows;
+                let mut err = vec![0.0f32; if s.std_err { t_band.len() } else { 0 }];
+                let slices = if samples > 1 {
+                    finish_samples(
+                        view,
+                        y0,
+                        tau,
+                        (stride / samples, samples),
+                        false,
+                        t_band,
+                        &mut err,
+                    )?
+                } else {
+                    finish_band(view, y0, tau, stride, t_band)?
+                };
                 progress(t_band.len() as u64);
-                Ok((0, slices))
+                Ok(((0, slices), err))
             })
             .collect::<Result<_>>()?;
-        maps.push(assemble(view, s, depths, t_image, &bands, start));
+        let (bands, errs): (Vec<(u64, Vec<f32>)>, Vec<Vec<f32>>) = done.into_iter().unzip();
+        let mut map = assemble(view, s, depths, t_image, &bands, start);
+        if samples > 1 {
+            map.stats.samples = view.pixels() * samples as u64;
+            map.std_err = s.std_err.then(|| errs.concat());
+        }
+        maps.push(map);
     }
     let mut map = if faces.is_some() {
         stack_faces(camera, maps)
