@@ -102,7 +102,10 @@ impl CameraSource {
 #[serde(deny_unknown_fields, default)]
 pub struct BakeOptions {
     /// Grid to trace (display name such as `density[1]`, or the stored name).
-    #[cfg_attr(feature = "cli", arg(long, default_value = "density"))]
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())
+    )]
     pub grid: String,
     /// Direction the light travels, DX,DY,DZ: an orthographic map framing the volume box (with
     /// light-pos it aims the perspective map); for a transmittance volume, a sun.

@@ -54,11 +54,34 @@ impl Xform {
             )));
         }
         let x = Self { rows };
-        let det = x.affine().matrix3.determinant();
-        let inverse_ok = det.abs() > 1e-300 && x.affine().inverse().is_finite();
-        if !inverse_ok {
+        let m = x.affine().matrix3;
+        // Flattening is a matter of shape, not size: the determinant of the columns made unit
+        // (1 for a rotation or a uniform scale of any size, 0 when they are coplanar).
+        let lengths = [m.x_axis.length(), m.y_axis.length(), m.z_axis.length()];
+        let shape = if lengths.iter().all(|&l| l > 0.0 && l.is_finite()) {
+            glam::DMat3::from_cols(
+                m.x_axis / lengths[0],
+                m.y_axis / lengths[1],
+                m.z_axis / lengths[2],
+            )
+            .determinant()
+        } else {
+            0.0
+        };
+        if shape.abs() < 1e-12 {
             return Err(bad(format!(
-                "the linear part is singular (determinant {det:e}): it flattens the volume"
+                "the linear part is singular (its axes are coplanar: unit-axis determinant \
+                 {shape:e}): it flattens the volume"
+            )));
+        }
+        let det = m.determinant();
+        if !(det.abs() > 1e-300 && x.affine().inverse().is_finite()) {
+            let (lo, hi) = lengths
+                .iter()
+                .fold((f64::INFINITY, 0.0f64), |(a, b), &l| (a.min(l), b.max(l)));
+            return Err(bad(format!(
+                "it scales lengths by {lo:e} to {hi:e}: too far from 1 to invert in double \
+                 precision (scale the volume's units, or its density, instead)"
             )));
         }
         Ok(x)

@@ -729,7 +729,11 @@ fn marches_in_parts_equal_whole_bakes_bit_for_bit() {
         let r = job("parts.exr", Some(least + (8 << 20)))
             .run(&|_| {})
             .unwrap();
-        assert!(r.map.stats.parts >= 2, "{name}: {} parts", r.map.stats.parts);
+        assert!(
+            r.map.stats.parts >= 2,
+            "{name}: {} parts",
+            r.map.stats.parts
+        );
         assert!(r.map.stats.sweep, "{name}");
         assert_eq!(bits(&r.map.t), bits(&whole.map.t), "{name}");
         assert_eq!(

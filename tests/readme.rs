@@ -65,3 +65,53 @@ fn readme_rust_example_is_the_example_and_runs() {
     );
     assert!(lines[1].contains(" +- "), "{out}");
 }
+
+/// The README's install lists are what a fresh machine needs: its `apt-get install` names the
+/// Debian packages `.ci/run` installs, and it names every package `python/run_tests.sh` takes
+/// from PyPI.
+#[test]
+fn readme_install_lists_match_what_ci_installs() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let read = |p: &str| std::fs::read_to_string(root.join(p)).unwrap();
+    // The words of a shell command starting at `start`, over its `\` continuations.
+    let command = |text: &str, start: &str| -> Vec<String> {
+        let at = text.find(start).unwrap_or_else(|| panic!("no '{start}'"));
+        let mut words = Vec::new();
+        for line in text[at + start.len()..].lines() {
+            let body = line.trim_end();
+            let cont = body.ends_with('\\');
+            words.extend(
+                body.trim_end_matches('\\')
+                    .split_whitespace()
+                    .filter(|w| !w.starts_with('-') && !w.starts_with('>') && !w.starts_with('$'))
+                    .map(str::to_string),
+            );
+            if !cont {
+                break;
+            }
+        }
+        words
+    };
+    let mut ci = command(&read(".ci/run"), "apt-get install");
+    let mut readme = command(&read("README.md"), "sudo apt-get install");
+    ci.sort();
+    readme.sort();
+    assert_eq!(readme, ci, "README's apt-get list vs .ci/run's");
+    let readme_text = read("README.md");
+    let pip = command(
+        &read("python/run_tests.sh"),
+        "pip install -q \"$repo/python\"",
+    );
+    for p in pip {
+        let name = p
+            .trim_matches('"')
+            .split(['>', '=', '<'])
+            .next()
+            .unwrap()
+            .to_string();
+        assert!(
+            readme_text.contains(&format!("`{name}`")) || readme_text.contains(&name),
+            "README does not name {name}, which python/run_tests.sh installs"
+        );
+    }
+}

@@ -292,7 +292,15 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
             text(&serde_json::to_string(&s.estimator).unwrap_or_default()),
         ),
         ("interp".into(), text(&format!("{:?}", s.options.interp).to_lowercase())),
-        ("spp".into(), AttributeValue::I32(clamp_i32(u64::from(s.options.samples)))),
+        // A deterministic estimator takes one sample whatever `--spp` says.
+        (
+            "spp".into(),
+            AttributeValue::I32(clamp_i32(if s.estimator.is_deterministic() {
+                1
+            } else {
+                u64::from(s.options.samples)
+            })),
+        ),
         ("max_spp".into(), AttributeValue::I32(clamp_i32(u64::from(s.max_spp)))),
         (
             "mean_spp".into(),

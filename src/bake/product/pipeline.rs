@@ -123,6 +123,13 @@ pub enum Warning {
         /// Its background.
         background: f64,
     },
+    /// The field of view given crops the volume box: density outside it is not in the map.
+    CroppedByFov {
+        /// The field of view, degrees.
+        fov_deg: f64,
+        /// How far the box reaches outside the window, pixels (`inf`: behind the light).
+        pixels: f64,
+    },
     /// `max_memory` was given for a bake that does not go in parts (a colour map or a scene
     /// file loads whole): the budget was not honoured.
     MemoryBudgetIgnored {
@@ -142,6 +149,11 @@ impl std::fmt::Display for Warning {
                 "level set '{}' has background {background}: outside its narrow band it reads \
                  as on the surface; traced as outside (a hit needs phi < 0)",
                 crate::text::escape(grid)
+            ),
+            Self::CroppedByFov { fov_deg, pixels } => write!(
+                f,
+                "--fov {fov_deg} crops the volume: its box reaches {pixels:.1} pixels outside \
+                 the window, and density there is not in the map (drop --fov to frame it whole)"
             ),
             Self::MemoryBudgetIgnored { what } => write!(
                 f,
@@ -893,16 +905,23 @@ impl BakeJob {
             warnings.extend(map_warnings(&map, self.density_scale, v_max, diagonal));
         }
         // Framed here, a camera holds the whole box unless a frame box or a field of view
-        // crops it on purpose; a reused camera may not.
-        if self.view.frame_box.is_none() && self.view.fov_deg.is_none() {
+        // crops it (a frame box on purpose; a field of view is said, it may not be); a reused
+        // camera may not.
+        if self.view.frame_box.is_none() {
             if let Some(o) = scene
                 .box_corners()
                 .ok()
                 .and_then(|c| map.camera.outside(&c))
             {
-                warnings.push(Warning::OutsideCamera {
-                    pixels: o.pixels,
-                    world: o.world,
+                warnings.push(match self.view.fov_deg {
+                    Some(fov_deg) => Warning::CroppedByFov {
+                        fov_deg,
+                        pixels: o.pixels,
+                    },
+                    None => Warning::OutsideCamera {
+                        pixels: o.pixels,
+                        world: o.world,
+                    },
                 });
             }
         }

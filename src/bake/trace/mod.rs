@@ -345,8 +345,7 @@ pub(crate) fn bake_streamed(
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
     let marched = crate::bake::trace::sweep::marches(settings).is_some();
-    if settings.order != Order::Auto || !(crate::bake::trace::sweep::applies(settings) || marched)
-    {
+    if settings.order != Order::Auto || !(crate::bake::trace::sweep::applies(settings) || marched) {
         return Ok(None);
     }
     let depths = resolve_depths(&settings.depths, camera)?;

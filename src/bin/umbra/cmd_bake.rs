@@ -21,7 +21,8 @@ pub struct BakeArgs {
     output: PathBuf,
     #[command(flatten)]
     options: BakeOptions,
-    /// No progress bar.
+    /// No progress bar and no summary on stdout (warnings and errors still go to stderr;
+    /// `--json` still prints its summary).
     #[arg(long, short)]
     quiet: bool,
     /// Print a JSON summary on stdout.
@@ -152,7 +153,7 @@ fn report(a: &BakeArgs, job: &BakeJob, done: &umbra::bake::BakeReport, total: f6
             o.extend(r);
         }
         writeln!(out, "{v}")?;
-    } else {
+    } else if !a.quiet {
         writeln!(
             out,
             "{}: {}x{} {} map of {}:{} ({}), T in [{t_min:.4}, {t_max:.4}], mean {t_mean:.4}",
@@ -169,14 +170,22 @@ fn report(a: &BakeArgs, job: &BakeJob, done: &umbra::bake::BakeReport, total: f6
             prov.grid,
             channels.join(", "),
         )?;
+        // Solids are searched, not looked up: a map of solids alone counts no lookups.
+        let lookups = if st.lookups > 0 {
+            format!(
+                ", {:.0} lookups/ray",
+                st.lookups as f64 / st.rays.max(1) as f64
+            )
+        } else {
+            String::new()
+        };
         writeln!(
             out,
-            "{:.3} s on {threads} threads, {:.0} rays/s, {}, {:.1} spp, {:.0} lookups/ray",
+            "{:.3} s on {threads} threads, {:.0} rays/s, {}, {:.1} spp{lookups}",
             st.seconds,
             rays_per_second,
             s.estimator.name(),
             summary.mean_spp,
-            st.lookups as f64 / st.rays.max(1) as f64
         )?;
         if st.unconverged > 0 {
             writeln!(
@@ -252,7 +261,7 @@ fn run_volume(a: &BakeArgs, job: &VolumeJob, total: std::time::Instant) -> Resul
             "total_seconds": total.elapsed().as_secs_f64(),
         });
         writeln!(out, "{v}")?;
-    } else {
+    } else if !a.quiet {
         writeln!(
             out,
             "{}: grid '{}' of {} voxels ({} leaves, {} from active tiles), T in [{:.4}, {:.4}], mean {:.4}",

@@ -46,7 +46,8 @@ pub struct BatchArgs {
     /// split among them.
     #[arg(long, short, default_value_t = 0)]
     jobs: usize,
-    /// No progress bar.
+    /// No progress bar and no summary line (failures and warnings still go to stderr; the
+    /// log records every task).
     #[arg(long, short)]
     quiet: bool,
     /// Print a farm spec that runs the job and exit: `openjd` (an Open Job Description
@@ -224,6 +225,14 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     })?;
     if let Some(b) = bar.bar.get() {
         b.finish_and_clear();
+    }
+    if a.quiet {
+        // The log holds every task's outcome; failures were printed on stderr.
+        return Ok(if report.failed > 0 {
+            ExitCode::from(3)
+        } else {
+            ExitCode::SUCCESS
+        });
     }
     println!(
         "umbra batch: {} tasks: {} baked, {} skipped (up to date), {} failed in {:.2} s on {} workers x {} threads; log {}",

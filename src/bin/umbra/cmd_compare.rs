@@ -15,7 +15,7 @@ pub struct CompareArgs {
     /// (optional with --stress alone).
     file: Option<PathBuf>,
     /// Grid to trace.
-    #[arg(long, default_value = "density")]
+    #[arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())]
     grid: String,
     /// Output directory for report.{csv,json,md} and error_vs_time.svg (and stress.*); created
     /// if missing (its parent must exist).

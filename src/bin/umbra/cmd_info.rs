@@ -24,7 +24,7 @@ pub struct InfoArgs {
     #[arg(long)]
     json: bool,
     /// Only this grid (display name such as `density[1]`, or the stored name).
-    #[arg(long)]
+    #[arg(long, value_parser = clap::builder::NonEmptyStringValueParser::new())]
     grid: Option<String>,
     /// A USD stage: the time code and the volumes to report.
     #[command(flatten)]
@@ -143,6 +143,27 @@ fn count(n: u64) -> String {
     }
 }
 
+/// The sum of a grid's finite active values, saying so when some are not finite (an all-+Inf
+/// grid sums to 0 over its finite values; its sum is not 0).
+fn sum_text(g: &GridInfo) -> String {
+    let sum = num(g.value_sum.unwrap_or(0.0));
+    match g.inf_count.unwrap_or(0) + g.nan_count.unwrap_or(0) {
+        0 => sum,
+        n => format!("{sum} over finite values ({n} not finite)"),
+    }
+}
+
+/// Whether a grid's values are stored as halves: OpenVDB marks every grid of a file written
+/// with half floats (`_HalfFloat` on the tree type), but only real-valued grids (float,
+/// double and their vectors) are converted; int32, bool and point grids are stored as they
+/// are.
+fn stored_half(g: &GridInfo) -> bool {
+    let real = matches!(g.value_type.as_str(), "float" | "double")
+        || (g.value_type.starts_with("vec")
+            && matches!(g.value_type.chars().last(), Some('s' | 'd')));
+    g.saved_as_half && real
+}
+
 /// One line per grid: name, type, class, voxel size, active voxels, index bbox, value range.
 /// The name and type columns are as wide as the file's longest (at least 16 and 12), so long
 /// names do not push the other columns out of line.
@@ -152,7 +173,7 @@ fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
         format!(
             "{}{}",
             g.value_type,
-            if g.saved_as_half { " (half)" } else { "" }
+            if stored_half(g) { " (half)" } else { "" }
         )
     };
     let width = |f: &dyn Fn(&GridInfo) -> usize, least: usize| {
@@ -212,7 +233,7 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
         "\n{} ({}{})",
         escape(&g.name),
         g.value_type,
-        if g.saved_as_half { ", half" } else { "" }
+        if stored_half(g) { ", half" } else { "" }
     )?;
     if let Some(e) = &g.error {
         writeln!(out, "  error: {}", escape(e))?;
@@ -279,7 +300,7 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
         g.value_stats_of,
         val(&g.value_min),
         val(&g.value_max),
-        num(g.value_sum.unwrap_or(0.0)),
+        sum_text(g),
         g.nan_count.unwrap_or(0),
         g.inf_count.unwrap_or(0)
     )?;

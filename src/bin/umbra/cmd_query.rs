@@ -20,7 +20,7 @@ pub struct QueryArgs {
     /// (.usd, .usda, .usdc, .usdz: its volumes and lights at --frame).
     file: PathBuf,
     /// Grid to trace (display name such as `density[1]`, or the stored name).
-    #[arg(long, default_value = "density")]
+    #[arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())]
     grid: String,
     /// Segment start, world space: X,Y,Z (with --to).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
