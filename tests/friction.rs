@@ -8,6 +8,8 @@
 #[path = "common/vdb_writer.rs"]
 mod vdb_writer;
 
+mod bake_support;
+
 use assert_cmd::Command;
 use std::path::Path;
 use vdb_writer::{Grid, Leaf, Map, VdbFile};
@@ -191,4 +193,64 @@ fn bake_help_names_the_deep_colour_channels() {
     let help = String::from_utf8_lossy(&o.stdout);
     assert!(help.contains("AR, AG, AB"), "{help}");
     assert!(!help.contains("R, G, B with colour"), "{help}");
+}
+
+/// Issue 46's friction, each held to its mend: `--quiet` prints no summary (warnings still go
+/// to stderr); an exact map's header records one sample, not `--spp`; a `--fov` that crops the
+/// volume is warned about; an empty `--grid` is a usage error (exit 2); `info` says a sum is
+/// over finite values when some are not, and writes "half" only after grids stored as halves
+/// (real-valued ones, not int32).
+#[test]
+fn issue_46_friction_is_mended() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("m.exr");
+    let o = umbra()
+        .args(["bake", "data/cloud.vdb", "--light-pos=0,6,0", "--fov", "10", "--res", "16"])
+        .args(["--spp", "64", "-q", "-o"])
+        .arg(&out)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(o.stdout.is_empty(), "{}", String::from_utf8_lossy(&o.stdout));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--fov 10 crops the volume"), "{err}");
+    match bake_support::read_exr(&out).attr("spp") {
+        exr::meta::attribute::AttributeValue::I32(n) => assert_eq!(*n, 1),
+        other => panic!("{other:?}"),
+    }
+    for args in [
+        &["query", "data/cloud.vdb", "--grid", "", "--from", "0,0,0", "--to", "1,1,1"][..],
+        &["bake", "data/cloud.vdb", "--grid", "", "--light-dir=0,-1,0", "-o", "x.exr"][..],
+        &["info", "data/cloud.vdb", "--grid", ""][..],
+    ] {
+        let o = umbra().args(args).output().unwrap();
+        assert_eq!(o.status.code(), Some(2), "{args:?}");
+    }
+    let blender = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/corpus/real/blender_smoke_fluid_data_0050.vdb");
+    if !blender.exists() {
+        assert!(std::env::var("UMBRA_SKIP_CORPUS").as_deref() == Ok("1"));
+        return;
+    }
+    let o = umbra().arg("info").arg(&blender).output().unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    let line = |name: &str| {
+        out.lines()
+            .find(|l| l.trim_start().starts_with(&format!("{name} ")))
+            .unwrap_or_else(|| panic!("no {name}: {out}"))
+            .to_string()
+    };
+    assert!(line("flags").contains("int32") && !line("flags").contains("half"), "{out}");
+    assert!(line("density").contains("float (half)"), "{out}");
+    let o = umbra()
+        .arg("info")
+        .arg(&blender)
+        .args(["--grid", "phi_obstacle", "-v"])
+        .output()
+        .unwrap();
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        out.contains("sum: 0 over finite values (56606 not finite)"),
+        "{out}"
+    );
 }
