@@ -57,7 +57,16 @@ impl Xform {
         let m = x.affine().matrix3;
         // Flattening is a matter of shape, not size: the determinant of the columns made unit
         // (1 for a rotation or a uniform scale of any size, 0 when they are coplanar).
-        let lengths = [m.x_axis.length(), m.y_axis.length(), m.z_axis.length()];
+        // Lengths scaled by the largest component first: `x^2` of a 1e-200 axis underflows.
+        let length = |v: glam::DVec3| {
+            let big = v.abs().max_element();
+            if big > 0.0 {
+                big * (v / big).length()
+            } else {
+                0.0
+            }
+        };
+        let lengths = [length(m.x_axis), length(m.y_axis), length(m.z_axis)];
         let shape = if lengths.iter().all(|&l| l > 0.0 && l.is_finite()) {
             glam::DMat3::from_cols(
                 m.x_axis / lengths[0],

@@ -59,8 +59,10 @@ fn umbra(args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// `umbra batch JOB EXTRA...` (no `--quiet`: the summary line is what several tests read; a
+/// progress bar never shows on a pipe).
 fn batch(job: &Path, extra: &[&str]) -> Output {
-    let mut a = vec!["batch", job.to_str().unwrap(), "--quiet"];
+    let mut a = vec!["batch", job.to_str().unwrap()];
     a.extend_from_slice(extra);
     umbra(&a)
 }
@@ -104,6 +106,27 @@ const ALL: [&str; 6] = [
     "shadow_sun.0002.exr",
     "shadow_sun.0003.exr",
 ];
+
+/// `--quiet` prints nothing on stdout (the log has every task), and still exits 3 with the
+/// failures on stderr.
+#[test]
+fn quiet_runs_print_no_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "");
+    let o = batch(&job, &["--quiet"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
+    assert_eq!(log_records(dir.path()).len(), 6);
+    std::fs::write(dir.path().join("cloud.0002.vdb"), b"not a vdb").unwrap();
+    let o = batch(&job, &["--quiet", "--force"]);
+    assert_eq!(o.status.code(), Some(3));
+    assert!(o.stdout.is_empty());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("cloud.0002.vdb"));
+}
 
 #[test]
 fn sequence_two_lights_writes_every_output_then_rerun_skips_all() {

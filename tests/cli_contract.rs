@@ -660,6 +660,7 @@ fn interrupted_bakes_leave_no_temporary_or_partial_files() {
         let child = Command::new(env!("CARGO_BIN_EXE_umbra"))
             .current_dir(dir.path())
             .args(&args)
+            .stderr(std::process::Stdio::piped())
             .spawn()
             .unwrap();
         let wait_ms = 30 + rand() % full_ms;

@@ -205,13 +205,25 @@ fn issue_46_friction_is_mended() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("m.exr");
     let o = umbra()
-        .args(["bake", "data/cloud.vdb", "--light-pos=0,6,0", "--fov", "10", "--res", "16"])
+        .args([
+            "bake",
+            "data/cloud.vdb",
+            "--light-pos=0,6,0",
+            "--fov",
+            "10",
+            "--res",
+            "16",
+        ])
         .args(["--spp", "64", "-q", "-o"])
         .arg(&out)
         .output()
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    assert!(o.stdout.is_empty(), "{}", String::from_utf8_lossy(&o.stdout));
+    assert!(
+        o.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stdout)
+    );
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("--fov 10 crops the volume"), "{err}");
     match bake_support::read_exr(&out).attr("spp") {
@@ -219,8 +231,25 @@ fn issue_46_friction_is_mended() {
         other => panic!("{other:?}"),
     }
     for args in [
-        &["query", "data/cloud.vdb", "--grid", "", "--from", "0,0,0", "--to", "1,1,1"][..],
-        &["bake", "data/cloud.vdb", "--grid", "", "--light-dir=0,-1,0", "-o", "x.exr"][..],
+        &[
+            "query",
+            "data/cloud.vdb",
+            "--grid",
+            "",
+            "--from",
+            "0,0,0",
+            "--to",
+            "1,1,1",
+        ][..],
+        &[
+            "bake",
+            "data/cloud.vdb",
+            "--grid",
+            "",
+            "--light-dir=0,-1,0",
+            "-o",
+            "x.exr",
+        ][..],
         &["info", "data/cloud.vdb", "--grid", ""][..],
     ] {
         let o = umbra().args(args).output().unwrap();
@@ -240,7 +269,10 @@ fn issue_46_friction_is_mended() {
             .unwrap_or_else(|| panic!("no {name}: {out}"))
             .to_string()
     };
-    assert!(line("flags").contains("int32") && !line("flags").contains("half"), "{out}");
+    assert!(
+        line("flags").contains("int32") && !line("flags").contains("half"),
+        "{out}"
+    );
     assert!(line("density").contains("float (half)"), "{out}");
     let o = umbra()
         .arg("info")
