@@ -1114,6 +1114,9 @@ pub(crate) fn render(
     if samples > 1 || sweep.flight.is_some() {
         map.stats.samples = camera.pixels() * samples as u64;
         map.std_err = s.std_err.then(|| errs.concat());
+        if let Some(e) = &map.std_err {
+            map.stats.max_std_err = e.iter().fold(0.0, |m, &v| m.max(f64::from(v)));
+        }
     }
     Ok(Some(map))
 }
