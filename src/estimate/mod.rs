@@ -25,12 +25,14 @@
 //! before sampling, so a single 1e6 spike in a near-empty leaf costs a few lookups, not 1e6.
 
 pub mod budget;
+pub mod error_bar;
 pub(crate) mod marching;
 mod medium;
 mod null_collision;
 mod power_series;
 pub mod registry;
 
+pub use error_bar::{Bounds, Spread};
 pub use medium::{Extinction, RayMedium};
 pub use null_collision::BOUND_TOLERANCE;
 pub(crate) use registry::Algo;
@@ -209,7 +211,8 @@ impl Default for Options {
 pub struct Estimate {
     /// Mean of the per-sample estimates of `T`.
     pub value: f64,
-    /// Standard error of the mean (0 for deterministic estimators or one sample).
+    /// Error bar of the mean: the sample standard error with a floor from what the walk
+    /// bounds ([`error_bar`]; 0 for deterministic estimators).
     pub std_err: f64,
     /// Density evaluations (the deterministic cost measure).
     pub lookups: u64,
@@ -225,6 +228,10 @@ pub struct Estimate {
     pub majorant_violations: u64,
     /// Exact optical depth, when the estimator computed it (regular tracking).
     pub tau: Option<f64>,
+    /// The samples' statistics and the walk's bounds `std_err` is made from (what adaptive
+    /// batches merge).
+    #[serde(skip)]
+    pub spread: Spread,
 }
 
 /// The ray as the estimators see it: the segments that need sampling, and the closed-form
@@ -409,6 +416,7 @@ fn estimate_unchecked(
             capped: 0,
             majorant_violations: 0,
             tau: Some(od.tau),
+            spread: Spread::default(),
         });
     }
     BUFFERS.with(|cell| match cell.try_borrow_mut() {
@@ -442,8 +450,8 @@ fn sample_prepared(
     } else {
         opts.samples.max(1)
     };
-    // Welford running mean and variance of the per-sample estimates.
-    let (mut mean, mut m2) = (0.0f64, 0.0f64);
+    // Welford running mean and variance of the per-sample estimates, and the walk's bounds.
+    let mut spread = Spread::of(est, Bounds::of_segments(prep.tau_known, &prep.segs));
     let (mut capped, mut violations) = (0u64, 0u64);
     for i in 0..samples {
         let mut rng = Rng::new(opts.seed, ray_id, u64::from(i));
@@ -451,15 +459,9 @@ fn sample_prepared(
         let x = known * sample_once(est, &prep.segs, &mut medium, &mut rng, &mut cap);
         capped += u64::from(cap.hit);
         violations += cap.violations;
-        let delta = x - mean;
-        mean += delta / f64::from(i + 1);
-        m2 += delta * (x - mean);
+        spread.push(x);
     }
-    let std_err = if samples > 1 {
-        (m2 / f64::from(samples - 1) / f64::from(samples)).sqrt()
-    } else {
-        0.0
-    };
+    let (mean, std_err) = (spread.mean, spread.std_err());
     Estimate {
         value: mean,
         std_err,
@@ -469,6 +471,7 @@ fn sample_prepared(
         capped,
         majorant_violations: violations,
         tau: None,
+        spread,
     }
 }
 
@@ -503,6 +506,26 @@ pub(crate) fn flight_sample(
     rng: &mut Rng,
 ) -> (f64, f64, u64, bool) {
     part_sample(vol, ray, est, opts, rng, true)
+}
+
+/// The optical depths [`flight_sample`] sees along `ray` before sampling: `(tau_known, tau_min,
+/// tau_maj)`, the closed-form part and the minorant and majorant depths of the sampled
+/// segments (refined as [`estimate`] refines them). What a null-collision map swept in object
+/// order asks for the error bar of a pixel whose chord it hands to the ray path.
+pub(crate) fn flight_bounds(vol: &Volume, ray: &Ray, opts: &Options) -> (f64, f64, f64) {
+    let mut medium = RayMedium::new(vol, ray, opts.interp);
+    let mut run = |scratch: &mut Scratch, prep: &mut Prepared| {
+        prepare_into(vol, ray, opts, true, &mut medium, scratch, prep);
+        let (lo, hi) = error_bar::depths(&prep.segs);
+        (prep.tau_known, lo, hi)
+    };
+    BUFFERS.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut bufs) => {
+            let (scratch, prep) = &mut *bufs;
+            run(scratch, prep)
+        }
+        Err(_) => run(&mut Scratch::default(), &mut Prepared::default()),
+    })
 }
 
 /// [`prepare_into`] (`refine` as it says) and one [`sample_once`] with `rng`, in the

@@ -42,8 +42,8 @@
 use super::Scene;
 use crate::error::Result;
 use crate::estimate::{
-    budget, estimate as estimate_one, prepare, sample_once, Cap, ColourWalk, Estimate, Estimator,
-    Extinction, Options, RayMedium,
+    budget, estimate as estimate_one, prepare, sample_once, Bounds, Cap, ColourWalk, Estimate,
+    Estimator, Extinction, Options, RayMedium, Spread,
 };
 use crate::math::scaled;
 use crate::ray::Ray;
@@ -58,7 +58,8 @@ pub struct SceneEstimate {
     pub channels: usize,
     /// Mean of the per-sample estimates of `T_c`.
     pub value: [f64; 3],
-    /// Standard error of each mean (0 for deterministic estimators or one sample).
+    /// Error bar of each mean ([`crate::estimate::error_bar`]; 0 for deterministic
+    /// estimators).
     pub std_err: [f64; 3],
     /// Exact optical depth per channel (regular tracking; `inf` behind a solid).
     pub tau: Option<[f64; 3]>,
@@ -75,6 +76,9 @@ pub struct SceneEstimate {
     pub majorant_violations: u64,
     /// Where the ray first enters a solid, if it does within its range.
     pub hit: Option<f64>,
+    /// Per channel, the samples' statistics and the walk's bounds `std_err` is made from.
+    #[serde(skip)]
+    pub spread: [Spread; 3],
 }
 
 impl SceneEstimate {
@@ -91,6 +95,7 @@ impl SceneEstimate {
             capped: self.capped,
             majorant_violations: self.majorant_violations,
             tau: self.tau.map(|t| t[c]),
+            spread: self.spread[c],
         }
     }
 
@@ -107,6 +112,7 @@ impl SceneEstimate {
             capped: 0,
             majorant_violations: 0,
             hit: None,
+            spread: [Spread::default(); 3],
         }
     }
 
@@ -124,6 +130,7 @@ impl SceneEstimate {
             capped: 0,
             majorant_violations: 0,
             hit: Some(t),
+            spread: [Spread::default(); 3],
         }
     }
 
@@ -138,6 +145,7 @@ impl SceneEstimate {
             samples: e.samples,
             capped: e.capped,
             majorant_violations: e.majorant_violations,
+            spread: [e.spread; 3],
             hit: None,
         }
     }
@@ -462,29 +470,30 @@ fn sampled(
     } else {
         opts.samples.max(1)
     };
-    let (mut mean, mut m2) = ([0.0f64; 3], [0.0f64; 3]);
+    let mut stats: [Spread; 3] =
+        std::array::from_fn(|c| Spread::of(est, Bounds::of_segments(known[c], &segs[c])));
     let (mut capped, mut violations) = (0u64, 0u64);
     for i in 0..samples {
-        for c in 0..channels {
+        for (c, sp) in stats.iter_mut().enumerate().take(channels) {
             let mut rng = Rng::new(opts.seed, ray_id, u64::from(i));
             let mut cap = Cap::new(opts.max_collisions);
             medium.begin(c, c == 0 && channels > 1 && !split);
             let x = (-known[c]).exp() * sample_once(est, &segs[c], &mut medium, &mut rng, &mut cap);
             capped += u64::from(cap.hit);
             violations += cap.violations;
-            let delta = x - mean[c];
-            mean[c] += delta / f64::from(i + 1);
-            m2[c] += delta * (x - mean[c]);
+            sp.push(x);
         }
     }
+    let mean = stats.map(|s| s.mean);
     let std_err = std::array::from_fn(|c| {
-        if samples > 1 && c < channels {
-            (m2[c] / f64::from(samples - 1) / f64::from(samples)).sqrt()
+        if c < channels {
+            stats[c].std_err()
         } else {
             0.0
         }
     });
     let fill = |v: [f64; 3]| if channels == 1 { [v[0]; 3] } else { v };
+    let stats = if channels == 1 { [stats[0]; 3] } else { stats };
     SceneEstimate {
         channels,
         value: fill(mean),
@@ -496,6 +505,7 @@ fn sampled(
         capped,
         majorant_violations: violations,
         hit: None,
+        spread: stats,
     }
 }
 

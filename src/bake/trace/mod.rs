@@ -119,11 +119,13 @@ impl BakeStats {
     }
 }
 
-/// Merge two batches' means and squared-deviation sums (Chan et al.).
+/// Merge two batches' means and squared-deviation sums (Chan et al.; the second batch's from
+/// its sample standard error, without the error bar's floor).
 fn merge(a: (f64, f64, u64), e: &Estimate) -> (f64, f64, u64) {
     let (mean, m2, n) = a;
     let nb = u64::from(e.samples);
-    let m2b = e.std_err * e.std_err * nb as f64 * nb.saturating_sub(1) as f64;
+    let se = e.spread.sample_std_err();
+    let m2b = se * se * nb as f64 * nb.saturating_sub(1) as f64;
     let tot = n + nb;
     let delta = e.value - mean;
     (
@@ -157,6 +159,7 @@ fn pixel(
     };
     if let Some(target) = s.target_error {
         let mut acc = [(0.0, 0.0, 0); 3];
+        let mut spread = e.spread;
         for (c, a) in acc.iter_mut().enumerate() {
             *a = merge(*a, &e.channel(c));
         }
@@ -167,12 +170,13 @@ fn pixel(
         // term is the rule-of-three bound on what n samples that all missed a rare event can
         // hide (estimates in [0, 1]), so n samples that happen to agree (s = 0) do not stop a
         // pixel early.
-        let err = |px: &Px, n: u64| {
-            px.std_err[..nc]
+        let err = |raw: &[f64; 3], n: u64| {
+            raw[..nc]
                 .iter()
                 .fold(0.0f64, |m, s| m.max(s.hypot(3f64.sqrt() / n as f64)))
         };
-        while err(&px, acc[0].2) > target
+        let mut raw = e.spread.map(|s| s.sample_std_err());
+        while err(&raw, acc[0].2) > target
             && acc[0].2 < max
             && b < u64::from(MAX_BATCHES)
             && e.samples > 1
@@ -186,7 +190,8 @@ fn pixel(
             for (c, a) in acc.iter_mut().enumerate() {
                 *a = merge(*a, &eb.channel(c));
                 px.t[c] = a.0;
-                px.std_err[c] = (a.1 / (a.2 - 1) as f64 / a.2 as f64).sqrt();
+                raw[c] = (a.1 / (a.2 - 1) as f64 / a.2 as f64).sqrt();
+                spread[c].widen(&eb.spread[c]);
             }
             px.lookups += eb.lookups;
             px.capped += eb.capped;
@@ -194,7 +199,15 @@ fn pixel(
             px.samples = acc[0].2;
             b += 1;
         }
-        px.unconverged &= err(&px, acc[0].2) > target;
+        px.unconverged &= err(&raw, acc[0].2) > target;
+        // The reported error bar: the merged samples through the one error-bar function
+        // (the first batch alone is the estimate's own).
+        if b > 1 {
+            for (c, sp) in spread.iter_mut().enumerate().take(nc) {
+                (sp.n, sp.mean, sp.m2) = (acc[c].2, acc[c].0, acc[c].1);
+                px.std_err[c] = sp.std_err();
+            }
+        }
     }
     if depths.is_empty() {
         return Ok(px);

@@ -31,7 +31,7 @@ use crate::bake::camera::Camera;
 use crate::bake::map::BakeSettings;
 use crate::error::Result;
 use crate::estimate::marching::{pieces, step_world};
-use crate::estimate::{Algo, Estimator, Options};
+use crate::estimate::{Algo, Bounds, Estimator, Options, Spread};
 use crate::regular::kernel::{Kernel, Lanes, Steps, BLOCK, LANES};
 use crate::regular::{leaf_integral, Counts};
 use crate::rng::Rng;
@@ -410,18 +410,21 @@ pub(super) fn tile_split(
 
 /// A band of a random march or a null-collision map finished: per pixel, `T` the mean over its
 /// `samples` estimates (each estimate `per` values: the full ray, then its slices; optical
-/// depths `tau_i`, taken as `exp(-tau_i)`, or with `direct` the transmittance estimates
-/// themselves) into `t_band`, the standard error of that mean into `err` (when it is not
-/// empty), and the slices' means (pixel-major) returned. A NaN value is the ray's error.
+/// depths `tau_i`, taken as `exp(-tau_i)`, or, for a null-collision map (`flight`: its
+/// estimator and each pixel's bounds on `T`, or none when `err` is empty), the transmittance
+/// estimates themselves) into `t_band`, the error bar of that mean into `err` (when it is not
+/// empty; [`crate::estimate::error_bar`], as the ray path reports it), and the slices' means
+/// (pixel-major) returned. A NaN value is the ray's error.
 pub(super) fn finish_samples(
     camera: &Camera,
     y0: u32,
     tau: &[f64],
     (per, samples): (usize, usize),
-    direct: bool,
+    flight: Option<(&Estimator, &[Bounds])>,
     t_band: &mut [f32],
     err: &mut [f32],
 ) -> Result<Vec<f32>> {
+    let direct = flight.is_some();
     let w = camera.width;
     let mut slices = Vec::with_capacity(t_band.len() * (per - 1));
     for (px, est) in tau.chunks(per * samples).enumerate() {
@@ -449,9 +452,13 @@ pub(super) fn finish_samples(
         };
         let (mean, t) = mean_of(0);
         t_band[px] = mean as f32;
-        if !err.is_empty() && samples > 1 {
-            let ss: f64 = (0..samples).map(|i| (t(i) - mean).powi(2)).sum();
-            err[px] = (ss / (samples - 1) as f64 / samples as f64).sqrt() as f32;
+        if !err.is_empty() {
+            let mut spread = match flight {
+                Some((est, bounds)) => Spread::of(est, bounds.get(px).copied().unwrap_or_default()),
+                None => Spread::default(),
+            };
+            (0..samples).for_each(|i| spread.push(t(i)));
+            err[px] = spread.std_err() as f32;
         }
         slices.extend((1..per).map(|k| mean_of(k).0 as f32));
     }

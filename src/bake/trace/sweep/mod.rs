@@ -905,7 +905,7 @@ impl<'a> Sweep<'a> {
             return self.band_march(m, b, tau, lookups);
         }
         if let Some(f) = &self.flight {
-            return self.band_flight(f, b, tau, lookups);
+            return self.band_flight(f, b, tau, lookups, None);
         }
         let (vol, camera, rays) = (self.vol, self.camera, &self.rays);
         let (pieces, ids) = (&self.pieces, &self.bins[b]);
@@ -1072,16 +1072,24 @@ pub(crate) fn render(
         .map(|(b, t_band)| {
             let mut tau = vec![0.0f64; t_band.len() * stride];
             let mut lookups = 0;
-            sweep.band(b, &mut tau, &mut lookups)?;
+            // A null-collision map's error bar takes each pixel's bounds on T.
+            let mut bounds = Vec::new();
+            match &sweep.flight {
+                Some(f) if s.std_err => {
+                    sweep.band_flight(f, b, &mut tau, &mut lookups, Some(&mut bounds))?;
+                }
+                _ => sweep.band(b, &mut tau, &mut lookups)?,
+            }
             let y0 = b as u32 * rows;
             let mut err = vec![0.0f32; if s.std_err { t_band.len() } else { 0 }];
             let slices = if samples > 1 || sweep.flight.is_some() {
+                let est = sweep.flight.as_ref().map(|_| (&s.estimator, &bounds[..]));
                 finish_samples(
                     camera,
                     y0,
                     &tau,
                     (stride / samples, samples),
-                    sweep.flight.is_some(),
+                    est,
                     t_band,
                     &mut err,
                 )?
@@ -1103,9 +1111,12 @@ pub(crate) fn render(
         errs.push(err);
     }
     let mut map = assemble(camera, s, depths, t_image, &bands, start);
-    if samples > 1 {
+    if samples > 1 || sweep.flight.is_some() {
         map.stats.samples = camera.pixels() * samples as u64;
         map.std_err = s.std_err.then(|| errs.concat());
+        if let Some(e) = &map.std_err {
+            map.stats.max_std_err = e.iter().fold(0.0, |m, &v| m.max(f64::from(v)));
+        }
     }
     Ok(Some(map))
 }

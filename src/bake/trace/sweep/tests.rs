@@ -450,7 +450,7 @@ fn check_march(
             let mut err = vec![0.0f32; 1];
             let mut t = [0.0f32];
             let est_of = &buf[n * stride..(n + 1) * stride];
-            let got = finish_samples(camera, 0, est_of, (per, samples), false, &mut t, &mut err)
+            let got = finish_samples(camera, 0, est_of, (per, samples), None, &mut t, &mut err)
                 .map(|slices| {
                     if k == 0 {
                         f64::from(t[0])

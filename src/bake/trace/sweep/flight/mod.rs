@@ -52,7 +52,7 @@ use super::march::tile_split;
 use super::{fill, neighbourhood, Part, Sweep};
 use crate::bake::map::BakeSettings;
 use crate::error::Result;
-use crate::estimate::{Algo, Control, Estimator, Options};
+use crate::estimate::{Algo, Bounds, Control, Estimator, Options};
 use crate::regular::kernel::{max_chord, point, BLOCK};
 use crate::regular::{leaf_integral, Counts};
 use crate::rng::{block_key, chord_key, Rng};
@@ -248,6 +248,31 @@ impl Chord<'_> {
     }
 }
 
+/// A pixel's optical depths as the sweep meets its chords: the closed-form part and the
+/// minorant and majorant depths of the flown part.
+#[derive(Debug, Clone, Copy, Default)]
+struct Depths {
+    known: f64,
+    lo: f64,
+    hi: f64,
+}
+
+impl Depths {
+    /// A chord whose optical depth `tau` is known exactly.
+    fn add_exact(&mut self, tau: f64) {
+        self.known += tau;
+    }
+    /// A flown chord whose optical depth is in `[lo, hi]`.
+    fn add_bounded(&mut self, lo: f64, hi: f64) {
+        self.lo += lo;
+        self.hi += hi;
+    }
+    /// The pixel's bounds on `T`.
+    fn bounds(&self) -> Bounds {
+        Bounds::new(self.known, self.lo, self.hi)
+    }
+}
+
 thread_local! {
     /// Per-thread band buffers of [`Sweep::band_flight`] (closed-form depths, collisions
     /// spent, factor products), kept so that a warm thread maps no fresh pages per band.
@@ -257,13 +282,16 @@ thread_local! {
 
 impl Sweep<'_> {
     /// Band `b` of a null-collision map: every pixel's (sample's, slice's) transmittance
-    /// estimate into `tau` (estimates, not optical depths: [`super::finish_samples`] is told).
+    /// estimate into `tau` (estimates, not optical depths: [`super::finish_samples`] is told),
+    /// and, when `bounds` is given, each pixel's bounds on `T` (its full ray; what the error
+    /// bar's floor needs, [`crate::estimate::error_bar`]).
     pub(super) fn band_flight(
         &self,
         f: &Flight,
         b: usize,
         tau: &mut [f64],
         lookups: &mut u64,
+        bounds: Option<&mut Vec<Bounds>>,
     ) -> Result<()> {
         let (vol, rays) = (self.vol, &self.rays);
         let ids = &self.bins[b];
@@ -283,6 +311,8 @@ impl Sweep<'_> {
         let (mut det, mut spent, mut prod) = BUFFERS.take();
         det.clear();
         det.resize(npx * per, 0.0);
+        // Per pixel (full ray): the closed-form, minorant and majorant optical depths.
+        let mut depth = vec![Depths::default(); if bounds.is_some() { npx } else { 0 }];
         spent.clear();
         spent.resize(tau.len(), 0);
         prod.clear();
@@ -322,7 +352,7 @@ impl Sweep<'_> {
                     p,
                     (rows, &dirs),
                     kb,
-                    (&mut prod, &mut det),
+                    (&mut prod, &mut det, &mut depth),
                     &mut acc,
                     &mut n,
                 );
@@ -351,6 +381,9 @@ impl Sweep<'_> {
                             for job in &jobs {
                                 det[px * per + job.slot] += mu * (job.end - ia);
                             }
+                            if let Some(dp) = depth.get_mut(px) {
+                                dp.add_exact(mu * (ib - ia));
+                            }
                         }
                         parts
                     }
@@ -360,6 +393,9 @@ impl Sweep<'_> {
                 // of their own: factors of one sample must be independent.
                 for (part, chord) in parts.into_iter().enumerate() {
                     let Some((a, b)) = chord else { continue };
+                    if let Some(dp) = depth.get_mut(px) {
+                        dp.add_bounded(lo * (b - a), hi * (b - a));
+                    }
                     let e = ((q - centre) + d * a).to_array();
                     self.jobs(true, (a, b), pixel_id(px), &mut jobs);
                     for job in &jobs {
@@ -414,6 +450,10 @@ impl Sweep<'_> {
         }
         *lookups += n.reads;
         BUFFERS.set((det, spent, prod));
+        if let Some(out) = bounds {
+            out.clear();
+            out.extend(depth.iter().map(Depths::bounds));
+        }
         Ok(())
     }
 
@@ -426,7 +466,7 @@ impl Sweep<'_> {
         p: &super::Piece,
         (rows, dirs): ((u32, u32, u32), &[super::PixelDir]),
         kb: u64,
-        (prod, det): (&mut [f64], &mut [f64]),
+        (prod, det, depth): (&mut [f64], &mut [f64], &mut [Depths]),
         acc: &mut Accessor<'_>,
         n: &mut Counts,
     ) {
@@ -446,12 +486,26 @@ impl Sweep<'_> {
             self.jobs(true, (a, b), id, &mut jobs);
             for job in &jobs {
                 let slot = px * per + job.slot;
+                let dp = if job.slot == 0 {
+                    depth.get_mut(px)
+                } else {
+                    None
+                };
                 match p.part {
-                    Part::Const(mu) => det[slot] += mu * (job.end - a),
+                    Part::Const(mu) => {
+                        det[slot] += mu * (job.end - a);
+                        if let Some(dp) = dp {
+                            dp.add_exact(mu * (job.end - a));
+                        }
+                    }
                     Part::Leaf { leaf, .. } if infinite_leaf => {
                         let (qa, da) = (q.to_array(), d.to_array());
                         let lin = Interp::Trilinear;
-                        det[slot] += scale * leaf_integral(acc, leaf, qa, da, a, job.end, lin, n);
+                        let v = scale * leaf_integral(acc, leaf, qa, da, a, job.end, lin, n);
+                        det[slot] += v;
+                        if let Some(dp) = dp {
+                            dp.add_exact(v);
+                        }
                     }
                     _ => {
                         let (x, y) = (px as u32 % w, y0 + px as u32 / w);
@@ -460,6 +514,11 @@ impl Sweep<'_> {
                             .pixel_ray(x, y)
                             .and_then(|r| r.with_range(a, job.end));
                         let ck = chord_key(kb, job.ray_id);
+                        if let (Some(dp), Ok(ray)) = (dp, &ray) {
+                            let (known, lo, hi) = crate::estimate::flight_bounds(vol, ray, &f.opts);
+                            dp.add_exact(known);
+                            dp.add_bounded(lo, hi);
+                        }
                         for i in 0..samples {
                             let at = px * stride + i * per + job.slot;
                             let Ok(ray) = &ray else {
