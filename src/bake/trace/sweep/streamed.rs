@@ -67,6 +67,9 @@ pub struct Streamed {
     pub sanitized: crate::volume::Sanitized,
 }
 
+/// A finished band: its lookups and its slices (as [`assemble`] takes them).
+type Band = (u64, Vec<f32>);
+
 /// A part's pieces for view `v`, from its volume and its region's index.
 type PiecesOf<'a> = dyn Fn(&Volume, &RegionIndex, usize) -> Result<Vec<Piece>> + 'a;
 
@@ -354,7 +357,7 @@ pub(crate) fn render_streamed(
     for (view, tau) in views.iter().zip(tau.chunks(view_len)) {
         let w = view.width as usize;
         let mut t_image = vec![0.0f32; view.pixels() as usize];
-        let done: Vec<((u64, Vec<f32>), Vec<f32>)> = t_image
+        let done: Vec<(Band, Vec<f32>)> = t_image
             .par_chunks_mut(rows as usize * w)
             .zip(tau.par_chunks(rows as usize * w * stride))
             .enumerate()
@@ -367,7 +370,7 @@ pub(crate) fn render_streamed(
                         y0,
                         tau,
                         (stride / samples, samples),
-                        false,
+                        None,
                         t_band,
                         &mut err,
                     )?
@@ -378,7 +381,7 @@ pub(crate) fn render_streamed(
                 Ok(((0, slices), err))
             })
             .collect::<Result<_>>()?;
-        let (bands, errs): (Vec<(u64, Vec<f32>)>, Vec<Vec<f32>>) = done.into_iter().unzip();
+        let (bands, errs): (Vec<Band>, Vec<Vec<f32>>) = done.into_iter().unzip();
         let mut map = assemble(view, s, depths, t_image, &bands, start);
         if samples > 1 {
             map.stats.samples = view.pixels() * samples as u64;
