@@ -818,14 +818,15 @@ density_scale = 2.0
     let o = batch(&j, &["--plan"]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(1), "{err}");
-    assert!(err.contains("liquid.vdb") && err.contains("density"), "{err}");
+    assert!(
+        err.contains("liquid.vdb") && err.contains("density"),
+        "{err}"
+    );
     assert!(o.stdout.is_empty() && !d.join("out").exists());
     // Each entry its own.
-    let j = job(
-        "[[inputs]]\nfile = \"smoke.vdb\"\ndensity_scale = 3.0\n\
+    let j = job("[[inputs]]\nfile = \"smoke.vdb\"\ndensity_scale = 3.0\n\
          xform = [1, 0, 0, 0.5, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1]\n\
-         [[inputs]]\nfile = \"liquid.vdb\"\ngrid = \"ls_sphere\"\nlevelset = \"solid\"\n",
-    );
+         [[inputs]]\nfile = \"liquid.vdb\"\ngrid = \"ls_sphere\"\nlevelset = \"solid\"\n");
     let o = batch(&j, &["--plan"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(String::from_utf8_lossy(&o.stdout).lines().count(), 2);
@@ -846,11 +847,22 @@ density_scale = 2.0
     for (input, extra) in [
         (
             "smoke",
-            &["--density-scale", "3", "--xform=1,0,0,0.5,0,1,0,0,0,0,1,0,0,0,0,1"][..],
+            &[
+                "--density-scale",
+                "3",
+                "--xform=1,0,0,0.5,0,1,0,0,0,0,1,0,0,0,0,1",
+            ][..],
         ),
         (
             "liquid",
-            &["--density-scale", "2", "--grid", "ls_sphere", "--levelset", "solid"][..],
+            &[
+                "--density-scale",
+                "2",
+                "--grid",
+                "ls_sphere",
+                "--levelset",
+                "solid",
+            ][..],
         ),
     ] {
         let direct = d.join(format!("direct_{input}.exr"));

@@ -411,7 +411,10 @@ fn unhonoured_options_and_zero_backgrounds_are_warned_about_by_name() {
         .unwrap();
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let err = String::from_utf8_lossy(&o.stderr);
-    assert!(err.contains("warning") && err.contains("--max-memory"), "{err}");
+    assert!(
+        err.contains("warning") && err.contains("--max-memory"),
+        "{err}"
+    );
     let v: Value = serde_json::from_slice(&o.stdout).unwrap();
     let w = &v["warnings"][0];
     assert_eq!(w["kind"], "memory-budget-ignored", "{v}");
