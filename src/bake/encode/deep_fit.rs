@@ -261,7 +261,8 @@ pub(crate) fn greedy_fit(
                     max_error,
                     floor,
                 );
-                if !(g <= max_error) {
+                // A NaN gap fails, as it always has.
+                if g.is_nan() || g > max_error {
                     return None;
                 }
                 level = level.max(g);
@@ -389,6 +390,36 @@ mod tests {
                     (fitted_transmittance(&s, end) - (-tau.last().unwrap()).exp()).abs() < 1e-15
                 );
                 assert!(s.windows(2).all(|w| w[0].z1 <= w[1].z0));
+            }
+        }
+    }
+
+    #[test]
+    fn greedy_fits_are_the_same_fit_between_their_level_and_their_bound() {
+        for seed in 0..20 {
+            let (t, tau) = profile(seed, 300);
+            for e in [0.3, 0.05, 0.01, 1e-3] {
+                let f = greedy_fit(&t, &[&tau], e, usize::MAX).unwrap();
+                assert_eq!(f.spans, fit_spans(&t, &[&tau], e).unwrap());
+                assert!(f.level <= e);
+                let mid = (f.level.max(1e-9) * e).sqrt().max(f.level);
+                for e2 in [f.level.max(1e-9), mid] {
+                    let g = greedy_fit(&t, &[&tau], e2, usize::MAX).unwrap();
+                    assert_eq!(g.spans, f.spans, "seed {seed} e {e} -> {e2}");
+                }
+                // A cap below the fit's nodes refuses it; at its nodes it passes.
+                let mut nodes = 0;
+                for (k, s) in f.spans.iter().enumerate() {
+                    nodes += if k > 0 && f.spans[k - 1].1 == s.0 {
+                        1
+                    } else {
+                        2
+                    };
+                }
+                assert!(greedy_fit(&t, &[&tau], e, nodes).is_some());
+                if nodes > 0 {
+                    assert!(greedy_fit(&t, &[&tau], e, nodes - 1).is_none());
+                }
             }
         }
     }

@@ -38,7 +38,7 @@ pub const OVERESTIMATION: f64 = 0.25;
 
 /// `x^e` for `e = 0..=6` as `f64::powi` computes it (square and multiply, the exponent's
 /// bits from the lowest), so the table gives the same bits as the calls it replaces.
-fn powers(x: f64) -> [f64; 7] {
+pub(crate) fn powers(x: f64) -> [f64; 7] {
     let mut out = [1.0f64; 7];
     for (e, o) in out.iter_mut().enumerate().skip(1) {
         let (mut r, mut a, mut b) = (1.0f64, x, e);
