@@ -182,6 +182,17 @@ pub fn fit_profile(t: &[f64], tau: &[f64], max_error: f64) -> Result<Vec<DeepSam
 /// As [`fit_profile`], for any channel; also (name `deep`) for no channel.
 pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usize, usize)>> {
     check_deep_error(max_error)?;
+    check_profile(t, taus)?;
+    Ok(greedy_fit(t, taus, max_error, usize::MAX)
+        .map(|f| f.spans)
+        .unwrap_or_default())
+}
+
+/// Check a profile for [`fit_spans`].
+///
+/// # Errors
+/// As [`fit_profile`] (name `deep`), for any channel; also for no channel.
+pub(crate) fn check_profile(t: &[f64], taus: &[&[f64]]) -> Result<()> {
     let bad = |reason: &str| Error::InvalidArgument {
         name: "deep".into(),
         reason: reason.into(),
@@ -204,29 +215,71 @@ pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usiz
             ));
         }
     }
+    Ok(())
+}
+
+/// A greedy fit ([`greedy_fit`]): its spans, and the largest gap any accepted chord check
+/// returned.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct GreedyFit {
+    /// The samples as breakpoint index pairs, as [`fit_spans`] returns them.
+    pub(crate) spans: Vec<(usize, usize)>,
+    /// The largest value an accepted check's [`gap_within`] returned. Every check the fit
+    /// made has the same outcome for any bound in `[level, max_error]`, so the fit at such a
+    /// bound is this one (a rejected check's gap was computed exactly and exceeds
+    /// `max_error`; an accepted one's is at most `level`).
+    pub(crate) level: f64,
+}
+
+/// The greedy chord fit of [`fit_spans`] on a profile [`check_profile`] accepted, `max_error`
+/// in `(0, 1)`; `None` as soon as its nodes (each span's two ends, shared where spans touch)
+/// exceed `max_nodes`.
+pub(crate) fn greedy_fit(
+    t: &[f64],
+    taus: &[&[f64]],
+    max_error: f64,
+    max_nodes: usize,
+) -> Option<GreedyFit> {
     let n = t.len();
     let flat = |k: usize| taus.iter().all(|tau| tau[k + 1] == tau[k]);
-    // The chord from breakpoint i to j fits when every channel does on every interval.
-    let fits = |i: usize, j: usize| {
+    // The chord from breakpoint i to j fits when every channel does on every interval: the
+    // largest gap checked, or None.
+    let fits = |i: usize, j: usize| -> Option<f64> {
         let span = (t[j] - t[i]).max(f64::MIN_POSITIVE);
-        taus.iter().all(|tau| {
+        let mut level = 0.0f64;
+        for tau in taus {
             let slope = (tau[j] - tau[i]) / span;
             let chord = |x: f64| tau[i] + slope * (x - t[i]);
             // Chord and profile both start at tau[i] and never decrease.
             let floor = (tau[i], (-tau[i]).exp());
-            (i..j).all(|k| {
-                gap_within(
+            for k in i..j {
+                let g = gap_within(
                     t[k],
                     t[k + 1],
                     (chord(t[k]), chord(t[k + 1])),
                     (tau[k], tau[k + 1]),
                     max_error,
                     floor,
-                ) <= max_error
-            })
-        })
+                );
+                // A NaN gap fails, as it always has.
+                if g.is_nan() || g > max_error {
+                    return None;
+                }
+                level = level.max(g);
+            }
+        }
+        Some(level)
     };
-    let mut out = Vec::new();
+    let mut level = 0.0f64;
+    let mut check = |i: usize, j: usize| match fits(i, j) {
+        Some(l) => {
+            level = level.max(l);
+            true
+        }
+        None => false,
+    };
+    let mut out: Vec<(usize, usize)> = Vec::new();
+    let mut nodes = 0usize;
     let mut i = 0;
     while i + 1 < n {
         if flat(i) {
@@ -239,7 +292,7 @@ pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usiz
         let mut miss = None;
         while good + 1 < n {
             let j = (good + step).min(n - 1);
-            if fits(i, j) {
+            if check(i, j) {
                 good = j;
                 step *= 2;
             } else {
@@ -250,7 +303,7 @@ pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usiz
         if let Some(mut hi) = miss {
             while hi - good > 1 {
                 let mid = good + (hi - good) / 2;
-                if fits(i, mid) {
+                if check(i, mid) {
                     good = mid;
                 } else {
                     hi = mid;
@@ -262,13 +315,21 @@ pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usiz
         while j > i + 1 && taus.iter().all(|tau| tau[j] == tau[j - 1]) {
             j -= 1;
         }
-        if j < good && !fits(i, j) {
+        if j < good && !check(i, j) {
             j = good;
+        }
+        nodes += if out.last().is_some_and(|s| s.1 == i) {
+            1
+        } else {
+            2
+        };
+        if nodes > max_nodes {
+            return None;
         }
         out.push((i, j));
         i = j;
     }
-    Ok(out)
+    Some(GreedyFit { spans: out, level })
 }
 
 #[cfg(test)]
@@ -329,6 +390,36 @@ mod tests {
                     (fitted_transmittance(&s, end) - (-tau.last().unwrap()).exp()).abs() < 1e-15
                 );
                 assert!(s.windows(2).all(|w| w[0].z1 <= w[1].z0));
+            }
+        }
+    }
+
+    #[test]
+    fn greedy_fits_are_the_same_fit_between_their_level_and_their_bound() {
+        for seed in 0..20 {
+            let (t, tau) = profile(seed, 300);
+            for e in [0.3, 0.05, 0.01, 1e-3] {
+                let f = greedy_fit(&t, &[&tau], e, usize::MAX).unwrap();
+                assert_eq!(f.spans, fit_spans(&t, &[&tau], e).unwrap());
+                assert!(f.level <= e);
+                let mid = (f.level.max(1e-9) * e).sqrt().max(f.level);
+                for e2 in [f.level.max(1e-9), mid] {
+                    let g = greedy_fit(&t, &[&tau], e2, usize::MAX).unwrap();
+                    assert_eq!(g.spans, f.spans, "seed {seed} e {e} -> {e2}");
+                }
+                // A cap below the fit's nodes refuses it; at its nodes it passes.
+                let mut nodes = 0;
+                for (k, s) in f.spans.iter().enumerate() {
+                    nodes += if k > 0 && f.spans[k - 1].1 == s.0 {
+                        1
+                    } else {
+                        2
+                    };
+                }
+                assert!(greedy_fit(&t, &[&tau], e, nodes).is_some());
+                if nodes > 0 {
+                    assert!(greedy_fit(&t, &[&tau], e, nodes - 1).is_none());
+                }
             }
         }
     }

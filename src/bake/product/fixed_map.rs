@@ -85,8 +85,16 @@ struct Row {
     lit: u64,
 }
 
+/// The progress units [`bake_fixed`] reports for a map of `pixels` pixels: one per texel of
+/// the first pass, and an eighth of that for the second (which revisits the flagged texels:
+/// from none to a third of them, each costing about what it did in the first pass).
+pub(crate) fn fixed_units(pixels: u64) -> u64 {
+    pixels + pixels / 8
+}
+
 /// The fixed-size deep map of `scene` seen by `flat`'s camera in `format` (`flat` as for
-/// [`crate::bake::bake_deep`]). `progress` gets finished pixel counts.
+/// [`crate::bake::bake_deep`]). `progress` gets [`fixed_units`] in all: a texel per texel of
+/// the first pass, then the second pass's share as its flagged texels finish.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] (name `deep`) for a stochastic map without its slices; tracing
@@ -174,10 +182,18 @@ pub fn bake_fixed(
     let flagged: Vec<usize> = (0..coarse.len())
         .filter(|&p| coarse[p] > threshold)
         .collect();
+    // The second pass's units: flagged texel q completes floor((q + 1) U / F) in all.
+    let units = fixed_units(camera.pixels()) - camera.pixels();
+    if flagged.is_empty() {
+        progress(units);
+    }
+    let share = |q: usize| (u128::from(units) * q as u128 / flagged.len().max(1) as u128) as u64;
     let second = || {
         flagged
             .par_iter()
-            .map(|&p| {
+            .enumerate()
+            .map(|(q, &p)| {
+                progress(share(q + 1) - share(q));
                 let (i, j) = ((p % w as usize) as u32, (p / w as usize) as u32);
                 let mut bound = 0.0f64;
                 for (c, prof) in texel(i, j)?.iter().enumerate() {

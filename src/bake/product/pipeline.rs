@@ -736,11 +736,32 @@ impl BakeJob {
         Ok(report)
     }
 
+    /// The units [`BakeJob::run_on`] and [`BakeJob::run_loaded`] report to `progress` for a
+    /// camera of `pixels` pixels (a progress bar's length): the pixels of each pass in
+    /// proportion to its cost. A flat map counts its pixels; a deep product its deep pass's
+    /// pixels (and, for a fixed-size format, an eighth more for the
+    /// second pass that refines its error bound), plus the flat pass's pixels for a stochastic estimator (whose flat
+    /// pass traces the 64 slices; an exact map's flat pass is a few per cent of its deep pass
+    /// and not counted).
+    #[must_use]
+    pub fn progress_len(&self, pixels: u64) -> u64 {
+        let deep = match self.product {
+            Product::Map => return pixels,
+            Product::Deep { .. } => pixels,
+            Product::Fixed { .. } => super::fixed_map::fixed_units(pixels),
+        };
+        if self.settings.estimator == crate::estimate::Estimator::REGULAR {
+            deep
+        } else {
+            pixels + deep
+        }
+    }
+
     /// Bake and write a deep product ([`Product::Deep`] or [`Product::Fixed`]) of `scene`
     /// seen by `camera`. The flat map is traced first: with regular tracking as asked, and a
     /// stochastic estimator's with the [`crate::bake::STOCHASTIC_DEPTHS`] slices its deep
-    /// function comes from (removed from the written map); then the deep pass (which
-    /// `progress` counts for exact maps, the flat pass for stochastic ones).
+    /// function comes from (removed from the written map); then the deep pass. `progress`
+    /// counts both as [`BakeJob::progress_len`] says.
     fn deep_product(
         &self,
         scene: &Scene,
@@ -759,7 +780,7 @@ impl BakeJob {
             };
             bake_scene(scene, &camera, &settings, progress)?
         };
-        let deep_progress = if exact { progress } else { &none };
+        let deep_progress = progress;
         let (deep, fixed) = match self.product {
             Product::Deep { max_error } => (
                 Some(crate::bake::bake_deep(

@@ -75,11 +75,14 @@ fn run_map(a: &BakeArgs, job: &BakeJob, total: std::time::Instant) -> Result<Exi
         }
         None => {
             let (scene, camera) = job.prepare().map_err(setup_error)?;
-            let bar = progress_bar(
-                a.quiet,
-                "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
-                camera.pixels(),
-            );
+            // A deep product's units are its passes' pixels weighted by cost, not pixels.
+            let len = job.progress_len(camera.pixels());
+            let template = if len == camera.pixels() {
+                "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}"
+            } else {
+                "{spinner} baking [{bar:30}] {percent:>3}%, eta {eta}"
+            };
+            let bar = progress_bar(a.quiet, template, len);
             let r = job.run_on(scene, camera, &|n| bar.inc(n));
             bar.finish_and_clear();
             r

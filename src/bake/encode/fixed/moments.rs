@@ -36,25 +36,61 @@ pub const FAR_ROOT: f64 = 1e3;
 /// Share of the mass that may sit at the depth looked up that counts as in front of it.
 pub const OVERESTIMATION: f64 = 0.25;
 
+/// `x^e` for `e = 0..=6` as `f64::powi` computes it (square and multiply, the exponent's
+/// bits from the lowest), so the table gives the same bits as the calls it replaces.
+pub(crate) fn powers(x: f64) -> [f64; 7] {
+    let mut out = [1.0f64; 7];
+    for (e, o) in out.iter_mut().enumerate().skip(1) {
+        let (mut r, mut a, mut b) = (1.0f64, x, e);
+        loop {
+            if b & 1 == 1 {
+                r *= a;
+            }
+            b /= 2;
+            if b == 0 {
+                break;
+            }
+            a *= a;
+        }
+        *o = r;
+    }
+    out
+}
+
 /// The stored `b_0, m_1, ..., m_k` of profile `p`.
+///
+/// Each piece's powers of its ends come from a table ([`powers`]), shared with the next piece
+/// where the pieces touch: `O(k^2)` multiplications per piece and no `powi` call.
 #[must_use]
 pub fn encode(p: &NormProfile, k: u32) -> Vec<f32> {
-    let k = k as usize;
+    let k = (k as usize).min(6);
     let mut m = vec![0.0f64; k + 1];
+    let mut cache: Option<(f64, [f64; 7])> = None;
+    let mut table = |x: f64| match cache {
+        Some((c, t)) if c.to_bits() == x.to_bits() => t,
+        _ => {
+            let t = powers(x);
+            cache = Some((x, t));
+            t
+        }
+    };
     for (u0, u1, dtau) in p.pieces() {
         let (x0, x1) = (2.0 * u0 - 1.0, 2.0 * u1 - 1.0);
-        for (j, mj) in m.iter_mut().enumerate() {
-            let v = if x1 > x0 {
+        let p0 = table(x0);
+        if x1 > x0 {
+            let p1 = table(x1);
+            for (j, mj) in m.iter_mut().enumerate() {
                 // sum_i x1^i x0^(j - i) / (j + 1)
                 let mut s = 0.0;
                 for i in 0..=j {
-                    s += x1.powi(i as i32) * x0.powi((j - i) as i32);
+                    s += p1[i] * p0[j - i];
                 }
-                s / (j + 1) as f64
-            } else {
-                x0.powi(j as i32)
-            };
-            *mj += dtau * v;
+                *mj += dtau * (s / (j + 1) as f64);
+            }
+        } else {
+            for (j, mj) in m.iter_mut().enumerate() {
+                *mj += dtau * p0[j];
+            }
         }
     }
     let b0 = m[0];

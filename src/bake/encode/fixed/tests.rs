@@ -147,3 +147,13 @@ fn more_channels_fit_better() {
     assert!(err(DeepFormat::Moments(6)) < err(DeepFormat::Moments(4)));
     assert!(err(DeepFormat::Avsm(8)) < err(DeepFormat::Avsm(4)));
 }
+
+#[test]
+fn the_moments_power_table_is_powi() {
+    for x in [-1.0, -0.731, -0.2, 0.0, 1e-3, 0.3333, 0.77, 1.0] {
+        let t = moments::powers(x);
+        for (e, v) in t.iter().enumerate() {
+            assert_eq!(v.to_bits(), x.powi(e as i32).to_bits(), "{x}^{e}");
+        }
+    }
+}
