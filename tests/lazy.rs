@@ -544,6 +544,22 @@ fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> um
     }
 }
 
+/// The least budget `job`'s plan accepts, read from its refusal of 1 MiB (which names it and
+/// the option `max-memory`).
+fn least_budget(job: &umbra::bake::BakeJob) -> u64 {
+    let mut j = job.clone();
+    j.max_memory = Some(1 << 20);
+    match j.plan_bounded() {
+        Err(umbra::Error::InvalidArgument { name, reason }) => {
+            assert_eq!(name, "max-memory");
+            let at_least = reason.split("at least ").nth(1).unwrap();
+            let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
+            (mib * f64::from(1 << 20)) as u64
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
 /// A cache of 3 x 3 x 3 copies of the sample cloud (`tools/make_hero.py`, pyopenvdb): big
 /// enough that a bake in parts needs less than a whole one.
 fn tiled_cloud(dir: &std::path::Path) -> PathBuf {
@@ -568,15 +584,7 @@ fn bakes_in_parts_equal_whole_bakes_bit_for_bit() {
         .unwrap();
     assert_eq!(whole.map.stats.parts, 0);
     // The least budget the plan accepts, read from its refusal.
-    let least = match bake_job(&path, dir.path().join("p.exr"), Some(1 << 20)).plan_bounded() {
-        Err(umbra::Error::InvalidArgument { name, reason }) => {
-            assert_eq!(name, "max-memory");
-            let at_least = reason.split("at least ").nth(1).unwrap();
-            let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
-            (mib * f64::from(1 << 20)) as u64
-        }
-        other => panic!("{other:?}"),
-    };
+    let least = least_budget(&bake_job(&path, dir.path().join("p.exr"), Some(1 << 20)));
     let mut parts = Vec::new();
     for budget in [least + (1 << 20), least + (4 << 20), least + (12 << 20)] {
         let out = dir.path().join("parts.exr");
@@ -662,14 +670,7 @@ fn ray_path_bakes_in_parts_equal_whole_bakes_bit_for_bit() {
         let mut whole = job("whole.exr", None);
         whole.settings.order = umbra::bake::Order::Rays;
         let whole = whole.run(&|_| {}).unwrap();
-        let least = match job("p.exr", Some(1 << 20)).plan_bounded() {
-            Err(umbra::Error::InvalidArgument { reason, .. }) => {
-                let at_least = reason.split("at least ").nth(1).unwrap();
-                let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
-                (mib * f64::from(1 << 20)) as u64
-            }
-            other => panic!("{other:?}"),
-        };
+        let least = least_budget(&job("p.exr", Some(1 << 20)));
         let r = job("parts.exr", Some(least + (2 << 20)))
             .run(&|_| {})
             .unwrap();
@@ -716,14 +717,7 @@ fn marches_in_parts_equal_whole_bakes_bit_for_bit() {
         };
         let whole = job("whole.exr", None).run(&|_| {}).unwrap();
         assert!(whole.map.stats.sweep, "{name}");
-        let least = match job("p.exr", Some(1 << 20)).plan_bounded() {
-            Err(umbra::Error::InvalidArgument { reason, .. }) => {
-                let at_least = reason.split("at least ").nth(1).unwrap();
-                let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
-                (mib * f64::from(1 << 20)) as u64
-            }
-            other => panic!("{name}: {other:?}"),
-        };
+        let least = least_budget(&job("p.exr", Some(1 << 20)));
         // The least budget is the ray path's; the sweep keeps the samples' image beside it
         // (300 x 200 pixels x 4 depths x 3 more samples x 8 bytes, 5.5 MiB).
         let r = job("parts.exr", Some(least + (8 << 20)))
@@ -758,14 +752,7 @@ fn marches_in_parts_equal_whole_bakes_bit_for_bit() {
         j
     };
     let whole = job("whole.exr", None).run(&|_| {}).unwrap();
-    let least = match job("p.exr", Some(1 << 20)).plan_bounded() {
-        Err(umbra::Error::InvalidArgument { reason, .. }) => {
-            let at_least = reason.split("at least ").nth(1).unwrap();
-            let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
-            (mib * f64::from(1 << 20)) as u64
-        }
-        other => panic!("{other:?}"),
-    };
+    let least = least_budget(&job("p.exr", Some(1 << 20)));
     let r = job("parts.exr", Some(least + (2 << 20)))
         .run(&|_| {})
         .unwrap();
@@ -806,14 +793,7 @@ fn bakes_in_parts_report_the_bad_voxels_a_whole_bake_reports() {
     let whole = bake_job(&path, dir.path().join("whole.exr"), None)
         .run(&|_| {})
         .unwrap();
-    let least = match bake_job(&path, dir.path().join("p.exr"), Some(1 << 20)).plan_bounded() {
-        Err(umbra::Error::InvalidArgument { reason, .. }) => {
-            let at_least = reason.split("at least ").nth(1).unwrap();
-            let mib: f64 = at_least.split(' ').next().unwrap().parse().unwrap();
-            (mib * f64::from(1 << 20)) as u64
-        }
-        other => panic!("{other:?}"),
-    };
+    let least = least_budget(&bake_job(&path, dir.path().join("p.exr"), Some(1 << 20)));
     let parts = bake_job(&path, dir.path().join("parts.exr"), Some(least + (4 << 20)))
         .run(&|_| {})
         .unwrap();
