@@ -316,6 +316,18 @@ def test_farm_specs_run_the_job_they_name_whatever_its_paths_hold(umbra_bin, cli
                              capture_output=True, text=True, cwd=tmp_path, timeout=600)
         assert run.returncode == 0, run.stdout + run.stderr
         assert len(_maps(farm.parent)) == 6 and not decoy.exists()
+    # Slurm: each array element as Slurm runs it (bash, the index in the environment).
+    shutil.rmtree(farm.parent / "out")
+    p = subprocess.run([str(exe), "batch", str(farm), "--emit", "slurm"], capture_output=True,
+                       text=True)
+    assert p.returncode == 0, p.stderr
+    script = tmp_path / "job.sbatch"
+    script.write_text(p.stdout)
+    for i in range(6):
+        env = dict(os.environ, SLURM_ARRAY_TASK_ID=str(i))
+        subprocess.run(["bash", str(script)], env=env, check=True, capture_output=True,
+                       cwd=tmp_path)
+    assert len(_maps(farm.parent)) == 6 and not decoy.exists()
     # A job file whose own name holds the tokens.
     named = farm.parent / "job{{Task.Param.Task}}#IFRAME#.toml"
     shutil.copy(farm, named)
