@@ -20,6 +20,8 @@
 //! Intervals where `tau` does not grow need no sample. Samples share their end points with the
 //! profile, so the fit is continuous and never drifts.
 
+use std::cell::Cell;
+
 use crate::error::{Error, Result};
 
 /// One volumetric deep sample: optical depth grows linearly from `tau0` at depth `z0` to
@@ -91,8 +93,6 @@ pub(crate) fn linear_at(xs: &[f64], ys: &[f64], x: f64) -> f64 {
     ys[k - 1] + (ys[k] - ys[k - 1]) * w
 }
 
-/// The largest `|exp(-a(t)) - exp(-b(t))|` over `[t0, t1]` for `a` linear from `a0` to `a1`
-/// and `b` linear from `b0` to `b1`: at the ends, or where the derivative vanishes.
 /// The default bound on `|T_deep(z) - T(z)|` (`--deep-error`).
 pub const DEFAULT_DEEP_ERROR: f64 = 0.002;
 
@@ -112,36 +112,60 @@ pub fn check_deep_error(max_error: f64) -> Result<()> {
 
 #[cfg(test)]
 fn max_gap(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64)) -> f64 {
-    gap_within(t0, t1, (a0, a1), (b0, b1), 0.0, (0.0, 1.0))
+    let e = |v: f64| (-v).exp();
+    gap_exact(t1 - t0, (a0, a1), (b0, b1), (e(a0), e(a1)), (e(b0), e(b1)))
 }
 
-/// [`max_gap`], or a bound on it no larger than `enough` when that settles the question
-/// without transcendentals: with `a, b >= floor` on the interval, `|exp(-a) - exp(-b)| <=
-/// exp(-floor) |a - b|`, and `a - b` is linear, so largest at an end. `decay` is
-/// `exp(-floor)`, computed once per chord by the caller.
-fn gap_within(
-    t0: f64,
-    t1: f64,
+/// A bound on the largest `|exp(-a(t)) - exp(-b(t))|` over an interval where `a` and `b` are
+/// linear and non-decreasing, from their end values alone: no transcendentals.
+///
+/// By the mean value theorem `|exp(-a) - exp(-b)| <= exp(-min(a, b)) |a - b|` at each depth;
+/// `a - b` is linear, so `|a - b| <= d = max(|a0 - b0|, |a1 - b1|)`, and `min(a, b) >=
+/// min(a0, b0)`. Two bounds on `exp(-min(a0, b0))` follow: `decay = exp(-floor)` for a `floor`
+/// below all four values (the chord's start, one `exp` per chord), and `exp(-b0) exp(|a0 -
+/// b0|) <= eb0 / (1 - |a0 - b0|)` (for `|a0 - b0| < 1`; `eb0 = exp(-b0)` is stored with the
+/// profile), which is far tighter deep inside a thick span. `None` when neither applies.
+fn gap_bound(
     (a0, a1): (f64, f64),
     (b0, b1): (f64, f64),
-    enough: f64,
+    eb0: f64,
     (floor, decay): (f64, f64),
-) -> f64 {
-    let cheap = decay * (a0 - b0).abs().max((a1 - b1).abs());
-    if cheap <= enough && a0.min(a1).min(b0).min(b1) >= floor {
-        return cheap;
+) -> Option<f64> {
+    let (d0, d1) = ((a0 - b0).abs(), (a1 - b1).abs());
+    let d = d0.max(d1);
+    let mut best = f64::INFINITY;
+    if a0.min(b0) >= floor {
+        best = decay * d;
     }
-    let g = |a: f64, b: f64| ((-a).exp() - (-b).exp()).abs();
-    let mut worst = g(a0, b0).max(g(a1, b1));
-    let len = t1 - t0;
+    if d0 < 0.5 {
+        best = best.min(eb0 * d / (1.0 - d0));
+    }
+    best.is_finite().then_some(best)
+}
+
+/// The largest `|exp(-a(t)) - exp(-b(t))|` over an interval of length `len` where `a` and `b`
+/// are linear, given their end values and those values' `exp(-.)`: at the ends, or where the
+/// derivative `b' exp(-b) - a' exp(-a)` vanishes, which (as `a - b` is linear) it does at
+/// most once, at `a - b = ln(a' / b')`, and only where it changes sign between the ends.
+fn gap_exact(
+    len: f64,
+    (a0, a1): (f64, f64),
+    (b0, b1): (f64, f64),
+    (ea0, ea1): (f64, f64),
+    (eb0, eb1): (f64, f64),
+) -> f64 {
+    let mut worst = (ea0 - eb0).abs().max((ea1 - eb1).abs());
     if len > 0.0 {
         let (da, db) = ((a1 - a0) / len, (b1 - b0) / len);
-        // a' exp(-a) = b' exp(-b)  <=>  a - b = ln(a' / b'), with a - b linear in t.
         if da > 0.0 && db > 0.0 && da != db {
-            let target = (da / db).ln();
-            let s = (target - (a0 - b0)) / (da - db); // distance from t0
-            if s > 0.0 && s < len {
-                worst = worst.max(g(a0 + da * s, b0 + db * s));
+            let (h0, h1) = (db * eb0 - da * ea0, db * eb1 - da * ea1);
+            if (h0 < 0.0) != (h1 < 0.0) {
+                let target = (da / db).ln();
+                let s = (target - (a0 - b0)) / (da - db); // distance from t0
+                if s > 0.0 && s < len {
+                    let (a, b) = (a0 + da * s, b0 + db * s);
+                    worst = worst.max(((-a).exp() - (-b).exp()).abs());
+                }
             }
         }
     }
@@ -182,8 +206,8 @@ pub fn fit_profile(t: &[f64], tau: &[f64], max_error: f64) -> Result<Vec<DeepSam
 /// As [`fit_profile`], for any channel; also (name `deep`) for no channel.
 pub fn fit_spans(t: &[f64], taus: &[&[f64]], max_error: f64) -> Result<Vec<(usize, usize)>> {
     check_deep_error(max_error)?;
-    check_profile(t, taus)?;
-    Ok(greedy_fit(t, taus, max_error, usize::MAX)
+    let p = Prepared::new(t, taus)?;
+    Ok(greedy_fit(&p, max_error, usize::MAX)
         .map(|f| f.spans)
         .unwrap_or_default())
 }
@@ -218,65 +242,158 @@ pub(crate) fn check_profile(t: &[f64], taus: &[&[f64]]) -> Result<()> {
     Ok(())
 }
 
+/// A profile [`check_profile`] accepted, ready for [`greedy_fit`]: its depths, its channels'
+/// optical depths, and each channel's `T = exp(-tau)` at every breakpoint (computed once
+/// however many fits are made).
+pub(crate) struct Prepared<'a> {
+    t: &'a [f64],
+    taus: &'a [&'a [f64]],
+    trans: Vec<Vec<f64>>,
+}
+
+impl<'a> Prepared<'a> {
+    /// Check and prepare a profile.
+    ///
+    /// # Errors
+    /// As [`check_profile`].
+    pub(crate) fn new(t: &'a [f64], taus: &'a [&'a [f64]]) -> Result<Self> {
+        check_profile(t, taus)?;
+        let trans = taus
+            .iter()
+            .map(|tau| tau.iter().map(|v| (-v).exp()).collect())
+            .collect();
+        Ok(Self { t, taus, trans })
+    }
+
+    /// Whether the chord from breakpoint `i` to `j` fits every channel within `max_error` on
+    /// every interval between: `Ok` with the largest gap checked, or `Err` with the first gap
+    /// over `max_error` (+inf for a NaN). A gap whose [`gap_bound`] is at most `cheap_below`
+    /// is taken as that bound; the others are exact ([`gap_exact`]).
+    fn chord(
+        &self,
+        i: usize,
+        j: usize,
+        max_error: f64,
+        cheap_below: f64,
+    ) -> std::result::Result<f64, f64> {
+        let t = self.t;
+        let span = (t[j] - t[i]).max(f64::MIN_POSITIVE);
+        let mut level = 0.0f64;
+        for (tau, trans) in self.taus.iter().zip(&self.trans) {
+            let slope = (tau[j] - tau[i]) / span;
+            // Chord and profile both start at tau[i] and never decrease.
+            let floor = (tau[i], trans[i]);
+            // The chord at the interval's start, and its exp(-.) when the last interval
+            // computed it.
+            let (mut a0, mut ea_start) = (tau[i], Some(trans[i]));
+            let (ts, bs, es) = (&t[i..=j], &tau[i..=j], &trans[i..=j]);
+            for ((tw, bw), ew) in ts.windows(2).zip(bs.windows(2)).zip(es.windows(2)) {
+                let a1 = tau[i] + slope * (tw[1] - t[i]);
+                let (a, b) = ((a0, a1), (bw[0], bw[1]));
+                a0 = a1;
+                let g = match gap_bound(a, b, ew[0], floor) {
+                    Some(g) if g <= cheap_below => {
+                        ea_start = None;
+                        g
+                    }
+                    _ => {
+                        let ea0 = ea_start.unwrap_or_else(|| (-a.0).exp());
+                        let ea1 = (-a.1).exp();
+                        ea_start = Some(ea1);
+                        gap_exact(tw[1] - tw[0], a, b, (ea0, ea1), (ew[0], ew[1]))
+                    }
+                };
+                if g.is_nan() {
+                    return Err(f64::INFINITY);
+                }
+                if g > max_error {
+                    return Err(g);
+                }
+                level = level.max(g);
+            }
+        }
+        Ok(level)
+    }
+
+    /// The largest `|T_fit(z) - T(z)|` over the profile's depths for the reconstruction that
+    /// is linear in `tau` between the sorted breakpoints `nodes` (constant outside them), or
+    /// +inf for a NaN: exact, chord by chord.
+    pub(crate) fn nodes_error(&self, nodes: &[usize]) -> f64 {
+        let mut worst = 0.0f64;
+        for w in nodes.windows(2) {
+            if w[1] > w[0] {
+                match self.chord(w[0], w[1], f64::INFINITY, -1.0) {
+                    Ok(g) => worst = worst.max(g),
+                    Err(_) => return f64::INFINITY,
+                }
+            }
+        }
+        // Before the first node tau is 0, after the last it stays: the profile is monotone
+        // between breakpoints, so the gap there is largest at one.
+        let (first, last) = match (nodes.first(), nodes.last()) {
+            (Some(&f), Some(&l)) => (f, l),
+            _ => (self.t.len(), self.t.len()),
+        };
+        for trans in &self.trans {
+            for &x in &trans[..first] {
+                worst = worst.max((1.0 - x).abs());
+            }
+            if let Some(&end) = trans.get(last) {
+                for &x in &trans[last..] {
+                    worst = worst.max((x - end).abs());
+                }
+            }
+        }
+        worst
+    }
+}
+
 /// A greedy fit ([`greedy_fit`]): its spans, and the largest gap any accepted chord check
 /// returned.
 #[derive(Debug, Clone, PartialEq)]
 pub(crate) struct GreedyFit {
     /// The samples as breakpoint index pairs, as [`fit_spans`] returns them.
     pub(crate) spans: Vec<(usize, usize)>,
-    /// The largest value an accepted check's [`gap_within`] returned. Every check the fit
+    /// The largest gap (or bound on it, [`gap_bound`]) an accepted check returned. Every check the fit
     /// made has the same outcome for any bound in `[level, max_error]`, so the fit at such a
     /// bound is this one (a rejected check's gap was computed exactly and exceeds
     /// `max_error`; an accepted one's is at most `level`).
     pub(crate) level: f64,
 }
 
-/// The greedy chord fit of [`fit_spans`] on a profile [`check_profile`] accepted, `max_error`
-/// in `(0, 1)`; `None` as soon as its nodes (each span's two ends, shared where spans touch)
+/// A greedy fit ([`greedy_fit`]) that needed more nodes than it was allowed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct Refused {
+    /// The largest gap an accepted check returned.
+    pub(crate) level: f64,
+    /// The smallest gap over the bound a rejected check met (+inf for none, or for a NaN).
+    /// Every check the fit made has the same outcome for any bound in `[level, ceiling)`, so
+    /// the fit is refused at every such bound too.
+    pub(crate) ceiling: f64,
+}
+
+/// The greedy chord fit of [`fit_spans`] on a profile [`Prepared`] (`max_error` in `(0, 1)`),
+/// or [`Refused`] as soon as its nodes (each span's two ends, shared where spans touch)
 /// exceed `max_nodes`.
 pub(crate) fn greedy_fit(
-    t: &[f64],
-    taus: &[&[f64]],
+    p: &Prepared<'_>,
     max_error: f64,
     max_nodes: usize,
-) -> Option<GreedyFit> {
+) -> std::result::Result<GreedyFit, Refused> {
+    let (t, taus) = (p.t, p.taus);
     let n = t.len();
     let flat = |k: usize| taus.iter().all(|tau| tau[k + 1] == tau[k]);
-    // The chord from breakpoint i to j fits when every channel does on every interval: the
-    // largest gap checked, or None.
-    let fits = |i: usize, j: usize| -> Option<f64> {
-        let span = (t[j] - t[i]).max(f64::MIN_POSITIVE);
-        let mut level = 0.0f64;
-        for tau in taus {
-            let slope = (tau[j] - tau[i]) / span;
-            let chord = |x: f64| tau[i] + slope * (x - t[i]);
-            // Chord and profile both start at tau[i] and never decrease.
-            let floor = (tau[i], (-tau[i]).exp());
-            for k in i..j {
-                let g = gap_within(
-                    t[k],
-                    t[k + 1],
-                    (chord(t[k]), chord(t[k + 1])),
-                    (tau[k], tau[k + 1]),
-                    max_error,
-                    floor,
-                );
-                // A NaN gap fails, as it always has.
-                if g.is_nan() || g > max_error {
-                    return None;
-                }
-                level = level.max(g);
-            }
-        }
-        Some(level)
-    };
-    let mut level = 0.0f64;
-    let mut check = |i: usize, j: usize| match fits(i, j) {
-        Some(l) => {
-            level = level.max(l);
+    let fits = |i: usize, j: usize| p.chord(i, j, max_error, max_error);
+    let (level, ceiling) = (Cell::new(0.0f64), Cell::new(f64::INFINITY));
+    let check = |i: usize, j: usize| match fits(i, j) {
+        Ok(l) => {
+            level.set(level.get().max(l));
             true
         }
-        None => false,
+        Err(g) => {
+            ceiling.set(ceiling.get().min(g));
+            false
+        }
     };
     let mut out: Vec<(usize, usize)> = Vec::new();
     let mut nodes = 0usize;
@@ -324,12 +441,18 @@ pub(crate) fn greedy_fit(
             2
         };
         if nodes > max_nodes {
-            return None;
+            return Err(Refused {
+                level: level.get(),
+                ceiling: ceiling.get(),
+            });
         }
         out.push((i, j));
         i = j;
     }
-    Some(GreedyFit { spans: out, level })
+    Ok(GreedyFit {
+        spans: out,
+        level: level.get(),
+    })
 }
 
 #[cfg(test)]
@@ -399,12 +522,14 @@ mod tests {
         for seed in 0..20 {
             let (t, tau) = profile(seed, 300);
             for e in [0.3, 0.05, 0.01, 1e-3] {
-                let f = greedy_fit(&t, &[&tau], e, usize::MAX).unwrap();
+                let chans = [tau.as_slice()];
+                let p = Prepared::new(&t, &chans).unwrap();
+                let f = greedy_fit(&p, e, usize::MAX).unwrap();
                 assert_eq!(f.spans, fit_spans(&t, &[&tau], e).unwrap());
                 assert!(f.level <= e);
                 let mid = (f.level.max(1e-9) * e).sqrt().max(f.level);
                 for e2 in [f.level.max(1e-9), mid] {
-                    let g = greedy_fit(&t, &[&tau], e2, usize::MAX).unwrap();
+                    let g = greedy_fit(&p, e2, usize::MAX).unwrap();
                     assert_eq!(g.spans, f.spans, "seed {seed} e {e} -> {e2}");
                 }
                 // A cap below the fit's nodes refuses it; at its nodes it passes.
@@ -416,11 +541,88 @@ mod tests {
                         2
                     };
                 }
-                assert!(greedy_fit(&t, &[&tau], e, nodes).is_some());
+                assert!(greedy_fit(&p, e, nodes).is_ok());
                 if nodes > 0 {
-                    assert!(greedy_fit(&t, &[&tau], e, nodes - 1).is_none());
+                    assert!(greedy_fit(&p, e, nodes - 1).is_err());
                 }
             }
+        }
+    }
+
+    #[test]
+    fn the_cheap_bound_bounds_the_gap() {
+        // Random non-decreasing linear pairs: the bound never falls below a dense maximum.
+        let (t, tau) = profile(11, 4000);
+        let top = tau[tau.len() - 1];
+        let tau: Vec<f64> = tau.iter().map(|v| v * 8.0 / top).collect();
+        for w in tau.windows(4).step_by(3) {
+            let (a, b) = ((w[0], w[0] + 1.7 * (w[2] - w[0])), (w[1].min(w[0]), w[3]));
+            let floor = a.0.min(b.0);
+            let Some(bound) = gap_bound(a, b, (-b.0).exp(), (floor, (-floor).exp())) else {
+                continue;
+            };
+            let dense = (0..=200)
+                .map(|q| {
+                    let s = f64::from(q) / 200.0;
+                    let (x, y) = (a.0 + s * (a.1 - a.0), b.0 + s * (b.1 - b.0));
+                    ((-x).exp() - (-y).exp()).abs()
+                })
+                .fold(0.0f64, f64::max);
+            assert!(
+                bound >= dense * (1.0 - 1e-12),
+                "{bound} < {dense} for {a:?} {b:?}"
+            );
+            let exact = max_gap(0.0, 1.0, a, b);
+            assert!(exact >= dense - 1e-12 && exact - dense < 1e-3 && bound >= exact - 1e-12);
+        }
+        assert!(t.len() == 4000);
+    }
+
+    #[test]
+    fn refused_fits_are_refused_up_to_their_ceiling_and_node_errors_are_exact() {
+        for seed in 0..20 {
+            let (t, tau) = profile(seed, 300);
+            let chans = [tau.as_slice()];
+            let p = Prepared::new(&t, &chans).unwrap();
+            for e in [0.05, 0.01, 1e-3] {
+                let Err(r) = greedy_fit(&p, e, 6) else {
+                    continue;
+                };
+                assert!(r.level <= e && e < r.ceiling, "{r:?} at {e}");
+                let below = (r.level * r.ceiling).sqrt().max(r.level);
+                if below < r.ceiling {
+                    assert!(greedy_fit(&p, below, 6).is_err());
+                }
+            }
+            // The exact error of a node set against a dense evaluation of both.
+            let f = greedy_fit(&p, 0.01, usize::MAX).unwrap();
+            let mut nodes: Vec<usize> = Vec::new();
+            for &(i, j) in &f.spans {
+                if nodes.last() != Some(&i) {
+                    nodes.push(i);
+                }
+                nodes.push(j);
+            }
+            let got = p.nodes_error(&nodes);
+            assert!(got <= f.level + 1e-12 && got <= 0.01);
+            let nt: Vec<f64> = nodes.iter().map(|&i| t[i]).collect();
+            let nv: Vec<f64> = nodes.iter().map(|&i| tau[i]).collect();
+            let end = *t.last().unwrap();
+            let dense = (0..=20_000)
+                .map(|q| {
+                    let z = end * f64::from(q) / 20_000.0;
+                    let rec = if z < nt[0] {
+                        0.0
+                    } else {
+                        linear_at(&nt, &nv, z)
+                    };
+                    ((-rec).exp() - exact(&t, &tau, z)).abs()
+                })
+                .fold(0.0f64, f64::max);
+            assert!(
+                dense <= got + 1e-9 && got - dense < 2e-3,
+                "seed {seed}: {got} vs {dense}"
+            );
         }
     }
 
