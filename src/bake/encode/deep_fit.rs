@@ -122,9 +122,10 @@ fn max_gap(t0: f64, t1: f64, (a0, a1): (f64, f64), (b0, b1): (f64, f64)) -> f64 
 /// By the mean value theorem `|exp(-a) - exp(-b)| <= exp(-min(a, b)) |a - b|` at each depth;
 /// `a - b` is linear, so `|a - b| <= d = max(|a0 - b0|, |a1 - b1|)`, and `min(a, b) >=
 /// min(a0, b0)`. Two bounds on `exp(-min(a0, b0))` follow: `decay = exp(-floor)` for a `floor`
-/// below all four values (the chord's start, one `exp` per chord), and `exp(-b0) exp(|a0 -
-/// b0|) <= eb0 / (1 - |a0 - b0|)` (for `|a0 - b0| < 1`; `eb0 = exp(-b0)` is stored with the
-/// profile), which is far tighter deep inside a thick span. `None` when neither applies.
+/// at or below `min(a0, b0)` (the chord's start, one `exp` per chord), and `exp(-b0) exp(|a0 -
+/// b0|) <= eb0 / (1 - |a0 - b0|)` (true for `|a0 - b0| < 1`, taken for `< 0.5`; `eb0 =
+/// exp(-b0)` is stored with the profile), which is far tighter deep inside a thick span.
+/// `None` when neither applies.
 fn gap_bound(
     (a0, a1): (f64, f64),
     (b0, b1): (f64, f64),
@@ -265,6 +266,16 @@ impl<'a> Prepared<'a> {
         Ok(Self { t, taus, trans })
     }
 
+    /// The profile's depths.
+    pub(crate) fn depths(&self) -> &'a [f64] {
+        self.t
+    }
+
+    /// The profile's channels' optical depths.
+    pub(crate) fn channels(&self) -> &'a [&'a [f64]] {
+        self.taus
+    }
+
     /// Whether the chord from breakpoint `i` to `j` fits every channel within `max_error` on
     /// every interval between: `Ok` with the largest gap checked, or `Err` with the first gap
     /// over `max_error` (+inf for a NaN). A gap whose [`gap_bound`] is at most `cheap_below`
@@ -354,11 +365,26 @@ impl<'a> Prepared<'a> {
 pub(crate) struct GreedyFit {
     /// The samples as breakpoint index pairs, as [`fit_spans`] returns them.
     pub(crate) spans: Vec<(usize, usize)>,
-    /// The largest gap (or bound on it, [`gap_bound`]) an accepted check returned. Every check the fit
-    /// made has the same outcome for any bound in `[level, max_error]`, so the fit at such a
-    /// bound is this one (a rejected check's gap was computed exactly and exceeds
+    /// The largest gap (or bound on it, [`gap_bound`]) an accepted check returned. Every check
+    /// the fit made has the same outcome for any bound in `[level, max_error]`, so the fit at
+    /// such a bound is this one (a rejected check's gap was computed exactly and exceeds
     /// `max_error`; an accepted one's is at most `level`).
     pub(crate) level: f64,
+}
+
+impl GreedyFit {
+    /// The fit's nodes, sorted: each span's two ends, shared where spans touch (what
+    /// [`greedy_fit`]'s `max_nodes` counts).
+    pub(crate) fn nodes(&self) -> Vec<usize> {
+        let mut out: Vec<usize> = Vec::with_capacity(2 * self.spans.len());
+        for &(i, j) in &self.spans {
+            if out.last() != Some(&i) {
+                out.push(i);
+            }
+            out.push(j);
+        }
+        out
+    }
 }
 
 /// A greedy fit ([`greedy_fit`]) that needed more nodes than it was allowed.
@@ -383,9 +409,8 @@ pub(crate) fn greedy_fit(
     let (t, taus) = (p.t, p.taus);
     let n = t.len();
     let flat = |k: usize| taus.iter().all(|tau| tau[k + 1] == tau[k]);
-    let fits = |i: usize, j: usize| p.chord(i, j, max_error, max_error);
     let (level, ceiling) = (Cell::new(0.0f64), Cell::new(f64::INFINITY));
-    let check = |i: usize, j: usize| match fits(i, j) {
+    let check = |i: usize, j: usize| match p.chord(i, j, max_error, max_error) {
         Ok(l) => {
             level.set(level.get().max(l));
             true
@@ -596,13 +621,7 @@ mod tests {
             }
             // The exact error of a node set against a dense evaluation of both.
             let f = greedy_fit(&p, 0.01, usize::MAX).unwrap();
-            let mut nodes: Vec<usize> = Vec::new();
-            for &(i, j) in &f.spans {
-                if nodes.last() != Some(&i) {
-                    nodes.push(i);
-                }
-                nodes.push(j);
-            }
+            let nodes = f.nodes();
             let got = p.nodes_error(&nodes);
             assert!(got <= f.level + 1e-12 && got <= 0.01);
             let nt: Vec<f64> = nodes.iter().map(|&i| t[i]).collect();

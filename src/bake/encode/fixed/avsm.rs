@@ -28,18 +28,6 @@
 use super::NormProfile;
 use crate::bake::encode::deep_fit::{greedy_fit, GreedyFit, Prepared};
 
-/// Nodes of a span list: each span's ends, a span starting where the last ended sharing it.
-fn nodes(spans: &[(usize, usize)]) -> Vec<usize> {
-    let mut out: Vec<usize> = Vec::with_capacity(2 * spans.len());
-    for &(i, j) in spans {
-        if out.last() != Some(&i) {
-            out.push(i);
-        }
-        out.push(j);
-    }
-    out
-}
-
 /// The first decimation's bound (in `T`).
 const DELTA: f64 = 1e-3;
 /// The decimation is refined while the error found is below this many times its bound; the
@@ -58,11 +46,11 @@ fn search(u: &[f64], tau: &[f64], k: usize) -> Option<Vec<usize>> {
     let chans = [tau];
     let p = Prepared::new(u, &chans).ok()?;
     if let Ok(f) = greedy_fit(&p, FLOOR, k) {
-        return Some(nodes(&f.spans));
+        return Some(f.nodes());
     }
     let mut delta = DELTA;
     for _ in 0..3 {
-        let Some((first, e)) = decimated(&p, u, tau, k, (delta, CEILING)) else {
+        let Some((first, e)) = decimated(&p, k, (delta, CEILING)) else {
             break;
         };
         if e < REFINE * delta && delta > FLOOR {
@@ -72,8 +60,7 @@ fn search(u: &[f64], tau: &[f64], k: usize) -> Option<Vec<usize>> {
         if e < SECOND_FROM {
             return Some(first);
         }
-        let Some((second, _)) = decimated(&p, u, tau, k, (e / SECOND, (2.0 * e).min(CEILING)))
-        else {
+        let Some((second, _)) = decimated(&p, k, (e / SECOND, (2.0 * e).min(CEILING))) else {
             return Some(first);
         };
         let better = p.nodes_error(&second) < p.nodes_error(&first);
@@ -83,17 +70,12 @@ fn search(u: &[f64], tau: &[f64], k: usize) -> Option<Vec<usize>> {
 }
 
 /// The nodes [`search_on`] finds (between `delta` and `top`) on profile `p` decimated at
-/// `delta` (as indices into `p`),
-/// and their error against the decimated profile; `None` where decimating does not halve the
-/// breakpoints (the whole profile is searched then) or the fit refuses.
-fn decimated(
-    p: &Prepared<'_>,
-    u: &[f64],
-    tau: &[f64],
-    k: usize,
-    (delta, top): (f64, f64),
-) -> Option<(Vec<usize>, f64)> {
-    let keep = nodes(&greedy_fit(p, delta, usize::MAX).ok()?.spans);
+/// `delta` (as indices into `p`), and their error against the decimated profile; `None` where
+/// decimating does not halve the breakpoints (the whole profile is searched then) or the fit
+/// refuses.
+fn decimated(p: &Prepared<'_>, k: usize, (delta, top): (f64, f64)) -> Option<(Vec<usize>, f64)> {
+    let (u, tau) = (p.depths(), p.channels().first()?);
+    let keep = greedy_fit(p, delta, usize::MAX).ok()?.nodes();
     if keep.len() <= k {
         return Some((keep, delta));
     }
@@ -114,14 +96,15 @@ fn decimated(
 ///
 /// A fit that succeeds at `e` is the fit at every bound in `[level, e]`
 /// ([`GreedyFit::level`]); one refused at `e` is refused at every bound in `[level, ceiling)`
-/// ([`crate::bake::encode::deep_fit::Refused`]). So the search keeps `lo`, below which every bound is taken as refused (the
-/// fit is assumed monotone, as any bisection does), and the best fit, whose error is its
-/// `level`, and probes the geometric mean of the two (never below `lo`, itself the next bound
-/// where some check changes its outcome) until they are within [`PRECISION`].
+/// ([`crate::bake::encode::deep_fit::Refused`]). So the search keeps `lo`, below which every
+/// bound is taken as refused (the fit is assumed monotone, as any bisection does), and the
+/// best fit, whose error is its `level`, and probes the geometric mean of the two (never below
+/// `lo`, itself the next bound where some check changes its outcome) until they are within
+/// [`PRECISION`].
 fn search_on(p: &Prepared<'_>, k: usize, (floor, top): (f64, f64)) -> Option<(Vec<usize>, f64)> {
     let fit = |e: f64| greedy_fit(p, e, k);
     let mut lo = match fit(floor) {
-        Ok(f) => return Some((nodes(&f.spans), f.level)),
+        Ok(f) => return Some((f.nodes(), f.level)),
         Err(r) => r.ceiling,
     };
     let mut best: Option<GreedyFit> = None;
@@ -137,8 +120,8 @@ fn search_on(p: &Prepared<'_>, k: usize, (floor, top): (f64, f64)) -> Option<(Ve
         }
     }
     match best {
-        Some(f) => Some((nodes(&f.spans), f.level)),
-        None => fit(CEILING).ok().map(|f| (nodes(&f.spans), f.level)),
+        Some(f) => Some((f.nodes(), f.level)),
+        None => fit(CEILING).ok().map(|f| (f.nodes(), f.level)),
     }
 }
 
