@@ -517,6 +517,14 @@ impl ar::Resolver for Guarded {
     fn get_extension<'a>(&self, asset_path: &'a str) -> &'a str {
         self.0.get_extension(asset_path)
     }
+    // openusd 0.8's trait added these two with defaults a wrapper must forward (its docs);
+    // `cache_id` stays the default `None`, so nothing is cached past the guard.
+    fn is_context_dependent_path(&self, asset_path: &str) -> bool {
+        self.0.is_context_dependent_path(asset_path)
+    }
+    fn in_memory_identifier<'a>(&self, asset_path: &'a str) -> std::borrow::Cow<'a, str> {
+        self.0.in_memory_identifier(asset_path)
+    }
     fn get_asset_info(&self, asset_path: &str, resolved: &ar::ResolvedPath) -> ar::AssetInfo {
         self.0.get_asset_info(asset_path, resolved)
     }
