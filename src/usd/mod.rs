@@ -1,8 +1,9 @@
 //! USD stages as inputs: the volumes and lights of a shot at one time code.
 //!
 //! A shot is a USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`), read with the pure-Rust
-//! [`openusd`] crate (0.6: the newest that builds with this toolchain; composition, time
-//! samples, xformOps, the three formats). What umbra reads of it, at time code `t`:
+//! [`openusd`] crate (0.8, with `openusd-schemas`' `XformOp` for the ops; it declares Rust 1.96,
+//! so a 1.95 toolchain builds it with `--ignore-rust-version`; composition, time samples, value
+//! clips, layer offsets, xformOps, the three formats). What umbra reads of it, at time code `t`:
 //!
 //! - **Volumes**: every active, visible `Volume` prim (or the prims named). Its density is the
 //!   `OpenVDBAsset` its `field:density` relationship targets (another field by name): the

@@ -5,23 +5,14 @@ use crate::error::{Error, Result};
 use crate::xform::Xform;
 use openusd::ar;
 use openusd::gf::Matrix4d;
-use openusd::schemas::geom::{Imageable, Visibility, Xformable};
 use openusd::sdf::Value;
-use openusd::usd::{Prim, PrimPredicate, SchemaBase, SchemaKind, Stage, TimeCode};
+use openusd::usd::{Prim, PrimPredicate, Stage, TimeCode};
+use openusd_schemas::geom::XformOp;
 use std::path::Path;
 
-/// Any prim seen through `UsdGeomXformable` (a prim without `xformOpOrder` is the identity),
-/// so parents of every type (`Xform`, `Scope`, untyped `over`s) compose.
-struct AnyXformable(Prim);
-
-impl SchemaBase for AnyXformable {
-    const KIND: SchemaKind = SchemaKind::ConcreteTyped;
-    fn prim(&self) -> &Prim {
-        &self.0
-    }
-}
-impl Imageable for AnyXformable {}
-impl Xformable for AnyXformable {}
+/// `xformOpOrder`'s reset entry and the prefix of an inverted op.
+const RESET_XFORM_STACK: &str = "!resetXformStack!";
+const INVERT_PREFIX: &str = "!invert!";
 
 /// Light types traced as points at their origin.
 const POINT_LIGHTS: [&str; 4] = ["SphereLight", "DiskLight", "RectLight", "CylinderLight"];
@@ -57,8 +48,7 @@ impl Reader<'_> {
         let mut out = Vec::with_capacity(paths.len());
         for p in paths {
             let ty = self
-                .stage
-                .prim(p.clone())
+                .prim(p.as_str())?
                 .type_name()
                 .map_err(|e| self.at(p.as_str(), format!("{e:#}")))?
                 .map(|t| t.as_str().to_string())
@@ -68,11 +58,84 @@ impl Reader<'_> {
         Ok(out)
     }
 
+    /// The composed prim handle at `path` (openusd 0.8's `Stage::prim` parses the path).
+    fn prim(&self, path: &str) -> Result<Prim> {
+        self.stage.prim(path).map_err(|e| self.at(path, format!("{e:#}")))
+    }
+
+    /// `false` when the prim or an ancestor (of any type) authors `visibility = "invisible"`
+    /// as its default value: openusd 0.6's `compute_visibility`, kept (0.8's, in
+    /// openusd-schemas, reads only `Imageable` ancestors and needs the schema registry).
     fn visible(&self, prim: &str) -> Result<bool> {
-        AnyXformable(self.stage.prim(prim))
-            .compute_visibility()
-            .map(|v| v != Visibility::Invisible)
-            .map_err(|e| self.at(prim, format!("visibility: {e:#}")))
+        let mut cur = Some(openusd::sdf::Path::new(prim).map_err(|e| self.at(prim, e))?);
+        while let Some(p) = cur {
+            if p.as_str() == "/" || p.as_str().is_empty() {
+                break;
+            }
+            let v = self
+                .prim(p.as_str())?
+                .attribute("visibility")
+                .get_at::<Value>(None)
+                .map_err(|e| self.at(p.as_str(), format!("visibility: {e:#}")))?;
+            let invisible = match v {
+                Some(Value::Token(t)) => t.as_str() == "invisible",
+                Some(Value::String(s)) => s == "invisible",
+                _ => false,
+            };
+            if invisible {
+                return Ok(false);
+            }
+            cur = p.parent();
+        }
+        Ok(true)
+    }
+
+    /// The prim's local-to-parent matrix at the time code and whether its stack resets the
+    /// parent's: `xformOpOrder` read on a prim of any type (`Xform`, `Scope`, untyped
+    /// `over`s), each op evaluated by openusd-schemas' `XformOp`.
+    fn local(&self, prim: &Prim) -> Result<(Matrix4d, bool)> {
+        let path = prim.path().as_str().to_string();
+        let order = prim
+            .attribute("xformOpOrder")
+            .get_at::<Value>(None)
+            .map_err(|e| self.at(&path, format!("xformOpOrder: {e:#}")))?;
+        let entries: Vec<String> = match order {
+            None => Vec::new(),
+            Some(Value::TokenVec(v)) => v.iter().map(|t| t.as_str().to_string()).collect(),
+            Some(Value::StringVec(v)) => v,
+            Some(other) => {
+                return Err(self.at(&path, format!("xformOpOrder is {other:?}")));
+            }
+        };
+        let mut ops = Vec::new();
+        let mut resets = false;
+        for entry in &entries {
+            if entry == RESET_XFORM_STACK {
+                resets = true;
+                ops.clear();
+                continue;
+            }
+            let (inverse, name) = match entry.strip_prefix(INVERT_PREFIX) {
+                Some(n) => (true, n),
+                None => (false, entry.as_str()),
+            };
+            let attr = prim.attribute(name);
+            if attr
+                .is_defined()
+                .map_err(|e| self.at(&path, format!("{name}: {e:#}")))?
+            {
+                ops.push(XformOp::new(&attr, inverse));
+            }
+        }
+        // Row vectors: the last op listed is the most local.
+        let mut m = Matrix4d::IDENTITY;
+        for op in ops.iter().rev() {
+            let t = op
+                .op_transform(self.tc())
+                .map_err(|e| self.at(&path, format!("transform: {e:#}")))?;
+            m = m * t;
+        }
+        Ok((m, resets))
     }
 
     /// The prim's local-to-world matrix at the time code (row vectors), parents composed up
@@ -84,22 +147,15 @@ impl Reader<'_> {
             if p.as_str() == "/" || p.as_str().is_empty() {
                 break;
             }
-            let x = AnyXformable(self.stage.prim(p.clone()));
-            let local = x
-                .local_to_parent_transform(self.tc())
-                .map_err(|e| self.at(p.as_str(), format!("transform: {e:#}")))?;
+            let (local, resets) = self.local(&self.prim(p.as_str())?)?;
             m = m * local;
-            let resets = x
-                .resets_xform_stack()
-                .map_err(|e| self.at(p.as_str(), format!("transform: {e:#}")))?;
             cur = if resets { None } else { p.parent() };
         }
         Ok(m)
     }
 
     fn value(&self, prim: &str, attr: &str) -> Result<Option<Value>> {
-        self.stage
-            .prim(prim)
+        self.prim(prim)?
             .attribute(attr)
             .get_at::<Value>(self.tc())
             .map_err(|e| self.at(prim, format!("{attr}: {e:#}")))
@@ -118,8 +174,7 @@ impl Reader<'_> {
     fn volume(&self, prim: &str, sel: &Selection) -> Result<StageVolume> {
         let rel = format!("field:{}", sel.field);
         let targets = self
-            .stage
-            .prim(prim)
+            .prim(prim)?
             .relationship(rel.as_str())
             .targets()
             .map_err(|e| self.at(prim, format!("{rel}: {e:#}")))?;
@@ -148,8 +203,7 @@ impl Reader<'_> {
             }
         };
         let ty = self
-            .stage
-            .prim(field_prim.as_str())
+            .prim(field_prim.as_str())?
             .type_name()
             .map_err(|e| self.at(&field_prim, format!("{e:#}")))?
             .map(|t| t.as_str().to_string());
@@ -171,7 +225,7 @@ impl Reader<'_> {
                 ))
             }
         }
-        let attr = self.stage.prim(field_prim.as_str()).attribute("filePath");
+        let attr = self.prim(field_prim.as_str())?.attribute("filePath");
         let authored = match attr
             .get_at::<Value>(self.tc())
             .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
@@ -194,7 +248,7 @@ impl Reader<'_> {
             .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
             .into_iter()
             .next()
-            .map(|(layer, _)| layer)
+            .map(|site| site.layer)
             .unwrap_or_else(|| self.path.display().to_string());
         let asset = resolve_asset(&authored, &layer);
         if let Asset::File(f) = &asset {
@@ -271,9 +325,10 @@ impl Reader<'_> {
     }
 
     fn field_names(&self, prim: &str) -> Vec<String> {
-        self.stage
-            .prim(prim)
-            .relationships()
+        let Ok(p) = self.stage.prim(prim) else {
+            return Vec::new();
+        };
+        p.relationships()
             .unwrap_or_default()
             .iter()
             .filter_map(|r| {
@@ -391,15 +446,9 @@ fn open_stage(path: &Path) -> Result<Stage> {
         Ok(Ok(stage)) => Ok(stage),
         Ok(Err(e)) => {
             let msg = format!("{e:#}");
-            // openusd 0.6's text parser refuses time-sampled asset values (0.7 reads them but
-            // needs a newer Rust); binary layers hold the same stage.
-            let hint = if msg.contains("AssetRef") {
-                " (umbra's USD reader cannot read time-sampled asset paths in a .usda text \
-                 layer: save the layer as .usdc, e.g. `usdcat shot.usda -o shot.usdc`)"
-            } else {
-                ""
-            };
-            Err(fail(format!("cannot open the stage: {msg}{hint}")))
+            // openusd 0.8 reads time-sampled asset values in .usda (0.6 refused them, and
+            // umbra hinted at .usdc here).
+            Err(fail(format!("cannot open the stage: {msg}")))
         }
         Err(p) => Err(fail(format!(
             "cannot open the stage: the USD reader failed ({})",
@@ -467,6 +516,14 @@ impl ar::Resolver for Guarded {
     }
     fn get_extension<'a>(&self, asset_path: &'a str) -> &'a str {
         self.0.get_extension(asset_path)
+    }
+    // openusd 0.8's trait added these two with defaults a wrapper must forward (its docs);
+    // `cache_id` stays the default `None`, so nothing is cached past the guard.
+    fn is_context_dependent_path(&self, asset_path: &str) -> bool {
+        self.0.is_context_dependent_path(asset_path)
+    }
+    fn in_memory_identifier<'a>(&self, asset_path: &'a str) -> std::borrow::Cow<'a, str> {
+        self.0.in_memory_identifier(asset_path)
     }
     fn get_asset_info(&self, asset_path: &str, resolved: &ar::ResolvedPath) -> ar::AssetInfo {
         self.0.get_asset_info(asset_path, resolved)
