@@ -18,7 +18,7 @@ THREADS=${THREADS:-$(nproc)}
 REPS=${REPS:-5}
 OUT=${OUT:-/tmp/umbra-omni}
 mkdir -p "$OUT"
-cargo build --release --bin umbra --example ortho_view -q
+cargo build --release --ignore-rust-version --bin umbra --example ortho_view -q
 UMBRA=target/release/umbra
 VIEW=target/release/examples/ortho_view
 IFS=, read -r LX LY LZ <<<"$LIGHT"

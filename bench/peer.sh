@@ -77,7 +77,7 @@ apt_install() {
 }
 
 command -v vdb_render >/dev/null || apt_install libopenvdb-tools
-cargo build --release --example ortho_view >&2
+cargo build --release --ignore-rust-version --example ortho_view >&2
 UMBRA=target/release/examples/ortho_view
 
 # The orthonormal camera up vector and look-at point vdb_render wants (OpenVDB math::aim).

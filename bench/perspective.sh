@@ -30,7 +30,7 @@ smoke)
     exit 2
     ;;
 esac
-cargo build --release --example ortho_view -q
+cargo build --release --ignore-rust-version --example ortho_view -q
 BIN=target/release/examples/ortho_view
 CONF=("regular auto" "regular rays" "riemann 1" "riemann 2" "riemann 4")
 run() { # name est order-or-step [extra...]

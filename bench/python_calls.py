@@ -2,7 +2,7 @@
 data/cloud.vdb by Volume.transmittance and by `umbra query --rays` (the same rows as CSV),
 alternated run by run, the first run of each dropped; a one-ray call; a 1024^2 exact bake.
 Run from the repository root with the module installed (`pip install ./python`) and
-`cargo build --release`: `python bench/python_calls.py`."""
+`cargo build --release --ignore-rust-version`: `python bench/python_calls.py`."""
 import numpy as np, time, subprocess, umbra, statistics, os
 vol = umbra.Volume("data/cloud.vdb")
 rng = np.random.default_rng(0)

@@ -10,7 +10,7 @@ alternate them; medians. Times are each tool's own trace time (parsing and loadi
 except the CLI row (whole process). ns per voxel: the trace time over the voxels the segments
 cross inside the grid's widened index box (counted by the NanoVDB driver, the same segments).
 
-Run from the repository root after `cargo build --release --example hotpaths` and with the
+Run from the repository root after `cargo build --release --ignore-rust-version --example hotpaths` and with the
 Python module installed (`python/run_tests.sh` builds it into target/py-venv), NanoVDB from
 Debian's libnanovdb-dev + libnanovdb-tools (`bench/peer.sh` installs them):
     target/py-venv/bin/python bench/queries.py          # REPS=5 THREADS=2 N=1000000

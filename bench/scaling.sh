@@ -13,7 +13,7 @@ cd "$(dirname "$0")/.."
 RES=${RES:-1024x1024}
 REPS=${REPS:-7}
 N=$(nproc)
-cargo build --release --example ortho_view >&2
+cargo build --release --ignore-rust-version --example ortho_view >&2
 UMBRA=target/release/examples/ortho_view
 field() { sed -nE "s/.*\"$1\":([0-9.eE+-]+).*/\\1/p"; }
 

@@ -16,7 +16,7 @@ THREADS=${THREADS:-2}
 ROUNDS=${ROUNDS:-5}
 REPS=${REPS:-5}
 LEVELS=${LEVELS:-"avx512 avx2 portable"}
-cargo build --release --example ortho_view >&2
+cargo build --release --ignore-rust-version --example ortho_view >&2
 BIN=target/release/examples/ortho_view
 VIEW=(../shared/corpus/gen/cloud_fbm.vdb --grid density --scale 5 --dir=0.6,-0.35,-1
     --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res "$RES" --threads "$THREADS" --reps "$REPS")

@@ -5,7 +5,7 @@
 //! thread and on every core; and the same exact map seen from a point light at (6, 9, 8)
 //! (perspective), in object order and in ray order. The parallel speed-up is the ratio of the
 //! thread counts; criterion reports maps/s.
-//! Run: `cargo bench --bench bake`.
+//! Run: `cargo bench --ignore-rust-version --bench bake`.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use criterion::{criterion_group, criterion_main, Criterion};

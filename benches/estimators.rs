@@ -5,7 +5,7 @@
 //! ray against the cost model of `../shared/research/estimators.md` section 7 (majorant optical
 //! depth `taubar` for the null-collision family, `ceil(L / step)` per sampled segment for ray
 //! marching, voxel reads for regular tracking), and the RMSE of the 1-sample estimates.
-//! Run: `cargo bench --bench estimators`.
+//! Run: `cargo bench --ignore-rust-version --bench estimators`.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};

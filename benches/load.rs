@@ -1,6 +1,6 @@
 //! Load time of the largest corpus files: vdb-rs 0.6.0 `read_grid` (bare parse into its HashMap
 //! tree) against umbra's full load (parse + flat tree + per-node bounds and halos).
-//! Run: `cargo bench --bench load`. Needs `../shared/corpus`.
+//! Run: `cargo bench --ignore-rust-version --bench load`. Needs `../shared/corpus`.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use criterion::{criterion_group, criterion_main, Criterion};

@@ -1,7 +1,7 @@
 //! HDDA traversal and exact regular tracking on the largest corpus cloud
 //! (`gen/cloud_fbm.vdb`): rays/s for nearest and trilinear regular tracking, segments/s of the
 //! bare HDDA at each granularity. Counts (segments per ray, cells per ray) are printed once so
-//! that voxels crossed per second = cells/ray x rays/s. Run: `cargo bench --bench traverse`.
+//! that voxels crossed per second = cells/ray x rays/s. Run: `cargo bench --ignore-rust-version --bench traverse`.
 #![allow(clippy::unwrap_used, clippy::expect_used, missing_docs)]
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};

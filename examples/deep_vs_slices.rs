@@ -3,7 +3,7 @@
 //! needs to describe the same transmittance function `T(z)` within the same `E`.
 //!
 //! ```sh
-//! cargo run --release --example deep_vs_slices -- [FILE] [--res N] [--error E ...] \
+//! cargo run --release --ignore-rust-version --example deep_vs_slices -- [FILE] [--res N] [--error E ...] \
 //!     [--scale S ...] [--light-dir X,Y,Z] [--grid NAME]
 //! ```
 //!

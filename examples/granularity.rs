@@ -6,7 +6,7 @@
 //! relative to leaf granularity (> 1: better than leaf).
 //!
 //! ```sh
-//! cargo run --release --example granularity -- [FILE] [SCALE] [RAYS] [REPS]
+//! cargo run --release --ignore-rust-version --example granularity -- [FILE] [SCALE] [RAYS] [REPS]
 //! ```
 //! Defaults: `../shared/corpus/gen/cloud_fbm.vdb`, scale 5, 4000 rays, 3 repetitions (median
 //! time). Rays join two uniform points of the grid's world box, extended to cross it (the

@@ -1,5 +1,5 @@
 //! A driver for profilers (callgrind, perf): runs one hot path many times with no harness
-//! noise. `cargo run --release --example hotpaths -- MODE [FILE] [REPS]`, MODE one of
+//! noise. `cargo run --release --ignore-rust-version --example hotpaths -- MODE [FILE] [REPS]`, MODE one of
 //! `nearest`, `trilinear`, `vdbrs` (vdb-rs bare parse) (exact regular tracking of 2000 random rays crossing the grid's box,
 //! REPS times) or `load` (full load of FILE's `density` grid, REPS times).
 //! `segments FILE CSV SCALE REPS [OUT]`: a query batch as `umbra query --rays CSV` and Python's

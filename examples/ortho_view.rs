@@ -6,12 +6,12 @@
 //! of two images (`CH` a channel name, or `1-A` for vdb_render's `T = 1 - alpha`).
 //!
 //! ```sh
-//! cargo run --release --example ortho_view -- FILE --grid density --scale 5 \
+//! cargo run --release --ignore-rust-version --example ortho_view -- FILE --grid density --scale 5 \
 //!     --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 --res 512x512 \
 //!     [--estimator regular|riemann|NAME] [--step 1] [--spp 1] [--seed 0] \
 //!     [--interp trilinear|nearest] [--threads 0] [--reps 1] [--index-offset 0] [--out t.exr] \
 //!     [--order auto|rays] [--check 1] [--slices K] [--pinhole DIST]
-//! cargo run --release --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
+//! cargo run --release --ignore-rust-version --example ortho_view -- --compare umbra.exr:T vdb_render.exr:1-A
 //! ```
 //!
 //! Camera (OpenVDB `OrthographicCamera`): `d = normalise(dir)`, `u = normalise(up - (up.d) d)`,

@@ -7,7 +7,7 @@
 //! puts 0.27 % beyond 3 and 0.006 % beyond 4 standard errors.
 //!
 //! ```sh
-//! cargo run --release --example stderr_calibration -- [FILE] [GRID] [RAYS] [SCALES] [SAMPLES]
+//! cargo run --release --ignore-rust-version --example stderr_calibration -- [FILE] [GRID] [RAYS] [SCALES] [SAMPLES]
 //! ```
 //! Defaults: `../shared/corpus/real/openvdb_smoke1_houdini_v222.vdb`, `density`, 1000 rays,
 //! scales `0.05,2`, samples `4,64`. Segments join two uniform points of the grid's value box

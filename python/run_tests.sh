@@ -20,7 +20,7 @@ if ! "$bpy_venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
   "$bpy_venv/bin/python" -m pip install -q "bpy==4.5.4"
 fi
 export UMBRA_BPY_PYTHON="$bpy_venv/bin/python"
-cargo build --release --bin umbra --manifest-path "$repo/Cargo.toml"
+cargo build --release --ignore-rust-version --bin umbra --manifest-path "$repo/Cargo.toml"
 # From outside the checkout, so `import umbra` is the installed package, not python/umbra.
 cd "$target"
 UMBRA_BIN="$target/release/umbra" "$venv/bin/python" -m pytest -q -p no:cacheprovider "$repo/python/tests"

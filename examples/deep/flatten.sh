@@ -23,8 +23,8 @@ vdb=$root/data/cloud.vdb
 
 command -v oiiotool >/dev/null || { echo "flatten.sh: oiiotool is needed (Debian: openimageio-tools)" >&2; exit 1; }
 if [[ ! -x $umbra ]]; then
-    echo "building umbra (cargo build --release)" >&2
-    (cd "$root" && cargo build --release --quiet)
+    echo "building umbra (cargo build --release --ignore-rust-version)" >&2
+    (cd "$root" && cargo build --release --ignore-rust-version --quiet)
 fi
 mkdir -p "$out"
 

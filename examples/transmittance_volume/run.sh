@@ -16,7 +16,7 @@ mkdir -p "$out"
 py=/usr/bin/python3
 
 if [[ -z "${UMBRA:-}" ]]; then
-    cargo build --release --quiet --manifest-path "$root/Cargo.toml"
+    cargo build --release --ignore-rust-version --quiet --manifest-path "$root/Cargo.toml"
     UMBRA="$root/target/release/umbra"
 fi
 

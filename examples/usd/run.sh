@@ -14,7 +14,7 @@ root="$(cd "$here/../.." && pwd)"
 out="${1:-$here/out}"
 mkdir -p "$out/maps"
 if [[ -z "${UMBRA:-}" ]]; then
-    cargo build --release --quiet --manifest-path "$root/Cargo.toml"
+    cargo build --release --ignore-rust-version --quiet --manifest-path "$root/Cargo.toml"
     UMBRA="$root/target/release/umbra"
 fi
 if [[ ! -x "$out/venv/bin/python" ]]; then

@@ -21,7 +21,7 @@ def _binary() -> pathlib.Path:
     target = pathlib.Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
     exe = target / "release" / "umbra"
     if not exe.exists():
-        subprocess.run(["cargo", "build", "--release", "--bin", "umbra"], cwd=REPO, check=True)
+        subprocess.run(["cargo", "build", "--release", "--ignore-rust-version", "--bin", "umbra"], cwd=REPO, check=True)
     return exe
 
 

@@ -390,12 +390,6 @@ def test_a_stage_with_every_value_type_reads(cli, tmp_path):
     assert 0.0 < json.loads(out)["T"] <= 1.0
 
 
-def test_time_sampled_assets_in_usda_say_how_to_convert(cli, tmp_path):
-    _stage(tmp_path / "shot.usda")
-    e = _err(cli, "bake", tmp_path / "shot.usda", "--light", "sun", "-o", tmp_path / "x.exr")
-    assert "shot.usda" in e and ".usdc" in e and "usdcat" in e, e
-
-
 def test_python_reads_the_stage_as_the_cli_does(cli, tmp_path):
     import umbra
 
