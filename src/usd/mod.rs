@@ -26,6 +26,8 @@
 //! scene loader decodes only those grids (`scene::file`).
 
 #[cfg(feature = "usd")]
+mod clips;
+#[cfg(feature = "usd")]
 mod guard;
 #[cfg(feature = "usd")]
 mod read;

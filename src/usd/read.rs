@@ -225,31 +225,9 @@ impl Reader<'_> {
                 ))
             }
         }
-        let attr = self.prim(field_prim.as_str())?.attribute("filePath");
-        let authored = match attr
-            .get_at::<Value>(self.tc())
-            .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
-        {
-            Some(Value::AssetPath(a)) => a.authored_path,
-            Some(Value::String(s)) => s,
-            Some(other) => {
-                return Err(self.at(
-                    &field_prim,
-                    format!("filePath is {other:?}, not an asset path"),
-                ))
-            }
-            None => return Err(self.at(&field_prim, "no filePath at this time")),
-        };
-        if authored.is_empty() {
-            return Err(self.at(&field_prim, "filePath is empty at this time"));
-        }
-        let layer = attr
-            .property_stack()
-            .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
-            .into_iter()
-            .next()
-            .map(|site| site.layer)
-            .unwrap_or_else(|| self.path.display().to_string());
+        super::clips::check(&self.stage, prim).map_err(|r| self.err(r))?;
+        super::clips::check(&self.stage, &field_prim).map_err(|r| self.err(r))?;
+        let (authored, layer) = self.file_path(&field_prim)?;
         let asset = resolve_asset(&authored, &layer);
         if let Asset::File(f) = &asset {
             if !f.is_file() {
@@ -322,6 +300,72 @@ impl Reader<'_> {
             rgb,
             solid,
         })
+    }
+
+    /// The field prim's `filePath` at the time code (as authored) and the layer that answered
+    /// it, which anchors a relative path: a layer of the stage, or the value clip that
+    /// supplied it.
+    fn file_path(&self, field_prim: &str) -> Result<(String, String)> {
+        let attr = self.prim(field_prim)?.attribute("filePath");
+        let read = |attr: &openusd::usd::Attribute| {
+            attr.get_at::<Value>(self.tc())
+                .map_err(|e| self.at(field_prim, format!("filePath: {e:#}")))
+        };
+        let mut value = read(&attr)?;
+        if value.is_none() && self.declare_for_clips(field_prim, &attr, "asset")? {
+            value = read(&attr)?;
+        }
+        let authored = match value {
+            Some(Value::AssetPath(a)) => a.authored_path,
+            Some(Value::String(s)) => s,
+            Some(other) => {
+                return Err(self.at(
+                    field_prim,
+                    format!("filePath is {other:?}, not an asset path"),
+                ))
+            }
+            None => return Err(self.at(field_prim, "no filePath at this time")),
+        };
+        if authored.is_empty() {
+            return Err(self.at(field_prim, "filePath is empty at this time"));
+        }
+        let info = attr
+            .resolve_info_at(self.tc())
+            .map_err(|e| self.at(field_prim, format!("filePath: {e:#}")))?;
+        let layer = match info.spec_site() {
+            Some(site) => site.layer.clone(),
+            None => attr
+                .property_stack()
+                .map_err(|e| self.at(field_prim, format!("filePath: {e:#}")))?
+                .into_iter()
+                .next()
+                .map(|site| site.layer)
+                .unwrap_or_else(|| self.path.display().to_string()),
+        };
+        Ok((authored, layer))
+    }
+
+    /// openusd 0.8 answers a schema attribute that no layer of the stage declares with its
+    /// fallback, never consulting value clips (usd-core consults them: an `OpenVDBAsset`
+    /// whose `filePath` comes only from clips reads there). Where the schema declares the
+    /// attribute and nothing authors a spec for it, this declares it, without a value, in
+    /// the stage's in-memory root layer (never saved), so clips answer; `true` when it did.
+    fn declare_for_clips(
+        &self,
+        prim: &str,
+        attr: &openusd::usd::Attribute,
+        type_name: &str,
+    ) -> Result<bool> {
+        let fail = |e: &dyn std::fmt::Display| self.at(prim, format!("{}: {e:#}", attr.name()));
+        if !attr.is_defined().map_err(|e| fail(&e))?
+            || !attr.property_stack().map_err(|e| fail(&e))?.is_empty()
+        {
+            return Ok(false);
+        }
+        self.stage
+            .create_attribute(attr.path().clone(), type_name)
+            .map_err(|e| fail(&e))?;
+        Ok(true)
     }
 
     fn field_names(&self, prim: &str) -> Vec<String> {
@@ -440,8 +484,15 @@ fn open_stage(path: &Path) -> Result<Stage> {
         .to_str()
         .ok_or_else(|| fail("the path is not UTF-8".into()))?
         .to_string();
-    let opened =
-        std::panic::catch_unwind(|| Stage::builder().resolver(Guarded::default()).open(&s));
+    // The schema registry (UsdGeom, UsdVol, UsdLux) makes schema attributes exist where the
+    // stage authors no spec (an `OpenVDBAsset`'s `filePath` given only by value clips), and
+    // gives unauthored attributes their schema fallbacks, as usd-core does.
+    let opened = std::panic::catch_unwind(|| {
+        Stage::builder()
+            .resolver(Guarded::default())
+            .schema_registry(openusd_schemas::schema_registry())
+            .open(&s)
+    });
     match opened {
         Ok(Ok(stage)) => Ok(stage),
         Ok(Err(e)) => {
