@@ -328,3 +328,31 @@ def test_bad_clip_sets_get_one_clear_error(cli, tmp_path):
     Usd.ClipsAPI(st.GetPrimAtPath("/World/cloud")).SetClipActive([(1, 0), (3, 2), (2, 1)])
     st.Save()
     refused(d, 2, "clipActive", "/World/cloud", "out of order")
+
+
+def test_visibility_is_usds_at_the_time(cli, tmp_path):
+    """Which volumes a frame traces is usd-core's ComputeVisibility at that time: animated
+    visibility is read at the time; an invisible opinion on a prim that is not Imageable (an
+    untyped prim) hides nothing."""
+    shutil.copy(CLOUD, tmp_path / "cloud.vdb")
+    st = Usd.Stage.CreateNew(str(tmp_path / "shot.usda"))
+    untyped = st.DefinePrim("/Group")
+    untyped.CreateAttribute("visibility", Sdf.ValueTypeNames.Token).Set("invisible")
+    for path in ("/Group/steady", "/World/blinks", "/World/hidden/cloud"):
+        v = UsdVol.Volume.Define(st, path)
+        a = UsdVol.OpenVDBAsset.Define(st, path + "/density")
+        a.GetFilePathAttr().Set(Sdf.AssetPath("./cloud.vdb"))
+        v.CreateFieldRelationship("density", a.GetPath())
+    vis = UsdGeom.Imageable(st.GetPrimAtPath("/World/blinks")).CreateVisibilityAttr()
+    vis.Set("inherited", 1)
+    vis.Set("invisible", 2)
+    UsdGeom.Imageable(UsdGeom.Xform.Define(st, "/World/hidden")).CreateVisibilityAttr().Set(
+        "invisible")
+    UsdLux.DistantLight.Define(st, "/World/sun")
+    st.Save()
+    for t in (1, 1.5, 2):
+        want = [p for p in ("/Group/steady", "/World/blinks", "/World/hidden/cloud")
+                if UsdGeom.Imageable(st.GetPrimAtPath(p)).ComputeVisibility(t) != "invisible"]
+        _, js, _ = cli("info", tmp_path / "shot.usda", "--frame", t, "--json")
+        got = [v["prim"] for v in json.loads(js)["volumes"]]
+        assert got == want, (t, got, want)

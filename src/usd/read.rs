@@ -7,7 +7,7 @@ use openusd::ar;
 use openusd::gf::Matrix4d;
 use openusd::sdf::Value;
 use openusd::usd::{Prim, PrimPredicate, Stage, TimeCode};
-use openusd_schemas::geom::XformOp;
+use openusd_schemas::geom::{Imageable, ImageableExt, Visibility, XformOp};
 use std::path::Path;
 
 /// `xformOpOrder`'s reset entry and the prefix of an inverted op.
@@ -63,31 +63,19 @@ impl Reader<'_> {
         self.stage.prim(path).map_err(|e| self.at(path, format!("{e:#}")))
     }
 
-    /// `false` when the prim or an ancestor (of any type) authors `visibility = "invisible"`
-    /// as its default value: openusd 0.6's `compute_visibility`, kept (0.8's, in
-    /// openusd-schemas, reads only `Imageable` ancestors and needs the schema registry).
+    /// `false` when USD computes the prim invisible at the time code (`ComputeVisibility`):
+    /// it or an `Imageable` ancestor has `visibility = "invisible"` at that time (animated
+    /// visibility is read at the time; an untyped `over` or a non-imageable prim has none).
     fn visible(&self, prim: &str) -> Result<bool> {
-        let mut cur = Some(openusd::sdf::Path::new(prim).map_err(|e| self.at(prim, e))?);
-        while let Some(p) = cur {
-            if p.as_str() == "/" || p.as_str().is_empty() {
-                break;
-            }
-            let v = self
-                .prim(p.as_str())?
-                .attribute("visibility")
-                .get_at::<Value>(None)
-                .map_err(|e| self.at(p.as_str(), format!("visibility: {e:#}")))?;
-            let invisible = match v {
-                Some(Value::Token(t)) => t.as_str() == "invisible",
-                Some(Value::String(s)) => s == "invisible",
-                _ => false,
-            };
-            if invisible {
-                return Ok(false);
-            }
-            cur = p.parent();
-        }
-        Ok(true)
+        let fail = |e: &dyn std::fmt::Display| self.at(prim, format!("visibility: {e:#}"));
+        let Some(imageable) = Imageable::from_prim(self.prim(prim)?).map_err(|e| fail(&e))?
+        else {
+            return Ok(true);
+        };
+        let v = imageable
+            .compute_visibility(self.tc())
+            .map_err(|e| fail(&e))?;
+        Ok(v != Visibility::Invisible)
     }
 
     /// The prim's local-to-parent matrix at the time code and whether its stack resets the
