@@ -14,8 +14,8 @@
 //!   jump; `active` may not), finite, and `active` names clips the set has.
 
 use super::{resolve_asset, Asset};
-use openusd::usd::{ClipsAPI, Prim, Stage};
 use openusd::gf::Vec2d;
+use openusd::usd::{ClipsAPI, Prim, Stage};
 
 /// Checks every clip set authored on `prim` and its ancestors; `Err` is the reason, naming
 /// the prim, the set and the field.

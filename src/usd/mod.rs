@@ -28,8 +28,6 @@
 #[cfg(feature = "usd")]
 mod clips;
 #[cfg(feature = "usd")]
-mod guard;
-#[cfg(feature = "usd")]
 mod read;
 
 use crate::error::{Error, Result};

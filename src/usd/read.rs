@@ -3,7 +3,6 @@
 use super::{resolve_asset, Asset, Emitter, Selection, Shot, StageLight, StageVolume};
 use crate::error::{Error, Result};
 use crate::xform::Xform;
-use openusd::ar;
 use openusd::gf::Matrix4d;
 use openusd::sdf::Value;
 use openusd::usd::{Prim, PrimPredicate, Stage, TimeCode};
@@ -60,7 +59,9 @@ impl Reader<'_> {
 
     /// The composed prim handle at `path` (openusd 0.8's `Stage::prim` parses the path).
     fn prim(&self, path: &str) -> Result<Prim> {
-        self.stage.prim(path).map_err(|e| self.at(path, format!("{e:#}")))
+        self.stage
+            .prim(path)
+            .map_err(|e| self.at(path, format!("{e:#}")))
     }
 
     /// `false` when USD computes the prim invisible at the time code (`ComputeVisibility`):
@@ -68,8 +69,7 @@ impl Reader<'_> {
     /// visibility is read at the time; an untyped `over` or a non-imageable prim has none).
     fn visible(&self, prim: &str) -> Result<bool> {
         let fail = |e: &dyn std::fmt::Display| self.at(prim, format!("visibility: {e:#}"));
-        let Some(imageable) = Imageable::from_prim(self.prim(prim)?).map_err(|e| fail(&e))?
-        else {
+        let Some(imageable) = Imageable::from_prim(self.prim(prim)?).map_err(|e| fail(&e))? else {
             return Ok(true);
         };
         let v = imageable
@@ -475,9 +475,11 @@ fn open_stage(path: &Path) -> Result<Stage> {
     // The schema registry (UsdGeom, UsdVol, UsdLux) makes schema attributes exist where the
     // stage authors no spec (an `OpenVDBAsset`'s `filePath` given only by value clips), and
     // gives unauthored attributes their schema fallbacks, as usd-core does.
+    // No guard in front of the crate reader any more: openusd 0.8 checks every count against
+    // the bytes that hold it, bounds LZ4 output and nesting and refuses a value inside
+    // itself (tests/usd_corrupt.rs re-runs 0.6's aborts on it; docs/usd.md#limits).
     let opened = std::panic::catch_unwind(|| {
         Stage::builder()
-            .resolver(Guarded::default())
             .schema_registry(openusd_schemas::schema_registry())
             .open(&s)
     });
@@ -493,89 +495,6 @@ fn open_stage(path: &Path) -> Result<Stage> {
             "cannot open the stage: the USD reader failed ({})",
             panic_text(&p)
         ))),
-    }
-}
-
-/// The default resolver, with every crate layer it hands the reader (on its own or as a
-/// member of a `.usdz` package) checked first by [`super::guard`]: a layer whose counts lie
-/// is an error naming it instead of an allocation that aborts.
-#[derive(Default)]
-struct Guarded(ar::DefaultResolver);
-
-impl Guarded {
-    fn check(resolved: &ar::ResolvedPath, bytes: &[u8]) -> std::io::Result<()> {
-        let bad = |what: &str, reason: String| {
-            std::io::Error::new(std::io::ErrorKind::InvalidData, format!("{what}: {reason}"))
-        };
-        let name = resolved.display().to_string();
-        if bytes.starts_with(b"PXR-USDC") {
-            return super::guard::check(bytes).map_err(|r| bad(&name, r));
-        }
-        if bytes.starts_with(b"PK\x03\x04") {
-            // A package: its crate members, each read (stored, as the format requires) and
-            // checked. A package zip cannot read is left to the reader's own error.
-            let Ok(mut zip) = zip::ZipArchive::new(std::io::Cursor::new(bytes)) else {
-                return Ok(());
-            };
-            for i in 0..zip.len() {
-                let Ok(mut entry) = zip.by_index(i) else {
-                    continue;
-                };
-                let mut head = [0u8; 8];
-                if entry.size() < 88 || std::io::Read::read_exact(&mut entry, &mut head).is_err() {
-                    continue;
-                }
-                if &head == b"PXR-USDC" {
-                    let member = format!("{name}[{}]", entry.name());
-                    let mut all = head.to_vec();
-                    std::io::Read::read_to_end(&mut entry, &mut all)
-                        .map_err(|e| bad(&member, e.to_string()))?;
-                    super::guard::check(&all).map_err(|r| bad(&member, r))?;
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-impl ar::Resolver for Guarded {
-    fn create_identifier(&self, asset_path: &str, anchor: Option<&ar::ResolvedPath>) -> String {
-        self.0.create_identifier(asset_path, anchor)
-    }
-    fn resolve(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
-        self.0.resolve(asset_path)
-    }
-    fn resolve_for_new_asset(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
-        self.0.resolve_for_new_asset(asset_path)
-    }
-    fn open_asset(&self, resolved: &ar::ResolvedPath) -> std::io::Result<Box<dyn ar::Asset>> {
-        let bytes = self.0.open_asset(resolved)?.read_all()?;
-        Self::check(resolved, &bytes)?;
-        Ok(Box::new(std::io::Cursor::new(bytes)))
-    }
-    fn get_extension<'a>(&self, asset_path: &'a str) -> &'a str {
-        self.0.get_extension(asset_path)
-    }
-    // openusd 0.8's trait added these two with defaults a wrapper must forward (its docs);
-    // `cache_id` stays the default `None`, so nothing is cached past the guard.
-    fn is_context_dependent_path(&self, asset_path: &str) -> bool {
-        self.0.is_context_dependent_path(asset_path)
-    }
-    fn in_memory_identifier<'a>(&self, asset_path: &'a str) -> std::borrow::Cow<'a, str> {
-        self.0.in_memory_identifier(asset_path)
-    }
-    fn get_asset_info(&self, asset_path: &str, resolved: &ar::ResolvedPath) -> ar::AssetInfo {
-        self.0.get_asset_info(asset_path, resolved)
-    }
-    fn get_modification_timestamp(
-        &self,
-        asset_path: &str,
-        resolved: &ar::ResolvedPath,
-    ) -> Option<std::time::SystemTime> {
-        self.0.get_modification_timestamp(asset_path, resolved)
-    }
-    fn identity(&self) -> String {
-        self.0.identity()
     }
 }
 
