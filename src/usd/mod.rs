@@ -35,7 +35,20 @@ use crate::xform::Xform;
 use std::path::{Path, PathBuf};
 
 #[cfg(feature = "usd")]
-pub use read::{lights_at, read, shadow_layer};
+pub use read::{lights_at, points_at, points_layer, read, shadow_layer};
+
+/// The points of a `Points` or `PointInstancer` prim at a time code, in world space.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StagePoints {
+    /// The prim's path.
+    pub prim: String,
+    /// `Points` or `PointInstancer`.
+    pub type_name: String,
+    /// The time code read.
+    pub time: f64,
+    /// `points` (or `positions`) through the prim's local-to-world matrix, in authored order.
+    pub positions: Vec<[f64; 3]>,
+}
 
 /// One baked map of a stage light, for the layer that hands maps back to the shot
 /// ([`shadow_layer`]).

@@ -9,6 +9,9 @@ use openusd::usd::{Prim, PrimPredicate, Stage, TimeCode};
 use openusd_schemas::geom::{Imageable, ImageableExt, Visibility, XformOp};
 use std::path::Path;
 
+mod points;
+pub use points::{points_at, points_layer};
+
 /// `xformOpOrder`'s reset entry and the prefix of an inverted op.
 const RESET_XFORM_STACK: &str = "!resetXformStack!";
 const INVERT_PREFIX: &str = "!invert!";
