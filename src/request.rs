@@ -497,6 +497,22 @@ impl BakeOptions {
         }
     }
 
+    /// How the input is read (grid, scale, colour, level sets, a stage's selection), with
+    /// the placement `xform` checked.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `xform`.
+    pub fn scene_options(&self) -> Result<crate::scene::SceneOptions> {
+        Ok(crate::scene::SceneOptions {
+            grid: self.grid.clone(),
+            density_scale: self.density_scale,
+            sigma_t: self.sigma_t,
+            xform: self.xform()?,
+            levelset_solid: self.levelset == Some(LevelSet::Solid),
+            stage: self.stage_selection(),
+        })
+    }
+
     /// The placement transform, checked.
     ///
     /// # Errors

@@ -1221,6 +1221,52 @@ fn usd_lights_json(py: Python<'_>, path: PathBuf, time: Option<f64>) -> PyResult
     Ok(serde_json::json!({"time": shot.time, "up": shot.up, "lights": lights}).to_string())
 }
 
+/// Every point of the points prim `prim` of the stage `stage` toward `light` at each of
+/// `frames` (the stage's start time code when empty), with the estimator and scene options of
+/// `options` (bake options JSON): `({"prim", "type", "light", "frames": [{"frame", "T",
+/// "std_err"}]}` as JSON, warnings)`, as `umbra query --positions` answers.
+#[pyfunction]
+#[pyo3(signature = (stage, prim, light, frames, options))]
+fn usd_points_json(
+    py: Python<'_>,
+    stage: PathBuf,
+    prim: String,
+    light: Option<String>,
+    frames: Vec<f64>,
+    options: &str,
+) -> PyResult<(String, Vec<String>)> {
+    let o = BakeOptions::from_json(options).map_err(py_err)?;
+    let (est, opts) = o.estimator().map_err(py_err)?;
+    let scene = o.scene_options().map_err(py_err)?;
+    let answers = py
+        .detach(|| {
+            let frames = if frames.is_empty() {
+                vec![umbra::usd::lights_at(&stage, None)?.time]
+            } else {
+                frames
+            };
+            let q = umbra::points::PointQuery {
+                stage: &stage,
+                prim: &prim,
+                light: light.as_deref(),
+                frames: &frames,
+            };
+            on_threads(o.threads, || {
+                umbra::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})
+            })?
+        })
+        .map_err(py_err)?;
+    let frames: Vec<serde_json::Value> = answers
+        .frames
+        .iter()
+        .map(|f| serde_json::json!({"frame": f.frame, "T": f.transmittance, "std_err": f.std_err}))
+        .collect();
+    let doc = serde_json::json!({
+        "prim": answers.prim, "type": answers.type_name, "light": answers.light, "frames": frames,
+    });
+    Ok((doc.to_string(), answers.warnings))
+}
+
 #[pyfunction]
 fn bake_file(
     py: Python<'_>,
@@ -1289,6 +1335,7 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(emit_job, m)?)?;
     m.add_function(wrap_pyfunction!(bake_file, m)?)?;
     m.add_function(wrap_pyfunction!(usd_lights_json, m)?)?;
+    m.add_function(wrap_pyfunction!(usd_points_json, m)?)?;
     m.add_class::<NativeVolume>()?;
     Ok(())
 }

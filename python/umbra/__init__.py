@@ -46,6 +46,7 @@ __all__ = [
     "sample_omni",
     "run_job",
     "usd_lights",
+    "usd_point_transmittance",
     "write_exr",
 ]
 
@@ -730,6 +731,52 @@ def usd_lights(path: PathLike, time: Optional[float] = None) -> Dict[str, Any]:
     types have ``kind=None``. ``up`` is the stage's up axis."""
     t = None if time is None else float(time)
     return json.loads(_umbra.usd_lights_json(_path("path", path), t))
+
+
+def usd_point_transmittance(
+    stage: PathLike,
+    prim: str,
+    light: Optional[str] = None,
+    frames: Optional[Sequence[float]] = None,
+    *,
+    volume: Optional[Sequence[str]] = None,
+    field: Optional[str] = None,
+    interp: str = "trilinear",
+    density_scale: float = 1.0,
+    estimator: str = "regular",
+    samples: int = 1,
+    seed: int = 0,
+    step: Optional[float] = None,
+    kernel: Optional[float] = None,
+    points: Optional[float] = None,
+    granularity: str = "leaf",
+    global_majorant: bool = False,
+    threads: int = 0,
+) -> Dict[float, np.ndarray]:
+    """How much of a stage light reaches every point of a ``UsdGeom.Points`` prim (its
+    ``points``) or a ``PointInstancer`` (its ``positions``), placed in the world by the prim's
+    local-to-world at each time code of ``frames`` (default: the stage's start): what ``umbra
+    query STAGE --positions PRIM --light LIGHT --frames ...`` answers, bit for bit. ``light`` is
+    a prim path or name (default: the stage's only light); its shadow links are honoured.
+
+    Returns ``{frame: T}``, ``T`` an (N,) float64 array in the prim's point order (N may change
+    between frames: a warning says so). The estimator keywords are those of
+    :meth:`Volume.transmittance`; point ``i`` uses ray id ``i``."""
+    given = None if frames is None else [float(f) for f in frames]
+    doc, warns = _umbra.usd_points_json(
+        _path("stage", stage),
+        str(prim),
+        None if light is None else str(light),
+        given or [],
+        _options(
+            volume=None if volume is None else [str(v) for v in volume], field=field,
+            interp=interp, density_scale=density_scale, estimator=estimator,
+            samples=samples, seed=seed, step=step, kernel=kernel, points=points,
+            granularity=granularity, global_majorant=global_majorant, threads=threads,
+        ),
+    )
+    _warn(warns)
+    return {f["frame"]: np.asarray(f["T"], dtype=np.float64) for f in json.loads(doc)["frames"]}
 
 
 def estimators() -> List[Dict[str, Any]]:

@@ -23,6 +23,7 @@ __all__ = [
     "sample_omni",
     "run_job",
     "usd_lights",
+    "usd_point_transmittance",
     "write_exr",
 ]
 
@@ -45,6 +46,26 @@ class InvalidArgument(Error, ValueError):
 def info(path: PathLike, grid: Optional[str] = None) -> List[Dict[str, Any]]: ...
 def estimators() -> List[Dict[str, Any]]: ...
 def usd_lights(path: PathLike, time: Optional[float] = None) -> Dict[str, Any]: ...
+def usd_point_transmittance(
+    stage: PathLike,
+    prim: str,
+    light: Optional[str] = None,
+    frames: Optional[Sequence[float]] = None,
+    *,
+    volume: Optional[Sequence[str]] = None,
+    field: Optional[str] = None,
+    interp: str = "trilinear",
+    density_scale: float = 1.0,
+    estimator: str = "regular",
+    samples: int = 1,
+    seed: int = 0,
+    step: Optional[float] = None,
+    kernel: Optional[float] = None,
+    points: Optional[float] = None,
+    granularity: str = "leaf",
+    global_majorant: bool = False,
+    threads: int = 0,
+) -> Dict[float, np.ndarray]: ...
 def bake(
     input: PathLike,
     output: PathLike,
