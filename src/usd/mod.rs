@@ -521,6 +521,26 @@ pub fn read(path: &Path, _sel: &Selection) -> Result<Shot> {
 
 /// The error for a stage when umbra is built without USD support.
 #[cfg(not(feature = "usd"))]
+pub fn points_at(path: &Path, _prim: &str, _time: Option<f64>) -> Result<StagePoints> {
+    read(path, &Selection::default()).map(|_| StagePoints {
+        prim: String::new(),
+        type_name: String::new(),
+        time: 0.0,
+        positions: Vec::new(),
+    })
+}
+
+/// The error for a points layer when umbra is built without USD support.
+#[cfg(not(feature = "usd"))]
+pub fn points_layer(_prim: &str, _light: &str, _samples: &[(f64, Vec<f32>)]) -> Result<String> {
+    Err(Error::Unsupported {
+        path: PathBuf::from("usd-out"),
+        what: "USD layers (this umbra was built without the \"usd\" feature)".into(),
+    })
+}
+
+/// The error for a stage when umbra is built without USD support.
+#[cfg(not(feature = "usd"))]
 pub fn lights_at(path: &Path, _time: Option<f64>) -> Result<Shot> {
     read(path, &Selection::default())
 }
