@@ -808,9 +808,10 @@ impl NativeVolume {
         )
     }
 
-    /// Load the volumes of the USD stage `path` at time code `time` (default: its start).
+    /// Load the volumes of the USD stage `path` at time code `time` (default: its start);
+    /// toward `light`, only those its shadow link includes.
     #[staticmethod]
-    #[pyo3(signature = (path, time, volumes, field, density_scale, interp, xform))]
+    #[pyo3(signature = (path, time, volumes, field, density_scale, interp, xform, light=None))]
     #[allow(clippy::too_many_arguments)]
     fn open_stage(
         py: Python<'_>,
@@ -821,6 +822,7 @@ impl NativeVolume {
         density_scale: f64,
         interp: &str,
         xform: Option<Vec<f64>>,
+        light: Option<String>,
     ) -> PyResult<Self> {
         if !umbra::usd::is_stage(&path) {
             return Err(arg(
@@ -835,6 +837,7 @@ impl NativeVolume {
             time,
             volumes,
             field,
+            light,
         };
         Self::load(
             py,

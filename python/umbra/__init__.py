@@ -845,17 +845,20 @@ class Volume:
         density_scale: float = 1.0,
         interp: str = "trilinear",
         xform: Any = None,
+        light: Optional[str] = None,
     ) -> "Volume":
         """The volumes of a USD stage (``.usd``, ``.usda``, ``.usdc``, ``.usdz``) at time code
         ``time`` (default: the stage's start): every active, visible ``Volume`` prim, or the
         prim paths in ``volumes``; each one's ``field:<field>`` OpenVDB asset placed by the
-        prim's world transform at that time. The same scene ``umbra bake STAGE --frame T``
-        traces."""
+        prim's world transform at that time. With ``light`` (a light prim path or name), only
+        the volumes its ``collection:shadowLink`` includes (a light with
+        ``inputs:shadow:enable = false`` is refused). The same scene ``umbra bake STAGE
+        --frame T --light LIGHT`` traces."""
         self = cls.__new__(cls)
         vols = [] if volumes is None else [str(v) for v in volumes]
         t = None if time is None else float(time)
         args = (_path("path", path), t, vols, str(field), float(density_scale), str(interp),
-                _xform(xform))
+                _xform(xform), None if light is None else str(light))
         self._v = _umbra.Volume.open_stage(*args)
         self._args = ("usd", *args)
         _warn(self._v.warnings)

@@ -27,6 +27,7 @@
 
 #[cfg(feature = "usd")]
 mod guard;
+mod link;
 #[cfg(feature = "usd")]
 mod read;
 
@@ -34,6 +35,7 @@ use crate::error::{Error, Result};
 use crate::xform::Xform;
 use std::path::{Path, PathBuf};
 
+pub use link::{Link, Rule};
 #[cfg(feature = "usd")]
 pub use read::{lights_at, read, shadow_layer};
 
@@ -85,6 +87,11 @@ pub struct Selection {
     pub volumes: Vec<String>,
     /// The field relationship to follow (`field:<name>`; `--field`, default `density`).
     pub field: String,
+    /// The light the volumes are read toward (a prim path, or a name as [`Shot::light`]
+    /// takes it): only the volumes its `collection:shadowLink` includes are read, and a light
+    /// whose shadows are off (`inputs:shadow:enable = false`) is refused. `None`: every
+    /// selected volume (a bake toward light-dir / light-pos, a listing).
+    pub light: Option<String>,
 }
 
 impl Default for Selection {
@@ -93,6 +100,7 @@ impl Default for Selection {
             time: None,
             volumes: Vec::new(),
             field: "density".into(),
+            light: None,
         }
     }
 }
@@ -258,6 +266,33 @@ pub struct StageLight {
     /// How umbra traces it; `None` for a type umbra does not trace (a dome, a portal, a
     /// geometry light).
     pub emitter: Option<Emitter>,
+    /// Its shadow controls (UsdLux `ShadowAPI`, `LightAPI`).
+    pub shadow: Shadow,
+}
+
+/// A light's shadow controls, at the time code read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shadow {
+    /// `inputs:shadow:enable` (`true` when unauthored): `false`, the light casts no shadows
+    /// and umbra bakes nothing toward it.
+    pub enabled: bool,
+    /// The membership of its `collection:shadowLink` ([`Link`]; every prim when unauthored).
+    pub link: Link,
+    /// The stage's active, visible `Volume` prims the link includes, in stage order.
+    pub linked: Vec<String>,
+    /// Those it leaves out.
+    pub unlinked: Vec<String>,
+}
+
+impl Default for Shadow {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            link: Link::everything(),
+            linked: Vec::new(),
+            unlinked: Vec::new(),
+        }
+    }
 }
 
 impl StageLight {
@@ -290,7 +325,7 @@ impl Shot {
     /// # Errors
     /// [`Error::InvalidArgument`] (name `light`) when no light, several lights (listing them)
     /// or an unknown name is found; [`Error::Stage`] when the light's type is not one umbra
-    /// traces.
+    /// traces or its shadows are off (`inputs:shadow:enable = false`).
     pub fn light(&self, name: Option<&str>) -> Result<(&StageLight, Emitter)> {
         let listed = || {
             if self.lights.is_empty() {
@@ -347,6 +382,13 @@ impl Shot {
                 }
             },
         };
+        if !chosen.shadow.enabled {
+            return Err(self.err(format!(
+                "{}: inputs:shadow:enable is false: the light casts no shadows, so there is no \
+                 transmittance toward it to bake or query",
+                chosen.prim
+            )));
+        }
         match chosen.emitter {
             Some(e) => Ok((chosen, e)),
             None => Err(self.err(format!(
@@ -355,6 +397,28 @@ impl Shot {
                 chosen.prim, chosen.type_name
             ))),
         }
+    }
+
+    /// The volumes of `names` the shadow link of the light `light` includes (as
+    /// [`Shot::light`] names it), in their order: what a bake or query toward that light reads.
+    ///
+    /// # Errors
+    /// As [`Shot::light`] (an unknown light, one umbra does not trace, one whose shadows are
+    /// off); [`Error::Stage`] when the link includes none of `names`: nothing casts the light's
+    /// shadows, its transmittance is 1 everywhere, and umbra makes no map of it.
+    pub fn linked(&self, light: &str, names: Vec<String>) -> Result<Vec<String>> {
+        let (l, _) = self.light(Some(light))?;
+        let (kept, left): (Vec<String>, Vec<String>) =
+            names.into_iter().partition(|v| l.shadow.link.includes(v));
+        if kept.is_empty() {
+            return Err(self.err(format!(
+                "{}: its collection:shadowLink includes none of the volumes ({}): nothing casts \
+                 its shadows (T = 1 everywhere), so there is nothing to bake or query",
+                l.prim,
+                left.join(", ")
+            )));
+        }
+        Ok(kept)
     }
 
     /// The shot's one volume, for a product made from one density grid.
