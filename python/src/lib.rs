@@ -1193,7 +1193,8 @@ fn deep_json(d: &umbra::bake::DeepStats) -> serde_json::Value {
 /// as `umbra bake INPUT -o OUTPUT --flags` runs it. Returns the summary as JSON text (a map's
 /// camera dict with `deep` for a deep map; a transmittance volume's stats) and the warnings.
 /// The lights of the USD stage `path` at `time` as JSON: `{"time", "up", "lights": [{"prim",
-/// "name", "type", "kind", "dir" | "pos"}]}` (`kind` null for a type umbra does not trace).
+/// "name", "type", "kind", "dir" | "pos", "shadow_enable", "linked"}]}` (`kind` null for a
+/// type umbra does not trace; `linked`: the volumes its shadow link includes).
 #[pyfunction]
 #[pyo3(signature = (path, time))]
 fn usd_lights_json(py: Python<'_>, path: PathBuf, time: Option<f64>) -> PyResult<String> {
@@ -1206,6 +1207,7 @@ fn usd_lights_json(py: Python<'_>, path: PathBuf, time: Option<f64>) -> PyResult
         .map(|l| {
             let mut o = serde_json::json!({
                 "prim": l.prim, "name": l.name(), "type": l.type_name, "kind": null,
+                "shadow_enable": l.shadow.enabled, "linked": l.shadow.linked,
             });
             match l.emitter {
                 Some(umbra::usd::Emitter::Directional { dir }) => {

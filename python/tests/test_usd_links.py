@@ -113,6 +113,13 @@ def test_python_reads_toward_a_light(cli, tmp_path):
                           one.transmittance_to_light(at, light_dir=d[0]))
     with pytest.raises(umbra.Error, match="inputs:shadow:enable"):
         umbra.Volume.from_usd(stage, time=1, light="lamp")
+    with pytest.raises(umbra.Error, match="inputs:shadow:enable"):
+        umbra.bake(stage, tmp_path / "lamp.exr", frame=1, light="lamp", res=32)
+    assert not (tmp_path / "lamp.exr").exists()
+    lights = {l["name"]: l for l in umbra.usd_lights(stage, time=1)["lights"]}
+    assert lights["key"]["linked"] == ["/World/cloud"] and lights["key"]["shadow_enable"]
+    assert lights["sun"]["linked"] == ["/World/puff"]
+    assert lights["lamp"]["shadow_enable"] is False
 
 
 def _membership_stage(tmp_path):

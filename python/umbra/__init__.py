@@ -724,10 +724,12 @@ def bake(
 
 def usd_lights(path: PathLike, time: Optional[float] = None) -> Dict[str, Any]:
     """The UsdLux lights of a USD stage at time code ``time`` (default: its start), as umbra
-    reads them: ``{"time", "up", "lights": [{"prim", "name", "type", "kind", "dir" | "pos"}]}``.
-    A ``DistantLight`` is ``kind="directional"`` with the unit direction it travels (its world
-    -Z); a sphere, disk, rect or cylinder light is ``kind="point"`` at its world origin; other
-    types have ``kind=None``. ``up`` is the stage's up axis."""
+    reads them: ``{"time", "up", "lights": [{"prim", "name", "type", "kind", "dir" | "pos",
+    "shadow_enable", "linked"}]}``. A ``DistantLight`` is ``kind="directional"`` with the unit
+    direction it travels (its world -Z); a sphere, disk, rect or cylinder light is
+    ``kind="point"`` at its world origin; other types have ``kind=None``. ``shadow_enable`` is
+    its ``inputs:shadow:enable``, ``linked`` the visible volumes its ``collection:shadowLink``
+    includes. ``up`` is the stage's up axis."""
     t = None if time is None else float(time)
     return json.loads(_umbra.usd_lights_json(_path("path", path), t))
 

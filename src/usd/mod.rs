@@ -20,6 +20,11 @@
 //!   (`d = -(M_20, M_21, M_22)`, the third row of `M`, normalised); a `SphereLight`,
 //!   `DiskLight`, `RectLight` or `CylinderLight` is a point light at its world origin
 //!   (`(M_30, M_31, M_32)`). Other light types are listed but refused by name when chosen.
+//! - **Shadows**: each light's `inputs:shadow:enable` and the membership of its
+//!   `collection:shadowLink` ([`Link`], USD's `CollectionAPI` rules; everything when
+//!   unauthored), on [`StageLight::shadow`]. A read toward a light ([`Selection::light`])
+//!   keeps only the volumes its link includes and refuses a light with shadows off, so every
+//!   product that loads the scene toward a light honours both.
 //! - **Up**: the stage's `upAxis` (`Y` when unauthored), a map's default up.
 //!
 //! Nothing here decodes a voxel: [`Shot`] says which grid of which file goes where, and the
