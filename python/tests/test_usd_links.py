@@ -257,3 +257,25 @@ def test_a_shared_camera_frames_the_lights_own_volumes(cli, tmp_path):
         f"--light-dir={_sun(st, '/Lights/key', 1)}", f"--up={_up(st)}", "--res", 40,
         "-o", tmp_path / "v.exr", "--quiet", "--force")
     _same_pixels(tmp_path / "sh" / "key.exr", tmp_path / "v.exr")
+
+
+def test_a_link_umbra_cannot_read_fails_only_its_light(cli, tmp_path):
+    """A path-expression link (usd-core's expression mode) and an unknown expansionRule: the
+    light is refused naming the attribute; the stage's other lights still bake."""
+    st = _stage(tmp_path / "shot.usda")
+    c = Usd.CollectionAPI(st.GetPrimAtPath("/Lights/sun"), "shadowLink")
+    c.GetIncludeRootAttr().Set(False)
+    c.GetMembershipExpressionAttr().Set(Sdf.PathExpression("/World//"))
+    assert c.IsInExpressionMode()
+    Usd.CollectionAPI(st.GetPrimAtPath("/Lights/lamp"), "shadowLink") \
+        .GetExpansionRuleAttr().Set("bogus")
+    st.Save()
+    stage = tmp_path / "shot.usda"
+    line = _err(cli, "bake", stage, "--light", "sun", "-o", tmp_path / "s.exr")
+    assert "/Lights/sun" in line and "membershipExpression" in line, line
+    line = _err(cli, "query", stage, "--light", "lamp", "--at", "1,2,3")
+    assert "/Lights/lamp" in line and "expansionRule" in line and "bogus" in line, line
+    cli("bake", stage, "--light-dir=0,0,-1", "-o", tmp_path / "d.exr", *COMMON)
+    _, out, _ = cli("info", stage, "--json")
+    errs = {l["prim"]: l["shadow"]["error"] for l in json.loads(out)["lights"]}
+    assert "membershipExpression" in errs["/Lights/sun"] and "bogus" in errs["/Lights/lamp"]

@@ -417,6 +417,9 @@ impl Job {
             .lights
             .iter()
             .find(|l| l.prim == name || l.name() == name)?;
+        if l.shadow.unreadable.is_some() {
+            return None; // the task fails, saying why
+        }
         if !l.shadow.enabled {
             return Some(format!(
                 "{}: inputs:shadow:enable is false (the light casts no shadows)",

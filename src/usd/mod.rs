@@ -287,6 +287,9 @@ pub struct Shadow {
     pub linked: Vec<String>,
     /// Those it leaves out.
     pub unlinked: Vec<String>,
+    /// Why the controls could not be read (a path-expression collection, a bad value): the
+    /// light is refused with this when it is chosen; the stage's other lights still read.
+    pub unreadable: Option<String>,
 }
 
 impl Default for Shadow {
@@ -296,6 +299,7 @@ impl Default for Shadow {
             link: Link::everything(),
             linked: Vec::new(),
             unlinked: Vec::new(),
+            unreadable: None,
         }
     }
 }
@@ -387,6 +391,12 @@ impl Shot {
                 }
             },
         };
+        if let Some(reason) = &chosen.shadow.unreadable {
+            return Err(Error::Stage {
+                path: self.path.clone(),
+                reason: reason.clone(),
+            });
+        }
         if !chosen.shadow.enabled {
             return Err(self.err(format!(
                 "{}: inputs:shadow:enable is false: the light casts no shadows, so there is no \

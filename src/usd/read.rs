@@ -382,7 +382,14 @@ impl Reader<'_> {
             } else {
                 None
             };
-            let shadow = self.shadow(p, volumes)?;
+            // A light whose controls cannot be read fails only when it is chosen.
+            let shadow = self.shadow(p, volumes).unwrap_or_else(|e| Shadow {
+                unreadable: Some(match e {
+                    Error::Stage { reason, .. } => reason,
+                    other => other.to_string(),
+                }),
+                ..Shadow::default()
+            });
             out.push(StageLight {
                 prim: p.clone(),
                 type_name: ty.clone(),
@@ -412,6 +419,7 @@ impl Reader<'_> {
             link,
             linked,
             unlinked,
+            unreadable: None,
         })
     }
 

@@ -66,12 +66,16 @@ fn light(l: &StageLight) -> Value {
             "linked": l.shadow.linked,
             "unlinked": l.shadow.unlinked,
             "link": rules,
+            "error": l.shadow.unreadable,
         },
     })
 }
 
 /// A light's shadow line: off, or the volumes its shadow link includes and leaves out.
 fn shadow_line(s: &Value) -> String {
+    if let Some(e) = s["error"].as_str() {
+        return format!("shadow controls unreadable: {}", umbra::text::escape(e));
+    }
     if s["enable"].as_bool() == Some(false) {
         return "shadows off (inputs:shadow:enable = false)".into();
     }
