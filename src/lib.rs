@@ -65,6 +65,7 @@ pub mod light;
 pub mod math;
 mod memory;
 pub mod output;
+pub mod points;
 pub mod ray;
 pub mod regular;
 pub mod request;

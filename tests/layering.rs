@@ -21,7 +21,10 @@ const LAYERS: &[(&str, &[&str])] = &[
         "answers",
         &["regular", "solid", "estimate", "scene", "light"],
     ),
-    ("products", &["bake", "compare", "request", "batch", "info"]),
+    (
+        "products",
+        &["bake", "compare", "request", "batch", "info", "points"],
+    ),
 ];
 
 fn layer_of(module: &str) -> Option<usize> {

@@ -4,8 +4,8 @@ sphere light, frames 1-4.
 
     python make_shot.py OUT_DIR        (needs `pip install usd-core`)
 
-The shot is saved as shot.usdc: a binary layer, as Houdini and Blender write caches (umbra's USD
-reader cannot read time-sampled asset paths in a .usda text layer; see docs/usd.md).
+The shot is saved as shot.usda, the text layer usd-core and Solaris write (its density's
+filePath time-sampled per frame); a .usdc or .usdz of the same stage bakes the same bytes.
 """
 
 import pathlib
@@ -21,7 +21,7 @@ frames = range(1, 5)
 for f in frames:
     shutil.copy(root / "data" / "cloud.vdb", out / "cache" / f"cloud.{f:04d}.vdb")
 
-st = Usd.Stage.CreateNew(str(out / "shot.usdc"))
+st = Usd.Stage.CreateNew(str(out / "shot.usda"))
 UsdGeom.SetStageUpAxis(st, UsdGeom.Tokens.y)
 st.SetStartTimeCode(frames[0])
 st.SetEndTimeCode(frames[-1])
@@ -44,4 +44,4 @@ UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-70, 25, 0))  # high, from 
 lamp = UsdLux.SphereLight.Define(st, "/World/lights/lamp")
 UsdGeom.Xformable(lamp).AddTranslateOp().Set(Gf.Vec3d(-6.0, 1.5, 0.5))
 st.Save()
-print(f"wrote {out / 'shot.usdc'}: frames {frames[0]}-{frames[-1]}, lights sun and lamp")
+print(f"wrote {out / 'shot.usda'}: frames {frames[0]}-{frames[-1]}, lights sun and lamp")

@@ -25,7 +25,7 @@ fi
 "$out/venv/bin/python" "$here/make_shot.py" "$out"
 cp "$here/job.toml" "$out/job.toml"
 "$UMBRA" batch "$out/job.toml" --force
-"$UMBRA" bake "$out/shot.usdc" --frame 2 --light sun --res 256 -o "$out/sun_f2.exr" \
+"$UMBRA" bake "$out/shot.usda" --frame 2 --light sun --res 256 -o "$out/sun_f2.exr" \
     --usd-out "$out/shadows.usda" --force --quiet
 echo "--- $out/shadows.usda"
 cat "$out/shadows.usda"

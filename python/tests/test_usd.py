@@ -207,8 +207,8 @@ def test_info_on_a_stage_says_what_umbra_reads(cli, tmp_path):
 
 
 def test_usda_usdc_and_usdz_give_the_same_map(cli, tmp_path):
-    # A static asset path: umbra's USD reader (openusd 0.6) cannot parse time-sampled asset
-    # values in a text layer (see test_time_sampled_assets_in_usda_say_how_to_convert).
+    # A static asset path here; time-sampled ones, subframes and byte-identical maps:
+    # test_usd_time.py.
     (tmp_path / "a").mkdir()
     _stage(tmp_path / "a" / "shot.usda", animated_file=False)
     st = Usd.Stage.Open(str(tmp_path / "a" / "shot.usda"))
@@ -347,8 +347,8 @@ def test_broken_stage_files_are_errors_not_crashes(cli, umbra_bin, tmp_path):
         e = _err(cli, "bake", tmp_path / "cut.usdc", *flags)
         assert "cut.usdc" in e, e
     # A size field inside a compressed section that asks for terabytes (openusd 0.6 would
-    # allocate it and abort): umbra's guard names the file. Every value type, every byte:
-    # tests/usd_guard.rs.
+    # allocate it and abort; 0.8 refuses it): the error names the file. Every value type,
+    # every byte: tests/usd_corrupt.rs.
     toc = int.from_bytes(data[16:24], "little")
     sections = {data[toc + 8 + 32 * i: toc + 24 + 32 * i].rstrip(b"\0").decode():
                 int.from_bytes(data[toc + 24 + 32 * i: toc + 32 + 32 * i], "little")
@@ -375,7 +375,7 @@ def test_broken_stage_files_are_errors_not_crashes(cli, umbra_bin, tmp_path):
 
 
 def test_a_stage_with_every_value_type_reads(cli, tmp_path):
-    """The guard in front of the .usdc reader refuses nothing usd-core writes: a layer with a
+    """The .usdc reader refuses nothing usd-core writes: a layer with a
     value of every crate type, in every encoding (tests/usd/make_every_value.py), written by
     the usd-core installed today, reads and traces."""
     import importlib.util

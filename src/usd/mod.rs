@@ -31,7 +31,7 @@
 //! scene loader decodes only those grids (`scene::file`).
 
 #[cfg(feature = "usd")]
-mod guard;
+mod clips;
 mod link;
 #[cfg(feature = "usd")]
 mod read;
@@ -42,7 +42,20 @@ use std::path::{Path, PathBuf};
 
 pub use link::{Link, Rule};
 #[cfg(feature = "usd")]
-pub use read::{lights_at, read, shadow_layer};
+pub use read::{lights_at, points_at, points_layer, read, shadow_layer};
+
+/// The points of a `Points` or `PointInstancer` prim at a time code, in world space.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StagePoints {
+    /// The prim's path.
+    pub prim: String,
+    /// `Points` or `PointInstancer`.
+    pub type_name: String,
+    /// The time code read.
+    pub time: f64,
+    /// `points` (or `positions`) through the prim's local-to-world matrix, in authored order.
+    pub positions: Vec<[f64; 3]>,
+}
 
 /// One baked map of a stage light, for the layer that hands maps back to the shot
 /// ([`shadow_layer`]).

@@ -5,12 +5,14 @@ use super::{
 };
 use crate::error::{Error, Result};
 use crate::xform::Xform;
-use openusd::ar;
 use openusd::gf::Matrix4d;
 use openusd::sdf::Value;
 use openusd::usd::{Prim, PrimPredicate, Stage, TimeCode};
-use openusd_schemas::geom::XformOp;
+use openusd_schemas::geom::{Imageable, ImageableExt, Visibility, XformOp};
 use std::path::Path;
+
+mod points;
+pub use points::{points_at, points_layer};
 
 /// `xformOpOrder`'s reset entry and the prefix of an inverted op.
 const RESET_XFORM_STACK: &str = "!resetXformStack!";
@@ -67,31 +69,18 @@ impl Reader<'_> {
             .map_err(|e| self.at(path, format!("{e:#}")))
     }
 
-    /// `false` when the prim or an ancestor (of any type) authors `visibility = "invisible"`
-    /// as its default value: openusd 0.6's `compute_visibility`, kept (0.8's, in
-    /// openusd-schemas, reads only `Imageable` ancestors and needs the schema registry).
+    /// `false` when USD computes the prim invisible at the time code (`ComputeVisibility`):
+    /// it or an `Imageable` ancestor has `visibility = "invisible"` at that time (animated
+    /// visibility is read at the time; an untyped `over` or a non-imageable prim has none).
     fn visible(&self, prim: &str) -> Result<bool> {
-        let mut cur = Some(openusd::sdf::Path::new(prim).map_err(|e| self.at(prim, e))?);
-        while let Some(p) = cur {
-            if p.as_str() == "/" || p.as_str().is_empty() {
-                break;
-            }
-            let v = self
-                .prim(p.as_str())?
-                .attribute("visibility")
-                .get_at::<Value>(None)
-                .map_err(|e| self.at(p.as_str(), format!("visibility: {e:#}")))?;
-            let invisible = match v {
-                Some(Value::Token(t)) => t.as_str() == "invisible",
-                Some(Value::String(s)) => s == "invisible",
-                _ => false,
-            };
-            if invisible {
-                return Ok(false);
-            }
-            cur = p.parent();
-        }
-        Ok(true)
+        let fail = |e: &dyn std::fmt::Display| self.at(prim, format!("visibility: {e:#}"));
+        let Some(imageable) = Imageable::from_prim(self.prim(prim)?).map_err(|e| fail(&e))? else {
+            return Ok(true);
+        };
+        let v = imageable
+            .compute_visibility(self.tc())
+            .map_err(|e| fail(&e))?;
+        Ok(v != Visibility::Invisible)
     }
 
     /// The prim's local-to-parent matrix at the time code and whether its stack resets the
@@ -229,31 +218,9 @@ impl Reader<'_> {
                 ))
             }
         }
-        let attr = self.prim(field_prim.as_str())?.attribute("filePath");
-        let authored = match attr
-            .get_at::<Value>(self.tc())
-            .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
-        {
-            Some(Value::AssetPath(a)) => a.authored_path,
-            Some(Value::String(s)) => s,
-            Some(other) => {
-                return Err(self.at(
-                    &field_prim,
-                    format!("filePath is {other:?}, not an asset path"),
-                ))
-            }
-            None => return Err(self.at(&field_prim, "no filePath at this time")),
-        };
-        if authored.is_empty() {
-            return Err(self.at(&field_prim, "filePath is empty at this time"));
-        }
-        let layer = attr
-            .property_stack()
-            .map_err(|e| self.at(&field_prim, format!("filePath: {e:#}")))?
-            .into_iter()
-            .next()
-            .map(|site| site.layer)
-            .unwrap_or_else(|| self.path.display().to_string());
+        super::clips::check(&self.stage, prim).map_err(|r| self.err(r))?;
+        super::clips::check(&self.stage, &field_prim).map_err(|r| self.err(r))?;
+        let (authored, layer) = self.file_path(&field_prim)?;
         let asset = resolve_asset(&authored, &layer);
         if let Asset::File(f) = &asset {
             if !f.is_file() {
@@ -326,6 +293,72 @@ impl Reader<'_> {
             rgb,
             solid,
         })
+    }
+
+    /// The field prim's `filePath` at the time code (as authored) and the layer that answered
+    /// it, which anchors a relative path: a layer of the stage, or the value clip that
+    /// supplied it.
+    fn file_path(&self, field_prim: &str) -> Result<(String, String)> {
+        let attr = self.prim(field_prim)?.attribute("filePath");
+        let read = |attr: &openusd::usd::Attribute| {
+            attr.get_at::<Value>(self.tc())
+                .map_err(|e| self.at(field_prim, format!("filePath: {e:#}")))
+        };
+        let mut value = read(&attr)?;
+        if value.is_none() && self.declare_for_clips(field_prim, &attr, "asset")? {
+            value = read(&attr)?;
+        }
+        let authored = match value {
+            Some(Value::AssetPath(a)) => a.authored_path,
+            Some(Value::String(s)) => s,
+            Some(other) => {
+                return Err(self.at(
+                    field_prim,
+                    format!("filePath is {other:?}, not an asset path"),
+                ))
+            }
+            None => return Err(self.at(field_prim, "no filePath at this time")),
+        };
+        if authored.is_empty() {
+            return Err(self.at(field_prim, "filePath is empty at this time"));
+        }
+        let info = attr
+            .resolve_info_at(self.tc())
+            .map_err(|e| self.at(field_prim, format!("filePath: {e:#}")))?;
+        let layer = match info.spec_site() {
+            Some(site) => site.layer.clone(),
+            None => attr
+                .property_stack()
+                .map_err(|e| self.at(field_prim, format!("filePath: {e:#}")))?
+                .into_iter()
+                .next()
+                .map(|site| site.layer)
+                .unwrap_or_else(|| self.path.display().to_string()),
+        };
+        Ok((authored, layer))
+    }
+
+    /// openusd 0.8 answers a schema attribute that no layer of the stage declares with its
+    /// fallback, never consulting value clips (usd-core consults them: an `OpenVDBAsset`
+    /// whose `filePath` comes only from clips reads there). Where the schema declares the
+    /// attribute and nothing authors a spec for it, this declares it, without a value, in
+    /// the stage's in-memory root layer (never saved), so clips answer; `true` when it did.
+    fn declare_for_clips(
+        &self,
+        prim: &str,
+        attr: &openusd::usd::Attribute,
+        type_name: &str,
+    ) -> Result<bool> {
+        let fail = |e: &dyn std::fmt::Display| self.at(prim, format!("{}: {e:#}", attr.name()));
+        if !attr.is_defined().map_err(|e| fail(&e))?
+            || !attr.property_stack().map_err(|e| fail(&e))?.is_empty()
+        {
+            return Ok(false);
+        }
+        self.stage
+            .create_attribute(attr.path().clone(), type_name)
+            .map_err(|e| fail(&e))?;
+        Ok(true)
     }
 
     fn field_names(&self, prim: &str) -> Vec<String> {
@@ -641,8 +674,17 @@ fn open_stage(path: &Path) -> Result<Stage> {
         .to_str()
         .ok_or_else(|| fail("the path is not UTF-8".into()))?
         .to_string();
-    let opened =
-        std::panic::catch_unwind(|| Stage::builder().resolver(Guarded::default()).open(&s));
+    // The schema registry (UsdGeom, UsdVol, UsdLux) makes schema attributes exist where the
+    // stage authors no spec (an `OpenVDBAsset`'s `filePath` given only by value clips), and
+    // gives unauthored attributes their schema fallbacks, as usd-core does.
+    // No guard in front of the crate reader any more: openusd 0.8 checks every count against
+    // the bytes that hold it, bounds LZ4 output and nesting and refuses a value inside
+    // itself (tests/usd_corrupt.rs re-runs 0.6's aborts on it; docs/usd.md#limits).
+    let opened = std::panic::catch_unwind(|| {
+        Stage::builder()
+            .schema_registry(openusd_schemas::schema_registry())
+            .open(&s)
+    });
     match opened {
         Ok(Ok(stage)) => Ok(stage),
         Ok(Err(e)) => {
@@ -655,89 +697,6 @@ fn open_stage(path: &Path) -> Result<Stage> {
             "cannot open the stage: the USD reader failed ({})",
             panic_text(&p)
         ))),
-    }
-}
-
-/// The default resolver, with every crate layer it hands the reader (on its own or as a
-/// member of a `.usdz` package) checked first by [`super::guard`]: a layer whose counts lie
-/// is an error naming it instead of an allocation that aborts.
-#[derive(Default)]
-struct Guarded(ar::DefaultResolver);
-
-impl Guarded {
-    fn check(resolved: &ar::ResolvedPath, bytes: &[u8]) -> std::io::Result<()> {
-        let bad = |what: &str, reason: String| {
-            std::io::Error::new(std::io::ErrorKind::InvalidData, format!("{what}: {reason}"))
-        };
-        let name = resolved.display().to_string();
-        if bytes.starts_with(b"PXR-USDC") {
-            return super::guard::check(bytes).map_err(|r| bad(&name, r));
-        }
-        if bytes.starts_with(b"PK\x03\x04") {
-            // A package: its crate members, each read (stored, as the format requires) and
-            // checked. A package zip cannot read is left to the reader's own error.
-            let Ok(mut zip) = zip::ZipArchive::new(std::io::Cursor::new(bytes)) else {
-                return Ok(());
-            };
-            for i in 0..zip.len() {
-                let Ok(mut entry) = zip.by_index(i) else {
-                    continue;
-                };
-                let mut head = [0u8; 8];
-                if entry.size() < 88 || std::io::Read::read_exact(&mut entry, &mut head).is_err() {
-                    continue;
-                }
-                if &head == b"PXR-USDC" {
-                    let member = format!("{name}[{}]", entry.name());
-                    let mut all = head.to_vec();
-                    std::io::Read::read_to_end(&mut entry, &mut all)
-                        .map_err(|e| bad(&member, e.to_string()))?;
-                    super::guard::check(&all).map_err(|r| bad(&member, r))?;
-                }
-            }
-        }
-        Ok(())
-    }
-}
-
-impl ar::Resolver for Guarded {
-    fn create_identifier(&self, asset_path: &str, anchor: Option<&ar::ResolvedPath>) -> String {
-        self.0.create_identifier(asset_path, anchor)
-    }
-    fn resolve(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
-        self.0.resolve(asset_path)
-    }
-    fn resolve_for_new_asset(&self, asset_path: &str) -> Option<ar::ResolvedPath> {
-        self.0.resolve_for_new_asset(asset_path)
-    }
-    fn open_asset(&self, resolved: &ar::ResolvedPath) -> std::io::Result<Box<dyn ar::Asset>> {
-        let bytes = self.0.open_asset(resolved)?.read_all()?;
-        Self::check(resolved, &bytes)?;
-        Ok(Box::new(std::io::Cursor::new(bytes)))
-    }
-    fn get_extension<'a>(&self, asset_path: &'a str) -> &'a str {
-        self.0.get_extension(asset_path)
-    }
-    // openusd 0.8's trait added these two with defaults a wrapper must forward (its docs);
-    // `cache_id` stays the default `None`, so nothing is cached past the guard.
-    fn is_context_dependent_path(&self, asset_path: &str) -> bool {
-        self.0.is_context_dependent_path(asset_path)
-    }
-    fn in_memory_identifier<'a>(&self, asset_path: &'a str) -> std::borrow::Cow<'a, str> {
-        self.0.in_memory_identifier(asset_path)
-    }
-    fn get_asset_info(&self, asset_path: &str, resolved: &ar::ResolvedPath) -> ar::AssetInfo {
-        self.0.get_asset_info(asset_path, resolved)
-    }
-    fn get_modification_timestamp(
-        &self,
-        asset_path: &str,
-        resolved: &ar::ResolvedPath,
-    ) -> Option<std::time::SystemTime> {
-        self.0.get_modification_timestamp(asset_path, resolved)
-    }
-    fn identity(&self) -> String {
-        self.0.identity()
     }
 }
 

@@ -75,6 +75,20 @@ pub struct QueryArgs {
     load: LoadMode,
     #[command(flatten)]
     est: EstimatorArgs,
+    /// USD stage inputs: answer every point of this Points prim (`points`) or PointInstancer
+    /// (`positions`), placed in the world at each frame, toward the stage light.
+    #[arg(long, value_name = "PRIM")]
+    positions: Option<String>,
+    /// With --positions: the frames A-B (A, A+1, ... up to B), instead of --frame.
+    #[arg(long, value_name = "A-B", value_parser = crate::query_points::parse_frames, allow_hyphen_values = true)]
+    frames: Option<crate::query_points::Frames>,
+    /// With --positions: also write a .usda layer that time-samples
+    /// `primvars:umbra:transmittance:<light>` on the prim (sublayer it over the shot).
+    #[arg(long, value_name = "LAYER.usda")]
+    usd_out: Option<PathBuf>,
+    /// With --usd-out: replace an existing layer.
+    #[arg(long)]
+    force: bool,
 }
 
 /// `--load`: how much of a grid a query decodes.
@@ -96,6 +110,18 @@ struct Answer {
 
 /// Run the query and print the answer(s).
 pub fn run(a: &QueryArgs) -> Result<ExitCode> {
+    if let Some(prim) = &a.positions {
+        return run_points(a, prim);
+    }
+    for (flag, given) in [
+        ("--frames", a.frames.is_some()),
+        ("--usd-out", a.usd_out.is_some()),
+        ("--force", a.force),
+    ] {
+        if given {
+            bail!("invalid argument '{flag}': goes with --positions PRIM");
+        }
+    }
     let single = match (a.from, a.to, a.at) {
         (Some(from), Some(to), None) => Some((from, to)),
         (Some(_), None, _) | (None, Some(_), _) => {
@@ -242,6 +268,57 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         }]
     };
     print_answers(&answers, est.name(), interp, a.json)
+}
+
+/// `--positions PRIM`: every point of a stage's points prim, frame by frame.
+fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
+    if !umbra::usd::is_stage(&a.file) {
+        bail!(
+            "invalid argument '--positions': applies to USD stages (.usd, .usda, .usdc, .usdz); \
+             {} is not one",
+            a.file.display()
+        );
+    }
+    let others = [
+        ("--from", a.from.is_some()),
+        ("--to", a.to.is_some()),
+        ("--at", a.at.is_some()),
+        ("--rays", a.rays.is_some()),
+        ("--light-dir", a.light_dir.is_some()),
+        ("--light-pos", a.light_pos.is_some()),
+        ("--xform", a.xform.is_some()),
+    ];
+    if let Some((flag, _)) = others.iter().find(|(_, g)| *g) {
+        bail!("invalid argument '{flag}': --positions answers every point toward a stage light");
+    }
+    a.stage.check(&a.file)?;
+    let frames = match (&a.frames, a.stage.frame) {
+        (Some(_), Some(_)) => bail!("give --frame F or --frames A-B, not both"),
+        (Some(f), None) => f.0.clone(),
+        (None, Some(f)) => vec![f],
+        (None, None) => vec![umbra::usd::lights_at(&a.file, None)?.time],
+    };
+    let interp: Interp = a.interp.into();
+    let (est, opts) = a.est.resolve(interp)?;
+    let scene_opts = umbra::scene::SceneOptions {
+        grid: a.grid.clone(),
+        density_scale: a.density_scale,
+        sigma_t: a.trace.sigma_t,
+        xform: None,
+        levelset_solid: a.trace.levelset.is_some(),
+        stage: a.stage.selection(),
+    };
+    let spec = crate::query_points::Spec {
+        file: &a.file,
+        prim,
+        light: a.stage.light.as_deref(),
+        frames: &frames,
+        usd_out: a.usd_out.as_deref(),
+        force: a.force,
+        json: a.json,
+    };
+    let pool = thread_pool(a.threads)?;
+    pool.install(|| crate::query_points::run(&spec, &scene_opts, &est, &opts))
 }
 
 fn answer(

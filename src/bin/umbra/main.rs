@@ -11,6 +11,7 @@ mod cmd_query;
 mod common;
 mod info_stage;
 mod plot;
+mod query_points;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};

@@ -1,10 +1,13 @@
-//! Corrupt `.usdc` layers are errors, never an abort: the guard in front of the crate reader
-//! (`umbra::usd`, `usd/guard.rs`) bounds every count before openusd sizes a buffer from it.
+//! Corrupt `.usdc` layers are errors, never an abort. openusd 0.6 trusted a crate file's
+//! counts, and umbra walked every layer with a guard of its own before the reader saw it;
+//! openusd 0.8 checks each count against the bytes that hold it, bounds LZ4 output and nesting
+//! and refuses a value inside itself, so the guard is gone and these tests (the mutations that
+//! aborted 0.6) hold the reader itself to it.
 //!
 //! The fixture `tests/usd/every_value.usdc` is written by Pixar's usd-core
 //! (`tests/usd/make_every_value.py`): a value of every type the crate format stores, in every
-//! encoding, and every nesting it has. The guard must pass it whole, and every mutation of it
-//! must end in a stage or an error naming the file. An abort (an allocation failure, a stack
+//! encoding, and every nesting it has. It must read whole, and every mutation of it must end
+//! in a stage or an error naming the file. An abort (an allocation failure, a stack
 //! overflow) kills this test binary, which fails the suite.
 
 use std::path::{Path, PathBuf};
@@ -14,7 +17,7 @@ fn fixture() -> PathBuf {
 }
 
 #[test]
-fn a_layer_with_every_value_type_passes_the_guard() {
+fn a_layer_with_every_value_type_reads() {
     let shot = umbra::usd::lights_at(&fixture(), Some(2.0)).expect("usd-core's layer reads");
     assert_eq!(shot.lights.len(), 1);
     assert_eq!(shot.lights[0].prim, "/World/sun");
@@ -129,4 +132,27 @@ fn a_corrupt_layer_inside_a_package_is_an_error() {
         .expect_err("refused")
         .to_string();
     assert!(msg.contains("shot.usdz") && msg.contains("FIELDS"), "{msg}");
+}
+
+/// Every byte offset of the fixture overwritten with a u64 count of 2^40 (any count or size
+/// field the format has, wherever it sits): a stage or an error, never an abort. 122,833
+/// layers, about 6 minutes: `cargo test --release --ignore-rust-version --test usd_corrupt --
+/// --ignored`.
+#[test]
+#[ignore = "six minutes; run by hand after an openusd upgrade"]
+fn a_huge_count_at_every_offset_is_an_error_not_an_abort() {
+    let good = std::fs::read(fixture()).expect("fixture");
+    let dir = tempfile::tempdir().expect("tempdir");
+    let path = dir.path().join("count.usdc");
+    let mut refused = 0;
+    for at in 0..good.len() - 8 {
+        let mut b = good.clone();
+        put(&mut b, at, 1 << 40);
+        std::fs::write(&path, &b).expect("write");
+        if let Err(e) = umbra::usd::lights_at(&path, Some(1.0)) {
+            assert!(e.to_string().contains("count.usdc"), "byte {at}: {e}");
+            refused += 1;
+        }
+    }
+    assert!(refused > 0);
 }

@@ -1,0 +1,173 @@
+//! Per-point attenuation over a shot: what fraction of a stage light reaches each point of a
+//! `Points` prim or a `PointInstancer`, frame by frame (trees, rocks, crowds or instanced
+//! lights under a cloud layer).
+//!
+//! At frame `t` the points are placed by the prim's local-to-world matrix at `t`
+//! ([`crate::usd::points_at`]), the stage's volumes are read at `t` toward the light (its
+//! shadow links honoured, as for a query), and point `i` is answered along the ray from it
+//! toward the light ([`crate::Light::ray_from_scene`]: to a point light's position, or against
+//! a sun's direction until the ray leaves every volume) with ray id `i`, so a stochastic
+//! estimator gives the same answer whatever the thread count. `T_i = exp(-tau_i)` for the exact
+//! estimator, its estimate otherwise.
+
+use crate::error::{Error, Result};
+use crate::estimate::{Estimator, Options};
+use crate::scene::SceneOptions;
+use crate::Light;
+use std::path::Path;
+
+/// The answers of one frame.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointFrame {
+    /// The time code.
+    pub frame: f64,
+    /// The points in world space, in authored order.
+    pub positions: Vec<[f64; 3]>,
+    /// Transmittance toward the light, one per point.
+    pub transmittance: Vec<f64>,
+    /// Error bar of each answer (0 for deterministic estimators).
+    pub std_err: Vec<f64>,
+}
+
+/// Every frame's answers toward one light.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PointAnswers {
+    /// The points prim.
+    pub prim: String,
+    /// `Points` or `PointInstancer`.
+    pub type_name: String,
+    /// The light's prim path.
+    pub light: String,
+    /// The light's prim name (the primvar's suffix).
+    pub light_name: String,
+    /// The frames, in the order asked.
+    pub frames: Vec<PointFrame>,
+    /// Things the caller should say (a point count that changes between frames).
+    pub warnings: Vec<String>,
+}
+
+/// What to answer: the points prim of a stage, toward which light, at which frames.
+#[derive(Debug, Clone, Copy)]
+pub struct PointQuery<'a> {
+    /// The USD stage.
+    pub stage: &'a Path,
+    /// The `Points` or `PointInstancer` prim.
+    pub prim: &'a str,
+    /// The stage light (a prim path or a name); the stage's only light when `None`.
+    pub light: Option<&'a str>,
+    /// The time codes, answered in this order.
+    pub frames: &'a [f64],
+}
+
+/// Answer every point of `q.prim` toward `q.light` at each of `q.frames`. `scene` carries the grid, density scale, sigma and field
+/// options (its stage selection's time is set per frame); `on_frame` is called after each
+/// frame (progress).
+///
+/// # Errors
+/// [`Error::Stage`] for a prim or light the stage does not have or a prim of another type;
+/// [`Error::InvalidArgument`] (name `frames`) for no frames; a light with shadows disabled is
+/// refused as for a query; an RGB stage (a colour `umbra:sigmaT`) is refused (the answers are
+/// grey); any error of loading or estimating a frame.
+pub fn point_transmittance(
+    q: &PointQuery<'_>,
+    scene: &SceneOptions,
+    est: &Estimator,
+    opts: &Options,
+    on_frame: &mut dyn FnMut(&PointFrame),
+) -> Result<PointAnswers> {
+    let PointQuery {
+        stage,
+        prim,
+        light,
+        frames,
+    } = *q;
+    if frames.is_empty() {
+        return Err(Error::InvalidArgument {
+            name: "frames".into(),
+            reason: "no frames to answer".into(),
+        });
+    }
+    let mut out: Option<PointAnswers> = None;
+    for &t in frames {
+        let points = crate::usd::points_at(stage, prim, Some(t))?;
+        let shot = crate::usd::lights_at(stage, Some(t))?;
+        let (l, emitter) = shot.light(light)?;
+        let lamp = match emitter {
+            crate::usd::Emitter::Directional { dir } => Light::Directional { dir },
+            crate::usd::Emitter::Point { pos } => Light::Point { pos },
+        };
+        let mut so = scene.clone();
+        so.stage.time = Some(t);
+        let sc = crate::scene::load(stage, &so)?;
+        if sc.channels() != 1 {
+            return Err(Error::Stage {
+                path: stage.to_path_buf(),
+                reason: format!(
+                    "at time {t}: per-point answers are grey, and this stage's volumes are RGB \
+                     (a colour umbra:sigmaT)"
+                ),
+            });
+        }
+        let rays = points
+            .positions
+            .iter()
+            .enumerate()
+            .map(|(i, p)| {
+                lamp.ray_from_scene(&sc, *p).map_err(|e| Error::Stage {
+                    path: stage.to_path_buf(),
+                    reason: format!("at time {t}: {prim}: point {i} {p:?}: {e}"),
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let ids: Vec<u64> = (0..rays.len() as u64).collect();
+        let answers = crate::scene::estimate_many(&sc, &rays, &ids, est, opts)
+            .into_iter()
+            .collect::<Result<Vec<_>>>()?;
+        let frame = PointFrame {
+            frame: t,
+            positions: points.positions,
+            transmittance: answers.iter().map(|a| a.value[0]).collect(),
+            std_err: answers.iter().map(|a| a.std_err[0]).collect(),
+        };
+        on_frame(&frame);
+        let all = out.get_or_insert_with(|| PointAnswers {
+            prim: points.prim.clone(),
+            type_name: points.type_name.clone(),
+            light: l.prim.clone(),
+            light_name: l.name().to_string(),
+            frames: Vec::new(),
+            warnings: Vec::new(),
+        });
+        if let Some(prev) = all.frames.last() {
+            if prev.positions.len() != frame.positions.len() {
+                all.warnings.push(format!(
+                    "{prim} has {} points at frame {} and {} at frame {t}: each frame is \
+                     answered as authored",
+                    prev.positions.len(),
+                    prev.frame,
+                    frame.positions.len()
+                ));
+            }
+        }
+        all.frames.push(frame);
+    }
+    out.ok_or_else(|| Error::InvalidArgument {
+        name: "frames".into(),
+        reason: "no frames to answer".into(),
+    })
+}
+
+/// The `.usda` layer of `answers`: an `over` on the points prim holding `float[]
+/// primvars:umbra:transmittance:<light name>` (interpolation `vertex`), one time sample per
+/// frame ([`crate::usd::points_layer`]).
+///
+/// # Errors
+/// As [`crate::usd::points_layer`].
+pub fn layer_text(answers: &PointAnswers) -> Result<String> {
+    let samples: Vec<(f64, Vec<f32>)> = answers
+        .frames
+        .iter()
+        .map(|f| (f.frame, f.transmittance.iter().map(|&v| v as f32).collect()))
+        .collect();
+    crate::usd::points_layer(&answers.prim, &answers.light_name, &samples)
+}
