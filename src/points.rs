@@ -98,6 +98,8 @@ pub fn point_transmittance(
         };
         let mut so = scene.clone();
         so.stage.time = Some(t);
+        // Toward the light: only the volumes its shadow link includes.
+        so.stage.light = Some(l.prim.clone());
         let sc = crate::scene::load(stage, &so)?;
         if sc.channels() != 1 {
             return Err(Error::Stage {

@@ -487,13 +487,15 @@ impl BakeOptions {
         Ok((estimator, options))
     }
 
-    /// What a USD stage input is read at: `frame`, `volume`, `field`.
+    /// What a USD stage input is read at: `frame`, `volume`, `field`, and `light`, whose
+    /// shadow link picks the volumes.
     #[must_use]
     pub fn stage_selection(&self) -> crate::usd::Selection {
         crate::usd::Selection {
             time: self.frame,
             volumes: self.volume.clone().unwrap_or_default(),
             field: self.field.clone().unwrap_or_else(|| "density".into()),
+            light: self.light.clone(),
         }
     }
 
@@ -801,8 +803,10 @@ impl BakeRequest {
             return Ok(None);
         }
         let shot = crate::usd::lights_at(&self.input, o.frame)?;
-        let (_, emitter) = shot.light(o.light.as_deref())?;
+        let (light, emitter) = shot.light(o.light.as_deref())?;
         let mut options = o.clone();
+        // The light by its path: the scene is read toward it (its shadow link).
+        options.light = Some(light.prim.clone());
         let dir = match emitter {
             crate::usd::Emitter::Directional { dir } => {
                 options.light_dir = Some(dir);

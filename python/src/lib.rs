@@ -808,9 +808,10 @@ impl NativeVolume {
         )
     }
 
-    /// Load the volumes of the USD stage `path` at time code `time` (default: its start).
+    /// Load the volumes of the USD stage `path` at time code `time` (default: its start);
+    /// toward `light`, only those its shadow link includes.
     #[staticmethod]
-    #[pyo3(signature = (path, time, volumes, field, density_scale, interp, xform))]
+    #[pyo3(signature = (path, time, volumes, field, density_scale, interp, xform, light=None))]
     #[allow(clippy::too_many_arguments)]
     fn open_stage(
         py: Python<'_>,
@@ -821,6 +822,7 @@ impl NativeVolume {
         density_scale: f64,
         interp: &str,
         xform: Option<Vec<f64>>,
+        light: Option<String>,
     ) -> PyResult<Self> {
         if !umbra::usd::is_stage(&path) {
             return Err(arg(
@@ -835,6 +837,7 @@ impl NativeVolume {
             time,
             volumes,
             field,
+            light,
         };
         Self::load(
             py,
@@ -1190,7 +1193,8 @@ fn deep_json(d: &umbra::bake::DeepStats) -> serde_json::Value {
 /// as `umbra bake INPUT -o OUTPUT --flags` runs it. Returns the summary as JSON text (a map's
 /// camera dict with `deep` for a deep map; a transmittance volume's stats) and the warnings.
 /// The lights of the USD stage `path` at `time` as JSON: `{"time", "up", "lights": [{"prim",
-/// "name", "type", "kind", "dir" | "pos"}]}` (`kind` null for a type umbra does not trace).
+/// "name", "type", "kind", "dir" | "pos", "shadow_enable", "linked"}]}` (`kind` null for a
+/// type umbra does not trace; `linked`: the volumes its shadow link includes).
 #[pyfunction]
 #[pyo3(signature = (path, time))]
 fn usd_lights_json(py: Python<'_>, path: PathBuf, time: Option<f64>) -> PyResult<String> {
@@ -1203,6 +1207,7 @@ fn usd_lights_json(py: Python<'_>, path: PathBuf, time: Option<f64>) -> PyResult
         .map(|l| {
             let mut o = serde_json::json!({
                 "prim": l.prim, "name": l.name(), "type": l.type_name, "kind": null,
+                "shadow_enable": l.shadow.enabled, "linked": l.shadow.linked,
             });
             match l.emitter {
                 Some(umbra::usd::Emitter::Directional { dir }) => {

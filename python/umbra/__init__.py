@@ -725,10 +725,12 @@ def bake(
 
 def usd_lights(path: PathLike, time: Optional[float] = None) -> Dict[str, Any]:
     """The UsdLux lights of a USD stage at time code ``time`` (default: its start), as umbra
-    reads them: ``{"time", "up", "lights": [{"prim", "name", "type", "kind", "dir" | "pos"}]}``.
-    A ``DistantLight`` is ``kind="directional"`` with the unit direction it travels (its world
-    -Z); a sphere, disk, rect or cylinder light is ``kind="point"`` at its world origin; other
-    types have ``kind=None``. ``up`` is the stage's up axis."""
+    reads them: ``{"time", "up", "lights": [{"prim", "name", "type", "kind", "dir" | "pos",
+    "shadow_enable", "linked"}]}``. A ``DistantLight`` is ``kind="directional"`` with the unit
+    direction it travels (its world -Z); a sphere, disk, rect or cylinder light is
+    ``kind="point"`` at its world origin; other types have ``kind=None``. ``shadow_enable`` is
+    its ``inputs:shadow:enable``, ``linked`` the visible volumes its ``collection:shadowLink``
+    includes. ``up`` is the stage's up axis."""
     t = None if time is None else float(time)
     return json.loads(_umbra.usd_lights_json(_path("path", path), t))
 
@@ -892,17 +894,20 @@ class Volume:
         density_scale: float = 1.0,
         interp: str = "trilinear",
         xform: Any = None,
+        light: Optional[str] = None,
     ) -> "Volume":
         """The volumes of a USD stage (``.usd``, ``.usda``, ``.usdc``, ``.usdz``) at time code
         ``time`` (default: the stage's start): every active, visible ``Volume`` prim, or the
         prim paths in ``volumes``; each one's ``field:<field>`` OpenVDB asset placed by the
-        prim's world transform at that time. The same scene ``umbra bake STAGE --frame T``
-        traces."""
+        prim's world transform at that time. With ``light`` (a light prim path or name), only
+        the volumes its ``collection:shadowLink`` includes (a light with
+        ``inputs:shadow:enable = false`` is refused). The same scene ``umbra bake STAGE
+        --frame T --light LIGHT`` traces."""
         self = cls.__new__(cls)
         vols = [] if volumes is None else [str(v) for v in volumes]
         t = None if time is None else float(time)
         args = (_path("path", path), t, vols, str(field), float(density_scale), str(interp),
-                _xform(xform))
+                _xform(xform), None if light is None else str(light))
         self._v = _umbra.Volume.open_stage(*args)
         self._args = ("usd", *args)
         _warn(self._v.warnings)

@@ -188,6 +188,7 @@ class Volume:
         density_scale: float = 1.0,
         interp: Literal["trilinear", "nearest"] = "trilinear",
         xform: Optional[npt.ArrayLike] = None,
+        light: Optional[str] = None,
     ) -> "Volume": ...
     @property
     def path(self) -> str: ...

@@ -43,58 +43,77 @@ impl Job {
         let mut shared = std::collections::BTreeMap::new();
         let sequences = self.tasks.last().map_or(0, |t| t.sequence + 1);
         for sequence in 0..sequences {
+            // Tasks that bake nothing (a light without shadows) frame nothing.
             let tasks: Vec<&Task> = self
                 .tasks
                 .iter()
-                .filter(|t| t.sequence == sequence)
+                .filter(|t| t.sequence == sequence && self.shadowless(t).is_none())
                 .collect();
-            // A USD stage is one input read at every frame of the sequence.
-            let mut inputs: Vec<(&Path, Option<f64>)> = tasks
-                .iter()
-                .map(|t| (t.input.as_path(), t.time()))
-                .collect();
-            inputs.dedup();
-            let mut union = Vec::new();
-            for (input, time) in inputs {
-                // Every task of a sequence reads its files as its [[inputs]] entry says.
-                let mut opts = self.scene_options(tasks[0]);
-                opts.stage.time = time;
-                match crate::scene::read_box_corners(input, &opts) {
-                    Ok(c) => union.extend(c),
-                    // A missing file or grid, or a malformed scene, fails the job before any
-                    // task runs.
-                    Err(
-                        e @ (crate::Error::Io { .. }
-                        | crate::Error::GridNotFound { .. }
-                        | crate::Error::Scene { .. }),
-                    ) => return Err(e.into()),
-                    // A corrupt or unsupported frame adds nothing here and fails alone.
-                    Err(_) => {}
+            let mut lights: Vec<&str> = tasks.iter().map(|t| t.light.as_str()).collect();
+            lights.sort_unstable();
+            lights.dedup();
+            // Each stage light frames the volumes its shadow link includes; the others share
+            // one union of every volume.
+            let mut unions = std::collections::BTreeMap::new();
+            for light in lights {
+                let mine: Vec<&Task> = tasks.iter().copied().filter(|t| t.light == light).collect();
+                let key = mine.first().and_then(|t| t.usd_light.clone());
+                if !unions.contains_key(&key) {
+                    unions.insert(key.clone(), self.sequence_corners(&mine)?);
                 }
-            }
-            if union.is_empty() {
-                continue; // nothing to frame anywhere: each task reports it
-            }
-            for &t in &tasks {
-                if let std::collections::btree_map::Entry::Vacant(e) =
-                    shared.entry((sequence, t.light.clone()))
-                {
-                    let view = self.bake_job(t, 0)?.view;
-                    self.steady_light(t, &tasks)?;
-                    let camera = Camera::frame(&view, &union).map_err(|e| {
-                        err(
-                            &self.path,
-                            &format!("lights '{}'", t.light),
-                            format!("cannot frame the shared camera of inputs[{sequence}]: {e}"),
-                        )
-                    })?;
-                    e.insert(camera);
+                let union = unions.get(&key).map_or(&[][..], Vec::as_slice);
+                if union.is_empty() {
+                    continue; // nothing to frame anywhere: each task reports it
                 }
+                let t = mine[0];
+                let view = self.bake_job(t, 0)?.view;
+                self.steady_light(t, &mine)?;
+                let camera = Camera::frame(&view, union).map_err(|e| {
+                    err(
+                        &self.path,
+                        &format!("lights '{}'", t.light),
+                        format!("cannot frame the shared camera of inputs[{sequence}]: {e}"),
+                    )
+                })?;
+                shared.insert((sequence, t.light.clone()), camera);
             }
         }
         // A second call finds the same cameras (same files), so a set map stays.
         let _ = self.shared.set(shared);
         Ok(())
+    }
+
+    /// The corners of the volume boxes of every input of `tasks` (one sequence, one light),
+    /// read as the first task reads its input (toward its light).
+    fn sequence_corners(&self, tasks: &[&Task]) -> Result<Vec<glam::DVec3>, BatchError> {
+        let Some(first) = tasks.first() else {
+            return Ok(Vec::new());
+        };
+        // A USD stage is one input read at every frame of the sequence.
+        let mut inputs: Vec<(&Path, Option<f64>)> = tasks
+            .iter()
+            .map(|t| (t.input.as_path(), t.time()))
+            .collect();
+        inputs.dedup();
+        let mut union = Vec::new();
+        for (input, time) in inputs {
+            // Every task of a sequence reads its files as its [[inputs]] entry says.
+            let mut opts = self.scene_options(first);
+            opts.stage.time = time;
+            match crate::scene::read_box_corners(input, &opts) {
+                Ok(c) => union.extend(c),
+                // A missing file or grid, or a malformed scene, fails the job before any
+                // task runs.
+                Err(
+                    e @ (crate::Error::Io { .. }
+                    | crate::Error::GridNotFound { .. }
+                    | crate::Error::Scene { .. }),
+                ) => return Err(e.into()),
+                // A corrupt or unsupported frame adds nothing here and fails alone.
+                Err(_) => {}
+            }
+        }
+        Ok(union)
     }
 
     /// A shared camera is one projection: a stage light that moves or turns over the sequence

@@ -21,6 +21,10 @@ pub(super) fn write(job: &Job, layer: &Path) -> Result<usize, BatchError> {
         let Some(name) = t.usd_light.as_deref().filter(|_| t.output.is_file()) else {
             continue;
         };
+        // A map left from before the light's shadows were turned off is not its map now.
+        if job.shadowless(t).is_some() {
+            continue;
+        }
         let shot = crate::usd::lights_at(&t.input, t.time())?;
         let (light, _) = shot.light(Some(name))?;
         let camera = crate::bake::read_camera(&t.output, None)?;

@@ -233,6 +233,10 @@ pub struct Record {
     pub rays_per_second: f64,
     /// Error message of a failed task.
     pub error: Option<String>,
+    /// Why a task skipped without being up to date bakes nothing: its stage light casts no
+    /// shadows ([`Job::shadowless`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
     /// Warnings of a finished task (bad voxels, capped samples, majorant violations).
     pub warnings: Vec<String>,
 }
@@ -400,6 +404,46 @@ impl Job {
         Ok(())
     }
 
+    /// Why `task` bakes nothing: its stage light casts no shadows at the task's frame
+    /// (`inputs:shadow:enable = false`), or its `collection:shadowLink` includes none of the
+    /// volumes the job reads. Such a task is skipped, not missing: a run logs it as skipped,
+    /// `--plan` and `--status` list it as skipped. `None`: the task bakes (a stage that cannot
+    /// be read is left to the task, which fails on its own).
+    #[must_use]
+    pub fn shadowless(&self, task: &Task) -> Option<String> {
+        let name = task.usd_light.as_deref()?;
+        let shot = crate::usd::lights_at(&task.input, task.time()).ok()?;
+        let l = shot
+            .lights
+            .iter()
+            .find(|l| l.prim == name || l.name() == name)?;
+        if l.shadow.unreadable.is_some() {
+            return None; // the task fails, saying why
+        }
+        if !l.shadow.enabled {
+            return Some(format!(
+                "{}: inputs:shadow:enable is false (the light casts no shadows)",
+                l.prim
+            ));
+        }
+        let wanted = self.options.volume.as_deref();
+        let read = |v: &&String| wanted.is_none_or(|w| w.contains(v));
+        let any = l
+            .shadow
+            .linked
+            .iter()
+            .chain(&l.shadow.unlinked)
+            .any(|v| read(&v));
+        if any && !l.shadow.linked.iter().any(|v| read(&v)) {
+            return Some(format!(
+                "{}: its collection:shadowLink includes none of the volumes (nothing casts its \
+                 shadows)",
+                l.prim
+            ));
+        }
+        None
+    }
+
     /// How `task` reads its input (grid, scale, colour, transform, level sets).
     #[must_use]
     pub fn scene_options(&self, task: &Task) -> crate::scene::SceneOptions {
@@ -414,25 +458,35 @@ impl Job {
             // Checked when the job was parsed.
             xform,
             levelset_solid: task.levelset == Some(crate::request::LevelSet::Solid),
-            stage: self.options.stage_selection(),
+            // Toward the task's stage light: only the volumes its shadow link includes.
+            stage: crate::usd::Selection {
+                light: task.usd_light.clone(),
+                ..self.options.stage_selection()
+            },
         }
     }
 
     /// Check every task as a run would before it bakes anything: every input holds its
     /// task's grid ([`Job::check_inputs`]) and every task's request plans
-    /// ([`BakeRequest::plan`]). What `--plan` runs.
+    /// ([`BakeRequest::plan`]), but those that bake nothing ([`Job::shadowless`]), which it
+    /// returns with the reason. What `--plan` runs.
     ///
     /// # Errors
     /// As [`Job::check_inputs`]; [`BatchError::Invalid`] naming the first task whose request
     /// cannot be planned (key `tasks[I]`) and why.
-    pub fn check_tasks(&self) -> Result<(), BatchError> {
+    pub fn check_tasks(&self) -> Result<Vec<(usize, String)>, BatchError> {
         self.check_inputs()?;
+        let mut skipped = Vec::new();
         for task in &self.tasks {
+            if let Some(why) = self.shadowless(task) {
+                skipped.push((task.index, why));
+                continue;
+            }
             self.request(task, 0)
                 .plan()
                 .map_err(|e| schema::err(&self.path, &format!("tasks[{}]", task.index), e))?;
         }
-        Ok(())
+        Ok(skipped)
     }
 
     /// Bake one task through the shared pipeline ([`BakeJob::run`]) and write its outputs

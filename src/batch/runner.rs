@@ -56,6 +56,8 @@ pub struct RunReport {
     pub baked: usize,
     /// Tasks skipped as up to date.
     pub skipped: usize,
+    /// Tasks skipped because their stage light casts no shadows ([`Job::shadowless`]).
+    pub shadowless: usize,
     /// Tasks that failed.
     pub failed: usize,
     /// Wall time of the run, seconds.
@@ -131,8 +133,14 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             format!("no directory {} (create it first)", d.display()),
         ));
     }
+    // Tasks toward a light without shadows bake nothing, forced or not.
+    let shadowless: Vec<(&Task, String)> = selected
+        .iter()
+        .filter_map(|t| job.shadowless(t).map(|why| (*t, why)))
+        .collect();
     let (todo, skipped): (Vec<&Task>, Vec<&Task>) = selected
         .iter()
+        .filter(|t| !shadowless.iter().any(|(s, _)| s.index == t.index))
         .partition(|t| opts.force || !job.up_to_date(t));
     if !todo.is_empty() {
         // Missing frames and grids fail the job up front; then one camera per light over every
@@ -180,6 +188,12 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     };
     for t in &skipped {
         keep(record(t, "skipped", 0.0, 0.0, None));
+    }
+    for (t, why) in &shadowless {
+        keep(Record {
+            reason: Some(why.clone()),
+            ..record(t, "skipped", 0.0, 0.0, None)
+        });
     }
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
     let workers = if opts.jobs == 0 { cores } else { opts.jobs }
@@ -254,6 +268,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         selected: selected.len(),
         baked: todo.len() - failed,
         skipped: skipped.len(),
+        shadowless: shadowless.len(),
         failed,
         seconds: start.elapsed().as_secs_f64(),
         workers,
@@ -288,6 +303,7 @@ fn record(
         seconds,
         rays_per_second,
         error,
+        reason: None,
         warnings: Vec::new(),
     }
 }

@@ -1,7 +1,9 @@
 //! Where a job stands (`umbra batch JOB --status`): every task done, failed or not yet run,
 //! from the outputs on disk and the runs' logs.
 //!
-//! A task is **done** when its output exists and is up to date ([`Job::up_to_date`]: not older
+//! A task toward a stage light without shadows is **skipped** ([`Job::shadowless`]: it bakes
+//! nothing). Any other task is **done** when its output exists and is up to date
+//! ([`Job::up_to_date`]: not older
 //! than any file it reads), whichever run, shard or machine baked it; else **failed** when a log
 //! records it failing (the last such record's error); else **missing**. Logs are JSON lines;
 //! a line a killed run left half-written is ignored.
@@ -21,7 +23,7 @@ pub struct TaskState {
     pub light: String,
     /// Output file.
     pub output: PathBuf,
-    /// The failure's message (failed tasks).
+    /// The failure's message (failed tasks), or why a skipped task bakes nothing.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
 }
@@ -35,10 +37,12 @@ pub struct Status {
     pub failed: Vec<TaskState>,
     /// Tasks not yet run (or whose output went stale).
     pub missing: Vec<TaskState>,
+    /// Tasks that bake nothing: their stage light casts no shadows (`error` says why).
+    pub skipped: Vec<TaskState>,
 }
 
 impl Status {
-    /// Whether every task is done.
+    /// Whether every task is done (or skipped: it bakes nothing).
     #[must_use]
     pub fn complete(&self) -> bool {
         self.failed.is_empty() && self.missing.is_empty()
@@ -90,7 +94,9 @@ pub fn status(job: &Job, logs: &[PathBuf]) -> Status {
     };
     let mut s = Status::default();
     for t in &job.tasks {
-        if job.up_to_date(t) {
+        if let Some(why) = job.shadowless(t) {
+            s.skipped.push(state(t, Some(why)));
+        } else if job.up_to_date(t) {
             s.done.push(state(t, None));
         } else if let Some(e) = failed.get(&t.index) {
             s.failed.push(state(t, Some(e.clone())));

@@ -20,6 +20,11 @@
 //!   (`d = -(M_20, M_21, M_22)`, the third row of `M`, normalised); a `SphereLight`,
 //!   `DiskLight`, `RectLight` or `CylinderLight` is a point light at its world origin
 //!   (`(M_30, M_31, M_32)`). Other light types are listed but refused by name when chosen.
+//! - **Shadows**: each light's `inputs:shadow:enable` and the membership of its
+//!   `collection:shadowLink` ([`Link`], USD's `CollectionAPI` rules; everything when
+//!   unauthored), on [`StageLight::shadow`]. A read toward a light ([`Selection::light`])
+//!   keeps only the volumes its link includes and refuses a light with shadows off, so every
+//!   product that loads the scene toward a light honours both.
 //! - **Up**: the stage's `upAxis` (`Y` when unauthored), a map's default up.
 //!
 //! Nothing here decodes a voxel: [`Shot`] says which grid of which file goes where, and the
@@ -27,6 +32,7 @@
 
 #[cfg(feature = "usd")]
 mod clips;
+mod link;
 #[cfg(feature = "usd")]
 mod read;
 
@@ -34,6 +40,7 @@ use crate::error::{Error, Result};
 use crate::xform::Xform;
 use std::path::{Path, PathBuf};
 
+pub use link::{Link, Rule};
 #[cfg(feature = "usd")]
 pub use read::{lights_at, points_at, points_layer, read, shadow_layer};
 
@@ -98,6 +105,11 @@ pub struct Selection {
     pub volumes: Vec<String>,
     /// The field relationship to follow (`field:<name>`; `--field`, default `density`).
     pub field: String,
+    /// The light the volumes are read toward (a prim path, or a name as [`Shot::light`]
+    /// takes it): only the volumes its `collection:shadowLink` includes are read, and a light
+    /// whose shadows are off (`inputs:shadow:enable = false`) is refused. `None`: every
+    /// selected volume (a bake toward light-dir / light-pos, a listing).
+    pub light: Option<String>,
 }
 
 impl Default for Selection {
@@ -106,6 +118,7 @@ impl Default for Selection {
             time: None,
             volumes: Vec::new(),
             field: "density".into(),
+            light: None,
         }
     }
 }
@@ -271,6 +284,37 @@ pub struct StageLight {
     /// How umbra traces it; `None` for a type umbra does not trace (a dome, a portal, a
     /// geometry light).
     pub emitter: Option<Emitter>,
+    /// Its shadow controls (UsdLux `ShadowAPI`, `LightAPI`).
+    pub shadow: Shadow,
+}
+
+/// A light's shadow controls, at the time code read.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shadow {
+    /// `inputs:shadow:enable` (`true` when unauthored): `false`, the light casts no shadows
+    /// and umbra bakes nothing toward it.
+    pub enabled: bool,
+    /// The membership of its `collection:shadowLink` ([`Link`]; every prim when unauthored).
+    pub link: Link,
+    /// The stage's active, visible `Volume` prims the link includes, in stage order.
+    pub linked: Vec<String>,
+    /// Those it leaves out.
+    pub unlinked: Vec<String>,
+    /// Why the controls could not be read (a path-expression collection, a bad value): the
+    /// light is refused with this when it is chosen; the stage's other lights still read.
+    pub unreadable: Option<String>,
+}
+
+impl Default for Shadow {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            link: Link::everything(),
+            linked: Vec::new(),
+            unlinked: Vec::new(),
+            unreadable: None,
+        }
+    }
 }
 
 impl StageLight {
@@ -303,7 +347,7 @@ impl Shot {
     /// # Errors
     /// [`Error::InvalidArgument`] (name `light`) when no light, several lights (listing them)
     /// or an unknown name is found; [`Error::Stage`] when the light's type is not one umbra
-    /// traces.
+    /// traces or its shadows are off (`inputs:shadow:enable = false`).
     pub fn light(&self, name: Option<&str>) -> Result<(&StageLight, Emitter)> {
         let listed = || {
             if self.lights.is_empty() {
@@ -360,6 +404,19 @@ impl Shot {
                 }
             },
         };
+        if let Some(reason) = &chosen.shadow.unreadable {
+            return Err(Error::Stage {
+                path: self.path.clone(),
+                reason: reason.clone(),
+            });
+        }
+        if !chosen.shadow.enabled {
+            return Err(self.err(format!(
+                "{}: inputs:shadow:enable is false: the light casts no shadows, so there is no \
+                 transmittance toward it to bake or query",
+                chosen.prim
+            )));
+        }
         match chosen.emitter {
             Some(e) => Ok((chosen, e)),
             None => Err(self.err(format!(
@@ -368,6 +425,28 @@ impl Shot {
                 chosen.prim, chosen.type_name
             ))),
         }
+    }
+
+    /// The volumes of `names` the shadow link of the light `light` includes (as
+    /// [`Shot::light`] names it), in their order: what a bake or query toward that light reads.
+    ///
+    /// # Errors
+    /// As [`Shot::light`] (an unknown light, one umbra does not trace, one whose shadows are
+    /// off); [`Error::Stage`] when the link includes none of `names`: nothing casts the light's
+    /// shadows, its transmittance is 1 everywhere, and umbra makes no map of it.
+    pub fn linked(&self, light: &str, names: Vec<String>) -> Result<Vec<String>> {
+        let (l, _) = self.light(Some(light))?;
+        let (kept, left): (Vec<String>, Vec<String>) =
+            names.into_iter().partition(|v| l.shadow.link.includes(v));
+        if kept.is_empty() {
+            return Err(self.err(format!(
+                "{}: its collection:shadowLink includes none of the volumes ({}): nothing casts \
+                 its shadows (T = 1 everywhere), so there is nothing to bake or query",
+                l.prim,
+                left.join(", ")
+            )));
+        }
+        Ok(kept)
     }
 
     /// The shot's one volume, for a product made from one density grid.

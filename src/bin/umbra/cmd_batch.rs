@@ -178,12 +178,24 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     let job = load_job(path)?;
     if a.plan {
         // Every task checked as the run would check it: an unrunnable job fails here.
-        job.check_tasks()?;
+        let skipped = job.check_tasks()?;
         let exe = std::env::current_exe()
             .map(|p| p.display().to_string())
             .unwrap_or_else(|_| "umbra".into());
         let mut out = std::io::stdout().lock();
         for t in &job.tasks {
+            // A task that bakes nothing is listed as a shell comment.
+            if let Some((_, why)) = skipped.iter().find(|(i, _)| *i == t.index) {
+                writeln!(
+                    out,
+                    "# skipped task {} ({}, light {}): {}",
+                    t.index,
+                    t.input.display(),
+                    t.light,
+                    umbra::text::escape(why)
+                )?;
+                continue;
+            }
             writeln!(
                 out,
                 "{} batch {} --task {}",
@@ -234,8 +246,13 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
             ExitCode::SUCCESS
         });
     }
+    let shadowless = if report.shadowless > 0 {
+        format!(", {} skipped (no shadows)", report.shadowless)
+    } else {
+        String::new()
+    };
     println!(
-        "umbra batch: {} tasks: {} baked, {} skipped (up to date), {} failed in {:.2} s on {} workers x {} threads; log {}",
+        "umbra batch: {} tasks: {} baked, {} skipped (up to date){shadowless}, {} failed in {:.2} s on {} workers x {} threads; log {}",
         report.selected,
         report.baked,
         report.skipped,
@@ -326,14 +343,29 @@ fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
         serde_json::to_writer_pretty(&mut out, &s)?;
         writeln!(out)?;
     } else {
+        let skipped = if s.skipped.is_empty() {
+            String::new()
+        } else {
+            format!(", {} skipped (no shadows)", s.skipped.len())
+        };
         writeln!(
             out,
-            "umbra batch: {} tasks: {} done, {} failed, {} not yet run",
+            "umbra batch: {} tasks: {} done, {} failed, {} not yet run{skipped}",
             job.tasks.len(),
             s.done.len(),
             s.failed.len(),
             s.missing.len()
         )?;
+        for t in &s.skipped {
+            writeln!(
+                out,
+                "skipped task {} ({}, light {}): {}",
+                t.task,
+                t.input.display(),
+                t.light,
+                umbra::text::escape(t.error.as_deref().unwrap_or(""))
+            )?;
+        }
         for t in &s.failed {
             writeln!(
                 out,

@@ -130,6 +130,9 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         _ => None,
     };
     a.stage.check(&a.file)?;
+    // The stage light the query is toward (named, or the stage's only one): the scene holds
+    // only the volumes its shadow link includes.
+    let mut toward = a.stage.light.clone();
     let light = match (a.light_dir, a.light_pos) {
         (Some(_), Some(_)) => bail!("give --light-dir or --light-pos, not both"),
         (Some(_), None) | (None, Some(_)) if a.stage.light.is_some() => {
@@ -138,7 +141,9 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         (Some(dir), None) => Some(Light::Directional { dir }),
         (None, Some(pos)) => Some(Light::Point { pos }),
         (None, None) if a.at.is_some() && umbra::usd::is_stage(&a.file) => {
-            Some(a.stage.light_of(&a.file)?)
+            let (l, prim) = a.stage.light_of(&a.file)?;
+            toward = Some(prim);
+            Some(l)
         }
         (None, None) => None,
     };
@@ -168,7 +173,10 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         sigma_t: a.trace.sigma_t,
         xform: a.xform,
         levelset_solid: a.trace.levelset.is_some(),
-        stage: a.stage.selection(),
+        stage: umbra::usd::Selection {
+            light: toward,
+            ..a.stage.selection()
+        },
     };
     let pool = thread_pool(a.threads)?;
     // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray

@@ -314,17 +314,20 @@ impl StageArgs {
             time: self.frame,
             volumes: self.volume.clone(),
             field: self.field.clone().unwrap_or_else(|| "density".into()),
+            light: None,
         }
     }
 
-    /// The stage light `--light` names (or the stage's only light), as umbra traces it.
-    pub fn light_of(&self, file: &Path) -> Result<umbra::Light> {
+    /// The stage light `--light` names (or the stage's only light), as umbra traces it, and
+    /// its prim path (the scene is read toward it: its shadow link).
+    pub fn light_of(&self, file: &Path) -> Result<(umbra::Light, String)> {
         let shot = umbra::usd::lights_at(file, self.frame)?;
-        let (_, e) = shot.light(self.light.as_deref())?;
-        Ok(match e {
+        let (l, e) = shot.light(self.light.as_deref())?;
+        let light = match e {
             umbra::usd::Emitter::Directional { dir } => umbra::Light::Directional { dir },
             umbra::usd::Emitter::Point { pos } => umbra::Light::Point { pos },
-        })
+        };
+        Ok((light, l.prim.clone()))
     }
 }
 

@@ -1,6 +1,6 @@
 //! `umbra info SHOT.usd`: what umbra reads of a USD stage at a time code: its volumes (prim,
 //! asset, grid, placement, options, and the grid's own one-line report) and its lights (type,
-//! and how umbra traces them).
+//! how umbra traces them, shadow enable and which volumes their shadow link includes).
 
 use anyhow::{bail, Context, Result};
 use serde_json::{json, Value};
@@ -50,7 +50,52 @@ fn light(l: &StageLight) -> Value {
         Some(Emitter::Point { pos }) => json!({ "point": pos }),
         None => Value::Null,
     };
-    json!({ "prim": l.prim, "type": l.type_name, "traced": traced })
+    let rules: serde_json::Map<String, Value> = l
+        .shadow
+        .link
+        .rules
+        .iter()
+        .map(|(p, r)| (p.clone(), json!(r.token())))
+        .collect();
+    json!({
+        "prim": l.prim,
+        "type": l.type_name,
+        "traced": traced,
+        "shadow": {
+            "enable": l.shadow.enabled,
+            "linked": l.shadow.linked,
+            "unlinked": l.shadow.unlinked,
+            "link": rules,
+            "error": l.shadow.unreadable,
+        },
+    })
+}
+
+/// A light's shadow line: off, or the volumes its shadow link includes and leaves out.
+fn shadow_line(s: &Value) -> String {
+    if let Some(e) = s["error"].as_str() {
+        return format!("shadow controls unreadable: {}", umbra::text::escape(e));
+    }
+    if s["enable"].as_bool() == Some(false) {
+        return "shadows off (inputs:shadow:enable = false)".into();
+    }
+    let list = |v: &Value| -> Vec<String> {
+        v.as_array()
+            .map_or(Vec::new(), |a| a.iter().map(text).collect())
+    };
+    let (linked, unlinked) = (list(&s["linked"]), list(&s["unlinked"]));
+    let mut line = format!(
+        "shadow link: {}",
+        if linked.is_empty() {
+            "no volume".to_string()
+        } else {
+            linked.join(", ")
+        }
+    );
+    if !unlinked.is_empty() {
+        line += &format!(" (leaves out {})", unlinked.join(", "));
+    }
+    line
 }
 
 /// Print the stage's report (text, or JSON with `json`).
@@ -114,6 +159,7 @@ pub fn print(file: &Path, stage: &crate::common::StageArgs, json: bool) -> Resul
             text(&l["prim"]),
             text(&l["type"])
         )?;
+        writeln!(out, "    {}", shadow_line(&l["shadow"]))?;
     }
     Ok(())
 }
