@@ -58,11 +58,13 @@ mod cameras;
 pub mod emit;
 mod layer;
 mod patterns;
+mod positions;
 mod runner;
 mod schema;
 mod status;
 pub use patterns::{expand_pattern, fill_output, MAX_FRAMES, MAX_FRAME_PAD};
-pub use runner::{run, Progress, RunOptions, RunReport, Silent, UsdOut};
+pub use positions::{PositionsSpec, PositionsTask};
+pub use runner::{run, PointsOut, Progress, RunOptions, RunReport, Silent, UsdOut};
 #[cfg(feature = "schema")]
 pub use schema::job_schema;
 pub use schema::{parse_job, InputSpec, JobFile, LightSpec};
@@ -138,8 +140,10 @@ pub struct Job {
     pub grid: String,
     /// JSON-lines log path.
     pub log: PathBuf,
-    /// Tasks in order.
+    /// Bake tasks in order.
     pub tasks: Vec<Task>,
+    /// `[[positions]]` tasks (one per frame), numbered after the bake tasks.
+    pub positions: Vec<PositionsTask>,
     /// The `[bake]` options every task shares, checked: the grid, the lights, the camera, the
     /// preview pattern and the framing are moved out into the job and its tasks.
     pub options: BakeOptions,
@@ -427,6 +431,7 @@ impl Job {
     /// cannot be planned (key `tasks[I]`) and why.
     pub fn check_tasks(&self) -> Result<(), BatchError> {
         self.check_inputs()?;
+        self.check_positions()?;
         for task in &self.tasks {
             self.request(task, 0)
                 .plan()

@@ -9,7 +9,7 @@
 //! remaining tasks in index order, each with `cores / workers` threads of its own. A failed task
 //! is logged with its error and the others go on.
 
-use super::{in_shard, valid_shard, BatchError, Job, Record, Task};
+use super::{in_shard, valid_shard, BatchError, Job, PositionsTask, Record, Task};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -68,6 +68,9 @@ pub struct RunReport {
     pub log: PathBuf,
     /// The job's USD layer (`bake.usd_out`), rewritten after the run.
     pub usd_out: Option<UsdOut>,
+    /// Each `[[positions]]` entry's layer, rebuilt after the run from the per-frame files on
+    /// disk.
+    pub points_out: Vec<PointsOut>,
     /// Every selected task's record, in task order.
     pub records: Vec<Record>,
 }
@@ -95,11 +98,10 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             format!("{i}/{n}: give I/N with 1 <= I <= N"),
         ));
     }
-    let selected: Vec<&Task> = match (opts.task, opts.shard) {
-        (Some((first, last)), _) => match job.tasks.get(first..=last) {
-            Some(tasks) if first <= last => tasks.iter().collect(),
-            _ => {
-                let n = job.tasks.len();
+    let n = job.task_count();
+    let keep_index: Box<dyn Fn(usize) -> bool> = match (opts.task, opts.shard) {
+        (Some((first, last)), _) => {
+            if first > last || last >= n {
                 let which = if first == last {
                     format!("{first}")
                 } else {
@@ -113,10 +115,17 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
                     ),
                 ));
             }
-        },
-        (None, Some(s)) => job.tasks.iter().filter(|t| in_shard(t.index, s)).collect(),
-        (None, None) => job.tasks.iter().collect(),
+            Box::new(move |i| (first..=last).contains(&i))
+        }
+        (None, Some(s)) => Box::new(move |i| in_shard(i, s)),
+        (None, None) => Box::new(|_| true),
     };
+    let selected: Vec<&Task> = job.tasks.iter().filter(|t| keep_index(t.index)).collect();
+    let points: Vec<&PositionsTask> = job
+        .positions
+        .iter()
+        .filter(|t| keep_index(t.index))
+        .collect();
     let log_path = opts.log.clone().unwrap_or_else(|| job.log.clone());
     // An explicit log goes into an existing directory (a typo must not create /nonexistent);
     // the job's own log sits beside its outputs, whose directories the job creates.
@@ -134,6 +143,12 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     let (todo, skipped): (Vec<&Task>, Vec<&Task>) = selected
         .iter()
         .partition(|t| opts.force || !job.up_to_date(t));
+    let (points_todo, points_skipped): (Vec<&PositionsTask>, Vec<&PositionsTask>) = points
+        .iter()
+        .partition(|t| opts.force || !job.positions_up_to_date(t));
+    if !points_todo.is_empty() {
+        job.check_positions()?;
+    }
     if !todo.is_empty() {
         // Missing frames and grids fail the job up front; then one camera per light over every
         // input (not just this shard's), so shards agree. Both before anything is created.
@@ -181,6 +196,9 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     for t in &skipped {
         keep(record(t, "skipped", 0.0, 0.0, None));
     }
+    for t in &points_skipped {
+        keep(points_record(t, "skipped", 0.0, 0.0, None));
+    }
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
     let workers = if opts.jobs == 0 { cores } else { opts.jobs }
         .min(todo.len())
@@ -189,8 +207,8 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     // With a fixed resolution progress counts pixels (it moves during long bakes), else tasks.
     let pixels = job.pixels_hint();
     progress.start(
-        todo.len(),
-        pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64),
+        todo.len() + points_todo.len(),
+        pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64) + points_todo.len() as u64,
     );
     let start = std::time::Instant::now();
     let next = AtomicUsize::new(0);
@@ -237,6 +255,22 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             });
         }
     });
+    // Positions tasks one after another, each on every core (the estimator's own pool).
+    for t in &points_todo {
+        let t0 = std::time::Instant::now();
+        let result = job.run_positions_task(t);
+        let secs = t0.elapsed().as_secs_f64();
+        let rec = match result {
+            Ok(n) => points_record(t, "ok", secs, n as f64 / secs.max(1e-9), None),
+            Err(e) => {
+                failed.fetch_add(1, Ordering::Relaxed);
+                points_record(t, "failed", secs, 0.0, Some(e.to_string()))
+            }
+        };
+        progress.task(&rec);
+        keep(rec);
+        progress.advance(1);
+    }
     if let Some(e) = log_error.into_inner().ok().flatten() {
         return Err(io(log_path.display().to_string(), e));
     }
@@ -250,18 +284,33 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         }),
         None => None,
     };
+    let points_out = job
+        .write_positions_layers()?
+        .into_iter()
+        .map(|(layer, frames)| PointsOut { layer, frames })
+        .collect();
     Ok(RunReport {
-        selected: selected.len(),
-        baked: todo.len() - failed,
-        skipped: skipped.len(),
+        selected: selected.len() + points.len(),
+        baked: todo.len() + points_todo.len() - failed,
+        skipped: skipped.len() + points_skipped.len(),
         failed,
         seconds: start.elapsed().as_secs_f64(),
         workers,
         threads_per_task: per_task,
         log: log_path,
         usd_out,
+        points_out,
         records,
     })
+}
+
+/// A `[[positions]]` layer a run wrote.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PointsOut {
+    /// The `.usda` layer.
+    pub layer: PathBuf,
+    /// Frames it holds (every per-frame file on disk).
+    pub frames: usize,
 }
 
 fn invalid(option: &str, reason: String) -> BatchError {
@@ -283,6 +332,29 @@ fn record(
         input: t.input.clone(),
         grid: t.grid.clone(),
         light: t.light.clone(),
+        output: t.output.clone(),
+        status,
+        seconds,
+        rays_per_second,
+        error,
+        warnings: Vec::new(),
+    }
+}
+
+/// The log record of a positions task: `input` is the stage, `grid` the field read, `output`
+/// the per-frame file, `rays_per_second` points per second.
+fn points_record(
+    t: &PositionsTask,
+    status: &'static str,
+    seconds: f64,
+    rays_per_second: f64,
+    error: Option<String>,
+) -> Record {
+    Record {
+        task: t.index,
+        input: t.stage.clone(),
+        grid: t.options.field.clone().unwrap_or_else(|| "density".into()),
+        light: t.light_name(),
         output: t.output.clone(),
         status,
         seconds,

@@ -18,12 +18,16 @@ pub struct JobFile {
     /// Grid to bake in every input (default `density`; or `grid` in `[bake]`).
     pub grid: Option<String>,
     /// Output path pattern: `{light}`, `{stem}`, `{frame}`, `{frame:0N}`; ending in `.vdb`,
-    /// transmittance volumes, else EXR maps.
-    pub output: String,
+    /// transmittance volumes, else EXR maps. Required with `[[inputs]]`.
+    pub output: Option<String>,
     /// JSON-lines log (default: `umbra_batch.jsonl` in the first output's directory).
     pub log: Option<String>,
-    /// Inputs, in order.
+    /// Inputs, in order (none for a job of `[[positions]]` only).
+    #[serde(default)]
     pub inputs: Vec<InputSpec>,
+    /// Per-point transmittance over a shot, one task per frame after the bakes.
+    #[serde(default)]
+    pub positions: Vec<super::positions::PositionsSpec>,
     /// Lights, in order (or one light as `light_dir` / `light_pos` in `[bake]`).
     #[serde(default)]
     pub lights: Vec<LightSpec>,
@@ -258,8 +262,22 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         return Err(err(&path, "grid", "must not be empty"));
     }
     if file.inputs.is_empty() {
-        return Err(err(&path, "inputs", "give at least one [[inputs]] entry"));
+        if file.positions.is_empty() {
+            return Err(err(
+                &path,
+                "inputs",
+                "give at least one [[inputs]] or [[positions]] entry",
+            ));
+        }
+        return super::positions::job(path, &file, grid, &resolve);
     }
+    let Some(output_pattern) = file.output.clone() else {
+        return Err(err(
+            &path,
+            "output",
+            "give an output pattern for [[inputs]]",
+        ));
+    };
     // (file, frame, index of its [[inputs]] entry)
     let mut inputs: Vec<(PathBuf, Option<i64>, usize)> = Vec::new();
     let mut reads: Vec<EntryRead> = Vec::new();
@@ -464,7 +482,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             }
         }
     }
-    if lights.len() > 1 && !file.output.contains("{light}") {
+    if lights.len() > 1 && !output_pattern.contains("{light}") {
         return Err(err(
             &path,
             "output",
@@ -479,7 +497,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
         for l in &lights {
-            let out = fill_output(&file.output, &l.name, &stem, *frame)
+            let out = fill_output(&output_pattern, &l.name, &stem, *frame)
                 .map_err(|e| err(&path, "output", e))?;
             let output = normalise(&resolve(&out));
             let preview = match &b.preview {
@@ -581,11 +599,20 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     if let Some(u) = &usd_out {
         check_usd_out(&path, u, volume, &tasks)?;
     }
+    let positions = super::positions::tasks(
+        &path,
+        &file.positions,
+        &options,
+        &grid,
+        tasks.len(),
+        &resolve,
+    )?;
     Ok(Job {
         path,
         grid,
         log,
         tasks,
+        positions,
         options,
         framing,
         camera,

@@ -183,13 +183,12 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
             .map(|p| p.display().to_string())
             .unwrap_or_else(|_| "umbra".into());
         let mut out = std::io::stdout().lock();
-        for t in &job.tasks {
+        for i in 0..job.task_count() {
             writeln!(
                 out,
-                "{} batch {} --task {}",
+                "{} batch {} --task {i}",
                 shell_quote(&exe),
                 shell_quote(&job.path.display().to_string()),
-                t.index
             )?;
         }
         return Ok(ExitCode::SUCCESS);
@@ -250,6 +249,13 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
             "umbra batch: {} maps on their stage lights in {}",
             u.maps,
             u.layer.display()
+        );
+    }
+    for p in &report.points_out {
+        println!(
+            "umbra batch: {} frames of per-point transmittance in {}",
+            p.frames,
+            p.layer.display()
         );
     }
     Ok(if report.failed > 0 {
@@ -329,7 +335,7 @@ fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
         writeln!(
             out,
             "umbra batch: {} tasks: {} done, {} failed, {} not yet run",
-            job.tasks.len(),
+            job.task_count(),
             s.done.len(),
             s.failed.len(),
             s.missing.len()
