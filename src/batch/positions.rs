@@ -9,7 +9,7 @@
 //! shards'), so the last shard to finish writes the whole layer: the same text as `umbra query
 //! STAGE --positions PRIM --frames A-B --usd-out LAYER` for those frames.
 
-use super::schema::err;
+use super::schema::{err, frame_list};
 use super::{BatchError, Job};
 use crate::request::BakeOptions;
 use serde::{Deserialize, Serialize};
@@ -151,21 +151,7 @@ pub(super) fn tasks(
         }
         let options = entry_options(path, &key, s, b, grid)?;
         let frames = match s.frames {
-            Some([a, z])
-                if a <= z && z - a < i64::try_from(super::MAX_FRAMES).unwrap_or(i64::MAX) =>
-            {
-                (a..=z).collect::<Vec<_>>()
-            }
-            Some([a, z]) => {
-                return Err(err(
-                    path,
-                    &key("frames"),
-                    format!(
-                        "[{a}, {z}]: give first <= last, at most {} frames",
-                        super::MAX_FRAMES
-                    ),
-                ))
-            }
+            Some(f) => frame_list(path, &key, f, None)?,
             None => vec![start_frame(path, &key, &resolve(&s.usd))?],
         };
         let dir = frames_dir(&usd_out);

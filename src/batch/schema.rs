@@ -156,7 +156,7 @@ pub(super) fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> Bat
 
 /// The frames `[first, last]` by `step` (default 1) of a sequence, bounded by [`MAX_FRAMES`];
 /// `key` names an entry's keys (`inputs[0].frames`) in errors.
-fn frame_list(
+pub(super) fn frame_list(
     path: &Path,
     key: &dyn Fn(&str) -> String,
     [first, last]: [i64; 2],
