@@ -176,6 +176,7 @@ def test_a_positions_job_in_shards_is_the_query(cli, tmp_path):
     _, schema, _ = cli("batch", "--schema")
     spec = json.loads(schema)["$defs"]["PositionsSpec"]
     assert {"usd", "prim", "usd_out"} <= set(spec["required"]), spec
+    assert spec["additionalProperties"] is False and "samples" in spec["properties"]
     assert "positions" in json.loads(schema)["properties"]
     _, plan, _ = cli("batch", job, "--plan")
     assert [l.split()[-1] for l in plan.splitlines()] == ["0", "1", "2", "3"], plan

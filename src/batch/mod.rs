@@ -55,6 +55,7 @@
 //! older than its input's; outputs are written atomically, so an existing output is complete.
 
 mod cameras;
+mod checks;
 pub mod emit;
 mod layer;
 mod patterns;

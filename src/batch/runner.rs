@@ -98,34 +98,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             format!("{i}/{n}: give I/N with 1 <= I <= N"),
         ));
     }
-    let n = job.task_count();
-    let keep_index: Box<dyn Fn(usize) -> bool> = match (opts.task, opts.shard) {
-        (Some((first, last)), _) => {
-            if first > last || last >= n {
-                let which = if first == last {
-                    format!("{first}")
-                } else {
-                    format!("{first}-{last}")
-                };
-                return Err(invalid(
-                    "task",
-                    format!(
-                        "{which}: the job has {n} tasks (0..{})",
-                        n.saturating_sub(1)
-                    ),
-                ));
-            }
-            Box::new(move |i| (first..=last).contains(&i))
-        }
-        (None, Some(s)) => Box::new(move |i| in_shard(i, s)),
-        (None, None) => Box::new(|_| true),
-    };
-    let selected: Vec<&Task> = job.tasks.iter().filter(|t| keep_index(t.index)).collect();
-    let points: Vec<&PositionsTask> = job
-        .positions
-        .iter()
-        .filter(|t| keep_index(t.index))
-        .collect();
+    let (selected, points) = select(job, opts)?;
     let log_path = opts.log.clone().unwrap_or_else(|| job.log.clone());
     // An explicit log goes into an existing directory (a typo must not create /nonexistent);
     // the job's own log sits beside its outputs, whose directories the job creates.
@@ -255,22 +228,10 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             });
         }
     });
-    // Positions tasks one after another, each on every core (the estimator's own pool).
-    for t in &points_todo {
-        let t0 = std::time::Instant::now();
-        let result = job.run_positions_task(t);
-        let secs = t0.elapsed().as_secs_f64();
-        let rec = match result {
-            Ok(n) => points_record(t, "ok", secs, n as f64 / secs.max(1e-9), None),
-            Err(e) => {
-                failed.fetch_add(1, Ordering::Relaxed);
-                points_record(t, "failed", secs, 0.0, Some(e.to_string()))
-            }
-        };
-        progress.task(&rec);
-        keep(rec);
-        progress.advance(1);
-    }
+    failed.fetch_add(
+        run_points(job, &points_todo, &keep, progress),
+        Ordering::Relaxed,
+    );
     if let Some(e) = log_error.into_inner().ok().flatten() {
         return Err(io(log_path.display().to_string(), e));
     }
@@ -311,6 +272,69 @@ pub struct PointsOut {
     pub layer: PathBuf,
     /// Frames it holds (every per-frame file on disk).
     pub frames: usize,
+}
+
+/// The tasks `opts` selects (every task, a range, or a shard), bakes and positions.
+fn select<'a>(
+    job: &'a Job,
+    opts: &RunOptions,
+) -> Result<(Vec<&'a Task>, Vec<&'a PositionsTask>), BatchError> {
+    let n = job.task_count();
+    let keep_index: Box<dyn Fn(usize) -> bool> = match (opts.task, opts.shard) {
+        (Some((first, last)), _) => {
+            if first > last || last >= n {
+                let which = if first == last {
+                    format!("{first}")
+                } else {
+                    format!("{first}-{last}")
+                };
+                return Err(invalid(
+                    "task",
+                    format!(
+                        "{which}: the job has {n} tasks (0..{})",
+                        n.saturating_sub(1)
+                    ),
+                ));
+            }
+            Box::new(move |i| (first..=last).contains(&i))
+        }
+        (None, Some(s)) => Box::new(move |i| in_shard(i, s)),
+        (None, None) => Box::new(|_| true),
+    };
+    Ok((
+        job.tasks.iter().filter(|t| keep_index(t.index)).collect(),
+        job.positions
+            .iter()
+            .filter(|t| keep_index(t.index))
+            .collect(),
+    ))
+}
+
+/// Run positions tasks one after another, each on every core (the estimator's own pool);
+/// how many failed.
+fn run_points(
+    job: &Job,
+    todo: &[&PositionsTask],
+    keep: &dyn Fn(Record),
+    progress: &dyn Progress,
+) -> usize {
+    let mut failed = 0;
+    for t in todo {
+        let t0 = std::time::Instant::now();
+        let result = job.run_positions_task(t);
+        let secs = t0.elapsed().as_secs_f64();
+        let rec = match result {
+            Ok(n) => points_record(t, "ok", secs, n as f64 / secs.max(1e-9), None),
+            Err(e) => {
+                failed += 1;
+                points_record(t, "failed", secs, 0.0, Some(e.to_string()))
+            }
+        };
+        progress.task(&rec);
+        keep(rec);
+        progress.advance(1);
+    }
+    failed
 }
 
 fn invalid(option: &str, reason: String) -> BatchError {
