@@ -49,7 +49,8 @@
 //!
 //! **Tasks.** Input-major: every input in file order (a sequence in frame order), then every
 //! light in file order; task `i` is the `i`-th pair (0-based). Shard `I/N` runs the tasks with
-//! `i % N == I - 1`.
+//! `i % N == I - 1`. `[[positions]]` entries (per-point transmittance, [`PositionsTask`]) add one
+//! task per frame after every bake task, split the same way.
 //!
 //! **Resume.** A task is up to date when its output exists and its modification time is not
 //! older than its input's; outputs are written atomically, so an existing output is complete.
