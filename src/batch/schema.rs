@@ -528,6 +528,16 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         tasks.len(),
         &resolve,
     )?;
+    if let Some(t) = positions
+        .iter()
+        .find(|t| usd_out.as_ref() == Some(&t.usd_out))
+    {
+        return Err(err(
+            &path,
+            &format!("positions[{}].usd_out", t.entry),
+            "is bake.usd_out's layer too: give each its own",
+        ));
+    }
     Ok(Job {
         path,
         grid,
