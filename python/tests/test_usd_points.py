@@ -144,3 +144,126 @@ def test_bad_positions_get_one_clear_error(cli, tmp_path):
                         "--frames", "1-2", "--json")
     assert code == 0 and "40 points at frame 1 and 3 at frame 2" in err, err
     assert [len(f["T"]) for f in json.loads(js)["frames"]] == [40, 3]
+
+
+def _points_job(tmp_path, extra=""):
+    """A job of two bakes (the shot under the sun, frames 1-2) and a `[[positions]]` entry
+    over frames 1-2: tasks 0-1 bake, tasks 2-3 answer the trees."""
+    job = tmp_path / "job.toml"
+    job.write_text(f"""output = "out/{{light}}.{{frame:04}}.exr"
+[[inputs]]
+usd = "shot.usdc"
+frames = [1, 2]
+[[lights]]
+usd = "/Lights/sun"
+[bake]
+res = 16
+framing = "per-frame"
+[[positions]]
+usd = "shot.usdc"
+prim = "/World/forest/trees"
+light = "sun"
+frames = [1, 2]
+usd_out = "out/trees.usda"
+{extra}""")
+    return job
+
+
+def test_a_positions_job_in_shards_is_the_query(cli, tmp_path):
+    stage = tmp_path / "shot.usdc"
+    _with_points(stage)
+    job = _points_job(tmp_path)
+    _, schema, _ = cli("batch", "--schema")
+    spec = json.loads(schema)["$defs"]["PositionsSpec"]
+    assert {"usd", "prim", "usd_out"} <= set(spec["required"]), spec
+    assert spec["additionalProperties"] is False and "samples" in spec["properties"]
+    assert "positions" in json.loads(schema)["properties"]
+    _, plan, _ = cli("batch", job, "--plan")
+    assert [l.split()[-1] for l in plan.splitlines()] == ["0", "1", "2", "3"], plan
+    code, st, _ = cli("batch", job, "--status", "--json", check=False)
+    missing = json.loads(st)["missing"]
+    assert code == 3 and [t["task"] for t in missing] == [0, 1, 2, 3], st
+    assert missing[2]["output"].endswith("trees.points/1.json") and missing[3]["light"] == "sun"
+    _, out, _ = cli("batch", job, "--shard", "1/2")  # tasks 0 and 2: frame 1 of the trees
+    layer = tmp_path / "out" / "trees.usda"
+    assert "1 frames of per-point transmittance" in out, out
+    code, st, _ = cli("batch", job, "--status", check=False)
+    assert code == 3 and "missing task 3" in st and "trees.points" in st, st
+    cli("batch", job, "--shard", "2/2")
+    ref = tmp_path / "ref.usda"
+    cli("query", stage, "--positions", "/World/forest/trees", "--light", "sun",
+        "--frames", "1-2", "--usd-out", ref)
+    assert layer.read_text() == ref.read_text()
+    root = Sdf.Layer.CreateAnonymous(".usda")
+    root.subLayerPaths = [str(layer), str(stage)]
+    st = Usd.Stage.Open(root)
+    pv = UsdGeom.PrimvarsAPI(st.GetPrimAtPath("/World/forest/trees")).GetPrimvar(
+        "umbra:transmittance:sun")
+    assert pv.GetTimeSamples() == [1.0, 2.0]
+    code, st, _ = cli("batch", job, "--status")
+    assert code == 0 and "4 done" in st, st
+    # Resumed: every task up to date; the log records the positions tasks like bakes.
+    log = tmp_path / "again.jsonl"
+    _, out, _ = cli("batch", job, "--log", log)
+    assert "0 baked, 4 skipped" in out, out
+    recs = [json.loads(l) for l in log.read_text().splitlines()]
+    pos = [r for r in recs if r["task"] >= 2]
+    assert [(r["status"], r["light"]) for r in pos] == [("skipped", "sun")] * 2, recs
+    assert pos[0]["output"].endswith("1.json") and pos[0]["input"].endswith("shot.usdc")
+    # A re-simulated stage answers again.
+    stage.touch()
+    _, out, _ = cli("batch", job, "--task", "3")
+    assert "1 baked" in out, out
+
+
+def test_a_positions_only_job(cli, tmp_path):
+    stage = tmp_path / "shot.usdc"
+    _with_points(stage)
+    job = tmp_path / "job.toml"
+    job.write_text("""[bake]
+estimator = "ratio"
+samples = 8
+[[positions]]
+usd = "shot.usdc"
+prim = "/World/forest/rocks"
+light = "lamp"
+frames = [2, 2]
+usd_out = "rocks.usda"
+estimator = "regular"
+""")
+    _, out, _ = cli("batch", job)
+    assert "1 baked" in out, out
+    ref = tmp_path / "ref.usda"
+    cli("query", stage, "--positions", "/World/forest/rocks", "--light", "lamp",
+        "--frame", 2, "--usd-out", ref)
+    assert (tmp_path / "rocks.usda").read_text() == ref.read_text()
+    assert (tmp_path / "umbra_batch.jsonl").is_file()
+
+
+@pytest.mark.parametrize("extra, key", [
+    ('colour = 1', "colour"),
+    ('estimator = "nope"', "positions[0].estimator"),
+    ('density_scale = -1.0', "positions[0].density_scale"),
+])
+def test_bad_positions_entries_are_refused_before_any_work(cli, tmp_path, extra, key):
+    _with_points(tmp_path / "shot.usdc")
+    job = _points_job(tmp_path, extra)
+    e = _err(cli, "batch", job)
+    assert key in e, e
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("entry, key", [
+    ('usd = "shot.usdc"\nusd_out = "t.usda"', "prim"),
+    ('prim = "/World/forest/trees"\nusd_out = "t.usda"', "usd"),
+    ('usd = "shot.usdc"\nprim = "/World/forest/trees"\nusd_out = "t.usdc"',
+     "positions[0].usd_out"),
+    ('usd = "shot.usdc"\nprim = "/World/nope"\nusd_out = "t.usda"', "positions[0]"),
+])
+def test_bad_positions_keys_name_their_key(cli, tmp_path, entry, key):
+    _with_points(tmp_path / "shot.usdc")
+    job = tmp_path / "job.toml"
+    job.write_text(f"[[positions]]\n{entry}\n")
+    e = _err(cli, "batch", job)
+    assert key in e, e
+    assert not (tmp_path / "t.usda").exists() and not (tmp_path / "umbra_batch.jsonl").exists()

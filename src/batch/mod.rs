@@ -49,20 +49,24 @@
 //!
 //! **Tasks.** Input-major: every input in file order (a sequence in frame order), then every
 //! light in file order; task `i` is the `i`-th pair (0-based). Shard `I/N` runs the tasks with
-//! `i % N == I - 1`.
+//! `i % N == I - 1`. `[[positions]]` entries (per-point transmittance, [`PositionsTask`]) add one
+//! task per frame after every bake task, split the same way.
 //!
 //! **Resume.** A task is up to date when its output exists and its modification time is not
 //! older than its input's; outputs are written atomically, so an existing output is complete.
 
 mod cameras;
+mod checks;
 pub mod emit;
 mod layer;
 mod patterns;
+mod positions;
 mod runner;
 mod schema;
 mod status;
 pub use patterns::{expand_pattern, fill_output, MAX_FRAMES, MAX_FRAME_PAD};
-pub use runner::{run, Progress, RunOptions, RunReport, Silent, UsdOut};
+pub use positions::{PositionsSpec, PositionsTask};
+pub use runner::{run, PointsOut, Progress, RunOptions, RunReport, Silent, UsdOut};
 #[cfg(feature = "schema")]
 pub use schema::job_schema;
 pub use schema::{parse_job, InputSpec, JobFile, LightSpec};
@@ -138,8 +142,10 @@ pub struct Job {
     pub grid: String,
     /// JSON-lines log path.
     pub log: PathBuf,
-    /// Tasks in order.
+    /// Bake tasks in order.
     pub tasks: Vec<Task>,
+    /// `[[positions]]` tasks (one per frame), numbered after the bake tasks.
+    pub positions: Vec<PositionsTask>,
     /// The `[bake]` options every task shares, checked: the grid, the lights, the camera, the
     /// preview pattern and the framing are moved out into the job and its tasks.
     pub options: BakeOptions,
@@ -476,6 +482,7 @@ impl Job {
     /// cannot be planned (key `tasks[I]`) and why.
     pub fn check_tasks(&self) -> Result<Vec<(usize, String)>, BatchError> {
         self.check_inputs()?;
+        self.check_positions()?;
         let mut skipped = Vec::new();
         for task in &self.tasks {
             if let Some(why) = self.shadowless(task) {

@@ -9,7 +9,7 @@
 //! remaining tasks in index order, each with `cores / workers` threads of its own. A failed task
 //! is logged with its error and the others go on.
 
-use super::{in_shard, valid_shard, BatchError, Job, Record, Task};
+use super::{in_shard, valid_shard, BatchError, Job, PositionsTask, Record, Task};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -70,6 +70,9 @@ pub struct RunReport {
     pub log: PathBuf,
     /// The job's USD layer (`bake.usd_out`), rewritten after the run.
     pub usd_out: Option<UsdOut>,
+    /// Each `[[positions]]` entry's layer, rebuilt after the run from the per-frame files on
+    /// disk.
+    pub points_out: Vec<PointsOut>,
     /// Every selected task's record, in task order.
     pub records: Vec<Record>,
 }
@@ -97,28 +100,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             format!("{i}/{n}: give I/N with 1 <= I <= N"),
         ));
     }
-    let selected: Vec<&Task> = match (opts.task, opts.shard) {
-        (Some((first, last)), _) => match job.tasks.get(first..=last) {
-            Some(tasks) if first <= last => tasks.iter().collect(),
-            _ => {
-                let n = job.tasks.len();
-                let which = if first == last {
-                    format!("{first}")
-                } else {
-                    format!("{first}-{last}")
-                };
-                return Err(invalid(
-                    "task",
-                    format!(
-                        "{which}: the job has {n} tasks (0..{})",
-                        n.saturating_sub(1)
-                    ),
-                ));
-            }
-        },
-        (None, Some(s)) => job.tasks.iter().filter(|t| in_shard(t.index, s)).collect(),
-        (None, None) => job.tasks.iter().collect(),
-    };
+    let (selected, points) = select(job, opts)?;
     let log_path = opts.log.clone().unwrap_or_else(|| job.log.clone());
     // An explicit log goes into an existing directory (a typo must not create /nonexistent);
     // the job's own log sits beside its outputs, whose directories the job creates.
@@ -142,6 +124,12 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         .iter()
         .filter(|t| !shadowless.iter().any(|(s, _)| s.index == t.index))
         .partition(|t| opts.force || !job.up_to_date(t));
+    let (points_todo, points_skipped): (Vec<&PositionsTask>, Vec<&PositionsTask>) = points
+        .iter()
+        .partition(|t| opts.force || !job.positions_up_to_date(t));
+    if !points_todo.is_empty() {
+        job.check_positions()?;
+    }
     if !todo.is_empty() {
         // Missing frames and grids fail the job up front; then one camera per light over every
         // input (not just this shard's), so shards agree. Both before anything is created.
@@ -195,6 +183,9 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             ..record(t, "skipped", 0.0, 0.0, None)
         });
     }
+    for t in &points_skipped {
+        keep(points_record(t, "skipped", 0.0, 0.0, None));
+    }
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
     let workers = if opts.jobs == 0 { cores } else { opts.jobs }
         .min(todo.len())
@@ -203,8 +194,8 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     // With a fixed resolution progress counts pixels (it moves during long bakes), else tasks.
     let pixels = job.pixels_hint();
     progress.start(
-        todo.len(),
-        pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64),
+        todo.len() + points_todo.len(),
+        pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64) + points_todo.len() as u64,
     );
     let start = std::time::Instant::now();
     let next = AtomicUsize::new(0);
@@ -251,6 +242,10 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             });
         }
     });
+    failed.fetch_add(
+        run_points(job, &points_todo, &keep, progress),
+        Ordering::Relaxed,
+    );
     if let Some(e) = log_error.into_inner().ok().flatten() {
         return Err(io(log_path.display().to_string(), e));
     }
@@ -264,10 +259,15 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         }),
         None => None,
     };
+    let points_out = job
+        .write_positions_layers()?
+        .into_iter()
+        .map(|(layer, frames)| PointsOut { layer, frames })
+        .collect();
     Ok(RunReport {
-        selected: selected.len(),
-        baked: todo.len() - failed,
-        skipped: skipped.len(),
+        selected: selected.len() + points.len(),
+        baked: todo.len() + points_todo.len() - failed,
+        skipped: skipped.len() + points_skipped.len(),
         shadowless: shadowless.len(),
         failed,
         seconds: start.elapsed().as_secs_f64(),
@@ -275,8 +275,81 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         threads_per_task: per_task,
         log: log_path,
         usd_out,
+        points_out,
         records,
     })
+}
+
+/// A `[[positions]]` layer a run wrote.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct PointsOut {
+    /// The `.usda` layer.
+    pub layer: PathBuf,
+    /// Frames it holds (every per-frame file on disk).
+    pub frames: usize,
+}
+
+/// The tasks `opts` selects (every task, a range, or a shard), bakes and positions.
+fn select<'a>(
+    job: &'a Job,
+    opts: &RunOptions,
+) -> Result<(Vec<&'a Task>, Vec<&'a PositionsTask>), BatchError> {
+    let n = job.task_count();
+    let keep_index: Box<dyn Fn(usize) -> bool> = match (opts.task, opts.shard) {
+        (Some((first, last)), _) => {
+            if first > last || last >= n {
+                let which = if first == last {
+                    format!("{first}")
+                } else {
+                    format!("{first}-{last}")
+                };
+                return Err(invalid(
+                    "task",
+                    format!(
+                        "{which}: the job has {n} tasks (0..{})",
+                        n.saturating_sub(1)
+                    ),
+                ));
+            }
+            Box::new(move |i| (first..=last).contains(&i))
+        }
+        (None, Some(s)) => Box::new(move |i| in_shard(i, s)),
+        (None, None) => Box::new(|_| true),
+    };
+    Ok((
+        job.tasks.iter().filter(|t| keep_index(t.index)).collect(),
+        job.positions
+            .iter()
+            .filter(|t| keep_index(t.index))
+            .collect(),
+    ))
+}
+
+/// Run positions tasks one after another, each on every core (the estimator's own pool);
+/// how many failed.
+fn run_points(
+    job: &Job,
+    todo: &[&PositionsTask],
+    keep: &dyn Fn(Record),
+    progress: &dyn Progress,
+) -> usize {
+    let mut failed = 0;
+    for t in todo {
+        let t0 = std::time::Instant::now();
+        let result = job.run_positions_task(t);
+        let secs = t0.elapsed().as_secs_f64();
+        let rec = match result {
+            Ok(n) => points_record(t, "ok", secs, n as f64 / secs.max(1e-9), None),
+            Err(e) => {
+                failed += 1;
+                points_record(t, "failed", secs, 0.0, Some(e.to_string()))
+            }
+        };
+        progress.task(&rec);
+        keep(rec);
+        progress.advance(1);
+    }
+    failed
 }
 
 fn invalid(option: &str, reason: String) -> BatchError {
@@ -305,5 +378,29 @@ fn record(
         error,
         reason: None,
         warnings: Vec::new(),
+    }
+}
+
+/// The log record of a positions task: `input` is the stage, `grid` the field read, `output`
+/// the per-frame file, `rays_per_second` points per second.
+fn points_record(
+    t: &PositionsTask,
+    status: &'static str,
+    seconds: f64,
+    rays_per_second: f64,
+    error: Option<String>,
+) -> Record {
+    Record {
+        task: t.index,
+        input: t.stage.clone(),
+        grid: t.options.field.clone().unwrap_or_else(|| "density".into()),
+        light: t.light_name(),
+        output: t.output.clone(),
+        status,
+        seconds,
+        rays_per_second,
+        error,
+        warnings: Vec::new(),
+        reason: None,
     }
 }

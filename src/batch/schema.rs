@@ -3,7 +3,9 @@
 //! a [`Job`] of tasks: every error names its key (`bake.step`, `lights[1].dir`) and, for a
 //! value of the wrong type, its line and column.
 
-use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAMES, MAX_FRAME_PAD};
+use super::checks::{check_usd_out, entry_read, key_at, normalise, EntryRead};
+pub(super) use super::checks::{err, frame_list};
+use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAME_PAD};
 use super::{BatchError, Job, Task};
 use crate::request::{BakeOptions, BakePlan, BakeRequest, LevelSet};
 use serde::Deserialize;
@@ -18,12 +20,16 @@ pub struct JobFile {
     /// Grid to bake in every input (default `density`; or `grid` in `[bake]`).
     pub grid: Option<String>,
     /// Output path pattern: `{light}`, `{stem}`, `{frame}`, `{frame:0N}`; ending in `.vdb`,
-    /// transmittance volumes, else EXR maps.
-    pub output: String,
+    /// transmittance volumes, else EXR maps. Required with `[[inputs]]`.
+    pub output: Option<String>,
     /// JSON-lines log (default: `umbra_batch.jsonl` in the first output's directory).
     pub log: Option<String>,
-    /// Inputs, in order.
+    /// Inputs, in order (none for a job of `[[positions]]` only).
+    #[serde(default)]
     pub inputs: Vec<InputSpec>,
+    /// Per-point transmittance over a shot, one task per frame after the bakes.
+    #[serde(default)]
+    pub positions: Vec<super::positions::PositionsSpec>,
     /// Lights, in order (or one light as `light_dir` / `light_pos` in `[bake]`).
     #[serde(default)]
     pub lights: Vec<LightSpec>,
@@ -70,16 +76,6 @@ pub struct InputSpec {
     pub levelset: Option<LevelSet>,
     /// `xform` for this entry's files (default: `[bake]`'s): 16 numbers, row-major.
     pub xform: Option<Vec<f64>>,
-}
-
-/// How the tasks of one `[[inputs]]` entry read their files: the entry's own values, else
-/// the job's.
-#[derive(Debug, Clone, PartialEq)]
-struct EntryRead {
-    grid: String,
-    density_scale: f64,
-    levelset: Option<LevelSet>,
-    xform: Option<Vec<f64>>,
 }
 
 /// One `[[lights]]` entry.
@@ -142,77 +138,6 @@ fn stage_lights(
     Ok(lights)
 }
 
-pub(super) fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> BatchError {
-    BatchError::Invalid {
-        path: path.to_path_buf(),
-        key: key.to_string(),
-        reason: reason.to_string(),
-    }
-}
-
-/// The frames `[first, last]` by `step` (default 1) of a sequence, bounded by [`MAX_FRAMES`];
-/// `key` names an entry's keys (`inputs[0].frames`) in errors.
-fn frame_list(
-    path: &Path,
-    key: &dyn Fn(&str) -> String,
-    [first, last]: [i64; 2],
-    step: Option<i64>,
-) -> Result<Vec<i64>, BatchError> {
-    let step = step.unwrap_or(1);
-    if step < 1 {
-        return Err(err(path, &key("step"), "must be at least 1"));
-    }
-    if last < first {
-        return Err(err(path, &key("frames"), "last frame before the first"));
-    }
-    let count = (i128::from(last) - i128::from(first)) / i128::from(step) + 1;
-    if count > i128::from(MAX_FRAMES) {
-        return Err(err(
-            path,
-            &key("frames"),
-            format!("{count} frames; at most {MAX_FRAMES} per sequence"),
-        ));
-    }
-    let mut out = Vec::new();
-    let mut f = first;
-    loop {
-        out.push(f);
-        match f.checked_add(step) {
-            Some(next) if next <= last => f = next,
-            _ => break,
-        }
-    }
-    Ok(out)
-}
-
-/// The key (`bake.levelset`) whose value starts the line holding byte `at` of a job file: the
-/// text before `=` on that line, after the last `[table]` header above it. `None` for a line
-/// that is not `key = value`.
-fn key_at(text: &str, at: usize) -> Option<String> {
-    let start = text[..at].rfind('\n').map_or(0, |i| i + 1);
-    let line = text[start..].lines().next()?;
-    let (key, _) = line.split_once('=')?;
-    let key = key.trim();
-    let bare = |k: &str| {
-        !k.is_empty()
-            && k.chars()
-                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
-    };
-    if !bare(key) {
-        return None;
-    }
-    let table = text[..start]
-        .lines()
-        .rev()
-        .map(str::trim)
-        .find(|l| l.starts_with('['))
-        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
-    Some(match table {
-        Some(t) if !t.is_empty() => format!("{t}.{key}"),
-        _ => key.to_string(),
-    })
-}
-
 /// Parse and validate a job file's text; `path` is the job file (relative paths in it are
 /// relative to its directory).
 ///
@@ -258,8 +183,22 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         return Err(err(&path, "grid", "must not be empty"));
     }
     if file.inputs.is_empty() {
-        return Err(err(&path, "inputs", "give at least one [[inputs]] entry"));
+        if file.positions.is_empty() {
+            return Err(err(
+                &path,
+                "inputs",
+                "give at least one [[inputs]] or [[positions]] entry",
+            ));
+        }
+        return super::positions::job(path, &file, grid, &resolve);
     }
+    let Some(output_pattern) = file.output.clone() else {
+        return Err(err(
+            &path,
+            "output",
+            "give an output pattern for [[inputs]]",
+        ));
+    };
     // (file, frame, index of its [[inputs]] entry)
     let mut inputs: Vec<(PathBuf, Option<i64>, usize)> = Vec::new();
     let mut reads: Vec<EntryRead> = Vec::new();
@@ -464,7 +403,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             }
         }
     }
-    if lights.len() > 1 && !file.output.contains("{light}") {
+    if lights.len() > 1 && !output_pattern.contains("{light}") {
         return Err(err(
             &path,
             "output",
@@ -479,7 +418,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
             .map(|s| s.to_string_lossy().into_owned())
             .unwrap_or_default();
         for l in &lights {
-            let out = fill_output(&file.output, &l.name, &stem, *frame)
+            let out = fill_output(&output_pattern, &l.name, &stem, *frame)
                 .map_err(|e| err(&path, "output", e))?;
             let output = normalise(&resolve(&out));
             let preview = match &b.preview {
@@ -581,11 +520,30 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     if let Some(u) = &usd_out {
         check_usd_out(&path, u, volume, &tasks)?;
     }
+    let positions = super::positions::tasks(
+        &path,
+        &file.positions,
+        &options,
+        &grid,
+        tasks.len(),
+        &resolve,
+    )?;
+    if let Some(t) = positions
+        .iter()
+        .find(|t| usd_out.as_ref() == Some(&t.usd_out))
+    {
+        return Err(err(
+            &path,
+            &format!("positions[{}].usd_out", t.entry),
+            "is bake.usd_out's layer too: give each its own",
+        ));
+    }
     Ok(Job {
         path,
         grid,
         log,
         tasks,
+        positions,
         options,
         framing,
         camera,
@@ -593,80 +551,4 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         usd_out,
         shared: std::sync::OnceLock::new(),
     })
-}
-
-/// How the tasks of `[[inputs]]` entry `inp` read their files: its `grid`, `density_scale`,
-/// `levelset` and `xform`, each checked as `[bake]`'s are, else the job's (`grid`, `b`).
-fn entry_read(
-    path: &Path,
-    key: &dyn Fn(&str) -> String,
-    inp: &InputSpec,
-    grid: &str,
-    b: &BakeOptions,
-) -> Result<EntryRead, BatchError> {
-    if inp.grid.as_deref() == Some("") {
-        return Err(err(path, &key("grid"), "must not be empty"));
-    }
-    if let Some(s) = inp.density_scale {
-        if !(s.is_finite() && s >= 0.0) {
-            return Err(err(
-                path,
-                &key("density_scale"),
-                format!("{s} is not a finite scale >= 0"),
-            ));
-        }
-    }
-    if let Some(x) = &inp.xform {
-        crate::xform::Xform::from_row_major(x).map_err(|e| {
-            let reason = match e {
-                crate::Error::InvalidArgument { reason, .. } => reason,
-                other => other.to_string(),
-            };
-            err(path, &key("xform"), reason)
-        })?;
-    }
-    Ok(EntryRead {
-        grid: inp.grid.clone().unwrap_or_else(|| grid.to_string()),
-        density_scale: inp.density_scale.unwrap_or(b.density_scale),
-        levelset: inp.levelset.or(b.levelset),
-        xform: inp.xform.clone().or_else(|| b.xform.clone()),
-    })
-}
-
-/// `bake.usd_out` names a `.usda` layer, for maps, of a job with stage lights.
-fn check_usd_out(path: &Path, u: &Path, volume: bool, tasks: &[Task]) -> Result<(), BatchError> {
-    let usda = u
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("usda"));
-    let reason = if !usda {
-        format!("{} is not a .usda layer", u.display())
-    } else if volume {
-        "puts maps on their stage lights; transmittance volumes (.vdb) have no camera".into()
-    } else if tasks.iter().all(|t| t.usd_light.is_none()) {
-        "puts maps on their stage lights, and this job bakes from none (give [[inputs]] usd = \
-         with its lights)"
-            .into()
-    } else {
-        return crate::output::check_target(u, true).map_err(|e| err(path, "bake.usd_out", e));
-    };
-    Err(err(path, "bake.usd_out", reason))
-}
-
-/// `p` with `.` and `name/..` components removed lexically (no file system access), so two
-/// spellings of one output path compare equal.
-fn normalise(p: &Path) -> PathBuf {
-    use std::path::Component;
-    let mut out = PathBuf::new();
-    for c in p.components() {
-        match c {
-            Component::CurDir => {}
-            Component::ParentDir => {
-                if !out.pop() {
-                    out.push("..");
-                }
-            }
-            other => out.push(other.as_os_str()),
-        }
-    }
-    out
 }

@@ -104,5 +104,24 @@ pub fn status(job: &Job, logs: &[PathBuf]) -> Status {
             s.missing.push(state(t, None));
         }
     }
+    for t in &job.positions {
+        let st = TaskState {
+            task: t.index,
+            input: t.stage.clone(),
+            light: t.light_name(),
+            output: t.output.clone(),
+            error: None,
+        };
+        if job.positions_up_to_date(t) {
+            s.done.push(st);
+        } else if let Some(e) = failed.get(&t.index) {
+            s.failed.push(TaskState {
+                error: Some(e.clone()),
+                ..st
+            });
+        } else {
+            s.missing.push(st);
+        }
+    }
     s
 }

@@ -65,7 +65,7 @@ impl Chunks {
     pub fn of(job: &Job, size: Option<usize>) -> Option<Self> {
         let size = size.filter(|&s| s > 1)?;
         Some(Self {
-            count: job.tasks.len().div_ceil(size),
+            count: job.task_count().div_ceil(size),
         })
     }
 }

@@ -132,7 +132,7 @@ pub fn opencue(job: &Job, exe: &Path, chunk: usize, id: &CueIdentity) -> crate::
     let _ = writeln!(
         s,
         "        <range>0-{}</range>",
-        job.tasks.len().saturating_sub(1)
+        job.task_count().saturating_sub(1)
     );
     let _ = writeln!(s, "        <chunk>{chunk}</chunk>");
     if job.options.threads > 0 {

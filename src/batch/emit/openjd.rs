@@ -31,7 +31,7 @@ pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crat
         });
     }
     let name = job_name(job);
-    let last = job.tasks.len().saturating_sub(1);
+    let last = job.task_count().saturating_sub(1);
     let (param, range, selector) = match chunks {
         Some(c) => (
             "Shard",
@@ -78,7 +78,7 @@ pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crat
         "description": format!(
             "Shadow maps of {} ({} tasks), written by umbra {}.",
             job.path.display(),
-            job.tasks.len(),
+            job.task_count(),
             env!("CARGO_PKG_VERSION")
         ),
         "parameterDefinitions": [

@@ -14,7 +14,7 @@ pub fn slurm(job: &Job, exe: &Path, chunks: Option<Chunks>) -> String {
             format!("--shard \"${{SLURM_ARRAY_TASK_ID}}/{}\"", c.count),
         ),
         None => (
-            format!("0-{}", job.tasks.len().saturating_sub(1)),
+            format!("0-{}", job.task_count().saturating_sub(1)),
             "--task \"$SLURM_ARRAY_TASK_ID\"".to_string(),
         ),
     };
@@ -35,7 +35,7 @@ pub fn slurm(job: &Job, exe: &Path, chunks: Option<Chunks>) -> String {
          exec {exe_q} batch {job_q} --quiet {select}\n",
         // The comment lines hold the path escaped (a newline in it would end the comment).
         job = crate::text::escape(&job.path.display().to_string()),
-        n = job.tasks.len(),
+        n = job.task_count(),
         v = env!("CARGO_PKG_VERSION"),
         exe_q = shell_quote(&exe.display().to_string()),
         job_q = shell_quote(&job.path.display().to_string()),

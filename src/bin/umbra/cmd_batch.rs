@@ -183,9 +183,10 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
             .map(|p| p.display().to_string())
             .unwrap_or_else(|_| "umbra".into());
         let mut out = std::io::stdout().lock();
-        for t in &job.tasks {
-            // A task that bakes nothing is listed as a shell comment.
-            if let Some((_, why)) = skipped.iter().find(|(i, _)| *i == t.index) {
+        for i in 0..job.task_count() {
+            // A bake task that bakes nothing (a light without shadows) is a shell comment.
+            let skip = skipped.iter().find(|(k, _)| *k == i);
+            if let (Some((_, why)), Some(t)) = (skip, job.tasks.get(i)) {
                 writeln!(
                     out,
                     "# skipped task {} ({}, light {}): {}",
@@ -198,10 +199,9 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
             }
             writeln!(
                 out,
-                "{} batch {} --task {}",
+                "{} batch {} --task {i}",
                 shell_quote(&exe),
                 shell_quote(&job.path.display().to_string()),
-                t.index
             )?;
         }
         return Ok(ExitCode::SUCCESS);
@@ -267,6 +267,13 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
             "umbra batch: {} maps on their stage lights in {}",
             u.maps,
             u.layer.display()
+        );
+    }
+    for p in &report.points_out {
+        println!(
+            "umbra batch: {} frames of per-point transmittance in {}",
+            p.frames,
+            p.layer.display()
         );
     }
     Ok(if report.failed > 0 {
@@ -351,7 +358,7 @@ fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
         writeln!(
             out,
             "umbra batch: {} tasks: {} done, {} failed, {} not yet run{skipped}",
-            job.tasks.len(),
+            job.task_count(),
             s.done.len(),
             s.failed.len(),
             s.missing.len()

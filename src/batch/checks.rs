@@ -1,0 +1,172 @@
+//! Checks shared by the job file's parsers (`schema`, `positions`): error values naming their
+//! key, frame ranges, the key under a byte of the text, an `[[inputs]]` entry's read keys,
+//! `bake.usd_out`, and lexical path normalisation.
+
+use super::patterns::MAX_FRAMES;
+use super::schema::InputSpec;
+use super::{BatchError, Task};
+use crate::request::{BakeOptions, LevelSet};
+use std::path::{Path, PathBuf};
+
+/// How the tasks of one `[[inputs]]` entry read their files: the entry's own values, else
+/// the job's.
+#[derive(Debug, Clone, PartialEq)]
+pub(super) struct EntryRead {
+    pub(super) grid: String,
+    pub(super) density_scale: f64,
+    pub(super) levelset: Option<LevelSet>,
+    pub(super) xform: Option<Vec<f64>>,
+}
+
+/// A job error naming `key` of the job file `path`.
+pub(super) fn err(path: &Path, key: &str, reason: impl std::fmt::Display) -> BatchError {
+    BatchError::Invalid {
+        path: path.to_path_buf(),
+        key: key.to_string(),
+        reason: reason.to_string(),
+    }
+}
+
+/// The frames `[first, last]` by `step` (default 1) of a sequence, bounded by [`MAX_FRAMES`];
+/// `key` names an entry's keys (`inputs[0].frames`) in errors.
+pub(super) fn frame_list(
+    path: &Path,
+    key: &dyn Fn(&str) -> String,
+    [first, last]: [i64; 2],
+    step: Option<i64>,
+) -> Result<Vec<i64>, BatchError> {
+    let step = step.unwrap_or(1);
+    if step < 1 {
+        return Err(err(path, &key("step"), "must be at least 1"));
+    }
+    if last < first {
+        return Err(err(path, &key("frames"), "last frame before the first"));
+    }
+    let count = (i128::from(last) - i128::from(first)) / i128::from(step) + 1;
+    if count > i128::from(MAX_FRAMES) {
+        return Err(err(
+            path,
+            &key("frames"),
+            format!("{count} frames; at most {MAX_FRAMES} per sequence"),
+        ));
+    }
+    let mut out = Vec::new();
+    let mut f = first;
+    loop {
+        out.push(f);
+        match f.checked_add(step) {
+            Some(next) if next <= last => f = next,
+            _ => break,
+        }
+    }
+    Ok(out)
+}
+
+/// The key (`bake.levelset`) whose value starts the line holding byte `at` of a job file: the
+/// text before `=` on that line, after the last `[table]` header above it. `None` for a line
+/// that is not `key = value`.
+pub(super) fn key_at(text: &str, at: usize) -> Option<String> {
+    let start = text[..at].rfind('\n').map_or(0, |i| i + 1);
+    let line = text[start..].lines().next()?;
+    let (key, _) = line.split_once('=')?;
+    let key = key.trim();
+    let bare = |k: &str| {
+        !k.is_empty()
+            && k.chars()
+                .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-' || c == '.')
+    };
+    if !bare(key) {
+        return None;
+    }
+    let table = text[..start]
+        .lines()
+        .rev()
+        .map(str::trim)
+        .find(|l| l.starts_with('['))
+        .map(|l| l.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+    Some(match table {
+        Some(t) if !t.is_empty() => format!("{t}.{key}"),
+        _ => key.to_string(),
+    })
+}
+
+/// How the tasks of `[[inputs]]` entry `inp` read their files: its `grid`, `density_scale`,
+/// `levelset` and `xform`, each checked as `[bake]`'s are, else the job's (`grid`, `b`).
+pub(super) fn entry_read(
+    path: &Path,
+    key: &dyn Fn(&str) -> String,
+    inp: &InputSpec,
+    grid: &str,
+    b: &BakeOptions,
+) -> Result<EntryRead, BatchError> {
+    if inp.grid.as_deref() == Some("") {
+        return Err(err(path, &key("grid"), "must not be empty"));
+    }
+    if let Some(s) = inp.density_scale {
+        if !(s.is_finite() && s >= 0.0) {
+            return Err(err(
+                path,
+                &key("density_scale"),
+                format!("{s} is not a finite scale >= 0"),
+            ));
+        }
+    }
+    if let Some(x) = &inp.xform {
+        crate::xform::Xform::from_row_major(x).map_err(|e| {
+            let reason = match e {
+                crate::Error::InvalidArgument { reason, .. } => reason,
+                other => other.to_string(),
+            };
+            err(path, &key("xform"), reason)
+        })?;
+    }
+    Ok(EntryRead {
+        grid: inp.grid.clone().unwrap_or_else(|| grid.to_string()),
+        density_scale: inp.density_scale.unwrap_or(b.density_scale),
+        levelset: inp.levelset.or(b.levelset),
+        xform: inp.xform.clone().or_else(|| b.xform.clone()),
+    })
+}
+
+/// `bake.usd_out` names a `.usda` layer, for maps, of a job with stage lights.
+pub(super) fn check_usd_out(
+    path: &Path,
+    u: &Path,
+    volume: bool,
+    tasks: &[Task],
+) -> Result<(), BatchError> {
+    let usda = u
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("usda"));
+    let reason = if !usda {
+        format!("{} is not a .usda layer", u.display())
+    } else if volume {
+        "puts maps on their stage lights; transmittance volumes (.vdb) have no camera".into()
+    } else if tasks.iter().all(|t| t.usd_light.is_none()) {
+        "puts maps on their stage lights, and this job bakes from none (give [[inputs]] usd = \
+         with its lights)"
+            .into()
+    } else {
+        return crate::output::check_target(u, true).map_err(|e| err(path, "bake.usd_out", e));
+    };
+    Err(err(path, "bake.usd_out", reason))
+}
+
+/// `p` with `.` and `name/..` components removed lexically (no file system access), so two
+/// spellings of one output path compare equal.
+pub(super) fn normalise(p: &Path) -> PathBuf {
+    use std::path::Component;
+    let mut out = PathBuf::new();
+    for c in p.components() {
+        match c {
+            Component::CurDir => {}
+            Component::ParentDir => {
+                if !out.pop() {
+                    out.push("..");
+                }
+            }
+            other => out.push(other.as_os_str()),
+        }
+    }
+    out
+}

@@ -1,0 +1,457 @@
+//! `[[positions]]` entries: per-point transmittance over a shot ([`crate::points`]) as job
+//! tasks, one per frame, numbered after the bake tasks so shards and `--task` split them like
+//! bakes.
+//!
+//! Each task answers one frame and writes it atomically to `<usd_out stem>.points/<frame>.json`
+//! beside the entry's layer; a task is up to date when that file is not older than the stage
+//! and the `.vdb` files its volumes name at the frame. After every run each entry's `usd_out`
+//! layer is rebuilt from every per-frame file on disk (this run's, earlier runs', other
+//! shards'), so the last shard to finish writes the whole layer: the same text as `umbra query
+//! STAGE --positions PRIM --frames A-B --usd-out LAYER` for those frames.
+
+use super::schema::{err, frame_list};
+use super::{BatchError, Job};
+use crate::request::BakeOptions;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// One `[[positions]]` entry: the transmittance toward a stage light at every point of a
+/// `Points` prim or `PointInstancer`, frame by frame, written as a time-sampled primvar layer.
+/// Estimator keys not given are `[bake]`'s.
+#[derive(Debug, Clone, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[serde(deny_unknown_fields)]
+pub struct PositionsSpec {
+    /// The USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`).
+    pub usd: String,
+    /// The `Points` or `PointInstancer` prim (path).
+    pub prim: String,
+    /// The stage light (a prim path or a name); the stage's only light when not given.
+    pub light: Option<String>,
+    /// Inclusive frame range `[first, last]` (time codes, one task each; one frame:
+    /// `[F, F]`); without it, the stage's start time code.
+    pub frames: Option<[i64; 2]>,
+    /// The `.usda` layer written: `float[] primvars:umbra:transmittance:<light>` on the prim,
+    /// one time sample per frame. Per-frame answers go to `<stem>.points/<frame>.json` beside it.
+    pub usd_out: String,
+    /// Estimator (default: `[bake]`'s).
+    pub estimator: Option<String>,
+    /// Samples per point (stochastic estimators; default: `[bake]`'s); alias spp.
+    #[serde(alias = "spp")]
+    pub samples: Option<u32>,
+    /// Seed (default: `[bake]`'s).
+    pub seed: Option<u64>,
+    /// Ray-marching step in voxels (default: `[bake]`'s).
+    pub step: Option<f64>,
+    /// Kernel width in voxels (default: `[bake]`'s).
+    pub kernel: Option<f64>,
+    /// Points per optical-depth estimate (default: `[bake]`'s).
+    pub points: Option<f64>,
+    /// Interpolation (default: `[bake]`'s).
+    pub interp: Option<crate::Interp>,
+    /// Majorant granularity (default: `[bake]`'s).
+    pub granularity: Option<crate::traverse::Granularity>,
+    /// One majorant for the whole grid (default: `[bake]`'s).
+    pub global_majorant: Option<bool>,
+    /// Density scale (default: `[bake]`'s).
+    pub density_scale: Option<f64>,
+    /// The stage's volumes to read, by prim path (default: `[bake]`'s; all).
+    pub volume: Option<Vec<String>>,
+    /// The volumes' field (default: `[bake]`'s; `density`).
+    pub field: Option<String>,
+}
+
+/// One frame of one `[[positions]]` entry.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PositionsTask {
+    /// Index in the job (after every bake task).
+    pub index: usize,
+    /// Index of its `[[positions]]` entry.
+    pub entry: usize,
+    /// The USD stage.
+    pub stage: PathBuf,
+    /// The points prim.
+    pub prim: String,
+    /// The stage light asked for (`None`: the stage's only light).
+    pub light: Option<String>,
+    /// The frame (time code).
+    pub frame: i64,
+    /// The per-frame answers file.
+    pub output: PathBuf,
+    /// The entry's layer.
+    pub usd_out: PathBuf,
+    /// The estimator and read keys (the entry's, else `[bake]`'s).
+    #[serde(skip)]
+    pub options: BakeOptions,
+}
+
+impl PositionsTask {
+    /// The light's name as logged: the given light's last path component, else `light`.
+    #[must_use]
+    pub fn light_name(&self) -> String {
+        self.light
+            .as_deref()
+            .map_or("light", |l| l.rsplit('/').next().unwrap_or(l))
+            .to_string()
+    }
+
+    /// How the stage is read at this task's frame.
+    fn scene(&self) -> crate::Result<crate::scene::SceneOptions> {
+        let mut s = self.options.scene_options()?;
+        #[allow(clippy::cast_precision_loss)]
+        {
+            s.stage.time = Some(self.frame as f64);
+        }
+        Ok(s)
+    }
+}
+
+/// The tasks of every `[[positions]]` entry, numbered from `first`; every key checked (errors
+/// name `positions[i].key`). `b` is the job's `[bake]`, `grid` its grid, `resolve` makes a
+/// job-relative path absolute.
+pub(super) fn tasks(
+    path: &Path,
+    specs: &[PositionsSpec],
+    b: &BakeOptions,
+    grid: &str,
+    first: usize,
+    resolve: &dyn Fn(&str) -> PathBuf,
+) -> Result<Vec<PositionsTask>, BatchError> {
+    let mut out = Vec::new();
+    let mut layers = std::collections::HashMap::new();
+    for (i, s) in specs.iter().enumerate() {
+        let key = |k: &str| format!("positions[{i}].{k}");
+        if !crate::usd::is_stage(Path::new(&s.usd)) {
+            return Err(err(
+                path,
+                &key("usd"),
+                format!("'{}' is not a USD stage (.usd, .usda, .usdc, .usdz)", s.usd),
+            ));
+        }
+        if !s.prim.starts_with('/') {
+            return Err(err(path, &key("prim"), "give the prim's path (/World/...)"));
+        }
+        let usd_out = resolve(&s.usd_out);
+        if !usd_out
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("usda"))
+        {
+            return Err(err(
+                path,
+                &key("usd_out"),
+                format!("{} is not a .usda layer", usd_out.display()),
+            ));
+        }
+        if let Some(j) = layers.insert(usd_out.clone(), i) {
+            return Err(err(
+                path,
+                &key("usd_out"),
+                format!("positions[{j}] writes {} too", usd_out.display()),
+            ));
+        }
+        let options = entry_options(path, &key, s, b, grid)?;
+        let frames = match s.frames {
+            Some(f) => frame_list(path, &key, f, None)?,
+            None => vec![start_frame(path, &key, &resolve(&s.usd))?],
+        };
+        let dir = frames_dir(&usd_out);
+        for f in frames {
+            out.push(PositionsTask {
+                index: first + out.len(),
+                entry: i,
+                stage: resolve(&s.usd),
+                prim: s.prim.clone(),
+                light: s.light.clone(),
+                frame: f,
+                output: dir.join(format!("{f}.json")),
+                usd_out: usd_out.clone(),
+                options: options.clone(),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// A job of `[[positions]]` entries only (no `[[inputs]]`): `[bake]` gives the estimator
+/// keys; its log defaults to `umbra_batch.jsonl` beside the first entry's layer.
+pub(super) fn job(
+    path: PathBuf,
+    file: &super::JobFile,
+    grid: String,
+    resolve: &dyn Fn(&str) -> PathBuf,
+) -> Result<Job, BatchError> {
+    let mut options = file.bake.clone();
+    if options.usd_out.is_some() {
+        return Err(err(
+            &path,
+            "bake.usd_out",
+            "puts maps on their stage lights, and this job bakes none ([[positions]] entries \
+             give their own usd_out)",
+        ));
+    }
+    options.grid.clone_from(&grid);
+    let framing = options.framing.take().unwrap_or_default();
+    options.camera = None;
+    options.preview = None;
+    let positions = tasks(&path, &file.positions, &options, &grid, 0, resolve)?;
+    let log = match &file.log {
+        Some(l) => resolve(l),
+        None => positions
+            .first()
+            .and_then(|t| t.usd_out.parent())
+            .map_or_else(
+                || PathBuf::from("umbra_batch.jsonl"),
+                |d| d.join("umbra_batch.jsonl"),
+            ),
+    };
+    Ok(Job {
+        path,
+        grid,
+        log,
+        tasks: Vec::new(),
+        positions,
+        options,
+        framing,
+        camera: None,
+        volume: false,
+        usd_out: None,
+        shared: std::sync::OnceLock::new(),
+    })
+}
+
+/// The stage's start time code, as a whole frame.
+fn start_frame(path: &Path, key: &dyn Fn(&str) -> String, stage: &Path) -> Result<i64, BatchError> {
+    let t = crate::usd::lights_at(stage, None)
+        .map_err(|e| err(path, &key("usd"), e))?
+        .time;
+    if t.fract() != 0.0 || !t.is_finite() {
+        return Err(err(
+            path,
+            &key("frames"),
+            format!("the stage starts at time {t}: give frames = [first, last]"),
+        ));
+    }
+    #[allow(clippy::cast_possible_truncation)]
+    Ok(t as i64)
+}
+
+/// The directory of an entry's per-frame files: `<stem>.points` beside its layer.
+fn frames_dir(usd_out: &Path) -> PathBuf {
+    let stem = usd_out
+        .file_stem()
+        .map_or_else(|| "points".into(), |s| s.to_string_lossy().into_owned());
+    usd_out.with_file_name(format!("{stem}.points"))
+}
+
+/// `[bake]` with the entry's estimator and read keys, checked.
+fn entry_options(
+    path: &Path,
+    key: &dyn Fn(&str) -> String,
+    s: &PositionsSpec,
+    b: &BakeOptions,
+    grid: &str,
+) -> Result<BakeOptions, BatchError> {
+    let mut o = b.clone();
+    o.grid = grid.to_string();
+    o.frame = None;
+    if let Some(v) = &s.estimator {
+        o.estimator.clone_from(v);
+    }
+    o.samples = s.samples.unwrap_or(o.samples);
+    o.seed = s.seed.unwrap_or(o.seed);
+    o.step = s.step.or(o.step);
+    o.kernel = s.kernel.or(o.kernel);
+    o.points = s.points.or(o.points);
+    o.interp = s.interp.unwrap_or(o.interp);
+    o.granularity = s.granularity.unwrap_or(o.granularity);
+    o.global_majorant = s.global_majorant.unwrap_or(o.global_majorant);
+    o.density_scale = s.density_scale.unwrap_or(o.density_scale);
+    if s.volume.is_some() {
+        o.volume.clone_from(&s.volume);
+    }
+    if s.field.is_some() {
+        o.field.clone_from(&s.field);
+    }
+    if !(o.density_scale.is_finite() && o.density_scale >= 0.0) {
+        return Err(err(
+            path,
+            &key("density_scale"),
+            format!("{} is not a finite scale >= 0", o.density_scale),
+        ));
+    }
+    let named = |e: crate::Error| match e {
+        crate::Error::InvalidArgument { name, reason } => {
+            err(path, &key(&name.replace('-', "_")), reason)
+        }
+        other => err(path, &key("estimator"), other),
+    };
+    o.estimator().map_err(named)?;
+    o.scene_options().map_err(named)?;
+    Ok(o)
+}
+
+/// One frame's answers as written to disk.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+struct FrameFile {
+    prim: String,
+    #[serde(rename = "type")]
+    type_name: String,
+    light: String,
+    light_name: String,
+    estimator: String,
+    frame: f64,
+    #[serde(rename = "T")]
+    transmittance: Vec<f64>,
+    std_err: Vec<f64>,
+    positions: Vec<[f64; 3]>,
+}
+
+impl Job {
+    /// Every task index of the job: bakes, then positions.
+    #[must_use]
+    pub fn task_count(&self) -> usize {
+        self.tasks.len() + self.positions.len()
+    }
+
+    /// The files a positions task's answers depend on: the stage and the `.vdb` files its
+    /// volumes name at the frame. `None` when they cannot be listed.
+    #[must_use]
+    pub fn positions_sources(&self, t: &PositionsTask) -> Option<Vec<PathBuf>> {
+        let opts = t.scene().ok()?;
+        crate::scene::file::sources(&t.stage, &opts).ok()
+    }
+
+    /// Whether a positions task's per-frame file exists and is not older than its sources.
+    #[must_use]
+    pub fn positions_up_to_date(&self, t: &PositionsTask) -> bool {
+        let mtime = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+        let Some(out) = mtime(&t.output) else {
+            return false;
+        };
+        self.positions_sources(t)
+            .is_some_and(|s| s.iter().all(|p| mtime(p).is_some_and(|i| out >= i)))
+    }
+
+    /// Check every `[[positions]]` entry as its first frame would run: the stage has the
+    /// prim (a `Points` or `PointInstancer`) and the light.
+    ///
+    /// # Errors
+    /// [`BatchError::Invalid`] naming `positions[i]` and why.
+    pub fn check_positions(&self) -> Result<(), BatchError> {
+        let mut seen = std::collections::HashSet::new();
+        for t in self.positions.iter().filter(|t| seen.insert(t.entry)) {
+            #[allow(clippy::cast_precision_loss)]
+            let time = Some(t.frame as f64);
+            let key = format!("positions[{}]", t.entry);
+            crate::usd::points_at(&t.stage, &t.prim, time).map_err(|e| err(&self.path, &key, e))?;
+            let shot =
+                crate::usd::lights_at(&t.stage, time).map_err(|e| err(&self.path, &key, e))?;
+            shot.light(t.light.as_deref())
+                .map_err(|e| err(&self.path, &key, e))?;
+        }
+        Ok(())
+    }
+
+    /// Answer one positions task (one frame) and write its per-frame file atomically; how
+    /// many points it answered.
+    ///
+    /// # Errors
+    /// [`BatchError::Task`] for any error reading the stage, estimating or writing.
+    pub fn run_positions_task(&self, t: &PositionsTask) -> Result<usize, BatchError> {
+        let scene = t.scene()?;
+        let (est, opts) = t.options.estimator()?;
+        #[allow(clippy::cast_precision_loss)]
+        let frames = [t.frame as f64];
+        let q = crate::points::PointQuery {
+            stage: &t.stage,
+            prim: &t.prim,
+            light: t.light.as_deref(),
+            frames: &frames,
+        };
+        let answers = crate::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})?;
+        let Some(f) = answers.frames.into_iter().next() else {
+            return Ok(0);
+        };
+        let n = f.transmittance.len();
+        let file = FrameFile {
+            prim: answers.prim,
+            type_name: answers.type_name,
+            light: answers.light,
+            light_name: answers.light_name,
+            estimator: est.name().to_string(),
+            frame: f.frame,
+            transmittance: f.transmittance,
+            std_err: f.std_err,
+            positions: f.positions,
+        };
+        if let Some(d) = t.output.parent() {
+            std::fs::create_dir_all(d).map_err(|e| crate::Error::Io {
+                path: d.to_path_buf(),
+                err: e,
+            })?;
+        }
+        crate::output::write_atomic(&t.output, true, |w| {
+            serde_json::to_writer(w, &file).map_err(|e| e.to_string())
+        })?;
+        Ok(n)
+    }
+
+    /// Rebuild every `[[positions]]` entry's layer from the per-frame files on disk (in frame
+    /// order); each layer written and how many frames it holds. An entry with no file yet is
+    /// left alone.
+    ///
+    /// # Errors
+    /// A per-frame file that cannot be read or parsed (naming it), or a layer that cannot be
+    /// written.
+    pub fn write_positions_layers(&self) -> Result<Vec<(PathBuf, usize)>, BatchError> {
+        let mut out = Vec::new();
+        let entries: std::collections::BTreeSet<usize> =
+            self.positions.iter().map(|t| t.entry).collect();
+        for e in entries {
+            let mut answers: Option<crate::points::PointAnswers> = None;
+            let mut layer = PathBuf::new();
+            for t in self.positions.iter().filter(|t| t.entry == e) {
+                layer.clone_from(&t.usd_out);
+                if !t.output.is_file() {
+                    continue;
+                }
+                let f = read_frame(&t.output)?;
+                let all = answers.get_or_insert_with(|| crate::points::PointAnswers {
+                    prim: f.prim.clone(),
+                    type_name: f.type_name.clone(),
+                    light: f.light.clone(),
+                    light_name: f.light_name.clone(),
+                    frames: Vec::new(),
+                    warnings: Vec::new(),
+                });
+                all.frames.push(crate::points::PointFrame {
+                    frame: f.frame,
+                    positions: f.positions,
+                    transmittance: f.transmittance,
+                    std_err: f.std_err,
+                });
+            }
+            let Some(mut answers) = answers else { continue };
+            answers.frames.sort_by(|a, b| a.frame.total_cmp(&b.frame));
+            let text = crate::points::layer_text(&answers)?;
+            crate::output::write_atomic(&layer, true, |w| {
+                std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
+            })?;
+            out.push((layer, answers.frames.len()));
+        }
+        Ok(out)
+    }
+}
+
+fn read_frame(p: &Path) -> Result<FrameFile, BatchError> {
+    let text = std::fs::read_to_string(p).map_err(|e| crate::Error::Io {
+        path: p.to_path_buf(),
+        err: e,
+    })?;
+    serde_json::from_str(&text).map_err(|e| {
+        BatchError::Task(crate::Error::InvalidArgument {
+            name: p.display().to_string(),
+            reason: format!("not a per-frame answers file: {e}"),
+        })
+    })
+}
