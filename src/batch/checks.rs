@@ -3,9 +3,8 @@
 //! `bake.usd_out`, and lexical path normalisation.
 
 use super::patterns::MAX_FRAMES;
-use super::schema::InputSpec;
 use super::{BatchError, Task};
-use crate::request::{BakeOptions, LevelSet};
+use crate::request::LevelSet;
 use std::path::{Path, PathBuf};
 
 /// How the tasks of one `[[inputs]]` entry read their files: the entry's own values, else
@@ -87,44 +86,6 @@ pub(super) fn key_at(text: &str, at: usize) -> Option<String> {
     Some(match table {
         Some(t) if !t.is_empty() => format!("{t}.{key}"),
         _ => key.to_string(),
-    })
-}
-
-/// How the tasks of `[[inputs]]` entry `inp` read their files: its `grid`, `density_scale`,
-/// `levelset` and `xform`, each checked as `[bake]`'s are, else the job's (`grid`, `b`).
-pub(super) fn entry_read(
-    path: &Path,
-    key: &dyn Fn(&str) -> String,
-    inp: &InputSpec,
-    grid: &str,
-    b: &BakeOptions,
-) -> Result<EntryRead, BatchError> {
-    if inp.grid.as_deref() == Some("") {
-        return Err(err(path, &key("grid"), "must not be empty"));
-    }
-    if let Some(s) = inp.density_scale {
-        if !(s.is_finite() && s >= 0.0) {
-            return Err(err(
-                path,
-                &key("density_scale"),
-                format!("{s} is not a finite scale >= 0"),
-            ));
-        }
-    }
-    if let Some(x) = &inp.xform {
-        crate::xform::Xform::from_row_major(x).map_err(|e| {
-            let reason = match e {
-                crate::Error::InvalidArgument { reason, .. } => reason,
-                other => other.to_string(),
-            };
-            err(path, &key("xform"), reason)
-        })?;
-    }
-    Ok(EntryRead {
-        grid: inp.grid.clone().unwrap_or_else(|| grid.to_string()),
-        density_scale: inp.density_scale.unwrap_or(b.density_scale),
-        levelset: inp.levelset.or(b.levelset),
-        xform: inp.xform.clone().or_else(|| b.xform.clone()),
     })
 }
 

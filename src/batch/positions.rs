@@ -9,7 +9,7 @@
 //! shards'), so the last shard to finish writes the whole layer: the same text as `umbra query
 //! STAGE --positions PRIM --frames A-B --usd-out LAYER` for those frames.
 
-use super::schema::{err, frame_list};
+use super::checks::{err, frame_list};
 use super::{BatchError, Job};
 use crate::request::BakeOptions;
 use serde::{Deserialize, Serialize};
@@ -176,11 +176,11 @@ pub(super) fn tasks(
 /// keys; its log defaults to `umbra_batch.jsonl` beside the first entry's layer.
 pub(super) fn job(
     path: PathBuf,
-    file: &super::JobFile,
+    (bake, specs, log): (&BakeOptions, &[PositionsSpec], Option<&str>),
     grid: String,
     resolve: &dyn Fn(&str) -> PathBuf,
 ) -> Result<Job, BatchError> {
-    let mut options = file.bake.clone();
+    let mut options = bake.clone();
     if options.usd_out.is_some() {
         return Err(err(
             &path,
@@ -193,8 +193,8 @@ pub(super) fn job(
     let framing = options.framing.take().unwrap_or_default();
     options.camera = None;
     options.preview = None;
-    let positions = tasks(&path, &file.positions, &options, &grid, 0, resolve)?;
-    let log = match &file.log {
+    let positions = tasks(&path, specs, &options, &grid, 0, resolve)?;
+    let log = match log {
         Some(l) => resolve(l),
         None => positions
             .first()

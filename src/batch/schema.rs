@@ -3,7 +3,7 @@
 //! a [`Job`] of tasks: every error names its key (`bake.step`, `lights[1].dir`) and, for a
 //! value of the wrong type, its line and column.
 
-use super::checks::{check_usd_out, entry_read, key_at, normalise, EntryRead};
+use super::checks::{check_usd_out, key_at, normalise, EntryRead};
 pub(super) use super::checks::{err, frame_list};
 use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAME_PAD};
 use super::{BatchError, Job, Task};
@@ -190,7 +190,12 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
                 "give at least one [[inputs]] or [[positions]] entry",
             ));
         }
-        return super::positions::job(path, &file, grid, &resolve);
+        return super::positions::job(
+            path,
+            (&file.bake, &file.positions, file.log.as_deref()),
+            grid,
+            &resolve,
+        );
     }
     let Some(output_pattern) = file.output.clone() else {
         return Err(err(
@@ -550,5 +555,43 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         volume,
         usd_out,
         shared: std::sync::OnceLock::new(),
+    })
+}
+
+/// How the tasks of `[[inputs]]` entry `inp` read their files: its `grid`, `density_scale`,
+/// `levelset` and `xform`, each checked as `[bake]`'s are, else the job's (`grid`, `b`).
+pub(super) fn entry_read(
+    path: &Path,
+    key: &dyn Fn(&str) -> String,
+    inp: &InputSpec,
+    grid: &str,
+    b: &BakeOptions,
+) -> Result<EntryRead, BatchError> {
+    if inp.grid.as_deref() == Some("") {
+        return Err(err(path, &key("grid"), "must not be empty"));
+    }
+    if let Some(s) = inp.density_scale {
+        if !(s.is_finite() && s >= 0.0) {
+            return Err(err(
+                path,
+                &key("density_scale"),
+                format!("{s} is not a finite scale >= 0"),
+            ));
+        }
+    }
+    if let Some(x) = &inp.xform {
+        crate::xform::Xform::from_row_major(x).map_err(|e| {
+            let reason = match e {
+                crate::Error::InvalidArgument { reason, .. } => reason,
+                other => other.to_string(),
+            };
+            err(path, &key("xform"), reason)
+        })?;
+    }
+    Ok(EntryRead {
+        grid: inp.grid.clone().unwrap_or_else(|| grid.to_string()),
+        density_scale: inp.density_scale.unwrap_or(b.density_scale),
+        levelset: inp.levelset.or(b.levelset),
+        xform: inp.xform.clone().or_else(|| b.xform.clone()),
     })
 }
