@@ -1,6 +1,6 @@
 # Blender (Cycles) as a transmittance peer: render T along orthographic rays through an
 # absorption-only volume in front of a white world, framed like vdb_render's ortho camera
-# (the convention of ../shared/tools/oracle.py image and examples/ortho_view.rs).
+# (the convention of ../shared/tools/oracle.py image and bench/programs/ortho_view.rs).
 #
 #   blender -b --factory-startup -P bench/blender_transmittance.py -- VOL.vdb out.exr \
 #       --grid density --scale S --dir=dx,dy,dz --center=cx,cy,cz --up=ux,uy,uz --frame F \

@@ -1,5 +1,5 @@
 # Mitsuba 3 / Dr.Jit peers for bench/peer.sh: the orthographic transmittance view of
-# examples/ortho_view.rs, from a dense copy of the grid made by bench/vdb_dense.py.
+# bench/programs/ortho_view.rs, from a dense copy of the grid made by bench/vdb_dense.py.
 #
 #   bench/.venv/bin/python bench/mitsuba_transmittance.py DENSE.npz OUT.exr --mode volpath|march \
 #       --scale 5 --dir=0.6,-0.35,-1 --center=-2.07,1.21,1.93 --up=0,1,0 --frame 4.4 \

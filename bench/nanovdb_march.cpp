@@ -1,4 +1,4 @@
-// NanoVDB peer for bench/peer.sh: the orthographic transmittance view of examples/ortho_view.rs
+// NanoVDB peer for bench/peer.sh: the orthographic transmittance view of bench/programs/ortho_view.rs
 // rendered by a ray marcher written the way one would write it on NanoVDB (scalar C++, f32
 // values, one ReadAccessor per thread, std::thread over image rows).
 //
@@ -10,7 +10,7 @@
 //   nanovdb_march FILE.nvdb --scale 5 --step 1 --threads 2 --segments rays.csv [--out t.f32]
 //       (a query batch: see `segments` below)
 //
-// Camera (as examples/ortho_view.rs and vdb_render -camera ortho): d = normalise(dir),
+// Camera (as bench/programs/ortho_view.rs and vdb_render -camera ortho): d = normalise(dir),
 // u = normalise(up - (up.d) d), r = d x u; pixel (i, j), row 0 at the top, starts at
 // center + r (2 (i + .5) / W - 1) frame / 2 + u (1 - 2 (j + .5) / H) (frame / 2) H / W and runs
 // along d for t in [0, inf). T = exp(-tau), tau = scale (per world unit) x the integral of the

@@ -1,6 +1,6 @@
 """Query throughput (issue 34): 10^6 random segments through ../shared/corpus/gen/cloud_fbm.vdb
 (density scale 5), exact transmittance from umbra four ways (the Rust call:
-`examples/hotpaths.rs segments`, `umbra::regular::optical_depths` as `umbra query --rays` and
+`bench/programs/hotpaths.rs segments`, `umbra::regular::optical_depths` as `umbra query --rays` and
 Python call it, leaf chords in batches on the SIMD kernel; the f64 walk per ray, the reference
 the errors are measured against: `hotpaths segments-rays`;
 Python's `Volume.transmittance`; the CLI `umbra query --rays CSV --json` as a whole process)

@@ -1,4 +1,4 @@
-//! The README's Rust example, verbatim (`tests/readme.rs` holds the README to this file, and
+//! The README's Rust example, verbatim (`tests/library/readme.rs` holds the README to this file, and
 //! runs it): exact and stochastic transmittance through the sample cloud.
 
 use umbra::estimate::{estimate, Estimator, Options};

@@ -2,14 +2,19 @@
 # Build and install the Python module into a fresh virtual environment (what `pip install
 # ./python` does for a user), then run its tests against the `umbra` binary built beside it.
 # Run from anywhere; PYTHON picks the interpreter (default python3, CPython >= 3.9).
+# UMBRA_PROFILE picks the cargo profile of the module and the binary under test (default
+# `quick`, the Rust tests' profile, so the README's test command builds the binary once; the
+# code is the same as a release build's, without its link-time optimisation).
 set -euo pipefail
+profile="${UMBRA_PROFILE:-quick}"
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 target="${CARGO_TARGET_DIR:-$repo/target}"
 venv="$target/py-venv"
 rm -rf "$venv"
 "${PYTHON:-python3}" -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip
-"$venv/bin/python" -m pip install -q "$repo/python" pytest "OpenEXR>=3.2" mypy usd-core openjd-cli opencue-pyoutline packaging moderngl
+MATURIN_PEP517_ARGS="--profile $profile" \
+  "$venv/bin/python" -m pip install -q "$repo/python" pytest "OpenEXR>=3.2" mypy usd-core openjd-cli opencue-pyoutline packaging moderngl
 # Blender as a Python module (the bpy wheel, Cycles built with OSL) runs
 # examples/deep_formats.osl in the tests. It pins its own numpy and wants CPython 3.11, so it
 # gets a venv of its own, kept between runs (the wheel is about 350 MB).
@@ -20,7 +25,7 @@ if ! "$bpy_venv/bin/python" -c "import bpy" >/dev/null 2>&1; then
   "$bpy_venv/bin/python" -m pip install -q "bpy==4.5.4"
 fi
 export UMBRA_BPY_PYTHON="$bpy_venv/bin/python"
-cargo build --release --ignore-rust-version --bin umbra --manifest-path "$repo/Cargo.toml"
+cargo build --profile "$profile" --ignore-rust-version --bin umbra --manifest-path "$repo/Cargo.toml"
 # From outside the checkout, so `import umbra` is the installed package, not python/umbra.
 cd "$target"
-UMBRA_BIN="$target/release/umbra" "$venv/bin/python" -m pytest -q -p no:cacheprovider "$repo/python/tests"
+UMBRA_BIN="$target/$profile/umbra" "$venv/bin/python" -m pytest -q -p no:cacheprovider "$repo/python/tests"

@@ -348,7 +348,7 @@ def test_broken_stage_files_are_errors_not_crashes(cli, umbra_bin, tmp_path):
         assert "cut.usdc" in e, e
     # A size field inside a compressed section that asks for terabytes (openusd 0.6 would
     # allocate it and abort; 0.8 refuses it): the error names the file. Every value type,
-    # every byte: tests/usd_corrupt.rs.
+    # every byte: tests/library/usd_corrupt.rs.
     toc = int.from_bytes(data[16:24], "little")
     sections = {data[toc + 8 + 32 * i: toc + 24 + 32 * i].rstrip(b"\0").decode():
                 int.from_bytes(data[toc + 24 + 32 * i: toc + 32 + 32 * i], "little")

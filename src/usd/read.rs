@@ -679,7 +679,7 @@ fn open_stage(path: &Path) -> Result<Stage> {
     // gives unauthored attributes their schema fallbacks, as usd-core does.
     // No guard in front of the crate reader any more: openusd 0.8 checks every count against
     // the bytes that hold it, bounds LZ4 output and nesting and refuses a value inside
-    // itself (tests/usd_corrupt.rs re-runs 0.6's aborts on it; docs/usd.md#limits).
+    // itself (tests/library/usd_corrupt.rs re-runs 0.6's aborts on it; docs/usd.md#limits).
     let opened = std::panic::catch_unwind(|| {
         Stage::builder()
             .schema_registry(openusd_schemas::schema_registry())

@@ -3,7 +3,7 @@
 //! grid its descriptor, compression flags, metadata, transform, topology and leaf buffers, with
 //! the descriptor's three offsets filled in), without the statistics metadata OpenVDB adds
 //! (`file_bbox_min` ...), so `vdb_print`, pyopenvdb and umbra all read what it writes (the
-//! round-trip test in `tests/hostile.rs` checks this). On top of valid files it records where every
+//! round-trip test in `tests/cli/hostile.rs` checks this). On top of valid files it records where every
 //! offset and length field sits ([`Layout`]) and can patch them, to craft hostile files.
 //!
 //! Format facts (OpenVDB 10 `io/Archive.cc`, `tree/RootNode.h`, `tree/InternalNode.h`,

@@ -1,5 +1,5 @@
 #!/usr/bin/python3
-"""Near-lattice test grids and rays for tests/near_lattice.rs, written by real OpenVDB.
+"""Near-lattice test grids and rays for tests/library/near_lattice.rs, written by real OpenVDB.
 
     /usr/bin/python3 make_grids.py OUT_DIR
 

@@ -4,7 +4,7 @@ short and long arrays, integer- and table-compressed float arrays), and every st
 format nests (dictionaries five deep, references with customData, payloads, list ops, variant
 selections, sublayer offsets, time samples of arrays, relationships, connections).
 
-The file is the fixture of `tests/usd_corrupt.rs` (umbra must read every valid layer and
+The file is the fixture of `tests/library/usd_corrupt.rs` (umbra must read every valid layer and
 never abort on a corrupt one); python/tests/test_usd.py writes the same stage
 with the usd-core of the day and reads it through the CLI. Run: python3 make_every_value.py OUT
 """

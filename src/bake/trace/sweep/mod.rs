@@ -40,7 +40,7 @@
 //!   in tree order: the same whatever the thread count.
 //!
 //! The result equals the ray path's ([`crate::regular::optical_depth`] per pixel) to within the
-//! kernel's f32 cell arithmetic (see [`kernel`]); `tests/bake.rs` holds it to `1e-6` relative on
+//! kernel's f32 cell arithmetic (see [`kernel`]); `tests/library/bake.rs` holds it to `1e-6` relative on
 //! corpus files. Lookups are counted as the ray path counts them: 8 corner reads for the first
 //! dual cell of a block, 4 for each further one.
 

@@ -4,7 +4,7 @@
 //! standard matrices, and the object-order sweep against the ray path.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
+use crate::bake_support;
 
 use bake_support::{box_volume, ortho, prov, read_exr, regular, Exr};
 use glam::DVec3;

@@ -4,7 +4,7 @@
 //! does not change a byte; bad arguments give one-line errors and leave nothing behind.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
+use crate::bake_support;
 
 use assert_cmd::Command;
 use bake_support::read_exr;

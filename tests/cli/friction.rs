@@ -5,10 +5,9 @@
 //! the deep colour channels a deep map really carries.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-#[path = "common/vdb_writer.rs"]
-mod vdb_writer;
+use crate::vdb_writer;
 
-mod bake_support;
+use crate::bake_support;
 
 use assert_cmd::Command;
 use std::path::Path;

@@ -8,7 +8,7 @@
 //! oiiotool the tests fail unless `UMBRA_SKIP_OIIO=1`.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

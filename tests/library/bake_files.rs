@@ -2,7 +2,7 @@
 //! and cameras that cannot be framed.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
+use crate::bake_support;
 
 use bake_support::{box_volume, ortho, prov, read_exr, regular};
 use umbra::bake::{bake, write_exr, write_png, Camera, Projection, View};

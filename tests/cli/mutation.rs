@@ -56,7 +56,7 @@
 //! on a sample of the same mutants (time- and memory-limited).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use common::{corpus_dir, panic_message, peak_rss_bytes};
 use rand::{Rng, SeedableRng};
@@ -2360,7 +2360,7 @@ fn supervise(
     while last.is_some_and(|l| from <= l) {
         let mut child = Command::new(std::env::current_exe().unwrap())
             .args([
-                "mutation_worker",
+                "mutation::mutation_worker",
                 "--exact",
                 "--nocapture",
                 "--test-threads=1",

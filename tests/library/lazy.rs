@@ -6,7 +6,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 #[allow(unused_imports)]
-mod common;
+use crate::common;
 
 use common::data;
 use rand::{Rng, SeedableRng};

@@ -1,10 +1,10 @@
 //! `umbra batch`: sequences x lights, failures, resume, shards, plan.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
+use crate::bake_support;
 // Only `corpus_dir` is used here.
 #[allow(unused_imports)]
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -641,7 +641,7 @@ fn shared_cameras_are_cached_for_farm_tasks() {
     let sun = cams.iter_mut().find(|c| c["light"] == "sun").unwrap();
     // Moved four pixels across the image plane (along step_x): the same depth range, so the
     // bake uses it exactly as cached (a move along the light would be extended to cover the
-    // frame, see tests/camera_reuse.rs).
+    // frame, see tests/library/camera_reuse.rs).
     let moved = [0, 1, 2].map(|k| fresh[k] + 4.0 * step_x[k]);
     sun["camera"]["spec"]["origin"] = serde_json::json!(moved);
     std::fs::write(&cache, serde_json::to_vec(&stored).unwrap()).unwrap();

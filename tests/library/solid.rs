@@ -4,7 +4,7 @@
 
 // Only `corpus_dir` is used here.
 #[allow(unused_imports)]
-mod common;
+use crate::common;
 
 use rand::{Rng, SeedableRng};
 use umbra::glam::DVec3;

@@ -6,7 +6,7 @@
 //! `umbra --help`.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
+use crate::bake_support;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

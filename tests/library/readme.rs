@@ -27,18 +27,14 @@ fn readme_rust_example_is_the_example_and_runs() {
         "the README's Rust example differs from examples/readme.rs"
     );
     // Run it from the repository, as `cargo run --release --example readme` does (`cargo
-    // test` builds the examples of its profile beside the test binaries: a test cannot call
-    // cargo, which holds the build directory while the tests run).
-    let target =
-        std::env::var_os("CARGO_TARGET_DIR").map_or_else(|| root.join("target"), Into::into);
-    let profile = if cfg!(debug_assertions) {
-        "debug"
-    } else {
-        "release"
-    };
-    let exe = Path::new(&target).join(profile).join("examples/readme");
+    // test` builds the examples of its profile beside the test binaries, in the profile's
+    // directory, the parent of this binary's `deps/`: a test cannot call cargo, which holds the
+    // build directory while the tests run).
+    let this = std::env::current_exe().unwrap();
+    let profile_dir = this.parent().and_then(Path::parent).unwrap();
+    let exe = profile_dir.join("examples/readme");
     if !exe.exists() {
-        // A filtered `cargo test --test readme` builds no examples; the whole suite (CI) does.
+        // A filtered `cargo test --test library` builds no examples; the whole suite (CI) does.
         assert!(
             std::env::var_os("CI").is_none(),
             "{} is not built (cargo test builds examples)",

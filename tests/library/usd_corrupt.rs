@@ -136,7 +136,7 @@ fn a_corrupt_layer_inside_a_package_is_an_error() {
 
 /// Every byte offset of the fixture overwritten with a u64 count of 2^40 (any count or size
 /// field the format has, wherever it sits): a stage or an error, never an abort. 122,833
-/// layers, about 6 minutes: `cargo test --release --ignore-rust-version --test usd_corrupt --
+/// layers, about 6 minutes: `cargo test --profile quick --ignore-rust-version --test library usd_corrupt --
 /// --ignored`.
 #[test]
 #[ignore = "six minutes; run by hand after an openusd upgrade"]

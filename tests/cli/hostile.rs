@@ -15,8 +15,7 @@
 //! transforms; names with terminal control bytes; work budgets far beyond any machine.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-#[path = "common/vdb_writer.rs"]
-mod vdb_writer;
+use crate::vdb_writer;
 
 use std::collections::BTreeMap;
 use std::io::Read;

@@ -6,7 +6,7 @@
 //! smooth data, raw bytes are stored when it does not. Without the tools the tests fail unless
 //! `UMBRA_SKIP_OIIO=1`.
 
-mod common;
+use crate::common;
 
 use exr::meta::attribute::{AttributeValue, Text};
 use rand::{Rng, SeedableRng};

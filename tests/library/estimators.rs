@@ -538,7 +538,7 @@ fn same_seed_same_bits_and_granularities_agree() {
 /// Houdini smoke at a thin and a thick density scale, every null-collision tracker at 64
 /// samples. No row reports `std_err` 0 while `|T - exact| > 1e-6`, and at most 2 % of the rows
 /// lie more than 4 `std_err` from the exact `T`. Measured with the floor of
-/// `umbra::estimate::error_bar` (`examples/stderr_calibration.rs`, 1000 segments): at most
+/// `umbra::estimate::error_bar` (`bench/programs/stderr_calibration.rs`, 1000 segments): at most
 /// 0.3 % for these trackers (0 to 3 rows of 1000); the sample standard error alone put
 /// 10.7 % (ratio, scale 0.05) to 48 % (track-length, scale 2) beyond 4, with up to 278 rows
 /// of a zero error bar that was wrong. 2 % is 6 rows of 300: margin for other seeds, and

@@ -3,7 +3,7 @@
 //! every level OIIO extracts (`--selectmip`) equal to the box filter of `bake::mip_levels`.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
+use crate::bake_support;
 
 use bake_support::read_exr;
 use std::path::{Path, PathBuf};

@@ -4,7 +4,7 @@
 //! attributes, byte for byte; `--res` keeps the window), and the errors.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
+use crate::bake_support;
 
 use assert_cmd::Command;
 use bake_support::read_exr;

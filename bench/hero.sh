@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Issue 18's benches on a hero-size cache, umbra against OpenVDB 10's vdb_print, side by side.
 #
-#   bash tools/bench_hero.sh [FILE.vdb] [RUNS]
+#   bash bench/hero.sh [FILE.vdb] [RUNS]
 #
 # FILE defaults to /tmp/umbra-hero/hero.vdb (made by tools/make_hero.py when missing); RUNS
 # (default 5) timed runs per command after one warm-up, the tools alternated run by run. Prints

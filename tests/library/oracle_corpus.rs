@@ -4,7 +4,7 @@
 //! (`.ci/run` installs it); set `UMBRA_SKIP_ORACLE=1` to skip on machines without it.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use common::oracle_available;
 use rand::{Rng, SeedableRng};

@@ -4,7 +4,7 @@
 //! must report errors on one line and print the library's report as JSON.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use common::{corpus_dir, entry_path, manifest, manifest_files, must_read, panic_message};
 use serde_json::Value;

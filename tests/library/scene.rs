@@ -4,7 +4,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 #[allow(unused_imports)]
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 use umbra::bake::{bake_scene, BakeSettings, Camera, Order, Projection, Resolution, View};

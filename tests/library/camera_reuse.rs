@@ -5,9 +5,8 @@
 //! the camera's window, the bake warns how far (stderr and `--json`).
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod bake_support;
-#[path = "common/vdb_writer.rs"]
-mod vdb_writer;
+use crate::bake_support;
+use crate::vdb_writer;
 
 use bake_support::read_exr;
 use std::path::{Path, PathBuf};

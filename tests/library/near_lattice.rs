@@ -14,7 +14,7 @@
 //! maps (the object-order sweep and the ray path), deep-map profiles and transmittance volumes.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
-mod common;
+use crate::common;
 
 use common::oracle_available;
 use std::path::{Path, PathBuf};

@@ -1,0 +1,38 @@
+//! The library's tests, one module per subject: answers against independent references (the
+//! OpenVDB oracle, vdb-rs, closed forms), the estimators within their standard errors, the
+//! readers and writers, cameras, products and the public API as a caller uses it. One test
+//! binary (`cargo test --profile quick --ignore-rust-version --test library [FILTER]`); the
+//! modules are the former `tests/*.rs` files, unchanged.
+#![allow(clippy::unwrap_used, clippy::expect_used)]
+
+#[path = "../bake_support/mod.rs"]
+mod bake_support;
+#[path = "../common/mod.rs"]
+mod common;
+#[path = "../common/vdb_writer.rs"]
+mod vdb_writer;
+
+mod bake;
+mod bake_files;
+mod camera_control;
+mod camera_reuse;
+mod data_samples;
+mod deep_exr;
+mod deep_formats;
+mod estimators;
+mod exr_layout;
+mod lazy;
+mod library_api;
+mod map_summary;
+mod near_lattice;
+mod omni;
+mod oracle_corpus;
+mod readme;
+mod regular_tracking;
+mod scene;
+mod solid;
+mod tree_bounds;
+mod usd_corrupt;
+mod vdb_write;
+mod vdbrs_crosscheck;
+mod xform;
