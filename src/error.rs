@@ -93,14 +93,15 @@ pub enum Error {
         reason: String,
     },
     /// An output file exists and the caller did not allow replacing it. Nothing was written.
-    /// Displayed as the command line says it; [`Error::for_front`] words it for another front
-    /// end.
-    #[error("{}: cannot write: already exists (use --force to overwrite)", path.display())]
+    /// Each front end adds how its user allows replacing it (`--force`, `force=True`).
+    #[error("{}: cannot write: already exists", path.display())]
     Exists {
         /// The existing file.
         path: PathBuf,
     },
-    /// A caller-supplied argument is out of its domain.
+    /// A caller-supplied argument is out of its domain. `name` is the library's name of the
+    /// option in kebab case (`deep-error`); each front end respells it as its user types it
+    /// (`--deep-error` on the command line, `deep_error` in Python and job files).
     #[error("invalid argument '{name}': {reason}")]
     InvalidArgument {
         /// Argument name.
@@ -108,67 +109,6 @@ pub enum Error {
         /// Why it is invalid.
         reason: String,
     },
-}
-
-/// The front ends a user names options through. The library names an option in kebab case
-/// (`deep-error`); each front end spells it its own way by one rule: the command line's long
-/// flag `--deep-error`, a Python keyword `deep_error` (the flag with `-` turned into `_`, as a
-/// job file's key is).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Front {
-    /// The `umbra` command line: `--deep-error`.
-    Cli,
-    /// The Python module: the keyword `deep_error`.
-    Python,
-}
-
-impl Front {
-    /// How this front end spells the library's option `name` (kebab case; a name already in
-    /// a front end's spelling is respelled).
-    #[must_use]
-    pub fn spell(self, name: &str) -> String {
-        let bare = name.trim_start_matches("--");
-        match self {
-            Self::Cli => format!("--{}", bare.replace('_', "-")),
-            Self::Python => bare.replace('-', "_"),
-        }
-    }
-
-    /// How a user of this front end allows replacing an existing output.
-    #[must_use]
-    pub fn overwrite_hint(self) -> &'static str {
-        match self {
-            Self::Cli => "use --force to overwrite",
-            Self::Python => "pass force=True to replace it",
-        }
-    }
-}
-
-impl Error {
-    /// The error as front end `front` reports it: an [`Error::InvalidArgument`] names its
-    /// argument as that front end spells it ([`Front::spell`]: `--step`, `step`), an
-    /// [`Error::Exists`] says how that front end allows overwriting; every other error is
-    /// unchanged, so the messages of every front end agree but for the names.
-    #[must_use]
-    pub fn for_front(self, front: Front) -> Self {
-        match self {
-            Self::InvalidArgument { name, reason } => Self::InvalidArgument {
-                name: front.spell(&name),
-                reason,
-            },
-            Self::Exists { path } if front != Front::Cli => Self::Output {
-                path,
-                reason: format!("already exists ({})", front.overwrite_hint()),
-            },
-            other => other,
-        }
-    }
-
-    /// The error as the command line reports it: [`Error::for_front`] with [`Front::Cli`].
-    #[must_use]
-    pub fn flag_named(self) -> Self {
-        self.for_front(Front::Cli)
-    }
 }
 
 /// A decoding error without a path: the byte reader and decoders produce these, and

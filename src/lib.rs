@@ -80,7 +80,7 @@ pub mod vdb;
 pub mod volume;
 pub mod xform;
 
-pub use error::{Error, Front, Result};
+pub use error::{Error, Result};
 pub use glam;
 pub use light::Light;
 pub use ray::Ray;

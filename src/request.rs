@@ -14,7 +14,7 @@
 //! **One set of defaults, one set of errors.** [`BakeOptions::default`] is every front end's
 //! default (a test holds the CLI's to it). [`BakeRequest::plan`] refuses what cannot be
 //! baked with [`Error::InvalidArgument`] naming the option in the library's spelling; each
-//! front end respells the name ([`crate::Error::for_front`]: `--step`, `step =`, `step=`).
+//! front end respells the name (`--step`, `step =`, `step=`).
 //!
 //! **What a product reads.** The output's extension picks the product: `.vdb` a
 //! transmittance volume, anything else an EXR map (flat, or deep with `deep`). A
@@ -721,7 +721,7 @@ impl BakeRequest {
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
-    /// spelling, for [`crate::Error::for_front`]); errors reading a reused camera.
+    /// spelling, which each front end respells); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
         let with_light = self.with_stage_light()?;
         let req = with_light.as_ref().unwrap_or(self);

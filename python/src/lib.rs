@@ -72,10 +72,33 @@ fn raise(class: Class, message: String) -> PyErr {
     })
 }
 
-/// A library error as the CLI prints it (argument names as flags), as a Python exception.
+/// A library error as a Python exception, worded for Python: an option named as its keyword
+/// (the library's `deep-error` is `deep_error`), an existing output with how to replace it.
 fn py_err(e: umbra::Error) -> PyErr {
-    let e = e.for_front(umbra::Front::Python);
+    let e = match e {
+        umbra::Error::InvalidArgument { name, reason } => umbra::Error::InvalidArgument {
+            name: name.trim_start_matches("--").replace('-', "_"),
+            reason,
+        },
+        umbra::Error::Exists { path } => umbra::Error::Output {
+            path,
+            reason: "already exists (pass force=True to replace it)".into(),
+        },
+        other => other,
+    };
     raise(class_of(&e), e.to_string())
+}
+
+/// A library error as the command line words it (an option as its flag, `--step`): the
+/// messages a query batch records per row, which the CLI's `query --rays` prints the same.
+fn cli_worded(e: umbra::Error) -> umbra::Error {
+    match e {
+        umbra::Error::InvalidArgument { name, reason } => umbra::Error::InvalidArgument {
+            name: format!("--{}", name.trim_start_matches("--").replace('_', "-")),
+            reason,
+        },
+        other => other,
+    }
 }
 
 /// A load error as `umbra query`/`bake` print it: `loading grid 'NAME': ...` (`loading the
@@ -1002,7 +1025,7 @@ impl NativeVolume {
         let ray_of = |row: usize| {
             light
                 .ray_from_scene(scene, p[row])
-                .map_err(|e| e.flag_named().to_string())
+                .map_err(|e| cli_worded(e).to_string())
         };
         self.run(
             py,

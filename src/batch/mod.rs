@@ -113,7 +113,7 @@ pub enum BatchError {
     Task(#[from] crate::Error),
     /// An option of the run ([`RunOptions`]: `task`, `shard`, `log`) is out of range: an
     /// [`crate::Error::InvalidArgument`] in the library's spelling, which each front end
-    /// respells ([`crate::Error::for_front`]: `--task` / `task`).
+    /// respells (the CLI `--task`, Python `task`).
     #[error(transparent)]
     Options(crate::Error),
     /// A task panicked (a bug): the panic message.

@@ -115,9 +115,31 @@ impl ParamArgs {
     }
 }
 
-/// A library argument error, with its name spelled as the flag (`--step`).
+/// A library argument error, with its name spelled as the flag: the library names an option in
+/// kebab case (`deep-error`), the command line types `--deep-error`.
 pub fn flag_error(e: umbra::Error) -> umbra::Error {
-    e.flag_named()
+    match e {
+        umbra::Error::InvalidArgument { name, reason } => umbra::Error::InvalidArgument {
+            name: flag(&name),
+            reason,
+        },
+        other => other,
+    }
+}
+
+/// The command line's spelling of the library's option `name` (`deep-error` or `deep_error`
+/// to `--deep-error`).
+pub fn flag(name: &str) -> String {
+    format!("--{}", name.trim_start_matches("--").replace('_', "-"))
+}
+
+/// How the command line words an error it prints: an existing output says how to replace it.
+pub fn worded(e: &anyhow::Error) -> String {
+    let text = format!("{e:#}");
+    match e.root_cause().downcast_ref::<umbra::Error>() {
+        Some(umbra::Error::Exists { .. }) => format!("{text} (use --force to overwrite)"),
+        _ => text,
+    }
 }
 
 /// `--estimator`'s long help: one line per registered estimator.

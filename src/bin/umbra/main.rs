@@ -94,7 +94,7 @@ fn main() -> ExitCode {
                 return ExitCode::SUCCESS;
             }
             // One line, whatever names from files or arguments the message carries.
-            eprintln!("umbra: error: {}", umbra::text::escape(&format!("{e:#}")));
+            eprintln!("umbra: error: {}", umbra::text::escape(&common::worded(&e)));
             ExitCode::FAILURE
         }
     }
