@@ -2,7 +2,7 @@
 //! boxes before any task runs (`framing = "shared"`), and cached beside the log so the many
 //! processes of a farm job read every frame's topology once between them.
 
-use super::schema::err;
+use super::parse::err;
 use super::{BatchError, Framing, Job, Task};
 use crate::bake::Camera;
 use serde::{Deserialize, Serialize};

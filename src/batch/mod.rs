@@ -1,6 +1,6 @@
 //! Batch jobs: a TOML job file (inputs x lights, bake settings, an output pattern) expanded into
 //! tasks in a deterministic order, sharded for farms, resumed by output age, and logged as JSON
-//! lines. The rooms: `schema` (the job file's types, its JSON Schema, `parse_job`), `patterns`
+//! lines. The rooms: `schema` (the job file's types, its JSON Schema), `parse` (`parse_job`), `patterns`
 //! (frame tokens and output placeholders), `cameras` (shared cameras and their cache), `runner`
 //! (workers, log, resume, skip, shards: [`run`]); this file holds the validated [`Job`], its
 //! tasks and their log records.
@@ -59,17 +59,19 @@ mod cameras;
 mod checks;
 pub mod emit;
 mod layer;
+mod parse;
 mod patterns;
 mod positions;
 mod runner;
 mod schema;
 mod status;
+pub use parse::parse_job;
 pub use patterns::{expand_pattern, fill_output, MAX_FRAMES, MAX_FRAME_PAD};
 pub use positions::{PositionsSpec, PositionsTask};
 pub use runner::{run, PointsOut, Progress, RunOptions, RunReport, Silent, UsdOut};
 #[cfg(feature = "schema")]
 pub use schema::job_schema;
-pub use schema::{parse_job, InputSpec, JobFile, LightSpec};
+pub use schema::{InputSpec, JobFile, LightSpec};
 pub use status::{status, Status, TaskState};
 
 use crate::bake::{BakeJob, BakeReport, Camera, Resolution};
@@ -491,7 +493,7 @@ impl Job {
             }
             self.request(task, 0)
                 .plan()
-                .map_err(|e| schema::err(&self.path, &format!("tasks[{}]", task.index), e))?;
+                .map_err(|e| parse::err(&self.path, &format!("tasks[{}]", task.index), e))?;
         }
         Ok(skipped)
     }
