@@ -108,11 +108,94 @@ struct Answer {
     result: Result<(Ray, SceneEstimate, f64), String>,
 }
 
-/// Run the query and print the answer(s).
+/// Run the query and print the answer(s): check the flags, load what the rays cross, answer.
 pub fn run(a: &QueryArgs) -> Result<ExitCode> {
     if let Some(prim) = &a.positions {
         return run_points(a, prim);
     }
+    let Asked {
+        single,
+        light,
+        toward,
+    } = asked(a)?;
+    // Read the batch before the (possibly slow) load so a missing file fails fast.
+    let batch = match &a.rays {
+        Some(p) => Some(read_rays(p)?),
+        None => None,
+    };
+    let interp: Interp = a.interp.into();
+    let (est, opts) = a.est.resolve(interp)?;
+    let scene_opts = umbra::scene::SceneOptions {
+        grid: a.grid.clone(),
+        density_scale: a.density_scale,
+        sigma_t: a.trace.sigma_t,
+        xform: a.xform,
+        levelset_solid: a.trace.levelset.is_some(),
+        stage: umbra::usd::Selection {
+            light: toward,
+            ..a.stage.selection()
+        },
+    };
+    let pool = thread_pool(a.threads)?;
+    // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray
+    // that cannot be made keeps its error here and asks for nothing to be decoded.
+    let mut ray_error = None;
+    let make_rays = |scene: &Scene| -> Vec<Ray> {
+        if let Some(rows) = &batch {
+            return rows
+                .iter()
+                .filter_map(|(_, r)| r.as_ref().ok().copied())
+                .collect();
+        }
+        let ray = match (single, a.at, light) {
+            (Some((from, to)), _, _) => Ray::between(from, to),
+            (None, Some(at), Some(l)) => l.ray_from_scene(scene, at),
+            _ => return Vec::new(),
+        };
+        ray.map_err(|e| ray_error = Some(e)).into_iter().collect()
+    };
+    let (scene, rays) = pool.install(|| load(a, &scene_opts, interp, &opts, make_rays))?;
+    if let Some(e) = ray_error {
+        return Err(e.into());
+    }
+    // The work budget, up front: per ray and for every ray of the batch together.
+    let n_rays = batch.as_ref().map_or(1, Vec::len) as u64;
+    for f in scene.fogs() {
+        umbra::estimate::budget::check_job(
+            f.volume(),
+            &est,
+            n_rays,
+            u64::from(opts.samples),
+            "samples",
+        )
+        .map_err(flag_error)?;
+    }
+    let answers: Vec<Answer> = if let Some(rows) = batch {
+        pool.install(|| answer_rows(&scene, &rows, &rays, a.ray_id, (&est, &opts)))
+    } else {
+        let Some(ray) = rays.first() else {
+            bail!("nothing to query");
+        };
+        let r = answer(&scene, ray, a.ray_id, &est, &opts)?;
+        vec![Answer {
+            line: None,
+            result: Ok(r),
+        }]
+    };
+    print_answers(&answers, est.name(), interp, a.json)
+}
+
+/// What a query asks, from its flags: a segment, or a light (and the stage light it is, whose
+/// shadow link picks the volumes) for `--at`.
+struct Asked {
+    single: Option<([f64; 3], [f64; 3])>,
+    light: Option<Light>,
+    toward: Option<String>,
+}
+
+/// The flags checked against each other: exactly one of a segment, a point toward a light, or
+/// a file of rays; `--frames`, `--usd-out` and `--force` only with `--positions`.
+fn asked(a: &QueryArgs) -> Result<Asked> {
     for (flag, given) in [
         ("--frames", a.frames.is_some()),
         ("--usd-out", a.usd_out.is_some()),
@@ -160,114 +243,69 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
              those need --at"
         );
     }
-    // Read the batch before the (possibly slow) load so a missing file fails fast.
-    let batch = match &a.rays {
-        Some(p) => Some(read_rays(p)?),
-        None => None,
-    };
-    let interp: Interp = a.interp.into();
-    let (est, opts) = a.est.resolve(interp)?;
-    let scene_opts = umbra::scene::SceneOptions {
-        grid: a.grid.clone(),
-        density_scale: a.density_scale,
-        sigma_t: a.trace.sigma_t,
-        xform: a.xform,
-        levelset_solid: a.trace.levelset.is_some(),
-        stage: umbra::usd::Selection {
-            light: toward,
-            ..a.stage.selection()
-        },
-    };
-    let pool = thread_pool(a.threads)?;
-    // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray
-    // that cannot be made keeps its error here and asks for nothing to be decoded.
-    let mut ray_error = None;
-    let mut make_rays = |scene: &Scene| -> Vec<Ray> {
-        if let Some(rows) = &batch {
-            return rows
-                .iter()
-                .filter_map(|(_, r)| r.as_ref().ok().copied())
-                .collect();
-        }
-        let ray = match (single, a.at, light) {
-            (Some((from, to)), _, _) => Ray::between(from, to),
-            (None, Some(at), Some(l)) => l.ray_from_scene(scene, at),
-            _ => return Vec::new(),
-        };
-        ray.map_err(|e| ray_error = Some(e)).into_iter().collect()
-    };
-    let (scene, rays) = pool.install(|| {
-        // The grid-wide majorant is every leaf's bound: it needs the whole grid.
-        if a.load == LoadMode::Eager || opts.global_majorant {
-            load_scene(&a.file, &scene_opts).map(|s| {
-                let r = make_rays(&s);
-                (s, r)
-            })
-        } else {
-            let always = a.load == LoadMode::Lazy;
-            load_scene_for(
-                &a.file,
-                &scene_opts,
-                interp,
-                opts.granularity,
-                always,
-                make_rays,
-            )
-        }
-    })?;
-    if let Some(e) = ray_error {
-        return Err(e.into());
-    }
-    let vol = &scene;
-    // The work budget, up front: per ray and for every ray of the batch together.
-    let n_rays = batch.as_ref().map_or(1, Vec::len) as u64;
-    for f in scene.fogs() {
-        umbra::estimate::budget::check_job(
-            f.volume(),
-            &est,
-            n_rays,
-            u64::from(opts.samples),
-            "samples",
-        )
-        .map_err(flag_error)?;
-    }
-    let answers: Vec<Answer> = if let Some(rows) = batch {
-        // Row `n` has ray id `ray_id + n`; its rays go to the library together (exact queries
-        // in batches on the SIMD kernel), a row's `seconds` is the batch's time per ray.
-        let (rays, ids): (Vec<Ray>, Vec<u64>) = rows
-            .iter()
-            .enumerate()
-            .filter_map(|(n, (_, seg))| {
-                seg.as_ref()
-                    .ok()
-                    .map(|r| (*r, a.ray_id.wrapping_add(n as u64)))
-            })
-            .unzip();
-        let start = std::time::Instant::now();
-        let results = pool.install(|| umbra::scene::estimate_many(vol, &rays, &ids, &est, &opts));
-        let per_ray = start.elapsed().as_secs_f64() / rays.len().max(1) as f64;
-        let mut results = rays.into_iter().zip(results);
-        rows.iter()
-            .map(|(line, seg)| Answer {
-                line: Some(*line),
-                result: seg.clone().and_then(|_| match results.next() {
-                    Some((ray, Ok(e))) => Ok((ray, e, per_ray)),
-                    Some((_, Err(e))) => Err(format!("{:#}", anyhow::Error::from(e))),
-                    None => Err("no answer for this row".to_string()),
-                }),
-            })
-            .collect()
+    Ok(Asked {
+        single,
+        light,
+        toward,
+    })
+}
+
+/// The scene and the query's rays: the whole grid (`--load eager`, or a grid-wide majorant,
+/// which is every leaf's bound), else only what the rays cross.
+fn load(
+    a: &QueryArgs,
+    scene_opts: &umbra::scene::SceneOptions,
+    interp: Interp,
+    opts: &Options,
+    mut make_rays: impl FnMut(&Scene) -> Vec<Ray>,
+) -> Result<(Scene, Vec<Ray>)> {
+    if a.load == LoadMode::Eager || opts.global_majorant {
+        load_scene(&a.file, scene_opts).map(|s| {
+            let r = make_rays(&s);
+            (s, r)
+        })
     } else {
-        let Some(ray) = rays.first() else {
-            bail!("nothing to query");
-        };
-        let r = answer(vol, ray, a.ray_id, &est, &opts)?;
-        vec![Answer {
-            line: None,
-            result: Ok(r),
-        }]
-    };
-    print_answers(&answers, est.name(), interp, a.json)
+        let always = a.load == LoadMode::Lazy;
+        load_scene_for(
+            &a.file,
+            scene_opts,
+            interp,
+            opts.granularity,
+            always,
+            make_rays,
+        )
+    }
+}
+
+/// `--rays FILE`: row `n` has ray id `ray_id + n`; its rays go to the library together (exact
+/// queries in batches on the SIMD kernel), a row's `seconds` is the batch's time per ray.
+fn answer_rows(
+    scene: &Scene,
+    rows: &[(usize, std::result::Result<Ray, String>)],
+    rays: &[Ray],
+    ray_id: u64,
+    (est, opts): (&Estimator, &Options),
+) -> Vec<Answer> {
+    let ids: Vec<u64> = rows
+        .iter()
+        .enumerate()
+        .filter(|(_, (_, seg))| seg.is_ok())
+        .map(|(n, _)| ray_id.wrapping_add(n as u64))
+        .collect();
+    let start = std::time::Instant::now();
+    let results = umbra::scene::estimate_many(scene, rays, &ids, est, opts);
+    let per_ray = start.elapsed().as_secs_f64() / rays.len().max(1) as f64;
+    let mut results = rays.iter().copied().zip(results);
+    rows.iter()
+        .map(|(line, seg)| Answer {
+            line: Some(*line),
+            result: seg.clone().and_then(|_| match results.next() {
+                Some((ray, Ok(e))) => Ok((ray, e, per_ray)),
+                Some((_, Err(e))) => Err(format!("{:#}", anyhow::Error::from(e))),
+                None => Err("no answer for this row".to_string()),
+            }),
+        })
+        .collect()
 }
 
 /// `--positions PRIM`: every point of a stage's points prim, frame by frame.
