@@ -1,6 +1,6 @@
 //! `umbra compare`: error against run time for every estimator, and the stress suite.
 
-use crate::common::{InterpArg, ParamArgs};
+use crate::common::ParamArgs;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -41,7 +41,7 @@ pub struct CompareArgs {
     xform: Option<umbra::xform::Xform>,
     /// Lookup interpolation.
     #[arg(long, value_enum, default_value = "trilinear")]
-    interp: InterpArg,
+    interp: Interp,
     /// Seed of the rays and of the estimators' random streams.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -162,7 +162,7 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         .num_threads(threads.max(1))
         .build()
         .context("starting worker threads")?;
-    let interp: Interp = a.interp.into();
+    let interp = a.interp;
     let estimators = selected(a)?;
     let say = |m: &str| {
         if !a.quiet {
@@ -389,7 +389,7 @@ fn run_deep(
             xform: a
                 .xform
                 .map(|x| x.rows().iter().flatten().copied().collect()),
-            interp: a.interp.into(),
+            interp: a.interp,
             deep,
             deep_error,
             deep_format,

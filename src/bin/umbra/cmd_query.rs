@@ -2,7 +2,7 @@
 //! thousands of segments from a CSV file?
 
 use crate::common::{
-    flag_error, load_scene, load_scene_for, parse_vec3, thread_pool, EstimatorArgs, InterpArg,
+    flag_error, load_scene, load_scene_for, parse_vec3, thread_pool, EstimatorArgs,
 };
 use anyhow::{anyhow, bail, Context, Result};
 use std::io::{Read, Write};
@@ -46,7 +46,7 @@ pub struct QueryArgs {
     rays: Option<PathBuf>,
     /// How the density between voxel centres is defined.
     #[arg(long, value_enum, default_value = "trilinear")]
-    interp: InterpArg,
+    interp: Interp,
     /// mu_t = S x value, per world unit.
     #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
     density_scale: f64,
@@ -123,7 +123,7 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         Some(p) => Some(read_rays(p)?),
         None => None,
     };
-    let interp: Interp = a.interp.into();
+    let interp = a.interp;
     let (est, opts) = a.est.resolve(interp)?;
     let scene_opts = umbra::scene::SceneOptions {
         grid: a.grid.clone(),
@@ -336,7 +336,7 @@ fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
         (None, Some(f)) => vec![f],
         (None, None) => vec![umbra::usd::lights_at(&a.file, None)?.time],
     };
-    let interp: Interp = a.interp.into();
+    let interp = a.interp;
     let (est, opts) = a.est.resolve(interp)?;
     let scene_opts = umbra::scene::SceneOptions {
         grid: a.grid.clone(),

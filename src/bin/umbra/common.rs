@@ -8,24 +8,6 @@ use umbra::estimate::{Estimator, Options};
 use umbra::traverse::Granularity;
 use umbra::Interp;
 
-/// Lookup interpolation, as the CLI spells it.
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum InterpArg {
-    /// OpenVDB PointSampler.
-    Nearest,
-    /// OpenVDB BoxSampler.
-    Trilinear,
-}
-
-impl From<InterpArg> for Interp {
-    fn from(a: InterpArg) -> Self {
-        match a {
-            InterpArg::Nearest => Interp::Nearest,
-            InterpArg::Trilinear => Interp::Trilinear,
-        }
-    }
-}
-
 /// Estimator selection shared by `query`, `bake` (and the parameters by `compare`).
 #[derive(Debug, clap::Args)]
 pub struct EstimatorArgs {
@@ -42,7 +24,7 @@ pub struct EstimatorArgs {
     pub params: ParamArgs,
     /// Majorant granularity of the HDDA.
     #[arg(long, value_enum, default_value = "leaf")]
-    pub granularity: GranularityArg,
+    pub granularity: Granularity,
     /// One majorant for the whole grid (the naive baseline).
     #[arg(long)]
     pub global_majorant: bool,
@@ -53,17 +35,6 @@ pub struct EstimatorArgs {
     pub colour_walk: umbra::estimate::ColourWalk,
 }
 
-/// HDDA granularity, as the CLI spells it.
-#[derive(Debug, Clone, Copy, clap::ValueEnum)]
-pub enum GranularityArg {
-    /// 8^3 leaves and tiles.
-    Leaf,
-    /// 128^3 lower nodes.
-    Lower,
-    /// 4096^3 upper nodes.
-    Upper,
-}
-
 impl EstimatorArgs {
     /// The estimator and options these arguments select (validated by the library).
     pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
@@ -72,7 +43,7 @@ impl EstimatorArgs {
             interp,
             samples: self.samples,
             seed: self.seed,
-            granularity: self.granularity.into(),
+            granularity: self.granularity,
             global_majorant: self.global_majorant,
             colour_walk: self.colour_walk,
             ..Options::default()
@@ -164,16 +135,6 @@ pub fn estimator_help() -> String {
         ));
     }
     s
-}
-
-impl From<GranularityArg> for Granularity {
-    fn from(g: GranularityArg) -> Self {
-        match g {
-            GranularityArg::Leaf => Granularity::Leaf,
-            GranularityArg::Lower => Granularity::Lower,
-            GranularityArg::Upper => Granularity::Upper,
-        }
-    }
 }
 
 /// What `query` and `bake` trace besides the grid: colour and level sets.
