@@ -1,6 +1,5 @@
 //! `umbra compare`: error against run time for every estimator, and the stress suite.
 
-use crate::common::ParamArgs;
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -55,7 +54,7 @@ pub struct CompareArgs {
     /// Parameters for the estimators that take them (the budget parameter of a ladder is
     /// varied over its ladder).
     #[command(flatten)]
-    params: ParamArgs,
+    params: umbra::request::EstimatorParams,
     /// Also run the stress catalogue and write stress.{md,json}.
     #[arg(long)]
     stress: bool,

@@ -1,9 +1,7 @@
 //! `umbra query`: what does the cloud attenuate along a segment, toward a light, or along
 //! thousands of segments from a CSV file?
 
-use crate::common::{
-    flag_error, load_scene, load_scene_for, parse_vec3, thread_pool, EstimatorArgs,
-};
+use crate::common::{flag_error, load_scene, load_scene_for, parse_vec3, thread_pool};
 use anyhow::{anyhow, bail, Context, Result};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -15,6 +13,7 @@ use umbra::{Interp, Light, Ray};
 
 /// Arguments of `umbra query`.
 #[derive(Debug, clap::Args)]
+#[command(mut_arg("estimator", |a| a.long_help(crate::common::estimator_help())))]
 pub struct QueryArgs {
     /// The .vdb file, a .toml scene file (several volumes, colour, solids) or a USD stage
     /// (.usd, .usda, .usdc, .usdz: its volumes and lights at --frame).
@@ -74,7 +73,7 @@ pub struct QueryArgs {
     #[arg(long, value_enum, default_value_t = LoadMode::Auto)]
     load: LoadMode,
     #[command(flatten)]
-    est: EstimatorArgs,
+    est: umbra::request::EstimatorOptions,
     /// USD stage inputs: answer every point of this Points prim (`points`) or PointInstancer
     /// (`positions`), placed in the world at each frame, toward the stage light.
     #[arg(long, value_name = "PRIM")]
@@ -124,7 +123,7 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         None => None,
     };
     let interp = a.interp;
-    let (est, opts) = a.est.resolve(interp)?;
+    let (est, opts) = a.est.resolve(interp).map_err(flag_error)?;
     let scene_opts = umbra::scene::SceneOptions {
         grid: a.grid.clone(),
         density_scale: a.density_scale,
@@ -337,7 +336,7 @@ fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
         (None, None) => vec![umbra::usd::lights_at(&a.file, None)?.time],
     };
     let interp = a.interp;
-    let (est, opts) = a.est.resolve(interp)?;
+    let (est, opts) = a.est.resolve(interp).map_err(flag_error)?;
     let scene_opts = umbra::scene::SceneOptions {
         grid: a.grid.clone(),
         density_scale: a.density_scale,

@@ -1,90 +1,9 @@
-//! What the commands share: estimator and interpolation flags, vector parsing, loading with
+//! What the commands share: the estimator help, flag errors, vector parsing, loading with
 //! warnings, thread pools, progress bars.
 
 use anyhow::{bail, Context, Result};
 use std::path::Path;
 use umbra::bake::volume_warnings;
-use umbra::estimate::{Estimator, Options};
-use umbra::traverse::Granularity;
-use umbra::Interp;
-
-/// Estimator selection shared by `query`, `bake` (and the parameters by `compare`).
-#[derive(Debug, clap::Args)]
-pub struct EstimatorArgs {
-    /// Estimator (`umbra estimators` lists them with their parameters).
-    #[arg(long, default_value = "regular", long_help = estimator_help())]
-    pub estimator: String,
-    /// Independent samples per ray (stochastic estimators).
-    #[arg(long, visible_alias = "spp", default_value_t = 64)]
-    pub samples: u32,
-    /// Seed of the random streams.
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
-    #[command(flatten)]
-    pub params: ParamArgs,
-    /// Majorant granularity of the HDDA.
-    #[arg(long, value_enum, default_value = "leaf")]
-    pub granularity: Granularity,
-    /// One majorant for the whole grid (the naive baseline).
-    #[arg(long)]
-    pub global_majorant: bool,
-    /// How a coloured medium's channels are tracked by a stochastic estimator: `shared` (one
-    /// walk under the largest channel's majorant, lookups shared), `split` (a walk per channel
-    /// on its own majorants), `auto` (the estimator's measured choice; docs/colour.md).
-    #[arg(long, value_enum, default_value = "auto")]
-    pub colour_walk: umbra::estimate::ColourWalk,
-}
-
-impl EstimatorArgs {
-    /// The estimator and options these arguments select (validated by the library).
-    pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
-        let est = self.params.apply(&self.estimator)?;
-        let opts = Options {
-            interp,
-            samples: self.samples,
-            seed: self.seed,
-            granularity: self.granularity,
-            global_majorant: self.global_majorant,
-            colour_walk: self.colour_walk,
-            ..Options::default()
-        };
-        opts.validate().map_err(flag_error)?;
-        Ok((est, opts))
-    }
-}
-
-/// Estimator parameters (`umbra estimators` says which estimator takes which).
-#[derive(Debug, clap::Args)]
-pub struct ParamArgs {
-    /// Ray-marching step in voxels (riemann, mc, jittered; default 1).
-    #[arg(long, allow_negative_numbers = true)]
-    pub step: Option<f64>,
-    /// Kernel width in voxels (collision; default 1).
-    #[arg(long, allow_negative_numbers = true)]
-    pub kernel: Option<f64>,
-    /// Points per optical-depth estimate (jackknife; default 10).
-    #[arg(long, allow_negative_numbers = true)]
-    pub points: Option<f64>,
-}
-
-impl ParamArgs {
-    /// The given parameters as `(name, value)`.
-    pub fn given(&self) -> Vec<(&'static str, f64)> {
-        [
-            ("step", self.step),
-            ("kernel", self.kernel),
-            ("points", self.points),
-        ]
-        .into_iter()
-        .filter_map(|(n, v)| v.map(|v| (n, v)))
-        .collect()
-    }
-
-    /// Estimator `name` with these parameters (an error names a parameter it does not take).
-    pub fn apply(&self, name: &str) -> Result<Estimator> {
-        Ok(Estimator::with_params(name, &self.given()).map_err(flag_error)?)
-    }
-}
 
 /// A library argument error, with its name spelled as the flag: the library names an option in
 /// kebab case (`deep-error`), the command line types `--deep-error`.

@@ -1,0 +1,217 @@
+//! The estimator options: the one definition of the flags, job keys and Python keywords that
+//! choose an estimator, its parameters and its sampling. [`EstimatorOptions`] is the set alone
+//! (what `umbra query` flattens); [`EstimatorParams`] the parameters alone (`umbra compare`
+//! runs a ladder of estimators with them); [`super::BakeOptions`] has the same fields, spliced
+//! in by the macros below, so a job file's `[bake]` stays one flat table whose keys serde
+//! checks with their line and column (serde's `flatten` would lose both).
+
+/// Defines `pub struct NAME { BEFORE.. step, kernel, points, AFTER.. }` with the attributes
+/// given: the estimator parameters' one definition (flag, help, job key, keyword).
+macro_rules! with_estimator_params {
+    ($(#[$m:meta])* pub struct $name:ident { $($before:tt)* } { $($after:tt)* }) => {
+        $(#[$m])*
+        pub struct $name {
+            $($before)*
+            /// Ray-marching step in voxels (riemann, mc, jittered; default 1).
+            #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+            pub step: Option<f64>,
+            /// Kernel width in voxels (collision; default 1).
+            #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+            pub kernel: Option<f64>,
+            /// Points per optical-depth estimate (jackknife; default 10).
+            #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+            pub points: Option<f64>,
+            $($after)*
+        }
+    };
+}
+
+/// Defines `pub struct NAME { BEFORE.. estimator, samples, seed, step, kernel, points,
+/// granularity, global_majorant, colour_walk, AFTER.. }` with the attributes given: the
+/// estimator options' one definition. Defaults are [`EstimatorOptions::default`]'s (the
+/// `default_value`s here are the CLI's spelling of the same values; a test holds them equal).
+macro_rules! with_estimator_options {
+    ($(#[$m:meta])* pub struct $name:ident { $($before:tt)* } { $($after:tt)* }) => {
+        with_estimator_params! {
+            $(#[$m])*
+            pub struct $name {
+                $($before)*
+                /// Estimator (`umbra estimators` lists them with their parameters).
+                #[cfg_attr(feature = "cli", arg(long, default_value = "regular"))]
+                pub estimator: String,
+                /// Independent samples per pixel, voxel or ray (stochastic estimators); alias
+                /// spp.
+                #[cfg_attr(
+                    feature = "cli",
+                    arg(long, visible_alias = "spp", default_value_t = 64)
+                )]
+                #[serde(alias = "spp")]
+                pub samples: u32,
+                /// Seed of the random streams.
+                #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+                pub seed: u64,
+            } {
+                /// Majorant granularity of the HDDA.
+                #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "leaf"))]
+                pub granularity: Granularity,
+                /// One majorant for the whole grid (the naive baseline).
+                #[cfg_attr(feature = "cli", arg(long))]
+                pub global_majorant: bool,
+                /// How a coloured medium's channels are tracked by a stochastic estimator:
+                /// `shared` (one walk under the largest channel's majorant, lookups shared),
+                /// `split` (a walk per channel on its own majorants), `auto` (the estimator's
+                /// measured choice; docs/colour.md).
+                #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "auto"))]
+                #[serde(default)]
+                pub colour_walk: ColourWalk,
+                $($after)*
+            }
+        }
+    };
+}
+
+use crate::error::Result;
+use crate::estimate::{ColourWalk, Estimator, Options};
+use crate::traverse::Granularity;
+use crate::Interp;
+use serde::{Deserialize, Serialize};
+
+with_estimator_options! {
+    /// Which estimator answers, with its parameters and sampling: `estimator` by its registry
+    /// name ([`crate::estimate::REGISTRY`]), `step` / `kernel` / `points` for the estimators
+    /// that take them (another is refused by name), `samples` per answer, the `seed` of the
+    /// counter-based streams, and the majorants' `granularity`, `global_majorant` and
+    /// `colour_walk`.
+    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+    #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+    #[cfg_attr(feature = "cli", derive(clap::Args))]
+    #[serde(deny_unknown_fields, default)]
+    pub struct EstimatorOptions {} {}
+}
+
+impl Default for EstimatorOptions {
+    /// Exact regular tracking, 64 samples (for the stochastic estimators), seed 0, leaf
+    /// majorants, the estimator's own colour walk.
+    fn default() -> Self {
+        Self {
+            estimator: "regular".into(),
+            samples: 64,
+            seed: 0,
+            step: None,
+            kernel: None,
+            points: None,
+            granularity: Granularity::Leaf,
+            global_majorant: false,
+            colour_walk: ColourWalk::Auto,
+        }
+    }
+}
+
+impl EstimatorOptions {
+    /// The parameters alone.
+    #[must_use]
+    pub fn params(&self) -> EstimatorParams {
+        EstimatorParams {
+            step: self.step,
+            kernel: self.kernel,
+            points: self.points,
+        }
+    }
+
+    /// The estimator these options select, with its parameters, and the tracing options for
+    /// lookups by `interp`, validated.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidArgument`] naming `estimator`, a parameter it does not take, or
+    /// an option out of range.
+    pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
+        let estimator = self.params().apply(&self.estimator)?;
+        let options = Options {
+            interp,
+            samples: self.samples,
+            seed: self.seed,
+            granularity: self.granularity,
+            global_majorant: self.global_majorant,
+            colour_walk: self.colour_walk,
+            ..Options::default()
+        };
+        options.validate()?;
+        Ok((estimator, options))
+    }
+}
+
+with_estimator_params! {
+    /// The estimator parameters alone (`step`, `kernel`, `points`): what a ladder of
+    /// estimators shares (`umbra compare`). Unset parameters take each estimator's default.
+    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+    #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+    #[cfg_attr(feature = "cli", derive(clap::Args))]
+    #[serde(deny_unknown_fields, default)]
+    pub struct EstimatorParams {} {}
+}
+
+impl EstimatorParams {
+    /// The parameters given, as `(name, value)`.
+    #[must_use]
+    pub fn given(&self) -> Vec<(&'static str, f64)> {
+        [
+            ("step", self.step),
+            ("kernel", self.kernel),
+            ("points", self.points),
+        ]
+        .into_iter()
+        .filter_map(|(n, v)| v.map(|v| (n, v)))
+        .collect()
+    }
+
+    /// Estimator `name` with these parameters.
+    ///
+    /// # Errors
+    /// [`crate::Error::InvalidArgument`] naming the estimator, or a parameter it does not take.
+    pub fn apply(&self, name: &str) -> Result<Estimator> {
+        Estimator::with_params(name, &self.given())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The flags' `default_value`s are the library's defaults, and a bake's estimator options
+    /// are the same set with the same defaults.
+    #[cfg(feature = "cli")]
+    #[test]
+    fn cli_defaults_are_the_library_defaults() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            options: EstimatorOptions,
+            #[command(flatten)]
+            params: EstimatorParams,
+        }
+        let parsed = Cli::try_parse_from(["umbra"]).unwrap();
+        assert_eq!(parsed.options, EstimatorOptions::default());
+        assert_eq!(parsed.params, EstimatorParams::default());
+        let bake = crate::request::BakeOptions::default();
+        assert_eq!(bake.estimator_options(), EstimatorOptions::default());
+    }
+
+    /// The same keys and aliases read a job's `[bake]` and the set alone; a parameter an
+    /// estimator does not take is refused by name.
+    #[test]
+    fn keys_and_resolution() {
+        let o: EstimatorOptions =
+            serde_json::from_str(r#"{"estimator": "riemann", "spp": 3, "step": 0.5}"#).unwrap();
+        assert_eq!((o.samples, o.step), (3, Some(0.5)));
+        let (e, opts) = o.resolve(Interp::Nearest).unwrap();
+        assert_eq!((e.name(), opts.samples, opts.interp), ("riemann", 3, Interp::Nearest));
+        let bad = EstimatorOptions {
+            kernel: Some(2.0),
+            ..o
+        };
+        let err = bad.resolve(Interp::Trilinear).unwrap_err().to_string();
+        assert!(err.contains("kernel"), "{err}");
+        assert!(serde_json::from_str::<EstimatorOptions>(r#"{"bogus": 1}"#).is_err());
+    }
+}
