@@ -7,6 +7,7 @@ use super::checks::{check_usd_out, key_at, normalise, EntryRead};
 pub(super) use super::checks::{err, frame_list};
 use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAME_PAD};
 use super::{BatchError, Job, Task};
+use crate::input::InputKind;
 use crate::request::{BakeOptions, BakePlan, BakeRequest, LevelSet};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -212,7 +213,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
         reads.push(entry_read(&path, &key, inp, &grid, b)?);
         match (&inp.file, &inp.pattern, &inp.usd) {
             (None, None, Some(u)) => {
-                if !crate::usd::is_stage(Path::new(u)) {
+                if !InputKind::of(Path::new(u)).is_stage() {
                     return Err(err(
                         &path,
                         &key("usd"),
@@ -280,7 +281,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     // The lights: [[lights]] entries, or one light in [bake].
     let stage_input = inputs
         .iter()
-        .find(|(p, _, _)| crate::usd::is_stage(p))
+        .find(|(p, _, _)| InputKind::of(p).is_stage())
         .map(|(p, f, _)| (p.clone(), *f));
     let lights = match (file.lights.is_empty(), b.light_dir, b.light_pos) {
         (true, None, None) => match &stage_input {
