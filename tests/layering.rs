@@ -464,7 +464,7 @@ fn one_place_classifies_inputs() {
     let found = hits(&needles, &["src/input/"]);
     check_allowed(
         &found,
-        &allowed,
+        allowed,
         "files outside src/input/ telling inputs apart by extension (ask \
          umbra::input::InputKind::of, or input::is_usda_layer for a usd_out layer)",
     );
@@ -496,7 +496,7 @@ fn grid_files_open_through_the_input_layer() {
     let found = hits(&needles, &["src/input/", "src/vdb/", "src/usd/"]);
     check_allowed(
         &found,
-        &allowed,
+        allowed,
         "files above the input layer opening grid files themselves (use umbra::input::GridFile)",
     );
 }

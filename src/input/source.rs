@@ -111,7 +111,10 @@ mod tests {
         assert_eq!(file.path(), path.as_path());
         file.check_grid("density").unwrap();
         let missing = file.check_grid("no such grid").unwrap_err();
-        assert!(matches!(missing, crate::Error::GridNotFound { .. }), "{missing}");
+        assert!(
+            matches!(missing, crate::Error::GridNotFound { .. }),
+            "{missing}"
+        );
         let archive = Archive::open(&path).unwrap();
         let gd = archive.find_grid("density").unwrap();
         let eager = file.load("density").unwrap();
