@@ -253,7 +253,7 @@ impl FileInfo {
     /// [`crate::Error::GridNotFound`]. A grid that cannot be decoded is reported with its
     /// error instead.
     pub fn read(path: &std::path::Path, grid: Option<&str>) -> crate::Result<Self> {
-        if crate::scene::is_scene_file(path) {
+        if crate::input::InputKind::of(path).is_scene_file() {
             return Err(crate::Error::InvalidArgument {
                 name: "files".into(),
                 reason: format!(

@@ -61,6 +61,7 @@ pub mod demand;
 pub mod error;
 pub mod estimate;
 pub mod info;
+pub mod input;
 pub mod light;
 pub mod math;
 mod memory;

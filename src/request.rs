@@ -28,6 +28,7 @@ use crate::bake::{
 };
 use crate::error::{Error, Result};
 use crate::estimate::{ColourWalk, Estimator, Options};
+use crate::input::InputKind;
 use crate::traverse::Granularity;
 use crate::Interp;
 use serde::{Deserialize, Serialize};
@@ -707,7 +708,7 @@ impl BakeRequest {
     /// parallel to the light). `None`: nothing to change.
     fn with_stage_light(&self) -> Result<Option<Self>> {
         let o = &self.options;
-        if !crate::usd::is_stage(&self.input) {
+        if !InputKind::of(&self.input).is_stage() {
             let given = [
                 ("frame", o.frame.is_some()),
                 ("volume", o.volume.is_some()),
@@ -748,10 +749,7 @@ impl BakeRequest {
                 // to, named (or the stage's only one), checked before any work.
                 crate::usd::lights_at(&self.input, o.frame)?.light(o.light.as_deref())?;
             }
-            let usda = u
-                .extension()
-                .is_some_and(|e| e.eq_ignore_ascii_case("usda"));
-            if !usda {
+            if !crate::input::is_usda_layer(u) {
                 return Err(bad(
                     "usd-out",
                     format!("{} is not a .usda layer", u.display()),
@@ -835,7 +833,7 @@ impl BakeRequest {
         let o = &self.options;
         // A stage's one volume: its grid, placement and scale (the stage places it: no xform,
         // no grid; density-scale applies on top, as for scenes).
-        let stage = if crate::usd::is_stage(&self.input) {
+        let stage = if InputKind::of(&self.input).is_stage() {
             if let Some(k) = [("xform", o.xform.is_some()), ("grid", o.grid != "density")]
                 .iter()
                 .find(|(_, g)| *g)
@@ -856,7 +854,7 @@ impl BakeRequest {
         } else {
             None
         };
-        if crate::scene::is_scene_file(&self.input) {
+        if InputKind::of(&self.input).is_scene_file() {
             return Err(bad(
                 "output",
                 format!(

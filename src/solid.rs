@@ -41,11 +41,11 @@
 //! coefficients stay finite; node bounds already leave NaN out.
 
 use crate::error::{Error, Result};
+use crate::input::Grid;
 use crate::math::floor_i64;
 use crate::ray::Ray;
 use crate::traverse::{dda, lookup_ray, walk, Cells, Granularity};
 use crate::tree::{Accessor, Tree};
-use crate::vdb::Grid;
 use crate::volume::{Interp, Volume};
 use glam::DVec3;
 use std::ops::ControlFlow;
@@ -76,10 +76,10 @@ impl Solid {
     /// Load grid `grid` of `path` as a solid (see [`Solid::new`]).
     ///
     /// # Errors
-    /// Loading errors ([`crate::vdb::load_grid`]) and those of [`Solid::new`].
+    /// Loading errors ([`crate::input::load_grid`]) and those of [`Solid::new`].
     pub fn load(path: impl AsRef<Path>, grid: &str) -> Result<Self> {
         let path = path.as_ref();
-        Self::new(crate::vdb::load_grid(path, grid)?, path)
+        Self::new(crate::input::load_grid(path, grid)?, path)
     }
 
     /// A solid from a loaded grid, which must be a signed distance field (negative inside).

@@ -9,8 +9,8 @@
 //! values remain what `umbra info` reports.
 
 use crate::error::{Error, Result};
+use crate::input::Grid;
 use crate::tree::{Bounds, RootSlot, Tree};
-use crate::vdb::Grid;
 use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
 
@@ -114,13 +114,14 @@ impl Sanitized {
 }
 
 impl Volume {
-    /// Load grid `grid` of `path` and prepare it for tracing (see [`Volume::new`]).
+    /// Load grid `grid` of `path` and prepare it for tracing (see [`Volume::new`]). The file is
+    /// read by the input layer ([`crate::input::load_grid`]).
     ///
     /// # Errors
-    /// Loading errors ([`crate::vdb::load_grid`]) and those of [`Volume::new`].
+    /// Loading errors ([`crate::input::load_grid`]) and those of [`Volume::new`].
     pub fn load(path: impl AsRef<std::path::Path>, grid: &str, density_scale: f64) -> Result<Self> {
         let path = path.as_ref();
-        Self::new(crate::vdb::load_grid(path, grid)?, density_scale, path)
+        Self::new(crate::input::load_grid(path, grid)?, density_scale, path)
     }
 
     /// Prepare `grid` for tracing with extinction `mu_t = density_scale * value`.
@@ -405,11 +406,9 @@ impl Volume {
         grid: &str,
     ) -> Result<Option<[DVec3; 8]>> {
         let path = path.as_ref();
-        let archive = crate::vdb::open(path)?;
-        let gd = archive.find_grid(grid)?.clone();
-        let extent = archive.extent(&gd)?;
+        let extent = crate::input::GridFile::open(path)?.extent(grid)?;
         if !extent.transform.is_affine() {
-            return Err(non_affine(path, &extent.transform, &gd.display_name));
+            return Err(non_affine(path, &extent.transform, &extent.name));
         }
         let m = extent.transform.world_from_index;
         Ok(extent.value_box.map(|[lo, hi]| {
@@ -517,7 +516,7 @@ fn compose(a: &[[f64; 4]; 4], b: &[[f64; 4]; 4]) -> [[f64; 4]; 4] {
 }
 
 /// A grid whose transform umbra cannot trace (a frustum map), named with its file.
-pub(crate) fn non_affine(path: &std::path::Path, t: &crate::vdb::Transform, grid: &str) -> Error {
+pub(crate) fn non_affine(path: &std::path::Path, t: &crate::input::Transform, grid: &str) -> Error {
     Error::Unsupported {
         path: path.to_path_buf(),
         what: format!(

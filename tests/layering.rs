@@ -14,7 +14,7 @@ const LAYERS: &[(&str, &[&str])] = &[
         &["error", "math", "text", "rng", "output", "memory"],
     ),
     ("data", &["tree", "ray", "xform"]),
-    ("input", &["vdb", "usd"]),
+    ("input", &["input", "vdb", "usd"]),
     ("model", &["volume"]),
     ("traversal", &["traverse", "demand"]),
     (
@@ -364,5 +364,139 @@ fn bake_rooms_keep_their_stages() {
         wrong.is_empty(),
         "imports against the stages:\n{}",
         wrong.join("\n")
+    );
+}
+
+/// The library's sources, the binary's (`src/bin`) and the Python module's (`python/src`).
+fn all_sources() -> Vec<PathBuf> {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let mut files = Vec::new();
+    rust_files(&root.join("src"), &mut files);
+    let python = root.join("python/src");
+    if python.is_dir() {
+        rust_files(&python, &mut files);
+    }
+    files.sort();
+    files
+}
+
+/// `file` relative to the repository, with `/` separators (`src/request.rs`).
+fn rel(file: &Path) -> String {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let r = file.strip_prefix(root).unwrap();
+    r.components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect::<Vec<_>>()
+        .join("/")
+}
+
+/// For each file, how often its code (comments and unit tests left out) holds any of `needles`,
+/// outside `skip` (directories whose files may).
+fn hits(needles: &[&str], skip: &[&str]) -> Vec<(String, usize)> {
+    let mut out = Vec::new();
+    for f in all_sources() {
+        let r = rel(&f);
+        if skip.iter().any(|d| r.starts_with(d)) {
+            continue;
+        }
+        let text = code(&std::fs::read_to_string(&f).unwrap());
+        let n: usize = needles.iter().map(|x| text.matches(x).count()).sum();
+        if n > 0 {
+            out.push((r, n));
+        }
+    }
+    out
+}
+
+/// Hits against an allow-list of (file, count, why): a file not listed, or with another count,
+/// fails (a stale entry too, so the list stays the truth).
+fn check_allowed(found: &[(String, usize)], allowed: &[(&str, usize, &str)], what: &str) {
+    let mut wrong = Vec::new();
+    for (file, n) in found {
+        match allowed.iter().find(|(f, _, _)| f == file) {
+            Some((_, m, _)) if m == n => {}
+            Some((_, m, why)) => wrong.push(format!("{file}: {n} (allowed {m}: {why})")),
+            None => wrong.push(format!("{file}: {n}")),
+        }
+    }
+    for (f, m, _) in allowed {
+        if !found.iter().any(|(file, _)| file == f) {
+            wrong.push(format!("{f}: none, allowed {m} (a stale entry: remove it)"));
+        }
+    }
+    assert!(wrong.is_empty(), "{what}:\n{}", wrong.join("\n"));
+}
+
+/// What kind of input a path is (`.vdb`, `.toml` scene, USD stage) is decided in one place,
+/// `src/input/` (`InputKind::of`): no other file of the library, the binary or the Python
+/// module reads a path's extension or spells an input's extension in code. An output's
+/// product is still decided where it is planned (the allow-list, each with its reason).
+#[test]
+fn one_place_classifies_inputs() {
+    let needles = [
+        ".extension()",
+        "\"toml\"",
+        "\"usda\"",
+        "\"usdc\"",
+        "\"usdz\"",
+        "\"nvdb\"",
+        "== \"vdb\"",
+        "(\"vdb\")",
+        "\".vdb\"",
+        "\".toml\"",
+        "\".usd",
+        "\".nvdb\"",
+    ];
+    let allowed: &[(&str, usize, &str)] = &[
+        (
+            "src/request.rs",
+            2,
+            "is_volume_output: an output ending in .vdb is a transmittance volume, the product \
+             BakeRequest::plan picks",
+        ),
+        (
+            "src/bake/product/pipeline.rs",
+            1,
+            "check_extension: an output's format (.exr map, .png preview, .vdb volume), checked \
+             with the other outputs before any work",
+        ),
+    ];
+    let found = hits(&needles, &["src/input/"]);
+    check_allowed(
+        &found,
+        allowed,
+        "files outside src/input/ telling inputs apart by extension (ask \
+         umbra::input::InputKind::of, or input::is_usda_layer for a usd_out layer)",
+    );
+}
+
+/// Nothing above the input layer opens a grid file but through `input::GridFile` (or
+/// `input::load_grid`), so a new grid format is read everywhere once `GridFile` knows it.
+#[test]
+fn grid_files_open_through_the_input_layer() {
+    let needles = [
+        "vdb::open(",
+        "vdb::load_grid(",
+        "Archive::open(",
+        ".open_lazy(",
+    ];
+    let allowed: &[(&str, usize, &str)] = &[(
+        "src/info.rs",
+        2,
+        "the report on a .vdb archive itself (its header, descriptors, each grid's compression \
+         and buffers), which only the vdb reader has",
+    )];
+    // The model takes its grids from the input layer, and names no file format.
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/volume.rs");
+    let model = code(&std::fs::read_to_string(model).unwrap());
+    assert!(
+        !model.contains("crate::vdb"),
+        "src/volume.rs names crate::vdb: take grids from crate::input"
+    );
+    let found = hits(&needles, &["src/input/", "src/vdb/", "src/usd/"]);
+    check_allowed(
+        &found,
+        allowed,
+        "files above the input layer opening grid files themselves (use umbra::input::GridFile)",
     );
 }

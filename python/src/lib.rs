@@ -107,7 +107,7 @@ fn load_err(e: umbra::Error, file: &Path, grid: &str) -> PyErr {
     let class = class_of(&e);
     match e {
         umbra::Error::InvalidArgument { .. } => py_err(e),
-        other if umbra::scene::is_scene_file(file) => {
+        other if umbra::input::InputKind::of(file).is_scene_file() => {
             raise(class, format!("loading the scene: {other}"))
         }
         other => raise(class, format!("loading grid '{grid}': {other}")),
@@ -781,7 +781,7 @@ impl NativeVolume {
         interp: &str,
         xform: Option<Vec<f64>>,
     ) -> PyResult<Self> {
-        if umbra::scene::is_scene_file(&path) {
+        if umbra::input::InputKind::of(&path).is_scene_file() {
             return Err(arg(
                 "path",
                 format!(
@@ -811,7 +811,7 @@ impl NativeVolume {
         interp: &str,
         xform: Option<Vec<f64>>,
     ) -> PyResult<Self> {
-        if !umbra::scene::is_scene_file(&path) {
+        if !umbra::input::InputKind::of(&path).is_scene_file() {
             return Err(arg(
                 "path",
                 format!(
@@ -847,7 +847,7 @@ impl NativeVolume {
         xform: Option<Vec<f64>>,
         light: Option<String>,
     ) -> PyResult<Self> {
-        if !umbra::usd::is_stage(&path) {
+        if !umbra::input::InputKind::of(&path).is_stage() {
             return Err(arg(
                 "path",
                 format!(

@@ -96,10 +96,7 @@ pub(super) fn check_usd_out(
     volume: bool,
     tasks: &[Task],
 ) -> Result<(), BatchError> {
-    let usda = u
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("usda"));
-    let reason = if !usda {
+    let reason = if !crate::input::is_usda_layer(u) {
         format!("{} is not a .usda layer", u.display())
     } else if volume {
         "puts maps on their stage lights; transmittance volumes (.vdb) have no camera".into()

@@ -214,7 +214,7 @@ impl Task {
     pub fn time(&self) -> Option<f64> {
         #[allow(clippy::cast_precision_loss)]
         self.frame
-            .filter(|_| crate::usd::is_stage(&self.input))
+            .filter(|_| crate::input::InputKind::of(&self.input).is_stage())
             .map(|f| f as f64)
     }
 }
@@ -392,12 +392,13 @@ impl Job {
         inputs.dedup_by(|a, b| a.input == b.input && a.grid == b.grid);
         for task in inputs {
             let input = task.input.as_path();
-            let found = if crate::usd::is_stage(input) {
+            let kind = crate::input::InputKind::of(input);
+            let found = if kind.is_stage() {
                 crate::usd::lights_at(input, None).map(|_| ())
-            } else if crate::scene::is_scene_file(input) {
+            } else if kind.is_scene_file() {
                 crate::scene::read_box_corners(input, &self.scene_options(task)).map(|_| ())
             } else {
-                crate::vdb::open(input).and_then(|a| a.find_grid(&task.grid).map(|_| ()))
+                crate::input::GridFile::open(input).and_then(|f| f.check_grid(&task.grid))
             };
             if let Err(
                 e @ (crate::Error::Io { .. }

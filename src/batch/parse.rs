@@ -7,6 +7,7 @@ pub(super) use super::checks::{err, frame_list};
 use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAME_PAD};
 use super::schema::{InputSpec, JobFile};
 use super::{BatchError, Job, Task};
+use crate::input::InputKind;
 use crate::request::{BakeOptions, BakePlan, BakeRequest};
 use std::path::{Path, PathBuf};
 
@@ -95,7 +96,7 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let (inputs, reads) = inputs(&path, &file, &grid, &resolve)?;
     let stage_input = inputs
         .iter()
-        .find(|(p, _, _)| crate::usd::is_stage(p))
+        .find(|(p, _, _)| InputKind::of(p).is_stage())
         .map(|(p, f, _)| (p.clone(), *f));
     let lights = lights(&path, &file, stage_input.as_ref())?;
     check_lights(&path, &lights, stage_input.is_some())?;
@@ -219,7 +220,7 @@ fn inputs(
         reads.push(entry_read(path, &key, inp, grid, &file.bake)?);
         match (&inp.file, &inp.pattern, &inp.usd) {
             (None, None, Some(u)) => {
-                if !crate::usd::is_stage(Path::new(u)) {
+                if !InputKind::of(Path::new(u)).is_stage() {
                     return Err(err(
                         path,
                         &key("usd"),

@@ -121,7 +121,7 @@ pub(super) fn tasks(
     let mut layers = std::collections::HashMap::new();
     for (i, s) in specs.iter().enumerate() {
         let key = |k: &str| format!("positions[{i}].{k}");
-        if !crate::usd::is_stage(Path::new(&s.usd)) {
+        if !crate::input::InputKind::of(Path::new(&s.usd)).is_stage() {
             return Err(err(
                 path,
                 &key("usd"),
@@ -132,10 +132,7 @@ pub(super) fn tasks(
             return Err(err(path, &key("prim"), "give the prim's path (/World/...)"));
         }
         let usd_out = resolve(&s.usd_out);
-        if !usd_out
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("usda"))
-        {
+        if !crate::input::is_usda_layer(&usd_out) {
             return Err(err(
                 path,
                 &key("usd_out"),

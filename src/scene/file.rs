@@ -21,6 +21,7 @@
 
 use super::{check_sigma, Fog, Scene};
 use crate::error::{Error, Result};
+use crate::input::InputKind;
 use crate::solid::Solid;
 use crate::volume::Volume;
 use crate::xform::Xform;
@@ -59,14 +60,6 @@ impl Default for SceneOptions {
     }
 }
 
-/// Whether `path` names a scene file (extension `.toml`, any case).
-#[must_use]
-pub fn is_scene_file(path: &Path) -> bool {
-    path.extension()
-        .and_then(|e| e.to_str())
-        .is_some_and(|e| e.eq_ignore_ascii_case("toml"))
-}
-
 /// Load the scene at `path`: a scene file (`.toml`), a USD stage (`.usd`, `.usda`, `.usdc`,
 /// `.usdz`: its volumes at `opts.stage`'s time code, [`crate::usd`]) or one grid of a `.vdb`
 /// file.
@@ -80,16 +73,16 @@ pub fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
     }
-    if is_scene_file(path) || crate::usd::is_stage(path) {
+    if !InputKind::of(path).is_grid_file() {
         return load_file(path, opts);
     }
-    let grid = crate::vdb::load_grid(path, &opts.grid)?;
+    let grid = crate::input::load_grid(path, &opts.grid)?;
     scene_of_grid(grid, path, opts)
 }
 
 /// [`load`] for a job whose rays are known before it traces: a `.vdb` input with at least
 /// `lazy_from` bytes of leaf data (0: any; [`LAZY_MIN_BYTES`]: what `umbra query` does by
-/// default) is opened lazily ([`crate::vdb::LazyGrid`]), `rays` makes the job's rays from a
+/// default) is opened lazily ([`crate::input::GridFile::lazy`]), `rays` makes the job's rays from a
 /// shell scene (topology and boxes right, values unloaded: tracing it gives no number), and
 /// only the leaves those rays touch under `interp` at `gran` are decoded
 /// ([`crate::demand::leaves_touched`]). Answers on those rays equal an eager [`load`]'s bit for
@@ -112,13 +105,18 @@ pub fn load_for_rays(
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
     }
-    if is_scene_file(path) || crate::usd::is_stage(path) {
+    if !InputKind::of(path).is_grid_file() {
         let scene = load_file(path, opts)?;
         let r = rays(&scene);
         return Ok((scene, r));
     }
-    let archive = crate::vdb::open(path)?;
-    let lazy = archive.open_lazy(archive.find_grid(&opts.grid)?)?;
+    let file = crate::input::GridFile::open(path)?;
+    let Some(lazy) = file.lazy(&opts.grid)? else {
+        // A format without partial reads loads whole.
+        let scene = scene_of_grid(file.load(&opts.grid)?, path, opts)?;
+        let r = rays(&scene);
+        return Ok((scene, r));
+    };
     let solid = opts.levelset_solid && lazy.shell().class.as_deref() == Some("level set");
     // A small grid decodes faster whole than its rays can be planned: the same answers.
     if solid || lazy.buffer_bytes() < lazy_from {
@@ -144,7 +142,7 @@ pub fn load_for_rays(
 pub const LAZY_MIN_BYTES: u64 = 16 << 20;
 
 /// The scene of one grid of a `.vdb` file, with `opts` applied.
-fn scene_of_grid(grid: crate::vdb::Grid, path: &Path, opts: &SceneOptions) -> Result<Scene> {
+fn scene_of_grid(grid: crate::input::Grid, path: &Path, opts: &SceneOptions) -> Result<Scene> {
     let rgb = opts.sigma_t.is_some();
     let (mut fogs, mut solids) = (Vec::new(), Vec::new());
     if opts.levelset_solid && grid.class.as_deref() == Some("level set") {
@@ -260,7 +258,7 @@ fn stage_entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)>
 /// As reading the scene file or the stage.
 pub fn sources(path: &Path, opts: &SceneOptions) -> Result<Vec<PathBuf>> {
     let mut out = vec![path.to_path_buf()];
-    if is_scene_file(path) || crate::usd::is_stage(path) {
+    if !InputKind::of(path).is_grid_file() {
         for e in entries(path, opts)?.0 {
             out.push(match e.file {
                 crate::usd::Asset::File(p) => p,
@@ -274,7 +272,7 @@ pub fn sources(path: &Path, opts: &SceneOptions) -> Result<Vec<PathBuf>> {
 
 /// The grids of a scene file or a USD stage.
 fn entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
-    if crate::usd::is_stage(path) {
+    if InputKind::of(path).is_stage() {
         stage_entries(path, opts)
     } else {
         parse(path, opts)
@@ -284,7 +282,7 @@ fn entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
 /// An error loading a stage's asset, naming the stage, the time, the prim and the asset (not
 /// the scratch copy a packaged member is read from).
 fn asset_err(path: &Path, e: &Entry, opened: &Path, err: Error) -> Error {
-    if !crate::usd::is_stage(path) {
+    if !InputKind::of(path).is_stage() {
         return err;
     }
     let msg = err
@@ -467,7 +465,7 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
 /// As [`load`], for what reading topology can find.
 pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Vec<DVec3>> {
     let path = path.as_ref();
-    let entries = if is_scene_file(path) || crate::usd::is_stage(path) {
+    let entries = if !InputKind::of(path).is_grid_file() {
         entries(path, opts)?.0
     } else {
         vec![Entry {

@@ -86,16 +86,6 @@ pub fn asset_name(layer: &Path, map: &Path) -> String {
     }
 }
 
-/// Whether `path` names a USD stage (extension `.usd`, `.usda`, `.usdc` or `.usdz`, any case).
-#[must_use]
-pub fn is_stage(path: &Path) -> bool {
-    path.extension().and_then(|e| e.to_str()).is_some_and(|e| {
-        ["usd", "usda", "usdc", "usdz"]
-            .iter()
-            .any(|x| e.eq_ignore_ascii_case(x))
-    })
-}
-
 /// What to read of a stage: the time code, which volumes, which field.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Selection {
@@ -534,11 +524,7 @@ pub fn resolve_asset(authored: &str, layer: &str) -> Asset {
     if path.is_absolute() {
         return Asset::File(path.to_path_buf());
     }
-    let is_package = |l: &str| {
-        Path::new(l)
-            .extension()
-            .is_some_and(|e| e.eq_ignore_ascii_case("usdz"))
-    };
+    let is_package = |l: &str| crate::input::InputKind::of(Path::new(l)).is_package();
     // A package's root layer is named by the package itself.
     let packaged = split_packaged(layer).or_else(|| is_package(layer).then_some((layer, "")));
     if let Some((outer, inner)) = packaged {
@@ -675,6 +661,5 @@ mod tests {
                 member: "0/cloud.vdb".into()
             }
         );
-        assert!(is_stage(Path::new("a/b.USDZ")) && !is_stage(Path::new("a.vdb")));
     }
 }

@@ -27,6 +27,8 @@ pub struct LazyGrid {
     offsets: Vec<u64>,
     /// What converting the topology's doubles (background, tiles) to `f32` cost.
     topology_precision: crate::vdb::PrecisionLoss,
+    /// Bytes of the grid's head (metadata, transform, topology) in the file.
+    head_bytes: u64,
 }
 
 impl Archive {
@@ -82,12 +84,14 @@ impl Archive {
                     stream: Stream::of(&stream),
                     offsets,
                     shell: identity(tree),
+                    head_bytes: gd.block_pos.saturating_sub(gd.grid_pos),
                 })
             }
             (None, Some(parent)) => {
                 let mut p = self.open_lazy(parent)?;
                 let tree = std::mem::take(&mut p.shell.tree);
                 p.shell = identity(tree);
+                p.head_bytes = gd.block_pos.saturating_sub(gd.grid_pos);
                 Ok(p)
             }
             (None, None) => {
@@ -112,6 +116,13 @@ impl LazyGrid {
     #[must_use]
     pub fn path(&self) -> &std::path::Path {
         &self.path
+    }
+
+    /// Bytes of the grid's head in the file: its metadata, transform and topology, what
+    /// opening it read before the leaf buffers (for an instance, its own head).
+    #[must_use]
+    pub fn head_bytes(&self) -> u64 {
+        self.head_bytes
     }
 
     /// Number of leaves in the grid.

@@ -79,6 +79,8 @@ pub fn load_grid(path: impl AsRef<Path>, name: &str) -> Result<Grid> {
 /// A grid's transform and index box, read without its voxel values ([`Archive::extent`]).
 #[derive(Debug, Clone)]
 pub struct GridExtent {
+    /// Display name (`density`, `density[1]`, `[0]`).
+    pub name: String,
     /// Index-to-world transform.
     pub transform: Transform,
     /// Inclusive index box of every leaf and every non-background tile; `None` when the grid
@@ -223,6 +225,7 @@ impl Archive {
             }
         };
         Ok(GridExtent {
+            name: gd.display_name.clone(),
             transform: head.transform,
             value_box,
         })

@@ -411,17 +411,19 @@ impl BakeJob {
             name: "max-memory".into(),
             reason,
         };
-        if crate::scene::is_scene_file(&self.input) || self.sigma_t.is_some() {
+        if crate::input::InputKind::of(&self.input).is_scene_file() || self.sigma_t.is_some() {
             // Scenes and colour maps load whole; fine if they fit, refused otherwise below.
             return Ok(None);
         }
-        let archive = crate::vdb::open(&self.input)?;
-        let gd = archive.find_grid(&self.grid)?;
-        let mut lazy = archive.open_lazy(gd)?;
+        let file = crate::input::GridFile::open(&self.input)?;
+        let Some(mut lazy) = file.lazy(&self.grid)? else {
+            // A format without partial reads loads whole, as scenes do.
+            return Ok(None);
+        };
         // Opening held the grid's head and topology bytes as read from the file beside the
         // tree they became, and the leaf buffers' offsets twice (as the file's delayed-load
         // table and as the lazy grid keeps them).
-        let head_bytes = gd.block_pos.saturating_sub(gd.grid_pos);
+        let head_bytes = lazy.head_bytes();
         // The topology is kept once, in the shell volume.
         let loaded = lazy.loaded_memory_bytes();
         let leaves = lazy.leaf_count() as u64;
@@ -898,7 +900,7 @@ impl BakeJob {
         let mut warnings = volume_warnings(&scene.sanitized().merged(leaves));
         warnings.extend(solid_warnings(scene));
         if self.max_memory.is_some() {
-            if crate::scene::is_scene_file(&self.input) {
+            if crate::input::InputKind::of(&self.input).is_scene_file() {
                 warnings.push(Warning::MemoryBudgetIgnored {
                     what: "scene files",
                 });

@@ -691,7 +691,7 @@ impl VolumeJob {
     /// # Errors
     /// Load errors.
     pub fn load(&self) -> Result<Volume> {
-        if crate::scene::is_scene_file(&self.input) {
+        if crate::input::InputKind::of(&self.input).is_scene_file() {
             return Err(Error::InvalidArgument {
                 name: "output".into(),
                 reason: format!(

@@ -49,7 +49,7 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
 
 /// Bake and write a map: the shared pipeline ([`BakeJob`]) with a progress bar.
 fn run_map(a: &BakeArgs, job: &BakeJob, total: std::time::Instant) -> Result<ExitCode> {
-    let scene_file = umbra::scene::is_scene_file(&job.input);
+    let scene_file = umbra::input::InputKind::of(&job.input).is_scene_file();
     let setup_error = |e: umbra::Error| match e {
         umbra::Error::Output { .. }
         | umbra::Error::Exists { .. }

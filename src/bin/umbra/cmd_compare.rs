@@ -186,7 +186,7 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     if let Some(file) = &a.file {
-        if umbra::scene::is_scene_file(file) {
+        if umbra::input::InputKind::of(file).is_scene_file() {
             anyhow::bail!(
                 "{}: compare takes one grid of a .vdb file; scenes (.toml) are traced by query \
                  and bake",
@@ -355,7 +355,7 @@ fn run_deep(
     threads: usize,
     say: &dyn Fn(&str),
 ) -> Result<()> {
-    if umbra::scene::is_scene_file(file) || umbra::usd::is_stage(file) {
+    if !umbra::input::InputKind::of(file).is_grid_file() {
         anyhow::bail!(
             "{}: compare --deep takes one grid of a .vdb file",
             file.display()
@@ -449,7 +449,7 @@ fn write_together(
 /// The volume `compare` traces, and how the report names it: a grid of a `.vdb`, or the one
 /// volume of a USD stage (its grid, placement and grey scale; `--density-scale` on top).
 fn load(a: &CompareArgs, file: &std::path::Path) -> Result<(Volume, String)> {
-    if !umbra::usd::is_stage(file) {
+    if !umbra::input::InputKind::of(file).is_stage() {
         let mut vol = Volume::load(file, &a.grid, a.density_scale)
             .with_context(|| format!("loading grid '{}'", a.grid))?;
         if let Some(x) = &a.xform {

@@ -34,7 +34,11 @@ pub struct InfoArgs {
 /// Print the reports. Exit code 3 when some grid or file could not be read but others could;
 /// a single file that cannot be opened is an error (1).
 pub fn run(a: &InfoArgs) -> Result<ExitCode> {
-    if let Some(stage) = a.files.iter().find(|f| umbra::usd::is_stage(f)) {
+    if let Some(stage) = a
+        .files
+        .iter()
+        .find(|f| umbra::input::InputKind::of(f).is_stage())
+    {
         if a.files.len() > 1 || a.grid.is_some() || a.verbose {
             anyhow::bail!(
                 "{}: info reports on one USD stage alone, without --grid or --verbose (its \

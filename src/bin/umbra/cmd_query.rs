@@ -222,7 +222,7 @@ fn asked(a: &QueryArgs) -> Result<Asked> {
         }
         (Some(dir), None) => Some(Light::Directional { dir }),
         (None, Some(pos)) => Some(Light::Point { pos }),
-        (None, None) if a.at.is_some() && umbra::usd::is_stage(&a.file) => {
+        (None, None) if a.at.is_some() && umbra::input::InputKind::of(&a.file).is_stage() => {
             let (l, prim) = a.stage.light_of(&a.file)?;
             toward = Some(prim);
             Some(l)
@@ -309,7 +309,7 @@ fn answer_rows(
 
 /// `--positions PRIM`: every point of a stage's points prim, frame by frame.
 fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
-    if !umbra::usd::is_stage(&a.file) {
+    if !umbra::input::InputKind::of(&a.file).is_stage() {
         bail!(
             "invalid argument '--positions': applies to USD stages (.usd, .usda, .usdc, .usdz); \
              {} is not one",

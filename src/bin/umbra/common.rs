@@ -124,10 +124,10 @@ pub fn load_scene_for(
 fn load_error(e: umbra::Error, file: &Path, opts: &umbra::scene::SceneOptions) -> anyhow::Error {
     match e {
         umbra::Error::InvalidArgument { .. } => anyhow::Error::from(flag_error(e)),
-        other if umbra::scene::is_scene_file(file) => {
+        other if umbra::input::InputKind::of(file).is_scene_file() => {
             anyhow::Error::from(other).context("loading the scene")
         }
-        other if umbra::usd::is_stage(file) => {
+        other if umbra::input::InputKind::of(file).is_stage() => {
             anyhow::Error::from(other).context("loading the shot")
         }
         other => anyhow::Error::from(other).context(format!("loading grid '{}'", opts.grid)),
@@ -186,7 +186,7 @@ pub struct StageArgs {
 impl StageArgs {
     /// Refuse stage options on an input that is not a stage.
     pub fn check(&self, file: &Path) -> Result<()> {
-        if umbra::usd::is_stage(file) {
+        if umbra::input::InputKind::of(file).is_stage() {
             if let Some(f) = self.frame {
                 if !f.is_finite() {
                     bail!("invalid argument '--frame': {f} is not a finite time code");

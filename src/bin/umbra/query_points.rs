@@ -53,7 +53,7 @@ pub fn run(
     opts: &Options,
 ) -> Result<ExitCode> {
     if let Some(layer) = s.usd_out {
-        if layer.extension().and_then(|e| e.to_str()) != Some("usda") {
+        if !umbra::input::is_usda_layer(layer) {
             bail!(
                 "invalid argument '--usd-out': {} is not a .usda layer",
                 layer.display()
