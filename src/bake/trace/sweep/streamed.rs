@@ -73,6 +73,9 @@ pub struct Streamed {
     pub sanitized: crate::volume::Sanitized,
 }
 
+/// The origins of the lower nodes a ray walk enters, and per view the entered ones it sees.
+type Entered = (HashSet<[i32; 3]>, Vec<Vec<u32>>);
+
 /// A part's pieces for view `v`, from its volume and its region's index.
 type PiecesOf<'a> = dyn Fn(&Volume, &RegionIndex, usize) -> Result<Vec<Piece>> + 'a;
 
@@ -262,7 +265,7 @@ impl Streaming<'_> {
     /// The lower nodes any view sees, in tree order, swept in parts of at most about
     /// `part_bytes`; the origins of those a ray walk enters, and per view the entered ones it
     /// sees (whose shell blocks it sweeps).
-    fn lower_parts(&mut self, part_bytes: u64) -> Result<(HashSet<[i32; 3]>, Vec<Vec<u32>>)> {
+    fn lower_parts(&mut self, part_bytes: u64) -> Result<Entered> {
         let (topo, rays) = (self.topo, self.rays);
         let seen = topo
             .lowers
