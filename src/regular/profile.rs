@@ -168,113 +168,48 @@ fn walk_profile(
     e: f64,
     relative: bool,
 ) -> Result<Profile> {
-    let max_error = e;
     let mut acc = Accessor::new(vol.tree());
     let mut n = Counts::default();
     let (q, d) = lookup_ray(vol, ray, interp);
-    let du = [0, 1, 2].map(|a| d[a] * GAUSS);
-    let scale = vol.density_scale();
     let mu_bg = vol.mu_background();
-    let mut p = Profile::default();
-    let mut tau = 0.0f64;
+    let mut b = Builder {
+        p: Profile::default(),
+        tau: 0.0,
+        q,
+        d,
+        du: [0, 1, 2].map(|a| d[a] * GAUSS),
+        scale: vol.density_scale(),
+        max_error: e,
+        relative,
+    };
     let mut last = ray.t_min();
-    p.push(last, 0.0);
+    b.p.push(last, 0.0);
     let w = walk_nodes(vol, ray, interp, Granularity::Leaf, |s: Segment, _| {
         if s.t_min > last {
-            tau += mu_bg * (s.t_min - last);
-            p.push(s.t_min, tau);
+            b.tau += mu_bg * (s.t_min - last);
+            b.p.push(s.t_min, b.tau);
         }
         last = last.max(s.t_max);
         if s.is_constant() {
-            tau += s.mu_min * s.length();
-            if tau.is_infinite() {
-                p.opaque_at = Some(s.t_min);
+            b.tau += s.mu_min * s.length();
+            if b.tau.is_infinite() {
+                b.p.opaque_at = Some(s.t_min);
                 return ControlFlow::Break(());
             }
-            p.push(s.t_max, tau);
+            b.p.push(s.t_max, b.tau);
             return ControlFlow::Continue(());
         }
         if !non_empty(s.t_min, s.t_max) {
             return ControlFlow::Continue(());
         }
-        let (lo, hi) = cell_range(q, d, s.t_min, s.t_max);
-        let dda = Dda::new(q, d, s.t_min, lo, hi);
-        let mut src = AccSource {
-            acc: &mut acc,
-            cell: [0; 3],
-        };
-        match interp {
-            Interp::Nearest => {
-                super::nearest_walk(&mut src, dda, q, d, s.t_max, lo, hi, &mut n, |v, ta, tb| {
-                    if p.opaque_at.is_some() {
-                        return;
-                    }
-                    tau += scale * v * (tb - ta);
-                    if tau.is_infinite() {
-                        p.opaque_at = Some(ta);
-                    } else {
-                        p.push(tb, tau);
-                    }
-                })
-            }
-            Interp::Trilinear => super::trilinear_walk(
-                &mut src,
-                dda,
-                q,
-                d,
-                s.t_max,
-                lo,
-                hi,
-                &mut n,
-                |v, cell, ta, tb| {
-                    if p.opaque_at.is_some() {
-                        return;
-                    }
-                    if v.iter().any(|x| x.is_infinite()) {
-                        p.opaque_at = Some(ta);
-                        return;
-                    }
-                    let (lo_v, hi_v) = v
-                        .iter()
-                        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
-                            (a.min(x), b.max(x))
-                        });
-                    let spread = scale * (hi_v - lo_v);
-                    let tol = if relative {
-                        max_error * tau.exp().min(1e300)
-                    } else {
-                        max_error
-                    };
-                    let want = (spread * (tb - ta) / (4.0 * tol)).ceil();
-                    let m = if want.is_finite() && want >= 1.0 {
-                        want.min(MAX_PIECES as f64) as usize
-                    } else {
-                        1
-                    };
-                    if want > MAX_PIECES as f64 {
-                        p.coarse_cells += 1;
-                    }
-                    let h = (tb - ta) / m as f64;
-                    let mut a = ta;
-                    for k in 1..=m {
-                        let b = if k == m { tb } else { ta + h * k as f64 };
-                        tau += scale * cubic_cell_integral(v, cell, q, d, du, a, b);
-                        if tau.is_infinite() {
-                            p.opaque_at = Some(a);
-                            return;
-                        }
-                        p.push(b, tau);
-                        a = b;
-                    }
-                },
-            ),
-        }
-        if p.opaque_at.is_some() {
+        b.cells(&mut acc, &mut n, interp, (s.t_min, s.t_max));
+        if b.p.opaque_at.is_some() {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
         }
     });
+    let Builder { mut p, mut tau, .. } = b;
     if w.unloaded || tau.is_nan() {
         return Err(Error::nan_on_ray("optical depth profile", ray));
     }
@@ -288,6 +223,110 @@ fn walk_profile(
     }
     p.lookups = n.reads;
     Ok(p)
+}
+
+/// A profile being walked ([`walk_profile`]): its breakpoints so far and the optical depth
+/// `tau` reached; the ray `q + t d` in lookup space (`du = GAUSS d`, for the Gauss points), the
+/// density scale, and the tolerance `max_error` (in T when `relative`, else in tau).
+struct Builder {
+    p: Profile,
+    tau: f64,
+    q: [f64; 3],
+    d: [f64; 3],
+    du: [f64; 3],
+    scale: f64,
+    max_error: f64,
+    relative: bool,
+}
+
+impl Builder {
+    /// The cells of a segment `[t0, t1]` of a leaf with varying values, by the DDA of `interp`:
+    /// a breakpoint at each voxel's end (nearest) or each dual cell cut within the tolerance
+    /// (trilinear), until the ray turns opaque.
+    fn cells(
+        &mut self,
+        acc: &mut Accessor<'_>,
+        n: &mut Counts,
+        interp: Interp,
+        (t0, t1): (f64, f64),
+    ) {
+        let (q, d) = (self.q, self.d);
+        let (lo, hi) = cell_range(q, d, t0, t1);
+        let dda = Dda::new(q, d, t0, lo, hi);
+        let mut src = AccSource { acc, cell: [0; 3] };
+        match interp {
+            Interp::Nearest => {
+                super::nearest_walk(&mut src, dda, q, d, t1, lo, hi, n, |v, ta, tb| {
+                    self.voxel(v, ta, tb);
+                })
+            }
+            Interp::Trilinear => {
+                super::trilinear_walk(&mut src, dda, q, d, t1, lo, hi, n, |v, cell, ta, tb| {
+                    self.cell(v, cell, ta, tb);
+                });
+            }
+        }
+    }
+
+    /// A voxel of value `v` on `[ta, tb]`: `tau += scale v (tb - ta)`, exactly linear.
+    fn voxel(&mut self, v: f64, ta: f64, tb: f64) {
+        let p = &mut self.p;
+        if p.opaque_at.is_some() {
+            return;
+        }
+        self.tau += self.scale * v * (tb - ta);
+        if self.tau.is_infinite() {
+            p.opaque_at = Some(ta);
+        } else {
+            p.push(tb, self.tau);
+        }
+    }
+
+    /// A dual cell with corner values `v` on `[ta, tb]`: cut into `m = ceil(D L / (4 tol))`
+    /// equal pieces (at most [`MAX_PIECES`]), `D` the spread of its corners' extinction, each
+    /// breakpoint's `tau` exact (module docs).
+    fn cell(&mut self, v: &[f64; 8], cell: [i64; 3], ta: f64, tb: f64) {
+        let p = &mut self.p;
+        if p.opaque_at.is_some() {
+            return;
+        }
+        if v.iter().any(|x| x.is_infinite()) {
+            p.opaque_at = Some(ta);
+            return;
+        }
+        let (lo_v, hi_v) = v
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| {
+                (a.min(x), b.max(x))
+            });
+        let spread = self.scale * (hi_v - lo_v);
+        let tol = if self.relative {
+            self.max_error * self.tau.exp().min(1e300)
+        } else {
+            self.max_error
+        };
+        let want = (spread * (tb - ta) / (4.0 * tol)).ceil();
+        let m = if want.is_finite() && want >= 1.0 {
+            want.min(MAX_PIECES as f64) as usize
+        } else {
+            1
+        };
+        if want > MAX_PIECES as f64 {
+            p.coarse_cells += 1;
+        }
+        let h = (tb - ta) / m as f64;
+        let mut a = ta;
+        for k in 1..=m {
+            let b = if k == m { tb } else { ta + h * k as f64 };
+            self.tau += self.scale * cubic_cell_integral(v, cell, self.q, self.d, self.du, a, b);
+            if self.tau.is_infinite() {
+                p.opaque_at = Some(a);
+                return;
+            }
+            p.push(b, self.tau);
+            a = b;
+        }
+    }
 }
 
 #[cfg(test)]

@@ -120,25 +120,88 @@ pub fn bake_fixed(
         });
     }
     let camera = &flat.camera;
-    let range = (camera.t_near().max(0.0), camera.t_max());
+    let texels = Texels {
+        scene,
+        flat,
+        range: (camera.t_near().max(0.0), camera.t_max()),
+        format,
+        per: format.channels(),
+    };
+    let rows = in_pool(flat.settings.threads, || {
+        texels.first_pass(&|n| progress(n))
+    })?;
+    let coarse = Coarse::join(rows, camera.pixels() as usize, flat.channels() * texels.per);
+    let threshold = 1.01 * coarse.seen + 1e-6;
+    // Second pass: the texels whose coarse bound is above the threshold, refined.
+    let flagged: Vec<usize> = (0..coarse.bound.len())
+        .filter(|&p| coarse.bound[p] > threshold)
+        .collect();
+    let refined = in_pool(flat.settings.threads, || {
+        texels.refine(&coarse.values, &flagged, threshold, &|n| progress(n))
+    })?;
+    let unflagged = coarse
+        .bound
+        .iter()
+        .filter(|&&b| b <= threshold)
+        .fold(0.0f64, |a, &b| a.max(b));
+    let fitted = refined
+        .iter()
+        .fold(coarse.seen.max(unflagged), |a, &b| a.max(b));
+    let profile_error = if exact { PROFILE_ERROR } else { 0.0 };
+    let samples = coarse.lit as f64 * (ERROR_GRID + 1) as f64;
     let colours = flat.channels();
-    let per = format.channels();
-    let (w, h) = (camera.width(), camera.height());
-    let profile_bound = PROFILE_ERROR / PROFILE_SHARE;
-    // The texel's normalised profiles, one per colour channel.
-    let texel = |i: u32, j: u32| -> Result<Vec<NormProfile>> {
-        let prof = pixel_profile(scene, flat, (i, j), profile_bound)?;
+    let per = texels.per;
+    Ok(FixedMap {
+        format,
+        planes: planes(coarse.values, format, colours),
+        stats: FixedStats {
+            format: format.to_string(),
+            channels: colours * per,
+            bytes_per_texel: 4 * colours * per,
+            max_error: (fitted + profile_error).min(1.0),
+            rms_error: (coarse.sum_sq / samples.max(1.0)).sqrt(),
+            profile_error,
+            near: texels.range.0,
+            far: texels.range.1,
+            refined_texels: flagged.len() as u64,
+            seconds: start.elapsed().as_secs_f64(),
+        },
+    })
+}
+
+/// What a fixed-size map's texels are made from: the scene, the flat map (camera, settings,
+/// slices), the depth range `[near, far]` their depth is normalised to, and the format with its
+/// `per` channels.
+struct Texels<'a> {
+    scene: &'a Scene,
+    flat: &'a Map,
+    range: (f64, f64),
+    format: DeepFormat,
+    per: usize,
+}
+
+impl Texels<'_> {
+    /// Texel `(i, j)`'s normalised profiles, one per colour channel (each within
+    /// [`PROFILE_ERROR`] of the exact one, for an exact map).
+    fn profiles(&self, i: u32, j: u32) -> Result<Vec<NormProfile>> {
+        let prof = pixel_profile(self.scene, self.flat, (i, j), PROFILE_ERROR / PROFILE_SHARE)?;
         prof.taus
             .iter()
-            .map(|tau| NormProfile::new(&prof.t, tau, prof.opaque_at, range))
+            .map(|tau| NormProfile::new(&prof.t, tau, prof.opaque_at, self.range))
             .collect()
-    };
-    let first = || {
+    }
+
+    /// The first pass (module docs): every texel encoded and its error bounded on the coarse
+    /// grid, row by row on all threads; `progress` gets each row's texels.
+    fn first_pass(&self, progress: &(impl Fn(u64) + Sync)) -> Result<Vec<Row>> {
+        let camera = &self.flat.camera;
+        let (w, h) = (camera.width(), camera.height());
+        let colours = self.flat.channels();
         (0..h)
             .into_par_iter()
             .map(|j| {
                 let mut row = Row {
-                    values: vec![Vec::with_capacity(w as usize); colours * per],
+                    values: vec![Vec::with_capacity(w as usize); colours * self.per],
                     coarse: Vec::with_capacity(w as usize),
                     seen: 0.0,
                     sum_sq: 0.0,
@@ -146,9 +209,9 @@ pub fn bake_fixed(
                 };
                 for i in 0..w {
                     let mut bound = 0.0f64;
-                    for (c, p) in texel(i, j)?.iter().enumerate() {
-                        let v = format.encode(p);
-                        let e = texel_error(format, &v, p, f64::INFINITY);
+                    for (c, p) in self.profiles(i, j)?.iter().enumerate() {
+                        let v = self.format.encode(p);
+                        let e = texel_error(self.format, &v, p, f64::INFINITY);
                         bound = bound.max(e.bound);
                         row.seen = row.seen.max(e.seen);
                         if p.total() > 0.0 {
@@ -156,7 +219,7 @@ pub fn bake_fixed(
                             row.lit += 1;
                         }
                         for (k, x) in v.into_iter().enumerate() {
-                            row.values[c * per + k].push(x);
+                            row.values[c * self.per + k].push(x);
                         }
                     }
                     row.coarse.push(bound);
@@ -165,32 +228,28 @@ pub fn bake_fixed(
                 Ok(row)
             })
             .collect::<Result<Vec<Row>>>()
-    };
-    let rows = in_pool(flat.settings.threads, first)?;
-    let seen = rows.iter().map(|r| r.seen).fold(0.0, f64::max);
-    let sum_sq: f64 = rows.iter().map(|r| r.sum_sq).sum();
-    let lit: u64 = rows.iter().map(|r| r.lit).sum();
-    let threshold = 1.01 * seen + 1e-6;
-    let mut values: Vec<Vec<f32>> =
-        vec![Vec::with_capacity(camera.pixels() as usize); colours * per];
-    let mut coarse = Vec::with_capacity(camera.pixels() as usize);
-    for r in rows {
-        for (d, s) in values.iter_mut().zip(r.values) {
-            d.extend(s);
+    }
+
+    /// The second pass (module docs): the `flagged` texels (pixel indices) refined until their
+    /// bound is below `threshold`, given every texel's encoded `values`; their bounds.
+    /// `progress` gets the second pass's [`fixed_units`] share as they finish (all of it at
+    /// once when none is flagged).
+    fn refine(
+        &self,
+        values: &[Vec<f32>],
+        flagged: &[usize],
+        threshold: f64,
+        progress: &(impl Fn(u64) + Sync),
+    ) -> Result<Vec<f64>> {
+        let camera = &self.flat.camera;
+        let (w, per) = (camera.width(), self.per);
+        // The second pass's units: flagged texel q completes floor((q + 1) U / F) in all.
+        let units = fixed_units(camera.pixels()) - camera.pixels();
+        if flagged.is_empty() {
+            progress(units);
         }
-        coarse.extend(r.coarse);
-    }
-    // Second pass: the texels whose coarse bound is above the threshold, refined.
-    let flagged: Vec<usize> = (0..coarse.len())
-        .filter(|&p| coarse[p] > threshold)
-        .collect();
-    // The second pass's units: flagged texel q completes floor((q + 1) U / F) in all.
-    let units = fixed_units(camera.pixels()) - camera.pixels();
-    if flagged.is_empty() {
-        progress(units);
-    }
-    let share = |q: usize| (u128::from(units) * q as u128 / flagged.len().max(1) as u128) as u64;
-    let second = || {
+        let share =
+            |q: usize| (u128::from(units) * q as u128 / flagged.len().max(1) as u128) as u64;
         flagged
             .par_iter()
             .enumerate()
@@ -198,24 +257,57 @@ pub fn bake_fixed(
                 progress(share(q + 1) - share(q));
                 let (i, j) = ((p % w as usize) as u32, (p / w as usize) as u32);
                 let mut bound = 0.0f64;
-                for (c, prof) in texel(i, j)?.iter().enumerate() {
+                for (c, prof) in self.profiles(i, j)?.iter().enumerate() {
                     let v: Vec<f32> = (0..per).map(|k| values[c * per + k][p]).collect();
-                    bound = bound.max(texel_error(format, &v, prof, threshold).bound);
+                    bound = bound.max(texel_error(self.format, &v, prof, threshold).bound);
                 }
                 Ok(bound)
             })
             .collect::<Result<Vec<f64>>>()
-    };
-    let refined = in_pool(flat.settings.threads, second)?;
-    let unflagged = coarse
-        .iter()
-        .filter(|&&b| b <= threshold)
-        .fold(0.0f64, |a, &b| a.max(b));
-    let fitted = refined.iter().fold(seen.max(unflagged), |a, &b| a.max(b));
-    let profile_error = if exact { PROFILE_ERROR } else { 0.0 };
-    let samples = lit as f64 * (ERROR_GRID + 1) as f64;
+    }
+}
+
+/// The first pass's rows joined: per colour and format channel the values of every pixel, per
+/// pixel its coarse bound; the largest error seen at any evaluated depth (`G`, module docs),
+/// the squared errors and the texels whose ray meets extinction.
+struct Coarse {
+    values: Vec<Vec<f32>>,
+    bound: Vec<f64>,
+    seen: f64,
+    sum_sq: f64,
+    lit: u64,
+}
+
+impl Coarse {
+    /// `rows` (of `pixels` texels in all, `channels` values each) joined in row order.
+    fn join(rows: Vec<Row>, pixels: usize, channels: usize) -> Self {
+        let seen = rows.iter().map(|r| r.seen).fold(0.0, f64::max);
+        let sum_sq: f64 = rows.iter().map(|r| r.sum_sq).sum();
+        let lit: u64 = rows.iter().map(|r| r.lit).sum();
+        let mut values: Vec<Vec<f32>> = vec![Vec::with_capacity(pixels); channels];
+        let mut bound = Vec::with_capacity(pixels);
+        for r in rows {
+            for (d, s) in values.iter_mut().zip(r.values) {
+                d.extend(s);
+            }
+            bound.extend(r.coarse);
+        }
+        Self {
+            values,
+            bound,
+            seen,
+            sum_sq,
+            lit,
+        }
+    }
+}
+
+/// The map's channels, named `deep.<name>` (grey) or `deepR.<name>`, ... (colour), from each
+/// colour and format channel's `values`.
+fn planes(values: Vec<Vec<f32>>, format: DeepFormat, colours: usize) -> Vec<(String, Vec<f32>)> {
+    let per = format.channels();
     let names = format.channel_names();
-    let planes = values
+    values
         .into_iter()
         .enumerate()
         .map(|(n, v)| {
@@ -224,23 +316,7 @@ pub fn bake_fixed(
                 v,
             )
         })
-        .collect();
-    Ok(FixedMap {
-        format,
-        planes,
-        stats: FixedStats {
-            format: format.to_string(),
-            channels: colours * per,
-            bytes_per_texel: 4 * colours * per,
-            max_error: (fitted + profile_error).min(1.0),
-            rms_error: (sum_sq / samples.max(1.0)).sqrt(),
-            profile_error,
-            near: range.0,
-            far: range.1,
-            refined_texels: flagged.len() as u64,
-            seconds: start.elapsed().as_secs_f64(),
-        },
-    })
+        .collect()
 }
 
 /// The header attributes of a fixed-size deep map (`bake --deep-format`): its format, the

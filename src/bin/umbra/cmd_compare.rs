@@ -141,27 +141,11 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
     } else {
         a.threads
     };
-    // The output directory: its parent must exist and be writable before any work.
-    if !a.out.is_dir() {
-        let parent = a
-            .out
-            .parent()
-            .filter(|p| !p.as_os_str().is_empty())
-            .unwrap_or(std::path::Path::new("."));
-        umbra::output::check_writable(&parent.join(".umbra-compare"), true).with_context(|| {
-            format!(
-                "invalid argument '--output': cannot create {}",
-                a.out.display()
-            )
-        })?;
-    } else {
-        umbra::output::check_writable(&a.out.join("report.csv"), true)?;
-    }
+    check_output(a)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
         .build()
         .context("starting worker threads")?;
-    let interp = a.interp;
     let estimators = selected(a)?;
     let say = |m: &str| {
         if !a.quiet {
@@ -186,105 +170,141 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     if let Some(file) = &a.file {
-        if umbra::input::InputKind::of(file).is_scene_file() {
-            anyhow::bail!(
-                "{}: compare takes one grid of a .vdb file; scenes (.toml) are traced by query \
-                 and bake",
-                file.display()
-            );
+        if let Some(code) = run_estimators(a, file, &estimators, threads, &pool, &say)? {
+            return Ok(code);
         }
-        a.stage.check(file)?;
-        let (vol, source) = load(a, file)?;
-        let rays = compare::random_rays(&vol, a.rays, a.seed);
-        if rays.is_empty() {
-            anyhow::bail!("{source} is empty, nothing to compare");
-        }
-        let options = Options {
-            interp,
-            seed: a.seed,
-            ..Options::default()
-        };
-        let settings = Settings {
-            options,
-            repeats: a.repeats,
-            threads,
-            global_baseline: a.global_baseline,
-        };
-        if let Some(sigma) = a.sigma_t {
-            return run_colour(
-                a,
-                vol,
-                &rays,
-                &estimators,
-                &settings,
-                sigma,
-                source,
-                &pool,
-                &say,
-            );
-        }
-        let rows =
-            pool.install(|| compare::compare(&vol, &rays, &estimators, &settings, |m| say(m)))?;
-        let exact = pool.install(|| compare::reference(&vol, &rays, &options));
-        let mean_t = exact.iter().sum::<f64>() / exact.len() as f64;
-        let taus: Vec<f64> = exact.iter().map(|t| -t.ln() + 0.0).collect();
-        let meta = Meta {
-            source,
-            rays: rays.len(),
-            threads,
-            repeats: a.repeats,
-            medium: format!(
-                "{interp:?} lookups, density scale {}, seed {}",
-                a.density_scale, a.seed
-            ),
-            machine: machine(),
-            reference: format!(
-                "mean exact T {mean_t:.4}; tau from {:.3} to {:.3}",
-                taus.iter().copied().fold(f64::INFINITY, f64::min),
-                taus.iter().copied().fold(0.0, f64::max)
-            ),
-        };
-        let svg = crate::plot::svg(&rows)?;
-        compare::write_reports(&a.out, &rows, &meta, Some(&svg))?;
-        say(&format!(
-            "wrote {}/report.{{csv,json,md}} and error_vs_time.svg",
-            a.out.display()
-        ));
     } else if !a.stress {
         anyhow::bail!("give a .vdb file to compare estimators on, or --stress");
     }
     if a.stress {
-        say("stress catalogue");
-        let cases = stress::catalogue(16)?;
-        let rows = pool.install(|| stress::run(&cases, a.stress_samples, 5_000_000));
-        std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
-        let md = stress::markdown(&cases, &rows, a.stress_samples);
-        umbra::output::write_atomic(&a.out.join("stress.md"), true, |w| {
-            std::io::Write::write_all(w, md.as_bytes()).map_err(|e| e.to_string())
-        })?;
-        let json = serde_json::to_string_pretty(&rows)?;
-        umbra::output::write_atomic(&a.out.join("stress.json"), true, |w| {
-            std::io::Write::write_all(w, json.as_bytes()).map_err(|e| e.to_string())
-        })?;
-        let bad = rows
-            .iter()
-            .filter(|r| {
-                r.non_finite > 0 || (!r.signed && r.out_of_range > 0) || r.underflow_violations > 0
-            })
-            .count();
-        say(&format!(
-            "wrote {}/stress.{{md,json}}: {} rows, {bad} with violations",
-            a.out.display(),
-            rows.len()
-        ));
-        if bad > 0 {
-            eprintln!(
-                "umbra: error: {bad} of {} stress rows violate the soundness properties (see {}/stress.md)",
-                rows.len(),
+        return run_stress(a, &pool, &say);
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The output directory: its parent must exist and be writable before any work.
+fn check_output(a: &CompareArgs) -> Result<()> {
+    if !a.out.is_dir() {
+        let parent = a
+            .out
+            .parent()
+            .filter(|p| !p.as_os_str().is_empty())
+            .unwrap_or(std::path::Path::new("."));
+        umbra::output::check_writable(&parent.join(".umbra-compare"), true).with_context(|| {
+            format!(
+                "invalid argument '--output': cannot create {}",
                 a.out.display()
-            );
-            return Ok(ExitCode::from(3));
-        }
+            )
+        })?;
+    } else {
+        umbra::output::check_writable(&a.out.join("report.csv"), true)?;
+    }
+    Ok(())
+}
+
+/// The estimators compared on `file`'s grid over random rays (or, with `--sigma-t`, the
+/// colour walks, whose exit code is returned): report.{csv,json,md} and error_vs_time.svg.
+fn run_estimators(
+    a: &CompareArgs,
+    file: &std::path::Path,
+    estimators: &[Estimator],
+    threads: usize,
+    pool: &rayon::ThreadPool,
+    say: &(dyn Fn(&str) + Sync),
+) -> Result<Option<ExitCode>> {
+    if umbra::input::InputKind::of(file).is_scene_file() {
+        anyhow::bail!(
+            "{}: compare takes one grid of a .vdb file; scenes (.toml) are traced by query \
+             and bake",
+            file.display()
+        );
+    }
+    a.stage.check(file)?;
+    let interp = a.interp;
+    let (vol, source) = load(a, file)?;
+    let rays = compare::random_rays(&vol, a.rays, a.seed);
+    if rays.is_empty() {
+        anyhow::bail!("{source} is empty, nothing to compare");
+    }
+    let options = Options {
+        interp,
+        seed: a.seed,
+        ..Options::default()
+    };
+    let settings = Settings {
+        options,
+        repeats: a.repeats,
+        threads,
+        global_baseline: a.global_baseline,
+    };
+    if let Some(sigma) = a.sigma_t {
+        return run_colour(
+            a, vol, &rays, estimators, &settings, sigma, source, pool, say,
+        )
+        .map(Some);
+    }
+    let rows = pool.install(|| compare::compare(&vol, &rays, estimators, &settings, |m| say(m)))?;
+    let exact = pool.install(|| compare::reference(&vol, &rays, &options));
+    let mean_t = exact.iter().sum::<f64>() / exact.len() as f64;
+    let taus: Vec<f64> = exact.iter().map(|t| -t.ln() + 0.0).collect();
+    let meta = Meta {
+        source,
+        rays: rays.len(),
+        threads,
+        repeats: a.repeats,
+        medium: format!(
+            "{interp:?} lookups, density scale {}, seed {}",
+            a.density_scale, a.seed
+        ),
+        machine: machine(),
+        reference: format!(
+            "mean exact T {mean_t:.4}; tau from {:.3} to {:.3}",
+            taus.iter().copied().fold(f64::INFINITY, f64::min),
+            taus.iter().copied().fold(0.0, f64::max)
+        ),
+    };
+    let svg = crate::plot::svg(&rows)?;
+    compare::write_reports(&a.out, &rows, &meta, Some(&svg))?;
+    say(&format!(
+        "wrote {}/report.{{csv,json,md}} and error_vs_time.svg",
+        a.out.display()
+    ));
+    Ok(None)
+}
+
+/// The stress catalogue run: stress.{md,json}; exit code 3 when a row violates the soundness
+/// properties.
+fn run_stress(a: &CompareArgs, pool: &rayon::ThreadPool, say: &dyn Fn(&str)) -> Result<ExitCode> {
+    say("stress catalogue");
+    let cases = stress::catalogue(16)?;
+    let rows = pool.install(|| stress::run(&cases, a.stress_samples, 5_000_000));
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+    let md = stress::markdown(&cases, &rows, a.stress_samples);
+    umbra::output::write_atomic(&a.out.join("stress.md"), true, |w| {
+        std::io::Write::write_all(w, md.as_bytes()).map_err(|e| e.to_string())
+    })?;
+    let json = serde_json::to_string_pretty(&rows)?;
+    umbra::output::write_atomic(&a.out.join("stress.json"), true, |w| {
+        std::io::Write::write_all(w, json.as_bytes()).map_err(|e| e.to_string())
+    })?;
+    let bad = rows
+        .iter()
+        .filter(|r| {
+            r.non_finite > 0 || (!r.signed && r.out_of_range > 0) || r.underflow_violations > 0
+        })
+        .count();
+    say(&format!(
+        "wrote {}/stress.{{md,json}}: {} rows, {bad} with violations",
+        a.out.display(),
+        rows.len()
+    ));
+    if bad > 0 {
+        eprintln!(
+            "umbra: error: {bad} of {} stress rows violate the soundness properties (see {}/stress.md)",
+            rows.len(),
+            a.out.display()
+        );
+        return Ok(ExitCode::from(3));
     }
     Ok(ExitCode::SUCCESS)
 }

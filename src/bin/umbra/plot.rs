@@ -1,7 +1,9 @@
 //! `error_vs_time.svg` of `umbra compare`, drawn with plotters (a CLI dependency only).
 
 use anyhow::Result;
+use plotters::coord::Shift;
 use plotters::prelude::*;
+use umbra::compare::deep::DeepRow;
 use umbra::compare::Row;
 
 /// The log-log plot of RMSE against wall time, one line per estimator, each point labelled
@@ -130,27 +132,17 @@ pub fn svg(rows: &[Row]) -> Result<String> {
 /// `deep_error_vs_bytes.svg` of `umbra compare --deep`: error in T against bytes per texel
 /// (log-log), one line per family through its RMS errors (filled dots) and its max errors
 /// (crosses, dashed), each point labelled with its budget; the legend beside the plot.
-pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
+pub fn deep_svg(rows: &[DeepRow]) -> Result<String> {
     let mut out = String::new();
     {
-        let err = |e: &dyn std::fmt::Display| anyhow::anyhow!("drawing the plot: {e}");
         let root = SVGBackend::with_string(&mut out, (1040, 640)).into_drawing_area();
-        root.fill(&WHITE).map_err(|e| err(&e))?;
+        root.fill(&WHITE).map_err(|e| drawing(&e))?;
         let (plot, legend) = root.split_horizontally(800);
-        let pts: Vec<_> = rows
+        let pts: Vec<&DeepRow> = rows
             .iter()
             .filter(|r| r.bytes_per_texel > 0.0 && r.rms_error > 0.0 && r.max_error > 0.0)
             .collect();
-        let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64);
-        for r in &pts {
-            x0 = x0.min(r.bytes_per_texel);
-            x1 = x1.max(r.bytes_per_texel);
-            y0 = y0.min(r.rms_error.min(r.max_error));
-            y1 = y1.max(r.rms_error.max(r.max_error));
-        }
-        if pts.is_empty() {
-            (x0, x1, y0, y1) = (1.0, 100.0, 1e-4, 1.0);
-        }
+        let (x0, x1, y0, y1) = deep_range(&pts);
         let mut chart = ChartBuilder::on(&plot)
             .caption(
                 "Error in T against bytes per texel (log-log)",
@@ -163,95 +155,135 @@ pub fn deep_svg(rows: &[umbra::compare::deep::DeepRow]) -> Result<String> {
                 (x0 / 1.4..x1 * 1.4).log_scale(),
                 (y0 / 1.6..y1 * 1.6).log_scale(),
             )
-            .map_err(|e| err(&e))?;
+            .map_err(|e| drawing(&e))?;
         chart
             .configure_mesh()
             .x_desc("bytes per texel (the encoding's own, before compression)")
             .y_desc("error in T")
             .draw()
-            .map_err(|e| err(&e))?;
+            .map_err(|e| drawing(&e))?;
         let mut families: Vec<&str> = pts.iter().map(|r| r.family.as_str()).collect();
         families.dedup();
         let mut keys = Vec::new();
         for (i, fam) in families.iter().enumerate() {
             let color = Palette99::pick(i).to_rgba();
-            let mine: Vec<_> = pts.iter().filter(|r| r.family == *fam).collect();
-            let rms: Vec<(f64, f64)> = mine
-                .iter()
-                .map(|r| (r.bytes_per_texel, r.rms_error))
-                .collect();
-            let max: Vec<(f64, f64)> = mine
-                .iter()
-                .map(|r| (r.bytes_per_texel, r.max_error))
-                .collect();
-            chart
-                .draw_series(LineSeries::new(rms.clone(), color.stroke_width(2)))
-                .map_err(|e| err(&e))?;
-            chart
-                .draw_series(rms.iter().map(|&p| Circle::new(p, 4, color.filled())))
-                .map_err(|e| err(&e))?;
-            chart
-                .draw_series(DashedLineSeries::new(
-                    max.clone(),
-                    6,
-                    4,
-                    color.stroke_width(1),
-                ))
-                .map_err(|e| err(&e))?;
-            chart
-                .draw_series(max.iter().map(|&p| Cross::new(p, 4, color.stroke_width(2))))
-                .map_err(|e| err(&e))?;
-            for r in &mine {
-                let label = r
-                    .encoding
-                    .split(':')
-                    .nth(1)
-                    .unwrap_or(&r.encoding)
-                    .replace("--deep-error ", "E=");
-                chart
-                    .draw_series(std::iter::once(Text::new(
-                        label,
-                        (r.bytes_per_texel * 1.05, r.rms_error * 1.15),
-                        ("sans-serif", 13).into_font().color(&color),
-                    )))
-                    .map_err(|e| err(&e))?;
-            }
+            let mine: Vec<&DeepRow> = pts.iter().copied().filter(|r| r.family == *fam).collect();
+            deep_family(&mut chart, color, &mine)?;
             keys.push((fam.to_string(), color));
         }
-        // The legend, beside the plot.
-        let style = ("sans-serif", 16).into_font();
-        for (i, (name, color)) in keys.iter().enumerate() {
-            let y = 80 + 28 * i as i32;
-            legend
-                .draw(&PathElement::new(
-                    vec![(10, y), (40, y)],
-                    color.stroke_width(2),
-                ))
-                .map_err(|e| err(&e))?;
-            legend
-                .draw(&Text::new(name.clone(), (48, y - 8), style.clone()))
-                .map_err(|e| err(&e))?;
-        }
-        let y = 80 + 28 * keys.len() as i32 + 20;
-        for (k, text) in [
-            "dot, solid: RMS error",
-            "cross, dashed: max error",
-            "label: budget",
-        ]
-        .iter()
-        .enumerate()
-        {
-            legend
-                .draw(&Text::new(
-                    *text,
-                    (10, y + 22 * k as i32),
-                    ("sans-serif", 14).into_font(),
-                ))
-                .map_err(|e| err(&e))?;
-        }
-        root.present().map_err(|e| err(&e))?;
+        deep_legend(&legend, &keys)?;
+        root.present().map_err(|e| drawing(&e))?;
     }
     Ok(out)
+}
+
+/// A drawing error of a plot.
+fn drawing(e: &dyn std::fmt::Display) -> anyhow::Error {
+    anyhow::anyhow!("drawing the plot: {e}")
+}
+
+/// The range `(x0, x1, y0, y1)` of the deep plot's points: bytes per texel, and errors (RMS
+/// and max); a default frame when there are none.
+fn deep_range(pts: &[&DeepRow]) -> (f64, f64, f64, f64) {
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::INFINITY, 0.0f64, f64::INFINITY, 0.0f64);
+    for r in pts {
+        x0 = x0.min(r.bytes_per_texel);
+        x1 = x1.max(r.bytes_per_texel);
+        y0 = y0.min(r.rms_error.min(r.max_error));
+        y1 = y1.max(r.rms_error.max(r.max_error));
+    }
+    if pts.is_empty() {
+        (x0, x1, y0, y1) = (1.0, 100.0, 1e-4, 1.0);
+    }
+    (x0, x1, y0, y1)
+}
+
+/// A log-log chart drawn as SVG text.
+type LogChart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<LogCoord<f64>, LogCoord<f64>>>;
+
+/// One family of the deep plot in `color`: its RMS errors (a line through filled dots), its max
+/// errors (a dashed line through crosses), each point labelled with its budget.
+fn deep_family(chart: &mut LogChart<'_, '_>, color: RGBAColor, mine: &[&DeepRow]) -> Result<()> {
+    let rms: Vec<(f64, f64)> = mine
+        .iter()
+        .map(|r| (r.bytes_per_texel, r.rms_error))
+        .collect();
+    let max: Vec<(f64, f64)> = mine
+        .iter()
+        .map(|r| (r.bytes_per_texel, r.max_error))
+        .collect();
+    chart
+        .draw_series(LineSeries::new(rms.clone(), color.stroke_width(2)))
+        .map_err(|e| drawing(&e))?;
+    chart
+        .draw_series(rms.iter().map(|&p| Circle::new(p, 4, color.filled())))
+        .map_err(|e| drawing(&e))?;
+    chart
+        .draw_series(DashedLineSeries::new(
+            max.clone(),
+            6,
+            4,
+            color.stroke_width(1),
+        ))
+        .map_err(|e| drawing(&e))?;
+    chart
+        .draw_series(max.iter().map(|&p| Cross::new(p, 4, color.stroke_width(2))))
+        .map_err(|e| drawing(&e))?;
+    for r in mine {
+        let label = r
+            .encoding
+            .split(':')
+            .nth(1)
+            .unwrap_or(&r.encoding)
+            .replace("--deep-error ", "E=");
+        chart
+            .draw_series(std::iter::once(Text::new(
+                label,
+                (r.bytes_per_texel * 1.05, r.rms_error * 1.15),
+                ("sans-serif", 13).into_font().color(&color),
+            )))
+            .map_err(|e| drawing(&e))?;
+    }
+    Ok(())
+}
+
+/// The deep plot's legend: a line per family (`keys`: name and colour), then what the marks
+/// mean.
+fn deep_legend(
+    legend: &DrawingArea<SVGBackend<'_>, Shift>,
+    keys: &[(String, RGBAColor)],
+) -> Result<()> {
+    let style = ("sans-serif", 16).into_font();
+    for (i, (name, color)) in keys.iter().enumerate() {
+        let y = 80 + 28 * i as i32;
+        legend
+            .draw(&PathElement::new(
+                vec![(10, y), (40, y)],
+                color.stroke_width(2),
+            ))
+            .map_err(|e| drawing(&e))?;
+        legend
+            .draw(&Text::new(name.clone(), (48, y - 8), style.clone()))
+            .map_err(|e| drawing(&e))?;
+    }
+    let y = 80 + 28 * keys.len() as i32 + 20;
+    for (k, text) in [
+        "dot, solid: RMS error",
+        "cross, dashed: max error",
+        "label: budget",
+    ]
+    .iter()
+    .enumerate()
+    {
+        legend
+            .draw(&Text::new(
+                *text,
+                (10, y + 22 * k as i32),
+                ("sans-serif", 14).into_font(),
+            ))
+            .map_err(|e| drawing(&e))?;
+    }
+    Ok(())
 }
 
 /// `compare --sigma-t`'s plot: per estimator, `efficiency(split) / efficiency(shared)` at each

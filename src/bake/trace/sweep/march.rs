@@ -26,7 +26,10 @@
 //! Every pixel and slice equals the ray path's estimate to within the kernel's f32 positions
 //! (`marches_match_the_ray_path` in the sweep's tests).
 
-use super::{fill, neighbourhood, Layout, Part, Piece, Sweep};
+use super::band::{BandKernel, BandRows, Crossing, Filled, Reads};
+use super::pieces::{Part, Piece};
+use super::rays::Layout;
+use super::Sweep;
 use crate::bake::camera::Camera;
 use crate::bake::map::BakeSettings;
 use crate::error::Result;
@@ -157,150 +160,6 @@ impl Sweep<'_> {
         }
     }
 
-    /// Band `b` of a march: every pixel's (and sample's, and slice's) optical depth into `tau`.
-    pub(super) fn band_march(
-        &self,
-        m: &March,
-        b: usize,
-        tau: &mut [f64],
-        lookups: &mut u64,
-    ) -> Result<()> {
-        let (vol, rays) = (self.vol, &self.rays);
-        let ids = &self.bins[b];
-        let (y0, y1) = self.band_span(b, tau.len());
-        let tree = vol.tree();
-        let (w, stride) = (rays.width, self.stride());
-        let per = 1 + self.depths.len();
-        let scale = vol.density_scale();
-        let mut acc = Accessor::new(tree);
-        let mut n = Counts::default();
-        let dirs = self.pixel_dirs(y0, y1)?;
-        // The step in world units: one for parallel rays, per pixel through a pinhole.
-        let h_parallel = match &rays.layout {
-            Layout::Parallel(par) => Some(step_world(par.d.length(), m.step)),
-            Layout::Pinhole { .. } => None,
-        };
-        let h_of = |d: DVec3| h_parallel.unwrap_or_else(|| step_world(d.length(), m.step));
-        let pixel_id = |px: usize| u64::from(y0) * u64::from(w) + px as u64;
-        let kernel = Kernel::new();
-        let width = kernel.width();
-        let mut block = [0f32; BLOCK];
-        let mut batch = Batch::new();
-        let mut jobs = Vec::new();
-        let mut consts: Vec<(usize, f64, f64)> = Vec::new();
-        let samples = m.samples();
-        for &id in ids {
-            let p = &self.pieces[id as usize];
-            let [_, _, j0, j1] = p.rect;
-            let rows = (j0.max(y0), j1.min(y1), y0);
-            let key = p.origin.map(|c| c >> 3);
-            let on_kernel = matches!(
-                p.part,
-                Part::Leaf { fast: true, .. } | Part::Tile { fast: true, .. }
-            );
-            if !on_kernel {
-                self.chords(p, rows, &dirs, |px, q, d, a, b| {
-                    self.jobs(m.random(), (a, b), pixel_id(px), &mut jobs);
-                    for job in &jobs {
-                        for i in 0..samples {
-                            let part = (a, job.end, job.ray_id, i as u32);
-                            let v =
-                                self.scalar(m, p, (q, d), part, key, (px, y0), &mut acc, &mut n);
-                            self.credit(
-                                tau,
-                                px * stride + i * per + job.slot,
-                                (job.shared, job.end),
-                                v,
-                            );
-                        }
-                    }
-                });
-                continue;
-            }
-            fill(&neighbourhood(tree, &mut acc, p), &mut block);
-            let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
-            let marched_tile = matches!(p.part, Part::Tile { .. });
-            consts.clear();
-            let mut flush = |batch: &mut Batch| {
-                let offsets = (m.points != Points::Midpoint).then_some(&batch.offsets[..]);
-                let sums = kernel.march(&block, &batch.lanes, &batch.steps, offsets);
-                for (l, &(at, shared, end)) in batch.at.iter().enumerate().take(batch.used) {
-                    *lookups += u64::from(sums.cells[l]);
-                    self.credit(tau, at, (shared, end), scale * sums.tau[l]);
-                }
-                // Lanes the next batch leaves unfilled must read as unused (`n = 0`; the march
-                // reads no other field of an unused lane unmasked).
-                batch.steps.n = [0; LANES];
-                batch.used = 0;
-            };
-            self.chords(p, rows, &dirs, |px, q, d, a, b| {
-                let parts = if marched_tile {
-                    let (parts, inner) = tile_split(q, d, p.origin, (a, b));
-                    consts.extend(inner.map(|(ia, ib)| (px, ia, ib)));
-                    parts
-                } else {
-                    [Some((a, b)), None]
-                };
-                let h = h_of(d);
-                for (a, b) in parts.into_iter().flatten() {
-                    let e = ((q - centre) + d * a).to_array();
-                    self.jobs(m.random(), (a, b), pixel_id(px), &mut jobs);
-                    for job in &jobs {
-                        let (count, dt) = pieces(job.end - a, h);
-                        for i in 0..samples {
-                            let l = batch.used;
-                            batch.lanes.set(l, e, d.to_array(), job.end - a);
-                            batch.steps.n[l] = count as u32;
-                            batch.steps.dt[l] = dt as f32;
-                            if m.points != Points::Midpoint {
-                                let rows = count as usize;
-                                if batch.offsets.len() < rows {
-                                    batch.offsets.resize(rows, [0.0; LANES]);
-                                }
-                                let mut rng = Rng::new(m.opts.seed, job.ray_id, i as u64).fork(key);
-                                for (j, row) in batch.offsets.iter_mut().take(rows).enumerate() {
-                                    let u = rng.uniform();
-                                    row[l] = match m.points {
-                                        Points::Uniform => (count as f64 * u - j as f64) as f32,
-                                        _ => u as f32,
-                                    };
-                                }
-                            }
-                            batch.at[l] = (px * stride + i * per + job.slot, job.shared, job.end);
-                            batch.used += 1;
-                            if batch.used == width {
-                                flush(&mut batch);
-                            }
-                        }
-                    }
-                }
-            });
-            if batch.used > 0 {
-                flush(&mut batch);
-            }
-            // A marched tile's inner box: the tile's value in closed form, in every estimate.
-            if let Part::Tile { lower, slot, .. } = p.part {
-                let v = tree.lowers[lower as usize].tile_value(slot as usize);
-                let mu = if v == tree.background {
-                    vol.mu_background()
-                } else {
-                    crate::math::scaled(scale, f64::from(v))
-                };
-                for &(px, ia, ib) in &consts {
-                    self.jobs(m.random(), (ia, ib), pixel_id(px), &mut jobs);
-                    for job in &jobs {
-                        for i in 0..samples {
-                            let at = px * stride + i * per + job.slot;
-                            self.credit(tau, at, (job.shared, job.end), mu * (job.end - ia));
-                        }
-                    }
-                }
-            }
-        }
-        *lookups += n.reads;
-        Ok(())
-    }
-
     /// Add `v` to `tau[at]`, and to every slice of that estimate past `end` when the slices
     /// share it.
     fn credit(&self, tau: &mut [f64], at: usize, (shared, end): (bool, f64), v: f64) {
@@ -378,6 +237,239 @@ impl Sweep<'_> {
                 }
             }
         }
+    }
+}
+
+/// A march's share of a band: a leaf or a tile on the lane kernel adds each of its chords'
+/// marched optical depth `scale x sum_j f(x_j) dt` to every estimate the chord feeds
+/// ([`Kernel::march`], `Kernel::width` lanes at a time, a lane per job and sample; a marched
+/// tile's inner box in closed form); any other block goes through [`Sweep::scalar`] per chord.
+pub(super) struct MarchBand<'s, 'a> {
+    sw: &'s Sweep<'a>,
+    m: &'s March,
+    tau: &'s mut [f64],
+    kernel: Kernel,
+    width: usize,
+    /// Values per pixel, per estimate (the full ray and its slices), estimates per pixel.
+    stride: usize,
+    per: usize,
+    samples: usize,
+    scale: f64,
+    /// The band's first row.
+    y0: u32,
+    /// The step in world units for parallel rays (through a pinhole it is per pixel).
+    h_parallel: Option<f64>,
+    batch: Batch,
+    jobs: Vec<Job>,
+    /// The inner boxes of a marched tile's chords: pixel and `[ia, ib]`.
+    consts: Vec<(usize, f64, f64)>,
+    lookups: u64,
+}
+
+/// What a block the march takes on the lane kernel carries: its stream key (the block's
+/// index `o / 8`), and whether it is a tile (whose inner box is closed form).
+pub(super) struct MarchOn {
+    key: [i64; 3],
+    tile: bool,
+}
+
+impl<'s, 'a> MarchBand<'s, 'a> {
+    /// March `m` into the buffer `tau` (zeros) of the band from row `y0`.
+    pub(super) fn new(sw: &'s Sweep<'a>, m: &'s March, y0: u32, tau: &'s mut [f64]) -> Self {
+        let kernel = Kernel::new();
+        let h_parallel = match &sw.rays.layout {
+            Layout::Parallel(par) => Some(step_world(par.d.length(), m.step)),
+            Layout::Pinhole { .. } => None,
+        };
+        Self {
+            sw,
+            m,
+            tau,
+            kernel,
+            width: kernel.width(),
+            stride: sw.stride(),
+            per: 1 + sw.depths.len(),
+            samples: m.samples(),
+            scale: sw.vol.density_scale(),
+            y0,
+            h_parallel,
+            batch: Batch::new(),
+            jobs: Vec::new(),
+            consts: Vec::new(),
+            lookups: 0,
+        }
+    }
+
+    /// The ray id of the band's pixel `px` (the image's pixel index).
+    fn pixel_id(&self, px: usize) -> u64 {
+        u64::from(self.y0) * u64::from(self.sw.rays.width) + px as u64
+    }
+
+    /// The waiting lanes marched through `block`, each added to its estimate.
+    fn flush(&mut self, block: &[f32; BLOCK]) {
+        let batch = &mut self.batch;
+        let offsets = (self.m.points != Points::Midpoint).then_some(&batch.offsets[..]);
+        let sums = self
+            .kernel
+            .march(block, &batch.lanes, &batch.steps, offsets);
+        for (l, &(at, shared, end)) in batch.at.iter().enumerate().take(batch.used) {
+            self.lookups += u64::from(sums.cells[l]);
+            self.sw
+                .credit(self.tau, at, (shared, end), self.scale * sums.tau[l]);
+        }
+        // Lanes the next batch leaves unfilled must read as unused (`n = 0`; the march reads
+        // no other field of an unused lane unmasked).
+        batch.steps.n = [0; LANES];
+        batch.used = 0;
+    }
+
+    /// The lanes of part `[a, b]` of a chord (`c`, through the block `at` with stream key
+    /// `key`; step `h`): one per job and sample, its pieces and, for a random march, its points'
+    /// offsets from the sample's stream forked by the block.
+    fn lanes(&mut self, key: [i64; 3], at: &Filled<'_>, c: Crossing, h: f64) {
+        let Crossing { px, q, d, a, b } = c;
+        let e = ((q - at.centre) + d * a).to_array();
+        let m = self.m;
+        self.sw
+            .jobs(m.random(), (a, b), self.pixel_id(px), &mut self.jobs);
+        // Taken for the loop: a full batch flushes (`&mut self`) inside it.
+        let jobs = std::mem::take(&mut self.jobs);
+        for job in &jobs {
+            let (count, dt) = pieces(job.end - a, h);
+            for i in 0..self.samples {
+                let batch = &mut self.batch;
+                let l = batch.used;
+                batch.lanes.set(l, e, d.to_array(), job.end - a);
+                batch.steps.n[l] = count as u32;
+                batch.steps.dt[l] = dt as f32;
+                if m.points != Points::Midpoint {
+                    let rows = count as usize;
+                    if batch.offsets.len() < rows {
+                        batch.offsets.resize(rows, [0.0; LANES]);
+                    }
+                    let mut rng = Rng::new(m.opts.seed, job.ray_id, i as u64).fork(key);
+                    for (j, row) in batch.offsets.iter_mut().take(rows).enumerate() {
+                        let u = rng.uniform();
+                        row[l] = match m.points {
+                            Points::Uniform => (count as f64 * u - j as f64) as f32,
+                            _ => u as f32,
+                        };
+                    }
+                }
+                batch.at[l] = (
+                    px * self.stride + i * self.per + job.slot,
+                    job.shared,
+                    job.end,
+                );
+                batch.used += 1;
+                if batch.used == self.width {
+                    self.flush(at.block);
+                }
+            }
+        }
+        self.jobs = jobs;
+    }
+}
+
+impl BandKernel for MarchBand<'_, '_> {
+    type On = MarchOn;
+
+    /// Leaves and tiles whose values the f32 kernel takes; shell blocks go by the ray path.
+    fn enter(&mut self, p: &Piece) -> Option<MarchOn> {
+        let tile = match p.part {
+            Part::Leaf { fast: true, .. } => false,
+            Part::Tile { fast: true, .. } => true,
+            _ => return None,
+        };
+        self.consts.clear();
+        Some(MarchOn {
+            key: p.origin.map(|c| c >> 3),
+            tile,
+        })
+    }
+
+    /// Each estimate of each chord by [`Sweep::scalar`].
+    fn off_kernel(
+        &mut self,
+        p: &Piece,
+        rows: (u32, u32, u32),
+        band: &BandRows,
+        reads: &mut Reads<'_>,
+    ) {
+        let (sw, m, y0) = (self.sw, self.m, self.y0);
+        let (stride, per, samples) = (self.stride, self.per, self.samples);
+        let key = p.origin.map(|c| c >> 3);
+        let Reads { acc, n } = reads;
+        let jobs = &mut self.jobs;
+        let tau = &mut *self.tau;
+        sw.chords(p, rows, &band.dirs, |px, q, d, a, b| {
+            let id = u64::from(y0) * u64::from(sw.rays.width) + px as u64;
+            sw.jobs(m.random(), (a, b), id, jobs);
+            for job in jobs.iter() {
+                for i in 0..samples {
+                    let part = (a, job.end, job.ray_id, i as u32);
+                    let v = sw.scalar(m, p, (q, d), part, key, (px, y0), acc, n);
+                    sw.credit(
+                        tau,
+                        px * stride + i * per + job.slot,
+                        (job.shared, job.end),
+                        v,
+                    );
+                }
+            }
+        });
+    }
+
+    /// The chord's lanes; a marched tile's chord is split around its inner box
+    /// ([`tile_split`]), which is kept for [`BandKernel::leave`].
+    #[inline]
+    fn chord(&mut self, on: &MarchOn, at: &Filled<'_>, c: Crossing) {
+        let Crossing { px, q, d, a, b } = c;
+        let parts = if on.tile {
+            let (parts, inner) = tile_split(q, d, at.origin, (a, b));
+            self.consts.extend(inner.map(|(ia, ib)| (px, ia, ib)));
+            parts
+        } else {
+            [Some((a, b)), None]
+        };
+        let h = self
+            .h_parallel
+            .unwrap_or_else(|| step_world(d.length(), self.m.step));
+        for (a, b) in parts.into_iter().flatten() {
+            self.lanes(on.key, at, Crossing { px, q, d, a, b }, h);
+        }
+    }
+
+    /// The waiting lanes, then a marched tile's inner boxes: the tile's value in closed form,
+    /// in every estimate.
+    fn leave(&mut self, p: &Piece, _: &MarchOn, at: &Filled<'_>) {
+        if self.batch.used > 0 {
+            self.flush(at.block);
+        }
+        let Part::Tile { lower, slot, .. } = p.part else {
+            return;
+        };
+        let (sw, tree) = (self.sw, self.sw.vol.tree());
+        let v = tree.lowers[lower as usize].tile_value(slot as usize);
+        let mu = if v == tree.background {
+            sw.vol.mu_background()
+        } else {
+            crate::math::scaled(self.scale, f64::from(v))
+        };
+        for c in 0..self.consts.len() {
+            let (px, ia, ib) = self.consts[c];
+            sw.jobs(self.m.random(), (ia, ib), self.pixel_id(px), &mut self.jobs);
+            for job in &self.jobs {
+                for i in 0..self.samples {
+                    let at = px * self.stride + i * self.per + job.slot;
+                    sw.credit(self.tau, at, (job.shared, job.end), mu * (job.end - ia));
+                }
+            }
+        }
+    }
+
+    fn finish(self) -> u64 {
+        self.lookups
     }
 }
 

@@ -13,11 +13,9 @@
 //! marched optical depths across the parts, finished once at the end as the whole sweep
 //! finishes a band.
 
-use super::march::finish_samples;
-use super::{
-    assemble, entered, finish_band, lower_pieces, needs_rest, shell_blocks, shell_pieces,
-    stack_faces, Piece, Rays, Sweep,
-};
+use super::pieces::{entered, lower_pieces, needs_rest, shell_blocks, shell_pieces, Piece};
+use super::rays::Rays;
+use super::{finish_rows, stack_faces, view_map, Band, Sweep};
 use crate::bake::camera::Camera;
 use crate::bake::map::{BakeSettings, Map};
 use crate::error::Result;
@@ -42,15 +40,23 @@ pub(crate) fn streams(vol: &Volume, camera: &Camera) -> Result<bool> {
     if needs_rest(vol) {
         return Ok(false);
     }
-    let views = camera
+    Ok(view_rays(vol, camera)?.is_some())
+}
+
+/// The views of `camera` (itself, or a cube map's six faces, swept as [`super::render_cube`]
+/// does) and their rays, or `None` when the sweep cannot take a view's rays ([`Rays::new`]).
+fn view_rays(vol: &Volume, camera: &Camera) -> Result<Option<(Vec<Camera>, Vec<Rays>)>> {
+    let views: Vec<Camera> = camera
         .cube_faces()
         .map_or_else(|| vec![*camera], |f| f.to_vec());
+    let mut rays = Vec::with_capacity(views.len());
     for v in &views {
-        if Rays::new(vol, v)?.is_none() {
-            return Ok(false);
-        }
+        let Some(r) = Rays::new(vol, v)? else {
+            return Ok(None);
+        };
+        rays.push(r);
     }
-    Ok(true)
+    Ok(Some((views, rays)))
 }
 
 /// What a streamed sweep ([`render_streamed`]) read.
@@ -67,8 +73,8 @@ pub struct Streamed {
     pub sanitized: crate::volume::Sanitized,
 }
 
-/// A finished band: its lookups and its slices (as [`assemble`] takes them).
-type Band = (u64, Vec<f32>);
+/// The origins of the lower nodes a ray walk enters, and per view the entered ones it sees.
+type Entered = (HashSet<[i32; 3]>, Vec<Vec<u32>>);
 
 /// A part's pieces for view `v`, from its volume and its region's index.
 type PiecesOf<'a> = dyn Fn(&Volume, &RegionIndex, usize) -> Result<Vec<Piece>> + 'a;
@@ -199,6 +205,158 @@ pub(crate) fn part_bytes(topo: &Tree, l: usize) -> u64 {
     Part::default().extra(topo, o, 128).0
 }
 
+/// A streamed sweep under way: what its parts read (the lazy grid, its topology, how a decoded
+/// region becomes a volume), the views they sweep, and what they have added so far: each view's
+/// image of f64 optical depths (the whole sweep's band buffers end to end: per pixel, per
+/// sample, the full ray and its slices), the lookups, and what was decoded.
+struct Streaming<'a> {
+    lazy: &'a crate::vdb::LazyGrid,
+    topo: &'a Tree,
+    volume_of: &'a (dyn Fn(crate::vdb::Grid) -> Result<Volume> + Sync),
+    views: &'a [Camera],
+    rays: &'a [Rays],
+    march: Option<super::March>,
+    depths: &'a [f64],
+    rows: u32,
+    tau: Vec<f64>,
+    /// Values in one view's image.
+    view_len: usize,
+    lookups: u64,
+    stats: Streamed,
+    /// The leaves whose bad voxels are counted (a bit per topology leaf).
+    counted: Vec<u64>,
+}
+
+impl Streaming<'_> {
+    /// Decode a part's region, make each view's pieces (given the region's index of each
+    /// topology lower node) and add them to its image; the part's volume and index.
+    fn sweep_part(&mut self, part: &Lists, pieces: &PiecesOf) -> Result<(Volume, RegionIndex)> {
+        let (grid, index) = self.lazy.load_region(self.topo, &part.kept, &part.leaves)?;
+        let mut fresh = Vec::new();
+        for &l in &part.leaves {
+            let (w, bit) = (l as usize / 64, 1u64 << (l % 64));
+            if let (0, Some(r)) = (self.counted[w] & bit, index.leaf(l)) {
+                self.counted[w] |= bit;
+                fresh.push(r);
+            }
+        }
+        let bad = bad_voxels(&grid.tree, &fresh);
+        let stats = &mut self.stats;
+        stats.sanitized = stats.sanitized.merged(bad);
+        let vol = (self.volume_of)(grid)?;
+        stats.groups += 1;
+        let loaded = vol.tree().loaded_leaf_count() as u64;
+        stats.leaves_decoded += loaded;
+        stats.max_group_leaves = stats.max_group_leaves.max(loaded);
+        for (v, image) in self.tau.chunks_mut(self.view_len).enumerate() {
+            let pieces = pieces(&vol, &index, v)?;
+            let (view, rays) = (&self.views[v], self.rays[v]);
+            let sweep = Sweep::from_pieces(&vol, view, rays, pieces, false, self.rows, self.depths)
+                .marching(self.march, None)
+                .ok_or_else(|| crate::Error::InvalidArgument {
+                    name: "max-memory".into(),
+                    reason: "a part of this map cannot be marched in object order".into(),
+                })?;
+            self.lookups += sweep.add_all(image)?;
+        }
+        Ok((vol, index))
+    }
+
+    /// The lower nodes any view sees, in tree order, swept in parts of at most about
+    /// `part_bytes`; the origins of those a ray walk enters, and per view the entered ones it
+    /// sees (whose shell blocks it sweeps).
+    fn lower_parts(&mut self, part_bytes: u64) -> Result<Entered> {
+        let (topo, rays) = (self.topo, self.rays);
+        let seen = topo
+            .lowers
+            .iter()
+            .enumerate()
+            .map(|(l, n)| (l as u32, n.origin.map(i64::from)))
+            .filter(|(_, o)| rays.iter().any(|r| r.footprint(*o, 128).is_some()));
+        let mut entered_set = HashSet::new();
+        let mut bases = vec![Vec::new(); rays.len()];
+        runs(topo, seen, 128, part_bytes, &mut |lowers, part| {
+            let (vol, index) = self.sweep_part(&part, &|vol, index, v| {
+                let mut out = Vec::new();
+                for &l in &lowers {
+                    lower_pieces(vol, &rays[v], own(index, l)?, &mut out);
+                }
+                Ok(out)
+            })?;
+            for &l in &lowers {
+                let node = &vol.tree().lowers[own(&index, l)?];
+                if entered(vol.tree(), node) {
+                    entered_set.insert(node.origin);
+                    for (v, r) in rays.iter().enumerate() {
+                        if r.footprint(node.origin.map(i64::from), 128).is_some() {
+                            bases[v].push(l);
+                        }
+                    }
+                }
+            }
+            drop(vol);
+            crate::memory::release_freed();
+            Ok(())
+        })?;
+        Ok((entered_set, bases))
+    }
+
+    /// The shell blocks next to the entered lower nodes (`entered_set`; per view, those it
+    /// sees, `bases`), after every lower node's pieces, in their sorted order, swept in parts of
+    /// at most about `part_bytes` (per view; a cube map's parts take the union of its faces'
+    /// blocks, each face its own).
+    fn shell_parts(
+        &mut self,
+        entered_set: &HashSet<[i32; 3]>,
+        bases: &[Vec<u32>],
+        part_bytes: u64,
+    ) -> Result<()> {
+        let (topo, rays) = (self.topo, self.rays);
+        let mut outside = vec![BTreeSet::new(); rays.len()];
+        for (v, out) in outside.iter_mut().enumerate() {
+            for &l in &bases[v] {
+                shell_blocks(
+                    entered_set,
+                    topo.lowers[l as usize].origin.map(i64::from),
+                    out,
+                );
+            }
+        }
+        // One view sweeps its own blocks; a cube map's parts take the union, each face its own.
+        let all: std::borrow::Cow<'_, BTreeSet<[i64; 3]>> = match outside.as_slice() {
+            [one] => std::borrow::Cow::Borrowed(one),
+            many => std::borrow::Cow::Owned(many.iter().flatten().copied().collect()),
+        };
+        let blocks = all.iter().map(|&o| (o, o));
+        runs(topo, blocks, 8, part_bytes, &mut |blocks, part| {
+            self.sweep_part(&part, &|vol, _, v| {
+                let mine: BTreeSet<[i64; 3]> = blocks
+                    .iter()
+                    .filter(|o| outside[v].contains(*o))
+                    .copied()
+                    .collect();
+                let mut out = Vec::new();
+                shell_pieces(vol, &rays[v], &mine, &mut out);
+                Ok(out)
+            })?;
+            crate::memory::release_freed();
+            Ok(())
+        })
+    }
+}
+
+/// Index in its part's region of lower node `l`, a unit's own lower node (in its part's
+/// region: its box starts in it).
+fn own(index: &RegionIndex, l: u32) -> Result<usize> {
+    index
+        .lower(l)
+        .map(|r| r as usize)
+        .ok_or_else(|| crate::Error::InvalidArgument {
+            name: "region".into(),
+            reason: format!("lower node {l} is not in its part's region"),
+        })
+}
+
 /// The sweep's map of a lazily opened grid in bounded memory (see the module docs): parts of
 /// at most about `part_bytes` each, decoded by [`crate::vdb::LazyGrid::load_region`], made
 /// volumes by `volume_of` (density scale, transform; `shell` is the lazy grid's shell made a
@@ -224,135 +382,40 @@ pub(crate) fn render_streamed(
     if needs_rest(shell) {
         return Ok(None);
     }
-    // The views: the camera, or a cube map's six faces (swept as [`super::render_cube`] does).
-    let faces = camera.cube_faces();
-    let views: Vec<Camera> = faces.map_or_else(|| vec![*camera], |f| f.to_vec());
-    let mut rays = Vec::with_capacity(views.len());
-    for v in &views {
-        let Some(r) = Rays::new(shell, v)? else {
-            return Ok(None);
-        };
-        rays.push(r);
-    }
+    let Some((views, rays)) = view_rays(shell, camera)? else {
+        return Ok(None);
+    };
     let topo = shell.tree();
-    let seen = topo
-        .lowers
-        .iter()
-        .enumerate()
-        .map(|(l, n)| (l as u32, n.origin.map(i64::from)))
-        .filter(|(_, o)| rays.iter().any(|r| r.footprint(*o, 128).is_some()));
     // A ray march ([`super::marches`]) keeps `samples x (1 + K)` optical depths per pixel, as
     // the whole-grid sweep's bands do; every part adds its pieces' marches to them in the
     // whole sweep's order, so the map is the whole bake's, bit for bit.
     let march = super::marches(s);
     let samples = march.map_or(1, |m| m.samples());
     let stride = samples * (1 + depths.len());
-    // Each view's image of f64 optical depths, one after the other.
     let view_len = views[0].pixels() as usize * stride;
-    let mut tau = vec![0.0f64; view_len * views.len()];
-    let mut lookups = 0;
-    let mut stats = Streamed::default();
-    // The leaves whose bad voxels are counted (a bit per topology leaf).
-    let mut counted = vec![0u64; topo.leaves.len().div_ceil(64)];
-    // Decode a part's region, make each view's pieces (given the region's index of each
-    // topology lower node) and add them to its image; the part's volume and index.
-    let mut sweep_part = |part: &Lists, pieces: &PiecesOf| -> Result<(Volume, RegionIndex)> {
-        let (grid, index) = lazy.load_region(topo, &part.kept, &part.leaves)?;
-        let mut fresh = Vec::new();
-        for &l in &part.leaves {
-            let (w, bit) = (l as usize / 64, 1u64 << (l % 64));
-            if let (0, Some(r)) = (counted[w] & bit, index.leaf(l)) {
-                counted[w] |= bit;
-                fresh.push(r);
-            }
-        }
-        let bad = bad_voxels(&grid.tree, &fresh);
-        stats.sanitized = stats.sanitized.merged(bad);
-        let vol = volume_of(grid)?;
-        stats.groups += 1;
-        let loaded = vol.tree().loaded_leaf_count() as u64;
-        stats.leaves_decoded += loaded;
-        stats.max_group_leaves = stats.max_group_leaves.max(loaded);
-        for (v, image) in tau.chunks_mut(view_len).enumerate() {
-            let pieces = pieces(&vol, &index, v)?;
-            let sweep = Sweep::from_pieces(&vol, &views[v], rays[v], pieces, false, rows, depths)
-                .marching(march, None)
-                .ok_or_else(|| crate::Error::InvalidArgument {
-                    name: "max-memory".into(),
-                    reason: "a part of this map cannot be marched in object order".into(),
-                })?;
-            lookups += sweep.add_all(image)?;
-        }
-        Ok((vol, index))
+    let mut parts = Streaming {
+        lazy,
+        topo,
+        volume_of,
+        views: &views,
+        rays: &rays,
+        march,
+        depths,
+        rows,
+        tau: vec![0.0f64; view_len * views.len()],
+        view_len,
+        lookups: 0,
+        stats: Streamed::default(),
+        counted: vec![0u64; topo.leaves.len().div_ceil(64)],
     };
-    // A unit's own lower node is in its part's region: its box starts in it.
-    let own = |index: &RegionIndex, l: u32| -> Result<usize> {
-        index
-            .lower(l)
-            .map(|r| r as usize)
-            .ok_or_else(|| crate::Error::InvalidArgument {
-                name: "region".into(),
-                reason: format!("lower node {l} is not in its part's region"),
-            })
-    };
-    let mut entered_set = HashSet::new();
-    // Per view, the entered lower nodes it sees, whose shell blocks it sweeps.
-    let mut bases = vec![Vec::new(); views.len()];
-    runs(topo, seen, 128, part_bytes, &mut |lowers, part| {
-        let (vol, index) = sweep_part(&part, &|vol, index, v| {
-            let mut out = Vec::new();
-            for &l in &lowers {
-                lower_pieces(vol, &rays[v], own(index, l)?, &mut out);
-            }
-            Ok(out)
-        })?;
-        for &l in &lowers {
-            let node = &vol.tree().lowers[own(&index, l)?];
-            if entered(vol.tree(), node) {
-                entered_set.insert(node.origin);
-                for (v, r) in rays.iter().enumerate() {
-                    if r.footprint(node.origin.map(i64::from), 128).is_some() {
-                        bases[v].push(l);
-                    }
-                }
-            }
-        }
-        drop(vol);
-        crate::memory::release_freed();
-        Ok(())
-    })?;
-    // The shell blocks next to the entered lower nodes, after every lower node's pieces, in
-    // their sorted order (per view; the parts take them all in that order).
-    let mut outside = vec![BTreeSet::new(); views.len()];
-    for (v, out) in outside.iter_mut().enumerate() {
-        for &l in &bases[v] {
-            shell_blocks(
-                &entered_set,
-                topo.lowers[l as usize].origin.map(i64::from),
-                out,
-            );
-        }
-    }
-    // One view sweeps its own blocks; a cube map's parts take the union, each face its own.
-    let all: std::borrow::Cow<'_, BTreeSet<[i64; 3]>> = match outside.as_slice() {
-        [one] => std::borrow::Cow::Borrowed(one),
-        many => std::borrow::Cow::Owned(many.iter().flatten().copied().collect()),
-    };
-    let blocks = all.iter().map(|&o| (o, o));
-    runs(topo, blocks, 8, part_bytes, &mut |blocks, part| {
-        sweep_part(&part, &|vol, _, v| {
-            let mine: BTreeSet<[i64; 3]> = blocks
-                .iter()
-                .filter(|o| outside[v].contains(*o))
-                .copied()
-                .collect();
-            let mut out = Vec::new();
-            shell_pieces(vol, &rays[v], &mine, &mut out);
-            Ok(out)
-        })?;
-        crate::memory::release_freed();
-        Ok(())
-    })?;
+    let (entered_set, bases) = parts.lower_parts(part_bytes)?;
+    parts.shell_parts(&entered_set, &bases, part_bytes)?;
+    let Streaming {
+        tau,
+        lookups,
+        stats,
+        ..
+    } = parts;
     let mut maps = Vec::with_capacity(views.len());
     for (view, tau) in views.iter().zip(tau.chunks(view_len)) {
         let w = view.width as usize;
@@ -363,33 +426,16 @@ pub(crate) fn render_streamed(
             .enumerate()
             .map(|(b, (t_band, tau))| {
                 let y0 = b as u32 * rows;
-                let mut err = vec![0.0f32; if s.std_err { t_band.len() } else { 0 }];
-                let slices = if samples > 1 {
-                    finish_samples(
-                        view,
-                        y0,
-                        tau,
-                        (stride / samples, samples),
-                        None,
-                        t_band,
-                        &mut err,
-                    )?
-                } else {
-                    finish_band(view, y0, tau, stride, t_band)?
-                };
+                let (slices, err) =
+                    finish_rows(view, y0, tau, (stride, samples), None, s.std_err, t_band)?;
                 progress(t_band.len() as u64);
                 Ok(((0, slices), err))
             })
             .collect::<Result<_>>()?;
-        let (bands, errs): (Vec<Band>, Vec<Vec<f32>>) = done.into_iter().unzip();
-        let mut map = assemble(view, s, depths, t_image, &bands, start);
-        if samples > 1 {
-            map.stats.samples = view.pixels() * samples as u64;
-            map.std_err = s.std_err.then(|| errs.concat());
-        }
-        maps.push(map);
+        let sampled = (samples > 1).then_some(samples);
+        maps.push(view_map(view, s, depths, t_image, done, sampled, start));
     }
-    let mut map = if faces.is_some() {
+    let mut map = if views.len() > 1 {
         stack_faces(camera, maps)
     } else {
         maps.pop()

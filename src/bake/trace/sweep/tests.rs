@@ -1,10 +1,14 @@
 //! The sweep against the ray path: the optical depth of every pixel, in f64.
 
+use super::rays::Layout;
 use super::*;
+use crate::bake::camera::Projection;
 use crate::bake::{Resolution, View};
 use crate::estimate::Estimator;
+use crate::traverse::lookup_ray;
 use crate::traverse::Granularity;
 use crate::tree::TreeBuilder;
+use glam::DVec3;
 use std::ops::ControlFlow;
 
 /// The sweep's optical depth of every pixel (bands run one after the other).

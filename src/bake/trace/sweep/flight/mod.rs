@@ -48,17 +48,16 @@
 //! flown chords; a chord handed to the ray path has the budget to itself) is declined and
 //! traced by the ray path, which caps samples where they stand.
 
-use super::march::tile_split;
-use super::{fill, neighbourhood, Part, Sweep};
+use super::band::{BandKernel, BandRows, Crossing, Filled, Reads};
+use super::march::{tile_split, Job};
+use super::pieces::{Part, Piece};
+use super::Sweep;
 use crate::bake::map::BakeSettings;
-use crate::error::Result;
 use crate::estimate::{Algo, Bounds, Control, Estimator, Options};
 use crate::regular::kernel::{max_chord, point, BLOCK};
-use crate::regular::{leaf_integral, Counts};
+use crate::regular::leaf_integral;
 use crate::rng::{block_key, chord_key, Rng};
-use crate::tree::Accessor;
 use crate::volume::Interp;
-use glam::DVec3;
 use std::sync::atomic::Ordering;
 
 /// Most expected tentative collisions along a block's longest chord (`r x max_chord`) for the
@@ -274,205 +273,235 @@ impl Depths {
 }
 
 thread_local! {
-    /// Per-thread band buffers of [`Sweep::band_flight`] (closed-form depths, collisions
+    /// Per-thread band buffers of [`FlightBand`] (closed-form depths, collisions
     /// spent, factor products), kept so that a warm thread maps no fresh pages per band.
     static BUFFERS: std::cell::Cell<(Vec<f64>, Vec<u32>, Vec<f64>)> =
         const { std::cell::Cell::new((Vec::new(), Vec::new(), Vec::new())) };
 }
 
-impl Sweep<'_> {
-    /// Band `b` of a null-collision map: every pixel's (sample's, slice's) transmittance
-    /// estimate into `tau` (estimates, not optical depths: [`super::finish_samples`] is told),
-    /// and, when `bounds` is given, each pixel's bounds on `T` (its full ray; what the error
-    /// bar's floor needs, [`crate::estimate::error_bar`]).
-    pub(super) fn band_flight(
-        &self,
-        f: &Flight,
-        b: usize,
-        tau: &mut [f64],
-        lookups: &mut u64,
-        bounds: Option<&mut Vec<Bounds>>,
-    ) -> Result<()> {
-        let (vol, rays) = (self.vol, &self.rays);
-        let ids = &self.bins[b];
-        let (y0, y1) = self.band_span(b, tau.len());
-        let tree = vol.tree();
-        let (w, stride) = (rays.width, self.stride());
-        let per = 1 + self.depths.len();
+/// A null-collision map's share of a band: a leaf or a tile on the lane kernel flies every
+/// estimate of each of its chords (its part in a tile's inner box closed form), anything else
+/// goes per chord through [`FlightBand::off_kernel`]; when the band is done each estimate is
+/// `T_i = exp(-closed form) x prod(chord factors)` (see the module docs).
+pub(super) struct FlightBand<'s, 'a> {
+    sw: &'s Sweep<'a>,
+    f: &'s Flight,
+    /// The band's buffer: the estimates, once the band is done.
+    tau: &'s mut [f64],
+    /// Where each pixel's bounds on `T` go, when asked for.
+    bounds: Option<&'s mut Vec<Bounds>>,
+    /// Per pixel and slot, the closed-form optical depth its samples share.
+    det: Vec<f64>,
+    /// Per estimate, the tentative collisions it has spent.
+    spent: Vec<u32>,
+    /// Per estimate, the product of its chord factors.
+    prod: Vec<f64>,
+    /// Per pixel (full ray): the closed-form, minorant and majorant optical depths (empty
+    /// without `bounds`).
+    depth: Vec<Depths>,
+    /// The budget per estimate, in the counters' range (a sample past 4e9 collisions is
+    /// capped even when the budget is larger).
+    budget: u32,
+    /// The longest chord through a block ([`max_chord`]).
+    longest: f64,
+    stride: usize,
+    per: usize,
+    samples: usize,
+    scale: f64,
+    /// The band's first row.
+    y0: u32,
+    jobs: Vec<Job>,
+    lookups: u64,
+}
+
+/// What a block the sweep flies carries: its bounds `[lo, hi]`, control `mu_c` and rate, its
+/// stream key, and a tile's value `mu` (its inner box is closed form).
+pub(super) struct FlightOn {
+    lo: f64,
+    hi: f64,
+    mu_c: f64,
+    rate: f64,
+    kb: u64,
+    tile_mu: Option<f64>,
+}
+
+impl<'s, 'a> FlightBand<'s, 'a> {
+    /// Flight `f` into the buffer `tau` of the band from row `y0`, each pixel's bounds on `T`
+    /// into `bounds` when given.
+    pub(super) fn new(
+        sw: &'s Sweep<'a>,
+        f: &'s Flight,
+        y0: u32,
+        tau: &'s mut [f64],
+        bounds: Option<&'s mut Vec<Bounds>>,
+    ) -> Self {
+        let (stride, per) = (sw.stride(), 1 + sw.depths.len());
         let npx = tau.len() / stride;
-        let scale = vol.density_scale();
-        let mut acc = Accessor::new(tree);
-        let mut n = Counts::default();
-        let dirs = self.pixel_dirs(y0, y1)?;
-        let pixel_id = |px: usize| u64::from(y0) * u64::from(w) + px as u64;
-        let samples = f.samples();
-        // Per pixel and slot, the closed-form optical depth its samples share; per estimate,
-        // the tentative collisions it has spent and the product of its chord factors.
         let (mut det, mut spent, mut prod) = BUFFERS.take();
         det.clear();
         det.resize(npx * per, 0.0);
-        // Per pixel (full ray): the closed-form, minorant and majorant optical depths.
-        let mut depth = vec![Depths::default(); if bounds.is_some() { npx } else { 0 }];
+        let depth = vec![Depths::default(); if bounds.is_some() { npx } else { 0 }];
         spent.clear();
         spent.resize(tau.len(), 0);
         prod.clear();
         prod.resize(tau.len(), 1.0);
-        // The budget per estimate, in the counters' range (a sample past 4e9 collisions is
-        // capped even when the budget is larger).
-        let budget = u32::try_from(f.opts.max_collisions).unwrap_or(u32::MAX);
-        let longest = max_chord(vol);
-        let mut block = [0f32; BLOCK];
-        let mut jobs = Vec::new();
-        for &id in ids {
-            let p = &self.pieces[id as usize];
-            let [_, _, j0, j1] = p.rect;
-            let rows = (j0.max(y0), j1.min(y1), y0);
-            let key = p.origin.map(|c| c >> 3);
-            let kb = block_key(f.opts.seed, key);
-            let halo = match p.part {
-                Part::Leaf { leaf, fast: true } => Some(tree.leaves[leaf as usize].halo),
-                Part::Tile {
-                    lower,
-                    slot,
-                    fast: true,
-                } => Some(tree.lowers[lower as usize].tile_halo_of(slot as usize)),
-                _ => None,
-            };
-            let bounds = halo.map(|h| {
-                let (lo, hi) = (
-                    crate::math::scaled(scale, f64::from(h.min)),
-                    crate::math::scaled(scale, f64::from(h.max)),
-                );
-                let (mu_c, rate) = f.rates(lo, hi);
-                (lo, hi, mu_c, rate)
-            });
-            let Some((lo, hi, mu_c, rate)) = bounds.filter(|b| b.3 * longest <= MAX_FLIGHTS) else {
-                self.off_kernel(
-                    f,
-                    p,
-                    (rows, &dirs),
-                    kb,
-                    (&mut prod, &mut det, &mut depth),
-                    &mut acc,
-                    &mut n,
-                );
-                continue;
-            };
-            fill(&neighbourhood(tree, &mut acc, p), &mut block);
-            let centre = DVec3::from(p.origin.map(|c| (c + 4) as f64));
-            // A tile's inner box reads the tile alone: closed form.
-            let tile_mu = match p.part {
-                Part::Tile { lower, slot, .. } => {
-                    let v = tree.lowers[lower as usize].tile_value(slot as usize);
-                    Some(if v == tree.background {
-                        vol.mu_background()
-                    } else {
-                        crate::math::scaled(scale, f64::from(v))
-                    })
-                }
-                _ => None,
-            };
-            self.chords(p, rows, &dirs, |px, q, d, a, b| {
-                let parts = match tile_mu {
-                    Some(mu) => {
-                        let (parts, inner) = tile_split(q, d, p.origin, (a, b));
-                        if let Some((ia, ib)) = inner {
-                            self.jobs(true, (ia, ib), pixel_id(px), &mut jobs);
-                            for job in &jobs {
-                                det[px * per + job.slot] += mu * (job.end - ia);
-                            }
-                            if let Some(dp) = depth.get_mut(px) {
-                                dp.add_exact(mu * (ib - ia));
-                            }
-                        }
-                        parts
-                    }
-                    None => [Some((a, b)), None],
-                };
-                // The two parts of a tile's chord (either side of its inner box) get streams
-                // of their own: factors of one sample must be independent.
-                for (part, chord) in parts.into_iter().enumerate() {
-                    let Some((a, b)) = chord else { continue };
-                    if let Some(dp) = depth.get_mut(px) {
-                        dp.add_bounded(lo * (b - a), hi * (b - a));
-                    }
-                    let e = ((q - centre) + d * a).to_array();
-                    self.jobs(true, (a, b), pixel_id(px), &mut jobs);
-                    for job in &jobs {
-                        let len = job.end - a;
-                        if mu_c != 0.0 {
-                            det[px * per + job.slot] += mu_c * len;
-                        }
-                        if rate <= 0.0 || len <= 0.0 {
-                            continue;
-                        }
-                        let chord = Chord {
-                            rule: f.rule,
-                            block: &block,
-                            e,
-                            d: d.to_array(),
-                            len,
-                            lo,
-                            hi,
-                            mu_c,
-                            rate,
-                            scale,
-                        };
-                        let mut est = Estimates {
-                            prod: &mut prod,
-                            spent: &mut spent,
-                            base: px * stride + job.slot,
-                            per,
-                            samples,
-                            budget,
-                            evaluated: 0,
-                            capped: false,
-                        };
-                        let rng = Rng::of_chord(chord_key(kb, job.ray_id), part as u64);
-                        chord.fly(rng, &mut est);
-                        *lookups += est.evaluated;
-                        if est.capped {
-                            self.capped.store(true, Ordering::Relaxed);
-                        }
-                    }
-                }
-            });
+        Self {
+            sw,
+            f,
+            budget: u32::try_from(f.opts.max_collisions).unwrap_or(u32::MAX),
+            longest: max_chord(sw.vol),
+            tau,
+            bounds,
+            det,
+            spent,
+            prod,
+            depth,
+            stride,
+            per,
+            samples: f.samples(),
+            scale: sw.vol.density_scale(),
+            y0,
+            jobs: Vec::new(),
+            lookups: 0,
         }
-        // Each estimate: `exp(-closed form)` times its factors.
-        for (px, slots) in det.chunks(per).enumerate() {
-            for (slot, &v) in slots.iter().enumerate() {
-                let known = (-v).exp();
-                for i in 0..samples {
-                    let at = px * stride + i * per + slot;
-                    tau[at] = known * prod[at];
-                }
+    }
+
+    /// The ray id of the band's pixel `px` (the image's pixel index).
+    fn pixel_id(&self, px: usize) -> u64 {
+        u64::from(self.y0) * u64::from(self.sw.rays.width) + px as u64
+    }
+
+    /// Part `part` (0, or 1 after a tile's inner box) `[a, b]` of a chord `c` flown through
+    /// the block `at`: its bounds into the pixel's depths, `mu_c x len` into each estimate's
+    /// closed form, the chord's factors into each sample's product.
+    fn fly(&mut self, on: &FlightOn, at: &Filled<'_>, c: Crossing, part: u64) {
+        let Crossing { px, q, d, a, b } = c;
+        let FlightOn {
+            lo,
+            hi,
+            mu_c,
+            rate,
+            kb,
+            ..
+        } = *on;
+        if let Some(dp) = self.depth.get_mut(px) {
+            dp.add_bounded(lo * (b - a), hi * (b - a));
+        }
+        let e = ((q - at.centre) + d * a).to_array();
+        self.sw
+            .jobs(true, (a, b), self.pixel_id(px), &mut self.jobs);
+        for job in &self.jobs {
+            let len = job.end - a;
+            if mu_c != 0.0 {
+                self.det[px * self.per + job.slot] += mu_c * len;
+            }
+            if rate <= 0.0 || len <= 0.0 {
+                continue;
+            }
+            let chord = Chord {
+                rule: self.f.rule,
+                block: at.block,
+                e,
+                d: d.to_array(),
+                len,
+                lo,
+                hi,
+                mu_c,
+                rate,
+                scale: self.scale,
+            };
+            let mut est = Estimates {
+                prod: &mut self.prod,
+                spent: &mut self.spent,
+                base: px * self.stride + job.slot,
+                per: self.per,
+                samples: self.samples,
+                budget: self.budget,
+                evaluated: 0,
+                capped: false,
+            };
+            let rng = Rng::of_chord(chord_key(kb, job.ray_id), part);
+            chord.fly(rng, &mut est);
+            self.lookups += est.evaluated;
+            if est.capped {
+                self.sw.capped.store(true, Ordering::Relaxed);
             }
         }
-        *lookups += n.reads;
-        BUFFERS.set((det, spent, prod));
-        if let Some(out) = bounds {
-            out.clear();
-            out.extend(depth.iter().map(Depths::bounds));
+    }
+}
+
+impl BandKernel for FlightBand<'_, '_> {
+    type On = FlightOn;
+
+    /// Leaves and tiles whose values the f32 kernel takes and whose longest chord expects at
+    /// most [`MAX_FLIGHTS`] tentative collisions.
+    fn enter(&mut self, p: &Piece) -> Option<FlightOn> {
+        let tree = self.sw.vol.tree();
+        let halo = match p.part {
+            Part::Leaf { leaf, fast: true } => tree.leaves[leaf as usize].halo,
+            Part::Tile {
+                lower,
+                slot,
+                fast: true,
+            } => tree.lowers[lower as usize].tile_halo_of(slot as usize),
+            _ => return None,
+        };
+        let (lo, hi) = (
+            crate::math::scaled(self.scale, f64::from(halo.min)),
+            crate::math::scaled(self.scale, f64::from(halo.max)),
+        );
+        let (mu_c, rate) = self.f.rates(lo, hi);
+        // Not `>`: a NaN rate goes off the kernel too.
+        let flies = rate * self.longest <= MAX_FLIGHTS;
+        if !flies {
+            return None;
         }
-        Ok(())
+        // A tile's inner box reads the tile alone: closed form.
+        let tile_mu = match p.part {
+            Part::Tile { lower, slot, .. } => {
+                let v = tree.lowers[lower as usize].tile_value(slot as usize);
+                Some(if v == tree.background {
+                    self.sw.vol.mu_background()
+                } else {
+                    crate::math::scaled(self.scale, f64::from(v))
+                })
+            }
+            _ => None,
+        };
+        Some(FlightOn {
+            lo,
+            hi,
+            mu_c,
+            rate,
+            kb: block_key(self.f.opts.seed, p.origin.map(|c| c >> 3)),
+            tile_mu,
+        })
     }
 
     /// The chords of a block the sweep does not fly itself (see the module docs): closed form
-    /// or exact into `det`, else the ray path's sample into each estimate's product `prod`.
-    #[allow(clippy::too_many_arguments)]
+    /// or exact into the closed-form depths, else the ray path's sample into each estimate's
+    /// product.
     fn off_kernel(
-        &self,
-        f: &Flight,
-        p: &super::Piece,
-        (rows, dirs): ((u32, u32, u32), &[super::PixelDir]),
-        kb: u64,
-        (prod, det, depth): (&mut [f64], &mut [f64], &mut [Depths]),
-        acc: &mut Accessor<'_>,
-        n: &mut Counts,
+        &mut self,
+        p: &Piece,
+        rows: (u32, u32, u32),
+        band: &BandRows,
+        reads: &mut Reads<'_>,
     ) {
-        let (vol, tree, scale) = (self.vol, self.vol.tree(), self.vol.density_scale());
-        let (w, y0) = (self.rays.width, rows.2);
-        let (stride, per, samples) = (self.stride(), 1 + self.depths.len(), f.samples());
+        let Self {
+            sw,
+            f,
+            det,
+            prod,
+            depth,
+            jobs,
+            ..
+        } = self;
+        let (sw, f) = (*sw, *f);
+        let (vol, tree, scale) = (sw.vol, sw.vol.tree(), self.scale);
+        let (w, y0) = (sw.rays.width, self.y0);
+        let (stride, per, samples) = (self.stride, self.per, self.samples);
+        let kb = block_key(f.opts.seed, p.origin.map(|c| c >> 3));
         let infinite_leaf = match p.part {
             Part::Leaf { leaf, .. } => {
                 let max = f64::from(tree.leaves[leaf as usize].halo.max);
@@ -480,11 +509,11 @@ impl Sweep<'_> {
             }
             _ => false,
         };
-        let mut jobs = Vec::new();
-        self.chords(p, rows, dirs, |px, q, d, a, b| {
+        let Reads { acc, n } = reads;
+        sw.chords(p, rows, &band.dirs, |px, q, d, a, b| {
             let id = u64::from(y0) * u64::from(w) + px as u64;
-            self.jobs(true, (a, b), id, &mut jobs);
-            for job in &jobs {
+            sw.jobs(true, (a, b), id, jobs);
+            for job in jobs.iter() {
                 let slot = px * per + job.slot;
                 let dp = if job.slot == 0 {
                     depth.get_mut(px)
@@ -509,7 +538,7 @@ impl Sweep<'_> {
                     }
                     _ => {
                         let (x, y) = (px as u32 % w, y0 + px as u32 / w);
-                        let ray = self
+                        let ray = sw
                             .camera
                             .pixel_ray(x, y)
                             .and_then(|r| r.with_range(a, job.end));
@@ -534,7 +563,7 @@ impl Sweep<'_> {
                                 crate::estimate::flight_sample(vol, ray, &f.est, &f.opts, &mut rng);
                             n.reads += reads;
                             if capped {
-                                self.capped.store(true, Ordering::Relaxed);
+                                sw.capped.store(true, Ordering::Relaxed);
                             }
                             prod[at] *= (-known).exp() * t;
                         }
@@ -542,6 +571,58 @@ impl Sweep<'_> {
                 }
             }
         });
+    }
+
+    /// A chord of a flown block: a tile's chord is split around its inner box ([`tile_split`]:
+    /// the inner part closed form in every estimate), each other part flown
+    /// ([`FlightBand::fly`]) with a stream of its own (factors of one sample must be
+    /// independent).
+    #[inline]
+    fn chord(&mut self, on: &FlightOn, at: &Filled<'_>, c: Crossing) {
+        let Crossing { px, q, d, a, b } = c;
+        let parts = match on.tile_mu {
+            Some(mu) => {
+                let (parts, inner) = tile_split(q, d, at.origin, (a, b));
+                if let Some((ia, ib)) = inner {
+                    self.sw
+                        .jobs(true, (ia, ib), self.pixel_id(px), &mut self.jobs);
+                    for job in &self.jobs {
+                        self.det[px * self.per + job.slot] += mu * (job.end - ia);
+                    }
+                    if let Some(dp) = self.depth.get_mut(px) {
+                        dp.add_exact(mu * (ib - ia));
+                    }
+                }
+                parts
+            }
+            None => [Some((a, b)), None],
+        };
+        for (part, chord) in parts.into_iter().enumerate() {
+            let Some((a, b)) = chord else { continue };
+            self.fly(on, at, Crossing { px, q, d, a, b }, part as u64);
+        }
+    }
+
+    fn leave(&mut self, _: &Piece, _: &FlightOn, _: &Filled<'_>) {}
+
+    /// Each estimate: `exp(-closed form)` times its factors; the pixels' bounds on `T`.
+    fn finish(self) -> u64 {
+        let (per, stride, samples) = (self.per, self.stride, self.samples);
+        for (px, slots) in self.det.chunks(per).enumerate() {
+            for (slot, &v) in slots.iter().enumerate() {
+                let known = (-v).exp();
+                for i in 0..samples {
+                    let at = px * stride + i * per + slot;
+                    self.tau[at] = known * self.prod[at];
+                }
+            }
+        }
+        if let Some(out) = self.bounds {
+            out.clear();
+            out.extend(self.depth.iter().map(Depths::bounds));
+        }
+        BUFFERS.set((self.det, self.spent, self.prod));
+        self.lookups
     }
 }
 
