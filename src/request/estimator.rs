@@ -205,7 +205,10 @@ mod tests {
             serde_json::from_str(r#"{"estimator": "riemann", "spp": 3, "step": 0.5}"#).unwrap();
         assert_eq!((o.samples, o.step), (3, Some(0.5)));
         let (e, opts) = o.resolve(Interp::Nearest).unwrap();
-        assert_eq!((e.name(), opts.samples, opts.interp), ("riemann", 3, Interp::Nearest));
+        assert_eq!(
+            (e.name(), opts.samples, opts.interp),
+            ("riemann", 3, Interp::Nearest)
+        );
         let bad = EstimatorOptions {
             kernel: Some(2.0),
             ..o

@@ -6,19 +6,16 @@
 //! pixel its footprint covers, [`Sweep::chords`]) or off it (closed form, the f64 code of
 //! [`crate::regular`], or the ray path per chord). What a piece and its chords add is the
 //! estimator's, a [`BandKernel`]: [`ExactBand`] (`tau += int mu_t dt` per chord),
-//! [`super::march::MarchBand`] (`tau += sum_j mu(x_j) dt` per sample) and
-//! [`super::flight::FlightBand`] (a product of unbiased chord factors per sample). The loop is
+//! `march::MarchBand` (`tau += sum_j mu(x_j) dt` per sample) and
+//! `flight::FlightBand` (a product of unbiased chord factors per sample). The loop is
 //! generic over the kernel, so each band is monomorphised and dispatched once. Every pixel
 //! takes its pieces' contributions in piece order, so a map is the same bits whatever the bands
 //! or threads.
 
-use super::flight::FlightBand;
-use super::march::MarchBand;
 use super::pieces::{neighbourhood, Part, Piece};
 use super::rays::{pinhole_span, Layout, PixelDir};
 use super::Sweep;
 use crate::error::Result;
-use crate::estimate::Bounds;
 use crate::math::box_corners;
 use crate::regular::kernel::{fill, Kernel, Lanes, BLOCK, LANES};
 use crate::regular::{cells_integral, leaf_integral, optical_depth_above_lowers, Counts};
@@ -108,44 +105,14 @@ pub(super) trait BandKernel {
 }
 
 impl Sweep<'_> {
-    /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth (or, for a
-    /// null-collision map, transmittance estimate) into `tau`, [`Sweep::stride`] values a pixel
-    /// (per sample: the full ray, then each slice `[0, t_k]`).
-    pub(super) fn band(&self, b: usize, tau: &mut [f64], lookups: &mut u64) -> Result<()> {
-        self.band_bounded(b, tau, lookups, None)
-    }
-
-    /// Band `b` as [`Sweep::band`]; a null-collision map also puts each pixel's bounds on `T`
-    /// (its full ray) into `bounds` when given: what the error bar's floor needs
-    /// ([`crate::estimate::error_bar`]).
-    pub(super) fn band_bounded(
-        &self,
-        b: usize,
-        tau: &mut [f64],
-        lookups: &mut u64,
-        bounds: Option<&mut Vec<Bounds>>,
-    ) -> Result<()> {
-        let (y0, y1) = self.band_span(b, tau.len());
-        let band = BandRows {
-            y0,
-            y1,
-            dirs: self.pixel_dirs(y0, y1)?,
-        };
-        let ids = &self.bins[b];
-        // `marching` sets at most one of them.
-        *lookups += match (&self.march, &self.flight) {
-            (Some(m), _) => self.run_band(ids, &band, MarchBand::new(self, m, y0, tau))?,
-            (None, Some(f)) => {
-                self.run_band(ids, &band, FlightBand::new(self, f, y0, tau, bounds))?
-            }
-            (None, None) => self.run_band(ids, &band, ExactBand::new(self, tau))?,
-        };
-        Ok(())
-    }
-
     /// The loop every band runs over its pieces `ids` (in tree order) with estimator `k` (see
     /// [`BandKernel`]); the lookups spent.
-    fn run_band<K: BandKernel>(&self, ids: &[u32], band: &BandRows, mut k: K) -> Result<u64> {
+    pub(super) fn run_band<K: BandKernel>(
+        &self,
+        ids: &[u32],
+        band: &BandRows,
+        mut k: K,
+    ) -> Result<u64> {
         let tree = self.vol.tree();
         let mut reads = Reads {
             acc: Accessor::new(tree),
@@ -294,7 +261,7 @@ pub(super) struct ExactBand<'s, 'a> {
 
 impl<'s, 'a> ExactBand<'s, 'a> {
     /// The exact integral into the band buffer `tau` (zeros).
-    fn new(sw: &'s Sweep<'a>, tau: &'s mut [f64]) -> Self {
+    pub(super) fn new(sw: &'s Sweep<'a>, tau: &'s mut [f64]) -> Self {
         let kernel = Kernel::new();
         Self {
             sw,

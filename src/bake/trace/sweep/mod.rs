@@ -51,10 +51,11 @@ mod pieces;
 mod rays;
 mod streamed;
 
+use band::{BandRows, ExactBand};
 pub(crate) use flight::flights;
-use flight::Flight;
+use flight::{Flight, FlightBand};
 pub(crate) use march::marches;
-use march::{finish_samples, March};
+use march::{finish_samples, March, MarchBand};
 use pieces::{bins, needs_rest, pieces, Piece};
 use rays::Rays;
 pub(crate) use streamed::{part_bytes, render_streamed, streams, Streamed};
@@ -463,6 +464,45 @@ pub(crate) fn tau_image(
         .iter()
         .sum();
     Ok(Some((tau, lookups)))
+}
+
+/// The band dispatch: each band picks its estimator's kernel once ([`band::BandKernel`]) and
+/// runs the one loop ([`Sweep::run_band`]) with it.
+impl Sweep<'_> {
+    /// Band `b` (rows `[b rows, b rows + rows)`): every pixel's optical depth (or, for a
+    /// null-collision map, transmittance estimate) into `tau`, [`Sweep::stride`] values a pixel
+    /// (per sample: the full ray, then each slice `[0, t_k]`).
+    pub(super) fn band(&self, b: usize, tau: &mut [f64], lookups: &mut u64) -> Result<()> {
+        self.band_bounded(b, tau, lookups, None)
+    }
+
+    /// Band `b` as [`Sweep::band`]; a null-collision map also puts each pixel's bounds on `T`
+    /// (its full ray) into `bounds` when given: what the error bar's floor needs
+    /// ([`crate::estimate::error_bar`]).
+    pub(super) fn band_bounded(
+        &self,
+        b: usize,
+        tau: &mut [f64],
+        lookups: &mut u64,
+        bounds: Option<&mut Vec<Bounds>>,
+    ) -> Result<()> {
+        let (y0, y1) = self.band_span(b, tau.len());
+        let band = BandRows {
+            y0,
+            y1,
+            dirs: self.pixel_dirs(y0, y1)?,
+        };
+        let ids = &self.bins[b];
+        // `marching` sets at most one of them.
+        *lookups += match (&self.march, &self.flight) {
+            (Some(m), _) => self.run_band(ids, &band, MarchBand::new(self, m, y0, tau))?,
+            (None, Some(f)) => {
+                self.run_band(ids, &band, FlightBand::new(self, f, y0, tau, bounds))?
+            }
+            (None, None) => self.run_band(ids, &band, ExactBand::new(self, tau))?,
+        };
+        Ok(())
+    }
 }
 
 #[cfg(test)]
