@@ -105,7 +105,7 @@ pub fn bake_fixed(
     scene: &Scene,
     flat: &Map,
     format: DeepFormat,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<FixedMap> {
     let start = std::time::Instant::now();
     let exact = flat.settings.estimator == Estimator::REGULAR;
@@ -161,7 +161,7 @@ pub fn bake_fixed(
                     }
                     row.coarse.push(bound);
                 }
-                progress(u64::from(w));
+                progress.advance(u64::from(w));
                 Ok(row)
             })
             .collect::<Result<Vec<Row>>>()
@@ -187,7 +187,7 @@ pub fn bake_fixed(
     // The second pass's units: flagged texel q completes floor((q + 1) U / F) in all.
     let units = fixed_units(camera.pixels()) - camera.pixels();
     if flagged.is_empty() {
-        progress(units);
+        progress.advance(units);
     }
     let share = |q: usize| (u128::from(units) * q as u128 / flagged.len().max(1) as u128) as u64;
     let second = || {
@@ -195,7 +195,7 @@ pub fn bake_fixed(
             .par_iter()
             .enumerate()
             .map(|(q, &p)| {
-                progress(share(q + 1) - share(q));
+                progress.advance(share(q + 1) - share(q));
                 let (i, j) = ((p % w as usize) as u32, (p / w as usize) as u32);
                 let mut bound = 0.0f64;
                 for (c, prof) in texel(i, j)?.iter().enumerate() {
