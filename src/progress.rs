@@ -158,7 +158,9 @@ impl<W: Write + Send> Lines<W> {
 
     /// The writer back (what a test reads).
     pub fn into_inner(self) -> W {
-        self.out.into_inner().unwrap_or_else(std::sync::PoisonError::into_inner)
+        self.out
+            .into_inner()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
     }
 
     /// Print the line for `p` unless a percent as high was printed. A write error (a closed
@@ -320,7 +322,12 @@ mod tests {
         let text = String::from_utf8(lines.into_inner()).unwrap_or_default();
         let got: Vec<u32> = text
             .lines()
-            .filter_map(|l| l.strip_prefix("Progress: ")?.strip_suffix('%')?.parse().ok())
+            .filter_map(|l| {
+                l.strip_prefix("Progress: ")?
+                    .strip_suffix('%')?
+                    .parse()
+                    .ok()
+            })
             .collect();
         assert!(got.windows(2).all(|w| w[0] < w[1]), "{got:?}");
         assert_eq!((got.first(), got.last()), (Some(&0), Some(&100)));

@@ -126,7 +126,11 @@ fn a_batch_run_prints_a_farm_engines_progress_lines() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let out = String::from_utf8_lossy(&o.stdout);
     assert!(rising(&percents(&out, "Progress: ", "%")), "{out}");
-    assert_eq!(out.lines().count(), percents(&out, "Progress: ", "%").len(), "{out}");
+    assert_eq!(
+        out.lines().count(),
+        percents(&out, "Progress: ", "%").len(),
+        "{out}"
+    );
     std::fs::write(dir.path().join("cloud.0002.vdb"), b"not a vdb").unwrap();
     let o = batch(&job, &["--quiet", "--force", "--progress", "openjd"]);
     assert_eq!(o.status.code(), Some(3));

@@ -469,10 +469,17 @@ fn farm_engines_read_the_progress_lines_they_expect() {
     let dir = tempfile::tempdir().unwrap();
     let run = |name: &str, extra: &[&str], env: Option<&Path>| {
         let mut cmd = umbra();
-        cmd.args(["bake", "data/cloud.vdb", "--light-dir=-1,-1,0.3", "--res", "64x48", "-o"])
-            .arg(dir.path().join(name))
-            .args(extra)
-            .env_remove("OPENJD_SESSION_WORKING_DIR");
+        cmd.args([
+            "bake",
+            "data/cloud.vdb",
+            "--light-dir=-1,-1,0.3",
+            "--res",
+            "64x48",
+            "-o",
+        ])
+        .arg(dir.path().join(name))
+        .args(extra)
+        .env_remove("OPENJD_SESSION_WORKING_DIR");
         if let Some(d) = env {
             cmd.env("OPENJD_SESSION_WORKING_DIR", d);
         }
@@ -486,7 +493,11 @@ fn farm_engines_read_the_progress_lines_they_expect() {
     let rising = |p: &[u32]| {
         p.first() == Some(&0) && p.last() == Some(&100) && p.windows(2).all(|w| w[0] < w[1])
     };
-    let (out, err) = run("openjd.exr", &["--progress", "openjd", "--json", "--quiet"], None);
+    let (out, err) = run(
+        "openjd.exr",
+        &["--progress", "openjd", "--json", "--quiet"],
+        None,
+    );
     assert!(rising(&percents(&err, "openjd_progress: ", "")), "{err}");
     assert!(serde_json::from_str::<Value>(&out).is_ok(), "{out}");
     let (out, err) = run("alf.exr", &["--progress", "alf", "--quiet"], None);
@@ -506,16 +517,37 @@ fn farm_engines_read_the_progress_lines_they_expect() {
     let (out, err) = run("plain.exr", &["--quiet"], None);
     assert!(out.is_empty() && err.is_empty(), "{out}{err}");
     let bytes = std::fs::read(dir.path().join("plain.exr")).unwrap();
-    for name in ["openjd.exr", "alf.exr", "deadline.exr", "auto.exr", "none.exr"] {
-        assert_eq!(std::fs::read(dir.path().join(name)).unwrap(), bytes, "{name}");
+    for name in [
+        "openjd.exr",
+        "alf.exr",
+        "deadline.exr",
+        "auto.exr",
+        "none.exr",
+    ] {
+        assert_eq!(
+            std::fs::read(dir.path().join(name)).unwrap(),
+            bytes,
+            "{name}"
+        );
     }
     // A transmittance volume reports its voxels the same way.
     let vdb = dir.path().join("t.vdb");
     let o = umbra()
-        .args(["bake", "data/cloud.vdb", "--light-dir=0,-1,0", "--progress", "alf", "-q", "-o"])
+        .args([
+            "bake",
+            "data/cloud.vdb",
+            "--light-dir=0,-1,0",
+            "--progress",
+            "alf",
+            "-q",
+            "-o",
+        ])
         .arg(&vdb)
         .output()
         .unwrap();
     let out = String::from_utf8(o.stdout).unwrap();
-    assert!(o.status.success() && rising(&percents(&out, "ALF_PROGRESS ", "%")), "{out}");
+    assert!(
+        o.status.success() && rising(&percents(&out, "ALF_PROGRESS ", "%")),
+        "{out}"
+    );
 }

@@ -514,12 +514,12 @@ impl Job {
         let job = self.bake_job(task, threads)?;
         match self.run_planned(task, threads, BakePlan::Map(Box::new(job)), progress)? {
             crate::request::BakeOutcome::Map { report, .. } => Ok(*report),
-            crate::request::BakeOutcome::Volume { .. } => Err(BatchError::Task(
-                crate::Error::InvalidArgument {
+            crate::request::BakeOutcome::Volume { .. } => {
+                Err(BatchError::Task(crate::Error::InvalidArgument {
                     name: "output".into(),
                     reason: "this job writes maps, not transmittance volumes".into(),
-                },
-            )),
+                }))
+            }
         }
     }
 
@@ -571,12 +571,12 @@ impl Job {
         let job = self.volume_job(task, threads)?;
         match self.run_planned(task, threads, BakePlan::Volume(Box::new(job)), progress)? {
             crate::request::BakeOutcome::Volume { report, .. } => Ok(report),
-            crate::request::BakeOutcome::Map { .. } => Err(BatchError::Task(
-                crate::Error::InvalidArgument {
+            crate::request::BakeOutcome::Map { .. } => {
+                Err(BatchError::Task(crate::Error::InvalidArgument {
                     name: "output".into(),
                     reason: "this job writes transmittance volumes, not maps".into(),
-                },
-            )),
+                }))
+            }
         }
     }
 

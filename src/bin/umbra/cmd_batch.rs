@@ -1,11 +1,11 @@
 //! `umbra batch`: many inputs x many lights from a TOML job file, resumable, shardable.
 
+use crate::common::CliProgress;
 use anyhow::Result;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use crate::common::CliProgress;
 use umbra::batch::{load_job, parse_shard, parse_tasks, BatchError, Progress, Record, RunOptions};
 
 /// Arguments of `umbra batch`.
