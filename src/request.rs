@@ -35,6 +35,7 @@ use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
 mod run;
+#[cfg(feature = "usd")]
 pub(crate) use run::shadow_sample;
 pub use run::BakeOutcome;
 
