@@ -34,7 +34,7 @@ pub struct RunOptions {
 }
 
 /// What a run reports as it goes: the library's [`crate::progress::Progress`] (the run's
-/// [`Work`] is told once, before any task runs: every task's share, [`TASK_UNITS`] or the
+/// [`Work`] is told once, before any task runs: every task's share, `TASK_UNITS` (1000) or the
 /// pixels of its map when every map has a known size, and one unit per positions task), with
 /// the number of tasks and each task's record. Called from worker threads.
 pub trait Progress: crate::progress::Progress {
