@@ -67,6 +67,7 @@ pub mod math;
 mod memory;
 pub mod output;
 pub mod points;
+pub mod progress;
 pub mod ray;
 pub mod regular;
 pub mod request;

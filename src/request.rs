@@ -1,6 +1,7 @@
 //! One bake request for every front end: [`BakeOptions`] is everything a TD asks of a bake
 //! besides its input file and its output path, as plain data, and [`BakeRequest::plan`] turns
-//! it into a checked plan ([`BakePlan`]: a map or a transmittance volume) in one place.
+//! it into a checked plan ([`BakePlan`]: a map or a transmittance volume) in one place, and
+//! [`BakeRequest::run`] runs it: every front end's one entry point of a bake (`request/run.rs`).
 //!
 //! **One naming rule.** The CLI's long flags, the job file's `[bake]` keys and the Python
 //! keywords are this type's fields: a job key and a Python keyword are the long flag with `-`
@@ -37,6 +38,10 @@ use std::path::{Path, PathBuf};
 #[macro_use]
 mod estimator;
 pub use estimator::{EstimatorOptions, EstimatorParams};
+mod run;
+#[cfg(feature = "usd")]
+pub(crate) use run::shadow_sample;
+pub use run::BakeOutcome;
 
 /// What to do with a level-set grid (`levelset`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -652,43 +657,6 @@ pub fn is_volume_output(output: &Path) -> bool {
 }
 
 impl BakeRequest {
-    /// `usd_out`: check before any work that the layer may be written (`force` to replace it).
-    ///
-    /// # Errors
-    /// [`Error::Output`] / [`Error::Exists`] naming the layer.
-    pub fn check_usd_out(&self) -> Result<()> {
-        match &self.options.usd_out {
-            Some(u) => crate::output::check_target(u, self.options.force),
-            None => Ok(()),
-        }
-    }
-
-    /// `usd_out`: after the map is written, the `.usda` layer that puts it and its camera on
-    /// the stage light it was baked from ([`crate::usd::shadow_layer`]), written atomically.
-    /// Nothing when `usd_out` is not set.
-    ///
-    /// # Errors
-    /// As [`crate::usd::lights_at`] and [`crate::usd::shadow_layer`]; [`Error::Output`] when
-    /// the layer cannot be written.
-    #[cfg(feature = "usd")]
-    pub fn write_usd_out(&self, camera: &Camera) -> Result<()> {
-        let Some(layer) = &self.options.usd_out else {
-            return Ok(());
-        };
-        let shot = crate::usd::lights_at(&self.input, self.options.frame)?;
-        let (light, _) = shot.light(self.options.light.as_deref())?;
-        let sample = crate::usd::ShadowSample {
-            light: light.prim.clone(),
-            time: shot.time,
-            map: crate::usd::asset_name(layer, &self.output),
-            world_to_ndc: camera.world_to_ndc(),
-        };
-        let text = crate::usd::shadow_layer(&[sample])?;
-        crate::output::write_atomic(layer, self.options.force, |w| {
-            std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
-        })
-    }
-
     /// Check the request and build its plan. Reads nothing but a reused camera's file; outputs
     /// are checked when the plan runs ([`BakeJob::check_outputs`], [`VolumeJob::check_outputs`]).
     ///

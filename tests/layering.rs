@@ -11,7 +11,9 @@ use std::path::{Path, PathBuf};
 const LAYERS: &[(&str, &[&str])] = &[
     (
         "foundation",
-        &["error", "math", "text", "rng", "output", "memory"],
+        &[
+            "error", "math", "text", "rng", "output", "memory", "progress",
+        ],
     ),
     ("data", &["tree", "ray", "xform"]),
     ("input", &["input", "vdb", "usd"]),

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use umbra::bake::{BakeJob, Camera, Channel, MapSummary};
 use umbra::estimate::{Estimator, Options};
-use umbra::request::{BakeOptions, BakePlan, BakeRequest};
+use umbra::request::{BakeOptions, BakeOutcome, BakePlan, BakeRequest};
 use umbra::scene::{Scene, SceneOptions};
 use umbra::{Interp, Light, Ray};
 
@@ -75,7 +75,14 @@ fn raise(class: Class, message: String) -> PyErr {
 /// A library error as a Python exception, worded for Python: an option named as its keyword
 /// (the library's `deep-error` is `deep_error`), an existing output with how to replace it.
 fn py_err(e: umbra::Error) -> PyErr {
-    let e = match e {
+    let e = py_worded(e);
+    raise(class_of(&e), e.to_string())
+}
+
+/// A library error worded for Python: an option named as its keyword (the library's
+/// `deep-error` is `deep_error`), an existing output with how to replace it.
+fn py_worded(e: umbra::Error) -> umbra::Error {
+    match e {
         umbra::Error::InvalidArgument { name, reason } => umbra::Error::InvalidArgument {
             name: name.trim_start_matches("--").replace('-', "_"),
             reason,
@@ -85,8 +92,7 @@ fn py_err(e: umbra::Error) -> PyErr {
             reason: "already exists (pass force=True to replace it)".into(),
         },
         other => other,
-    };
-    raise(class_of(&e), e.to_string())
+    }
 }
 
 /// A library error as the command line words it (an option as its flag, `--step`): the
@@ -165,11 +171,7 @@ fn run_job(
         log,
         jobs,
     };
-    let callback = PyProgress {
-        callback: progress,
-        total: std::sync::atomic::AtomicU64::new(0),
-        done: std::sync::Mutex::new(0),
-    };
+    let callback = PyProgress::new(progress);
     let report = py
         .detach(|| umbra::batch::run(&job, &opts, &callback))
         .map_err(batch_err)?;
@@ -223,9 +225,10 @@ fn emit_job(
     }
 }
 
-/// The runner's progress as calls of a Python callable `progress(done, total)`.
+/// The library's progress (a bake's, or a batch run's) as calls of a Python callable
+/// `progress(done, total)`.
 ///
-/// The runner's threads finish work in any order; the count is kept under a lock that is held
+/// Worker threads finish work in any order; the count is kept under a lock that is held
 /// while the callable runs, so the calls see `done` rise monotonically (lock order: this lock,
 /// then the GIL, on every thread).
 struct PyProgress {
@@ -234,10 +237,10 @@ struct PyProgress {
     done: std::sync::Mutex<u64>,
 }
 
-impl umbra::batch::Progress for PyProgress {
-    fn start(&self, _tasks: usize, units: u64) {
+impl umbra::progress::Progress for PyProgress {
+    fn start(&self, work: &umbra::progress::Work) {
         self.total
-            .store(units, std::sync::atomic::Ordering::Relaxed);
+            .store(work.units, std::sync::atomic::Ordering::Relaxed);
         let done = self.done.lock().unwrap_or_else(|p| p.into_inner());
         self.call(*done);
     }
@@ -248,7 +251,18 @@ impl umbra::batch::Progress for PyProgress {
     }
 }
 
+impl umbra::batch::Progress for PyProgress {}
+
 impl PyProgress {
+    /// Calls of `callback(done, total)`, if there is one.
+    fn new(callback: Option<Py<PyAny>>) -> Self {
+        Self {
+            callback,
+            total: std::sync::atomic::AtomicU64::new(0),
+            done: std::sync::Mutex::new(0),
+        }
+    }
+
     fn call(&self, done: u64) {
         if let Some(cb) = &self.callback {
             let total = self.total.load(std::sync::atomic::Ordering::Relaxed);
@@ -1212,9 +1226,6 @@ fn deep_json(d: &umbra::bake::DeepStats) -> serde_json::Value {
     })
 }
 
-/// `umbra.bake(input, output, **options)`: the one bake request, from a file to its output,
-/// as `umbra bake INPUT -o OUTPUT --flags` runs it. Returns the summary as JSON text (a map's
-/// camera dict with `deep` for a deep map; a transmittance volume's stats) and the warnings.
 /// The lights of the USD stage `path` at `time` as JSON: `{"time", "up", "lights": [{"prim",
 /// "name", "type", "kind", "dir" | "pos", "shadow_enable", "linked"}]}` (`kind` null for a
 /// type umbra does not trace; `linked`: the volumes its shadow link includes).
@@ -1295,30 +1306,32 @@ fn usd_points_json(
     Ok((doc.to_string(), answers.warnings))
 }
 
+/// `umbra.bake(input, output, **options)`: the one bake request, from a file to its output,
+/// as `umbra bake INPUT -o OUTPUT --flags` runs it. Returns the summary as JSON text (a map's
+/// camera dict with `deep` for a deep map; a transmittance volume's stats) and the warnings.
+/// `progress(done, total)` is called from the bake's threads as work finishes (pixels, a
+/// deep map's passes by cost, or voxels).
 #[pyfunction]
+#[pyo3(signature = (input, output, options, progress=None))]
 fn bake_file(
     py: Python<'_>,
     input: PathBuf,
     output: PathBuf,
     options: &str,
+    progress: Option<Py<PyAny>>,
 ) -> PyResult<(String, Vec<String>)> {
     let request = BakeRequest {
         input,
         output,
         options: BakeOptions::from_json(options).map_err(py_err)?,
     };
-    let plan = request.plan().map_err(py_err)?;
-    let load = |e: umbra::Error| match e {
-        umbra::Error::InvalidArgument { .. }
-        | umbra::Error::Output { .. }
-        | umbra::Error::Exists { .. } => py_err(e),
-        other => load_err(other, &request.input, &request.options.grid),
-    };
-    match plan {
-        BakePlan::Map(job) => {
-            request.check_usd_out().map_err(py_err)?;
-            let report = py.detach(|| job.run(&|_| {})).map_err(load)?;
-            request.write_usd_out(&report.map.camera).map_err(py_err)?;
+    let progress = PyProgress::new(progress);
+    let outcome = py.detach(|| request.run(&progress)).map_err(|e| {
+        let e = e.worded(py_worded);
+        raise(class_of(&e.error), e.to_string())
+    })?;
+    match outcome {
+        BakeOutcome::Map { report, .. } => {
             let mut summary =
                 serde_json::to_value(MapSummary::new(&report.map, &report.provenance))
                     .map_err(|e| raise(Class::Other, e.to_string()))?;
@@ -1332,13 +1345,7 @@ fn bake_file(
             let warnings = report.warnings.iter().map(ToString::to_string).collect();
             Ok((summary.to_string(), warnings))
         }
-        BakePlan::Volume(job) => {
-            let report = py
-                .detach(|| {
-                    job.check_outputs()?;
-                    job.run(&|_| {})
-                })
-                .map_err(load)?;
+        BakeOutcome::Volume { report, .. } => {
             let warnings = report.warnings.iter().map(ToString::to_string).collect();
             Ok((stats_json(&report.stats)?, warnings))
         }

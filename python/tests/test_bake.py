@@ -161,3 +161,27 @@ def test_write_exr_tiled_and_mipmapped(cli, tmp_path):
     with pytest.raises(umbra.InvalidArgument, match="'mipmap'.*tile size"):
         umbra.write_exr(tmp_path / "x.exr", image, camera, mipmap=True)
     assert not (tmp_path / "x.exr").exists()
+
+
+def test_umbra_bake_reports_progress(cli, tmp_path):
+    """`umbra.bake(..., progress=)` hears the library's progress: the total up front (pixels;
+    a deep map's passes by cost; voxels), `done` rising to it; the file is the CLI's, byte for
+    byte, with or without the callback."""
+    cli("bake", CLOUD, "--light-dir=-1,-1,0", "--res", "40x30", "-o", tmp_path / "cli.exr",
+        "--quiet")
+    calls = []
+    umbra.bake(CLOUD, tmp_path / "py.exr", light_dir=(-1, -1, 0), res=(40, 30),
+               progress=lambda d, t: calls.append((d, t)))
+    assert (tmp_path / "py.exr").read_bytes() == (tmp_path / "cli.exr").read_bytes()
+    assert calls[0] == (0, 40 * 30) and calls[-1] == (40 * 30, 40 * 30)
+    assert all(a[0] <= b[0] for a, b in zip(calls, calls[1:]))
+    deep = []
+    umbra.bake(CLOUD, tmp_path / "deep.exr", light_dir=(-1, -1, 0), res=(24, 20), deep=True,
+               progress=lambda d, t: deep.append((d, t)))
+    assert deep[-1][0] == deep[-1][1] > 0
+    vox = []
+    umbra.bake(CLOUD, tmp_path / "t.vdb", light_dir=(0, -1, 0),
+               progress=lambda d, t: vox.append((d, t)))
+    assert vox[-1][0] == vox[-1][1] > 0
+    with pytest.raises(umbra.InvalidArgument, match="progress"):
+        umbra.bake(CLOUD, tmp_path / "x.exr", light_dir=(0, -1, 0), progress=3)

@@ -107,6 +107,51 @@ def test_an_openjd_template_runs_the_job_as_a_local_run_does(cli, tmp_path):
     assert code == 0
 
 
+@needs_openjd
+def test_openjd_reads_the_progress_of_every_task(cli, tmp_path):
+    """Each task of an emitted template runs with `--progress openjd`; under `openjd run` its
+    `openjd_progress: N` lines reach the session, whose action filter parses them (it appends
+    ` -- ERROR: ...` to a line it cannot parse, and hands a parsed one to the session as the
+    action's progress), rising from 0 to 100."""
+    farm = _job(tmp_path / "progress")
+    template = farm.parent / "job.yaml"
+    cli("batch", farm, "--emit", "openjd", "--chunk", "2", "-o", template)
+    [step] = json.loads(template.read_text())["steps"]
+    args = step["script"]["actions"]["onRun"]["args"]
+    assert args[args.index("--progress") + 1] == "openjd", args
+    run = subprocess.run([str(OPENJD), "run", str(template), "--step", "bake"],
+                         capture_output=True, text=True, cwd=tmp_path, timeout=600)
+    assert run.returncode == 0, run.stdout + run.stderr
+    # openjd run prints the session's log, one `timestamp<TAB>message` per line.
+    lines = [l.split("\t", 1)[-1] for l in run.stdout.splitlines() if "openjd_progress" in l]
+    assert lines, run.stdout
+    assert not any("ERROR" in l for l in lines), lines
+    # Three farm tasks (shards of two job tasks each): each rises from 0 to 100.
+    percents = [float(l.split(": ", 1)[1]) for l in lines]
+    runs, current = [], []
+    for p in percents:
+        if p == 0 and current:
+            runs.append(current)
+            current = []
+        current.append(p)
+    runs.append(current)
+    assert len(runs) == 3, percents
+    for r in runs:
+        assert r[0] == 0 and r[-1] == 100 and r == sorted(set(r)), r
+    # The session's own parser takes every line as progress.
+    from openjd.sessions._action_filter import ActionMessageKind, ActionMonitoringFilter
+    import logging
+
+    seen = []
+    filt = ActionMonitoringFilter(session_id="s", callback=lambda kind, value, *_: seen.append(
+        (kind, value)))
+    for line in lines:
+        record = logging.LogRecord("openjd", logging.INFO, __file__, 0, line, None, None)
+        record.session_id = "s"
+        filt.filter(record)
+    assert seen == [(ActionMessageKind.PROGRESS, p) for p in percents]
+
+
 def test_chunks_and_slurm_scripts(cli, tmp_path):
     job = _job(tmp_path / "shot")
     _, out, _ = cli("batch", job, "--emit", "openjd", "--chunk", "4")

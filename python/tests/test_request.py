@@ -189,8 +189,8 @@ def test_every_flag_is_a_job_key_a_python_keyword_and_a_schema_property(cli, sch
     props = _options(schema)
     params = inspect.signature(umbra.bake).parameters
     # Not options of the bake: the output (the job's `output`, Python's second argument) and
-    # what the command line prints.
-    cli_only = {"output", "quiet", "json", "help"}
+    # what the command line prints and how it shows progress (Python's `progress` is a callback).
+    cli_only = {"output", "quiet", "json", "progress", "help"}
     assert len(flags) > 30
     for flag in flags:
         if flag in cli_only:

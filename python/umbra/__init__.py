@@ -216,8 +216,9 @@ def run_job(
     and JSON-lines log): every task, or only ``task`` (0-based, as ``--plan`` numbers them),
     or shard ``(I, N)`` (1-based); up-to-date outputs are skipped unless ``force``; ``log``
     replaces the job's log (its directory must exist); ``jobs`` tasks at once (0: as many as
-    cores). ``progress(done, total)`` is called as work finishes (pixels when every map has a
-    known size, else tasks), from the runner's threads.
+    cores). ``progress(done, total)`` is called as work finishes, from the runner's threads:
+    each task's share is its map's pixels when every map has a known size, else 1000 units
+    (a positions task: 1), and moves as its bake does.
 
     Returns the run's report: ``selected``, ``baked``, ``skipped``, ``failed``, ``seconds``,
     ``workers``, ``threads_per_task``, ``log`` and ``records`` (one dict per task, as the log
@@ -673,6 +674,7 @@ def bake(
     force: bool = False,
     spp: Optional[int] = None,
     overwrite: Optional[bool] = None,
+    progress: Optional[Callable[[int, int], Any]] = None,
 ) -> Dict[str, Any]:
     """Bake ``input`` (a ``.vdb`` file, a ``.toml`` scene or a USD stage: its volumes and the
     light ``light`` at time code ``frame``) to ``output`` exactly as
@@ -694,7 +696,14 @@ def bake(
     range, for a fixed-size one), or a transmittance volume's statistics
     (``voxels``, ``T_min``, ``T_max``, ``T_mean``, ...). Warnings (bad voxels, a camera that
     misses part of the volume) are Python warnings.
+
+    ``progress(done, total)`` is called as the bake goes, from its threads (the GIL taken for
+    each call): ``total`` units in all (pixels; a deep map's passes weighted by cost; a
+    transmittance volume's voxels), ``done`` rising to it. A callback that raises is reported
+    as an unraisable exception and the bake goes on.
     """
+    if progress is not None and not callable(progress):
+        raise _invalid("progress", "give a callable progress(done, total)")
     samples = _alias("samples", samples, "spp", spp, 64)
     force = _alias("force", force, "overwrite", overwrite, False)
     if isinstance(max_memory, (int, np.integer)) and not isinstance(max_memory, bool):
@@ -718,6 +727,7 @@ def bake(
             colour_walk=colour_walk, order=order, threads=threads, max_memory=max_memory,
             force=force,
         ),
+        progress,
     )
     _warn(warns)
     return json.loads(summary)

@@ -118,6 +118,7 @@ def bake(
     force: bool = False,
     spp: Optional[int] = None,
     overwrite: Optional[bool] = None,
+    progress: Optional[Callable[[int, int], Any]] = None,
 ) -> Dict[str, Any]: ...
 def run_job(
     path: PathLike,

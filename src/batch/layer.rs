@@ -1,4 +1,5 @@
-//! The job's USD layer (`bake.usd_out`): every map baked from a stage light, on its light.
+//! The job's USD layer (`bake.usd_out`): every map baked from a stage light, on its light,
+//! each as a request's own `usd_out` layer holds its map (`request::shadow_sample`).
 //!
 //! The layer is rebuilt from the maps on disk after each run: this run's, an earlier run's
 //! (resume, skipped as up to date) and other shards'. Each map's camera is read back from its
@@ -25,15 +26,15 @@ pub(super) fn write(job: &Job, layer: &Path) -> Result<usize, BatchError> {
         if job.shadowless(t).is_some() {
             continue;
         }
-        let shot = crate::usd::lights_at(&t.input, t.time())?;
-        let (light, _) = shot.light(Some(name))?;
         let camera = crate::bake::read_camera(&t.output, None)?;
-        samples.push(crate::usd::ShadowSample {
-            light: light.prim.clone(),
-            time: shot.time,
-            map: crate::usd::asset_name(layer, &t.output),
-            world_to_ndc: camera.world_to_ndc(),
-        });
+        samples.push(crate::request::shadow_sample(
+            &t.input,
+            t.time(),
+            Some(name),
+            layer,
+            &t.output,
+            &camera,
+        )?);
     }
     let text = crate::usd::shadow_layer(&samples)?;
     crate::output::write_atomic(layer, true, |w| {

@@ -499,23 +499,47 @@ impl Job {
         Ok(skipped)
     }
 
-    /// Bake one task through the shared pipeline ([`BakeJob::run`]) and write its outputs
+    /// Bake one task as `umbra bake` would, through the one entry point of a bake
+    /// ([`BakeRequest::run_plan`] with the task's plan, [`Job::plan`]), and write its outputs
     /// atomically (overwriting stale ones). Loads only the job's grid of the task's input.
-    /// `threads` as [`BakeSettings::threads`]; `progress` receives finished pixel counts. A
-    /// panic inside the bake is caught and returned with its message.
+    /// `threads` as [`BakeSettings::threads`]; `progress` is told the task's work and receives
+    /// finished units. A panic inside the bake is caught and returned with its message.
     ///
     /// # Errors
-    /// [`BatchError::Task`] for any load, framing, bake or write error; [`BatchError::Panic`].
+    /// [`BatchError::Task`] for any load, framing, bake or write error (without the context a
+    /// front end adds: the log names the input); [`BatchError::Panic`].
     pub fn run_task(
         &self,
         task: &Task,
         threads: usize,
-        progress: &(dyn Fn(u64) + Sync),
+        progress: &dyn crate::progress::Progress,
     ) -> Result<BakeReport, BatchError> {
         let job = self.bake_job(task, threads)?;
-        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job.run(progress)))
-            .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
-            .map_err(BatchError::Task)
+        match self.run_planned(task, threads, BakePlan::Map(Box::new(job)), progress)? {
+            crate::request::BakeOutcome::Map { report, .. } => Ok(*report),
+            crate::request::BakeOutcome::Volume { .. } => {
+                Err(BatchError::Task(crate::Error::InvalidArgument {
+                    name: "output".into(),
+                    reason: "this job writes maps, not transmittance volumes".into(),
+                }))
+            }
+        }
+    }
+
+    /// Run a task's `plan` through [`BakeRequest::run_plan`], catching a panic.
+    fn run_planned(
+        &self,
+        task: &Task,
+        threads: usize,
+        plan: BakePlan,
+        progress: &dyn crate::progress::Progress,
+    ) -> Result<crate::request::BakeOutcome, BatchError> {
+        let request = self.request(task, threads);
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            request.run_plan(plan, progress)
+        }))
+        .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
+        .map_err(|e| BatchError::Task(e.error))
     }
 
     /// The transmittance volume of one task, as `umbra bake INPUT --light-dir D -o OUT.vdb`
@@ -545,12 +569,18 @@ impl Job {
         &self,
         task: &Task,
         threads: usize,
-        progress: &(dyn Fn(u64) + Sync),
+        progress: &dyn crate::progress::Progress,
     ) -> Result<crate::bake::VolumeReport, BatchError> {
         let job = self.volume_job(task, threads)?;
-        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| job.run(progress)))
-            .map_err(|p| BatchError::Panic(panic_message(p.as_ref())))?
-            .map_err(BatchError::Task)
+        match self.run_planned(task, threads, BakePlan::Volume(Box::new(job)), progress)? {
+            crate::request::BakeOutcome::Volume { report, .. } => Ok(report),
+            crate::request::BakeOutcome::Map { .. } => {
+                Err(BatchError::Task(crate::Error::InvalidArgument {
+                    name: "output".into(),
+                    reason: "this job writes transmittance volumes, not maps".into(),
+                }))
+            }
+        }
     }
 
     /// Pixels of a task's map when it is known without loading (fixed resolution).

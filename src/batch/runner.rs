@@ -1,7 +1,9 @@
 //! Running a job: select its tasks (all, one, or a shard), validate before anything is created,
 //! skip what is up to date, bake the rest on worker threads, and log every task as a JSON line.
 //! The command line (`umbra batch`) and the Python module (`umbra.run_job`) are thin over
-//! [`run`]; progress reaches them through [`Progress`].
+//! [`run`]; progress reaches them through [`Progress`], the library's
+//! [`crate::progress::Progress`] with the tasks' records: each task's bake is a
+//! [`crate::progress::Share`] of the run's units, so the run moves as every bake does.
 //!
 //! **Order of work.** The task selection, the inputs (every file and grid) and the shared
 //! cameras are checked first: a refused job creates no directory and no log. Then the log's and
@@ -10,6 +12,7 @@
 //! is logged with its error and the others go on.
 
 use super::{in_shard, valid_shard, BatchError, Job, PositionsTask, Record, Task};
+use crate::progress::{Share, Work};
 use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -30,22 +33,26 @@ pub struct RunOptions {
     pub jobs: usize,
 }
 
-/// What a run reports as it goes. Called from worker threads.
-pub trait Progress: Sync {
-    /// The run starts: `tasks` to bake, `units` of work in all (pixels when every map has a
-    /// known size, else one unit per task).
-    fn start(&self, _tasks: usize, _units: u64) {}
-    /// `units` more of work are done.
-    fn advance(&self, _units: u64) {}
+/// What a run reports as it goes: the library's [`crate::progress::Progress`] (the run's
+/// [`Work`] is told once, before any task runs: every task's share, `TASK_UNITS` (1000) or the
+/// pixels of its map when every map has a known size, and one unit per positions task), with
+/// the number of tasks and each task's record. Called from worker threads.
+pub trait Progress: crate::progress::Progress {
+    /// The run is about to start `tasks` tasks (before [`crate::progress::Progress::start`]).
+    fn tasks(&self, _tasks: usize) {}
     /// A task finished (`ok`, `failed`; `skipped` ones are reported before the run starts).
     fn task(&self, _record: &Record) {}
 }
 
-/// A [`Progress`] that reports nothing.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Silent;
+/// The units of a task's share of a run when its map's size is not known before it is framed.
+pub const TASK_UNITS: u64 = 1000;
+
+pub use crate::progress::Silent;
 
 impl Progress for Silent {}
+
+/// A farm engine's progress lines for a whole run.
+impl<W: std::io::Write + Send> Progress for crate::progress::Lines<W> {}
 
 /// What a run did.
 #[derive(Debug, Clone, serde::Serialize)]
@@ -191,12 +198,15 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         .min(todo.len())
         .max(1);
     let per_task = (cores / workers).max(1);
-    // With a fixed resolution progress counts pixels (it moves during long bakes), else tasks.
-    let pixels = job.pixels_hint();
-    progress.start(
-        todo.len() + points_todo.len(),
-        pixels.map_or(todo.len() as u64, |p| p * todo.len() as u64) + points_todo.len() as u64,
-    );
+    // Each bake is a share of the run: its map's pixels when every map has a known size, else
+    // TASK_UNITS; the bake's own units (pixels, a deep map's passes) are scaled into it.
+    let worth = job.pixels_hint().unwrap_or(TASK_UNITS);
+    progress.tasks(todo.len() + points_todo.len());
+    progress.start(&Work {
+        units: worth * todo.len() as u64 + points_todo.len() as u64,
+        what: "batch",
+        unit: None,
+    });
     let start = std::time::Instant::now();
     let next = AtomicUsize::new(0);
     let failed = AtomicUsize::new(0);
@@ -206,19 +216,15 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
                 let k = next.fetch_add(1, Ordering::Relaxed);
                 let Some(t) = todo.get(k) else { break };
                 let t0 = std::time::Instant::now();
-                let tick = |n: u64| {
-                    if pixels.is_some() {
-                        progress.advance(n);
-                    }
-                };
+                let share = Share::new(progress, worth);
                 // Maps report rays per second, transmittance volumes voxels per second.
                 let result = if job.volume {
-                    job.run_volume_task(t, per_task, &tick).map(|d| {
+                    job.run_volume_task(t, per_task, &share).map(|d| {
                         let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
                         (rate, d.warnings.iter().map(ToString::to_string).collect())
                     })
                 } else {
-                    job.run_task(t, per_task, &tick).map(|d| {
+                    job.run_task(t, per_task, &share).map(|d| {
                         let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
                         (rate, d.warnings.iter().map(ToString::to_string).collect())
                     })
@@ -234,11 +240,9 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
                         record(t, "failed", secs, 0.0, Some(e.to_string()))
                     }
                 };
+                share.finish();
                 progress.task(&rec);
                 keep(rec);
-                if pixels.is_none() {
-                    progress.advance(1);
-                }
             });
         }
     });

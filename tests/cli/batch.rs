@@ -107,6 +107,39 @@ const ALL: [&str; 6] = [
     "shadow_sun.0003.exr",
 ];
 
+/// `--progress ENGINE` prints the run's progress as the engine's lines (each task a share of
+/// the run, rising 0 to 100), even with `--quiet`, on the stream the engine reads; a failing
+/// task still ends the run at 100 and its failure goes to stderr.
+#[test]
+fn a_batch_run_prints_a_farm_engines_progress_lines() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path(), "");
+    let percents = |text: &str, prefix: &str, suffix: &str| -> Vec<u32> {
+        text.lines()
+            .filter_map(|l| l.strip_prefix(prefix)?.strip_suffix(suffix)?.parse().ok())
+            .collect()
+    };
+    let rising = |p: &[u32]| {
+        p.first() == Some(&0) && p.last() == Some(&100) && p.windows(2).all(|w| w[0] < w[1])
+    };
+    let o = batch(&job, &["--quiet", "--progress", "deadline", "--jobs", "2"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(rising(&percents(&out, "Progress: ", "%")), "{out}");
+    assert_eq!(
+        out.lines().count(),
+        percents(&out, "Progress: ", "%").len(),
+        "{out}"
+    );
+    std::fs::write(dir.path().join("cloud.0002.vdb"), b"not a vdb").unwrap();
+    let o = batch(&job, &["--quiet", "--force", "--progress", "openjd"]);
+    assert_eq!(o.status.code(), Some(3));
+    assert!(o.stdout.is_empty());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(rising(&percents(&err, "openjd_progress: ", "")), "{err}");
+    assert!(err.contains("cloud.0002.vdb"), "{err}");
+}
+
 /// `--quiet` prints nothing on stdout (the log has every task), and still exits 3 with the
 /// failures on stderr.
 #[test]

@@ -452,3 +452,102 @@ fn unhonoured_options_and_zero_backgrounds_are_warned_about_by_name() {
     let v: Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["warnings"][0]["kind"], "solid-background", "{v}");
 }
+
+/// The percentages a farm engine's lines carry, in order (`prefix N suffix` lines only).
+fn percents(text: &str, prefix: &str, suffix: &str) -> Vec<u32> {
+    text.lines()
+        .filter_map(|l| l.strip_prefix(prefix)?.strip_suffix(suffix)?.parse().ok())
+        .collect()
+}
+
+/// `--progress ENGINE` prints the engine's lines, rising from 0 to 100 at whole percents, on
+/// the stream the engine reads (OpenJD on stderr, so `--json` stays one JSON document; ALF and
+/// Deadline on stdout), even with `--quiet`; an OpenJD session's variable picks OpenJD's lines
+/// by itself, and `--quiet` silences that. The map is the same bytes whatever is shown.
+#[test]
+fn farm_engines_read_the_progress_lines_they_expect() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |name: &str, extra: &[&str], env: Option<&Path>| {
+        let mut cmd = umbra();
+        cmd.args([
+            "bake",
+            "data/cloud.vdb",
+            "--light-dir=-1,-1,0.3",
+            "--res",
+            "64x48",
+            "-o",
+        ])
+        .arg(dir.path().join(name))
+        .args(extra)
+        .env_remove("OPENJD_SESSION_WORKING_DIR");
+        if let Some(d) = env {
+            cmd.env("OPENJD_SESSION_WORKING_DIR", d);
+        }
+        let o = cmd.output().unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (
+            String::from_utf8(o.stdout).unwrap(),
+            String::from_utf8(o.stderr).unwrap(),
+        )
+    };
+    let rising = |p: &[u32]| {
+        p.first() == Some(&0) && p.last() == Some(&100) && p.windows(2).all(|w| w[0] < w[1])
+    };
+    let (out, err) = run(
+        "openjd.exr",
+        &["--progress", "openjd", "--json", "--quiet"],
+        None,
+    );
+    assert!(rising(&percents(&err, "openjd_progress: ", "")), "{err}");
+    assert!(serde_json::from_str::<Value>(&out).is_ok(), "{out}");
+    let (out, err) = run("alf.exr", &["--progress", "alf", "--quiet"], None);
+    assert!(rising(&percents(&out, "ALF_PROGRESS ", "%")), "{out}");
+    assert!(!err.contains("ALF_PROGRESS"), "{err}");
+    let (out, _) = run("deadline.exr", &["--progress", "deadline"], None);
+    assert!(rising(&percents(&out, "Progress: ", "%")), "{out}");
+    // The summary still follows the lines.
+    assert!(out.lines().last().unwrap_or("").contains("rays/s"), "{out}");
+    // Under an OpenJD session, `auto` prints OpenJD's lines; `--quiet` or `none` silence them.
+    let (_, err) = run("auto.exr", &[], Some(dir.path()));
+    assert!(rising(&percents(&err, "openjd_progress: ", "")), "{err}");
+    let (_, err) = run("auto-quiet.exr", &["--quiet"], Some(dir.path()));
+    assert!(!err.contains("openjd_progress"), "{err}");
+    let (_, err) = run("none.exr", &["--progress", "none"], Some(dir.path()));
+    assert!(!err.contains("openjd_progress"), "{err}");
+    let (out, err) = run("plain.exr", &["--quiet"], None);
+    assert!(out.is_empty() && err.is_empty(), "{out}{err}");
+    let bytes = std::fs::read(dir.path().join("plain.exr")).unwrap();
+    for name in [
+        "openjd.exr",
+        "alf.exr",
+        "deadline.exr",
+        "auto.exr",
+        "none.exr",
+    ] {
+        assert_eq!(
+            std::fs::read(dir.path().join(name)).unwrap(),
+            bytes,
+            "{name}"
+        );
+    }
+    // A transmittance volume reports its voxels the same way.
+    let vdb = dir.path().join("t.vdb");
+    let o = umbra()
+        .args([
+            "bake",
+            "data/cloud.vdb",
+            "--light-dir=0,-1,0",
+            "--progress",
+            "alf",
+            "-q",
+            "-o",
+        ])
+        .arg(&vdb)
+        .output()
+        .unwrap();
+    let out = String::from_utf8(o.stdout).unwrap();
+    assert!(
+        o.status.success() && rising(&percents(&out, "ALF_PROGRESS ", "%")),
+        "{out}"
+    );
+}

@@ -2176,7 +2176,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         product: umbra::bake::Product::Map,
     };
     stage.set("bake");
-    match job.run_on(umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {
+    match job.run_loaded(&umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {
         Ok(report) => {
             rep.bakes += 1;
             let m = &report.map;

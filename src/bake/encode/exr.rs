@@ -115,26 +115,42 @@ pub fn write_map(
     layout: &ExrLayout,
     overwrite: bool,
 ) -> Result<()> {
+    commit_all(stage_map(exr, png, map, prov, layout, overwrite)?)
+}
+
+/// [`write_map`] staged, not committed: the map and its preview as temporary files beside
+/// their targets, for [`crate::output::commit_all`] with the other outputs of a bake.
+///
+/// # Errors
+/// As [`write_map`]; nothing is staged on error.
+pub(crate) fn stage_map(
+    exr: &Path,
+    png: Option<&Path>,
+    map: &Map,
+    prov: &Provenance,
+    layout: &ExrLayout,
+    overwrite: bool,
+) -> Result<Vec<crate::output::Staged>> {
     if png.is_some_and(|p| crate::output::same_file(p, exr)) {
         return Err(output_err(exr, "the preview and the map are the same file"));
     }
     layout.validate()?;
     let bytes = encode_exr(map, prov, layout).map_err(|e| output_err(exr, e))?;
-    write_with_preview(exr, &bytes, png, map, overwrite)
+    stage_with_preview(exr, &bytes, png, map, overwrite)
 }
 
-/// Write `bytes` to `path` and, if given, `map`'s PNG preview to `png`, all or nothing (both
-/// staged, then renamed together).
+/// Stage `bytes` for `path` and, if given, `map`'s PNG preview for `png` (committed together
+/// by the caller).
 ///
 /// # Errors
-/// As [`write_map`].
-pub(crate) fn write_with_preview(
+/// As [`write_map`]; nothing is staged on error.
+pub(crate) fn stage_with_preview(
     path: &Path,
     bytes: &[u8],
     png: Option<&Path>,
     map: &Map,
     overwrite: bool,
-) -> Result<()> {
+) -> Result<Vec<crate::output::Staged>> {
     if png.is_some_and(|p| crate::output::same_file(p, path)) {
         return Err(output_err(
             path,
@@ -148,7 +164,7 @@ pub(crate) fn write_with_preview(
         let px = preview_pixels(map);
         staged.push(stage(p, overwrite, |w| encode_png(w, map, &px))?);
     }
-    commit_all(staged)
+    Ok(staged)
 }
 
 /// The EXR file's bytes (see [`write_exr`] and [`write_exr_as`]).

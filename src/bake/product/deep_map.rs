@@ -124,7 +124,7 @@ pub fn bake_deep(
     scene: &Scene,
     flat: &Map,
     max_error: f64,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<DeepMap> {
     check_deep_error(max_error)?;
     let start = std::time::Instant::now();
@@ -153,7 +153,7 @@ pub fn bake_deep(
                     let prof = pixel_profile(scene, flat, (i, j), max_error)?;
                     row.push(&prof, max_error * FIT_SHARE, range)?;
                 }
-                progress(u64::from(w));
+                progress.advance(u64::from(w));
                 Ok(row)
             })
             .collect::<Result<Vec<Row>>>()

@@ -105,7 +105,7 @@ pub fn bake_fixed(
     scene: &Scene,
     flat: &Map,
     format: DeepFormat,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<FixedMap> {
     let start = std::time::Instant::now();
     let exact = flat.settings.estimator == Estimator::REGULAR;
@@ -128,7 +128,7 @@ pub fn bake_fixed(
         per: format.channels(),
     };
     let rows = in_pool(flat.settings.threads, || {
-        texels.first_pass(&|n| progress(n))
+        texels.first_pass(&|n| progress.advance(n))
     })?;
     let coarse = Coarse::join(rows, camera.pixels() as usize, flat.channels() * texels.per);
     let threshold = 1.01 * coarse.seen + 1e-6;
@@ -137,7 +137,9 @@ pub fn bake_fixed(
         .filter(|&p| coarse.bound[p] > threshold)
         .collect();
     let refined = in_pool(flat.settings.threads, || {
-        texels.refine(&coarse.values, &flagged, threshold, &|n| progress(n))
+        texels.refine(&coarse.values, &flagged, threshold, &|n| {
+            progress.advance(n)
+        })
     })?;
     let unflagged = coarse
         .bound

@@ -1,10 +1,13 @@
-//! The one bake pipeline, shared by `umbra bake`, batch tasks and library callers: check the
-//! outputs, load the grid, frame the camera, bake, write the map and its preview together, and
-//! report what a user should be warned about.
+//! The one bake pipeline, shared by `umbra bake`, batch tasks, the Python module and library
+//! callers (through [`crate::request::BakeRequest::run`], or [`BakeJob::run`] on a planned job):
+//! check the outputs, plan (whole or in parts), load the grid, frame the camera, trace, encode,
+//! commit the map, its preview and any other output of the request together, and report what a
+//! user should be warned about. Progress goes to one [`Progress`] throughout.
 
-use crate::bake::{bake_scene, write_map, BakeSettings, Camera, Map, Provenance, View};
+use crate::bake::{bake_scene, BakeSettings, Camera, Map, Provenance, View};
 use crate::error::{Error, Result};
-use crate::output::check_writable;
+use crate::output::{check_writable, Staged};
+use crate::progress::{Progress, Silent, Work};
 use crate::scene::{Scene, SceneOptions};
 use crate::volume::Sanitized;
 use std::path::PathBuf;
@@ -295,6 +298,94 @@ pub struct BakeReport {
     pub fixed: Option<crate::bake::FixedStats>,
 }
 
+/// The step of a bake a failure stopped it at ([`BakeError`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Step {
+    /// Checking the request: its options, its outputs (writable, not clobbered) and its
+    /// settings. Nothing but a reused camera's file was read.
+    Check,
+    /// Reading the input: the grid (or a scene, a stage's volumes, the topology of a bake in
+    /// parts) and framing the camera on it.
+    Load,
+    /// Tracing, encoding and committing the outputs.
+    Bake,
+}
+
+/// A bake that failed: the library's error, the [`Step`] it stopped at, and for a load, the
+/// context a user reads it in (`loading grid 'density'`, `loading the scene`). Displayed as
+/// `context: error`, the line `umbra bake` prints and the Python module raises.
+#[derive(Debug)]
+pub struct BakeError {
+    /// Where the bake stopped.
+    pub step: Step,
+    /// What was being loaded, for a load error that is not about an argument or an output.
+    pub context: Option<String>,
+    /// The error.
+    pub error: Error,
+}
+
+impl BakeError {
+    /// `error` at `step`, without context.
+    #[must_use]
+    pub fn at(step: Step, error: Error) -> Self {
+        Self {
+            step,
+            context: None,
+            error,
+        }
+    }
+
+    /// A load error of `input` (grid `grid`): in the context of loading it, unless it is about
+    /// an argument or an output, which speak for themselves.
+    #[must_use]
+    pub fn loading(input: &std::path::Path, grid: &str, error: Error) -> Self {
+        let context = match error {
+            Error::Output { .. } | Error::Exists { .. } | Error::InvalidArgument { .. } => None,
+            _ if crate::input::InputKind::of(input).is_scene_file() => {
+                Some("loading the scene".to_string())
+            }
+            _ => Some(format!("loading grid '{grid}'")),
+        };
+        Self {
+            step: Step::Load,
+            context,
+            error,
+        }
+    }
+
+    /// The failure with its library error worded by a front end (`f`: an option as its user
+    /// types it, an existing output with how to replace it); step and context unchanged.
+    #[must_use]
+    pub fn worded(self, f: impl FnOnce(Error) -> Error) -> Self {
+        Self {
+            error: f(self.error),
+            ..self
+        }
+    }
+}
+
+impl std::fmt::Display for BakeError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match &self.context {
+            Some(c) => write!(f, "{c}: {}", self.error),
+            None => write!(f, "{}", self.error),
+        }
+    }
+}
+
+impl std::error::Error for BakeError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        Some(&self.error)
+    }
+}
+
+/// A traced product before it is staged: its report and, for a deep product, its encoded
+/// bytes (a flat map is encoded when staged, after the scene is dropped).
+struct Traced {
+    report: BakeReport,
+    bytes: Option<Vec<u8>>,
+}
+
 impl BakeJob {
     /// Check every output before any work: writable directory, no clobbering without
     /// `overwrite`, the map and the preview distinct.
@@ -358,17 +449,99 @@ impl BakeJob {
         Ok(())
     }
 
-    /// Run the bake: check the outputs, load, frame, bake (`progress` receives finished pixel
-    /// counts from worker threads), write the map and the preview together.
+    /// Run the bake, every step of it: check the outputs and settings, plan (whole, or in parts
+    /// under a memory budget: [`BakeJob::plan_bounded`]), load, trace, encode, and commit the
+    /// map and its preview together. `progress` is told the work's units when they are known
+    /// ([`Work`]: pixels, pixels in parts, or a deep product's passes by cost) and receives
+    /// finished units from worker threads.
     ///
     /// # Errors
     /// Output, load, framing, settings and write errors; nothing is written on error.
-    pub fn run(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<BakeReport> {
-        if let Some(plan) = self.plan_bounded()? {
-            return self.run_bounded(plan, progress);
+    pub fn run(&self, progress: &dyn Progress) -> Result<BakeReport> {
+        self.run_with(progress, &|_| Ok(Vec::new()))
+            .map_err(|e| e.error)
+    }
+
+    /// [`BakeJob::run`], each failure with the [`Step`] it stopped at; `extra` stages more
+    /// outputs from the finished report (a request's USD layer), committed with the map.
+    pub(crate) fn run_with(
+        &self,
+        progress: &dyn Progress,
+        extra: &dyn Fn(&BakeReport) -> Result<Vec<Staged>>,
+    ) -> std::result::Result<BakeReport, BakeError> {
+        let check = |e| BakeError::at(Step::Check, e);
+        self.check_outputs().map_err(check)?;
+        self.settings.validate().map_err(check)?;
+        let load = |e| BakeError::loading(&self.input, &self.grid, e);
+        let bake = |e| BakeError::at(Step::Bake, e);
+        let traced = match self.plan_bounded().map_err(load)? {
+            Some(plan) => self.trace_bounded(plan, progress).map_err(bake)?,
+            None => {
+                let (scene, camera) = self.prepare().map_err(load)?;
+                // The scene is dropped before encoding: peak memory is the trees plus the image.
+                self.trace(&scene, camera, progress).map_err(bake)?
+            }
+        };
+        self.commit(traced, extra).map_err(bake)
+    }
+
+    /// What `progress` is told a bake of `pixels` pixels is: the pixels of each pass in
+    /// proportion to its cost. A flat map counts its pixels; a deep product its deep pass's
+    /// pixels (and, for a fixed-size format, an eighth more for the second pass that refines its
+    /// error bound), plus the flat pass's pixels for a stochastic estimator (whose flat pass
+    /// traces the 64 slices; an exact map's flat pass is a few per cent of its deep pass and not
+    /// counted).
+    fn work(&self, pixels: u64) -> Work {
+        let deep = match self.product {
+            Product::Map => {
+                return Work {
+                    units: pixels,
+                    what: "baking",
+                    unit: Some("px"),
+                }
+            }
+            Product::Deep { .. } => pixels,
+            Product::Fixed { .. } => super::fixed_map::fixed_units(pixels),
+        };
+        let units = if self.settings.estimator == crate::estimate::Estimator::REGULAR {
+            deep
+        } else {
+            pixels + deep
+        };
+        Work {
+            units,
+            what: "baking",
+            unit: (units == pixels).then_some("px"),
         }
-        let (vol, camera) = self.prepare()?;
-        self.run_on(vol, camera, progress)
+    }
+
+    /// Stage the traced map's outputs (its EXR, the preview) and `extra`'s, and commit them all
+    /// together.
+    fn commit(
+        &self,
+        traced: Traced,
+        extra: &dyn Fn(&BakeReport) -> Result<Vec<Staged>>,
+    ) -> Result<BakeReport> {
+        let mut staged = match &traced.bytes {
+            Some(bytes) => crate::bake::encode::exr::stage_with_preview(
+                &self.output,
+                bytes,
+                self.preview.as_deref(),
+                &traced.report.map,
+                self.overwrite,
+            )?,
+            None => crate::bake::encode::exr::stage_map(
+                &self.output,
+                self.preview.as_deref(),
+                &traced.report.map,
+                &traced.report.provenance,
+                &self.layout,
+                self.overwrite,
+            )?,
+        };
+        staged.extend(extra(&traced.report)?);
+        crate::output::commit_all(staged)?;
+        Ok(traced.report)
     }
 
     /// With a memory budget ([`BakeJob::max_memory`]) that the whole decoded grid and the
@@ -377,8 +550,8 @@ impl BakeJob {
     /// sweep takes of an input of 64 MiB or more on disk is planned against
     /// [`IMPLIED_BUDGET`] (1 GiB): a hero cache is swept a region at a time, never held
     /// whole. `None` when everything fits (or, without a budget, when the map is not such a
-    /// sweep or one part would not fit): [`BakeJob::prepare`] and [`BakeJob::run_on`] then
-    /// bake as usual.
+    /// sweep, a deep product, or one part would not fit): [`BakeJob::run`] then loads the
+    /// whole grid ([`BakeJob::prepare`]).
     ///
     /// The budget counts the topology (kept while the parts come and go), the image and one
     /// part; the process's own code and stacks are outside it. Exact trilinear maps the sweep
@@ -400,7 +573,10 @@ impl BakeJob {
             Some(b) => b,
             // Without a budget, big caches the sweep takes go in parts all the same
             // ([`IMPLIED_BUDGET`]); the size on disk is the cheap first test.
-            None if self.is_exact_sweep() && file_len(&self.input) >= IMPLIED_MIN_FILE => {
+            None if self.product == Product::Map
+                && self.is_exact_sweep()
+                && file_len(&self.input) >= IMPLIED_MIN_FILE =>
+            {
                 IMPLIED_BUDGET
             }
             None => return Ok(None),
@@ -560,11 +736,12 @@ impl BakeJob {
     ///
     /// # Errors
     /// As [`BakeJob::run`].
-    pub fn run_bounded(
-        &self,
-        plan: BoundedPlan,
-        progress: &(dyn Fn(u64) + Sync),
-    ) -> Result<BakeReport> {
+    fn trace_bounded(&self, plan: BoundedPlan, progress: &dyn Progress) -> Result<Traced> {
+        progress.start(&Work {
+            units: plan.camera.pixels(),
+            what: "baking in parts",
+            unit: Some("px"),
+        });
         let volume_of = |g: crate::vdb::Grid| self.volume_of(g);
         let Some(shell) = plan.shell.fogs().first().map(crate::scene::Fog::volume) else {
             return Err(Error::Invalid {
@@ -606,7 +783,11 @@ impl BakeJob {
             map.stats.parts = parts;
             (map, crate::volume::Sanitized::default())
         };
-        self.finish_with(map, plan.shell, plan.camera, leaves)
+        let report = self.describe_with(map, &plan.shell, plan.camera, leaves);
+        Ok(Traced {
+            report,
+            bytes: None,
+        })
     }
 
     /// Whether this job's map is one the sweep makes: exact regular tracking with trilinear
@@ -633,9 +814,10 @@ impl BakeJob {
         Ok(v)
     }
 
-    /// Everything before the bake, in the order that fails fastest: check the outputs and the
-    /// settings, load the grid, frame the camera. [`BakeJob::run`] is `prepare` then
-    /// [`BakeJob::run_on`]; callers that want the pixel count first (a progress bar) split it.
+    /// Everything before the bake of a whole grid, in the order that fails fastest: check the
+    /// outputs and the settings, load the grid, frame the camera. [`BakeJob::run`] does this
+    /// when [`BakeJob::plan_bounded`] finds no parts; callers that keep the scene (to bake it
+    /// again with [`BakeJob::run_loaded`]) call it themselves.
     ///
     /// # Errors
     /// Output, settings, load and framing errors.
@@ -663,26 +845,38 @@ impl BakeJob {
         }
     }
 
-    /// [`BakeJob::run`] on a scene already loaded (a single volume: [`Scene::from_volume`])
-    /// and a camera already framed (`input`, `grid` and `density_scale` are then only recorded
-    /// in the header). The scene is dropped before writing, so peak memory is the trees plus
-    /// the image.
+    /// [`BakeJob::run`] on a scene already loaded, kept by the caller (the Python module's
+    /// `Volume`; a single volume: [`Scene::from_volume`]) and a camera already framed
+    /// (`input`, `grid` and `density_scale` are then only recorded in the header): bake and
+    /// write the job's product (flat or deep map, and the preview) from `scene` seen by
+    /// `camera`.
     ///
     /// # Errors
     /// As [`BakeJob::run`].
-    pub fn run_on(
+    pub fn run_loaded(
         &self,
-        scene: Scene,
+        scene: &Scene,
         camera: Camera,
-        progress: &(dyn Fn(u64) + Sync),
+        progress: &dyn Progress,
     ) -> Result<BakeReport> {
         self.check_outputs()?;
+        let traced = self.trace(scene, camera, progress)?;
+        self.commit(traced, &|_| Ok(Vec::new()))
+    }
+
+    /// The traced product of `scene` seen by `camera`: a flat map's report (encoded when it
+    /// is staged), or a deep product's report and bytes. Tells `progress` the work first.
+    fn trace(&self, scene: &Scene, camera: Camera, progress: &dyn Progress) -> Result<Traced> {
+        progress.start(&self.work(camera.pixels()));
         if self.product != Product::Map {
-            return self.deep_product(&scene, camera, progress);
+            return self.deep_product(scene, camera, progress);
         }
-        let (camera, settings) = self.aimed(&scene, camera);
-        let map = bake_scene(&scene, &camera, &settings, progress)?;
-        self.finish(map, scene, camera)
+        let (camera, settings) = self.aimed(scene, camera);
+        let map = bake_scene(scene, &camera, &settings, progress)?;
+        Ok(Traced {
+            report: self.describe(map, scene, camera),
+            bytes: None,
+        })
     }
 
     /// The camera and settings `scene` is traced with: `camera`'s ray range extended to the
@@ -708,73 +902,21 @@ impl BakeJob {
         settings
     }
 
-    /// [`BakeJob::run_on`] with the scene borrowed, for callers that keep it loaded (the
-    /// Python module's `Volume`): bake and write the job's product (flat or deep map, and the
-    /// preview) from `scene` seen by `camera`.
-    ///
-    /// # Errors
-    /// As [`BakeJob::run`].
-    pub fn run_loaded(
-        &self,
-        scene: &Scene,
-        camera: Camera,
-        progress: &(dyn Fn(u64) + Sync),
-    ) -> Result<BakeReport> {
-        self.check_outputs()?;
-        if self.product != Product::Map {
-            return self.deep_product(scene, camera, progress);
-        }
-        let (camera, settings) = self.aimed(scene, camera);
-        let map = bake_scene(scene, &camera, &settings, progress)?;
-        let report = self.describe(map, scene, camera);
-        write_map(
-            &self.output,
-            self.preview.as_deref(),
-            &report.map,
-            &report.provenance,
-            &self.layout,
-            self.overwrite,
-        )?;
-        Ok(report)
-    }
-
-    /// The units [`BakeJob::run_on`] and [`BakeJob::run_loaded`] report to `progress` for a
-    /// camera of `pixels` pixels (a progress bar's length): the pixels of each pass in
-    /// proportion to its cost. A flat map counts its pixels; a deep product its deep pass's
-    /// pixels (and, for a fixed-size format, an eighth more for the
-    /// second pass that refines its error bound), plus the flat pass's pixels for a stochastic estimator (whose flat
-    /// pass traces the 64 slices; an exact map's flat pass is a few per cent of its deep pass
-    /// and not counted).
-    #[must_use]
-    pub fn progress_len(&self, pixels: u64) -> u64 {
-        let deep = match self.product {
-            Product::Map => return pixels,
-            Product::Deep { .. } => pixels,
-            Product::Fixed { .. } => super::fixed_map::fixed_units(pixels),
-        };
-        if self.settings.estimator == crate::estimate::Estimator::REGULAR {
-            deep
-        } else {
-            pixels + deep
-        }
-    }
-
-    /// Bake and write a deep product ([`Product::Deep`] or [`Product::Fixed`]) of `scene`
-    /// seen by `camera`. The flat map is traced first: with regular tracking as asked, and a
+    /// A deep product ([`Product::Deep`] or [`Product::Fixed`]) of `scene` seen by `camera`,
+    /// encoded. The flat map is traced first: with regular tracking as asked, and a
     /// stochastic estimator's with the [`crate::bake::STOCHASTIC_DEPTHS`] slices its deep
     /// function comes from (removed from the written map); then the deep pass. `progress`
-    /// counts both as [`BakeJob::progress_len`] says.
+    /// counts both as [`BakeJob::work`] says.
     fn deep_product(
         &self,
         scene: &Scene,
         camera: Camera,
-        progress: &(dyn Fn(u64) + Sync),
-    ) -> Result<BakeReport> {
+        progress: &dyn Progress,
+    ) -> Result<Traced> {
         let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR;
-        let none = |_: u64| {};
         let (camera, settings) = self.aimed(scene, camera);
         let mut map = if exact {
-            bake_scene(scene, &camera, &settings, &none)?
+            bake_scene(scene, &camera, &settings, &Silent)?
         } else {
             let settings = BakeSettings {
                 depths: crate::bake::Depths::Slices(crate::bake::STOCHASTIC_DEPTHS),
@@ -782,20 +924,14 @@ impl BakeJob {
             };
             bake_scene(scene, &camera, &settings, progress)?
         };
-        let deep_progress = progress;
         let (deep, fixed) = match self.product {
             Product::Deep { max_error } => (
-                Some(crate::bake::bake_deep(
-                    scene,
-                    &map,
-                    max_error,
-                    deep_progress,
-                )?),
+                Some(crate::bake::bake_deep(scene, &map, max_error, progress)?),
                 None,
             ),
             Product::Fixed { format } => (
                 None,
-                Some(crate::bake::bake_fixed(scene, &map, format, deep_progress)?),
+                Some(crate::bake::bake_fixed(scene, &map, format, progress)?),
             ),
             Product::Map => (None, None),
         };
@@ -811,11 +947,11 @@ impl BakeJob {
         let bytes = if let Some(deep) = deep {
             let attrs = crate::bake::deep_attributes(&report.map, &report.provenance, &deep.stats);
             report.deep = Some(deep.stats);
-            crate::bake::encode_deep_exr(&deep.image, &attrs)
+            Some(crate::bake::encode_deep_exr(&deep.image, &attrs))
         } else if let Some(fixed) = fixed {
             let attrs = super::fixed_map::fixed_attributes(&fixed.stats);
             report.fixed = Some(fixed.stats);
-            crate::bake::encode::exr::encode_exr_with(
+            let bytes = crate::bake::encode::exr::encode_exr_with(
                 &report.map,
                 &report.provenance,
                 &self.layout,
@@ -825,18 +961,12 @@ impl BakeJob {
             .map_err(|e| Error::Output {
                 path: self.output.clone(),
                 reason: e,
-            })?
+            })?;
+            Some(bytes)
         } else {
-            return Ok(report);
+            None
         };
-        crate::bake::encode::exr::write_with_preview(
-            &self.output,
-            &bytes,
-            self.preview.as_deref(),
-            &report.map,
-            self.overwrite,
-        )?;
-        Ok(report)
+        Ok(Traced { report, bytes })
     }
 
     /// The map of `scene` seen by `camera`, in memory: nothing is read from `input` or
@@ -849,39 +979,17 @@ impl BakeJob {
         &self,
         scene: &Scene,
         camera: Camera,
-        progress: &(dyn Fn(u64) + Sync),
+        progress: &dyn Progress,
     ) -> Result<BakeReport> {
         self.settings.validate()?;
+        progress.start(&Work {
+            units: camera.pixels(),
+            what: "baking",
+            unit: Some("px"),
+        });
         let (camera, settings) = self.aimed(scene, camera);
         let map = bake_scene(scene, &camera, &settings, progress)?;
         Ok(self.describe(map, scene, camera))
-    }
-
-    /// Warnings, provenance and the written map: the common tail of every bake.
-    fn finish(&self, map: Map, scene: Scene, camera: Camera) -> Result<BakeReport> {
-        self.finish_with(map, scene, camera, crate::volume::Sanitized::default())
-    }
-
-    /// [`BakeJob::finish`] with what the bad-voxel policy changed in leaves `scene` does not
-    /// hold (a bake in parts: `scene` is the shell).
-    fn finish_with(
-        &self,
-        map: Map,
-        scene: Scene,
-        camera: Camera,
-        leaves: crate::volume::Sanitized,
-    ) -> Result<BakeReport> {
-        let report = self.describe_with(map, &scene, camera, leaves);
-        drop(scene);
-        write_map(
-            &self.output,
-            self.preview.as_deref(),
-            &report.map,
-            &report.provenance,
-            &self.layout,
-            self.overwrite,
-        )?;
-        Ok(report)
     }
 
     /// The warnings and the provenance of a finished map.

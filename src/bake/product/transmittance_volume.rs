@@ -238,7 +238,7 @@ pub fn transmittance_leaves(
     est: &Estimator,
     opts: &Options,
     threads: usize,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(Vec<LeafOut>, VolumeStats)> {
     opts.validate()?;
     let start = std::time::Instant::now();
@@ -336,7 +336,7 @@ fn by_ray_batches(
     vol: &Volume,
     light: &Light,
     leaves: &mut [LeafOut],
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(u64, u64)> {
     leaves
         .par_chunks_mut(LEAVES_PER_BATCH)
@@ -355,7 +355,7 @@ fn by_ray_batches(
                 lookups += od.lookups;
                 group[g].values[n] = od.transmittance() as f32;
             }
-            progress(rays.len() as u64);
+            progress.advance(rays.len() as u64);
             Ok((rays.len() as u64, lookups))
         })
         .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
@@ -379,7 +379,7 @@ fn by_rays(
     est: &Estimator,
     opts: &Options,
     leaves: &mut [LeafOut],
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(u64, u64)> {
     let exact = *est == Estimator::REGULAR;
     leaves
@@ -406,7 +406,7 @@ fn by_rays(
                 rays += 1;
                 done += 1;
             }
-            progress(done);
+            progress.advance(done);
             Ok((rays, lookups))
         })
         .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
@@ -422,7 +422,7 @@ fn by_lines(
     leaves: &mut [LeafOut],
     axis: usize,
     toward: i32,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(u64, u64)> {
     let (u, v) = match axis {
         0 => (1, 2),
@@ -508,7 +508,7 @@ fn by_lines(
                     }
                 }
             }
-            progress(done);
+            progress.advance(done);
             Ok((rays, lookups))
         })
         .try_reduce(|| (0, 0), |a, b| Ok((a.0 + b.0, a.1 + b.1)))
@@ -523,7 +523,7 @@ fn by_lattice(
     opts: &Options,
     leaves: &mut [LeafOut],
     w: [i64; 3],
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(u64, u64)> {
     let a = (0..3).max_by_key(|&x| w[x].abs()).unwrap_or(0);
     // Every output voxel: its line (the point with `0 <= key_a < |w_a|` on it), its position
@@ -598,7 +598,7 @@ fn by_lattice(
                 out.push((li, n, (-tau).exp() as f32));
                 last = Some((m, tau));
             }
-            progress(range.len() as u64);
+            progress.advance(range.len() as u64);
             Ok((out, rays, lookups))
         })
         .collect::<Result<Vec<_>>>()?;
@@ -708,23 +708,46 @@ impl VolumeJob {
         }
     }
 
-    /// Check, load, compute and write.
+    /// Check, load, compute and write. `progress` is told the voxels to compute and receives
+    /// finished voxel counts.
     ///
     /// # Errors
     /// Output, load, light, estimator and write errors; nothing is written on error.
-    pub fn run(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<VolumeReport> {
-        self.check_outputs()?;
-        self.options.validate()?;
-        let vol = self.load()?;
-        self.run_on(&vol, progress)
+    pub fn run(&self, progress: &dyn crate::progress::Progress) -> Result<VolumeReport> {
+        self.run_steps(progress).map_err(|e| e.error)
     }
 
-    /// [`VolumeJob::run`] on a volume already loaded.
+    /// [`VolumeJob::run`], each failure with the step it stopped at.
+    pub(crate) fn run_steps(
+        &self,
+        progress: &dyn crate::progress::Progress,
+    ) -> std::result::Result<VolumeReport, crate::bake::BakeError> {
+        use crate::bake::{BakeError, Step};
+        let check = |e| BakeError::at(Step::Check, e);
+        self.check_outputs().map_err(check)?;
+        self.options.validate().map_err(check)?;
+        let vol = self
+            .load()
+            .map_err(|e| BakeError::loading(&self.input, &self.grid, e))?;
+        self.run_on(&vol, progress)
+            .map_err(|e| BakeError::at(Step::Bake, e))
+    }
+
+    /// [`VolumeJob::run`] on a volume already loaded (the Python module's `Volume`).
     ///
     /// # Errors
     /// As [`VolumeJob::run`].
-    pub fn run_on(&self, vol: &Volume, progress: &(dyn Fn(u64) + Sync)) -> Result<VolumeReport> {
+    pub fn run_on(
+        &self,
+        vol: &Volume,
+        progress: &dyn crate::progress::Progress,
+    ) -> Result<VolumeReport> {
         self.check_outputs()?;
+        progress.start(&crate::progress::Work {
+            units: output_voxels(vol),
+            what: "transmittance volume",
+            unit: Some("voxels"),
+        });
         let (leaves, stats) = transmittance_leaves(
             vol,
             &self.light,

@@ -244,8 +244,9 @@ fn pixel(
     Ok(px)
 }
 
-/// Bake a map of `vol` seen by `camera`. `progress` is called (from worker threads) with the
-/// number of pixels each finished tile held.
+/// Bake a map of `vol` seen by `camera`. `progress` hears (from worker threads,
+/// [`crate::progress::Progress::advance`]) the number of pixels each finished tile held; a
+/// closure `|n| ...` will do.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] for bad settings (samples, target error, depths, threads, an
@@ -254,7 +255,7 @@ pub fn bake(
     vol: &Volume,
     camera: &Camera,
     settings: &BakeSettings,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
     bake_source(Source::Volume(vol), camera, settings, progress)
 }
@@ -268,7 +269,7 @@ pub fn bake_scene(
     scene: &Scene,
     camera: &Camera,
     settings: &BakeSettings,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
     match scene.single() {
         Some(vol) => bake(vol, camera, settings, progress),
@@ -280,7 +281,7 @@ fn bake_source(
     src: Source<'_>,
     camera: &Camera,
     settings: &BakeSettings,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
@@ -353,7 +354,7 @@ pub(crate) fn bake_streamed(
     camera: &Camera,
     settings: &BakeSettings,
     part_bytes: u64,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Option<(Map, crate::bake::trace::sweep::Streamed)>> {
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
@@ -385,7 +386,7 @@ pub(crate) fn bake_rows_streamed(
     camera: &Camera,
     settings: &BakeSettings,
     group_leaves: usize,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(Map, u64)> {
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
@@ -467,7 +468,7 @@ fn render(
     camera: &Camera,
     s: &BakeSettings,
     depths: &[f64],
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
     let start = std::time::Instant::now();
     let h = camera.height;
@@ -506,7 +507,7 @@ fn render_rows(
     depths: &[f64],
     (r0, r1): (u32, u32),
     rows: u32,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(Vec<f32>, Vec<Band>)> {
     let w = camera.width;
     let npix = camera.pixels();
@@ -552,7 +553,7 @@ fn render_rows(
                         band.stats.absorb(&px.stats());
                     }
                 }
-                progress(u64::from(tw * bh));
+                progress.advance(u64::from(tw * bh));
                 x0 += tw;
             }
             Ok(band)

@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Progress over several passes of the whole image, reported as whole-image pixels.
 struct Passes<'a> {
-    inner: &'a (dyn Fn(u64) + Sync),
+    inner: &'a dyn crate::progress::Progress,
     passes: u64,
     done: AtomicU64,
 }
@@ -26,7 +26,7 @@ impl Passes<'_> {
         let step = before / self.passes.max(1);
         let after = (before + n) / self.passes.max(1);
         if after > step {
-            (self.inner)(after - step);
+            self.inner.advance(after - step);
         }
     }
 }
@@ -39,7 +39,7 @@ fn ray_tau(
     depths: &[f64],
     interp: Interp,
     rows: u32,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<(Vec<f64>, u64)> {
     let (w, stride) = (camera.width as usize, 1 + depths.len());
     let mut tau = vec![0.0f64; camera.pixels() as usize * stride];
@@ -64,7 +64,7 @@ fn ray_tau(
                     t0 = d;
                 }
             }
-            progress((band.len() / stride) as u64);
+            progress.advance((band.len() / stride) as u64);
             Ok(lookups)
         })
         .collect::<Result<Vec<u64>>>()?
@@ -78,7 +78,7 @@ fn hits(
     scene: &Scene,
     camera: &Camera,
     rows: u32,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Vec<f64>> {
     let w = camera.width as usize;
     let mut out = vec![f64::INFINITY; camera.pixels() as usize];
@@ -94,7 +94,7 @@ fn hits(
                     }
                 }
             }
-            progress(band.len() as u64);
+            progress.advance(band.len() as u64);
             Ok::<(), Error>(())
         })?;
     Ok(out)
@@ -110,7 +110,7 @@ pub(crate) fn exact(
     s: &BakeSettings,
     depths: &[f64],
     rows: u32,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
     let start = std::time::Instant::now();
     let npix = camera.pixels() as usize;

@@ -7,7 +7,8 @@
 //!   path), `JobFile` (PATH, IN) and `OutputDir` (PATH, OUT) whose defaults are relative to the
 //!   template's directory (the spec's path mapping moves them between hosts), so no path is
 //!   ever part of a format string the engine expands (`{{...}}` in a path runs as written);
-//!   one step whose task parameter spans the tasks (or the chunks);
+//!   one step whose task parameter spans the tasks (or the chunks), run with
+//!   `--progress openjd` so the session reads each task's `openjd_progress: N` lines;
 //!   the job's thread count as a `amount.worker.vcpu` host requirement. Written as JSON, which
 //!   is also valid YAML: every path and argument is a JSON string, so spaces, quotes and
 //!   non-ASCII need no shell quoting (the engine passes arguments without a shell).

@@ -51,6 +51,9 @@ pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crat
         "batch".to_string(),
         "{{Param.JobFile}}".to_string(),
         "--quiet".to_string(),
+        // The session's progress lines (`openjd_progress: N`), whatever the environment says.
+        "--progress".to_string(),
+        "openjd".to_string(),
     ];
     args.extend(selector);
     let mut step = serde_json::json!({

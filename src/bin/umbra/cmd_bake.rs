@@ -1,12 +1,12 @@
 //! `umbra bake`: transmittance / shadow maps from a light, written to OpenEXR.
 
-use crate::common::progress_bar;
-use anyhow::{Context, Result};
+use crate::common::{bake_template, CliProgress, ProgressArgs};
+use anyhow::Result;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::bake::{BakeJob, Projection, VolumeJob};
-use umbra::request::{BakeOptions, BakePlan, BakeRequest};
+use umbra::request::{BakeOptions, BakeOutcome, BakeRequest};
 
 /// Arguments of `umbra bake`: the input, the output and the library's [`BakeOptions`] (every
 /// option's flag, help and default come from that one type).
@@ -28,81 +28,53 @@ pub struct BakeArgs {
     /// Print a JSON summary on stdout.
     #[arg(long)]
     json: bool,
+    #[command(flatten)]
+    progress: ProgressArgs,
 }
 
-/// Plan the request (the library checks every option), then bake, write and report.
-fn request(a: &BakeArgs) -> BakeRequest {
-    BakeRequest {
+/// Bake through the library's one entry point ([`BakeRequest::run`]: plan, load, trace,
+/// encode, commit every output together), drawing its progress, then report.
+pub fn run(a: &BakeArgs) -> Result<ExitCode> {
+    let total = std::time::Instant::now();
+    let request = BakeRequest {
         input: a.file.clone(),
         output: a.output.clone(),
         options: a.options.clone(),
-    }
-}
-
-pub fn run(a: &BakeArgs) -> Result<ExitCode> {
-    let total = std::time::Instant::now();
-    match request(a).plan().map_err(crate::common::flag_error)? {
-        BakePlan::Map(job) => run_map(a, &job, total),
-        BakePlan::Volume(job) => run_volume(a, &job, total),
-    }
-}
-
-/// Bake and write a map: the shared pipeline ([`BakeJob`]) with a progress bar.
-fn run_map(a: &BakeArgs, job: &BakeJob, total: std::time::Instant) -> Result<ExitCode> {
-    let scene_file = umbra::input::InputKind::of(&job.input).is_scene_file();
-    let setup_error = |e: umbra::Error| match e {
-        umbra::Error::Output { .. }
-        | umbra::Error::Exists { .. }
-        | umbra::Error::InvalidArgument { .. } => anyhow::Error::from(crate::common::flag_error(e)),
-        other if scene_file => anyhow::Error::from(other).context("loading the scene"),
-        other => anyhow::Error::from(other).context(format!("loading grid '{}'", job.grid)),
     };
-    request(a)
-        .check_usd_out()
-        .map_err(crate::common::flag_error)?;
-    let bounded = job.plan_bounded().map_err(setup_error)?;
-    let result = match bounded {
-        // Over --max-memory: the grid a part at a time.
-        Some(plan) => {
-            let bar = progress_bar(
-                a.quiet,
-                "{spinner} baking in parts [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}",
-                plan.camera().pixels(),
-            );
-            let r = job.run_bounded(plan, &|n| bar.inc(n));
-            bar.finish_and_clear();
-            r
+    let progress = CliProgress::new(a.progress.progress, a.quiet, bake_template);
+    let outcome = request.run(&progress);
+    progress.finish();
+    let outcome = outcome.map_err(|e| {
+        let e = e.worded(crate::common::flag_error);
+        match e.context {
+            Some(c) => anyhow::Error::from(e.error).context(c),
+            None => anyhow::Error::from(e.error),
         }
-        None => {
-            let (scene, camera) = job.prepare().map_err(setup_error)?;
-            // A deep product's units are its passes' pixels weighted by cost, not pixels.
-            let len = job.progress_len(camera.pixels());
-            let template = if len == camera.pixels() {
-                "{spinner} baking [{bar:30}] {percent:>3}% {human_pos}/{human_len} px, eta {eta}"
-            } else {
-                "{spinner} baking [{bar:30}] {percent:>3}%, eta {eta}"
-            };
-            let bar = progress_bar(a.quiet, template, len);
-            let r = job.run_on(scene, camera, &|n| bar.inc(n));
-            bar.finish_and_clear();
-            r
-        }
-    };
-    let done = result.map_err(|e| match e {
-        umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
-        other => other,
     })?;
-    report(a, job, &done, total.elapsed().as_secs_f64())?;
-    for w in &done.warnings {
-        eprintln!("umbra: warning: {}: {w}", a.file.display());
+    let seconds = total.elapsed().as_secs_f64();
+    match outcome {
+        BakeOutcome::Map { job, report, .. } => {
+            report_map(a, &job, &report, seconds)?;
+            for w in &report.warnings {
+                eprintln!("umbra: warning: {}: {w}", a.file.display());
+            }
+        }
+        BakeOutcome::Volume { job, report } => {
+            report_volume(a, &job, &report, seconds)?;
+            for w in &report.warnings {
+                eprintln!("umbra: warning: {}: {w}", a.file.display());
+            }
+        }
     }
-    request(a)
-        .write_usd_out(&done.map.camera)
-        .map_err(crate::common::flag_error)?;
     Ok(ExitCode::SUCCESS)
 }
 
-fn report(a: &BakeArgs, job: &BakeJob, done: &umbra::bake::BakeReport, total: f64) -> Result<()> {
+fn report_map(
+    a: &BakeArgs,
+    job: &BakeJob,
+    done: &umbra::bake::BakeReport,
+    total: f64,
+) -> Result<()> {
     let (map, prov, warnings) = (&done.map, &done.provenance, &done.warnings);
     let (deep, fixed) = (done.deep.as_ref(), done.fixed.as_ref());
     let c = &map.camera;
@@ -234,23 +206,13 @@ fn report(a: &BakeArgs, job: &BakeJob, done: &umbra::bake::BakeReport, total: f6
     Ok(())
 }
 
-/// `bake ... -o NAME.vdb`: a transmittance volume beside the density.
-fn run_volume(a: &BakeArgs, job: &VolumeJob, total: std::time::Instant) -> Result<ExitCode> {
-    job.check_outputs().map_err(crate::common::flag_error)?;
-    let vol = job
-        .load()
-        .with_context(|| format!("loading grid '{}'", job.grid))?;
-    let bar = progress_bar(
-        a.quiet,
-        "{spinner} transmittance volume [{bar:30}] {percent:>3}% {human_pos}/{human_len} voxels, eta {eta}",
-        umbra::bake::output_voxels(&vol),
-    );
-    let r = job.run_on(&vol, &|n| bar.inc(n));
-    bar.finish_and_clear();
-    let done = r.map_err(|e| match e {
-        umbra::Error::InvalidArgument { .. } => crate::common::flag_error(e),
-        other => other,
-    })?;
+/// The report of a transmittance volume (`bake ... -o NAME.vdb`).
+fn report_volume(
+    a: &BakeArgs,
+    job: &VolumeJob,
+    done: &umbra::bake::VolumeReport,
+    total: f64,
+) -> Result<()> {
     let st = &done.stats;
     let mut out = std::io::stdout().lock();
     if a.json {
@@ -261,7 +223,7 @@ fn run_volume(a: &BakeArgs, job: &VolumeJob, total: std::time::Instant) -> Resul
             "sharing": st.sharing, "line_step": st.line_step, "rays": st.rays, "lookups": st.lookups,
             "T_min": st.t_min, "T_max": st.t_max, "T_mean": st.t_mean,
             "seconds": st.seconds, "ns_per_voxel": st.ns_per_voxel(),
-            "total_seconds": total.elapsed().as_secs_f64(),
+            "total_seconds": total,
         });
         writeln!(out, "{v}")?;
     } else if !a.quiet {
@@ -292,8 +254,5 @@ fn run_volume(a: &BakeArgs, job: &VolumeJob, total: std::time::Instant) -> Resul
             st.voxels
         )?;
     }
-    for w in &done.warnings {
-        eprintln!("umbra: warning: {}: {w}", a.file.display());
-    }
-    Ok(ExitCode::SUCCESS)
+    Ok(())
 }

@@ -1,11 +1,11 @@
 //! `umbra batch`: many inputs x many lights from a TOML job file, resumable, shardable.
 
+use crate::common::CliProgress;
 use anyhow::Result;
 use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::OnceLock;
 use umbra::batch::{load_job, parse_shard, parse_tasks, BatchError, Progress, Record, RunOptions};
 
 /// Arguments of `umbra batch`.
@@ -68,6 +68,8 @@ pub struct BatchArgs {
     /// With --emit opencue: the shot (default: $SHOT, else `default`, as pyoutline).
     #[arg(long, requires = "emit")]
     shot: Option<String>,
+    #[command(flatten)]
+    progress: crate::common::ProgressArgs,
 }
 
 /// Farm engines `--emit` writes specs for.
@@ -225,8 +227,9 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         jobs: a.jobs,
     };
     let bar = Bar {
-        quiet: a.quiet,
-        bar: OnceLock::new(),
+        shown: CliProgress::new(a.progress.progress, a.quiet, |_| {
+            "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}".to_string()
+        }),
         tasks: AtomicUsize::new(0),
         done: AtomicUsize::new(0),
         failed: AtomicUsize::new(0),
@@ -235,9 +238,7 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         BatchError::Options(e) => crate::common::flag_error(e).into(),
         other => anyhow::Error::from(other),
     })?;
-    if let Some(b) = bar.bar.get() {
-        b.finish_and_clear();
-    }
+    bar.shown.finish();
     if a.quiet {
         // The log holds every task's outcome; failures were printed on stderr.
         return Ok(if report.failed > 0 {
@@ -283,37 +284,38 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
     })
 }
 
-/// The runner's progress as an indicatif bar, with each task's warnings and failures printed
-/// above it.
+/// The runner's progress as an indicatif bar (or a farm engine's lines: `--progress`), with
+/// each task's warnings and failures printed above it.
 struct Bar {
-    quiet: bool,
-    bar: OnceLock<indicatif::ProgressBar>,
+    shown: CliProgress,
     tasks: AtomicUsize,
     done: AtomicUsize,
     failed: AtomicUsize,
 }
 
-impl Progress for Bar {
-    fn start(&self, tasks: usize, units: u64) {
-        self.tasks.store(tasks, Ordering::Relaxed);
-        let bar = crate::common::progress_bar(
-            self.quiet,
-            "{spinner} batch [{bar:40}] {percent}% {msg} eta {eta}",
-            units,
-        );
-        bar.set_message(format!("0/{tasks} tasks, 0 failed,"));
-        let _ = self.bar.set(bar);
-    }
-
-    fn advance(&self, units: u64) {
-        if let Some(b) = self.bar.get() {
-            b.inc(units);
+impl umbra::progress::Progress for Bar {
+    fn start(&self, work: &umbra::progress::Work) {
+        self.shown.start(work);
+        if let Some(b) = self.shown.bar() {
+            b.set_message(format!(
+                "0/{} tasks, 0 failed,",
+                self.tasks.load(Ordering::Relaxed)
+            ));
         }
     }
 
+    fn advance(&self, units: u64) {
+        self.shown.advance(units);
+    }
+}
+
+impl Progress for Bar {
+    fn tasks(&self, tasks: usize) {
+        self.tasks.store(tasks, Ordering::Relaxed);
+    }
+
     fn task(&self, r: &Record) {
-        let Some(b) = self.bar.get() else { return };
-        b.suspend(|| {
+        let print = || {
             for w in &r.warnings {
                 eprintln!(
                     "umbra: warning: task {} ({}): {w}",
@@ -329,13 +331,19 @@ impl Progress for Bar {
                     umbra::text::escape(e)
                 );
             }
-        });
+        };
         if r.error.is_some() {
             self.failed.fetch_add(1, Ordering::Relaxed);
         }
+        let done = self.done.fetch_add(1, Ordering::Relaxed) + 1;
+        let Some(b) = self.shown.bar() else {
+            print();
+            return;
+        };
+        b.suspend(print);
         b.set_message(format!(
             "{}/{} tasks, {} failed,",
-            self.done.fetch_add(1, Ordering::Relaxed) + 1,
+            done,
             self.tasks.load(Ordering::Relaxed),
             self.failed.load(Ordering::Relaxed)
         ));

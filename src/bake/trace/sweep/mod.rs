@@ -203,7 +203,7 @@ pub(crate) fn render(
     s: &BakeSettings,
     depths: &[f64],
     rows: u32,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Option<Map>> {
     if let Some(faces) = camera.cube_faces() {
         // A random march's or a null-collision map's streams follow the ray path's pixel ids
@@ -236,7 +236,7 @@ pub(crate) fn render(
             let y0 = b as u32 * rows;
             let (slices, err) =
                 finish_rows(camera, y0, &tau, (stride, samples), est, s.std_err, t_band)?;
-            progress(t_band.len() as u64);
+            progress.advance(t_band.len() as u64);
             Ok(((lookups, slices), err))
         })
         .collect::<Result<_>>()?;
@@ -267,7 +267,7 @@ fn render_cube(
     faces: &[Camera; 6],
     s: &BakeSettings,
     depths: &[f64],
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Option<Map>> {
     let rows = super::band_rows(faces[0].height, rayon::current_num_threads());
     let mut maps = Vec::with_capacity(6);
@@ -432,7 +432,7 @@ pub(crate) fn tau_image(
     camera: &Camera,
     depths: &[f64],
     rows: u32,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Option<(Vec<f64>, u64)>> {
     if let Some(faces) = camera.cube_faces() {
         let rows = super::band_rows(faces[0].height, rayon::current_num_threads());
@@ -457,7 +457,7 @@ pub(crate) fn tau_image(
         .map(|(b, band)| {
             let mut lookups = 0;
             sweep.band(b, band, &mut lookups)?;
-            progress((band.len() / stride) as u64);
+            progress.advance((band.len() / stride) as u64);
             Ok(lookups)
         })
         .collect::<Result<Vec<u64>>>()?

@@ -376,7 +376,7 @@ pub(crate) fn render_streamed(
     depths: &[f64],
     rows: u32,
     part_bytes: u64,
-    progress: &(dyn Fn(u64) + Sync),
+    progress: &dyn crate::progress::Progress,
 ) -> Result<Option<(Map, Streamed)>> {
     let start = std::time::Instant::now();
     if needs_rest(shell) {
@@ -428,7 +428,7 @@ pub(crate) fn render_streamed(
                 let y0 = b as u32 * rows;
                 let (slices, err) =
                     finish_rows(view, y0, tau, (stride, samples), None, s.std_err, t_band)?;
-                progress(t_band.len() as u64);
+                progress.advance(t_band.len() as u64);
                 Ok(((0, slices), err))
             })
             .collect::<Result<_>>()?;
