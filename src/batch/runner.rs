@@ -14,7 +14,7 @@
 use super::{in_shard, valid_shard, BatchError, Job, PositionsTask, Record, Task};
 use crate::progress::{Share, Work};
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::Mutex;
 
@@ -108,20 +108,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         ));
     }
     let (selected, points) = select(job, opts)?;
-    let log_path = opts.log.clone().unwrap_or_else(|| job.log.clone());
-    // An explicit log goes into an existing directory (a typo must not create /nonexistent);
-    // the job's own log sits beside its outputs, whose directories the job creates.
-    if let Some(d) = opts
-        .log
-        .as_ref()
-        .and_then(|l| l.parent())
-        .filter(|d| !d.as_os_str().is_empty() && !d.is_dir())
-    {
-        return Err(invalid(
-            "log",
-            format!("no directory {} (create it first)", d.display()),
-        ));
-    }
+    let log_path = log_path(job, opts)?;
     // Tasks toward a light without shadows bake nothing, forced or not.
     let shadowless: Vec<(&Task, String)> = selected
         .iter()
@@ -134,37 +121,13 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     let (points_todo, points_skipped): (Vec<&PositionsTask>, Vec<&PositionsTask>) = points
         .iter()
         .partition(|t| opts.force || !job.positions_up_to_date(t));
-    if !points_todo.is_empty() {
-        job.check_positions()?;
-    }
-    if !todo.is_empty() {
-        // Missing frames and grids fail the job up front; then one camera per light over every
-        // input (not just this shard's), so shards agree. Both before anything is created.
-        job.check_inputs()?;
-        let stem = log_path.file_stem().map_or_else(
-            || "umbra_batch".into(),
-            |s| s.to_string_lossy().into_owned(),
-        );
-        job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
-    }
-    let io = |what: String, e: std::io::Error| {
-        BatchError::Task(crate::Error::Io {
-            path: PathBuf::from(what),
-            err: e,
-        })
-    };
-    let dirs = std::iter::once(log_path.as_path())
-        .chain(todo.iter().map(|t| t.output.as_path()))
-        .filter_map(|p| p.parent().filter(|d| !d.as_os_str().is_empty()));
-    for d in dirs {
-        std::fs::create_dir_all(d).map_err(|e| io(d.display().to_string(), e))?;
-    }
+    prepare(job, (&todo, &points_todo), &log_path)?;
     let log = Mutex::new(
         std::fs::OpenOptions::new()
             .create(true)
             .append(true)
             .open(&log_path)
-            .map_err(|e| io(log_path.display().to_string(), e))?,
+            .map_err(|e| io(&log_path, e))?,
     );
     let records: Mutex<Vec<Record>> = Mutex::new(Vec::new());
     let log_error: Mutex<Option<std::io::Error>> = Mutex::new(None);
@@ -215,31 +178,11 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             s.spawn(|| loop {
                 let k = next.fetch_add(1, Ordering::Relaxed);
                 let Some(t) = todo.get(k) else { break };
-                let t0 = std::time::Instant::now();
                 let share = Share::new(progress, worth);
-                // Maps report rays per second, transmittance volumes voxels per second.
-                let result = if job.volume {
-                    job.run_volume_task(t, per_task, &share).map(|d| {
-                        let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
-                        (rate, d.warnings.iter().map(ToString::to_string).collect())
-                    })
-                } else {
-                    job.run_task(t, per_task, &share).map(|d| {
-                        let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
-                        (rate, d.warnings.iter().map(ToString::to_string).collect())
-                    })
-                };
-                let secs = t0.elapsed().as_secs_f64();
-                let rec = match result {
-                    Ok((rate, warnings)) => Record {
-                        warnings,
-                        ..record(t, "ok", secs, rate, None)
-                    },
-                    Err(e) => {
-                        failed.fetch_add(1, Ordering::Relaxed);
-                        record(t, "failed", secs, 0.0, Some(e.to_string()))
-                    }
-                };
+                let rec = run_task(job, t, per_task, &share);
+                if rec.status == "failed" {
+                    failed.fetch_add(1, Ordering::Relaxed);
+                }
                 share.finish();
                 progress.task(&rec);
                 keep(rec);
@@ -251,23 +194,12 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         Ordering::Relaxed,
     );
     if let Some(e) = log_error.into_inner().ok().flatten() {
-        return Err(io(log_path.display().to_string(), e));
+        return Err(io(&log_path, e));
     }
     let failed = failed.into_inner();
     let mut records = records.into_inner().unwrap_or_default();
     records.sort_by_key(|r| r.task);
-    let usd_out = match &job.usd_out {
-        Some(layer) => Some(UsdOut {
-            maps: super::layer::write(job, layer)?,
-            layer: layer.clone(),
-        }),
-        None => None,
-    };
-    let points_out = job
-        .write_positions_layers()?
-        .into_iter()
-        .map(|(layer, frames)| PointsOut { layer, frames })
-        .collect();
+    let (usd_out, points_out) = outputs(job)?;
     Ok(RunReport {
         selected: selected.len() + points.len(),
         baked: todo.len() + points_todo.len() - failed,
@@ -282,6 +214,104 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         points_out,
         records,
     })
+}
+
+/// The run's log: `opts.log` (in a directory that exists: a typo must not create
+/// `/nonexistent`), else the job's own, beside its outputs.
+fn log_path(job: &Job, opts: &RunOptions) -> Result<PathBuf, BatchError> {
+    if let Some(d) = opts
+        .log
+        .as_ref()
+        .and_then(|l| l.parent())
+        .filter(|d| !d.as_os_str().is_empty() && !d.is_dir())
+    {
+        return Err(invalid(
+            "log",
+            format!("no directory {} (create it first)", d.display()),
+        ));
+    }
+    Ok(opts.log.clone().unwrap_or_else(|| job.log.clone()))
+}
+
+/// Before anything is created: the positions entries and (when there are bakes to run) every
+/// input and the shared cameras checked; then the log's and the outputs' directories made.
+fn prepare(
+    job: &Job,
+    (todo, points_todo): (&[&Task], &[&PositionsTask]),
+    log_path: &Path,
+) -> Result<(), BatchError> {
+    if !points_todo.is_empty() {
+        job.check_positions()?;
+    }
+    if !todo.is_empty() {
+        // Missing frames and grids fail the job up front; then one camera per light over every
+        // input (not just this shard's), so shards agree. Both before anything is created.
+        job.check_inputs()?;
+        let stem = log_path.file_stem().map_or_else(
+            || "umbra_batch".into(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
+    }
+    let dirs = std::iter::once(log_path)
+        .chain(todo.iter().map(|t| t.output.as_path()))
+        .filter_map(|p| p.parent().filter(|d| !d.as_os_str().is_empty()));
+    for d in dirs {
+        std::fs::create_dir_all(d).map_err(|e| io(d, e))?;
+    }
+    Ok(())
+}
+
+/// An I/O error on `path` as a batch error.
+fn io(path: &Path, e: std::io::Error) -> BatchError {
+    BatchError::Task(crate::Error::Io {
+        path: path.to_path_buf(),
+        err: e,
+    })
+}
+
+/// Bake task `t` on `per_task` threads, its progress a share of the run's: its record, `ok`
+/// (with its rate: rays per second for a map, voxels per second for a transmittance volume,
+/// and its warnings) or `failed` (with the error).
+fn run_task(job: &Job, t: &Task, per_task: usize, share: &Share<'_, dyn Progress + '_>) -> Record {
+    let t0 = std::time::Instant::now();
+    // Maps report rays per second, transmittance volumes voxels per second.
+    let result = if job.volume {
+        job.run_volume_task(t, per_task, share).map(|d| {
+            let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
+            (rate, d.warnings.iter().map(ToString::to_string).collect())
+        })
+    } else {
+        job.run_task(t, per_task, share).map(|d| {
+            let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
+            (rate, d.warnings.iter().map(ToString::to_string).collect())
+        })
+    };
+    let secs = t0.elapsed().as_secs_f64();
+    match result {
+        Ok((rate, warnings)) => Record {
+            warnings,
+            ..record(t, "ok", secs, rate, None)
+        },
+        Err(e) => record(t, "failed", secs, 0.0, Some(e.to_string())),
+    }
+}
+
+/// What a run writes after its tasks: the job's USD layer, and each `[[positions]]` entry's.
+fn outputs(job: &Job) -> Result<(Option<UsdOut>, Vec<PointsOut>), BatchError> {
+    let usd_out = match &job.usd_out {
+        Some(layer) => Some(UsdOut {
+            maps: super::layer::write(job, layer)?,
+            layer: layer.clone(),
+        }),
+        None => None,
+    };
+    let points_out = job
+        .write_positions_layers()?
+        .into_iter()
+        .map(|(layer, frames)| PointsOut { layer, frames })
+        .collect();
+    Ok((usd_out, points_out))
 }
 
 /// A `[[positions]]` layer a run wrote.

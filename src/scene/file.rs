@@ -291,13 +291,13 @@ fn asset_err(path: &Path, e: &Entry, opened: &Path, err: Error) -> Error {
     scene_err(path, format!("{}: {msg}", e.at))
 }
 
-/// Parse a scene file into its grids (nothing is decoded) and whether it is RGB.
-fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
+/// A scene file's TOML; a syntax or type error names its line.
+fn read_scene_file(path: &Path) -> Result<SceneFile> {
     let text = std::fs::read_to_string(path).map_err(|err| Error::Io {
         path: path.to_path_buf(),
         err,
     })?;
-    let file: SceneFile = toml::from_str(&text).map_err(|e| {
+    toml::from_str(&text).map_err(|e| {
         let msg = e.message().to_string();
         match e.span() {
             Some(span) => {
@@ -306,7 +306,51 @@ fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
             }
             None => scene_err(path, msg),
         }
-    })?;
+    })
+}
+
+/// A fog volume's grids and their weights (`grid`, or `grids` with as many finite,
+/// non-negative `weights`; `density` when neither is given). `here` words an error at the
+/// volume.
+fn fog_grids(
+    v: &VolumeSpec,
+    here: &dyn Fn(&str, String) -> Error,
+) -> Result<(Vec<String>, Vec<f64>)> {
+    let grids = match (&v.grid, &v.grids) {
+        (Some(_), Some(_)) => return Err(here("", "give 'grid' or 'grids', not both".into())),
+        (Some(g), None) => vec![g.clone()],
+        (None, Some(g)) if g.is_empty() => return Err(here("grids: ", "an empty list".into())),
+        (None, Some(g)) => g.clone(),
+        (None, None) => vec!["density".into()],
+    };
+    let weights = match &v.weights {
+        None => vec![1.0; grids.len()],
+        Some(w) if v.grids.is_none() => {
+            return Err(here(
+                "weights: ",
+                format!("{w:?} given with 'grid'; weights go with 'grids'"),
+            ))
+        }
+        Some(w) if w.len() != grids.len() => {
+            return Err(here(
+                "weights: ",
+                format!("{} weights for {} grids", w.len(), grids.len()),
+            ))
+        }
+        Some(w) => w.clone(),
+    };
+    if let Some(w) = weights.iter().find(|w| !(w.is_finite() && **w >= 0.0)) {
+        return Err(here(
+            "weights: ",
+            format!("{w} is not a finite, non-negative number"),
+        ));
+    }
+    Ok((grids, weights))
+}
+
+/// Parse a scene file into its grids (nothing is decoded) and whether it is RGB.
+fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
+    let file = read_scene_file(path)?;
     if file.volume.is_empty() {
         return Err(scene_err(path, "no [[volume]] tables"));
     }
@@ -356,39 +400,7 @@ fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
                 entries.push(entry(grid, true, 1.0, [1.0; 3]));
             }
             "fog" => {
-                let grids = match (&v.grid, &v.grids) {
-                    (Some(_), Some(_)) => {
-                        return Err(here("", "give 'grid' or 'grids', not both".into()))
-                    }
-                    (Some(g), None) => vec![g.clone()],
-                    (None, Some(g)) if g.is_empty() => {
-                        return Err(here("grids: ", "an empty list".into()))
-                    }
-                    (None, Some(g)) => g.clone(),
-                    (None, None) => vec!["density".into()],
-                };
-                let weights = match &v.weights {
-                    None => vec![1.0; grids.len()],
-                    Some(w) if v.grids.is_none() => {
-                        return Err(here(
-                            "weights: ",
-                            format!("{w:?} given with 'grid'; weights go with 'grids'"),
-                        ))
-                    }
-                    Some(w) if w.len() != grids.len() => {
-                        return Err(here(
-                            "weights: ",
-                            format!("{} weights for {} grids", w.len(), grids.len()),
-                        ))
-                    }
-                    Some(w) => w.clone(),
-                };
-                if let Some(w) = weights.iter().find(|w| !(w.is_finite() && **w >= 0.0)) {
-                    return Err(here(
-                        "weights: ",
-                        format!("{w} is not a finite, non-negative number"),
-                    ));
-                }
+                let (grids, weights) = fog_grids(v, &here)?;
                 let scale = v.density_scale.unwrap_or(1.0);
                 crate::volume::check_density_scale(scale)
                     .map_err(|e| here("density_scale: ", reason(e)))?;

@@ -618,11 +618,9 @@ impl BakeJob {
         let image = camera.pixels() * (1 + depth_images) * 12;
         // The whole grid, the image and the process itself.
         let whole = loaded + image + PROCESS_SLACK;
-        let mib = |b: u64| format!("{:.1} MiB", b as f64 / f64::from(1 << 20));
         if whole <= budget {
             return Ok(None);
         }
-        let leaf = std::mem::size_of::<[f32; 512]>() as u64;
         // Exact trilinear maps the sweep takes go in tree order (the sweep's own order);
         // every other map by runs of image rows on the ray path.
         let sweep = match shell.fogs().first() {
@@ -647,62 +645,28 @@ impl BakeJob {
         let offsets = (lazy.leaf_count() as u64 + 1) * 8;
         let held = topology + offsets + image + PROCESS_SLACK;
         let opening = topology + head_bytes + 2 * offsets + PROCESS_SLACK;
-        let sweep_plan = || {
-            // A sweep's part is a region of the tree: the lower nodes its blocks read with
-            // their leaves' topology, the upper nodes above them, and its leaves' values
-            // (`sweep::part_bytes`). The least part holds one lower node.
-            let uppers = topo.uppers().len() as u64 * crate::tree::REGION_UPPER_BYTES;
-            let fixed = held + samples_image + uppers;
-            let widest = (0..topo.lowers().len())
-                .map(|l| crate::bake::trace::sweep::part_bytes(topo, l))
-                .max()
-                .unwrap_or(0);
-            let least = (fixed + widest).max(opening).min(whole + samples_image);
-            let part = budget.saturating_sub(fixed);
-            (
-                least,
-                format!("the largest part's region, {}", mib(widest)),
-                0,
-                part,
-            )
-        };
-        let ray_plan = || {
-            // Per part on the ray path: a copy of the tree with neighbour tables, faces and
-            // halos, and what computing its bounds holds for a moment (per leaf a halo, its
-            // neighbours and its bounds).
-            let tree_copy = loaded - leaves * leaf;
-            let transient = leaves * BOUNDS_SCRATCH_PER_LEAF;
-            let fixed = held + tree_copy + transient;
-            // The least part: the lower node with the most leaves in its `[o, o + 128]` box.
-            let widest = topo
-                .lowers()
-                .iter()
-                .map(|n| {
-                    let o = n.origin.map(i64::from);
-                    let mut k = 0u64;
-                    topo.leaves_in_box(o, o.map(|c| c + 128), &mut |_| k += 1);
-                    k
-                })
-                .max()
-                .unwrap_or(0);
-            let least = (fixed + widest * leaf).max(opening).min(whole);
-            let group = usize::try_from(budget.saturating_sub(fixed) / leaf).unwrap_or(usize::MAX);
-            let what = format!("a part's copy of the tree and the largest part's {widest} leaves");
-            (least, what, group, 0)
+        let z = Sizes {
+            budget,
+            whole,
+            held,
+            opening,
+            loaded,
+            leaves,
+            samples_image,
         };
         let mut sweep = sweep;
         let (least, what, group_leaves, part_bytes) = if sweep {
-            let p = sweep_plan();
+            let p = sweep_part(topo, &z);
             if samples > 1 && budget < p.0 {
                 // A random march whose samples do not fit beside a part goes by rows on the
                 // ray path: the same estimate to the kernel's f32 positions (docs/loading.md).
                 sweep = false;
-                ray_plan()
+                ray_part(topo, &z)
             } else {
                 p
             }
         } else {
-            ray_plan()
+            ray_part(topo, &z)
         };
         if budget < least && implied {
             return Ok(None);
@@ -1161,4 +1125,73 @@ pub(super) fn check_extension(
             path.display()
         ),
     })
+}
+
+/// A size in MiB, as the refusals word it.
+fn mib(b: u64) -> String {
+    format!("{:.1} MiB", b as f64 / f64::from(1 << 20))
+}
+
+/// A decoded leaf's values, bytes.
+const LEAF_BYTES: u64 = std::mem::size_of::<[f32; 512]>() as u64;
+
+/// What a bake in parts of one grid holds, bytes: the budget; the whole grid with the image
+/// and the process; what is held throughout (topology, leaf offsets, image, process); what
+/// opening the file takes; the decoded grid; its leaf count; and a random march's samples.
+struct Sizes {
+    budget: u64,
+    whole: u64,
+    held: u64,
+    opening: u64,
+    loaded: u64,
+    leaves: u64,
+    samples_image: u64,
+}
+
+/// A sweep in parts: `(least budget, what its least part holds, 0, bytes per part)`. A part is
+/// a region of the tree: the lower nodes its blocks read with their leaves' topology, the
+/// upper nodes above them, and its leaves' values (`sweep::part_bytes`); the least part holds
+/// one lower node.
+fn sweep_part(topo: &crate::tree::Tree, z: &Sizes) -> (u64, String, usize, u64) {
+    let uppers = topo.uppers().len() as u64 * crate::tree::REGION_UPPER_BYTES;
+    let fixed = z.held + z.samples_image + uppers;
+    let widest = (0..topo.lowers().len())
+        .map(|l| crate::bake::trace::sweep::part_bytes(topo, l))
+        .max()
+        .unwrap_or(0);
+    let least = (fixed + widest)
+        .max(z.opening)
+        .min(z.whole + z.samples_image);
+    let part = z.budget.saturating_sub(fixed);
+    (
+        least,
+        format!("the largest part's region, {}", mib(widest)),
+        0,
+        part,
+    )
+}
+
+/// The ray path by runs of rows: `(least budget, what its least part holds, leaves per part,
+/// 0)`. Per part: a copy of the tree with neighbour tables, faces and halos, and what
+/// computing its bounds holds for a moment (per leaf a halo, its neighbours and its bounds);
+/// the least part is the lower node with the most leaves in its `[o, o + 128]` box.
+fn ray_part(topo: &crate::tree::Tree, z: &Sizes) -> (u64, String, usize, u64) {
+    let tree_copy = z.loaded - z.leaves * LEAF_BYTES;
+    let transient = z.leaves * BOUNDS_SCRATCH_PER_LEAF;
+    let fixed = z.held + tree_copy + transient;
+    let widest = topo
+        .lowers()
+        .iter()
+        .map(|n| {
+            let o = n.origin.map(i64::from);
+            let mut k = 0u64;
+            topo.leaves_in_box(o, o.map(|c| c + 128), &mut |_| k += 1);
+            k
+        })
+        .max()
+        .unwrap_or(0);
+    let least = (fixed + widest * LEAF_BYTES).max(z.opening).min(z.whole);
+    let group = usize::try_from(z.budget.saturating_sub(fixed) / LEAF_BYTES).unwrap_or(usize::MAX);
+    let what = format!("a part's copy of the tree and the largest part's {widest} leaves");
+    (least, what, group, 0)
 }

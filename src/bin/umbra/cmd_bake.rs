@@ -69,139 +69,183 @@ pub fn run(a: &BakeArgs) -> Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
+/// What a map's report says besides the map's own description: its range of T, the
+/// threads it ran on and its speed.
+struct Facts {
+    t_min: f32,
+    t_max: f32,
+    t_mean: f64,
+    threads: usize,
+    rays_per_second: f64,
+}
+
+impl Facts {
+    fn of(job: &BakeJob, map: &umbra::bake::Map) -> Self {
+        let st = &map.stats;
+        let n = map.t.len().max(1) as f64;
+        Self {
+            t_min: map.t.iter().copied().fold(f32::INFINITY, f32::min),
+            t_max: map.t.iter().copied().fold(f32::NEG_INFINITY, f32::max),
+            t_mean: map.t.iter().map(|&t| f64::from(t)).sum::<f64>() / n,
+            threads: if job.settings.threads == 0 {
+                rayon::current_num_threads()
+            } else {
+                job.settings.threads
+            },
+            rays_per_second: st.rays as f64 / st.seconds.max(1e-9),
+        }
+    }
+}
+
+/// The report of a map: `--json`'s object, or (unless `--quiet`) a few lines of text.
 fn report_map(
     a: &BakeArgs,
     job: &BakeJob,
     done: &umbra::bake::BakeReport,
     total: f64,
 ) -> Result<()> {
-    let (map, prov, warnings) = (&done.map, &done.provenance, &done.warnings);
-    let (deep, fixed) = (done.deep.as_ref(), done.fixed.as_ref());
-    let c = &map.camera;
-    let st = &map.stats;
-    let rays_per_second = st.rays as f64 / st.seconds.max(1e-9);
-    let n = map.t.len().max(1) as f64;
-    let t_mean = map.t.iter().map(|&t| f64::from(t)).sum::<f64>() / n;
-    let t_min = map.t.iter().copied().fold(f32::INFINITY, f32::min);
-    let t_max = map.t.iter().copied().fold(f32::NEG_INFINITY, f32::max);
-    let summary = umbra::bake::MapSummary::new(map, prov);
-    let channels = &summary.channels;
-    let threads = if job.settings.threads == 0 {
-        rayon::current_num_threads()
-    } else {
-        job.settings.threads
-    };
-    let s = &map.settings;
+    let facts = Facts::of(job, &done.map);
     let mut out = std::io::stdout().lock();
     if a.json {
-        // The map's own description (what the Python module returns as its camera dict),
-        // then what this run adds.
-        let mut v = serde_json::to_value(&summary)?;
-        let run = serde_json::json!({
-            "output": a.output, "preview": job.preview, "threads": threads,
-            "tile": job.layout.tile, "mipmap": job.layout.mipmap,
-            "seconds": st.seconds, "total_seconds": total,
-            "rays_per_second": rays_per_second, "lookups": st.lookups,
-            "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
-            "order": if st.sweep { "sweep" } else { "rays" }, "parts": st.parts,
-            "simd": umbra::regular::Simd::active().name(),
-            "capped": st.capped, "majorant_violations": st.majorant_violations,
-            "unconverged": st.unconverged, "max_std_err": st.max_std_err,
-            "T_min": t_min, "T_max": t_max, "T_mean": t_mean,
-            "deep": deep.map(|d| serde_json::json!({
-                "max_error": d.max_error, "samples": d.samples,
-                "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
-                "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
-                "coarse_cells": d.coarse_cells, "rms_error": d.rms_error, "seconds": d.seconds,
-            })),
-            "deep_format": fixed,
-            // Each warning as data (its `kind` and fields) with the line stderr prints.
-            "warnings": warnings.iter().map(|w| {
-                let mut v = serde_json::to_value(w).unwrap_or_default();
-                if let Some(o) = v.as_object_mut() {
-                    o.insert("message".into(), w.to_string().into());
-                }
-                v
-            }).collect::<Vec<_>>(),
-        });
-        if let (Some(o), serde_json::Value::Object(r)) = (v.as_object_mut(), run) {
-            o.extend(r);
-        }
-        writeln!(out, "{v}")?;
+        writeln!(out, "{}", map_json(a, job, done, total, &facts)?)?;
     } else if !a.quiet {
+        map_text(&mut out, a, job, done, &facts)?;
+    }
+    Ok(())
+}
+
+/// `--json`: the map's own description (what the Python module returns as its camera dict),
+/// then what this run adds.
+fn map_json(
+    a: &BakeArgs,
+    job: &BakeJob,
+    done: &umbra::bake::BakeReport,
+    total: f64,
+    f: &Facts,
+) -> Result<serde_json::Value> {
+    let (map, warnings) = (&done.map, &done.warnings);
+    let (deep, fixed) = (done.deep.as_ref(), done.fixed.as_ref());
+    let st = &map.stats;
+    let mut v = serde_json::to_value(umbra::bake::MapSummary::new(map, &done.provenance))?;
+    let run = serde_json::json!({
+        "output": a.output, "preview": job.preview, "threads": f.threads,
+        "tile": job.layout.tile, "mipmap": job.layout.mipmap,
+        "seconds": st.seconds, "total_seconds": total,
+        "rays_per_second": f.rays_per_second, "lookups": st.lookups,
+        "lookups_per_ray": st.lookups as f64 / st.rays.max(1) as f64,
+        "order": if st.sweep { "sweep" } else { "rays" }, "parts": st.parts,
+        "simd": umbra::regular::Simd::active().name(),
+        "capped": st.capped, "majorant_violations": st.majorant_violations,
+        "unconverged": st.unconverged, "max_std_err": st.max_std_err,
+        "T_min": f.t_min, "T_max": f.t_max, "T_mean": f.t_mean,
+        "deep": deep.map(|d| serde_json::json!({
+            "max_error": d.max_error, "samples": d.samples,
+            "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
+            "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
+            "coarse_cells": d.coarse_cells, "rms_error": d.rms_error, "seconds": d.seconds,
+        })),
+        "deep_format": fixed,
+        // Each warning as data (its `kind` and fields) with the line stderr prints.
+        "warnings": warnings.iter().map(|w| {
+            let mut v = serde_json::to_value(w).unwrap_or_default();
+            if let Some(o) = v.as_object_mut() {
+                o.insert("message".into(), w.to_string().into());
+            }
+            v
+        }).collect::<Vec<_>>(),
+    });
+    if let (Some(o), serde_json::Value::Object(r)) = (v.as_object_mut(), run) {
+        o.extend(r);
+    }
+    Ok(v)
+}
+
+/// The text report: what was written, how fast, and the deep products' statistics.
+fn map_text(
+    out: &mut impl Write,
+    a: &BakeArgs,
+    job: &BakeJob,
+    done: &umbra::bake::BakeReport,
+    f: &Facts,
+) -> Result<()> {
+    let (map, prov) = (&done.map, &done.provenance);
+    let (deep, fixed) = (done.deep.as_ref(), done.fixed.as_ref());
+    let (c, st, s) = (&map.camera, &map.stats, &map.settings);
+    let summary = umbra::bake::MapSummary::new(map, prov);
+    let (t_min, t_max, t_mean) = (f.t_min, f.t_max, f.t_mean);
+    writeln!(
+        out,
+        "{}: {}x{} {} map of {}:{} ({}), T in [{t_min:.4}, {t_max:.4}], mean {t_mean:.4}",
+        a.output.display(),
+        c.width(),
+        c.height(),
+        match c.kind() {
+            Projection::Ortho => "ortho",
+            Projection::Perspective => "perspective",
+            Projection::Cube => "cube",
+            Projection::LatLong => "latlong",
+        },
+        prov.source_file,
+        prov.grid,
+        summary.channels.join(", "),
+    )?;
+    // Solids are searched, not looked up: a map of solids alone counts no lookups.
+    let lookups = if st.lookups > 0 {
+        format!(
+            ", {:.0} lookups/ray",
+            st.lookups as f64 / st.rays.max(1) as f64
+        )
+    } else {
+        String::new()
+    };
+    writeln!(
+        out,
+        "{:.3} s on {} threads, {:.0} rays/s, {}, {:.1} spp{lookups}",
+        st.seconds,
+        f.threads,
+        f.rays_per_second,
+        s.estimator.name(),
+        summary.mean_spp,
+    )?;
+    if st.unconverged > 0 {
         writeln!(
             out,
-            "{}: {}x{} {} map of {}:{} ({}), T in [{t_min:.4}, {t_max:.4}], mean {t_mean:.4}",
-            a.output.display(),
-            c.width(),
-            c.height(),
-            match c.kind() {
-                Projection::Ortho => "ortho",
-                Projection::Perspective => "perspective",
-                Projection::Cube => "cube",
-                Projection::LatLong => "latlong",
-            },
-            prov.source_file,
-            prov.grid,
-            channels.join(", "),
+            "{} pixels stopped at --max-spp above the target error (largest std_err {:.2e})",
+            st.unconverged, st.max_std_err
         )?;
-        // Solids are searched, not looked up: a map of solids alone counts no lookups.
-        let lookups = if st.lookups > 0 {
-            format!(
-                ", {:.0} lookups/ray",
-                st.lookups as f64 / st.rays.max(1) as f64
-            )
-        } else {
-            String::new()
-        };
+    }
+    if let Some(f) = fixed {
         writeln!(
             out,
-            "{:.3} s on {threads} threads, {:.0} rays/s, {}, {:.1} spp{lookups}",
-            st.seconds,
-            rays_per_second,
-            s.estimator.name(),
-            summary.mean_spp,
+            "deep format {}: {} channels ({} bytes) per texel, error in T at most {:.2e} \
+             (RMS {:.2e}) over depths {:.4}..{:.4}, {} texels refined ({:.3} s)",
+            f.format,
+            f.channels,
+            f.bytes_per_texel,
+            f.max_error,
+            f.rms_error,
+            f.near,
+            f.far,
+            f.refined_texels,
+            f.seconds
         )?;
-        if st.unconverged > 0 {
-            writeln!(
-                out,
-                "{} pixels stopped at --max-spp above the target error (largest std_err {:.2e})",
-                st.unconverged, st.max_std_err
-            )?;
-        }
-        if let Some(f) = fixed {
-            writeln!(
-                out,
-                "deep format {}: {} channels ({} bytes) per texel, error in T at most {:.2e} \
-                 (RMS {:.2e}) over depths {:.4}..{:.4}, {} texels refined ({:.3} s)",
-                f.format,
-                f.channels,
-                f.bytes_per_texel,
-                f.max_error,
-                f.rms_error,
-                f.near,
-                f.far,
-                f.refined_texels,
-                f.seconds
-            )?;
-        }
-        if let Some(d) = deep {
-            writeln!(
-                out,
-                "deep: {} samples, {:.2} per pixel (most {}), {} empty pixels, within {} in T \
-                 ({:.1} profile breakpoints per pixel, {:.3} s)",
-                d.samples,
-                d.mean_samples(),
-                d.max_samples,
-                d.empty_pixels,
-                d.max_error,
-                d.breakpoints as f64 / d.pixels.max(1) as f64,
-                d.seconds
-            )?;
-        }
-        if let Some(p) = &job.preview {
-            writeln!(out, "preview: {}", p.display())?;
-        }
+    }
+    if let Some(d) = deep {
+        writeln!(
+            out,
+            "deep: {} samples, {:.2} per pixel (most {}), {} empty pixels, within {} in T \
+             ({:.1} profile breakpoints per pixel, {:.3} s)",
+            d.samples,
+            d.mean_samples(),
+            d.max_samples,
+            d.empty_pixels,
+            d.max_error,
+            d.breakpoints as f64 / d.pixels.max(1) as f64,
+            d.seconds
+        )?;
+    }
+    if let Some(p) = &job.preview {
+        writeln!(out, "preview: {}", p.display())?;
     }
     Ok(())
 }
