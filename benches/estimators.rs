@@ -15,8 +15,8 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 use std::time::Duration;
 use umbra::estimate::{estimate, Estimator, Options};
+use umbra::internals::traverse::{walk, Granularity};
 use umbra::regular::optical_depth;
-use umbra::traverse::{walk, Granularity};
 use umbra::{Interp, Ray, Volume};
 
 const SCALE: f64 = 4.0;

@@ -32,7 +32,7 @@ fn bench_load(c: &mut Criterion) {
             });
         });
         group.bench_function(format!("umbra/{short}"), |b| {
-            b.iter(|| umbra::vdb::load_grid(&path, grid).unwrap());
+            b.iter(|| umbra::internals::vdb::load_grid(&path, grid).unwrap());
         });
     }
     group.finish();

@@ -9,8 +9,8 @@ use rand::{Rng, SeedableRng};
 use std::hint::black_box;
 use std::ops::ControlFlow;
 use std::path::PathBuf;
+use umbra::internals::traverse::{walk, Granularity};
 use umbra::regular::optical_depth;
-use umbra::traverse::{walk, Granularity};
 use umbra::{Interp, Ray, Volume};
 
 const RAYS: usize = 2000;
@@ -38,7 +38,7 @@ fn bench_traverse(c: &mut Criterion) {
         return;
     }
     let vol = Volume::load(&path, "density", 5.0).unwrap();
-    let info = umbra::info::FileInfo::from_archive(&umbra::vdb::open(&path).unwrap());
+    let info = umbra::info::FileInfo::from_archive(&umbra::internals::vdb::open(&path).unwrap());
     let [lo, hi] = info.grids[0].world_bbox.unwrap();
     let rays = rays(&vol, lo, hi);
 

@@ -54,33 +54,97 @@
 //! is an affine map in f64 (column vectors, glam's `DAffine3`); values are traced in `f32`, sums
 //! in `f64`. `ARCHITECTURE.md` maps the modules, their invariants and where to add things.
 
+// The public API: what a library user needs (volumes, inputs, scenes and USD stages,
+// estimators and exact optical depth, requests, bakes, batch jobs, comparisons, reports,
+// progress, errors). `tests/layering.rs` holds it to at most 14 public modules.
 pub mod bake;
 pub mod batch;
 pub mod compare;
-pub mod demand;
 pub mod error;
 pub mod estimate;
 pub mod info;
 pub mod input;
-pub mod light;
-pub mod math;
-mod memory;
-pub mod output;
-pub mod points;
 pub mod progress;
-pub mod ray;
 pub mod regular;
 pub mod request;
-pub mod rng;
 pub mod scene;
-pub mod solid;
-pub mod text;
-pub mod traverse;
-pub mod tree;
 pub mod usd;
-pub mod vdb;
 pub mod volume;
-pub mod xform;
+
+// The stages beneath them: crate-private, reached from outside only through `internals`.
+mod demand;
+mod light;
+mod math;
+mod memory;
+mod output;
+mod points;
+mod ray;
+mod rng;
+mod solid;
+mod text;
+mod traverse;
+mod tree;
+mod vdb;
+mod xform;
+
+/// The crate's internal stages, for umbra's own CLI, Python module, tests and benches (sibling
+/// crates that need what a library user does not): not a stable API, hidden from the docs.
+/// Each module here is the crate-private module of the same name.
+#[doc(hidden)]
+pub mod internals {
+    /// Which leaves a set of rays touches ([`crate::demand`]).
+    pub mod demand {
+        pub use crate::demand::*;
+    }
+    /// Lights ([`crate::light`]).
+    pub mod light {
+        pub use crate::light::*;
+    }
+    /// Small geometry helpers ([`crate::math`]).
+    pub mod math {
+        pub use crate::math::*;
+    }
+    /// Atomic, checked writes ([`crate::output`]).
+    pub mod output {
+        pub use crate::output::*;
+    }
+    /// Transmittance at positions ([`crate::points`]).
+    pub mod points {
+        pub use crate::points::*;
+    }
+    /// Rays and their clipping ([`crate::ray`]).
+    pub mod ray {
+        pub use crate::ray::*;
+    }
+    /// The counter-based random stream ([`crate::rng`]).
+    pub mod rng {
+        pub use crate::rng::*;
+    }
+    /// Solid occluders ([`crate::solid`]).
+    pub mod solid {
+        pub use crate::solid::*;
+    }
+    /// Text escaping and wording helpers ([`crate::text`]).
+    pub mod text {
+        pub use crate::text::*;
+    }
+    /// The hierarchical DDA ([`crate::traverse`]).
+    pub mod traverse {
+        pub use crate::traverse::*;
+    }
+    /// The flat sparse tree ([`crate::tree`]).
+    pub mod tree {
+        pub use crate::tree::*;
+    }
+    /// The `.vdb` reader and writer ([`crate::vdb`]).
+    pub mod vdb {
+        pub use crate::vdb::*;
+    }
+    /// Affine transforms of scene entries ([`crate::xform`]).
+    pub mod xform {
+        pub use crate::xform::*;
+    }
+}
 
 pub use error::{Error, Result};
 pub use glam;

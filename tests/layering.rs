@@ -502,3 +502,58 @@ fn grid_files_open_through_the_input_layer() {
         "files above the input layer opening grid files themselves (use umbra::input::GridFile)",
     );
 }
+
+/// The library's public surface: at most 14 public modules in `src/lib.rs` (the API a library
+/// user needs, plus `internals`, the one hidden module for umbra's own sibling crates), every
+/// other module crate-private, and every crate-private module reachable only through
+/// `internals` under its own name. The library itself never goes through `internals`.
+#[test]
+fn the_public_surface_stays_small() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let lib = std::fs::read_to_string(root.join("src/lib.rs")).unwrap();
+    let decl = |prefix: &str| -> Vec<String> {
+        lib.lines()
+            .filter_map(|l| l.strip_prefix(prefix)?.strip_suffix(';'))
+            .map(str::to_string)
+            .collect()
+    };
+    let public = decl("pub mod ");
+    let private = decl("mod ");
+    assert!(
+        public.len() < 14,
+        "{} public modules and `internals` (at most 14): {public:?}",
+        public.len()
+    );
+    assert!(
+        private.len() >= 10,
+        "only {} private modules read",
+        private.len()
+    );
+    let files_of =
+        |m: &str| root.join("src").join(m).is_dir() || root.join(format!("src/{m}.rs")).is_file();
+    for m in public.iter().chain(&private) {
+        assert!(files_of(m), "src/lib.rs declares `{m}`, which has no file");
+    }
+    for m in &private {
+        if m == "memory" {
+            continue; // allocator housekeeping: used by the library alone
+        }
+        assert!(
+            lib.contains(&format!("pub mod {m} {{\n        pub use crate::{m}::*;")),
+            "crate-private `{m}` is not reachable as `internals::{m}`"
+        );
+    }
+    let mut files = Vec::new();
+    rust_files(&root.join("src"), &mut files);
+    for f in files {
+        let r = rel(&f);
+        if r.starts_with("src/bin/") {
+            continue;
+        }
+        let text = std::fs::read_to_string(&f).unwrap();
+        assert!(
+            !code(&text).contains("internals::"),
+            "{r} goes through `internals`: the library names its own modules"
+        );
+    }
+}

@@ -16,7 +16,7 @@
 use rand::{Rng, SeedableRng};
 use std::time::Instant;
 use umbra::estimate::{estimate, Estimator, Options};
-use umbra::traverse::Granularity;
+use umbra::internals::traverse::Granularity;
 use umbra::{Interp, Ray, Volume};
 
 fn main() {

@@ -39,7 +39,7 @@ fn main() {
     if mode == "load" {
         let t = std::time::Instant::now();
         for _ in 0..reps {
-            black_box(umbra::vdb::load_grid(&file, "density").unwrap());
+            black_box(umbra::internals::vdb::load_grid(&file, "density").unwrap());
         }
         eprintln!(
             "load: {:.3} ms/load",
@@ -57,7 +57,7 @@ fn main() {
         Interp::Trilinear
     };
     let vol = Volume::load(&file, "density", 5.0).unwrap();
-    let info = umbra::info::FileInfo::from_archive(&umbra::vdb::open(&file).unwrap());
+    let info = umbra::info::FileInfo::from_archive(&umbra::internals::vdb::open(&file).unwrap());
     let [lo, hi] = info.grids[0].world_bbox.unwrap();
     let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
     let rays: Vec<Ray> = (0..2000)

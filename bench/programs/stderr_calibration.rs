@@ -16,8 +16,8 @@
 
 use rayon::prelude::*;
 use umbra::estimate::{estimate, Estimator, Options, REGISTRY};
+use umbra::internals::rng::Rng;
 use umbra::regular::optical_depth;
-use umbra::rng::Rng;
 use umbra::{Interp, Ray, Volume};
 
 /// `n` segments between uniform points of the value box (world space), seeded.

@@ -345,11 +345,11 @@ struct NativeVolume {
     path: PathBuf,
     grid: String,
     density_scale: f64,
-    xform: Option<umbra::xform::Xform>,
+    xform: Option<umbra::internals::xform::Xform>,
     interp: Interp,
     warnings: Vec<String>,
     /// Each fog volume's tree statistics, computed on first use (a pass over every leaf).
-    stats: std::sync::OnceLock<Vec<umbra::tree::TreeStats>>,
+    stats: std::sync::OnceLock<Vec<umbra::internals::tree::TreeStats>>,
 }
 
 fn parse_interp(s: &str) -> PyResult<Interp> {
@@ -497,7 +497,7 @@ impl NativeVolume {
     ) -> PyResult<Self> {
         let interp = parse_interp(interp)?;
         let xform = xform
-            .map(|v| umbra::xform::Xform::from_row_major(&v))
+            .map(|v| umbra::internals::xform::Xform::from_row_major(&v))
             .transpose()
             .map_err(py_err)?;
         let opts = SceneOptions {
@@ -528,7 +528,7 @@ impl NativeVolume {
     }
 
     /// The tree statistics of each fog volume, in scene order.
-    fn stats(&self) -> &[umbra::tree::TreeStats] {
+    fn stats(&self) -> &[umbra::internals::tree::TreeStats] {
         self.stats.get_or_init(|| {
             self.scene
                 .fogs()
@@ -948,7 +948,7 @@ impl NativeVolume {
                 continue;
             };
             let b = b.map(|c| c.map(f64::from));
-            for p in umbra::math::box_corners(b) {
+            for p in umbra::internals::math::box_corners(b) {
                 let w = f.volume().to_world(p).to_array();
                 for a in 0..3 {
                     lo[a] = lo[a].min(w[a]);
@@ -1073,7 +1073,7 @@ impl NativeVolume {
                 let (mut ijk, mut t) = (Vec::with_capacity(voxels * 3), Vec::with_capacity(voxels));
                 for l in &leaves {
                     for (n, &v) in l.values.iter().enumerate() {
-                        if umbra::tree::bit(&l.active, n) {
+                        if umbra::internals::tree::bit(&l.active, n) {
                             ijk.extend_from_slice(&[
                                 l.origin[0] + (n >> 6) as i32,
                                 l.origin[1] + ((n >> 3) & 7) as i32,
@@ -1284,14 +1284,14 @@ fn usd_points_json(
             } else {
                 frames
             };
-            let q = umbra::points::PointQuery {
+            let q = umbra::internals::points::PointQuery {
                 stage: &stage,
                 prim: &prim,
                 light: light.as_deref(),
                 frames: &frames,
             };
             on_threads(o.threads, || {
-                umbra::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})
+                umbra::internals::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})
             })?
         })
         .map_err(py_err)?;

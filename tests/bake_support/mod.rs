@@ -7,7 +7,7 @@ use std::collections::HashMap;
 use std::path::Path;
 use umbra::bake::{BakeSettings, Projection, Provenance, View};
 use umbra::estimate::{Estimator, Options};
-use umbra::tree::TreeBuilder;
+use umbra::internals::tree::TreeBuilder;
 use umbra::{Interp, Ray, Volume};
 
 /// An EXR read back: channels by name and the attributes of its one layer.

@@ -238,7 +238,7 @@ fn compare_file(file: &str, entry: &Value, info: &FileInfo, out: &mut Vec<String
 /// Open a file and report on every grid, catching panics.
 fn report(path: &Path) -> Result<umbra::Result<FileInfo>, String> {
     catch_unwind(AssertUnwindSafe(|| {
-        umbra::vdb::open(path).map(|a| FileInfo::from_archive(&a))
+        umbra::internals::vdb::open(path).map(|a| FileInfo::from_archive(&a))
     }))
     .map_err(|p| panic_message(p.as_ref()))
 }
@@ -351,7 +351,7 @@ fn malformed_files_give_typed_errors_not_panics() {
         let base = path.file_name().unwrap().to_string_lossy().into_owned();
         // open + load of every grid, separately from FileInfo (which swallows grid errors).
         let res = catch_unwind(AssertUnwindSafe(|| -> umbra::Result<usize> {
-            let archive = umbra::vdb::open(&path)?;
+            let archive = umbra::internals::vdb::open(&path)?;
             for gd in &archive.grids {
                 archive.load(gd)?;
             }
@@ -460,7 +460,7 @@ fn cli_reports_each_error_on_one_line() {
         let path = dir.join(file);
         let p = path.to_str().unwrap();
         let base = path.file_name().unwrap().to_str().unwrap();
-        let lib_open_ok = umbra::vdb::open(&path).is_ok();
+        let lib_open_ok = umbra::internals::vdb::open(&path).is_ok();
         if must_reject(entry) || !lib_open_ok {
             for json in [true, false] {
                 let args: &[&str] = if json {
@@ -548,7 +548,7 @@ fn cli_json_equals_the_library_report() {
     ] {
         let path = dir.join(file);
         let p = path.to_str().unwrap();
-        let lib = FileInfo::from_archive(&umbra::vdb::open(&path).unwrap());
+        let lib = FileInfo::from_archive(&umbra::internals::vdb::open(&path).unwrap());
         // Both sides go through JSON text and the same parser, so float parsing cannot differ.
         let lib_json: Value = serde_json::from_str(&serde_json::to_string(&lib).unwrap()).unwrap();
         let out = umbra_cmd(&["info", p, "--json"]);
@@ -579,7 +579,7 @@ fn cli_json_equals_the_library_report() {
     }
     // --grid keeps exactly the grid asked for, with the library's values.
     let path = dir.join("gen/multigrid_smoke.vdb");
-    let lib = FileInfo::from_archive(&umbra::vdb::open(&path).unwrap());
+    let lib = FileInfo::from_archive(&umbra::internals::vdb::open(&path).unwrap());
     let want: Value = serde_json::from_str(
         &serde_json::to_string(lib.grids.iter().find(|g| g.name == "temperature").unwrap())
             .unwrap(),

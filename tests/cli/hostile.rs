@@ -442,7 +442,7 @@ fn the_writer_round_trips_through_umbra_vdb_print_and_pyopenvdb() {
     want.push(0.0);
 
     // umbra's decoder.
-    let g = umbra::vdb::load_grid(&path, "density").unwrap();
+    let g = umbra::internals::vdb::load_grid(&path, "density").unwrap();
     assert_eq!(g.tree.leaves().len(), 3);
     assert_eq!(g.class.as_deref(), Some("fog volume"));
     for (p, w) in probes.iter().zip(&want) {
@@ -450,7 +450,7 @@ fn the_writer_round_trips_through_umbra_vdb_print_and_pyopenvdb() {
     }
     assert!(g.tree.is_active([8192 + 100, 4000, 5]));
     assert_eq!(g.transform.index_to_world([2.0, 4.0, 1.0]), [2.0, 3.0, 5.0]);
-    let v = umbra::vdb::load_grid(&path, "vel").unwrap();
+    let v = umbra::internals::vdb::load_grid(&path, "vel").unwrap();
     assert_eq!(v.tree.leaves().len(), 1);
     assert_eq!(v.tree.value([3, 4, 5]), 2.0);
     assert!((v.transform.voxel_size()[0] - 0.1).abs() < 1e-15);

@@ -75,8 +75,8 @@ use umbra::bake::{BakeJob, BakeSettings, Camera, Depths, Projection, Resolution,
 use umbra::estimate::{estimate, Estimator, Options};
 use umbra::glam::DVec3;
 use umbra::info::GridInfo;
+use umbra::internals::vdb::Grid;
 use umbra::regular::optical_depth;
-use umbra::vdb::Grid;
 use umbra::{Interp, Ray, Volume};
 
 /// Source files and how many byte-level mutations (half flips, half overwrites) each gets:
@@ -1889,7 +1889,7 @@ fn check_mutant(path: &Path, case: &Case, out: &Path) -> Report {
 
 fn load_and_trace(path: &Path, case: &Case, out: &Path, stage: &Stage, rep: &mut Report) {
     stage.set("open");
-    let a = match umbra::vdb::open(path) {
+    let a = match umbra::internals::vdb::open(path) {
         Ok(a) => a,
         Err(e) => {
             let k = rep.error("open", &e);
@@ -2066,7 +2066,7 @@ fn lazy_matches(
     rep: &mut Report,
 ) {
     stage.set("lazy: open");
-    let lazy = umbra::vdb::open(path)
+    let lazy = umbra::internals::vdb::open(path)
         .and_then(|a| a.find_grid(name).cloned().and_then(|gd| a.open_lazy(&gd)));
     let lazy = match lazy {
         Ok(l) => l,
@@ -2083,11 +2083,11 @@ fn lazy_matches(
             .push(format!("grid '{name}': its shell is not a volume"));
         return;
     };
-    let leaves = umbra::demand::leaves_touched(
+    let leaves = umbra::internals::demand::leaves_touched(
         &shell,
         &rays,
         Interp::Trilinear,
-        umbra::traverse::Granularity::Leaf,
+        umbra::internals::traverse::Granularity::Leaf,
     );
     stage.set("lazy: partial load");
     let part = match lazy.load(&leaves).and_then(|g| Volume::new(g, 1.0, path)) {

@@ -13,7 +13,7 @@
 use std::process::Command;
 use umbra::compare::stress::{catalogue, run};
 use umbra::estimate::{estimate, Estimator, Kind, Options, REGISTRY};
-use umbra::tree::{Accessor, TreeBuilder};
+use umbra::internals::tree::{Accessor, TreeBuilder};
 use umbra::{Interp, Ray, Volume};
 
 /// Brute-force trilinear optical depth of `r` through `v`, independent of umbra's traversal and

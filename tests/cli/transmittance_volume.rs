@@ -199,7 +199,7 @@ fn check(
     light: Light,
     scale: f64,
     interp: Interp,
-    xform: Option<&umbra::xform::Xform>,
+    xform: Option<&umbra::internals::xform::Xform>,
     tol: f64,
 ) {
     let rb = read_back(out, grid, &cloud());
@@ -383,7 +383,7 @@ fn xform_and_half_floats_read_back() {
         1.0,
     ];
     let ms: Vec<String> = m.iter().map(|v| v.to_string()).collect();
-    let xform = umbra::xform::Xform::from_row_major(&m).unwrap();
+    let xform = umbra::internals::xform::Xform::from_row_major(&m).unwrap();
     bake(
         &out,
         &["--light-dir=0,-1,0", "--xform", &ms.join(","), "--half"],

@@ -233,7 +233,7 @@ fn blender_loads_transmittance_volumes() {
     );
 
     let density = Volume::load(cloud(), "density", 1.0).unwrap();
-    let xform = umbra::xform::Xform::from_row_major(&m).unwrap();
+    let xform = umbra::internals::xform::Xform::from_row_major(&m).unwrap();
     let moved_density = Volume::load(cloud(), "density", 1.0)
         .unwrap()
         .with_xform(&xform)

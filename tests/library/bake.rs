@@ -11,7 +11,7 @@ use glam::DVec3;
 use std::path::Path;
 use umbra::bake::{bake, write_exr, BakeSettings, Camera, Depths, Map, Order, Projection, View};
 use umbra::estimate::{Estimator, Options};
-use umbra::ray::clip_box;
+use umbra::internals::ray::clip_box;
 use umbra::regular::optical_depth;
 use umbra::{Interp, Ray, Volume};
 

@@ -6,8 +6,8 @@ use crate::bake_support;
 
 use bake_support::{box_volume, ortho, prov, read_exr, regular};
 use umbra::bake::{bake, write_exr, write_png, Camera, Projection, View};
-use umbra::output::write_atomic;
-use umbra::tree::TreeBuilder;
+use umbra::internals::output::write_atomic;
+use umbra::internals::tree::TreeBuilder;
 use umbra::{Interp, Volume};
 
 #[test]

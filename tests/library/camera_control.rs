@@ -345,7 +345,7 @@ fn box_from_topology_equals_the_loaded_box() {
             .iter()
             .filter(|p| p.extension().is_some_and(|e| e == "vdb"))
         {
-            let Ok(archive) = umbra::vdb::open(path) else {
+            let Ok(archive) = umbra::internals::vdb::open(path) else {
                 continue;
             };
             for gd in &archive.grids {

@@ -61,7 +61,7 @@ fn density(p: [i32; 3]) -> f64 {
 }
 
 fn frame_volume(n: usize) -> Volume {
-    let mut b = umbra::tree::TreeBuilder::new(0.0);
+    let mut b = umbra::internals::tree::TreeBuilder::new(0.0);
     for o in frame_leaves(n) {
         for i in 0..8 {
             for j in 0..8 {

@@ -12,7 +12,7 @@ fn data_samples_match_their_openvdb_stats() {
         serde_json::from_str(&std::fs::read_to_string(data.join("stats.json")).unwrap()).unwrap();
     let mut grids = 0;
     for (file, entry) in stats["files"].as_object().unwrap() {
-        let archive = umbra::vdb::open(data.join(file)).unwrap();
+        let archive = umbra::internals::vdb::open(data.join(file)).unwrap();
         let info = umbra::info::FileInfo::from_archive(&archive);
         for want in entry["grids"].as_array().unwrap() {
             let name = want["name"].as_str().unwrap();

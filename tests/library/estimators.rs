@@ -9,10 +9,10 @@
 
 use std::path::PathBuf;
 use umbra::estimate::{estimate, prepare, Estimator, Options, RayMedium};
+use umbra::internals::rng::Rng;
+use umbra::internals::traverse::Granularity;
+use umbra::internals::tree::TreeBuilder;
 use umbra::regular::optical_depth;
-use umbra::rng::Rng;
-use umbra::traverse::Granularity;
-use umbra::tree::TreeBuilder;
 use umbra::{Interp, Ray, Volume};
 
 fn unit_map() -> [[f64; 4]; 3] {
@@ -189,7 +189,7 @@ fn second_moment(est: &Estimator, vol: &Volume, r: &Ray, o: &Options) -> Option<
 /// `M(s) = a (2 T - a) + G(s)`, `G(s) = int_s^b mu_maj w^2 exp(-int_s^t mu_maj) M(t) dt`:
 /// integrated backwards from the end with RK4 (`u = b - s`):
 /// `T' = -mu T`, `a' = -mu_maj a`, `G' = -mu_maj G + mu_maj w^2 (a (2T - a) + G)`.
-fn next_flight_m2(segs: &[umbra::traverse::Segment], med: &mut RayMedium<'_>) -> f64 {
+fn next_flight_m2(segs: &[umbra::internals::traverse::Segment], med: &mut RayMedium<'_>) -> f64 {
     let (mut tr, mut a, mut g) = (1.0f64, 1.0f64, 0.0f64);
     let h_max = 0.05 / med.voxels_per_world_unit();
     for sg in segs.iter().rev() {

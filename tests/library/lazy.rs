@@ -12,8 +12,8 @@ use common::data;
 use rand::{Rng, SeedableRng};
 use std::path::PathBuf;
 use umbra::estimate::{Estimator, Options};
+use umbra::internals::traverse::Granularity;
 use umbra::scene::{self, SceneOptions};
-use umbra::traverse::Granularity;
 use umbra::{Interp, Ray, Volume};
 
 fn corpus(name: &str) -> PathBuf {
@@ -180,7 +180,7 @@ fn rgb_and_xform_partial_loads_equal_eager_ones() {
     let o = SceneOptions {
         sigma_t: Some([0.5, 1.0, 2.0]),
         xform: Some(
-            umbra::xform::Xform::from_row_major(&[
+            umbra::internals::xform::Xform::from_row_major(&[
                 0.0, -2.0, 0.0, 1.0, 2.0, 0.0, 0.0, -0.5, 0.0, 0.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0,
             ])
             .unwrap(),
@@ -208,7 +208,7 @@ fn rgb_and_xform_partial_loads_equal_eager_ones() {
 #[test]
 fn what_a_partial_load_did_not_read_never_becomes_a_number() {
     let path = data("cloud.vdb");
-    let archive = umbra::vdb::open(&path).unwrap();
+    let archive = umbra::internals::vdb::open(&path).unwrap();
     let lazy = archive
         .open_lazy(archive.find_grid("density").unwrap())
         .unwrap();
@@ -234,8 +234,12 @@ fn what_a_partial_load_did_not_read_never_becomes_a_number() {
     }
     // A partial load of other leaves than the ray's.
     let far = Ray::between([-2.0, 1.9, 1.9], [2.0, 1.9, 1.9]).unwrap();
-    let leaves =
-        umbra::demand::leaves_touched(&shell, &[far], Interp::Trilinear, Granularity::Leaf);
+    let leaves = umbra::internals::demand::leaves_touched(
+        &shell,
+        &[far],
+        Interp::Trilinear,
+        Granularity::Leaf,
+    );
     let part = Volume::new(lazy.load(&leaves).unwrap(), 1.0, &path).unwrap();
     assert!(part.tree().loaded_leaf_count() < lazy.leaf_count());
     for name in ["regular", "ratio", "track-length", "riemann"] {
@@ -264,7 +268,7 @@ fn what_a_partial_load_did_not_read_never_becomes_a_number() {
 
 /// A copy of `src` whose leaf `leaf` has a blosc chunk that claims another size.
 fn corrupt_leaf(src: &std::path::Path, dir: &std::path::Path, leaf: u32) -> (PathBuf, u64) {
-    let archive = umbra::vdb::open(src).unwrap();
+    let archive = umbra::internals::vdb::open(src).unwrap();
     let lazy = archive
         .open_lazy(archive.find_grid("density").unwrap())
         .unwrap();
@@ -292,7 +296,7 @@ fn corrupt_leaf_data_is_found_by_the_load_that_touches_it() {
     let dir = tempfile::tempdir().unwrap();
     let src = data("cloud.vdb");
     let (path, offset) = corrupt_leaf(&src, dir.path(), 5);
-    let archive = umbra::vdb::open(&path).unwrap();
+    let archive = umbra::internals::vdb::open(&path).unwrap();
     let gd = archive.find_grid("density").unwrap();
     // Opening reads no values; an eager load meets the corrupt leaf.
     let lazy = archive.open_lazy(gd).unwrap();
@@ -484,7 +488,7 @@ fn streamed_info_equals_the_report_of_a_full_load() {
     files.sort();
     let mut grids = 0;
     for path in files {
-        let Ok(archive) = umbra::vdb::open(&path) else {
+        let Ok(archive) = umbra::internals::vdb::open(&path) else {
             continue;
         };
         for gd in &archive.grids {

@@ -10,7 +10,7 @@ use std::process::Command;
 use umbra::bake::{bake, BakeSettings, Camera, Depths, Projection, View};
 use umbra::batch::{panic_message, parse_job, BatchError};
 use umbra::estimate::{estimate, names, Estimator, Kind, Options, REGISTRY};
-use umbra::tree::TreeBuilder;
+use umbra::internals::tree::TreeBuilder;
 use umbra::{Error, Ray, Volume};
 
 const UNIT: [[f64; 4]; 3] = [

@@ -146,7 +146,7 @@ fn a_light_outside_the_box_and_inside_a_scene() {
     let shifted = Volume::load(data("cloud.vdb"), "density", 0.5)
         .unwrap()
         .with_xform(
-            &umbra::xform::Xform::from_row_major(&[
+            &umbra::internals::xform::Xform::from_row_major(&[
                 1.0, 0.0, 0.0, 0.4, 0.0, 1.0, 0.0, -0.3, 0.0, 0.0, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0,
             ])
             .unwrap(),

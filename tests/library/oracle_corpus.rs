@@ -41,7 +41,8 @@ fn exact_regular_tracking_matches_the_openvdb_oracle() {
     for &(file, grid, scale) in CASES {
         let path = shared.join("corpus").join(file);
         let vol = Volume::load(&path, grid, scale).unwrap();
-        let info = umbra::info::FileInfo::from_archive(&umbra::vdb::open(&path).unwrap());
+        let info =
+            umbra::info::FileInfo::from_archive(&umbra::internals::vdb::open(&path).unwrap());
         let g = info.grids.iter().find(|g| g.name == grid).unwrap();
         let [lo, hi] = g.world_bbox.unwrap();
         // Segments between random points of the bbox grown by 20%, plus axis-aligned ones.

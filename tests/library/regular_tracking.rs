@@ -3,9 +3,9 @@
 
 use proptest::prelude::*;
 use std::ops::ControlFlow;
+use umbra::internals::traverse::{dda, walk, Cells, Granularity, Segment};
+use umbra::internals::tree::{Accessor, TreeBuilder};
 use umbra::regular::optical_depth;
-use umbra::traverse::{dda, walk, Cells, Granularity, Segment};
-use umbra::tree::{Accessor, TreeBuilder};
 use umbra::{Interp, Ray, Volume};
 
 fn scale_map(s: f64, t: [f64; 3]) -> [[f64; 4]; 3] {

@@ -29,8 +29,8 @@ const SHIFT: [f64; 16] = [
     1.0, 0.0, 0.0, 0.4, 0.0, 1.0, 0.0, -0.3, 0.0, 0.0, 1.0, 0.2, 0.0, 0.0, 0.0, 1.0,
 ];
 
-fn shift() -> umbra::xform::Xform {
-    umbra::xform::Xform::from_row_major(&SHIFT).unwrap()
+fn shift() -> umbra::internals::xform::Xform {
+    umbra::internals::xform::Xform::from_row_major(&SHIFT).unwrap()
 }
 
 /// The sample cloud twice: as it is, and shifted at half density; `sigma` per volume.

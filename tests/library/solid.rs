@@ -8,9 +8,9 @@ use crate::common;
 
 use rand::{Rng, SeedableRng};
 use umbra::glam::DVec3;
-use umbra::solid::Solid;
-use umbra::tree::TreeBuilder;
-use umbra::xform::Xform;
+use umbra::internals::solid::Solid;
+use umbra::internals::tree::TreeBuilder;
+use umbra::internals::xform::Xform;
 use umbra::Ray;
 
 /// Narrow-band half width (voxels) and background of the analytic level sets.

@@ -6,7 +6,7 @@
 
 use rand::{Rng, SeedableRng};
 use std::path::PathBuf;
-use umbra::tree::{Accessor, Bounds, Tree};
+use umbra::internals::tree::{Accessor, Bounds, Tree};
 
 fn corpus(file: &str) -> Option<PathBuf> {
     let p = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -49,7 +49,7 @@ fn leaf_bounds_and_halos_equal_brute_force() {
     let mut leaves = 0;
     for &(file, grid) in FILES {
         let Some(path) = corpus(file) else { return };
-        let g = umbra::vdb::load_grid(&path, grid).unwrap();
+        let g = umbra::internals::vdb::load_grid(&path, grid).unwrap();
         let t = &g.tree;
         // Every leaf of small grids, a stride of the big ones.
         let step = (t.leaves().len() / 400).max(1);
@@ -75,7 +75,7 @@ fn samples_inside_internal_nodes_respect_their_bounds() {
     let mut samples = 0;
     for &(file, grid) in FILES {
         let Some(path) = corpus(file) else { return };
-        let g = umbra::vdb::load_grid(&path, grid).unwrap();
+        let g = umbra::internals::vdb::load_grid(&path, grid).unwrap();
         let t = &g.tree;
         let mut acc = Accessor::new(t);
         for (nodes, dim) in [(&t.lowers(), 128.0), (&t.uppers(), 4096.0)] {
@@ -112,7 +112,7 @@ fn tile_slot_halos_equal_brute_force() {
     let mut checked = 0;
     for &(file, grid) in FILES {
         let Some(path) = corpus(file) else { return };
-        let g = umbra::vdb::load_grid(&path, grid).unwrap();
+        let g = umbra::internals::vdb::load_grid(&path, grid).unwrap();
         let t = &g.tree;
         for node in t.lowers() {
             for s in (0..4096).step_by(37) {
@@ -138,7 +138,7 @@ fn accessor_agrees_with_uncached_lookup_along_random_walks() {
     let Some(path) = corpus("gen/tiles_mixed.vdb") else {
         return;
     };
-    let g = umbra::vdb::load_grid(&path, "density").unwrap();
+    let g = umbra::internals::vdb::load_grid(&path, "density").unwrap();
     let t = &g.tree;
     let mut acc = Accessor::new(t);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(3);

@@ -1,4 +1,4 @@
-//! umbra's OpenVDB writer (`umbra::vdb::write`): what it writes reads back through umbra's own
+//! umbra's OpenVDB writer (`umbra::internals::vdb::write`): what it writes reads back through umbra's own
 //! decoder unchanged (values, active masks, background, transform, metadata) for every
 //! compression, full and half floats, a non-diagonal affine transform and origins far from 0;
 //! OpenVDB itself (`vdb_print`, pyopenvdb) reads the same voxels, counts, boxes and transform; a
@@ -15,7 +15,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 use umbra::glam::{DAffine3, DMat3, DVec3};
-use umbra::vdb::{
+use umbra::internals::vdb::{
     encode_vdb, write_vdb, FloatGridOut, GridClassOut, LeafOut, MetaValue, VdbCompression,
 };
 use umbra::Error;
@@ -122,7 +122,7 @@ fn rows(m: &DAffine3) -> [[f64; 4]; 4] {
     ]
 }
 
-fn meta<'a>(g: &'a umbra::vdb::Grid, key: &str) -> Option<&'a MetaValue> {
+fn meta<'a>(g: &'a umbra::internals::vdb::Grid, key: &str) -> Option<&'a MetaValue> {
     g.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v)
 }
 
@@ -180,7 +180,7 @@ fn round_trips_through_umbras_decoder() {
                     .with_metadata("file_bbox_min", "ignored too");
                 let path = dir.path().join(format!("{label}.vdb").replace(' ', "_"));
                 write_vdb(&path, &grid, false).unwrap();
-                let g = umbra::vdb::load_grid(&path, "density").expect(&label);
+                let g = umbra::internals::vdb::load_grid(&path, "density").expect(&label);
                 assert_eq!(g.name, "density", "{label}");
                 assert_eq!(g.saved_as_half, h, "{label}");
                 assert_eq!(g.class.as_deref(), Some("fog volume"), "{label}");
@@ -279,13 +279,13 @@ fn bytes_are_deterministic_and_class_unknown_is_written() {
     let g = g.with_class(GridClassOut::Unknown);
     write_vdb(&path, &g, false).unwrap();
     assert_eq!(std::fs::read(&path).unwrap(), encode_vdb(&g));
-    let back = umbra::vdb::load_grid(&path, "density").unwrap();
+    let back = umbra::internals::vdb::load_grid(&path, "density").unwrap();
     assert_eq!(back.class.as_deref(), Some("unknown"));
     // An empty grid is a valid file too.
     let empty = FloatGridOut::new("empty", 0.5, DAffine3::IDENTITY, Vec::new()).unwrap();
     let path = dir.path().join("empty.vdb");
     write_vdb(&path, &empty, false).unwrap();
-    let back = umbra::vdb::load_grid(&path, "empty").unwrap();
+    let back = umbra::internals::vdb::load_grid(&path, "empty").unwrap();
     assert!(back.tree.leaves().is_empty());
     assert_eq!(back.tree.background(), 0.5);
 }
@@ -513,7 +513,7 @@ fn openvdb_reads_what_umbra_writes() {
 
 /// The leaves of `g`, with every active lower-level tile (a constant, fully active 8^3 block)
 /// made into a leaf and every active upper-level tile (128^3) into its 4096 leaves.
-fn leaves_of(g: &umbra::vdb::Grid) -> Vec<LeafOut> {
+fn leaves_of(g: &umbra::internals::vdb::Grid) -> Vec<LeafOut> {
     let t = &g.tree;
     let mut out: Vec<LeafOut> = t
         .leaves()
@@ -552,7 +552,7 @@ fn leaves_of(g: &umbra::vdb::Grid) -> Vec<LeafOut> {
         }
     }
     for e in t.root() {
-        if let umbra::tree::RootSlot::Tile { active, .. } = e.slot {
+        if let umbra::internals::tree::RootSlot::Tile { active, .. } = e.slot {
             assert!(
                 !active,
                 "an active root tile (4096^3) is not densified here"
@@ -565,7 +565,7 @@ fn leaves_of(g: &umbra::vdb::Grid) -> Vec<LeafOut> {
 #[test]
 fn rewriting_cloud_vdb_keeps_its_active_voxels() {
     let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb");
-    let g = umbra::vdb::load_grid(&src, "density").unwrap();
+    let g = umbra::internals::vdb::load_grid(&src, "density").unwrap();
     let leaves = leaves_of(&g);
     let w = g.transform.world_from_index;
     let m = DAffine3::from_cols_array(&[
@@ -578,7 +578,7 @@ fn rewriting_cloud_vdb_keeps_its_active_voxels() {
     write_vdb(&path, &grid, false).unwrap();
 
     // umbra reads every voxel back as the original has it.
-    let back = umbra::vdb::load_grid(&path, "density").unwrap();
+    let back = umbra::internals::vdb::load_grid(&path, "density").unwrap();
     assert_eq!(
         back.transform.world_from_index,
         g.transform.world_from_index

@@ -67,7 +67,7 @@ fn every_active_value_vdb_rs_reads_matches_umbra() {
     let mut failures = Vec::new();
     for &(file, grid) in FLOAT_CASES {
         let path = dir.join(file);
-        let ours = umbra::vdb::load_grid(&path, grid).unwrap();
+        let ours = umbra::internals::vdb::load_grid(&path, grid).unwrap();
         let tree = &ours.tree;
         let theirs = vdbrs_items(&path, grid);
         let mut leaf_voxels = 0u64;
@@ -112,7 +112,7 @@ fn every_active_value_vdb_rs_reads_matches_umbra() {
 fn int32_grid_matches_vdb_rs() {
     let Some(dir) = corpus() else { return };
     let path = dir.join("gen/int32_flags.vdb");
-    let ours = umbra::vdb::load_grid(&path, "flags").unwrap();
+    let ours = umbra::internals::vdb::load_grid(&path, "flags").unwrap();
     let file = std::io::BufReader::new(std::fs::File::open(&path).unwrap());
     let mut reader = vdb_rs::VdbReader::new(file).unwrap();
     let g = reader.read_grid::<i32>("flags").unwrap();

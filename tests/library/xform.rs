@@ -10,8 +10,8 @@ use assert_cmd::Command;
 use bake_support::read_exr;
 use glam::{DMat3, DVec3};
 use std::path::Path;
+use umbra::internals::xform::Xform;
 use umbra::regular::optical_depth;
-use umbra::xform::Xform;
 use umbra::{Interp, Ray, Volume};
 
 /// Rotation by `angle` about `axis`, then a translation; scaled by `s`.

@@ -89,7 +89,7 @@ use umbra::batch::emit::shell_quote;
 fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCode> {
     let exe = std::env::current_exe()?;
     if let Some(o) = &a.output {
-        umbra::output::check_target(o, a.force)?;
+        umbra::internals::output::check_target(o, a.force)?;
     }
     if a.chunk == Some(0) {
         anyhow::bail!("invalid argument '--chunk': give N >= 1 job tasks per farm task");
@@ -137,7 +137,7 @@ fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCo
         Engine::Slurm => umbra::batch::emit::slurm(job, &exe, chunks),
     };
     match &a.output {
-        Some(o) => umbra::output::write_atomic(o, a.force, |w| {
+        Some(o) => umbra::internals::output::write_atomic(o, a.force, |w| {
             w.write_all(text.as_bytes()).map_err(|e| e.to_string())
         })?,
         None => std::io::stdout().lock().write_all(text.as_bytes())?,
@@ -195,7 +195,7 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
                     t.index,
                     t.input.display(),
                     t.light,
-                    umbra::text::escape(why)
+                    umbra::internals::text::escape(why)
                 )?;
                 continue;
             }
@@ -328,7 +328,7 @@ impl Progress for Bar {
                     "umbra: task {} ({}) failed: {}",
                     r.task,
                     r.input.display(),
-                    umbra::text::escape(e)
+                    umbra::internals::text::escape(e)
                 );
             }
         };
@@ -378,7 +378,7 @@ fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
                 t.task,
                 t.input.display(),
                 t.light,
-                umbra::text::escape(t.error.as_deref().unwrap_or(""))
+                umbra::internals::text::escape(t.error.as_deref().unwrap_or(""))
             )?;
         }
         for t in &s.failed {
@@ -388,7 +388,7 @@ fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
                 t.task,
                 t.input.display(),
                 t.light,
-                umbra::text::escape(t.error.as_deref().unwrap_or(""))
+                umbra::internals::text::escape(t.error.as_deref().unwrap_or(""))
             )?;
         }
         for t in &s.missing {

@@ -37,7 +37,7 @@ pub struct CompareArgs {
     /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 comma-separated numbers,
     /// row-major, the translation in the last column (positions stay in world space).
     #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
-    xform: Option<umbra::xform::Xform>,
+    xform: Option<umbra::internals::xform::Xform>,
     /// Lookup interpolation.
     #[arg(long, value_enum, default_value = "trilinear")]
     interp: Interp,
@@ -190,14 +190,15 @@ fn check_output(a: &CompareArgs) -> Result<()> {
             .parent()
             .filter(|p| !p.as_os_str().is_empty())
             .unwrap_or(std::path::Path::new("."));
-        umbra::output::check_writable(&parent.join(".umbra-compare"), true).with_context(|| {
-            format!(
-                "invalid argument '--output': cannot create {}",
-                a.out.display()
-            )
-        })?;
+        umbra::internals::output::check_writable(&parent.join(".umbra-compare"), true)
+            .with_context(|| {
+                format!(
+                    "invalid argument '--output': cannot create {}",
+                    a.out.display()
+                )
+            })?;
     } else {
-        umbra::output::check_writable(&a.out.join("report.csv"), true)?;
+        umbra::internals::output::check_writable(&a.out.join("report.csv"), true)?;
     }
     Ok(())
 }
@@ -280,11 +281,11 @@ fn run_stress(a: &CompareArgs, pool: &rayon::ThreadPool, say: &dyn Fn(&str)) -> 
     let rows = pool.install(|| stress::run(&cases, a.stress_samples, 5_000_000));
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     let md = stress::markdown(&cases, &rows, a.stress_samples);
-    umbra::output::write_atomic(&a.out.join("stress.md"), true, |w| {
+    umbra::internals::output::write_atomic(&a.out.join("stress.md"), true, |w| {
         std::io::Write::write_all(w, md.as_bytes()).map_err(|e| e.to_string())
     })?;
     let json = serde_json::to_string_pretty(&rows)?;
-    umbra::output::write_atomic(&a.out.join("stress.json"), true, |w| {
+    umbra::internals::output::write_atomic(&a.out.join("stress.json"), true, |w| {
         std::io::Write::write_all(w, json.as_bytes()).map_err(|e| e.to_string())
     })?;
     let bad = rows
@@ -456,11 +457,13 @@ fn write_together(
 ) -> Result<()> {
     let mut staged = Vec::new();
     for (name, text) in files {
-        staged.push(umbra::output::stage(&dir.join(name), true, |w| {
-            std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string())
-        })?);
+        staged.push(umbra::internals::output::stage(
+            &dir.join(name),
+            true,
+            |w| std::io::Write::write_all(w, text.as_bytes()).map_err(|e| e.to_string()),
+        )?);
     }
-    umbra::output::commit_all(staged)?;
+    umbra::internals::output::commit_all(staged)?;
     let names: Vec<&str> = files.iter().map(|f| f.0).collect();
     say(&format!("wrote {} in {}", names.join(", "), dir.display()));
     Ok(())

@@ -8,7 +8,7 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::info::{FileInfo, GridInfo};
-use umbra::text::escape;
+use umbra::internals::text::escape;
 
 /// Arguments of `umbra info`.
 #[derive(Debug, clap::Args)]

@@ -52,7 +52,7 @@ pub struct QueryArgs {
     /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 comma-separated numbers,
     /// row-major, the translation in the last column (positions stay in world space).
     #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
-    xform: Option<umbra::xform::Xform>,
+    xform: Option<umbra::internals::xform::Xform>,
     #[command(flatten)]
     trace: crate::common::TraceArgs,
     #[command(flatten)]
@@ -531,7 +531,7 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
             "umbra: error: {} of {} queries failed (first: {})",
             failed.len(),
             answers.len(),
-            umbra::text::escape(first)
+            umbra::internals::text::escape(first)
         );
         return Ok(ExitCode::from(3));
     }

@@ -79,13 +79,13 @@ pub enum LevelSetArg {
 pub use umbra::request::parse_vec3;
 
 /// Parse `--xform`: 16 comma-separated numbers, row-major.
-pub fn parse_xform(s: &str) -> std::result::Result<umbra::xform::Xform, String> {
+pub fn parse_xform(s: &str) -> std::result::Result<umbra::internals::xform::Xform, String> {
     let v: Vec<f64> = s
         .split(',')
         .map(|c| c.trim().parse::<f64>())
         .collect::<std::result::Result<_, _>>()
         .map_err(|_| format!("'{s}': expected 16 comma-separated numbers"))?;
-    umbra::xform::Xform::from_row_major(&v).map_err(|e| match e {
+    umbra::internals::xform::Xform::from_row_major(&v).map_err(|e| match e {
         umbra::Error::InvalidArgument { reason, .. } => reason,
         other => other.to_string(),
     })
@@ -106,7 +106,7 @@ pub fn load_scene_for(
     file: &Path,
     opts: &umbra::scene::SceneOptions,
     interp: umbra::Interp,
-    gran: umbra::traverse::Granularity,
+    gran: umbra::internals::traverse::Granularity,
     always: bool,
     rays: impl FnOnce(&umbra::scene::Scene) -> Vec<umbra::Ray>,
 ) -> Result<(umbra::scene::Scene, Vec<umbra::Ray>)> {

@@ -74,7 +74,10 @@ fn light(l: &StageLight) -> Value {
 /// A light's shadow line: off, or the volumes its shadow link includes and leaves out.
 fn shadow_line(s: &Value) -> String {
     if let Some(e) = s["error"].as_str() {
-        return format!("shadow controls unreadable: {}", umbra::text::escape(e));
+        return format!(
+            "shadow controls unreadable: {}",
+            umbra::internals::text::escape(e)
+        );
     }
     if s["enable"].as_bool() == Some(false) {
         return "shadows off (inputs:shadow:enable = false)".into();

@@ -69,7 +69,7 @@ fn handle_signals() {
     };
     std::thread::spawn(move || {
         if let Some(sig) = signals.forever().next() {
-            let left = umbra::output::remove_temporaries();
+            let left = umbra::internals::output::remove_temporaries();
             eprintln!(
                 "umbra: interrupted ({}); {}",
                 if sig == SIGINT { "SIGINT" } else { "SIGTERM" },
@@ -94,7 +94,10 @@ fn main() -> ExitCode {
                 return ExitCode::SUCCESS;
             }
             // One line, whatever names from files or arguments the message carries.
-            eprintln!("umbra: error: {}", umbra::text::escape(&common::worded(&e)));
+            eprintln!(
+                "umbra: error: {}",
+                umbra::internals::text::escape(&common::worded(&e))
+            );
             ExitCode::FAILURE
         }
     }

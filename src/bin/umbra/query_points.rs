@@ -59,9 +59,9 @@ pub fn run(
                 layer.display()
             );
         }
-        umbra::output::check_target(layer, s.force)?;
+        umbra::internals::output::check_target(layer, s.force)?;
     }
-    let q = umbra::points::PointQuery {
+    let q = umbra::internals::points::PointQuery {
         stage: s.file,
         prim: s.prim,
         light: s.light,
@@ -69,7 +69,7 @@ pub fn run(
     };
     let mut out = std::io::stdout().lock();
     let json = s.json;
-    let mut print_frame = |f: &umbra::points::PointFrame| {
+    let mut print_frame = |f: &umbra::internals::points::PointFrame| {
         if json {
             return;
         }
@@ -95,8 +95,9 @@ pub fn run(
         let _ = writeln!(out, "{line}");
         let _ = out.flush();
     };
-    let answers = umbra::points::point_transmittance(&q, scene, est, opts, &mut print_frame)
-        .map_err(crate::common::flag_error)?;
+    let answers =
+        umbra::internals::points::point_transmittance(&q, scene, est, opts, &mut print_frame)
+            .map_err(crate::common::flag_error)?;
     for w in &answers.warnings {
         eprintln!("umbra: warning: {w}");
     }
@@ -123,8 +124,8 @@ pub fn run(
         writeln!(std::io::stdout().lock(), "{doc}")?;
     }
     if let Some(layer) = s.usd_out {
-        let text = umbra::points::layer_text(&answers)?;
-        umbra::output::write_atomic(layer, s.force, |w| {
+        let text = umbra::internals::points::layer_text(&answers)?;
+        umbra::internals::output::write_atomic(layer, s.force, |w| {
             w.write_all(text.as_bytes()).map_err(|e| e.to_string())
         })?;
         if !json {
