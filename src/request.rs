@@ -426,19 +426,7 @@ impl BakeOptions {
     /// # Errors
     /// As above.
     pub fn from_json(text: &str) -> Result<Self> {
-        let value: serde_json::Map<String, serde_json::Value> =
-            serde_json::from_str(text).map_err(|e| bad("options", e.to_string()))?;
-        serde_json::from_value(serde_json::Value::Object(value.clone())).map_err(|whole| {
-            // Name the first option that does not parse on its own.
-            for (k, v) in &value {
-                let one = serde_json::Map::from_iter([(k.clone(), v.clone())]);
-                if let Err(e) = serde_json::from_value::<Self>(serde_json::Value::Object(one)) {
-                    let reason = e.to_string();
-                    return bad(k, reason.split(" at line").next().unwrap_or(&reason));
-                }
-            }
-            bad("options", whole.to_string())
-        })
+        estimator::from_json_object(text)
     }
 
     /// The estimator these options select, with its parameters.

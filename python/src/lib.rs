@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use umbra::bake::{BakeJob, Camera, Channel, MapSummary};
 use umbra::estimate::{Estimator, Options};
-use umbra::request::{BakeOptions, BakeOutcome, BakePlan, BakeRequest};
+use umbra::request::{BakeOptions, BakeOutcome, BakePlan, BakeRequest, EstimatorOptions};
 use umbra::scene::{Scene, SceneOptions};
 use umbra::{Interp, Light, Ray};
 
@@ -283,6 +283,15 @@ fn estimators_json() -> PyResult<String> {
     serde_json::to_string(umbra::estimate::REGISTRY).map_err(|e| raise(Class::Other, e.to_string()))
 }
 
+/// The estimator options with their defaults (`request::EstimatorOptions::default()`), as a
+/// JSON object in field order: the one list the Python module's estimator keywords are
+/// taken from (and `python/tests/test_keywords.py` holds them to).
+#[pyfunction]
+fn estimator_options_json() -> PyResult<String> {
+    serde_json::to_string(&EstimatorOptions::default())
+        .map_err(|e| raise(Class::Other, e.to_string()))
+}
+
 /// Write an image and its summary (a map's `camera` dict, as JSON text) as the OpenEXR file
 /// `umbra bake` writes. `t`/`err` hold `C` channels of `W x H` pixels, channel-major.
 #[pyfunction]
@@ -361,28 +370,6 @@ fn parse_interp(s: &str) -> PyResult<Interp> {
             format!("'{other}': expected 'trilinear' or 'nearest'"),
         )),
     }
-}
-
-/// The estimator `name` with `params`, and the options, validated as the CLI validates them.
-fn estimator(
-    name: &str,
-    params: &[(String, f64)],
-    interp: Interp,
-    samples: u32,
-    seed: u64,
-    colour_walk: &str,
-) -> PyResult<(Estimator, Options)> {
-    let p: Vec<(&str, f64)> = params.iter().map(|(n, v)| (n.as_str(), *v)).collect();
-    let est = Estimator::with_params(name, &p).map_err(py_err)?;
-    let opts = Options {
-        interp,
-        samples,
-        seed,
-        colour_walk: umbra::estimate::ColourWalk::from_name(colour_walk).map_err(py_err)?,
-        ..Options::default()
-    };
-    opts.validate().map_err(py_err)?;
-    Ok((est, opts))
 }
 
 /// Run `f` on `threads` workers (0: rayon's global pool, every core).
@@ -641,29 +628,20 @@ impl NativeVolume {
     }
 
     /// Estimate along `rows` rays (`ray_of(row)`) after the CLI's up-front checks (the
-    /// estimator, its options and the job's work budget).
-    #[allow(clippy::too_many_arguments)]
+    /// estimator, its options and the job's work budget). `options`: the estimator options
+    /// as JSON ([`EstimatorOptions::from_json`]).
     fn run<'py>(
         &self,
         py: Python<'py>,
         rows: usize,
         ray_of: impl Fn(usize) -> Result<Ray, String> + Send + Sync,
-        estimator_name: &str,
-        params: &[(String, f64)],
-        samples: u32,
-        seed: u64,
+        options: &str,
         ray_id: u64,
         threads: usize,
-        colour_walk: &str,
     ) -> PyResult<TraceOut<'py>> {
-        let (est, opts) = estimator(
-            estimator_name,
-            params,
-            self.interp,
-            samples,
-            seed,
-            colour_walk,
-        )?;
+        let (est, opts) = EstimatorOptions::from_json(options)
+            .and_then(|o| o.resolve(self.interp))
+            .map_err(py_err)?;
         let cancel = AtomicBool::new(false);
         let work = || {
             on_threads(threads, || {
@@ -960,20 +938,14 @@ impl NativeVolume {
     }
 
     /// Transmittance along the segments `origins[n] -> ends[n]` (ray id `ray_id + n`).
-    #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (origins, ends, estimator, params, samples, seed, ray_id, threads, colour_walk = "auto"))]
     fn trace<'py>(
         &self,
         py: Python<'py>,
         origins: PyReadonlyArray2<'py, f64>,
         ends: PyReadonlyArray2<'py, f64>,
-        estimator: &str,
-        params: Vec<(String, f64)>,
-        samples: u32,
-        seed: u64,
+        options: &str,
         ray_id: u64,
         threads: usize,
-        colour_walk: &str,
     ) -> PyResult<TraceOut<'py>> {
         let (o, e) = (points(&origins)?, points(&ends)?);
         if o.len() != e.len() {
@@ -985,36 +957,20 @@ impl NativeVolume {
         drop((origins, ends));
         let n = o.len();
         let ray_of = |row: usize| Ray::between(o[row], e[row]).map_err(|e| e.to_string());
-        self.run(
-            py,
-            n,
-            ray_of,
-            estimator,
-            &params,
-            samples,
-            seed,
-            ray_id,
-            threads,
-            colour_walk,
-        )
+        self.run(py, n, ray_of, options, ray_id, threads)
     }
 
     /// Transmittance from each point toward a light (`query --at`), ray id `ray_id + n`.
     #[allow(clippy::too_many_arguments)]
-    #[pyo3(signature = (points_, light_dir, light_pos, estimator, params, samples, seed, ray_id, threads, colour_walk = "auto"))]
     fn trace_to_light<'py>(
         &self,
         py: Python<'py>,
         points_: PyReadonlyArray2<'py, f64>,
         light_dir: Option<[f64; 3]>,
         light_pos: Option<[f64; 3]>,
-        estimator: &str,
-        params: Vec<(String, f64)>,
-        samples: u32,
-        seed: u64,
+        options: &str,
         ray_id: u64,
         threads: usize,
-        colour_walk: &str,
     ) -> PyResult<TraceOut<'py>> {
         let light = match (light_dir, light_pos) {
             (Some(dir), None) => Light::Directional { dir },
@@ -1041,18 +997,7 @@ impl NativeVolume {
                 .ray_from_scene(scene, p[row])
                 .map_err(|e| cli_worded(e).to_string())
         };
-        self.run(
-            py,
-            n,
-            ray_of,
-            estimator,
-            &params,
-            samples,
-            seed,
-            ray_id,
-            threads,
-            colour_walk,
-        )
+        self.run(py, n, ray_of, options, ray_id, threads)
     }
 
     /// T toward a light at every active voxel (`umbra bake ... -o OUT.vdb`, in memory):
@@ -1364,6 +1309,7 @@ fn _umbra(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(info_json, m)?)?;
     m.add_function(wrap_pyfunction!(estimators_json, m)?)?;
+    m.add_function(wrap_pyfunction!(estimator_options_json, m)?)?;
     m.add_function(wrap_pyfunction!(write_exr, m)?)?;
     m.add_function(wrap_pyfunction!(run_job, m)?)?;
     m.add_function(wrap_pyfunction!(job_status, m)?)?;

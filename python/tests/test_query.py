@@ -74,6 +74,8 @@ def test_regular_equals_query_rays(corpus, cli, tmp_path, name, grid):
         ("jittered", ["--samples", "4", "--seed", "11", "--step", "2"], dict(samples=4, seed=11, step=2.0)),
         ("residual-ratio", ["--samples", "4", "--seed", "1", "--ray-id", "1000"], dict(samples=4, seed=1, ray_id=1000)),
         ("jackknife", ["--samples", "4", "--seed", "2", "--points", "6"], dict(samples=4, seed=2, points=6)),
+        ("ratio", ["--samples", "8", "--seed", "5", "--granularity", "upper"], dict(samples=8, seed=5, granularity="upper")),
+        ("track-length", ["--samples", "8", "--global-majorant"], dict(samples=8, global_majorant=True)),
     ],
 )
 def test_estimators_equal_query_rays(corpus, cli, tmp_path, estimator, flags, kw):

@@ -138,9 +138,18 @@ def _count(name: str, v: Any) -> int:
     return int(v)
 
 
-def _params(step: Optional[float], kernel: Optional[float], points: Optional[float]):
-    given = {"step": step, "kernel": kernel, "points": points}
-    return [(k, float(v)) for k, v in given.items() if v is not None]
+#: The estimator keywords with their library defaults, in order (``estimator``, ``samples``,
+#: ``seed``, ``step``, ``kernel``, ``points``, ``granularity``, ``global_majorant``,
+#: ``colour_walk``): the library's one list (``request::EstimatorOptions``). Every call that
+#: takes an estimator takes all of them, forwarded through :func:`_estimator_options`
+#: (``tests/test_keywords.py`` holds the signatures and stubs to it).
+_ESTIMATOR_OPTIONS: Dict[str, Any] = json.loads(_umbra.estimator_options_json())
+
+
+def _estimator_options(given: Dict[str, Any], **spelled: str) -> Dict[str, Any]:
+    """The estimator keywords of a call, picked by the one list from the call's ``locals()``
+    (``spelled``: a keyword the call spells otherwise, as ``points="points_per_estimate"``)."""
+    return {k: given[spelled.get(k, k)] for k in _ESTIMATOR_OPTIONS}
 
 
 def _segments(origins: Any, ends: Any) -> Tuple[np.ndarray, np.ndarray]:
@@ -151,18 +160,10 @@ def _segments(origins: Any, ends: Any) -> Tuple[np.ndarray, np.ndarray]:
     return o, e
 
 
-def _sampling(estimator: str, params, samples: Any, seed: Any, ray_id: Any, threads: Any,
-              colour_walk: Any = "auto"):
-    """The native trace calls' trailing arguments, checked."""
-    return (
-        str(estimator),
-        params,
-        _count("samples", samples),
-        _count("seed", seed),
-        _count("ray_id", ray_id),
-        _count("threads", threads),
-        str(colour_walk),
-    )
+def _sampling(options: Dict[str, Any], ray_id: Any, threads: Any):
+    """The native trace calls' trailing arguments: the estimator options (checked by the
+    library, which names the keyword that is wrong), the first ray id and the thread count."""
+    return (_options(**options), _count("ray_id", ray_id), _count("threads", threads))
 
 
 def _xform(xform: Any) -> Optional[List[float]]:
@@ -722,10 +723,8 @@ def bake(
             preview=preview, slices=slices, depths=depths, stderr=stderr,
             target_error=target_error, max_spp=max_spp, interp=interp,
             density_scale=density_scale, sigma_t=sigma_t, levelset=levelset,
-            estimator=estimator, samples=samples, seed=seed, step=step, kernel=kernel,
-            points=points, granularity=granularity, global_majorant=global_majorant,
-            colour_walk=colour_walk, order=order, threads=threads, max_memory=max_memory,
-            force=force,
+            **_estimator_options(locals()),
+            order=order, threads=threads, max_memory=max_memory, force=force,
         ),
         progress,
     )
@@ -763,6 +762,7 @@ def usd_point_transmittance(
     points: Optional[float] = None,
     granularity: str = "leaf",
     global_majorant: bool = False,
+    colour_walk: str = "auto",
     threads: int = 0,
 ) -> Dict[float, np.ndarray]:
     """How much of a stage light reaches every point of a ``UsdGeom.Points`` prim (its
@@ -782,9 +782,8 @@ def usd_point_transmittance(
         given or [],
         _options(
             volume=None if volume is None else [str(v) for v in volume], field=field,
-            interp=interp, density_scale=density_scale, estimator=estimator,
-            samples=samples, seed=seed, step=step, kernel=kernel, points=points,
-            granularity=granularity, global_majorant=global_majorant, threads=threads,
+            interp=interp, density_scale=density_scale, **_estimator_options(locals()),
+            threads=threads,
         ),
     )
     _warn(warns)
@@ -1002,6 +1001,8 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
     ):
@@ -1012,14 +1013,15 @@ class Volume:
         ``estimator`` is any name of :func:`estimators` (``step``, ``kernel``, ``points``
         its parameters), ``samples`` independent samples per ray, ``seed`` the random
         streams: row ``n`` uses ray id ``ray_id + n``, so the answers equal ``umbra query
-        --rays`` line for line, bit for bit. ``threads``: 0 for every core. ``colour_walk``
-        (an RGB scene): ``"auto"``, ``"shared"`` or ``"split"``, as ``--colour-walk``.
+        --rays`` line for line, bit for bit. ``granularity`` (``"leaf"``, ``"lower"``,
+        ``"upper"``) and ``global_majorant``: the null-collision estimators' majorants, as
+        ``--granularity`` and ``--global-majorant``. ``threads``: 0 for every core.
+        ``colour_walk`` (an RGB scene): ``"auto"``, ``"shared"`` or ``"split"``, as
+        ``--colour-walk``.
         """
+        options = _estimator_options(locals())
         o, e = _segments(origins, ends)
-        params = _params(step, kernel, points)
-        t, err, _, warns = self._v.trace(
-            o, e, *_sampling(estimator, params, samples, seed, ray_id, threads, colour_walk)
-        )
+        t, err, _, warns = self._v.trace(o, e, *_sampling(options, ray_id, threads))
         _warn(warns)
         return _finish(t, err, return_stderr)
 
@@ -1028,7 +1030,8 @@ class Volume:
         tracking): an (N,) float64 array ((N, 3) for an RGB scene); ``inf`` through opaque
         voxels or a solid."""
         o, e = _segments(origins, ends)
-        _, _, tau, warns = self._v.trace(o, e, *_sampling("regular", [], 1, 0, 0, threads))
+        exact = dict(_ESTIMATOR_OPTIONS, estimator="regular")
+        _, _, tau, warns = self._v.trace(o, e, *_sampling(exact, 0, threads))
         _warn(warns)
         return tau[:, 0] if tau.shape[1] == 1 else tau
 
@@ -1046,6 +1049,8 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points_per_estimate: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
     ):
@@ -1054,15 +1059,14 @@ class Volume:
         until it leaves every volume's box; with ``light_pos`` the segment to the light.
         ``points``: (N, 3) world points. Returns as :meth:`transmittance`; row ``n`` uses ray
         id ``ray_id + n`` (``--ray-id``). ``points_per_estimate`` is the jackknife's
-        ``--points``; ``colour_walk`` as in :meth:`transmittance`."""
+        ``--points``; ``granularity``, ``global_majorant`` and ``colour_walk`` as in
+        :meth:`transmittance`."""
+        options = _estimator_options(locals(), points="points_per_estimate")
         p = _points("points", points)
         d, q = _vec3("light_dir", light_dir), _vec3("light_pos", light_pos)
         if (d is None) == (q is None):
             raise _invalid("light_dir", "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them")
-        params = _params(step, kernel, points_per_estimate)
-        t, err, _, warns = self._v.trace_to_light(
-            p, d, q, *_sampling(estimator, params, samples, seed, ray_id, threads, colour_walk)
-        )
+        t, err, _, warns = self._v.trace_to_light(p, d, q, *_sampling(options, ray_id, threads))
         _warn(warns)
         return _finish(t, err, return_stderr)
 
@@ -1078,6 +1082,9 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
+        colour_walk: str = "auto",
     ) -> Tuple[np.ndarray, np.ndarray, Dict[str, Any]]:
         """``T = exp(-tau)`` toward a light at every active voxel (tiles count as the voxels they
         cover): what ``umbra bake FILE --light-dir D -o OUT.vdb`` stores, in memory.
@@ -1098,8 +1105,8 @@ class Volume:
         """
         ijk, t, stats, warns = self._v.transmittance_volume(
             _options(
-                light_dir=light_dir, light_pos=light_pos, estimator=estimator, samples=samples,
-                seed=seed, threads=threads, step=step, kernel=kernel, points=points,
+                light_dir=light_dir, light_pos=light_pos, **_estimator_options(locals()),
+                threads=threads,
             )
         )
         _warn(warns)
@@ -1121,6 +1128,9 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
+        colour_walk: str = "auto",
         grid: Optional[str] = None,
         overwrite: Optional[bool] = None,
     ) -> Dict[str, Any]:
@@ -1141,8 +1151,7 @@ class Volume:
             _path("path", path),
             _options(
                 light_dir=light_dir, light_pos=light_pos, out_grid=out_grid, half=half,
-                force=force, estimator=estimator, samples=samples, seed=seed, threads=threads,
-                step=step, kernel=kernel, points=points,
+                force=force, **_estimator_options(locals()), threads=threads,
             ),
         )
         _warn(warns)
@@ -1201,13 +1210,10 @@ class Volume:
         stderr = _alias("stderr", stderr, "return_stderr", return_stderr, False)
         out = self._v.bake(
             _options(
-                light_dir=light_dir, light_pos=light_pos, res=res, estimator=estimator,
-                samples=samples, seed=seed, up=up, ortho=ortho, omni=omni, fov=fov,
-                frame_box=frame_box, camera=camera, target_error=target_error, max_spp=max_spp,
-                stderr=stderr,
-                step=step, kernel=kernel, points=points, granularity=granularity,
-                global_majorant=global_majorant, colour_walk=colour_walk, order=order,
-                threads=threads,
+                light_dir=light_dir, light_pos=light_pos, res=res, up=up, ortho=ortho,
+                omni=omni, fov=fov, frame_box=frame_box, camera=camera,
+                target_error=target_error, max_spp=max_spp, stderr=stderr,
+                **_estimator_options(locals()), order=order, threads=threads,
             )
         )
         return_stderr = bool(stderr)
@@ -1278,12 +1284,10 @@ class Volume:
         summary, deep, warns = self._v.write_deep_map(
             _path("path", path),
             _options(
-                light_dir=light_dir, light_pos=light_pos, res=res, estimator=estimator,
-                samples=samples, seed=seed, up=up, ortho=ortho, fov=fov, frame_box=frame_box,
-                camera=camera, deep_error=deep_error, deep_format=deep_format, force=force,
-                threads=threads,
-                step=step, kernel=kernel, points=points, granularity=granularity,
-                global_majorant=global_majorant, colour_walk=colour_walk, order=order,
+                light_dir=light_dir, light_pos=light_pos, res=res, up=up, ortho=ortho,
+                fov=fov, frame_box=frame_box, camera=camera, deep_error=deep_error,
+                deep_format=deep_format, force=force, threads=threads,
+                **_estimator_options(locals()), order=order,
             ),
         )
         _warn(warns)

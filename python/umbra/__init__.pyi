@@ -64,6 +64,7 @@ def usd_point_transmittance(
     points: Optional[float] = None,
     granularity: str = "leaf",
     global_majorant: bool = False,
+    colour_walk: str = "auto",
     threads: int = 0,
 ) -> Dict[float, np.ndarray]: ...
 def bake(
@@ -225,6 +226,8 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
     ) -> npt.NDArray[np.float64]: ...
@@ -242,6 +245,8 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
@@ -263,6 +268,8 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points_per_estimate: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
     ) -> npt.NDArray[np.float64]: ...
@@ -281,6 +288,8 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points_per_estimate: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
@@ -296,6 +305,9 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
+        colour_walk: str = "auto",
     ) -> Tuple[npt.NDArray[np.int32], npt.NDArray[np.float32], Dict[str, Any]]: ...
     def write_transmittance_volume(
         self,
@@ -313,6 +325,9 @@ class Volume:
         step: Optional[float] = None,
         kernel: Optional[float] = None,
         points: Optional[float] = None,
+        granularity: str = "leaf",
+        global_majorant: bool = False,
+        colour_walk: str = "auto",
         grid: Optional[str] = None,
         overwrite: Optional[bool] = None,
     ) -> Dict[str, Any]: ...

@@ -70,10 +70,11 @@ macro_rules! with_estimator_options {
     };
 }
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::estimate::{ColourWalk, Estimator, Options};
 use crate::traverse::Granularity;
 use crate::Interp;
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
 with_estimator_options! {
@@ -108,6 +109,17 @@ impl Default for EstimatorOptions {
 }
 
 impl EstimatorOptions {
+    /// Options from a JSON object, as the Python module passes its keywords (the names of
+    /// [`EstimatorOptions::default`] serialised: the one list Python's keywords come from): a
+    /// value of the wrong type or an unknown name is an [`crate::Error::InvalidArgument`]
+    /// naming that option.
+    ///
+    /// # Errors
+    /// As above.
+    pub fn from_json(text: &str) -> Result<Self> {
+        from_json_object(text)
+    }
+
     /// The parameters alone.
     #[must_use]
     pub fn params(&self) -> EstimatorParams {
@@ -171,6 +183,28 @@ impl EstimatorParams {
     pub fn apply(&self, name: &str) -> Result<Estimator> {
         Estimator::with_params(name, &self.given())
     }
+}
+
+/// A set of options from a JSON object: a value of the wrong type or an unknown name is an
+/// [`Error::InvalidArgument`] naming that option (the first key that does not parse alone).
+pub(crate) fn from_json_object<T: DeserializeOwned>(text: &str) -> Result<T> {
+    let bad = |name: &str, reason: &str| Error::InvalidArgument {
+        name: name.into(),
+        reason: reason.into(),
+    };
+    let value: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_str(text).map_err(|e| bad("options", &e.to_string()))?;
+    serde_json::from_value(serde_json::Value::Object(value.clone())).map_err(|whole| {
+        // Name the first option that does not parse on its own.
+        for (k, v) in &value {
+            let one = serde_json::Map::from_iter([(k.clone(), v.clone())]);
+            if let Err(e) = serde_json::from_value::<T>(serde_json::Value::Object(one)) {
+                let reason = e.to_string();
+                return bad(k, reason.split(" at line").next().unwrap_or(&reason));
+            }
+        }
+        bad("options", &whole.to_string())
+    })
 }
 
 #[cfg(test)]
