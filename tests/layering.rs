@@ -451,13 +451,13 @@ fn one_place_classifies_inputs() {
     ];
     let allowed: &[(&str, usize, &str)] = &[
         (
-            "src/request.rs",
+            "src/request/mod.rs",
             2,
             "is_volume_output: an output ending in .vdb is a transmittance volume, the product \
              BakeRequest::plan picks",
         ),
         (
-            "src/bake/product/pipeline.rs",
+            "src/bake/product/pipeline/mod.rs",
             1,
             "check_extension: an output's format (.exr map, .png preview, .vdb volume), checked \
              with the other outputs before any work",

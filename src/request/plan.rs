@@ -1,0 +1,301 @@
+//! Planning a request ([`BakeRequest::plan`]'s steps): a USD stage's light, camera and up
+//! axis put into the options; a transmittance volume's job; a map's job (view, settings,
+//! product, outputs).
+
+use crate::bake::{
+    BakeJob, BakeSettings, Depths, ExrLayout, Product, View, VolumeJob, DEFAULT_DEEP_ERROR,
+    DEFAULT_OUT_GRID,
+};
+use crate::error::{Error, Result};
+use crate::input::InputKind;
+
+use super::{bad, is_volume_output, BakeRequest, LevelSet};
+
+impl BakeRequest {
+    /// The stage's part of a request: options that only a USD stage reads are refused for
+    /// other inputs; for a stage without light-dir, light-pos or camera, the light named by
+    /// `light` (or the stage's only light) at `frame` becomes light-dir (a `DistantLight`) or
+    /// light-pos (a local light), and the stage's up axis the map's default up (unless it is
+    /// parallel to the light). `None`: nothing to change.
+    pub(super) fn with_stage_light(&self) -> Result<Option<Self>> {
+        let o = &self.options;
+        if !InputKind::of(&self.input).is_stage() {
+            let given = [
+                ("frame", o.frame.is_some()),
+                ("volume", o.volume.is_some()),
+                ("field", o.field.is_some()),
+                ("light", o.light.is_some()),
+                ("usd-out", o.usd_out.is_some()),
+            ];
+            if let Some((k, _)) = given.iter().find(|(_, g)| *g) {
+                return Err(bad(
+                    k,
+                    format!(
+                        "applies to USD stages (.usd, .usda, .usdc, .usdz); {} is not one",
+                        self.input.display()
+                    ),
+                ));
+            }
+            return Ok(None);
+        }
+        if let Some(f) = o.frame {
+            if !f.is_finite() {
+                return Err(bad("frame", format!("{f} is not a finite time code")));
+            }
+        }
+        if o.field.as_deref() == Some("") {
+            return Err(bad("field", "must not be empty"));
+        }
+        let explicit = o.light_dir.is_some() || o.light_pos.is_some();
+        if let Some(u) = &o.usd_out {
+            if explicit {
+                return Err(bad(
+                    "usd-out",
+                    "puts the map on its stage light: bake from the stage's light (light), not \
+                     light-dir / light-pos",
+                ));
+            }
+            if o.camera.is_some() {
+                // A reused camera fixes the view; the layer still needs the light it belongs
+                // to, named (or the stage's only one), checked before any work.
+                crate::usd::lights_at(&self.input, o.frame)?.light(o.light.as_deref())?;
+            }
+            if !crate::input::is_usda_layer(u) {
+                return Err(bad(
+                    "usd-out",
+                    format!("{} is not a .usda layer", u.display()),
+                ));
+            }
+        }
+        if o.light.is_some() && explicit {
+            return Err(bad(
+                "light",
+                "give a stage light or light-dir / light-pos, not both",
+            ));
+        }
+        if o.light.is_some() && o.camera.is_some() && o.usd_out.is_none() {
+            return Err(bad(
+                "light",
+                "a reused camera fixes the view: the light only names the prim a --usd-out \
+                 layer puts the map on (give usd-out, or drop light)",
+            ));
+        }
+        if explicit || o.camera.is_some() {
+            return Ok(None);
+        }
+        let shot = crate::usd::lights_at(&self.input, o.frame)?;
+        let (light, emitter) = shot.light(o.light.as_deref())?;
+        let mut options = o.clone();
+        // The light by its path: the scene is read toward it (its shadow link).
+        options.light = Some(light.prim.clone());
+        let dir = match emitter {
+            crate::usd::Emitter::Directional { dir } => {
+                options.light_dir = Some(dir);
+                Some(dir)
+            }
+            crate::usd::Emitter::Point { pos } => {
+                options.light_pos = Some(pos);
+                None
+            }
+        };
+        // A transmittance volume has no view, so no up.
+        if options.up.is_none() && !is_volume_output(&self.output) {
+            let u = shot.up;
+            let parallel =
+                dir.is_some_and(|d| (d[0] * u[0] + d[1] * u[1] + d[2] * u[2]).abs() > 0.999);
+            if !parallel {
+                options.up = Some(u);
+            }
+        }
+        Ok(Some(Self {
+            input: self.input.clone(),
+            output: self.output.clone(),
+            options,
+        }))
+    }
+
+    pub(super) fn plan_volume(&self) -> Result<VolumeJob> {
+        let o = &self.options;
+        // A stage's one volume: its grid, placement and scale (the stage places it: no xform,
+        // no grid; density-scale applies on top, as for scenes).
+        let stage = if InputKind::of(&self.input).is_stage() {
+            if let Some(k) = [("xform", o.xform.is_some()), ("grid", o.grid != "density")]
+                .iter()
+                .find(|(_, g)| *g)
+            {
+                return Err(bad(
+                    k.0,
+                    "the stage places its volumes and names their grids (volume, field)",
+                ));
+            }
+            let shot = crate::usd::read(&self.input, &o.stage_selection())?;
+            let v = shot.single_volume()?;
+            Some((
+                v.file()?.to_path_buf(),
+                v.grid.clone(),
+                o.density_scale * v.grey_scale()?,
+                v.xform,
+            ))
+        } else {
+            None
+        };
+        if InputKind::of(&self.input).is_scene_file() {
+            return Err(bad(
+                "output",
+                format!(
+                    "a transmittance volume (.vdb) is made from one density grid; {} is a scene \
+                     file",
+                    self.input.display()
+                ),
+            ));
+        }
+        let light = match (o.light_dir, o.light_pos) {
+            (Some(dir), None) => crate::Light::Directional { dir },
+            (None, Some(pos)) => crate::Light::Point { pos },
+            (None, None) => {
+                return Err(bad(
+                    "light-dir",
+                    "no light: give the direction the light travels (a sun) or light-pos (a \
+                     point light)",
+                ))
+            }
+            (Some(_), Some(_)) => {
+                return Err(bad(
+                    "light-pos",
+                    "a transmittance volume is lit by one light: give light-dir or light-pos, \
+                     not both",
+                ))
+            }
+        };
+        let (estimator, options) = o.estimator()?;
+        let (input, grid, density_scale, xform) = match stage {
+            Some((f, g, s, x)) => (f, g, s, Some(x)),
+            None => (
+                self.input.clone(),
+                o.grid.clone(),
+                o.density_scale,
+                o.xform()?,
+            ),
+        };
+        Ok(VolumeJob {
+            input,
+            grid,
+            density_scale,
+            xform,
+            light,
+            estimator,
+            options,
+            threads: o.threads,
+            output: self.output.clone(),
+            out_grid: o
+                .out_grid
+                .clone()
+                .unwrap_or_else(|| DEFAULT_OUT_GRID.to_string()),
+            half: o.half,
+            overwrite: o.force,
+        })
+    }
+
+    pub(super) fn plan_map(&self) -> Result<BakeJob> {
+        let o = &self.options;
+        if let Some(r) = o.res {
+            r.check().map_err(|e| match e {
+                Error::InvalidArgument { reason, .. } => bad("res", reason),
+                other => other,
+            })?;
+        }
+        let (view, camera) = match &o.camera {
+            Some(source) => {
+                let fixed = [
+                    ("light-dir", o.light_dir.is_some()),
+                    ("light-pos", o.light_pos.is_some()),
+                    ("ortho", o.ortho),
+                    ("fov", o.fov.is_some()),
+                    ("up", o.up.is_some()),
+                    ("frame-box", o.frame_box.is_some()),
+                    ("omni", o.omni.is_some()),
+                ];
+                if let Some((k, _)) = fixed.iter().find(|(_, set)| *set) {
+                    return Err(bad(
+                        k,
+                        "a reused camera fixes the whole view: give camera or the light and \
+                         framing options, not both",
+                    ));
+                }
+                let view = View {
+                    res: o.res,
+                    ..View::default()
+                };
+                (view, Some(source.read(o.res)?))
+            }
+            None => (o.view()?, None),
+        };
+        let depths = match (o.slices, &o.depths) {
+            (Some(_), Some(_)) => return Err(bad("slices", "give slices or depths, not both")),
+            (Some(k), None) => Depths::Slices(k),
+            (None, Some(d)) => Depths::At(d.clone()),
+            (None, None) => Depths::None,
+        };
+        if let Some(s) = o.sigma_t {
+            crate::scene::check_sigma(s)?;
+        }
+        let (estimator, options) = o.estimator()?;
+        let settings = BakeSettings {
+            target_error: o.target_error,
+            max_spp: o.max_spp,
+            depths,
+            std_err: o.stderr,
+            threads: o.threads,
+            order: o.order,
+            ..BakeSettings::new(estimator, options)
+        };
+        settings.validate()?;
+        let layout = ExrLayout {
+            tile: o.tile,
+            mipmap: o.mipmap,
+        };
+        layout.validate()?;
+        let format = o
+            .deep_format
+            .as_deref()
+            .map(str::parse::<crate::bake::DeepFormat>)
+            .transpose()?;
+        let product = match (format, o.deep, o.deep_error) {
+            (Some(_), _, Some(_)) => {
+                return Err(bad(
+                    "deep-error",
+                    "bounds Lokovic-Veach deep samples; a deep format reports the error it \
+                     reaches instead (umbra:deep_max_error)",
+                ))
+            }
+            (Some(format), _, None) => Product::Fixed { format },
+            (None, false, Some(_)) => {
+                return Err(bad("deep-error", "applies to deep maps: add deep"))
+            }
+            (None, false, None) => Product::Map,
+            (None, true, e) => {
+                let max_error = e.unwrap_or(DEFAULT_DEEP_ERROR);
+                crate::bake::check_deep_error(max_error)?;
+                Product::Deep { max_error }
+            }
+        };
+        Ok(BakeJob {
+            input: self.input.clone(),
+            grid: o.grid.clone(),
+            density_scale: o.density_scale,
+            xform: o.xform()?,
+            sigma_t: o.sigma_t,
+            levelset_solid: o.levelset == Some(LevelSet::Solid),
+            stage: o.stage_selection(),
+            view,
+            camera,
+            settings,
+            output: self.output.clone(),
+            preview: o.preview.clone(),
+            overwrite: o.force,
+            layout,
+            max_memory: o.max_memory()?,
+            product,
+        })
+    }
+}
