@@ -691,6 +691,13 @@ fn ray_path_bakes_in_parts_equal_whole_bakes_bit_for_bit() {
             bits(whole.map.std_err.as_ref().unwrap()),
             "{name}"
         );
+        // The largest standard error is reported alike (`--json`'s max_std_err).
+        assert!(whole.map.stats.max_std_err > 0.0, "{name}");
+        assert_eq!(
+            r.map.stats.max_std_err.to_bits(),
+            whole.map.stats.max_std_err.to_bits(),
+            "{name}"
+        );
         for (a, b) in r.map.slices.iter().zip(&whole.map.slices) {
             assert_eq!(bits(a), bits(b), "{name} slices");
         }

@@ -244,7 +244,7 @@ pub(crate) fn render(
         // An estimate ran out of its collision budget: the ray path caps it where it stands.
         return Ok(None);
     }
-    let mut map = view_map(
+    let map = view_map(
         camera,
         s,
         depths,
@@ -253,9 +253,6 @@ pub(crate) fn render(
         sampled.then_some(samples),
         start,
     );
-    if let (true, Some(e)) = (sampled, &map.std_err) {
-        map.stats.max_std_err = e.iter().fold(0.0, |m, &v| m.max(f64::from(v)));
-    }
     Ok(Some(map))
 }
 
@@ -382,6 +379,9 @@ fn view_map(
     if let Some(samples) = sampled {
         map.stats.samples = camera.pixels() * samples as u64;
         map.std_err = s.std_err.then(|| errs.concat());
+        if let Some(e) = &map.std_err {
+            map.stats.max_std_err = e.iter().fold(0.0, |m, &v| m.max(f64::from(v)));
+        }
     }
     map
 }
