@@ -1,0 +1,491 @@
+//! The native `Volume`: a loaded grid, scene or stage and the Python methods on it.
+
+use crate::errors::*;
+use crate::functions::*;
+use crate::trace::*;
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2};
+use pyo3::prelude::*;
+use std::path::PathBuf;
+use umbra::bake::{BakeJob, Camera};
+use umbra::request::{BakeOptions, BakePlan, BakeRequest};
+use umbra::scene::Scene;
+use umbra::{Interp, Light, Ray};
+
+/// A loaded volume (a grid of a `.vdb` file, or a scene) with what it was loaded with.
+#[pyclass(frozen, module = "umbra._umbra", name = "Volume")]
+pub(crate) struct NativeVolume {
+    pub(crate) scene: Scene,
+    pub(crate) path: PathBuf,
+    pub(crate) grid: String,
+    pub(crate) density_scale: f64,
+    pub(crate) xform: Option<umbra::internals::xform::Xform>,
+    pub(crate) interp: Interp,
+    pub(crate) warnings: Vec<String>,
+    /// Each fog volume's tree statistics, computed on first use (a pass over every leaf).
+    pub(crate) stats: std::sync::OnceLock<Vec<umbra::internals::tree::TreeStats>>,
+}
+
+/// `(T, std_err, tau, warnings)`, arrays of shape `(N, C)`.
+pub(crate) type TraceOut<'py> = (
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Bound<'py, PyArray2<f64>>,
+    Vec<String>,
+);
+
+/// A baked image: `(T, std_err or None, summary JSON, warnings)`, arrays of shape `(C, H, W)`
+/// flattened channel-major.
+pub(crate) type BakeOut<'py> = (
+    Bound<'py, PyArray1<f32>>,
+    Option<Bound<'py, PyArray1<f32>>>,
+    String,
+    Vec<String>,
+);
+
+/// A transmittance volume in memory: `(ijk, T, stats JSON, warnings)`, `ijk` of shape `(N, 3)`.
+pub(crate) type VolumeOut<'py> = (
+    Bound<'py, PyArray2<i32>>,
+    Bound<'py, PyArray1<f32>>,
+    String,
+    Vec<String>,
+);
+
+/// A transmittance volume's stats as a JSON object: [`umbra::bake::VolumeStats`]'s fields
+/// and `ns_per_voxel`.
+pub(crate) fn stats_json(st: &umbra::bake::VolumeStats) -> PyResult<String> {
+    let mut v = serde_json::to_value(st).map_err(|e| raise(Class::Other, e.to_string()))?;
+    if let Some(o) = v.as_object_mut() {
+        o.insert("ns_per_voxel".into(), serde_json::json!(st.ns_per_voxel()));
+    }
+    Ok(v.to_string())
+}
+
+impl NativeVolume {
+    /// This volume's transmittance volume as the options (the Python keywords, JSON text) ask
+    /// for it, written to `output` (or a name only, in memory): the request's plan, checked
+    /// as the CLI checks it, and the loaded grid.
+    pub(crate) fn volume_plan(
+        &self,
+        options: &str,
+        output: PathBuf,
+    ) -> PyResult<(&umbra::Volume, umbra::bake::VolumeJob)> {
+        let request = self.request(options, output)?;
+        let plan = request.plan().map_err(py_err)?;
+        let BakePlan::Volume(job) = plan else {
+            return Err(arg(
+                "path",
+                "a transmittance volume is written to a .vdb file",
+            ));
+        };
+        let vol = self.single("transmittance volume")?;
+        Ok((vol, *job))
+    }
+
+    /// A transmittance volume's warnings as the CLI prints them: `FILE: warning`.
+    pub(crate) fn volume_warnings(&self, w: &[umbra::bake::Warning]) -> Vec<String> {
+        w.iter()
+            .map(|w| format!("{}: {w}", self.path.display()))
+            .collect()
+    }
+}
+
+#[pymethods]
+impl NativeVolume {
+    /// Load grid `grid` of the `.vdb` file `path` (whole).
+    #[staticmethod]
+    #[pyo3(signature = (path, grid, density_scale, interp, xform))]
+    fn open(
+        py: Python<'_>,
+        path: PathBuf,
+        grid: String,
+        density_scale: f64,
+        interp: &str,
+        xform: Option<Vec<f64>>,
+    ) -> PyResult<Self> {
+        if umbra::input::InputKind::of(&path).is_scene_file() {
+            return Err(arg(
+                "path",
+                format!(
+                    "{} is a scene file: load it with umbra.Volume.from_scene",
+                    path.display()
+                ),
+            ));
+        }
+        Self::load(
+            py,
+            path,
+            grid,
+            density_scale,
+            interp,
+            xform,
+            Default::default(),
+        )
+    }
+
+    /// Load the `.toml` scene file `path`.
+    #[staticmethod]
+    #[pyo3(signature = (path, density_scale, interp, xform))]
+    fn open_scene(
+        py: Python<'_>,
+        path: PathBuf,
+        density_scale: f64,
+        interp: &str,
+        xform: Option<Vec<f64>>,
+    ) -> PyResult<Self> {
+        if !umbra::input::InputKind::of(&path).is_scene_file() {
+            return Err(arg(
+                "path",
+                format!(
+                    "{} is not a scene file (.toml): load a grid with umbra.Volume",
+                    path.display()
+                ),
+            ));
+        }
+        Self::load(
+            py,
+            path,
+            "density".into(),
+            density_scale,
+            interp,
+            xform,
+            Default::default(),
+        )
+    }
+
+    /// Load the volumes of the USD stage `path` at time code `time` (default: its start);
+    /// toward `light`, only those its shadow link includes.
+    #[staticmethod]
+    #[pyo3(signature = (path, time, volumes, field, density_scale, interp, xform, light=None))]
+    #[allow(clippy::too_many_arguments)]
+    fn open_stage(
+        py: Python<'_>,
+        path: PathBuf,
+        time: Option<f64>,
+        volumes: Vec<String>,
+        field: String,
+        density_scale: f64,
+        interp: &str,
+        xform: Option<Vec<f64>>,
+        light: Option<String>,
+    ) -> PyResult<Self> {
+        if !umbra::input::InputKind::of(&path).is_stage() {
+            return Err(arg(
+                "path",
+                format!(
+                    "{} is not a USD stage (.usd, .usda, .usdc, .usdz)",
+                    path.display()
+                ),
+            ));
+        }
+        let sel = umbra::usd::Selection {
+            time,
+            volumes,
+            field,
+            light,
+        };
+        Self::load(
+            py,
+            path,
+            "density".into(),
+            density_scale,
+            interp,
+            xform,
+            sel,
+        )
+    }
+
+    /// What the bad-voxel policy changed, as warning lines.
+    #[getter]
+    fn warnings(&self) -> Vec<String> {
+        self.warnings.clone()
+    }
+
+    #[getter]
+    fn path(&self) -> PathBuf {
+        self.path.clone()
+    }
+
+    #[getter]
+    fn grid(&self) -> String {
+        self.scene.grid_names()
+    }
+
+    #[getter]
+    fn density_scale(&self) -> f64 {
+        self.density_scale
+    }
+
+    #[getter]
+    fn interp(&self) -> &'static str {
+        match self.interp {
+            Interp::Nearest => "nearest",
+            Interp::Trilinear => "trilinear",
+        }
+    }
+
+    #[getter]
+    fn channels(&self) -> usize {
+        self.scene.channels()
+    }
+
+    /// World-from-index, 4x4 row-major (the translation in the last column).
+    fn world_from_index(&self) -> PyResult<[[f64; 4]; 4]> {
+        let r = self.single("world_from_index")?.world_from_index_rows();
+        Ok([r[0], r[1], r[2], [0.0, 0.0, 0.0, 1.0]])
+    }
+
+    /// Inclusive index box of the active voxels (tiles count as the voxels they cover).
+    fn index_bbox(&self) -> PyResult<Option<[[i32; 3]; 2]>> {
+        self.single("index_bbox")?;
+        Ok(self.stats().first().and_then(|s| s.index_bbox))
+    }
+
+    /// Active voxels (over every volume of a scene).
+    fn active_voxels(&self) -> u64 {
+        self.stats().iter().map(|s| s.active_voxels).sum()
+    }
+
+    /// World box of the active voxel centres (the index box's corners in world space; a
+    /// scene: over its volumes).
+    fn world_bbox(&self) -> Option<[[f64; 3]; 2]> {
+        let mut lo = [f64::INFINITY; 3];
+        let mut hi = [f64::NEG_INFINITY; 3];
+        for (f, s) in self.scene.fogs().iter().zip(self.stats()) {
+            let Some(b) = s.index_bbox else {
+                continue;
+            };
+            let b = b.map(|c| c.map(f64::from));
+            for p in umbra::internals::math::box_corners(b) {
+                let w = f.volume().to_world(p).to_array();
+                for a in 0..3 {
+                    lo[a] = lo[a].min(w[a]);
+                    hi[a] = hi[a].max(w[a]);
+                }
+            }
+        }
+        (lo[0] <= hi[0]).then_some([lo, hi])
+    }
+
+    /// Transmittance along the segments `origins[n] -> ends[n]` (ray id `ray_id + n`).
+    fn trace<'py>(
+        &self,
+        py: Python<'py>,
+        origins: PyReadonlyArray2<'py, f64>,
+        ends: PyReadonlyArray2<'py, f64>,
+        options: &str,
+        ray_id: u64,
+        threads: usize,
+    ) -> PyResult<TraceOut<'py>> {
+        let (o, e) = (points(&origins)?, points(&ends)?);
+        if o.len() != e.len() {
+            return Err(arg(
+                "ends",
+                format!("{} origins but {} ends", o.len(), e.len()),
+            ));
+        }
+        drop((origins, ends));
+        let n = o.len();
+        let ray_of = |row: usize| Ray::between(o[row], e[row]).map_err(|e| e.to_string());
+        self.run(py, n, ray_of, options, ray_id, threads)
+    }
+
+    /// Transmittance from each point toward a light (`query --at`), ray id `ray_id + n`.
+    #[allow(clippy::too_many_arguments)]
+    fn trace_to_light<'py>(
+        &self,
+        py: Python<'py>,
+        points_: PyReadonlyArray2<'py, f64>,
+        light_dir: Option<[f64; 3]>,
+        light_pos: Option<[f64; 3]>,
+        options: &str,
+        ray_id: u64,
+        threads: usize,
+    ) -> PyResult<TraceOut<'py>> {
+        let light = match (light_dir, light_pos) {
+            (Some(dir), None) => Light::Directional { dir },
+            (None, Some(pos)) => Light::Point { pos },
+            _ => {
+                return Err(arg(
+                    "light_dir",
+                    "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them",
+                ))
+            }
+        };
+        // A direction that is no direction fails the call, not each row.
+        if let Light::Directional { .. } = light {
+            light
+                .ray_from_scene(&self.scene, [0.0; 3])
+                .map_err(py_err)?;
+        }
+        let p = points(&points_)?;
+        drop(points_);
+        let n = p.len();
+        let scene = &self.scene;
+        let ray_of = |row: usize| {
+            light
+                .ray_from_scene(scene, p[row])
+                .map_err(|e| cli_worded(e).to_string())
+        };
+        self.run(py, n, ray_of, options, ray_id, threads)
+    }
+
+    /// T toward a light at every active voxel (`umbra bake ... -o OUT.vdb`, in memory):
+    /// the voxels' index coordinates and values in output order (leaves by origin, voxels by
+    /// offset).
+    fn transmittance_volume<'py>(
+        &self,
+        py: Python<'py>,
+        options: &str,
+    ) -> PyResult<VolumeOut<'py>> {
+        let (vol, job) = self.volume_plan(options, PathBuf::from("memory.vdb"))?;
+        let (light, est, opts, threads) = (job.light, job.estimator, job.options, job.threads);
+        let (ijk, t, stats) = py
+            .detach(|| -> umbra::Result<_> {
+                let (leaves, stats) =
+                    umbra::bake::transmittance_leaves(vol, &light, &est, &opts, threads, &|_| {})?;
+                let voxels = usize::try_from(stats.voxels).unwrap_or(0);
+                let (mut ijk, mut t) = (Vec::with_capacity(voxels * 3), Vec::with_capacity(voxels));
+                for l in &leaves {
+                    for (n, &v) in l.values.iter().enumerate() {
+                        if umbra::internals::tree::bit(&l.active, n) {
+                            ijk.extend_from_slice(&[
+                                l.origin[0] + (n >> 6) as i32,
+                                l.origin[1] + ((n >> 3) & 7) as i32,
+                                l.origin[2] + (n & 7) as i32,
+                            ]);
+                            t.push(v);
+                        }
+                    }
+                }
+                Ok((ijk, t, stats))
+            })
+            .map_err(py_err)?;
+        let n = t.len();
+        let warnings = self.volume_warnings(&umbra::bake::volume_warnings(&vol.sanitized()));
+        Ok((
+            PyArray1::from_vec(py, ijk).reshape([n, 3])?,
+            PyArray1::from_vec(py, t),
+            stats_json(&stats)?,
+            warnings,
+        ))
+    }
+
+    /// Write the transmittance volume `umbra bake FILE ... -o PATH` writes for this volume
+    /// (its file, grid, density scale and `xform` recorded): `(stats JSON, warnings)`.
+    fn write_transmittance_volume(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        options: &str,
+    ) -> PyResult<(String, Vec<String>)> {
+        let (vol, job) = self.volume_plan(options, path)?;
+        let report = py.detach(|| job.run_on(vol, &|_| {})).map_err(py_err)?;
+        Ok((
+            stats_json(&report.stats)?,
+            self.volume_warnings(&report.warnings),
+        ))
+    }
+
+    /// Bake a transmittance map (`umbra bake`, in memory) as the options (the Python
+    /// keywords, JSON text) ask.
+    fn bake<'py>(&self, py: Python<'py>, options: &str) -> PyResult<BakeOut<'py>> {
+        let request = self.request(options, PathBuf::new())?;
+        let threads = request.options.threads;
+        let report = py
+            .detach(|| -> umbra::Result<_> {
+                let (job, camera) = self.map_plan(&request)?;
+                on_threads(threads, || job.bake_in_memory(&self.scene, camera, &|_| {}))?
+            })
+            .map_err(py_err)?;
+        let map = &report.map;
+        let json = summary_json(&report)?;
+        let c = map.channels();
+        let mut t = Vec::with_capacity(map.t.len() * c);
+        let mut e = map
+            .std_err
+            .as_ref()
+            .map(|_| Vec::with_capacity(map.t.len() * c));
+        for ch in 0..c {
+            let (tc, ec, _) = map.channel(ch);
+            t.extend_from_slice(tc);
+            if let (Some(e), Some(ec)) = (e.as_mut(), ec) {
+                e.extend_from_slice(ec);
+            }
+        }
+        let warnings = report.warnings.iter().map(ToString::to_string).collect();
+        Ok((
+            PyArray1::from_vec(py, t),
+            e.map(|e| PyArray1::from_vec(py, e)),
+            json,
+            warnings,
+        ))
+    }
+
+    /// Write the deep map `umbra bake FILE ... --deep [--deep-error E] -o PATH` writes for
+    /// this volume (its file, grid, density scale and `xform` recorded), byte for byte:
+    /// `(summary JSON, deep stats JSON, warnings)`.
+    fn write_deep_map(
+        &self,
+        py: Python<'_>,
+        path: PathBuf,
+        options: &str,
+    ) -> PyResult<(String, String, Vec<String>)> {
+        let mut request = self.request(options, path)?;
+        request.options.deep = request.options.deep_format.is_none();
+        let threads = request.options.threads;
+        // The CLI's order: the request is planned (a camera file read), the outputs checked,
+        // then the camera framed.
+        let report = py
+            .detach(|| -> umbra::Result<_> {
+                if let BakePlan::Map(job) = request.plan()? {
+                    job.check_outputs()?;
+                }
+                let (job, camera) = self.map_plan(&request)?;
+                on_threads(threads, || job.run_loaded(&self.scene, camera, &|_| {}))?
+            })
+            .map_err(py_err)?;
+        let deep = match (report.deep.as_ref(), report.fixed.as_ref()) {
+            (Some(d), _) => deep_json(d),
+            (None, Some(f)) => {
+                serde_json::to_value(f).map_err(|e| raise(Class::Other, e.to_string()))?
+            }
+            _ => return Err(raise(Class::Other, "the bake made no deep map".into())),
+        };
+        let warnings = report.warnings.iter().map(ToString::to_string).collect();
+        Ok((summary_json(&report)?, deep.to_string(), warnings))
+    }
+}
+
+impl NativeVolume {
+    /// This volume's request: the Python keywords' options (JSON text), with what the volume
+    /// was loaded with (file, grid, density scale, interpolation, `xform`) recorded.
+    pub(crate) fn request(&self, options: &str, output: PathBuf) -> PyResult<BakeRequest> {
+        let mut o = BakeOptions::from_json(options).map_err(py_err)?;
+        o.grid.clone_from(&self.grid);
+        o.density_scale = self.density_scale;
+        o.interp = self.interp;
+        o.xform = self
+            .xform
+            .map(|x| x.rows().iter().flatten().copied().collect());
+        Ok(BakeRequest {
+            input: self.path.clone(),
+            output,
+            options: o,
+        })
+    }
+
+    /// The map of a request on this volume: its fixed camera, or the one its view frames.
+    pub(crate) fn map_plan(&self, request: &BakeRequest) -> umbra::Result<(BakeJob, Camera)> {
+        let BakePlan::Map(job) = request.plan()? else {
+            return Err(umbra::Error::InvalidArgument {
+                name: "output".into(),
+                reason: "a map is written to an EXR file".into(),
+            });
+        };
+        let camera = match job.camera {
+            Some(c) => c,
+            None => Camera::frame(&job.view, &self.scene.box_corners()?)?,
+        };
+        Ok((*job, camera))
+    }
+}
