@@ -20,8 +20,9 @@ pub enum Error {
         /// Underlying error (not a `#[source]`: the message already includes it).
         err: std::io::Error,
     },
-    /// The path exists but is not an OpenVDB file (bad magic number, too short, a directory).
-    #[error("{}: not a VDB file ({reason})", path.display())]
+    /// The path exists but is not an OpenVDB file (bad magic number, too short, a directory);
+    /// for a `.nvdb` path, not a NanoVDB file (the message says which).
+    #[error("{}: not a {} file ({reason})", path.display(), format_of(path))]
     NotVdb {
         /// File concerned.
         path: PathBuf,
@@ -29,7 +30,7 @@ pub enum Error {
         reason: String,
     },
     /// The file is a VDB file but its content is corrupt or truncated.
-    #[error("{}: corrupt VDB file: {reason}", path.display())]
+    #[error("{}: corrupt {} file: {reason}", path.display(), format_of(path))]
     Invalid {
         /// File concerned.
         path: PathBuf,
@@ -109,6 +110,11 @@ pub enum Error {
         /// Why it is invalid.
         reason: String,
     },
+}
+
+/// The grid format a path is read as, for messages (`VDB`, `NanoVDB`).
+fn format_of(path: &std::path::Path) -> &'static str {
+    crate::input::InputKind::of(path).format_name()
 }
 
 /// A decoding error without a path: the byte reader and decoders produce these, and

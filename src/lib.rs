@@ -76,6 +76,7 @@ mod demand;
 mod light;
 mod math;
 mod memory;
+mod nvdb;
 mod output;
 mod points;
 mod ray;

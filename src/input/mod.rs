@@ -1,7 +1,8 @@
 //! Inputs: what kind of input a path is, decided here and nowhere else, and the one interface
 //! through which the model gets a grid's tree and transform from a file ([`GridFile`]).
 //!
-//! A path is a grid file (`.vdb`: its grids are read directly, `grid` names one), a scene file
+//! A path is a grid file (`.vdb`, or NanoVDB's `.nvdb`: its grids are read directly, `grid`
+//! names one), a scene file
 //! (`.toml`: `[[volume]]` tables naming grid files, [`crate::scene::file`]) or a USD stage
 //! (`.usd`, `.usda`, `.usdc`, and the package `.usdz`: its `Volume` prims name grid files,
 //! [`crate::usd`]). Every other module asks [`InputKind::of`] (`tests/layering.rs` fails on an
@@ -25,6 +26,8 @@ pub enum InputKind {
     /// An OpenVDB grid file (`.vdb`), and any path no other kind claims: it is read as one,
     /// and the reader's error says why it is not.
     Vdb,
+    /// A NanoVDB grid file (`.nvdb`): each grid one contiguous block, read whole.
+    Nvdb,
     /// A scene file (`.toml`): `[[volume]]` tables naming grid files.
     Scene,
     /// A USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`); `package` for a `.usdz` package (a zip
@@ -43,6 +46,8 @@ impl InputKind {
         let is = |x: &str| ext.eq_ignore_ascii_case(x);
         if is("toml") {
             Self::Scene
+        } else if is("nvdb") {
+            Self::Nvdb
         } else if is("usdz") {
             Self::Stage { package: true }
         } else if is("usd") || is("usda") || is("usdc") {
@@ -56,7 +61,17 @@ impl InputKind {
     /// rather than a file naming grid files (a scene file or a stage).
     #[must_use]
     pub fn is_grid_file(self) -> bool {
-        matches!(self, Self::Vdb)
+        matches!(self, Self::Vdb | Self::Nvdb)
+    }
+
+    /// The name of the grid format, as error messages say it: `NanoVDB` for `.nvdb`, else
+    /// `VDB` (what any other path is read as).
+    #[must_use]
+    pub fn format_name(self) -> &'static str {
+        match self {
+            Self::Nvdb => "NanoVDB",
+            _ => "VDB",
+        }
     }
 
     /// Whether the input is a scene file (`.toml`).
@@ -100,6 +115,12 @@ mod tests {
         assert_eq!(of("cloud"), InputKind::Vdb);
         assert_eq!(of("cloud.bin"), InputKind::Vdb);
         assert_eq!(of("scene.TOML"), InputKind::Scene);
+        assert_eq!(of("a/smoke.nvdb"), InputKind::Nvdb);
+        assert_eq!(of("smoke.0001.NVDB"), InputKind::Nvdb);
+        assert!(of("a.NvDb").is_grid_file() && !of("a.nvdb").is_scene_file());
+        assert!(!of("a.nvdb").is_stage());
+        assert_eq!(of("a.nvdb").format_name(), "NanoVDB");
+        assert_eq!(of("a.vdb").format_name(), "VDB");
         assert_eq!(of("a/b.USDZ"), InputKind::Stage { package: true });
         for s in ["s.usd", "s.usda", "s.USDC", "s.UsdA"] {
             assert_eq!(of(s), InputKind::Stage { package: false }, "{s}");

@@ -19,6 +19,8 @@ pub struct GridFile {
 enum Reader {
     /// An OpenVDB archive.
     Vdb(Archive),
+    /// A NanoVDB file ([`crate::nvdb`]): each grid one contiguous block, decoded whole.
+    Nvdb(crate::nvdb::NvdbFile),
 }
 
 impl GridFile {
@@ -26,12 +28,16 @@ impl GridFile {
     /// grid file of another format is read as `.vdb`, whose reader says why it is not one).
     ///
     /// # Errors
-    /// As [`Archive::open`]: [`crate::Error::Io`], [`crate::Error::NotVdb`],
+    /// As [`Archive::open`] (or the NanoVDB reader's open for `.nvdb`): [`crate::Error::Io`],
+    /// [`crate::Error::NotVdb`],
     /// [`crate::Error::Unsupported`], [`crate::Error::Invalid`], naming the file.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
-        Ok(Self {
-            reader: Reader::Vdb(Archive::open(path.as_ref())?),
-        })
+        let path = path.as_ref();
+        let reader = match super::InputKind::of(path) {
+            super::InputKind::Nvdb => Reader::Nvdb(crate::nvdb::NvdbFile::open(path)?),
+            _ => Reader::Vdb(Archive::open(path)?),
+        };
+        Ok(Self { reader })
     }
 
     /// The file it reads.
@@ -39,6 +45,7 @@ impl GridFile {
     pub fn path(&self) -> &Path {
         match &self.reader {
             Reader::Vdb(a) => &a.path,
+            Reader::Nvdb(f) => &f.path,
         }
     }
 
@@ -49,6 +56,7 @@ impl GridFile {
     pub fn check_grid(&self, grid: &str) -> Result<()> {
         match &self.reader {
             Reader::Vdb(a) => a.find_grid(grid).map(|_| ()),
+            Reader::Nvdb(f) => f.find_grid(grid).map(|_| ()),
         }
     }
 
@@ -59,6 +67,7 @@ impl GridFile {
     pub fn load(&self, grid: &str) -> Result<Grid> {
         match &self.reader {
             Reader::Vdb(a) => a.load(a.find_grid(grid)?),
+            Reader::Nvdb(f) => f.load(f.find_grid(grid)?),
         }
     }
 
@@ -72,6 +81,8 @@ impl GridFile {
     pub fn lazy(&self, grid: &str) -> Result<Option<LazyGrid>> {
         match &self.reader {
             Reader::Vdb(a) => a.open_lazy(a.find_grid(grid)?).map(Some),
+            // One contiguous block per grid, with no index of its nodes outside it.
+            Reader::Nvdb(f) => f.find_grid(grid).map(|_| None),
         }
     }
 
@@ -84,6 +95,7 @@ impl GridFile {
     pub fn extent(&self, grid: &str) -> Result<GridExtent> {
         match &self.reader {
             Reader::Vdb(a) => a.extent(a.find_grid(grid)?),
+            Reader::Nvdb(f) => f.extent(f.find_grid(grid)?),
         }
     }
 }

@@ -4,7 +4,7 @@
 //! as an independent cross-check in the tests; `ARCHITECTURE.md` places this module in the layers.
 
 mod archive;
-mod blosc;
+pub(crate) mod blosc;
 mod bytes;
 mod decode;
 mod lazy;

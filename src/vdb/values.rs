@@ -169,7 +169,7 @@ impl PrecisionLoss {
         self.underflowed += o.underflowed;
     }
 
-    fn add(&mut self, v: f64) {
+    pub(crate) fn add(&mut self, v: f64) {
         self.values += 1;
         let f = v as f32;
         if v.is_finite() && f.is_infinite() {

@@ -1,0 +1,365 @@
+//! Decode a NanoVDB grid buffer's tree into umbra's flat [`Tree`]: the root table, then each
+//! upper node, lower node and leaf depth-first from it, each at an offset checked to be one of
+//! the nodes of its level (every node reached exactly once, so a file cannot make a node count
+//! twice), each node's stored origin checked against the slot it hangs from. Values become `f32`
+//! as NanoVDB returns them: quantised leaves `code * quantum + minimum` in `f32`, doubles
+//! rounded, Vec3f their length. Bounds are computed from the values afterwards
+//! ([`Tree::compute_bounds`]), never taken from the file's min/max.
+
+use super::bytes::{invalid, Bytes};
+use super::layout::{GridHead, Layout, Leaves, GRID_BYTES, TILE_BYTES};
+use crate::error::DecodeResult;
+use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree};
+use crate::vdb::{PrecisionLoss, ValueKind};
+
+/// Where each level's nodes are in the buffer.
+pub(crate) struct Nodes {
+    /// Absolute offset of the first upper and lower node.
+    pub(crate) first: [u64; 2],
+    /// Absolute offset of every leaf, increasing.
+    pub(crate) leaves: Vec<u64>,
+    /// Absolute offset of the root.
+    pub(crate) root: u64,
+    /// Root tiles.
+    pub(crate) table_size: u64,
+}
+
+/// Locate the nodes of every level from the tree header, each level's nodes within the buffer.
+pub(crate) fn locate(b: &Bytes<'_>, h: &GridHead, l: &Layout) -> DecodeResult<Nodes> {
+    let tree = GRID_BYTES;
+    let abs = |k: usize| tree.checked_add(h.node_offset[k]);
+    let root = abs(3).ok_or_else(|| invalid("root offset overflows"))?;
+    let table_size = u64::from(b.u32(root + 24)?);
+    b.slice(root, l.root_bytes + table_size * TILE_BYTES)?;
+    let mut first = [0u64; 2];
+    for (i, k) in [(0usize, 2usize), (1, 1)] {
+        let n = u64::from(h.node_count[k]);
+        let at = abs(k).ok_or_else(|| invalid("node offset overflows"))?;
+        if n > 0 {
+            let bytes = n
+                .checked_mul(l.node_bytes[i])
+                .ok_or_else(|| invalid("node count overflows"))?;
+            b.slice(at, bytes).map_err(|_| {
+                invalid(format!(
+                    "{n} {} nodes of {} bytes at byte {at} do not fit in the grid buffer of {} \
+                     bytes",
+                    ["upper", "lower"][i],
+                    l.node_bytes[i],
+                    b.len()
+                ))
+            })?;
+        }
+        first[i] = at;
+    }
+    let leaves = leaf_offsets(b, h, l)?;
+    Ok(Nodes {
+        first,
+        leaves,
+        root,
+        table_size,
+    })
+}
+
+/// The offset of every leaf: fixed-size leaves one after the other, FpN leaves each as long as
+/// its own bit width says.
+fn leaf_offsets(b: &Bytes<'_>, h: &GridHead, l: &Layout) -> DecodeResult<Vec<u64>> {
+    let n = h.node_count[0] as usize;
+    let mut at = GRID_BYTES
+        .checked_add(h.node_offset[0])
+        .ok_or_else(|| invalid("leaf offset overflows"))?;
+    // Every leaf is at least 96 bytes: a count the buffer cannot hold is refused before any
+    // allocation.
+    if (n as u64).saturating_mul(96) > b.len() {
+        return Err(invalid(format!(
+            "{n} leaves cannot fit in a grid buffer of {} bytes",
+            b.len()
+        )));
+    }
+    let mut out = Vec::with_capacity(n);
+    for i in 0..n {
+        let size = leaf_size(b, l, at)?;
+        b.slice(at, size).map_err(|_| {
+            invalid(format!(
+                "leaf {i} of {size} bytes at byte {at} runs past the end of the grid buffer \
+                 ({} bytes)",
+                b.len()
+            ))
+        })?;
+        out.push(at);
+        at += size;
+    }
+    Ok(out)
+}
+
+/// FpN's bit width from a leaf's flags: `1 << (flags >> 5)`, 1 to 16 bits.
+fn fpn_bits(b: &Bytes<'_>, at: u64) -> DecodeResult<u32> {
+    let shift = b.u8(at + 15)? >> 5;
+    if shift > 4 {
+        return Err(invalid(format!(
+            "FpN leaf at byte {at}: bit width 2^{shift} (NanoVDB writes 1 to 16 bits)"
+        )));
+    }
+    Ok(1 << shift)
+}
+
+fn leaf_size(b: &Bytes<'_>, l: &Layout, at: u64) -> DecodeResult<u64> {
+    Ok(match l.leaves {
+        Leaves::Variable => 96 + 64 * u64::from(fpn_bits(b, at)?),
+        _ => l.leaf_bytes,
+    })
+}
+
+/// The decoded tree, with what decoding it counted.
+pub(crate) struct Decoded {
+    pub tree: Tree,
+    pub precision: Option<PrecisionLoss>,
+    /// Active voxels, tiles counting the voxels they cover.
+    pub voxels: u64,
+    /// Active tiles in lower nodes, upper nodes and the root.
+    pub tiles: [u64; 3],
+}
+
+/// The decoder's state: the buffer, the layout, where the nodes are and which were reached.
+struct Decoder<'a> {
+    b: Bytes<'a>,
+    l: Layout,
+    nodes: &'a Nodes,
+    counts: [u32; 3],
+    seen: [Vec<bool>; 3],
+    tree: Tree,
+    precision: PrecisionLoss,
+    voxels: u64,
+    tiles: [u64; 3],
+}
+
+/// Decode the tree of the grid buffer `b` whose headers are `h`.
+pub(crate) fn decode(b: &Bytes<'_>, h: &GridHead, l: &Layout, nodes: &Nodes) -> DecodeResult<Decoded> {
+    let background = decode_value(b, l, nodes.root + l.root_background, &mut PrecisionLoss::default())?;
+    let mut d = Decoder {
+        b: *b,
+        l: *l,
+        nodes,
+        counts: h.node_count,
+        seen: [
+            vec![false; h.node_count[0] as usize],
+            vec![false; h.node_count[1] as usize],
+            vec![false; h.node_count[2] as usize],
+        ],
+        tree: Tree {
+            background,
+            ..Tree::default()
+        },
+        precision: PrecisionLoss::default(),
+        voxels: 0,
+        tiles: [0; 3],
+    };
+    d.precision = PrecisionLoss::default();
+    for t in 0..nodes.table_size {
+        d.root_tile(t)?;
+    }
+    d.tree.root.sort_by_key(|e| e.origin);
+    if d.tree.root.windows(2).any(|w| w[0].origin == w[1].origin) {
+        return Err(invalid("two root tiles share an origin"));
+    }
+    for (k, name) in ["leaves", "lower nodes", "upper nodes"].iter().enumerate() {
+        let reached = d.seen[k].iter().filter(|&&s| s).count();
+        if reached != d.seen[k].len() {
+            return Err(invalid(format!(
+                "the tree header counts {} {name} but {reached} hang from the root",
+                d.seen[k].len()
+            )));
+        }
+    }
+    let precision = (l.kind == ValueKind::Double).then_some(d.precision);
+    d.tree.compute_bounds();
+    Ok(Decoded {
+        tree: d.tree,
+        precision,
+        voxels: d.voxels,
+        tiles: d.tiles,
+    })
+}
+
+/// One value of the grid's value type at `at` (a Vec3f: its length), doubles tracked.
+fn decode_value(b: &Bytes<'_>, l: &Layout, at: u64, p: &mut PrecisionLoss) -> DecodeResult<f32> {
+    let bytes = b.slice(at, l.value)?;
+    if l.kind == ValueKind::Double {
+        p.add(b.f64(at)?);
+    }
+    Ok(l.kind.decode(bytes))
+}
+
+impl Decoder<'_> {
+    fn root_tile(&mut self, t: u64) -> DecodeResult<()> {
+        let at = self.nodes.root + self.l.root_bytes + t * TILE_BYTES;
+        let key = self.b.u64(at)?;
+        if key >> 63 != 0 {
+            return Err(invalid(format!("root tile {t}: key {key:#x} has its top bit set")));
+        }
+        let coord = |shift: u32| (((key >> shift) & 0x1f_ffff) << 12) as u32 as i32;
+        let origin = [coord(42), coord(21), coord(0)];
+        let child = self.b.i64(at + 8)?;
+        let slot = if child == 0 {
+            let active = self.b.u32(at + 16)? != 0;
+            let value = decode_value(&self.b, &self.l, at + self.l.tile_value, &mut self.precision)?;
+            if active {
+                self.tiles[2] += 1;
+                self.voxels = self.voxels.saturating_add(1 << 36);
+            }
+            RootSlot::Tile { value, active }
+        } else {
+            let node = self.child_at(self.nodes.root, child, 2)?;
+            RootSlot::Child(self.internal(node, origin, 2)?)
+        };
+        self.tree.root.push(RootEntry { origin, slot });
+        Ok(())
+    }
+
+    /// The absolute offset `base + rel` as node `index` of level `level` (0 leaf, 1 lower, 2
+    /// upper), marked reached; an offset that is no node of the level, or one reached before,
+    /// is an error.
+    fn child_at(&mut self, base: u64, rel: i64, level: usize) -> DecodeResult<u64> {
+        let at = base.checked_add_signed(rel);
+        let index = at.and_then(|at| match level {
+            0 => self.nodes.leaves.binary_search(&at).ok(),
+            _ => {
+                let size = self.l.node_bytes[2 - level];
+                let off = at.checked_sub(self.nodes.first[2 - level])?;
+                (off % size == 0).then_some((off / size) as usize)
+            }
+        });
+        let names = ["leaf", "lower node", "upper node"];
+        let Some(i) = index.filter(|&i| i < self.counts[level] as usize) else {
+            return Err(invalid(format!(
+                "a child offset {rel} from byte {base} is not a {} of the tree",
+                names[level]
+            )));
+        };
+        if std::mem::replace(&mut self.seen[level][i], true) {
+            return Err(invalid(format!(
+                "{} {i} hangs from two parents",
+                names[level]
+            )));
+        }
+        Ok(at.unwrap_or_default())
+    }
+
+    /// The node at `at` must be the one whose origin its parent's slot says.
+    fn check_origin(&self, at: u64, want: [i32; 3], dim: i32) -> DecodeResult<()> {
+        let stored = self.b.vec3i(at)?.map(|c| c & !(dim - 1));
+        if stored != want {
+            return Err(invalid(format!(
+                "node at byte {at} has origin {stored:?} but hangs where {want:?} belongs"
+            )));
+        }
+        Ok(())
+    }
+
+    /// An upper (`level` 2) or lower (1) node at `at`, origin `origin`: its index in umbra's
+    /// node list.
+    fn internal(&mut self, at: u64, origin: [i32; 3], level: usize) -> DecodeResult<u32> {
+        let (log2, child_log2, n) = if level == 2 { (5, 7, 32768) } else { (4, 3, 4096) };
+        self.check_origin(at, origin, 1 << (log2 + child_log2))?;
+        let mask_bytes = n as u64 / 8;
+        let value_mask = self.b.word_slice(at + 32, n / 64)?;
+        let child_mask = self.b.word_slice(at + 32 + mask_bytes, n / 64)?;
+        let table = at + self.l.table[2 - level];
+        let mut slots = vec![0u32; n].into_boxed_slice();
+        for (s, slot) in slots.iter_mut().enumerate() {
+            let e = table + s as u64 * self.l.entry;
+            if crate::tree::bit(&child_mask, s) {
+                let side = (1usize << log2) - 1;
+                let local = [s >> (2 * log2), (s >> log2) & side, s & side];
+                let o = [0, 1, 2].map(|a| origin[a].wrapping_add((local[a] as i32) << child_log2));
+                let rel = self.b.i64(e)?;
+                let child = self.child_at(at, rel, level - 1)?;
+                *slot = if level == 2 {
+                    self.internal(child, o, 1)?
+                } else {
+                    self.leaf(child, o)?
+                };
+            } else {
+                let v = decode_value(&self.b, &self.l, e, &mut self.precision)?;
+                if crate::tree::bit(&value_mask, s) {
+                    self.tiles[level - 1] += 1;
+                    self.voxels = self.voxels.saturating_add(1 << (3 * child_log2));
+                }
+                *slot = v.to_bits();
+            }
+        }
+        let node = Internal {
+            origin,
+            child_mask,
+            value_mask,
+            slots,
+            bounds: Bounds::EMPTY,
+            halo: Bounds::EMPTY,
+            tile_halo: Box::new([]),
+            halo_exceptions: Box::new([]),
+        };
+        let list = if level == 2 {
+            &mut self.tree.uppers
+        } else {
+            &mut self.tree.lowers
+        };
+        let index = u32::try_from(list.len()).map_err(|_| invalid("more than 2^32 nodes"))?;
+        list.push(node);
+        Ok(index)
+    }
+
+    /// The leaf at `at`, origin `origin`: its index in umbra's leaf list.
+    fn leaf(&mut self, at: u64, origin: [i32; 3]) -> DecodeResult<u32> {
+        self.check_origin(at, origin, 8)?;
+        let value_mask = self.b.words::<8>(at + 16)?;
+        let mut values = [0f32; 512];
+        let codes = at + self.l.leaf_values;
+        match self.l.leaves {
+            Leaves::Raw => {
+                for (i, v) in values.iter_mut().enumerate() {
+                    let p = codes + i as u64 * self.l.value;
+                    *v = decode_value(&self.b, &self.l, p, &mut self.precision)?;
+                }
+            }
+            Leaves::Fixed(bits) => self.dequantise(at, bits, &mut values)?,
+            Leaves::Variable => {
+                let bits = fpn_bits(&self.b, at)?;
+                self.dequantise(at, bits, &mut values)?;
+            }
+        }
+        self.voxels = self
+            .voxels
+            .saturating_add(value_mask.iter().map(|w| u64::from(w.count_ones())).sum());
+        let index = u32::try_from(self.tree.leaves.len()).map_err(|_| invalid("too many leaves"))?;
+        self.tree.leaves.push(Leaf {
+            origin,
+            value_mask,
+            bounds: Bounds::EMPTY,
+            halo: Bounds::EMPTY,
+            data: index,
+        });
+        self.tree.values.push(values);
+        Ok(index)
+    }
+
+    /// Quantised leaf values: code `i` is bits `[i w, (i + 1) w)` of the little-endian code
+    /// array at byte 96 (`w` = `bits`); its value `code * quantum + minimum`, in `f32` as
+    /// NanoVDB computes it (`LeafData<Fp4..FpN>::getValue`).
+    fn dequantise(&self, at: u64, bits: u32, out: &mut [f32; 512]) -> DecodeResult<()> {
+        let minimum = self.b.f32(at + 80)?;
+        let quantum = self.b.f32(at + 84)?;
+        let codes = self.b.slice(at + 96, 64 * u64::from(bits))?;
+        let mask = (1u32 << bits) - 1;
+        for (i, v) in out.iter_mut().enumerate() {
+            let bit = i * bits as usize;
+            let byte = bit / 8;
+            let word = if bits == 16 {
+                u32::from(u16::from_le_bytes([codes[byte], codes[byte + 1]]))
+            } else {
+                u32::from(codes[byte]) >> (bit % 8)
+            };
+            let code = word & mask;
+            *v = code as f32 * quantum + minimum;
+        }
+        Ok(())
+    }
+}
