@@ -25,6 +25,7 @@ mod lazy;
 mod library_api;
 mod map_summary;
 mod near_lattice;
+mod nvdb;
 mod omni;
 mod oracle_corpus;
 mod readme;
