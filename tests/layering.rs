@@ -16,7 +16,7 @@ const LAYERS: &[(&str, &[&str])] = &[
         ],
     ),
     ("data", &["tree", "ray", "xform"]),
-    ("input", &["input", "vdb", "usd"]),
+    ("input", &["input", "vdb", "nvdb", "usd"]),
     ("model", &["volume"]),
     ("traversal", &["traverse", "demand"]),
     (
@@ -481,12 +481,14 @@ fn grid_files_open_through_the_input_layer() {
         "vdb::load_grid(",
         "Archive::open(",
         ".open_lazy(",
+        "NvdbFile::open(",
     ];
     let allowed: &[(&str, usize, &str)] = &[(
         "src/info.rs",
-        2,
-        "the report on a .vdb archive itself (its header, descriptors, each grid's compression \
-         and buffers), which only the vdb reader has",
+        3,
+        "the report on a .vdb archive or a .nvdb file itself (its header, descriptors, each \
+         grid's compression and buffers, a NanoVDB grid's codec and checksum), which only the \
+         readers have",
     )];
     // The model takes its grids from the input layer, and names no file format.
     let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("src/volume.rs");
@@ -495,7 +497,7 @@ fn grid_files_open_through_the_input_layer() {
         !model.contains("crate::vdb"),
         "src/volume.rs names crate::vdb: take grids from crate::input"
     );
-    let found = hits(&needles, &["src/input/", "src/vdb/", "src/usd/"]);
+    let found = hits(&needles, &["src/input/", "src/vdb/", "src/nvdb/", "src/usd/"]);
     check_allowed(
         &found,
         allowed,

@@ -90,7 +90,7 @@ pub fn quantisation(code: u32) -> &'static str {
 
 /// Sizes and offsets of every structure of a grid of one value type.
 #[derive(Debug, Clone, Copy)]
-pub(crate) struct Layout {
+pub struct Layout {
     /// The type of root and internal values (and of raw leaf values), as umbra decodes it.
     pub kind: ValueKind,
     /// Bytes of one value.
@@ -121,7 +121,7 @@ fn align(x: u64, a: u64) -> u64 {
 
 impl Layout {
     /// The layout of `GridType` `code`, `None` for a type umbra does not decode.
-    pub(crate) fn of(code: u32) -> Option<Self> {
+    pub fn of(code: u32) -> Option<Self> {
         let (kind, leaves) = match code {
             1 => (ValueKind::Float, Leaves::Raw),
             2 => (ValueKind::Double, Leaves::Raw),

@@ -18,7 +18,7 @@ mod tree;
 
 pub use checksum::Checksum;
 pub use file::{Codec, GridMeta, Version};
-pub use layout::{class_name, quantisation, type_name};
+pub use layout::{class_name, quantisation, type_name, Layout};
 
 use crate::error::{DecodeError, Error, Result};
 use crate::text;

@@ -218,8 +218,9 @@ fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
 fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
     writeln!(
         out,
-        "{}: VDB format {}, library {}, {} bytes, {} grid(s)",
+        "{}: {} format {}, library {}, {} bytes, {} grid(s)",
         escape(&info.path),
+        if info.format == "nvdb" { "NanoVDB" } else { "VDB" },
         info.file_version,
         info.library_version,
         info.file_bytes,
@@ -253,6 +254,14 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
         "  compression: {}",
         g.compression.as_deref().unwrap_or("-")
     )?;
+    if let Some(codec) = &g.codec {
+        writeln!(
+            out,
+            "  NanoVDB codec: {codec}  quantisation: {}  checksum: {}",
+            g.quantisation.as_deref().unwrap_or("-"),
+            g.checksum.as_deref().unwrap_or("-")
+        )?;
+    }
     writeln!(
         out,
         "  map: {}  voxel size: {}",
