@@ -395,8 +395,10 @@ impl GridInfo {
                     world_bbox: (!empty).then_some(meta.world_bbox),
                     active_voxels: Some(meta.voxel_count),
                     leaf_count: Some(u64::from(meta.node_count[0])),
-                    tiles: Some(json!({"root": meta.tile_count[2], "upper": meta.tile_count[1],
-                        "lower": meta.tile_count[0]})),
+                    tiles: Some(
+                        json!({"root": meta.tile_count[2], "upper": meta.tile_count[1],
+                        "lower": meta.tile_count[0]}),
+                    ),
                     error: None,
                     note: Some(format!("{what}: described from the file's metadata")),
                     ..Self::failed(&file.names[i], &meta.name, tree_type, false, String::new())

@@ -497,7 +497,10 @@ fn grid_files_open_through_the_input_layer() {
         !model.contains("crate::vdb"),
         "src/volume.rs names crate::vdb: take grids from crate::input"
     );
-    let found = hits(&needles, &["src/input/", "src/vdb/", "src/nvdb/", "src/usd/"]);
+    let found = hits(
+        &needles,
+        &["src/input/", "src/vdb/", "src/nvdb/", "src/usd/"],
+    );
     check_allowed(
         &found,
         allowed,

@@ -83,7 +83,10 @@ pub(crate) fn check(
     for &at in &nodes.leaves {
         crcs.push(crc32(b.slice(at, l.leaf_bytes)?));
     }
-    let wide: Vec<u8> = crcs.iter().flat_map(|c| u64::from(*c).to_le_bytes()).collect();
+    let wide: Vec<u8> = crcs
+        .iter()
+        .flat_map(|c| u64::from(*c).to_le_bytes())
+        .collect();
     let narrow: Vec<u8> = crcs.iter().flat_map(|c| c.to_le_bytes()).collect();
     if crc32(&wide) == tail || crc32(&narrow) == tail {
         Ok(Checksum::Checked)

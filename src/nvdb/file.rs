@@ -177,7 +177,9 @@ fn parse_segment(
     let count = h.u16(12)?;
     let raw_codec = h.u16(14)?;
     let codec = Codec::from_u16(raw_codec).ok_or_else(|| {
-        DecodeError::invalid(format!("segment at byte {start}: unknown codec {raw_codec}"))
+        DecodeError::invalid(format!(
+            "segment at byte {start}: unknown codec {raw_codec}"
+        ))
     })?;
     if count == 0 {
         return Err(DecodeError::invalid(format!(
@@ -194,13 +196,16 @@ fn parse_segment(
     }
     for g in &mut grids[first..] {
         g.offset = p;
-        p = p.checked_add(g.file_size).filter(|&e| e <= len).ok_or_else(|| {
-            DecodeError::invalid(format!(
-                "grid '{}' claims {} bytes at byte {p}, past the end of the file ({len} bytes)",
-                crate::text::escape(&g.name),
-                g.file_size,
-            ))
-        })?;
+        p = p
+            .checked_add(g.file_size)
+            .filter(|&e| e <= len)
+            .ok_or_else(|| {
+                DecodeError::invalid(format!(
+                    "grid '{}' claims {} bytes at byte {p}, past the end of the file ({len} bytes)",
+                    crate::text::escape(&g.name),
+                    g.file_size,
+                ))
+            })?;
         check_sizes(g)?;
     }
     *at = p;

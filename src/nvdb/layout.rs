@@ -53,9 +53,8 @@ pub(crate) enum Leaves {
 #[must_use]
 pub fn type_name(code: u32) -> &'static str {
     const NAMES: [&str; 20] = [
-        "unknown", "float", "double", "int16", "int32", "int64", "Vec3f", "Vec3d", "mask",
-        "half", "uint32", "bool", "RGBA8", "Fp4", "Fp8", "Fp16", "FpN", "Vec4f", "Vec4d",
-        "index",
+        "unknown", "float", "double", "int16", "int32", "int64", "Vec3f", "Vec3d", "mask", "half",
+        "uint32", "bool", "RGBA8", "Fp4", "Fp8", "Fp16", "FpN", "Vec4f", "Vec4d", "index",
     ];
     NAMES.get(code as usize).copied().unwrap_or("unknown")
 }
@@ -218,7 +217,12 @@ impl GridHead {
             translation: buf.vec3d(528)?,
             grid_class: buf.u32(632)?,
             grid_type: buf.u32(636)?,
-            node_offset: [buf.u64(t)?, buf.u64(t + 8)?, buf.u64(t + 16)?, buf.u64(t + 24)?],
+            node_offset: [
+                buf.u64(t)?,
+                buf.u64(t + 8)?,
+                buf.u64(t + 16)?,
+                buf.u64(t + 24)?,
+            ],
             node_count: [buf.u32(t + 32)?, buf.u32(t + 36)?, buf.u32(t + 40)?],
             tile_count: [buf.u32(t + 44)?, buf.u32(t + 48)?, buf.u32(t + 52)?],
             voxel_count: buf.u64(t + 56)?,
@@ -247,9 +251,15 @@ mod tests {
         // sizeof(RootData), sizeof(InternalNode<.., 5>), <.., 4>, sizeof(LeafNode) in NanoVDB
         // 32.4 for float, double and Vec3f, and the quantised leaves (96 + codes).
         let f = Layout::of(1).unwrap();
-        assert_eq!((f.root_bytes, f.node_bytes, f.leaf_bytes), (64, [270400, 33856], 2144));
+        assert_eq!(
+            (f.root_bytes, f.node_bytes, f.leaf_bytes),
+            (64, [270400, 33856], 2144)
+        );
         let d = Layout::of(2).unwrap();
-        assert_eq!((d.root_bytes, d.root_background, d.leaf_values), (96, 32, 128));
+        assert_eq!(
+            (d.root_bytes, d.root_background, d.leaf_values),
+            (96, 32, 128)
+        );
         assert_eq!(d.leaf_bytes, 4224);
         let v = Layout::of(6).unwrap();
         assert_eq!((v.root_bytes, v.entry, v.leaf_bytes), (96, 16, 6272));

@@ -91,7 +91,11 @@ impl NvdbFile {
         if let Some(i) = self.names.iter().position(|n| n == name) {
             return Ok(i);
         }
-        let mut stored = self.grids.iter().enumerate().filter(|(_, g)| g.name == name);
+        let mut stored = self
+            .grids
+            .iter()
+            .enumerate()
+            .filter(|(_, g)| g.name == name);
         match (stored.next(), stored.next()) {
             (Some((i, _)), None) => Ok(i),
             _ => Err(Error::GridNotFound {
@@ -121,8 +125,7 @@ impl NvdbFile {
     /// As [`NvdbFile::load`].
     pub fn extent(&self, i: usize) -> Result<GridExtent> {
         let g = self.load(i)?;
-        let value_box =
-            crate::tree::value_box_of(&g.tree, g.tree.leaves.iter().map(|l| l.origin));
+        let value_box = crate::tree::value_box_of(&g.tree, g.tree.leaves.iter().map(|l| l.origin));
         Ok(GridExtent {
             name: g.name,
             transform: g.transform,
@@ -136,7 +139,10 @@ impl NvdbFile {
     /// [`Error::Io`]; [`Error::Unsupported`] for a grid type umbra does not decode;
     /// [`Error::Invalid`] naming the file, the grid and what is corrupt or disagrees.
     pub fn decode(&self, i: usize) -> Result<Decoded> {
-        let meta = self.grids.get(i).ok_or_else(|| self.invalid(i, "no such grid index"))?;
+        let meta = self
+            .grids
+            .get(i)
+            .ok_or_else(|| self.invalid(i, "no such grid index"))?;
         let Some(layout) = layout::Layout::of(meta.grid_type) else {
             return Err(Error::Unsupported {
                 path: self.path.clone(),
@@ -156,24 +162,39 @@ impl NvdbFile {
         let head = layout::GridHead::parse(&b).map_err(at)?;
         agree(meta, &head, b.len()).map_err(at)?;
         let nodes = tree::locate(&b, &head, &layout).map_err(at)?;
-        let root_bbox = [b.vec3i(nodes.root).map_err(at)?, b.vec3i(nodes.root + 12).map_err(at)?];
+        let root_bbox = [
+            b.vec3i(nodes.root).map_err(at)?,
+            b.vec3i(nodes.root + 12).map_err(at)?,
+        ];
         if root_bbox != meta.index_bbox {
-            return Err(self.invalid(i, &format!(
-                "the file's index bbox {:?} disagrees with the root's {root_bbox:?}",
-                meta.index_bbox
-            )));
+            return Err(self.invalid(
+                i,
+                &format!(
+                    "the file's index bbox {:?} disagrees with the root's {root_bbox:?}",
+                    meta.index_bbox
+                ),
+            ));
         }
-        let checksum =
-            checksum::check(&b, head.checksum, head.flags, &layout, &nodes, head.node_count)
-                .map_err(at)?;
+        let checksum = checksum::check(
+            &b,
+            head.checksum,
+            head.flags,
+            &layout,
+            &nodes,
+            head.node_count,
+        )
+        .map_err(at)?;
         let d = tree::decode(&b, &head, &layout, &nodes).map_err(at)?;
         let tiles = head.tile_count.map(u64::from);
         if d.voxels != head.voxel_count || d.tiles != tiles {
-            return Err(self.invalid(i, &format!(
-                "the tree header counts {} active voxels and {tiles:?} active tiles (lower, \
+            return Err(self.invalid(
+                i,
+                &format!(
+                    "the tree header counts {} active voxels and {tiles:?} active tiles (lower, \
                  upper, root), the tree holds {} and {:?}",
-                head.voxel_count, d.voxels, d.tiles
-            )));
+                    head.voxel_count, d.voxels, d.tiles
+                ),
+            ));
         }
         let transform = self.transform(i, &head)?;
         Ok(Decoded {
@@ -187,7 +208,10 @@ impl NvdbFile {
         let m = head.world_from_index();
         let det = glam::DMat3::from_cols_array(&head.mat).determinant();
         if m.iter().flatten().any(|v| !v.is_finite()) || det == 0.0 || !det.is_finite() {
-            return Err(self.invalid(i, &format!("the map {:?} is not an invertible affine", head.mat)));
+            return Err(self.invalid(
+                i,
+                &format!("the map {:?} is not an invertible affine", head.mat),
+            ));
         }
         Ok(Transform::affine("AffineMap", m))
     }
@@ -250,22 +274,53 @@ fn agree(meta: &GridMeta, h: &layout::GridHead, len: u64) -> crate::error::Decod
     file::check_version(h.version, "the grid buffer")?;
     let name_ok = h.flags & layout::LONG_NAME != 0 || h.name == meta.name.as_bytes();
     let checks: [(&str, bool, String); 8] = [
-        ("grid size", h.grid_size == meta.grid_size && len == meta.grid_size,
-         format!("{} (file) / {} (grid) / {len} (decoded)", meta.grid_size, h.grid_size)),
-        ("grid type", h.grid_type == meta.grid_type,
-         format!("{} / {}", type_name(meta.grid_type), type_name(h.grid_type))),
-        ("grid class", h.grid_class == meta.grid_class,
-         format!("{} / {}", meta.grid_class, h.grid_class)),
-        ("name", name_ok, format!("'{}' / '{}'", text::escape(&meta.name),
-            text::escape(&String::from_utf8_lossy(&h.name)))),
-        ("node counts", h.node_count[..] == meta.node_count[..3] && meta.node_count[3] == 1,
-         format!("{:?} / {:?}", meta.node_count, h.node_count)),
-        ("tile counts", h.tile_count == meta.tile_count,
-         format!("{:?} / {:?}", meta.tile_count, h.tile_count)),
-        ("voxel count", h.voxel_count == meta.voxel_count,
-         format!("{} / {}", meta.voxel_count, h.voxel_count)),
-        ("grid index", h.grid_index < h.grid_count,
-         format!("index {} of {}", h.grid_index, h.grid_count)),
+        (
+            "grid size",
+            h.grid_size == meta.grid_size && len == meta.grid_size,
+            format!(
+                "{} (file) / {} (grid) / {len} (decoded)",
+                meta.grid_size, h.grid_size
+            ),
+        ),
+        (
+            "grid type",
+            h.grid_type == meta.grid_type,
+            format!("{} / {}", type_name(meta.grid_type), type_name(h.grid_type)),
+        ),
+        (
+            "grid class",
+            h.grid_class == meta.grid_class,
+            format!("{} / {}", meta.grid_class, h.grid_class),
+        ),
+        (
+            "name",
+            name_ok,
+            format!(
+                "'{}' / '{}'",
+                text::escape(&meta.name),
+                text::escape(&String::from_utf8_lossy(&h.name))
+            ),
+        ),
+        (
+            "node counts",
+            h.node_count[..] == meta.node_count[..3] && meta.node_count[3] == 1,
+            format!("{:?} / {:?}", meta.node_count, h.node_count),
+        ),
+        (
+            "tile counts",
+            h.tile_count == meta.tile_count,
+            format!("{:?} / {:?}", meta.tile_count, h.tile_count),
+        ),
+        (
+            "voxel count",
+            h.voxel_count == meta.voxel_count,
+            format!("{} / {}", meta.voxel_count, h.voxel_count),
+        ),
+        (
+            "grid index",
+            h.grid_index < h.grid_count,
+            format!("index {} of {}", h.grid_index, h.grid_count),
+        ),
     ];
     for (what, ok, detail) in checks {
         if !ok {
@@ -292,7 +347,8 @@ fn read_at(file: &std::fs::File, len: u64, at: u64, n: u64) -> crate::error::Dec
             need: at.saturating_add(n),
         });
     }
-    let n = usize::try_from(n).map_err(|_| DecodeError::unsupported("a block beyond the address space"))?;
+    let n = usize::try_from(n)
+        .map_err(|_| DecodeError::unsupported("a block beyond the address space"))?;
     let mut buf = vec![0u8; n];
     positioned_read(file, &mut buf, at)
         .map_err(|e| DecodeError::invalid(format!("reading {n} bytes at byte {at}: {e}")))?;

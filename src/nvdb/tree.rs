@@ -133,8 +133,18 @@ struct Decoder<'a> {
 }
 
 /// Decode the tree of the grid buffer `b` whose headers are `h`.
-pub(crate) fn decode(b: &Bytes<'_>, h: &GridHead, l: &Layout, nodes: &Nodes) -> DecodeResult<Decoded> {
-    let background = decode_value(b, l, nodes.root + l.root_background, &mut PrecisionLoss::default())?;
+pub(crate) fn decode(
+    b: &Bytes<'_>,
+    h: &GridHead,
+    l: &Layout,
+    nodes: &Nodes,
+) -> DecodeResult<Decoded> {
+    let background = decode_value(
+        b,
+        l,
+        nodes.root + l.root_background,
+        &mut PrecisionLoss::default(),
+    )?;
     let mut d = Decoder {
         b: *b,
         l: *l,
@@ -194,14 +204,21 @@ impl Decoder<'_> {
         let at = self.nodes.root + self.l.root_bytes + t * TILE_BYTES;
         let key = self.b.u64(at)?;
         if key >> 63 != 0 {
-            return Err(invalid(format!("root tile {t}: key {key:#x} has its top bit set")));
+            return Err(invalid(format!(
+                "root tile {t}: key {key:#x} has its top bit set"
+            )));
         }
         let coord = |shift: u32| (((key >> shift) & 0x1f_ffff) << 12) as u32 as i32;
         let origin = [coord(42), coord(21), coord(0)];
         let child = self.b.i64(at + 8)?;
         let slot = if child == 0 {
             let active = self.b.u32(at + 16)? != 0;
-            let value = decode_value(&self.b, &self.l, at + self.l.tile_value, &mut self.precision)?;
+            let value = decode_value(
+                &self.b,
+                &self.l,
+                at + self.l.tile_value,
+                &mut self.precision,
+            )?;
             if active {
                 self.tiles[2] += 1;
                 self.voxels = self.voxels.saturating_add(1 << 36);
@@ -258,7 +275,11 @@ impl Decoder<'_> {
     /// An upper (`level` 2) or lower (1) node at `at`, origin `origin`: its index in umbra's
     /// node list.
     fn internal(&mut self, at: u64, origin: [i32; 3], level: usize) -> DecodeResult<u32> {
-        let (log2, child_log2, n) = if level == 2 { (5, 7, 32768) } else { (4, 3, 4096) };
+        let (log2, child_log2, n) = if level == 2 {
+            (5, 7, 32768)
+        } else {
+            (4, 3, 4096)
+        };
         self.check_origin(at, origin, 1 << (log2 + child_log2))?;
         let mask_bytes = n as u64 / 8;
         let value_mask = self.b.word_slice(at + 32, n / 64)?;
@@ -329,7 +350,8 @@ impl Decoder<'_> {
         self.voxels = self
             .voxels
             .saturating_add(value_mask.iter().map(|w| u64::from(w.count_ones())).sum());
-        let index = u32::try_from(self.tree.leaves.len()).map_err(|_| invalid("too many leaves"))?;
+        let index =
+            u32::try_from(self.tree.leaves.len()).map_err(|_| invalid("too many leaves"))?;
         self.tree.leaves.push(Leaf {
             origin,
             value_mask,

@@ -220,7 +220,11 @@ fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
         out,
         "{}: {} format {}, library {}, {} bytes, {} grid(s)",
         escape(&info.path),
-        if info.format == "nvdb" { "NanoVDB" } else { "VDB" },
+        if info.format == "nvdb" {
+            "NanoVDB"
+        } else {
+            "VDB"
+        },
         info.file_version,
         info.library_version,
         info.file_bytes,
