@@ -21,6 +21,7 @@ mod deep_map;
 mod friction;
 mod hostile;
 mod mutation;
+mod nvdb;
 mod stress;
 mod transmittance_volume;
 mod vdb_blender;

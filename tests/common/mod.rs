@@ -156,3 +156,26 @@ pub fn deep_dump(path: &std::path::Path, w: usize, h: usize) -> Option<Vec<Vec<D
             .collect(),
     )
 }
+
+/// Run NanoVDB's converter, `nanovdb_convert -f ARGS SRC DST` (`.vdb` to `.nvdb` or back). A
+/// missing tool fails the test, saying to install Debian's `libnanovdb-tools`.
+pub fn nanovdb_convert(args: &[&str], src: &std::path::Path, dst: &std::path::Path) {
+    let out = std::process::Command::new("nanovdb_convert")
+        .arg("-f")
+        .args(args)
+        .arg(src)
+        .arg(dst)
+        .output()
+        .unwrap_or_else(|e| {
+            panic!(
+                "nanovdb_convert could not be run ({e}): install Debian's libnanovdb-tools \
+                 (apt-get install libnanovdb-tools); the .nvdb tests need NanoVDB's own converter"
+            )
+        });
+    assert!(
+        out.status.success() && dst.is_file(),
+        "nanovdb_convert {args:?} {} failed: {}",
+        src.display(),
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

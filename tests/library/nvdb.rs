@@ -10,8 +10,6 @@ use umbra::bake::{bake, BakeSettings, Camera, Projection, Resolution, View};
 use umbra::estimate::{estimate, Estimator, Options};
 use umbra::{Ray, Volume};
 
-const TOOL: &str = "nanovdb_convert";
-
 /// Every codec and quantisation `nanovdb_convert` writes, by name.
 pub const CASES: [(&str, &[&str]); 7] = [
     ("none", &[]),
@@ -23,27 +21,7 @@ pub const CASES: [(&str, &[&str]); 7] = [
     ("fpN", &["--fpN", "-a", "0.01"]),
 ];
 
-/// Run `nanovdb_convert args.. src dst`; a missing tool fails the test saying what to install.
-pub fn convert(args: &[&str], src: &Path, dst: &Path) {
-    let out = std::process::Command::new(TOOL)
-        .arg("-f")
-        .args(args)
-        .arg(src)
-        .arg(dst)
-        .output()
-        .unwrap_or_else(|e| {
-            panic!(
-                "{TOOL} could not be run ({e}): install Debian's libnanovdb-tools \
-                 (apt-get install libnanovdb-tools); these tests need NanoVDB's own converter"
-            )
-        });
-    assert!(
-        out.status.success() && dst.is_file(),
-        "{TOOL} {args:?} {} failed: {}",
-        src.display(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
+use common::nanovdb_convert as convert;
 
 fn corpus(rel: &str) -> Option<PathBuf> {
     Some(common::corpus_dir()?.join(rel))

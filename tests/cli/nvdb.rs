@@ -1,0 +1,191 @@
+//! `.nvdb` files (NanoVDB, issue 49) wherever a `.vdb` goes on the command line: `query`,
+//! `--grid` in a multi-grid file, `info` (text and JSON), a scene file and a batch pattern
+//! naming them; bad `.nvdb` files end in exit 1 and one `umbra: error:` line naming the file.
+//! The files are made by Debian's `nanovdb_convert` (libnanovdb-tools) at test time.
+
+use crate::common::{self, nanovdb_convert};
+use serde_json::Value;
+use std::path::{Path, PathBuf};
+use std::process::Output;
+
+fn umbra(args: &[&str]) -> Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// `data/cloud.vdb` as a ZIP `.nvdb` in `dir`.
+fn cloud(dir: &Path) -> (PathBuf, PathBuf) {
+    let vdb = common::data("cloud.vdb");
+    let nvdb = dir.join("cloud.nvdb");
+    nanovdb_convert(&["-z"], &vdb, &nvdb);
+    (vdb, nvdb)
+}
+
+fn transmittance(file: &str, extra: &[&str]) -> f64 {
+    let mut a = vec![
+        "query",
+        file,
+        "--json",
+        "--from",
+        "-2,0.2,0",
+        "--to",
+        "2,0.7,0.3",
+    ];
+    a.extend_from_slice(extra);
+    let o = umbra(&a);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    v["T"].as_f64().unwrap()
+}
+
+#[test]
+fn query_scene_and_batch_read_nvdb_as_they_read_vdb() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (vdb, nvdb) = cloud(d);
+    let t = transmittance(s(&vdb), &[]);
+    assert!(t > 0.0 && t < 1.0, "{t}");
+    assert_eq!(transmittance(s(&nvdb), &[]), t);
+    let upper = d.join("CLOUD.NVDB");
+    std::fs::copy(&nvdb, &upper).unwrap();
+    assert_eq!(
+        transmittance(s(&upper), &[]),
+        t,
+        "the extension in any case"
+    );
+    // A scene file naming the .nvdb.
+    let scene = d.join("scene.toml");
+    std::fs::write(
+        &scene,
+        "[[volume]]\nfile = \"cloud.nvdb\"\ngrid = \"density\"\n",
+    )
+    .unwrap();
+    assert_eq!(transmittance(s(&scene), &[]), t);
+    // A batch over a frame pattern of .nvdb files.
+    for f in 1..=2 {
+        std::fs::copy(&nvdb, d.join(format!("cloud.{f:04}.nvdb"))).unwrap();
+    }
+    let job = d.join("job.toml");
+    std::fs::write(
+        &job,
+        "grid = \"density\"\noutput = \"out/sun.{frame:04}.exr\"\n[[inputs]]\n\
+         pattern = \"cloud.####.nvdb\"\nframes = [1, 2]\n[[lights]]\nname = \"sun\"\n\
+         dir = [0.3, -1.0, 0.2]\n[bake]\nres = 16\n",
+    )
+    .unwrap();
+    let o = umbra(&["batch", s(&job)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in 1..=2 {
+        assert!(d.join(format!("out/sun.{f:04}.exr")).is_file(), "frame {f}");
+    }
+}
+
+#[test]
+fn grid_selection_and_info_on_a_multi_grid_nvdb() {
+    let Some(corpus) = common::corpus_dir() else {
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let nvdb = dir.path().join("smoke.nvdb");
+    nanovdb_convert(&["-b"], &corpus.join("gen/multigrid_smoke.vdb"), &nvdb);
+    let t = transmittance(
+        s(&nvdb),
+        &["--grid", "temperature", "--density-scale", "1e-4"],
+    );
+    assert!(t > 0.0 && t < 1.0, "{t}");
+    let o = umbra(&[
+        "query",
+        s(&nvdb),
+        "--grid",
+        "nope",
+        "--from",
+        "0,0,0",
+        "--to",
+        "1,1,1",
+    ]);
+    assert_eq!(o.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with("umbra: error:") && err.contains("smoke.nvdb"),
+        "{err}"
+    );
+    assert!(err.contains("density, temperature, velocity"), "{err}");
+    let o = umbra(&["info", "--json", s(&nvdb)]);
+    assert!(o.status.success());
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["format"], "nvdb");
+    let grids = v["grids"].as_array().unwrap();
+    assert_eq!(grids.len(), 3);
+    for g in grids {
+        assert_eq!(g["codec"], "BLOSC");
+        assert_eq!(g["quantisation"], "none");
+        assert_eq!(g["checksum"], "checked");
+        assert!(g["active_voxels"].as_u64().unwrap() > 0);
+    }
+    assert_eq!(grids[2]["value_stats_of"], "vector length");
+    let o = umbra(&["info", "-v", "--grid", "density", s(&nvdb)]);
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("NanoVDB format 32, library 32.4.2"), "{text}");
+    assert!(
+        text.contains("NanoVDB codec: BLOSC  quantisation: none  checksum: checked"),
+        "{text}"
+    );
+    let vdb = umbra(&["info", "--json", s(&common::data("cloud.vdb"))]);
+    let v: Value = serde_json::from_slice(&vdb.stdout).unwrap();
+    assert_eq!(v["format"], "vdb");
+    assert!(
+        v["grids"][0].get("codec").is_none(),
+        "no NanoVDB keys on a .vdb"
+    );
+}
+
+#[test]
+fn bad_nvdb_files_end_in_one_error_line_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let (_, nvdb) = cloud(d);
+    let good = std::fs::read(&nvdb).unwrap();
+    // A flipped byte in the map of an uncompressed grid: only its checksum tells.
+    let plain = d.join("plain.nvdb");
+    nanovdb_convert(&[], &common::data("cloud.vdb"), &plain);
+    let mut flipped = std::fs::read(&plain).unwrap();
+    flipped[16 + 176 + 8 + 300] ^= 2;
+    let cases: [(&str, Vec<u8>, &str); 4] = [
+        ("empty.nvdb", Vec::new(), "not a NanoVDB file (empty file)"),
+        (
+            "text.nvdb",
+            b"just text, not NanoVDB\n".to_vec(),
+            "not a NanoVDB file",
+        ),
+        (
+            "cut.nvdb",
+            good[..good.len() / 3].to_vec(),
+            "corrupt NanoVDB file",
+        ),
+        ("flip.nvdb", flipped, "checksum mismatch"),
+    ];
+    for (name, bytes, want) in cases {
+        let p = d.join(name);
+        std::fs::write(&p, bytes).unwrap();
+        let out = d.join("out.exr");
+        for args in [
+            vec!["query", s(&p), "--from", "0,0,0", "--to", "1,1,1"],
+            vec!["bake", s(&p), "--light-dir", "1,0,0", "-o", s(&out)],
+        ] {
+            let o = umbra(&args);
+            assert_eq!(o.status.code(), Some(1), "{name} {args:?}");
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(err.lines().count(), 1, "{name}: {err}");
+            assert!(err.starts_with("umbra: error:"), "{err}");
+            assert!(err.contains(name) && err.contains(want), "{name}: {err}");
+            assert!(o.stdout.is_empty() && !out.exists(), "{name}: output left");
+        }
+    }
+}
