@@ -450,7 +450,7 @@ fn corrupt_files_end_in_one_clean_error() {
     for (at, what) in [
         (16 + 24, "voxel count"),
         (16 + 140, "node counts"),
-        (16 + 0, "grid size"),
+        (16, "grid size"),
         (16 + 168, "codec"),
     ] {
         let mut b = good.clone();
