@@ -20,17 +20,19 @@ pub enum Error {
         /// Underlying error (not a `#[source]`: the message already includes it).
         err: std::io::Error,
     },
-    /// The path exists but is not an OpenVDB file (bad magic number, too short, a directory);
-    /// for a `.nvdb` path, not a NanoVDB file (the message says which).
-    #[error("{}: not a {} file ({reason})", path.display(), format_of(path))]
+    /// The path exists but is not a file of the grid format it is read as (bad magic number,
+    /// too short, a directory): an OpenVDB file, or for a `.nvdb` path a NanoVDB file.
+    #[error("{}: not a {format} file ({reason})", path.display())]
     NotVdb {
         /// File concerned.
         path: PathBuf,
-        /// What made it not a VDB file.
+        /// The format it is not: `VDB` or `NanoVDB`.
+        format: &'static str,
+        /// What made it not a file of that format.
         reason: String,
     },
     /// The file is a VDB file but its content is corrupt or truncated.
-    #[error("{}: corrupt {} file: {reason}", path.display(), format_of(path))]
+    #[error("{}: corrupt VDB file: {reason}", path.display())]
     Invalid {
         /// File concerned.
         path: PathBuf,
@@ -110,11 +112,6 @@ pub enum Error {
         /// Why it is invalid.
         reason: String,
     },
-}
-
-/// The grid format a path is read as, for messages (`VDB`, `NanoVDB`).
-fn format_of(path: &std::path::Path) -> &'static str {
-    crate::input::InputKind::of(path).format_name()
 }
 
 /// A decoding error without a path: the byte reader and decoders produce these, and

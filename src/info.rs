@@ -331,7 +331,7 @@ impl FileInfo {
             .collect();
         Self {
             path: archive.path.display().to_string(),
-            format: "vdb",
+            format: crate::input::InputKind::Vdb.format(),
             file_bytes: archive.file_len,
             file_version: archive.file_version,
             library_version: format!(
@@ -358,7 +358,7 @@ impl FileInfo {
         let version = file.grids.first().map(|g| g.version);
         Ok(Self {
             path: path.display().to_string(),
-            format: "nvdb",
+            format: crate::input::InputKind::Nvdb.format(),
             file_bytes: file.file_len,
             file_version: version.map_or(0, crate::nvdb::Version::major),
             library_version: version.map_or_else(String::new, |v| v.to_string()),

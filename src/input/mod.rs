@@ -64,13 +64,15 @@ impl InputKind {
         matches!(self, Self::Vdb | Self::Nvdb)
     }
 
-    /// The name of the grid format, as error messages say it: `NanoVDB` for `.nvdb`, else
-    /// `VDB` (what any other path is read as).
+    /// The format's short name, as reports give it (`umbra info`'s `format`): `vdb`, `nvdb`,
+    /// `scene`, `usd`.
     #[must_use]
-    pub fn format_name(self) -> &'static str {
+    pub fn format(self) -> &'static str {
         match self {
-            Self::Nvdb => "NanoVDB",
-            _ => "VDB",
+            Self::Vdb => "vdb",
+            Self::Nvdb => "nvdb",
+            Self::Scene => "scene",
+            Self::Stage { .. } => "usd",
         }
     }
 
@@ -119,8 +121,10 @@ mod tests {
         assert_eq!(of("smoke.0001.NVDB"), InputKind::Nvdb);
         assert!(of("a.NvDb").is_grid_file() && !of("a.nvdb").is_scene_file());
         assert!(!of("a.nvdb").is_stage());
-        assert_eq!(of("a.nvdb").format_name(), "NanoVDB");
-        assert_eq!(of("a.vdb").format_name(), "VDB");
+        assert_eq!(
+            (of("a.nvdb").format(), of("a.vdb").format()),
+            ("nvdb", "vdb")
+        );
         assert_eq!(of("a/b.USDZ"), InputKind::Stage { package: true });
         for s in ["s.usd", "s.usda", "s.USDC", "s.UsdA"] {
             assert_eq!(of(s), InputKind::Stage { package: false }, "{s}");

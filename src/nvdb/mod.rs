@@ -335,6 +335,7 @@ fn agree(meta: &GridMeta, h: &layout::GridHead, len: u64) -> crate::error::Decod
 fn not_nvdb(path: &Path, reason: &str) -> Error {
     Error::NotVdb {
         path: path.to_path_buf(),
+        format: "NanoVDB",
         reason: reason.to_string(),
     }
 }

@@ -182,6 +182,7 @@ impl Archive {
     pub fn open(path: &Path) -> Result<Self> {
         let not_vdb = |reason: &str| Error::NotVdb {
             path: path.to_path_buf(),
+            format: "VDB",
             reason: reason.to_string(),
         };
         let io = |err| Error::Io {

@@ -167,7 +167,7 @@ fn bad_nvdb_files_end_in_one_error_line_naming_the_file() {
         (
             "cut.nvdb",
             good[..good.len() / 3].to_vec(),
-            "corrupt NanoVDB file",
+            "corrupt VDB file",
         ),
         ("flip.nvdb", flipped, "checksum mismatch"),
     ];

@@ -220,7 +220,7 @@ fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
         out,
         "{}: {} format {}, library {}, {} bytes, {} grid(s)",
         escape(&info.path),
-        if info.format == "nvdb" {
+        if info.format == umbra::input::InputKind::Nvdb.format() {
             "NanoVDB"
         } else {
             "VDB"
