@@ -317,13 +317,13 @@ fn prefix(e: DecodeError, what: &str) -> DecodeError {
 
 /// The grid buffer of `g` from its blob (`blob`, `g.file_size` bytes): exactly `g.grid_size`
 /// bytes, decompressed as its codec says.
-pub(crate) fn grid_buffer(g: &GridMeta, blob: &[u8]) -> DecodeResult<Vec<u8>> {
+pub(crate) fn grid_buffer(g: &GridMeta, blob: Vec<u8>) -> DecodeResult<Vec<u8>> {
     let want = usize::try_from(g.grid_size)
         .map_err(|_| DecodeError::unsupported("a grid larger than the address space"))?;
     match g.codec {
-        Codec::None => Ok(blob.to_vec()),
+        Codec::None => Ok(blob),
         Codec::Zip => {
-            let b = Bytes::new(blob);
+            let b = Bytes::new(&blob);
             let n = b.u64(0)?;
             let src = b.slice(8, n)?;
             if 8 + n != blob.len() as u64 {
@@ -332,7 +332,8 @@ pub(crate) fn grid_buffer(g: &GridMeta, blob: &[u8]) -> DecodeResult<Vec<u8>> {
                     blob.len()
                 )));
             }
-            let mut out = Vec::with_capacity(want);
+            // Grown as the stream expands: the size is the file's claim, not yet a fact.
+            let mut out = Vec::with_capacity(want.min(blob.len().saturating_mul(8)));
             let mut z = std::io::Read::take(flate2::read::ZlibDecoder::new(src), g.grid_size + 1);
             std::io::Read::read_to_end(&mut z, &mut out)
                 .map_err(|e| DecodeError::invalid(format!("ZIP stream: {e}")))?;
@@ -345,13 +346,27 @@ pub(crate) fn grid_buffer(g: &GridMeta, blob: &[u8]) -> DecodeResult<Vec<u8>> {
             }
             Ok(out)
         }
-        Codec::Blosc => blosc_chunks(blob, want),
+        Codec::Blosc => blosc_chunks(&blob, want),
     }
 }
 
 /// BLOSC blobs: chunks of `min(rest, 2^30)` bytes, each after its u64 compressed size.
 fn blosc_chunks(blob: &[u8], want: usize) -> DecodeResult<Vec<u8>> {
     let b = Bytes::new(blob);
+    // The chunks' own headers (uncompressed size, u32 at byte 4) must add up to the grid size
+    // before the buffer is allocated.
+    let (mut at, mut total) = (0u64, 0u64);
+    while at < b.len() {
+        let n = b.u64(at)?;
+        let src = Bytes::new(b.slice(at + 8, n)?);
+        total += u64::from(src.u32(4)?);
+        at += 8 + n;
+    }
+    if total != want as u64 {
+        return Err(DecodeError::invalid(format!(
+            "BLOSC chunks hold {total} bytes, the metadata says {want}"
+        )));
+    }
     let mut out = vec![0u8; want];
     let mut at = 0u64;
     let mut done = 0usize;

@@ -155,8 +155,7 @@ impl NvdbFile {
             });
         };
         let blob = self.read_blob(meta)?;
-        let buf = file::grid_buffer(meta, &blob).map_err(|e| self.decode_err(i, e))?;
-        drop(blob);
+        let buf = file::grid_buffer(meta, blob).map_err(|e| self.decode_err(i, e))?;
         let b = Bytes::new(&buf);
         let at = |e: DecodeError| self.decode_err(i, e);
         let head = layout::GridHead::parse(&b).map_err(at)?;

@@ -28,7 +28,10 @@ pub(crate) struct Nodes {
 pub(crate) fn locate(b: &Bytes<'_>, h: &GridHead, l: &Layout) -> DecodeResult<Nodes> {
     let tree = GRID_BYTES;
     let abs = |k: usize| tree.checked_add(h.node_offset[k]);
-    let root = abs(3).ok_or_else(|| invalid("root offset overflows"))?;
+    // Offsets in the buffer, so that the small constants added to them cannot overflow.
+    let root = abs(3)
+        .filter(|&r| r <= b.len())
+        .ok_or_else(|| invalid("the root offset points outside the grid buffer"))?;
     let table_size = u64::from(b.u32(root + 24)?);
     b.slice(root, l.root_bytes + table_size * TILE_BYTES)?;
     let mut first = [0u64; 2];
@@ -66,7 +69,8 @@ fn leaf_offsets(b: &Bytes<'_>, h: &GridHead, l: &Layout) -> DecodeResult<Vec<u64
     let n = h.node_count[0] as usize;
     let mut at = GRID_BYTES
         .checked_add(h.node_offset[0])
-        .ok_or_else(|| invalid("leaf offset overflows"))?;
+        .filter(|&a| a <= b.len())
+        .ok_or_else(|| invalid("the leaf offset points outside the grid buffer"))?;
     // Every leaf is at least 96 bytes: a count the buffer cannot hold is refused before any
     // allocation.
     if (n as u64).saturating_mul(96) > b.len() {
