@@ -409,7 +409,18 @@ fn corrupt_files_end_in_one_clean_error() {
             let e = load_any(&p).expect_err(&format!("{case}: cut at {cut} loads"));
             assert!(!e.contains('\n') && e.contains("cut.nvdb"), "{e}");
         }
-        // A byte flipped anywhere: a clean error or (where no checksum covers it) a load.
+        // Without a checksum, every byte of the headers (segment, metadata, grid, tree, root
+        // and its first tiles) flipped in turn; then bytes anywhere: a clean error or (where no checksum covers
+        // the byte) a load.
+        let sweep = if case == "unchecked" { 1200.min(n) } else { 0 };
+        for at in 0..sweep {
+            let mut b = bytes.clone();
+            b[at] ^= 0x81;
+            let p = mk("head.nvdb", &b);
+            if let Err(e) = load_any(&p) {
+                assert!(!e.contains('\n') && e.contains("head.nvdb"), "{e}");
+            }
+        }
         let mut x = 0x2545_f491_4f6c_dd1du64;
         // UMBRA_NVDB_FLIPS=N for a longer run.
         let flips: usize = std::env::var("UMBRA_NVDB_FLIPS")
