@@ -1,6 +1,6 @@
 //! `.nvdb` files (NanoVDB, issue 49) wherever a `.vdb` goes on the command line: `query`,
-//! `--grid` in a multi-grid file, `info` (text and JSON), a scene file and a batch pattern
-//! naming them; bad `.nvdb` files end in exit 1 and one `umbra: error:` line naming the file.
+//! `--grid` in a multi-grid file, `info` (text and JSON), a scene file, a USD stage and a batch
+//! pattern naming them; bad `.nvdb` files end in exit 1 and one `umbra: error:` line naming the file.
 //! The files are made by Debian's `nanovdb_convert` (libnanovdb-tools) at test time.
 
 use crate::common::{self, nanovdb_convert};
@@ -67,6 +67,16 @@ fn query_scene_and_batch_read_nvdb_as_they_read_vdb() {
     )
     .unwrap();
     assert_eq!(transmittance(s(&scene), &[]), t);
+    // A USD stage whose OpenVDBAsset names the .nvdb.
+    let stage = d.join("shot.usda");
+    std::fs::write(
+        &stage,
+        "#usda 1.0\n\ndef Volume \"cloud\"\n{\n    rel field:density = </cloud/density>\n\n    \
+         def OpenVDBAsset \"density\"\n    {\n        asset filePath = @cloud.nvdb@\n        \
+         token fieldName = \"density\"\n    }\n}\n",
+    )
+    .unwrap();
+    assert_eq!(transmittance(s(&stage), &[]), t);
     // A batch over a frame pattern of .nvdb files.
     for f in 1..=2 {
         std::fs::copy(&nvdb, d.join(format!("cloud.{f:04}.nvdb"))).unwrap();
