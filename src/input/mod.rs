@@ -64,6 +64,13 @@ impl InputKind {
         matches!(self, Self::Vdb | Self::Nvdb)
     }
 
+    /// Whether a grid of the input can be read in part (only the leaves a job touches): `.vdb`
+    /// grids can; a NanoVDB grid is one block, read whole ([`GridFile::lazy`] is `None`).
+    #[must_use]
+    pub fn has_partial_reads(self) -> bool {
+        self == Self::Vdb
+    }
+
     /// The format's short name, as reports give it (`umbra info`'s `format`): `vdb`, `nvdb`,
     /// `scene`, `usd`.
     #[must_use]

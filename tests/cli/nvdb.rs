@@ -77,6 +77,26 @@ fn query_scene_and_batch_read_nvdb_as_they_read_vdb() {
     )
     .unwrap();
     assert_eq!(transmittance(s(&stage), &[]), t);
+    // A budget a NanoVDB grid cannot honour (it loads whole) is said to be ignored.
+    let map = d.join("map.exr");
+    let o = umbra(&[
+        "bake",
+        s(&nvdb),
+        "--light-dir",
+        "1,-1,0",
+        "--res",
+        "32",
+        "--max-memory",
+        "2M",
+        "-o",
+        s(&map),
+    ]);
+    assert!(o.status.success() && map.is_file());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("--max-memory is not honoured: NanoVDB grids"),
+        "{err}"
+    );
     // A batch over a frame pattern of .nvdb files.
     for f in 1..=2 {
         std::fs::copy(&nvdb, d.join(format!("cloud.{f:04}.nvdb"))).unwrap();

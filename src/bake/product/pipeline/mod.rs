@@ -479,13 +479,18 @@ impl BakeJob {
         let mut warnings = volume_warnings(&scene.sanitized().merged(leaves));
         warnings.extend(solid_warnings(scene));
         if self.max_memory.is_some() {
-            if crate::input::InputKind::of(&self.input).is_scene_file() {
+            let kind = crate::input::InputKind::of(&self.input);
+            if kind.is_scene_file() {
                 warnings.push(Warning::MemoryBudgetIgnored {
                     what: "scene files",
                 });
             } else if self.sigma_t.is_some() {
                 warnings.push(Warning::MemoryBudgetIgnored {
                     what: "colour maps (--sigma-t)",
+                });
+            } else if kind.is_grid_file() && !kind.has_partial_reads() {
+                warnings.push(Warning::MemoryBudgetIgnored {
+                    what: "NanoVDB grids (one block each)",
                 });
             }
         }

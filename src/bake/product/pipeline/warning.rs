@@ -65,8 +65,8 @@ pub enum Warning {
         /// How far the box reaches outside the window, pixels (`inf`: behind the light).
         pixels: f64,
     },
-    /// `max_memory` was given for a bake that does not go in parts (a colour map or a scene
-    /// file loads whole): the budget was not honoured.
+    /// `max_memory` was given for a bake that does not go in parts (a colour map, a scene
+    /// file or a NanoVDB grid loads whole): the budget was not honoured.
     MemoryBudgetIgnored {
         /// What loads whole.
         what: &'static str,
