@@ -143,12 +143,8 @@ pub(crate) fn decode(
     l: &Layout,
     nodes: &Nodes,
 ) -> DecodeResult<Decoded> {
-    let background = decode_value(
-        b,
-        l,
-        nodes.root + l.root_background,
-        &mut PrecisionLoss::default(),
-    )?;
+    let mut precision = PrecisionLoss::default();
+    let background = decode_value(b, l, nodes.root + l.root_background, &mut precision)?;
     let mut d = Decoder {
         b: *b,
         l: *l,
@@ -163,11 +159,10 @@ pub(crate) fn decode(
             background,
             ..Tree::default()
         },
-        precision: PrecisionLoss::default(),
+        precision,
         voxels: 0,
         tiles: [0; 3],
     };
-    d.precision = PrecisionLoss::default();
     for t in 0..nodes.table_size {
         d.root_tile(t)?;
     }
