@@ -384,7 +384,7 @@ impl GridInfo {
                 info
             }
             Err(crate::Error::Unsupported { what, .. })
-                if crate::nvdb::Layout::of(meta.grid_type).is_none() =>
+                if !crate::nvdb::is_decoded(meta.grid_type) =>
             {
                 let [lo, hi] = meta.index_bbox;
                 let empty = (0..3).any(|a| lo[a] > hi[a]);

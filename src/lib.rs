@@ -105,6 +105,10 @@ pub mod internals {
     pub mod math {
         pub use crate::math::*;
     }
+    /// The NanoVDB `.nvdb` reader ([`crate::nvdb`]).
+    pub mod nvdb {
+        pub use crate::nvdb::*;
+    }
     /// Atomic, checked writes ([`crate::output`]).
     pub mod output {
         pub use crate::output::*;

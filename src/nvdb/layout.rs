@@ -87,9 +87,16 @@ pub fn quantisation(code: u32) -> &'static str {
     }
 }
 
+/// Whether umbra decodes grids of `GridType` `code` (float, double, Vec3f, Fp4, Fp8, Fp16,
+/// FpN); other types are described from their metadata.
+#[must_use]
+pub fn is_decoded(code: u32) -> bool {
+    Layout::of(code).is_some()
+}
+
 /// Sizes and offsets of every structure of a grid of one value type.
 #[derive(Debug, Clone, Copy)]
-pub struct Layout {
+pub(crate) struct Layout {
     /// The type of root and internal values (and of raw leaf values), as umbra decodes it.
     pub kind: ValueKind,
     /// Bytes of one value.
@@ -120,7 +127,7 @@ fn align(x: u64, a: u64) -> u64 {
 
 impl Layout {
     /// The layout of `GridType` `code`, `None` for a type umbra does not decode.
-    pub fn of(code: u32) -> Option<Self> {
+    pub(crate) fn of(code: u32) -> Option<Self> {
         let (kind, leaves) = match code {
             1 => (ValueKind::Float, Leaves::Raw),
             2 => (ValueKind::Double, Leaves::Raw),

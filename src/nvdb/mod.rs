@@ -18,7 +18,7 @@ mod tree;
 
 pub use checksum::Checksum;
 pub use file::{Codec, GridMeta, Version};
-pub use layout::{class_name, quantisation, type_name, Layout};
+pub use layout::{class_name, is_decoded, quantisation, type_name};
 
 use crate::error::{DecodeError, Error, Result};
 use crate::text;

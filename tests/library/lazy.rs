@@ -692,7 +692,11 @@ fn ray_path_bakes_in_parts_equal_whole_bakes_bit_for_bit() {
             "{name}"
         );
         // The largest standard error is reported alike (`--json`'s max_std_err).
-        assert_eq!(whole.map.stats.max_std_err > 0.0, name != "regular", "{name}");
+        assert_eq!(
+            whole.map.stats.max_std_err > 0.0,
+            name != "regular",
+            "{name}"
+        );
         assert_eq!(
             r.map.stats.max_std_err.to_bits(),
             whole.map.stats.max_std_err.to_bits(),
@@ -747,7 +751,11 @@ fn marches_in_parts_equal_whole_bakes_bit_for_bit() {
             "{name}"
         );
         // The largest standard error is reported alike (`--json`'s max_std_err).
-        assert_eq!(whole.map.stats.max_std_err > 0.0, name != "riemann", "{name}");
+        assert_eq!(
+            whole.map.stats.max_std_err > 0.0,
+            name != "riemann",
+            "{name}"
+        );
         assert_eq!(
             r.map.stats.max_std_err.to_bits(),
             whole.map.stats.max_std_err.to_bits(),

@@ -47,7 +47,11 @@ fn rel(a: f64, b: f64) -> f64 {
 
 /// The largest relative difference between two grids' values over every voxel of either's
 /// leaves and the active states there, which must agree; tiles and background likewise.
-fn tree_diff(a: &umbra::tree::Tree, b: &umbra::tree::Tree, what: &str) -> f64 {
+fn tree_diff(
+    a: &umbra::internals::tree::Tree,
+    b: &umbra::internals::tree::Tree,
+    what: &str,
+) -> f64 {
     let mut worst = rel(a.background().into(), b.background().into());
     for (t, o) in [(a, b), (b, a)] {
         for leaf in t.leaves() {
@@ -306,7 +310,7 @@ fn multi_grid_files_and_segments_give_every_grid_by_name() {
     }
     // A velocity grid is kept as its length, as the .vdb reader keeps a vec3s grid.
     let v = umbra::input::load_grid(&zip, "velocity").unwrap();
-    assert_eq!(v.value_type, umbra::vdb::ValueKind::Vec3s);
+    assert_eq!(v.value_type, umbra::internals::vdb::ValueKind::Vec3s);
     let original = umbra::input::load_grid(&src, "velocity").unwrap();
     assert!(tree_diff(&v.tree, &original.tree, "velocity vs source") <= 1e-6);
     // Two segments back to back (another codec each): one file of every grid, in order.
