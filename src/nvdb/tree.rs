@@ -163,6 +163,13 @@ pub(crate) fn decode(
         voxels: 0,
         tiles: [0; 3],
     };
+    // Exact capacities (the counts fit the buffer, `locate` checked): no growth slack held.
+    let [leaves, lowers, uppers] = h.node_count.map(|c| c as usize);
+    d.tree.leaves.reserve_exact(leaves);
+    d.tree.values.reserve_exact(leaves);
+    d.tree.lowers.reserve_exact(lowers);
+    d.tree.uppers.reserve_exact(uppers);
+    d.tree.root.reserve_exact(nodes.table_size as usize);
     for t in 0..nodes.table_size {
         d.root_tile(t)?;
     }
