@@ -942,3 +942,33 @@ fn stale_temporaries_of_killed_runs_are_removed_and_log_dirs_are_not_invented() 
     assert!(!Path::new("/nonexistent-umbra").exists());
     assert!(String::from_utf8_lossy(&o.stderr).contains("--log"));
 }
+
+/// A reader that stops early (`umbra info --json ... | head`) closes the pipe: umbra stops
+/// quietly with status 0, as on a terminal, in text and in JSON (whose writer reports the
+/// closed pipe through serde_json's error, not an io::Error).
+#[test]
+fn a_closed_pipe_is_not_an_error() {
+    let files = vec![cloud(); 200];
+    for json in [false, true] {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_umbra"));
+        cmd.arg("info");
+        if json {
+            cmd.arg("--json");
+        }
+        let mut child = cmd
+            .args(&files)
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Close the read end before umbra writes: every write meets a closed pipe.
+        drop(child.stdout.take());
+        let out = child.wait_with_output().unwrap();
+        assert!(
+            out.status.success() && out.stderr.is_empty(),
+            "json {json}: {:?} {}",
+            out.status,
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+}

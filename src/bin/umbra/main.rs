@@ -87,9 +87,13 @@ fn main() -> ExitCode {
         Ok(code) => code,
         Err(e) => {
             // A closed pipe (`umbra info x | head`) is not an error.
+            // (serde_json keeps the io::Error's kind, not the io::Error, for `--json`.)
+            let broken = Some(std::io::ErrorKind::BrokenPipe);
             if e.chain().any(|c| {
-                c.downcast_ref::<std::io::Error>()
-                    .is_some_and(|io| io.kind() == std::io::ErrorKind::BrokenPipe)
+                c.downcast_ref::<std::io::Error>().map(std::io::Error::kind) == broken
+                    || c.downcast_ref::<serde_json::Error>()
+                        .and_then(serde_json::Error::io_error_kind)
+                        == broken
             }) {
                 return ExitCode::SUCCESS;
             }
