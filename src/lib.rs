@@ -93,59 +93,59 @@ mod xform;
 /// Each module here is the crate-private module of the same name.
 #[doc(hidden)]
 pub mod internals {
-    /// Which leaves a set of rays touches ([`crate::demand`]).
+    /// Which leaves a set of rays touches (`crate::demand`).
     pub mod demand {
         pub use crate::demand::*;
     }
-    /// Lights ([`crate::light`]).
+    /// Lights (`crate::light`).
     pub mod light {
         pub use crate::light::*;
     }
-    /// Small geometry helpers ([`crate::math`]).
+    /// Small geometry helpers (`crate::math`).
     pub mod math {
         pub use crate::math::*;
     }
-    /// The NanoVDB `.nvdb` reader ([`crate::nvdb`]).
+    /// The NanoVDB `.nvdb` reader (`crate::nvdb`).
     pub mod nvdb {
         pub use crate::nvdb::*;
     }
-    /// Atomic, checked writes ([`crate::output`]).
+    /// Atomic, checked writes (`crate::output`).
     pub mod output {
         pub use crate::output::*;
     }
-    /// Transmittance at positions ([`crate::points`]).
+    /// Transmittance at positions (`crate::points`).
     pub mod points {
         pub use crate::points::*;
     }
-    /// Rays and their clipping ([`crate::ray`]).
+    /// Rays and their clipping (`crate::ray`).
     pub mod ray {
         pub use crate::ray::*;
     }
-    /// The counter-based random stream ([`crate::rng`]).
+    /// The counter-based random stream (`crate::rng`).
     pub mod rng {
         pub use crate::rng::*;
     }
-    /// Solid occluders ([`crate::solid`]).
+    /// Solid occluders (`crate::solid`).
     pub mod solid {
         pub use crate::solid::*;
     }
-    /// Text escaping and wording helpers ([`crate::text`]).
+    /// Text escaping and wording helpers (`crate::text`).
     pub mod text {
         pub use crate::text::*;
     }
-    /// The hierarchical DDA ([`crate::traverse`]).
+    /// The hierarchical DDA (`crate::traverse`).
     pub mod traverse {
         pub use crate::traverse::*;
     }
-    /// The flat sparse tree ([`crate::tree`]).
+    /// The flat sparse tree (`crate::tree`).
     pub mod tree {
         pub use crate::tree::*;
     }
-    /// The `.vdb` reader and writer ([`crate::vdb`]).
+    /// The `.vdb` reader and writer (`crate::vdb`).
     pub mod vdb {
         pub use crate::vdb::*;
     }
-    /// Affine transforms of scene entries ([`crate::xform`]).
+    /// Affine transforms of scene entries (`crate::xform`).
     pub mod xform {
         pub use crate::xform::*;
     }

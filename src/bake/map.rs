@@ -143,7 +143,7 @@ pub struct BakeStats {
     pub lookups: u64,
     /// Samples stopped by the collision cap (biased).
     pub capped: u64,
-    /// Lookups outside their segment's bounds (see [`Estimate::majorant_violations`]).
+    /// Lookups outside their segment's bounds (see [`crate::estimate::Estimate::majorant_violations`]).
     pub majorant_violations: u64,
     /// Pixels whose error bound is still above the target (adaptive sampling hit the cap).
     pub unconverged: u64,

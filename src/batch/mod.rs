@@ -158,7 +158,7 @@ pub struct Job {
     /// Transmittance volumes instead of maps (an output pattern ending in `.vdb`).
     pub volume: bool,
     /// `bake.usd_out`: one `.usda` layer that puts every stage-light task's map and camera on
-    /// its light, time-sampled by frame, rewritten after each run ([`layer`]).
+    /// its light, time-sampled by frame, rewritten after each run (`layer`).
     pub usd_out: Option<PathBuf>,
     /// The shared camera of each (`[[inputs]]` entry, light name), once
     /// [`Job::share_cameras`] has run.
@@ -502,7 +502,7 @@ impl Job {
     /// Bake one task as `umbra bake` would, through the one entry point of a bake
     /// ([`BakeRequest::run_plan`] with the task's plan, [`Job::plan`]), and write its outputs
     /// atomically (overwriting stale ones). Loads only the job's grid of the task's input.
-    /// `threads` as [`BakeSettings::threads`]; `progress` is told the task's work and receives
+    /// `threads` as [`crate::bake::BakeSettings::threads`]; `progress` is told the task's work and receives
     /// finished units. A panic inside the bake is caught and returned with its message.
     ///
     /// # Errors

@@ -72,7 +72,7 @@ pub fn reference(scene: &Scene, rays: &[Ray], s: &Settings) -> Vec<[f64; 3]> {
 }
 
 /// Run every estimator of `estimators` (exact ones are skipped: they have no walk) over its
-/// ladder with both walks, scored against `exact` ([`reference`] of the same rays).
+/// ladder with both walks, scored against `exact` (`reference` of the same rays).
 ///
 /// # Errors
 /// Propagates estimator errors.

@@ -22,7 +22,7 @@ pub trait Extinction {
     fn voxels_per_world_unit(&self) -> f64;
     /// The ray in lookup space, `(q, d)` with the point `q + d t` at world distance `t`, when
     /// ray marching cuts its spans into the chords of the `8^3` blocks of that space
-    /// ([`block_chords`]: the blocks a map's object-order sweep visits, so a march takes the
+    /// (`block_chords`: the blocks a map's object-order sweep visits, so a march takes the
     /// same points ray by ray or block by block). `None` (a scene's several grids): spans are
     /// marched whole.
     fn lattice(&self) -> Option<([f64; 3], [f64; 3])> {

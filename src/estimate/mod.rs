@@ -5,7 +5,7 @@
 //! (`sigma_maj`), `mu_min` = minorant, `mu_c` = control extinction, `tau` = optical depth,
 //! `T = exp(-tau)` = transmittance.
 //!
-//! Every estimator sees the ray as the hierarchical DDA's segments (see [`crate::traverse`]):
+//! Every estimator sees the ray as the hierarchical DDA's segments (see `crate::traverse`):
 //! parts of the ray outside any segment have the background extinction and contribute
 //! `exp(-mu_bg * gap)` in closed form; constant segments (`mu_min == mu_maj`) contribute
 //! `exp(-mu * length)` in closed form; only the other segments are sampled. Segments with an

@@ -14,7 +14,7 @@
 //!
 //! **One set of defaults, one set of errors.** [`BakeOptions::default`] is every front end's
 //! default (a test holds the CLI's to it). [`BakeRequest::plan`] refuses what cannot be
-//! baked with [`Error::InvalidArgument`] naming the option in the library's spelling; each
+//! baked with [`crate::Error::InvalidArgument`] naming the option in the library's spelling; each
 //! front end respells the name (`--step`, `step =`, `step=`).
 //!
 //! **What a product reads.** The output's extension picks the product: `.vdb` a
@@ -88,7 +88,7 @@ impl CameraSource {
     /// The camera, at `res` when given (the same window at that size).
     ///
     /// # Errors
-    /// [`Error::Io`] or [`Error::InvalidArgument`] from reading it.
+    /// [`crate::Error::Io`] or [`crate::Error::InvalidArgument`] from reading it.
     pub fn read(&self, res: Option<Resolution>) -> Result<Camera> {
         match self {
             Self::File(p) => crate::bake::read_camera(p, res),
@@ -134,7 +134,7 @@ impl BakeRequest {
     /// are checked when the plan runs ([`BakeJob::check_outputs`], [`VolumeJob::check_outputs`]).
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
+    /// [`crate::Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
     /// spelling, which each front end respells); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
         let with_light = self.with_stage_light()?;

@@ -54,10 +54,10 @@ pub enum Projection {
     /// Rays from a point light through a pinhole image plane.
     Perspective,
     /// Rays from a point light in every direction: six cube faces stacked in one `N x 6N`
-    /// image, as OpenEXR's `envmap = cube` ([`omni`]).
+    /// image, as OpenEXR's `envmap = cube` (`camera::omni`).
     Cube,
     /// Rays from a point light in every direction: a `2N x N` latitude-longitude image, as
-    /// OpenEXR's `envmap = latlong` ([`omni`]).
+    /// OpenEXR's `envmap = latlong` (`camera::omni`).
     #[serde(rename = "latlong")]
     LatLong,
 }

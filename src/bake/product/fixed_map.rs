@@ -95,7 +95,7 @@ pub(crate) fn fixed_units(pixels: u64) -> u64 {
 }
 
 /// The fixed-size deep map of `scene` seen by `flat`'s camera in `format` (`flat` as for
-/// [`crate::bake::bake_deep`]). `progress` gets [`fixed_units`] in all: a texel per texel of
+/// [`crate::bake::bake_deep`]). `progress` gets `fixed_units` in all: a texel per texel of
 /// the first pass, then the second pass's share as its flagged texels finish.
 ///
 /// # Errors

@@ -287,12 +287,12 @@ pub struct TexelError {
     pub bound: f64,
     /// The largest error at an evaluated depth (a lower bound of the supremum).
     pub seen: f64,
-    /// The sum of squared errors at the [`ERROR_GRID`] + 1 uniform depths.
+    /// The sum of squared errors at the `ERROR_GRID` (64) + 1 uniform depths.
     pub sum_sq: f64,
 }
 
 /// Bound `|T_rec - T_prof|` over every depth for the stored values `c` of `format` against
-/// the profile `p`: the uniform grid of [`ERROR_GRID`] intervals and the profile's jumps, then
+/// the profile `p`: the uniform grid of `ERROR_GRID` (64) intervals and the profile's jumps, then
 /// every interval whose bound exceeds `threshold` halved until it does not (or is narrower
 /// than `1e-9`).
 #[must_use]

@@ -35,7 +35,7 @@ pub enum Warning {
         suggested_scale: f64,
     },
     /// The volume box reaches outside the camera's window (a reused camera framed on another
-    /// box): density there is not in the map ([`Camera::outside`]).
+    /// box): density there is not in the map ([`crate::bake::Camera::outside`]).
     OutsideCamera {
         /// How far, in pixels beyond the window's edge (`inf`: behind a perspective light).
         pixels: f64,
