@@ -350,27 +350,9 @@ fn read_at(file: &std::fs::File, len: u64, at: u64, n: u64) -> crate::error::Dec
     let n = usize::try_from(n)
         .map_err(|_| DecodeError::unsupported("a block beyond the address space"))?;
     let mut buf = vec![0u8; n];
-    positioned_read(file, &mut buf, at)
+    crate::vdb::positioned_read(file, &mut buf, at)
         .map_err(|e| DecodeError::invalid(format!("reading {n} bytes at byte {at}: {e}")))?;
     Ok(buf)
-}
-
-#[cfg(unix)]
-fn positioned_read(file: &std::fs::File, buf: &mut [u8], at: u64) -> std::io::Result<()> {
-    std::os::unix::fs::FileExt::read_exact_at(file, buf, at)
-}
-
-#[cfg(windows)]
-fn positioned_read(file: &std::fs::File, mut buf: &mut [u8], mut at: u64) -> std::io::Result<()> {
-    while !buf.is_empty() {
-        let n = std::os::windows::fs::FileExt::seek_read(file, buf, at)?;
-        if n == 0 {
-            return Err(std::io::ErrorKind::UnexpectedEof.into());
-        }
-        buf = &mut buf[n..];
-        at += n as u64;
-    }
-    Ok(())
 }
 
 /// Display names: the stored name when unique, `name[k]` for the k-th of a repeated name, `[k]`

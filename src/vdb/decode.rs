@@ -375,13 +375,24 @@ fn read_at(file: &std::fs::File, path: &Path, at: u64, len: u64, buf: &mut Vec<u
     })
 }
 
+/// Read exactly `buf.len()` bytes of `file` at byte `at`, without moving a shared cursor (so
+/// threads may read one file at once): `pread` on Unix, `seek_read` in a loop on Windows.
 #[cfg(unix)]
-fn positioned_read(file: &std::fs::File, buf: &mut [u8], at: u64) -> std::io::Result<()> {
+pub(crate) fn positioned_read(
+    file: &std::fs::File,
+    buf: &mut [u8],
+    at: u64,
+) -> std::io::Result<()> {
     std::os::unix::fs::FileExt::read_exact_at(file, buf, at)
 }
 
+/// As the Unix version: `seek_read` until `buf` is full.
 #[cfg(windows)]
-fn positioned_read(file: &std::fs::File, mut buf: &mut [u8], mut at: u64) -> std::io::Result<()> {
+pub(crate) fn positioned_read(
+    file: &std::fs::File,
+    mut buf: &mut [u8],
+    mut at: u64,
+) -> std::io::Result<()> {
     while !buf.is_empty() {
         let n = std::os::windows::fs::FileExt::seek_read(file, buf, at)?;
         if n == 0 {

@@ -14,6 +14,7 @@ mod values;
 pub mod write;
 
 pub use archive::{display_name, Archive, Compression, GridDescriptor, NAME_SEPARATOR};
+pub(crate) use decode::positioned_read;
 pub use lazy::LazyGrid;
 pub use metadata::{MetaMap, MetaValue};
 pub use transform::{FrustumParams, Transform};
