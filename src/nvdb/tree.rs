@@ -314,16 +314,7 @@ impl Decoder<'_> {
                 *slot = v.to_bits();
             }
         }
-        let node = Internal {
-            origin,
-            child_mask,
-            value_mask,
-            slots,
-            bounds: Bounds::EMPTY,
-            halo: Bounds::EMPTY,
-            tile_halo: Box::new([]),
-            halo_exceptions: Box::new([]),
-        };
+        let node = Internal::unbounded(origin, child_mask, value_mask, slots);
         let list = if level == 2 {
             &mut self.tree.uppers
         } else {

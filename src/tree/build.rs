@@ -61,15 +61,13 @@ impl TreeBuilder {
         let mut root: BTreeMap<[i32; 3], RootSlot> = BTreeMap::new();
         let mut uppers: BTreeMap<[i32; 3], Internal> = BTreeMap::new();
         let mut lowers: BTreeMap<[i32; 3], Internal> = BTreeMap::new();
-        let blank = |origin, n: usize| Internal {
-            origin,
-            child_mask: vec![0; n / 64].into_boxed_slice(),
-            value_mask: vec![0; n / 64].into_boxed_slice(),
-            slots: vec![bg.to_bits(); n].into_boxed_slice(),
-            bounds: Bounds::EMPTY,
-            halo: Bounds::EMPTY,
-            tile_halo: Box::new([]),
-            halo_exceptions: Box::new([]),
+        let blank = |origin, n: usize| {
+            Internal::unbounded(
+                origin,
+                vec![0; n / 64].into_boxed_slice(),
+                vec![0; n / 64].into_boxed_slice(),
+                vec![bg.to_bits(); n].into_boxed_slice(),
+            )
         };
         let set_bit = |m: &mut [u64], n: usize| m[n >> 6] |= 1 << (n & 63);
         for &(o, log2, v) in &self.tiles {

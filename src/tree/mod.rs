@@ -126,6 +126,27 @@ pub struct Internal {
 }
 
 impl Internal {
+    /// A node as a decoder or builder lays it out (origin, masks, slots), its bounds and halos
+    /// not yet computed (`EMPTY`, filled by the tree's bounds pass).
+    #[must_use]
+    pub fn unbounded(
+        origin: [i32; 3],
+        child_mask: Box<[u64]>,
+        value_mask: Box<[u64]>,
+        slots: Box<[u32]>,
+    ) -> Self {
+        Self {
+            origin,
+            child_mask,
+            value_mask,
+            slots,
+            bounds: Bounds::EMPTY,
+            halo: Bounds::EMPTY,
+            tile_halo: Box::new([]),
+            halo_exceptions: Box::new([]),
+        }
+    }
+
     /// True if slot `n` holds a child.
     #[inline]
     #[must_use]

@@ -566,16 +566,7 @@ fn read_internal(
             };
         }
     }
-    let node = Internal {
-        origin,
-        child_mask,
-        value_mask,
-        slots,
-        bounds: Bounds::EMPTY,
-        halo: Bounds::EMPTY,
-        tile_halo: Box::new([]),
-        halo_exceptions: Box::new([]),
-    };
+    let node = Internal::unbounded(origin, child_mask, value_mask, slots);
     let list = match level {
         Level::Upper => &mut tree.uppers,
         Level::Lower => &mut tree.lowers,
