@@ -76,6 +76,7 @@ mod demand;
 mod light;
 mod math;
 mod memory;
+mod motion;
 mod nvdb;
 mod output;
 mod points;
@@ -104,6 +105,10 @@ pub mod internals {
     /// Small geometry helpers (`crate::math`).
     pub mod math {
         pub use crate::math::*;
+    }
+    /// Motion blur: velocity fields and blurred bounds (`crate::motion`).
+    pub mod motion {
+        pub use crate::motion::*;
     }
     /// The NanoVDB `.nvdb` reader (`crate::nvdb`).
     pub mod nvdb {

@@ -10,6 +10,7 @@
 
 use crate::error::{Error, Result};
 use crate::input::Grid;
+pub use crate::motion::{Motion, MotionSpec, VelocityField};
 use crate::tree::{Bounds, RootSlot, Tree};
 use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
@@ -76,6 +77,8 @@ pub struct Volume {
     sanitized: Sanitized,
     /// The object transform applied on top of the grid's own, if any.
     xform: Option<crate::xform::Xform>,
+    /// Motion blur from a velocity grid ([`Volume::with_motion`]), if any.
+    motion: Option<std::sync::Arc<crate::motion::Motion>>,
 }
 
 fn sanitize(v: &mut f32, s: &mut Sanitized) {
@@ -269,6 +272,7 @@ impl Volume {
             value_box,
             sanitized,
             xform: None,
+            motion: None,
         })
     }
 
@@ -457,7 +461,46 @@ impl Volume {
             Some(prev) => crate::xform::Xform::new(compose(&x.rows(), &prev.rows()))?,
             None => *x,
         });
+        if let Some(m) = self.motion.take() {
+            let field = m.field().clone().placed(x);
+            let moved = crate::motion::Motion::new(*m.spec(), field, &self.tree, inv)?;
+            self.motion = Some(std::sync::Arc::new(moved));
+        }
         Ok(self)
+    }
+
+    /// The volume blurred over `spec`'s shutter by the velocity `field` (given in the grid's
+    /// own world frame; an object transform already applied moves it too): every estimate
+    /// through [`crate::estimate::estimate`] is then the shutter mean of the transmittance
+    /// through `rho(x - S v(x) t / F)` ([`crate::motion`]).
+    ///
+    /// # Errors
+    /// As [`crate::motion::Motion::new`]: a partial tree, a root tile, a reach too far to bound.
+    pub fn with_motion(
+        mut self,
+        spec: crate::motion::MotionSpec,
+        field: crate::motion::VelocityField,
+    ) -> Result<Self> {
+        let field = match &self.xform {
+            Some(x) => field.placed(x),
+            None => field,
+        };
+        let m = crate::motion::Motion::new(spec, field, &self.tree, self.index_from_world)?;
+        self.motion = Some(std::sync::Arc::new(m));
+        Ok(self)
+    }
+
+    /// The motion set by [`Volume::with_motion`], if any (a still one included).
+    #[must_use]
+    pub fn motion(&self) -> Option<&crate::motion::Motion> {
+        self.motion.as_deref()
+    }
+
+    /// The motion when it moves anything: a non-still shutter and a field with some speed.
+    #[must_use]
+    pub fn moving(&self) -> Option<&crate::motion::Motion> {
+        self.motion()
+            .filter(|m| !m.spec().is_still() && m.field().speed_max() > 0.0)
     }
 
     /// The object transform applied by [`Volume::with_xform`] (composed), if any.

@@ -17,7 +17,7 @@ const LAYERS: &[(&str, &[&str])] = &[
     ),
     ("data", &["tree", "ray", "xform"]),
     ("input", &["input", "vdb", "nvdb", "usd"]),
-    ("model", &["volume"]),
+    ("model", &["volume", "motion"]),
     ("traversal", &["traverse", "demand"]),
     (
         "answers",

@@ -24,6 +24,7 @@
 //! exceed [`REFINE_NULL_COLLISIONS`] is split into per-cell segments with exact cell bounds
 //! before sampling, so a single 1e6 spike in a near-empty leaf costs a few lookups, not 1e6.
 
+pub mod blur;
 pub mod budget;
 pub mod error_bar;
 pub(crate) mod marching;
@@ -404,6 +405,15 @@ fn estimate_unchecked(
 ) -> Result<Estimate> {
     opts.validate()?;
     budget::check_ray(vol, est, opts.samples)?;
+    if vol.motion().is_some() && est.algo().0 == Algo::Regular {
+        return Err(crate::Error::InvalidArgument {
+            name: "estimator".into(),
+            reason: blur::REGULAR_REFUSED.into(),
+        });
+    }
+    if let Some(m) = vol.moving() {
+        return blur::estimate(vol, m, ray, ray_id, est, opts);
+    }
     let mut medium = RayMedium::new(vol, ray, opts.interp);
     if est.algo().0 == Algo::Regular {
         let od = crate::regular::optical_depth(vol, ray, opts.interp)?;

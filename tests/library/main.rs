@@ -24,6 +24,7 @@ mod exr_layout;
 mod lazy;
 mod library_api;
 mod map_summary;
+mod motion;
 mod near_lattice;
 mod nvdb;
 mod omni;

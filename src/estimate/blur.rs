@@ -1,0 +1,225 @@
+//! Motion-blurred estimates: the shutter mean of the transmittance through the advected
+//! density `rho_t(x) = rho(x - S v(x) t / F)` ([`crate::motion`]).
+//!
+//! The ray is cut by the blurred bounds ([`crate::motion::BlurBounds::segments`]: one segment
+//! per run of `8^3` blocks, majorant valid at every shutter time, minorant 0); the background
+//! outside them is closed form. Then:
+//! - marchers (`riemann`, `mc`, `jittered`): each sample is the mean over `K` stratified
+//!   shutter times `t_k = o + (k + u_k) / K (c - o)`, `u_k` uniform from the stream of sample
+//!   index `i K + k`, each time marched as the still estimator marches it. For the
+//!   deterministic `riemann` the `K` times are the samples the error bar is made of.
+//! - every other estimator (null collisions, power series): sample `i` draws its own time
+//!   uniformly from its stream, then walks the segments at that time: the mean over samples
+//!   is unbiased for the shutter mean whenever the estimator is unbiased for one time.
+//!
+//! Segments with an infinite majorant (opaque voxels nearby) are integrated at each sample's
+//! time by a fine midpoint march ([`BlurredMedium::exact`], quarter-voxel steps): there is no
+//! closed form through a warped density. `regular` is refused: it is exact only for a still
+//! grid.
+
+use super::{Algo, Cap, Estimate, Estimator, Extinction, Options};
+use crate::error::{Error, Result};
+use crate::estimate::error_bar::{Bounds, Spread};
+use crate::math::{floor_i64, scaled};
+use crate::motion::{Motion, VelocityLookup};
+use crate::ray::Ray;
+use crate::rng::Rng;
+use crate::traverse::Segment;
+use crate::tree::Accessor;
+use crate::volume::{Interp, Volume};
+use glam::{DAffine3, DVec3};
+
+/// Step of the fine march that stands in for an exact integral, in voxels.
+const FINE_STEP: f64 = 0.25;
+
+/// The line a volume with motion refuses `regular` with.
+pub const REGULAR_REFUSED: &str = "regular tracking is exact only for a still grid; with a \
+    velocity use riemann, mc or jittered (marching over stratified shutter times) or a \
+    null-collision estimator (ratio, residual, delta, next-flight, decomposition: a time per \
+    sample)";
+
+/// The extinction along one ray at one shutter time: the density read at `x - k v(x)`.
+#[derive(Debug, Clone)]
+pub struct BlurredMedium<'v> {
+    density: Accessor<'v>,
+    velocity: VelocityLookup<'v>,
+    index_from_world: DAffine3,
+    origin: DVec3,
+    dir: DVec3,
+    shift: f64,
+    interp: Interp,
+    scale: f64,
+    voxels_per_world: f64,
+    /// World displacement per unit of velocity at the current time, `S t / F`.
+    k: f64,
+    lookups: u64,
+}
+
+impl<'v> BlurredMedium<'v> {
+    /// The medium of `vol` (moving as `m` says) along `ray`, at the shutter time 0.
+    #[must_use]
+    pub fn new(vol: &'v Volume, m: &'v Motion, ray: &Ray, interp: Interp) -> Self {
+        Self {
+            density: Accessor::new(vol.tree()),
+            velocity: m.field().lookup(),
+            index_from_world: vol.index_from_world(),
+            origin: ray.origin(),
+            dir: ray.direction(),
+            shift: interp.shift(),
+            interp,
+            scale: vol.density_scale(),
+            voxels_per_world: vol.to_index_dir(ray.direction()).length(),
+            k: 0.0,
+            lookups: 0,
+        }
+    }
+
+    /// Read the density at shutter time `t` (frames) from now on.
+    pub fn set_time(&mut self, m: &Motion, t: f64) {
+        self.k = m.spec().displacement_per_velocity(t);
+    }
+
+    /// Density evaluations so far (a velocity read and a density read each).
+    #[must_use]
+    pub fn lookups(&self) -> u64 {
+        self.lookups
+    }
+}
+
+impl Extinction for BlurredMedium<'_> {
+    #[inline]
+    fn mu(&mut self, t: f64) -> f64 {
+        self.lookups += 1;
+        let p = self.origin + self.dir * t;
+        let y = p - self.k * self.velocity.at(p);
+        let u = self.index_from_world.transform_point3(y).to_array();
+        let q = u.map(|c| c + self.shift);
+        let v = match self.interp {
+            Interp::Nearest => self.density.value_at(q.map(floor_i64)),
+            Interp::Trilinear => self.density.trilinear(q),
+        };
+        scaled(self.scale, f64::from(v))
+    }
+
+    /// A midpoint march of [`FINE_STEP`] voxels (no closed form through a warped density).
+    fn exact(&mut self, t0: f64, t1: f64) -> f64 {
+        let len = t1 - t0;
+        if len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+            return 0.0;
+        }
+        let n = ((len * self.voxels_per_world / FINE_STEP).ceil()).clamp(1.0, 1e7) as u64;
+        let h = len / n as f64;
+        (0..n).map(|i| self.mu(t0 + (i as f64 + 0.5) * h) * h).sum()
+    }
+
+    fn voxels_per_world_unit(&self) -> f64 {
+        self.voxels_per_world
+    }
+}
+
+/// The blurred transmittance estimate of `est` along `ray` (module docs).
+///
+/// # Errors
+/// [`Error::InvalidArgument`] (name `estimator`) for `regular`.
+pub(crate) fn estimate(
+    vol: &Volume,
+    m: &Motion,
+    ray: &Ray,
+    ray_id: u64,
+    est: &Estimator,
+    opts: &Options,
+) -> Result<Estimate> {
+    if est.algo().0 == Algo::Regular {
+        return Err(Error::InvalidArgument {
+            name: "estimator".into(),
+            reason: REGULAR_REFUSED.into(),
+        });
+    }
+    let q = vol.to_index(ray.origin()).to_array();
+    let d = vol.to_index_dir(ray.direction()).to_array();
+    let mut all = Vec::new();
+    let gap = m.bounds().segments(
+        q,
+        d,
+        (ray.t_min(), ray.t_max()),
+        vol.density_scale(),
+        &mut all,
+    );
+    let mu_bg = vol.mu_background();
+    let tau_known = if mu_bg != 0.0 && gap > 0.0 {
+        mu_bg * gap
+    } else {
+        0.0
+    };
+    let (segs, opaque): (Vec<Segment>, Vec<Segment>) = all
+        .into_iter()
+        .filter(|s| s.mu_maj > 0.0)
+        .partition(|s| s.mu_maj.is_finite());
+    let known = (-tau_known).exp();
+    let mut medium = BlurredMedium::new(vol, m, ray, opts.interp);
+    if segs.is_empty() && opaque.is_empty() {
+        return Ok(Estimate {
+            value: known,
+            std_err: 0.0,
+            lookups: 0,
+            segments: 0,
+            samples: 1,
+            capped: 0,
+            majorant_violations: 0,
+            tau: Some(tau_known),
+            spread: Spread::default(),
+        });
+    }
+    let marches = est.marches();
+    let samples = if est.is_deterministic() {
+        1
+    } else {
+        opts.samples.max(1)
+    };
+    let strata = if marches { m.spec().time_samples() } else { 1 };
+    let bounds = Bounds::of_segments(tau_known, &segs);
+    let mut spread = if marches {
+        Spread::new(None, bounds)
+    } else {
+        Spread::of(est, bounds)
+    };
+    let (mut capped, mut violations) = (0u64, 0u64);
+    for i in 0..samples {
+        let mut x = 0.0;
+        for k in 0..strata {
+            let index = u64::from(i) * u64::from(strata) + u64::from(k);
+            let mut rng = Rng::new(opts.seed, ray_id, index);
+            let u = rng.uniform();
+            let frac = (f64::from(k) + u) / f64::from(strata);
+            medium.set_time(m, m.spec().time_at(frac));
+            let tau_opaque: f64 = opaque.iter().map(|s| medium.exact(s.t_min, s.t_max)).sum();
+            let mut cap = Cap::new(opts.max_collisions);
+            let t = if segs.is_empty() {
+                1.0
+            } else {
+                super::sample_once(est, &segs, &mut medium, &mut rng, &mut cap)
+            };
+            capped += u64::from(cap.hit);
+            violations += cap.violations;
+            let v = known * (-tau_opaque).exp() * t;
+            if samples == 1 && marches {
+                spread.push(v);
+            }
+            x += v / f64::from(strata);
+        }
+        if !(samples == 1 && marches) {
+            spread.push(x);
+        }
+    }
+    Ok(Estimate {
+        value: spread.mean,
+        std_err: spread.std_err(),
+        lookups: medium.lookups(),
+        segments: (segs.len() + opaque.len()) as u64,
+        samples,
+        capped,
+        majorant_violations: violations,
+        tau: None,
+        spread,
+    })
+}

@@ -1,0 +1,288 @@
+//! [`BlurBounds`]: a majorant of the blurred density per `8^3` block of the density's index
+//! space, valid at every shutter time (module docs of [`crate::motion`]).
+//!
+//! For a block `C` (voxels `[8c, 8c + 8)`), every point `x` of `C` reads the density at
+//! `x - k v(x)` with `|k| <= K = max |S t / F|` over the shutter, so within
+//! `r_C = K |v|_max(C)` world units, which is `r_C |row_i(M^-1)|` voxels along index axis `i`.
+//! The lookup there (nearest or trilinear, with its half-voxel shift) reads voxels at most two
+//! more away, so `maj(C) = max` of the density's block maxima over the blocks meeting
+//! `[8c - r_i - 2, 8c + 8 + r_i + 2]` on each axis majorises `rho_t` on `C` at every `t`, with
+//! `|v|_max(C)` [`crate::motion::VelocityField::speed_bound`] over `C`'s world box. The blocks
+//! are kept dense over the density's blocks grown by the largest reach; outside them the
+//! blurred density is the background.
+
+use super::{MotionSpec, VelocityField};
+use crate::error::{Error, Result};
+use crate::traverse::{dda, Cells, Segment};
+use crate::tree::{RootSlot, Tree};
+use glam::{DAffine3, DVec3};
+use rayon::prelude::*;
+use std::ops::ControlFlow;
+
+/// The most blocks the dense majorant array may hold (64 MiB of `f32`).
+pub const MAX_BLOCKS: u64 = 1 << 24;
+
+/// Blurred majorants per `8^3` block over a dense box of blocks; the background outside.
+#[derive(Debug, Clone)]
+pub struct BlurBounds {
+    /// Smallest block coordinate per axis (block `b` holds voxels `[8b, 8b + 8)`).
+    lo: [i64; 3],
+    /// Blocks per axis.
+    dims: [usize; 3],
+    /// Raw density majorant per block (z fastest), before the density scale.
+    maj: Vec<f32>,
+    /// The density outside the box (its background).
+    outside: f32,
+}
+
+fn refused(reason: String) -> Error {
+    Error::InvalidArgument {
+        name: "velocity".into(),
+        reason,
+    }
+}
+
+/// Every block of `tree` with data: `(block, max value)` for each leaf and each tile whose
+/// value is not the background (a 4096^3 root tile is refused: too large to bound by blocks).
+fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32)>> {
+    let bg = tree.background;
+    let mut out = Vec::with_capacity(tree.leaves.len());
+    for e in &tree.root {
+        if let RootSlot::Tile { value, .. } = e.slot {
+            if value != bg {
+                return Err(refused(
+                    "the density holds a root tile (4096^3 voxels of one value); motion blur \
+                     bounds density by 8^3 blocks"
+                        .into(),
+                ));
+            }
+        }
+    }
+    for (nodes, dim, child) in [(&tree.uppers, 32usize, 128i64), (&tree.lowers, 16, 8)] {
+        for n in nodes {
+            for s in 0..n.slots.len() {
+                if n.has_child(s) || n.tile_value(s) == bg {
+                    continue;
+                }
+                let l = [s / (dim * dim), (s / dim) % dim, s % dim];
+                let o = [0, 1, 2].map(|a| i64::from(n.origin[a]) + l[a] as i64 * child);
+                let per = child / 8;
+                for x in 0..per {
+                    for y in 0..per {
+                        for z in 0..per {
+                            let b = [o[0] / 8 + x, o[1] / 8 + y, o[2] / 8 + z];
+                            out.push((b, n.tile_value(s)));
+                        }
+                    }
+                }
+            }
+        }
+    }
+    for l in &tree.leaves {
+        out.push((l.origin.map(|c| i64::from(c) >> 3), l.bounds.max));
+    }
+    Ok(out)
+}
+
+impl BlurBounds {
+    /// The bounds of `density` (map `index_from_world`) blurred by `field` over `spec`'s
+    /// shutter.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `velocity`) for a partial density tree, a root tile,
+    /// or a reach whose dense box would pass [`MAX_BLOCKS`].
+    pub fn build(
+        density: &Tree,
+        index_from_world: DAffine3,
+        field: &VelocityField,
+        spec: &MotionSpec,
+    ) -> Result<Self> {
+        if !density.is_complete() {
+            return Err(refused("motion blur needs the density loaded whole".into()));
+        }
+        let outside = density.background;
+        let sources = source_blocks(density)?;
+        let Some(first) = sources.first() else {
+            return Ok(Self {
+                lo: [0; 3],
+                dims: [0; 3],
+                maj: Vec::new(),
+                outside,
+            });
+        };
+        let (mut slo, mut shi) = (first.0, first.0);
+        for (b, _) in &sources {
+            for a in 0..3 {
+                slo[a] = slo[a].min(b[a]);
+                shi[a] = shi[a].max(b[a]);
+            }
+        }
+        // Voxels per world unit along each index axis: |row_i(M^-1)|.
+        let m = index_from_world.matrix3.transpose();
+        let per_world = [m.x_axis.length(), m.y_axis.length(), m.z_axis.length()];
+        let reach = spec.reach_per_velocity();
+        let radius = |speed: f64| per_world.map(|p| reach * speed * p + 2.0);
+        let rg = radius(field.speed_max());
+        if !rg.iter().all(|r| r.is_finite()) {
+            return Err(refused(format!(
+                "the velocity grid '{}' reaches no finite distance over the shutter",
+                crate::text::escape(field.name())
+            )));
+        }
+        let grow = rg.map(|r| (r / 8.0).ceil() as i64 + 1);
+        let lo = [0, 1, 2].map(|a| slo[a] - grow[a]);
+        let dims = [0, 1, 2].map(|a| (shi[a] + grow[a] - lo[a] + 1) as u64);
+        let count = dims.iter().product::<u64>();
+        if count > MAX_BLOCKS {
+            return Err(refused(format!(
+                "the velocity grid '{}' moves density up to {} voxels over the shutter: the \
+                 blurred bounds would need {count} blocks (at most {MAX_BLOCKS}); shorten the \
+                 shutter or lower the velocity scale",
+                crate::text::escape(field.name()),
+                crate::math::short(rg.iter().fold(0.0f64, |m, r| m.max(*r)))
+            )));
+        }
+        let dims = dims.map(|d| d as usize);
+        let at = |b: [i64; 3]| {
+            let i = [0, 1, 2].map(|a| (b[a] - lo[a]) as usize);
+            (i[0] * dims[1] + i[1]) * dims[2] + i[2]
+        };
+        let mut src = vec![outside; count as usize];
+        for (b, v) in &sources {
+            let i = at(*b);
+            src[i] = src[i].max(*v);
+        }
+        let world_from_index = index_from_world.inverse();
+        let slab = dims[1] * dims[2];
+        let mut maj = vec![outside; count as usize];
+        maj.par_chunks_mut(slab.max(1))
+            .enumerate()
+            .for_each(|(x, out)| {
+                for y in 0..dims[1] {
+                    for z in 0..dims[2] {
+                        let c = [lo[0] + x as i64, lo[1] + y as i64, lo[2] + z as i64];
+                        let r = if reach == 0.0 {
+                            radius(0.0)
+                        } else {
+                            let (wlo, whi) = world_box(&world_from_index, c);
+                            radius(field.speed_bound(wlo, whi))
+                        };
+                        let mut m = outside;
+                        let range = |a: usize| {
+                            let v0 = ((c[a] * 8) as f64 - r[a]).floor() as i64;
+                            let v1 = ((c[a] * 8 + 8) as f64 + r[a]).floor() as i64;
+                            (
+                                (v0 >> 3).max(lo[a]),
+                                (v1 >> 3).min(lo[a] + dims[a] as i64 - 1),
+                            )
+                        };
+                        let (rx, ry, rz) = (range(0), range(1), range(2));
+                        for bx in rx.0..=rx.1 {
+                            for by in ry.0..=ry.1 {
+                                for bz in rz.0..=rz.1 {
+                                    m = m.max(src[at([bx, by, bz])]);
+                                }
+                            }
+                        }
+                        out[y * dims[2] + z] = m;
+                    }
+                }
+            });
+        Ok(Self {
+            lo,
+            dims,
+            maj,
+            outside,
+        })
+    }
+
+    /// Blocks held (the dense box).
+    #[must_use]
+    pub fn blocks(&self) -> usize {
+        self.maj.len()
+    }
+
+    /// The raw majorant of block `b` (the background outside the box).
+    #[must_use]
+    pub fn block(&self, b: [i64; 3]) -> f32 {
+        let mut i = 0usize;
+        for a in 0..3 {
+            let k = b[a] - self.lo[a];
+            if k < 0 || k >= self.dims[a] as i64 {
+                return self.outside;
+            }
+            i = i * self.dims[a] + k as usize;
+        }
+        self.maj[i]
+    }
+
+    /// The segments of the index-space line `q + d t` over `[t0, t1]` inside the box, in
+    /// order, each with majorant `scale * maj` of its blocks (runs of equal majorants merged)
+    /// and minorant 0; returns the length of `[t0, t1]` outside the box (background).
+    pub fn segments(
+        &self,
+        q: [f64; 3],
+        d: [f64; 3],
+        (t0, t1): (f64, f64),
+        scale: f64,
+        out: &mut Vec<Segment>,
+    ) -> f64 {
+        let total = (t1 - t0).max(0.0);
+        if self.maj.is_empty() {
+            return total;
+        }
+        // Clip to the box [8 lo, 8 (lo + dims)).
+        let (mut a, mut b) = (t0, t1);
+        for k in 0..3 {
+            let lo = (self.lo[k] * 8) as f64;
+            let hi = ((self.lo[k] + self.dims[k] as i64) * 8) as f64;
+            if d[k] == 0.0 {
+                if q[k] < lo || q[k] >= hi {
+                    return total;
+                }
+                continue;
+            }
+            let (ta, tb) = ((lo - q[k]) / d[k], (hi - q[k]) / d[k]);
+            a = a.max(ta.min(tb));
+            b = b.min(ta.max(tb));
+        }
+        if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
+            return total;
+        }
+        let cells = Cells {
+            size: 8.0,
+            lo: self.lo,
+            hi: [0, 1, 2].map(|k| self.lo[k] + self.dims[k] as i64 - 1),
+        };
+        let start = out.len();
+        let _ = dda(q, d, (a, b), &cells, |c, ta, tb| {
+            let mu = crate::math::scaled(scale, f64::from(self.block(c)));
+            let run = out.len() > start;
+            match out.last_mut() {
+                Some(s) if run && s.mu_maj == mu && s.t_max == ta => s.t_max = tb,
+                _ => out.push(Segment {
+                    t_min: ta,
+                    t_max: tb,
+                    mu_min: 0.0,
+                    mu_maj: mu,
+                    level: 0,
+                }),
+            }
+            ControlFlow::Continue(())
+        });
+        total - (b - a)
+    }
+}
+
+/// The world box of block `c`'s voxels `[8c - 1, 8c + 9]` (one voxel beyond, for the lookup
+/// shift).
+fn world_box(world_from_index: &DAffine3, c: [i64; 3]) -> (DVec3, DVec3) {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    for n in 0..8 {
+        let v = [0, 1, 2].map(|a| (c[a] * 8) as f64 + if n >> a & 1 == 0 { -1.0 } else { 9.0 });
+        let w = world_from_index.transform_point3(DVec3::from_array(v));
+        lo = lo.min(w);
+        hi = hi.max(w);
+    }
+    (lo, hi)
+}
