@@ -368,11 +368,16 @@ impl Volume {
     }
 
     /// Index-space volume box `[lo, hi]`: [`Volume::value_box`] grown by one voxel (the reach
-    /// of a trilinear lookup). What a map frames and where "until the ray leaves the volume"
-    /// ends; `None` when the density is the background everywhere.
+    /// of a trilinear lookup); for a moving volume ([`Volume::moving`]), the box of the blocks
+    /// its blurred density may reach over the shutter. What a map frames and where "until the
+    /// ray leaves the volume" ends; `None` when the density is the background everywhere.
     #[must_use]
     pub fn box_index(&self) -> Option<(DVec3, DVec3)> {
-        self.value_box.map(|[lo, hi]| {
+        let value_box = match self.moving() {
+            Some(m) => m.bounds().value_box(),
+            None => self.value_box,
+        };
+        value_box.map(|[lo, hi]| {
             (
                 DVec3::from_array(lo.map(|v| (v - 1) as f64)),
                 DVec3::from_array(hi.map(|v| (v + 1) as f64)),

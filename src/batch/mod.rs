@@ -472,6 +472,8 @@ impl Job {
                 light: task.usd_light.clone(),
                 ..self.options.stage_selection()
             },
+            // Checked when the job was parsed (every task plans through its request).
+            motion: self.options.estimator_options().motion(None).ok().flatten(),
         }
     }
 

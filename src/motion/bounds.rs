@@ -33,6 +33,8 @@ pub struct BlurBounds {
     maj: Vec<f32>,
     /// The density outside the box (its background).
     outside: f32,
+    /// The index box of the voxels of every block whose majorant is not the background.
+    value_box: Option<[[i64; 3]; 2]>,
 }
 
 fn refused(reason: String) -> Error {
@@ -108,6 +110,7 @@ impl BlurBounds {
                 dims: [0; 3],
                 maj: Vec::new(),
                 outside,
+                value_box: None,
             });
         };
         let (mut slo, mut shi) = (first.0, first.0);
@@ -188,12 +191,33 @@ impl BlurBounds {
                     }
                 }
             });
+        let mut value_box: Option<[[i64; 3]; 2]> = None;
+        for (i, &m) in maj.iter().enumerate() {
+            if m == outside {
+                continue;
+            }
+            let b = [i / slab, (i / dims[2]) % dims[1], i % dims[2]];
+            let v = [0, 1, 2].map(|a| (lo[a] + b[a] as i64) * 8);
+            let bb = value_box.get_or_insert([v, v.map(|c| c + 7)]);
+            for a in 0..3 {
+                bb[0][a] = bb[0][a].min(v[a]);
+                bb[1][a] = bb[1][a].max(v[a] + 7);
+            }
+        }
         Ok(Self {
             lo,
             dims,
             maj,
             outside,
+            value_box,
         })
+    }
+
+    /// The index box of the voxels of every block the blurred density may differ from the
+    /// background in (inclusive), `None` when there is none.
+    #[must_use]
+    pub fn value_box(&self) -> Option<[[i64; 3]; 2]> {
+        self.value_box
     }
 
     /// Blocks held (the dense box).

@@ -202,3 +202,52 @@ impl Motion {
         &self.bounds
     }
 }
+
+/// The shutter when none is given: a 180-degree shutter centred on the frame, in frames.
+pub const DEFAULT_SHUTTER: [f64; 2] = [-0.25, 0.25];
+
+/// Stratified shutter times per marching sample when none is given.
+pub const DEFAULT_TIME_SAMPLES: u32 = 8;
+
+/// Motion blur as a request names it: the velocity grid (of the file the density comes from)
+/// and the spec.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MotionRequest {
+    /// The vec3 grid's name in the density's file.
+    pub velocity: String,
+    /// Shutter, frame rate, scale, time samples.
+    pub spec: MotionSpec,
+}
+
+impl MotionRequest {
+    /// Load the velocity grid of `path` ([`crate::input::GridFile::load_vector`]) as a field:
+    /// staggered when its class says so, in index space when its metadata says
+    /// `is_local_space`.
+    ///
+    /// # Errors
+    /// [`Error::GridNotFound`], a grid that is not a vec3 grid (naming the file and grid), and
+    /// decoding and map errors.
+    pub fn field(&self, path: &std::path::Path) -> Result<VelocityField> {
+        let g = crate::input::GridFile::open(path)?.load_vector(&self.velocity)?;
+        if !g.transform.is_affine() {
+            return Err(Error::Unsupported {
+                path: path.to_path_buf(),
+                what: format!(
+                    "velocity grid '{}' has a frustum map; umbra reads affine maps",
+                    crate::text::escape(&g.name)
+                ),
+            });
+        }
+        let (staggered, local) = (g.is_staggered(), g.is_local_space());
+        let m = g.transform.world_from_index;
+        VelocityField::new(g.name, g.components, [m[0], m[1], m[2]], staggered, local).map_err(
+            |e| match e {
+                Error::InvalidArgument { reason, .. } => Error::Unsupported {
+                    path: path.to_path_buf(),
+                    what: reason,
+                },
+                other => other,
+            },
+        )
+    }
+}

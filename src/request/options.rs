@@ -230,6 +230,11 @@ impl Default for BakeOptions {
             granularity: e.granularity,
             global_majorant: e.global_majorant,
             colour_walk: e.colour_walk,
+            velocity: e.velocity,
+            shutter: e.shutter,
+            fps: e.fps,
+            velocity_scale: e.velocity_scale,
+            time_samples: e.time_samples,
             order: Order::Auto,
             threads: 0,
             max_memory: None,
@@ -257,6 +262,11 @@ pub const VOLUME_OPTIONS: &[&str] = &[
     "points",
     "granularity",
     "global_majorant",
+    "velocity",
+    "shutter",
+    "fps",
+    "velocity_scale",
+    "time_samples",
     "threads",
     "force",
     "frame",
@@ -273,6 +283,23 @@ pub(super) fn bad(name: &str, reason: impl Into<String>) -> Error {
         name: name.into(),
         reason: reason.into(),
     }
+}
+
+/// Parse `A,B` into two numbers (`--shutter`; finiteness is the motion spec's check).
+///
+/// # Errors
+/// A message naming what is wrong.
+pub fn parse_pair(s: &str) -> std::result::Result<[f64; 2], String> {
+    let v: Vec<&str> = s.split(',').collect();
+    if v.len() != 2 {
+        return Err(format!("expected two numbers A,B, got '{s}'"));
+    }
+    let n = |t: &str| {
+        t.trim()
+            .parse::<f64>()
+            .map_err(|_| format!("'{}' is not a number", t.trim()))
+    };
+    Ok([n(v[0])?, n(v[1])?])
 }
 
 /// Parse `X,Y,Z` into three finite numbers (`--light-dir`, `--up`, `--sigma-t`).
@@ -360,6 +387,11 @@ impl BakeOptions {
             granularity: self.granularity,
             global_majorant: self.global_majorant,
             colour_walk: self.colour_walk,
+            velocity: self.velocity.clone(),
+            shutter: self.shutter,
+            fps: self.fps,
+            velocity_scale: self.velocity_scale,
+            time_samples: self.time_samples,
         }
     }
 
@@ -388,6 +420,7 @@ impl BakeOptions {
             xform: self.xform()?,
             levelset_solid: self.levelset == Some(LevelSet::Solid),
             stage: self.stage_selection(),
+            motion: self.estimator_options().motion(None)?,
         })
     }
 

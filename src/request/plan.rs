@@ -193,6 +193,7 @@ impl BakeRequest {
                 .unwrap_or_else(|| DEFAULT_OUT_GRID.to_string()),
             half: o.half,
             overwrite: o.force,
+            motion: o.estimator_options().motion(None)?,
         })
     }
 
@@ -296,6 +297,7 @@ impl BakeRequest {
             layout,
             max_memory: o.max_memory()?,
             product,
+            motion: o.estimator_options().motion(None)?,
         })
     }
 }

@@ -45,6 +45,9 @@ pub struct SceneOptions {
     pub levelset_solid: bool,
     /// What to read of a USD stage input (time code, volumes, field); ignored otherwise.
     pub stage: crate::usd::Selection,
+    /// Motion blur: every fog volume blurred by the velocity grid of this name in its own file
+    /// ([`crate::motion`]); such inputs are loaded whole.
+    pub motion: Option<crate::motion::MotionRequest>,
 }
 
 impl Default for SceneOptions {
@@ -56,6 +59,7 @@ impl Default for SceneOptions {
             xform: None,
             levelset_solid: false,
             stage: crate::usd::Selection::default(),
+            motion: None,
         }
     }
 }
@@ -111,7 +115,12 @@ pub fn load_for_rays(
         return Ok((scene, r));
     }
     let file = crate::input::GridFile::open(path)?;
-    let Some(lazy) = file.lazy(&opts.grid)? else {
+    let lazy = match opts.motion {
+        // The velocity moves density anywhere its reach allows: load whole.
+        Some(_) => None,
+        None => file.lazy(&opts.grid)?,
+    };
+    let Some(lazy) = lazy else {
         // A format without partial reads loads whole.
         let scene = scene_of_grid(file.load(&opts.grid)?, path, opts)?;
         let r = rays(&scene);
@@ -155,6 +164,9 @@ fn scene_of_grid(grid: crate::input::Grid, path: &Path, opts: &SceneOptions) -> 
         let mut v = Volume::new(grid, opts.density_scale, path)?;
         if let Some(x) = &opts.xform {
             v = v.with_xform(x)?;
+        }
+        if let Some(m) = &opts.motion {
+            v = v.with_motion(m.spec, m.field(path)?)?;
         }
         fogs.push(Fog::new(v, opts.sigma_t.unwrap_or([1.0; 3]))?);
     }
@@ -462,6 +474,10 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
             let mut vol = Volume::load(file, &e.grid, e.scale).map_err(failed)?;
             if let Some(x) = &e.xform {
                 vol = vol.with_xform(x).map_err(placed)?;
+            }
+            if let Some(m) = &opts.motion {
+                let field = m.field(file).map_err(failed)?;
+                vol = vol.with_motion(m.spec, field).map_err(failed)?;
             }
             fogs.push(Fog::new(vol, e.sigma)?);
         }

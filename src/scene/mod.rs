@@ -100,6 +100,15 @@ impl Scene {
         if fogs.is_empty() && solids.is_empty() {
             return Err(bad("a scene needs at least one volume".into()));
         }
+        let moving = fogs.iter().any(|f| f.volume.motion().is_some());
+        if moving && (fogs.len() > 1 || !solids.is_empty() || rgb || fogs[0].sigma != [1.0; 3]) {
+            return Err(Error::InvalidArgument {
+                name: "velocity".into(),
+                reason: "motion blur traces one grey fog volume; this scene has several \
+                         volumes, solids or colour"
+                    .into(),
+            });
+        }
         if fogs.len() > MAX_VOLUMES {
             return Err(bad(format!(
                 "{} fog volumes; at most {MAX_VOLUMES}",

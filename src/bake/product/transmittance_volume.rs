@@ -640,6 +640,9 @@ pub struct VolumeJob {
     pub half: bool,
     /// Replace an existing output.
     pub overwrite: bool,
+    /// Motion blur from a velocity grid of the input ([`crate::motion`]): T at each voxel is
+    /// the shutter mean.
+    pub motion: Option<crate::motion::MotionRequest>,
 }
 
 /// What a finished transmittance volume produced.
@@ -701,9 +704,12 @@ impl VolumeJob {
                 ),
             });
         }
-        let v = Volume::load(&self.input, &self.grid, self.density_scale)?;
-        match &self.xform {
-            Some(x) => v.with_xform(x),
+        let mut v = Volume::load(&self.input, &self.grid, self.density_scale)?;
+        if let Some(x) = &self.xform {
+            v = v.with_xform(x)?;
+        }
+        match &self.motion {
+            Some(m) => v.with_motion(m.spec, m.field(&self.input)?),
             None => Ok(v),
         }
     }

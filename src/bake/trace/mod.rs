@@ -477,6 +477,8 @@ fn render(
     if s.order == Order::Auto {
         let exact = crate::bake::trace::sweep::applies(s);
         match src {
+            // A moving volume is traced ray by ray: the sweep reads the still grid.
+            Source::Volume(vol) if vol.moving().is_some() => {}
             Source::Volume(vol)
                 if exact
                     || crate::bake::trace::sweep::marches(s).is_some()

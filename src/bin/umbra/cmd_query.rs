@@ -134,6 +134,7 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
             light: toward,
             ..a.stage.selection()
         },
+        motion: a.est.motion(None).map_err(flag_error)?,
     };
     let pool = thread_pool(a.threads)?;
     // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray
@@ -344,6 +345,7 @@ fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
         xform: None,
         levelset_solid: a.trace.levelset.is_some(),
         stage: a.stage.selection(),
+        motion: a.est.motion(None).map_err(flag_error)?,
     };
     let spec = crate::query_points::Spec {
         file: &a.file,

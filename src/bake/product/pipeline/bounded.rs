@@ -38,8 +38,12 @@ impl BakeJob {
         };
         self.check_outputs()?;
         self.settings.validate()?;
-        if crate::input::InputKind::of(&self.input).is_scene_file() || self.sigma_t.is_some() {
-            // Scenes and colour maps load whole; fine if they fit, refused otherwise below.
+        if crate::input::InputKind::of(&self.input).is_scene_file()
+            || self.sigma_t.is_some()
+            || self.motion.is_some()
+        {
+            // Scenes, colour maps and blurred maps load whole (a velocity moves density
+            // anywhere its reach allows).
             return Ok(None);
         }
         let file = crate::input::GridFile::open(&self.input)?;

@@ -58,6 +58,9 @@ pub struct BakeJob {
     pub max_memory: Option<u64>,
     /// What `output` holds: a flat map (the default) or a deep map.
     pub product: Product,
+    /// Motion blur from a velocity grid of the input ([`crate::motion`]); such a grid is
+    /// loaded whole and its map traced ray by ray.
+    pub motion: Option<crate::motion::MotionRequest>,
 }
 
 /// What a bake writes at its output.
@@ -313,6 +316,7 @@ impl BakeJob {
             xform: self.xform,
             levelset_solid: self.levelset_solid,
             stage: self.stage.clone(),
+            motion: self.motion.clone(),
         }
     }
 
