@@ -46,7 +46,8 @@ pub struct Grid {
     pub compression: Compression,
     /// Whether values were stored as 16-bit halves.
     pub saved_as_half: bool,
-    /// The tree, values converted to `f32` (vector grids: the vector length).
+    /// The tree, values converted to `f32` (vector grids: the vector length; see
+    /// [`VectorGrid`] for the components).
     pub tree: Tree,
     /// For double grids: what the conversion to `f32` cost (None for other types).
     pub precision_loss: Option<PrecisionLoss>,

@@ -23,11 +23,11 @@ pub enum ValueKind {
     Int64,
     /// `bool`
     Bool,
-    /// `vec3s`; umbra keeps the vector length.
+    /// `vec3s`; a `Grid` keeps the vector length, a `VectorGrid` its components.
     Vec3s,
-    /// `vec3d`; umbra keeps the vector length.
+    /// `vec3d`; a `Grid` keeps the vector length, a `VectorGrid` its components.
     Vec3d,
-    /// `vec3i`; umbra keeps the vector length.
+    /// `vec3i`; a `Grid` keeps the vector length, a `VectorGrid` its components.
     Vec3i,
 }
 
