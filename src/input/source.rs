@@ -1,11 +1,12 @@
 //! [`GridFile`]: a grid file opened by the reader its kind names, and what the layers above ask
 //! of it: a grid decoded whole ([`GridFile::load`]), opened for partial reads
-//! ([`GridFile::lazy`]), or its transform and index box alone ([`GridFile::extent`]). The
+//! ([`GridFile::lazy`]), a vector grid as its three components ([`GridFile::load_vector`]), or
+//! its transform and index box alone ([`GridFile::extent`]). The
 //! model builds a [`crate::Volume`] from the [`Grid`] it gives; no module above this layer
 //! opens a grid file itself.
 
 use crate::error::Result;
-use crate::vdb::{Archive, Grid, GridExtent, LazyGrid};
+use crate::vdb::{Archive, Grid, GridExtent, LazyGrid, VectorGrid};
 use std::path::Path;
 
 /// A grid file opened for reading: its header and list of grids read, no grid decoded.
@@ -68,6 +69,19 @@ impl GridFile {
         match &self.reader {
             Reader::Vdb(a) => a.load(a.find_grid(grid)?),
             Reader::Nvdb(f) => f.load(f.find_grid(grid)?),
+        }
+    }
+
+    /// Decode the vector grid `grid` (`.vdb`: `vec3s`, `vec3d`, `vec3i`; `.nvdb`: `Vec3f`) as
+    /// its three components, each a scalar tree of the grid's topology ([`VectorGrid`]).
+    ///
+    /// # Errors
+    /// [`crate::Error::GridNotFound`]; [`crate::Error::Unsupported`] naming the file and the
+    /// grid when it is not a vector grid; a decoding error naming the file.
+    pub fn load_vector(&self, grid: &str) -> Result<VectorGrid> {
+        match &self.reader {
+            Reader::Vdb(a) => a.load_vector(a.find_grid(grid)?),
+            Reader::Nvdb(f) => f.load_vector(f.find_grid(grid)?),
         }
     }
 

@@ -2,7 +2,8 @@
 //! the segments and their grid metadata ([`file`]), each grid's buffer decompressed whole (codecs
 //! NONE, ZIP, BLOSC), its checksum verified ([`checksum`]) and its tree decoded into umbra's
 //! flat [`crate::tree::Tree`] ([`tree`]), the buffer's structures laid out as [`layout`] says.
-//! Value types `float`, `double`, `Vec3f` (kept as its length) and the quantised `Fp4`, `Fp8`,
+//! Value types `float`, `double`, `Vec3f` (kept as its length, or as its three components by
+//! [`NvdbFile::load_vector`]) and the quantised `Fp4`, `Fp8`,
 //! `Fp16`, `FpN`; every other type is described from its headers and refused on load.
 //!
 //! A grid is one contiguous block of the file with no index of its nodes outside it, so a grid
@@ -22,7 +23,7 @@ pub use layout::{class_name, is_decoded, quantisation, type_name};
 
 use crate::error::{DecodeError, Error, Result};
 use crate::text;
-use crate::vdb::{Compression, Grid, GridExtent, PrecisionLoss, Transform};
+use crate::vdb::{Compression, Grid, GridExtent, Pick, PrecisionLoss, Transform, VectorGrid};
 use bytes::Bytes;
 use std::path::{Path, PathBuf};
 
@@ -118,6 +119,36 @@ impl NvdbFile {
         Ok(d.grid)
     }
 
+    /// Decode the Vec3f grid `i` as its three components (the grid buffer read, checked and
+    /// its checksum verified once, the tree decoded once per component).
+    ///
+    /// # Errors
+    /// As [`NvdbFile::load`]; [`Error::Unsupported`] naming the file and the grid when it is
+    /// not a vector grid.
+    pub fn load_vector(&self, i: usize) -> Result<VectorGrid> {
+        let meta = self
+            .grids
+            .get(i)
+            .ok_or_else(|| self.invalid(i, "no such grid index"))?;
+        // Vec3f (6) is decoded; Vec3d (7) is a vector type the decoder refuses by name.
+        if !matches!(meta.grid_type, 6 | 7) {
+            return Err(crate::vdb::not_a_vector(
+                &self.path,
+                &self.names[i],
+                type_name(meta.grid_type),
+            ));
+        }
+        let picks = [0, 1, 2].map(Pick::Component);
+        let (grids, checksum) = self.decode_picks(i, &picks)?;
+        if let Checksum::Mismatch(why) = &checksum {
+            return Err(self.invalid(i, &format!("checksum mismatch: {why}")));
+        }
+        match <[Grid; 3]>::try_from(grids) {
+            Ok(xyz) => Ok(VectorGrid::from_components(xyz)),
+            Err(_) => Err(self.invalid(i, "not three components")),
+        }
+    }
+
     /// Grid `i`'s transform and the index box [`crate::Volume::value_box`] gives, from the
     /// grid decoded (a grid is one block: its nodes are read with it).
     ///
@@ -139,6 +170,16 @@ impl NvdbFile {
     /// [`Error::Io`]; [`Error::Unsupported`] for a grid type umbra does not decode;
     /// [`Error::Invalid`] naming the file, the grid and what is corrupt or disagrees.
     pub fn decode(&self, i: usize) -> Result<Decoded> {
+        let (mut grids, checksum) = self.decode_picks(i, &[Pick::Length])?;
+        let grid = grids
+            .pop()
+            .ok_or_else(|| self.invalid(i, "no tree decoded"))?;
+        Ok(Decoded { grid, checksum })
+    }
+
+    /// Decode grid `i` once per pick (vector values as it says): the buffer is read, checked
+    /// and its checksum computed once.
+    fn decode_picks(&self, i: usize, picks: &[Pick]) -> Result<(Vec<Grid>, Checksum)> {
         let meta = self
             .grids
             .get(i)
@@ -183,23 +224,25 @@ impl NvdbFile {
             head.node_count,
         )
         .map_err(at)?;
-        let d = tree::decode(&b, &head, &layout, &nodes).map_err(at)?;
-        let tiles = head.tile_count.map(u64::from);
-        if d.voxels != head.voxel_count || d.tiles != tiles {
-            return Err(self.invalid(
-                i,
-                &format!(
-                    "the tree header counts {} active voxels and {tiles:?} active tiles (lower, \
-                 upper, root), the tree holds {} and {:?}",
-                    head.voxel_count, d.voxels, d.tiles
-                ),
-            ));
-        }
         let transform = self.transform(i, &head)?;
-        Ok(Decoded {
-            grid: self.grid(i, layout.kind, transform, d.tree, d.precision),
-            checksum,
-        })
+        let mut grids = Vec::with_capacity(picks.len());
+        for &pick in picks {
+            let d = tree::decode(&b, &head, &layout, &nodes, pick).map_err(at)?;
+            let tiles = head.tile_count.map(u64::from);
+            if d.voxels != head.voxel_count || d.tiles != tiles {
+                return Err(self.invalid(
+                    i,
+                    &format!(
+                        "the tree header counts {} active voxels and {tiles:?} active tiles \
+                         (lower, upper, root), the tree holds {} and {:?}",
+                        head.voxel_count, d.voxels, d.tiles
+                    ),
+                ));
+            }
+            let kind = layout.kind;
+            grids.push(self.grid(i, kind, transform.clone(), d.tree, d.precision));
+        }
+        Ok((grids, checksum))
     }
 
     /// The grid's affine map, which must be finite and invertible.

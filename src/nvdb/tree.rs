@@ -3,14 +3,14 @@
 //! the nodes of its level (every node reached exactly once, so a file cannot make a node count
 //! twice), each node's stored origin checked against the slot it hangs from. Values become `f32`
 //! as NanoVDB returns them: quantised leaves `code * quantum + minimum` in `f32`, doubles
-//! rounded, Vec3f their length. Bounds are computed from the values afterwards
+//! rounded, Vec3f their length or one component (a [`Pick`]). Bounds are computed from the values afterwards
 //! ([`Tree::compute_bounds`]), never taken from the file's min/max.
 
 use super::bytes::{invalid, Bytes};
 use super::layout::{GridHead, Layout, Leaves, GRID_BYTES, TILE_BYTES};
 use crate::error::DecodeResult;
 use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree};
-use crate::vdb::{PrecisionLoss, ValueKind};
+use crate::vdb::{Pick, PrecisionLoss, ValueKind};
 
 /// Where each level's nodes are in the buffer.
 pub(crate) struct Nodes {
@@ -128,6 +128,8 @@ struct Decoder<'a> {
     b: Bytes<'a>,
     l: Layout,
     nodes: &'a Nodes,
+    /// What of a Vec3f value the tree holds.
+    pick: Pick,
     counts: [u32; 3],
     seen: [Vec<bool>; 3],
     tree: Tree,
@@ -136,19 +138,21 @@ struct Decoder<'a> {
     tiles: [u64; 3],
 }
 
-/// Decode the tree of the grid buffer `b` whose headers are `h`.
+/// Decode the tree of the grid buffer `b` whose headers are `h`, Vec3f values as `pick` says.
 pub(crate) fn decode(
     b: &Bytes<'_>,
     h: &GridHead,
     l: &Layout,
     nodes: &Nodes,
+    pick: Pick,
 ) -> DecodeResult<Decoded> {
     let mut precision = PrecisionLoss::default();
-    let background = decode_value(b, l, nodes.root + l.root_background, &mut precision)?;
+    let background = decode_value(b, l, nodes.root + l.root_background, pick, &mut precision)?;
     let mut d = Decoder {
         b: *b,
         l: *l,
         nodes,
+        pick,
         counts: h.node_count,
         seen: [
             vec![false; h.node_count[0] as usize],
@@ -196,13 +200,19 @@ pub(crate) fn decode(
     })
 }
 
-/// One value of the grid's value type at `at` (a Vec3f: its length), doubles tracked.
-fn decode_value(b: &Bytes<'_>, l: &Layout, at: u64, p: &mut PrecisionLoss) -> DecodeResult<f32> {
+/// One value of the grid's value type at `at` (a Vec3f: what `pick` says), doubles tracked.
+fn decode_value(
+    b: &Bytes<'_>,
+    l: &Layout,
+    at: u64,
+    pick: Pick,
+    p: &mut PrecisionLoss,
+) -> DecodeResult<f32> {
     let bytes = b.slice(at, l.value)?;
     if l.kind == ValueKind::Double {
         p.add(b.f64(at)?);
     }
-    Ok(l.kind.decode(bytes))
+    Ok(l.kind.decode(bytes, pick))
 }
 
 impl Decoder<'_> {
@@ -223,6 +233,7 @@ impl Decoder<'_> {
                 &self.b,
                 &self.l,
                 at + self.l.tile_value,
+                self.pick,
                 &mut self.precision,
             )?;
             if active {
@@ -306,7 +317,7 @@ impl Decoder<'_> {
                     self.leaf(child, o)?
                 };
             } else {
-                let v = decode_value(&self.b, &self.l, e, &mut self.precision)?;
+                let v = decode_value(&self.b, &self.l, e, self.pick, &mut self.precision)?;
                 if crate::tree::bit(&value_mask, s) {
                     self.tiles[level - 1] += 1;
                     self.voxels = self.voxels.saturating_add(1 << (3 * child_log2));
@@ -335,7 +346,7 @@ impl Decoder<'_> {
             Leaves::Raw => {
                 for (i, v) in values.iter_mut().enumerate() {
                     let p = codes + i as u64 * self.l.value;
-                    *v = decode_value(&self.b, &self.l, p, &mut self.precision)?;
+                    *v = decode_value(&self.b, &self.l, p, self.pick, &mut self.precision)?;
                 }
             }
             Leaves::Fixed(bits) => self.dequantise(at, bits, &mut values)?,

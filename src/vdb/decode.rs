@@ -6,7 +6,7 @@
 
 use super::bytes::ByteReader;
 use super::values::{
-    read_compressed_values, skip_compressed_values, PrecisionLoss, StreamInfo, ValueKind,
+    read_compressed_values, skip_compressed_values, Pick, PrecisionLoss, StreamInfo, ValueKind,
 };
 use crate::error::{DecodeError, DecodeResult, Error, Result};
 use crate::tree::{Bounds, Internal, Leaf, RootEntry, RootSlot, Tree, UNLOADED};
@@ -120,16 +120,18 @@ pub(crate) struct Topology {
 }
 
 /// Decode the topology from `r`, which must end exactly at `block_pos`, where the descriptor
-/// says the buffers start. A truncation is returned as such (with the offset it needs), so a
+/// says the buffers start; vector values (background, tiles, and later the leaves) as `pick`
+/// says. A truncation is returned as such (with the offset it needs), so a
 /// windowed reader can grow its window; past `block_pos` it is the caller's error to report.
 pub(crate) fn read_topology(
     r: &mut ByteReader<'_>,
     kind: ValueKind,
+    pick: Pick,
     half: bool,
     compression: super::Compression,
     block_pos: u64,
 ) -> DecodeResult<Topology> {
-    let (tree, leaves, stream) = decode_topology(r, kind, half, compression, block_pos)?;
+    let (tree, leaves, stream) = decode_topology(r, kind, pick, half, compression, block_pos)?;
     Ok(Topology {
         tree,
         leaves,
@@ -409,6 +411,7 @@ pub(crate) fn positioned_read(
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Stream {
     pub(crate) kind: ValueKind,
+    pub(crate) pick: Pick,
     pub(crate) half: bool,
     pub(crate) compression: super::Compression,
     pub(crate) background: f32,
@@ -419,6 +422,7 @@ impl Stream {
     pub(crate) fn of(s: &StreamInfo) -> Self {
         Self {
             kind: s.kind,
+            pick: s.pick,
             half: s.half,
             compression: s.compression,
             background: s.background,
@@ -428,6 +432,7 @@ impl Stream {
     pub(crate) fn info(self) -> StreamInfo {
         StreamInfo {
             kind: self.kind,
+            pick: self.pick,
             half: self.half,
             compression: self.compression,
             background: self.background,
@@ -438,10 +443,11 @@ impl Stream {
 }
 
 /// The topology: the tree without leaf values, the leaves' origins and masks, and the stream
-/// settings the buffers are decoded with.
+/// settings the buffers are decoded with (vector values as `pick` says).
 fn decode_topology(
     r: &mut ByteReader<'_>,
     kind: ValueKind,
+    pick: Pick,
     half: bool,
     compression: super::Compression,
     block_pos: u64,
@@ -453,9 +459,10 @@ fn decode_topology(
         )));
     }
     let bg_bytes = r.take(kind.size(), "background value")?;
-    let background = kind.decode(bg_bytes);
+    let background = kind.decode(bg_bytes, pick);
     let s = StreamInfo {
         kind,
+        pick,
         half,
         compression,
         background,
@@ -473,7 +480,7 @@ fn decode_topology(
         let origin = r.vec3i("root tile origin")?;
         let bytes = r.take(kind.size(), "root tile value")?;
         s.track_doubles(bytes);
-        let value = kind.decode(bytes);
+        let value = kind.decode(bytes, pick);
         let active = r.u8("root tile state")? != 0;
         tree.root.push(RootEntry {
             origin,

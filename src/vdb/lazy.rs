@@ -10,6 +10,7 @@
 //! independently ([`LazyGrid::load`]).
 
 use super::decode::{self, Stream};
+use super::values::Pick;
 use super::{Archive, GridDescriptor, ValueKind};
 use crate::error::{DecodeError, Result};
 use crate::vdb::Grid;
@@ -40,6 +41,12 @@ impl Archive {
     /// As [`Archive::load`], for the head, the topology and the buffer headers; corrupt
     /// values are found only by the load that decodes them.
     pub fn open_lazy(&self, gd: &GridDescriptor) -> Result<LazyGrid> {
+        self.open_lazy_as(gd, Pick::Length)
+    }
+
+    /// [`Archive::open_lazy`] with vector values (background, tiles, inactive and voxel
+    /// values) decoded as `pick` says.
+    pub(crate) fn open_lazy_as(&self, gd: &GridDescriptor, pick: Pick) -> Result<LazyGrid> {
         let path = &self.path;
         let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(path))?;
         let parent = if gd.instance_parent.is_empty() {
@@ -47,7 +54,7 @@ impl Archive {
         } else {
             Some(self.instance_parent(gd)?)
         };
-        let (head, mut file) = self.head(gd, kind, parent.is_none())?;
+        let (head, mut file) = self.head(gd, kind, parent.is_none().then_some(pick))?;
         let class = super::metadata::meta_string(&head.metadata, "class").map(str::to_string);
         let identity = |tree| Grid {
             name: gd.display_name.clone(),
@@ -88,7 +95,7 @@ impl Archive {
                 })
             }
             (None, Some(parent)) => {
-                let mut p = self.open_lazy(parent)?;
+                let mut p = self.open_lazy_as(parent, pick)?;
                 let tree = std::mem::take(&mut p.shell.tree);
                 p.shell = identity(tree);
                 p.head_bytes = gd.block_pos.saturating_sub(gd.grid_pos);
@@ -432,7 +439,7 @@ mod tests {
                 if !gd.instance_parent.is_empty() {
                     continue;
                 }
-                let (head, mut file) = archive.head(gd, kind, true).unwrap();
+                let (head, mut file) = archive.head(gd, kind, Some(Pick::Length)).unwrap();
                 let (tree, stream) = head.topology.unwrap().into_parts();
                 let mut buffers =
                     decode::BufferWindow::new(&mut file, &path, gd.block_pos, gd.end_pos);
@@ -466,7 +473,7 @@ mod tests {
         let archive = Archive::open(&path).unwrap();
         let gd = archive.find_grid("density").unwrap();
         let kind = ValueKind::from_tree_type(&gd.tree_type).unwrap();
-        let (head, _) = archive.head(gd, kind, true).unwrap();
+        let (head, _) = archive.head(gd, kind, Some(Pick::Length)).unwrap();
         let (tree, stream) = head.topology.unwrap().into_parts();
         let table = head.delayed_load.unwrap();
         let (a, b) = (gd.block_pos, gd.end_pos);

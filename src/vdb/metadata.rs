@@ -104,6 +104,14 @@ pub(crate) fn meta_string<'m>(meta: &'m MetaMap, key: &str) -> Option<&'m str> {
     })
 }
 
+/// Look up a bool entry by name.
+pub(crate) fn meta_bool(meta: &MetaMap, key: &str) -> Option<bool> {
+    meta.iter().find_map(|(k, v)| match v {
+        MetaValue::Bool(b) if k == key => Some(*b),
+        _ => None,
+    })
+}
+
 /// Look up an integer entry by name.
 pub(crate) fn meta_int(meta: &MetaMap, key: &str) -> Option<i64> {
     meta.iter().find_map(|(k, v)| match v {

@@ -18,6 +18,7 @@ pub(crate) use decode::positioned_read;
 pub use lazy::LazyGrid;
 pub use metadata::{MetaMap, MetaValue};
 pub use transform::{FrustumParams, Transform};
+pub(crate) use values::Pick;
 pub use values::{PrecisionLoss, ValueKind};
 pub use write::{encode_vdb, write_vdb, FloatGridOut, GridClassOut, LeafOut, VdbCompression};
 
@@ -45,7 +46,8 @@ pub struct Grid {
     pub compression: Compression,
     /// Whether values were stored as 16-bit halves.
     pub saved_as_half: bool,
-    /// The tree, values converted to `f32` (vector grids: the vector length).
+    /// The tree, values converted to `f32` (vector grids: the vector length; see
+    /// [`VectorGrid`] for the components).
     pub tree: Tree,
     /// For double grids: what the conversion to `f32` cost (None for other types).
     pub precision_loss: Option<PrecisionLoss>,
@@ -56,6 +58,74 @@ impl Grid {
     #[must_use]
     pub fn file_mem_bytes(&self) -> Option<i64> {
         metadata::meta_int(&self.metadata, "file_mem_bytes")
+    }
+}
+
+/// A vector grid decoded as its three components, each a scalar tree of the same topology.
+#[derive(Debug, Clone)]
+pub struct VectorGrid {
+    /// Display name (`vel`, `vel[1]`, `[0]`), as [`Grid::name`].
+    pub name: String,
+    /// Value type: [`ValueKind::Vec3s`], [`ValueKind::Vec3d`] or [`ValueKind::Vec3i`].
+    pub value_type: ValueKind,
+    /// `class` metadata (`staggered` for MAC grids), if any.
+    pub class: Option<String>,
+    /// Index-to-world transform.
+    pub transform: Transform,
+    /// Grid metadata, in file order.
+    pub metadata: MetaMap,
+    /// The x, y and z components, each a tree of the grid's topology holding that component of
+    /// every stored value (background, tiles, inactive and active voxels), bounds computed.
+    pub components: [Tree; 3],
+}
+
+impl VectorGrid {
+    /// The grid of three component grids of one vector grid (decoded with picks 0, 1, 2).
+    pub(crate) fn from_components(grids: [Grid; 3]) -> Self {
+        let [x, y, z] = grids;
+        Self {
+            name: x.name,
+            value_type: x.value_type,
+            class: x.class,
+            transform: x.transform,
+            metadata: x.metadata,
+            components: [x.tree, y.tree, z.tree],
+        }
+    }
+
+    /// Whether the grid's class is `staggered` (OpenVDB's `GRID_STAGGERED`: a MAC grid, each
+    /// component sampled at the centre of its voxel's lower face on that axis).
+    #[must_use]
+    pub fn is_staggered(&self) -> bool {
+        self.class.as_deref() == Some("staggered")
+    }
+
+    /// Whether the bool metadata `is_local_space` (OpenVDB's `META_IS_LOCAL_SPACE`) is true:
+    /// the vectors are in index space, not world space.
+    #[must_use]
+    pub fn is_local_space(&self) -> bool {
+        metadata::meta_bool(&self.metadata, "is_local_space") == Some(true)
+    }
+
+    /// The string metadata `vector_type` (OpenVDB's `META_VECTOR_TYPE`: `invariant`,
+    /// `covariant`, `covariant normalize`, `contravariant relative`, `contravariant
+    /// absolute`), if any.
+    #[must_use]
+    pub fn vector_type(&self) -> Option<&str> {
+        metadata::meta_string(&self.metadata, "vector_type")
+    }
+}
+
+/// The error for a grid asked for as a vector grid that is not one: `type_name` is its value
+/// type as its format names it.
+pub(crate) fn not_a_vector(path: &Path, grid: &str, type_name: &str) -> Error {
+    Error::Unsupported {
+        path: path.to_path_buf(),
+        what: format!(
+            "grid '{}' is a {} grid; a velocity must be a vec3 grid (vec3s, vec3d, vec3i)",
+            text::escape(grid),
+            text::escape(type_name)
+        ),
     }
 }
 
@@ -138,6 +208,24 @@ impl Archive {
         self.open_lazy(gd)?.load_all()
     }
 
+    /// Decode the vector grid described by `gd` (from this archive) as its three components:
+    /// the grid is decoded once per component, each pass as [`Archive::load`] (instances,
+    /// halves, compression and inactive values alike), keeping that component of every value.
+    ///
+    /// # Errors
+    /// As [`Archive::load`]; [`Error::Unsupported`] naming the file and the grid when it is not
+    /// a `vec3s`, `vec3d` or `vec3i` grid.
+    pub fn load_vector(&self, gd: &GridDescriptor) -> Result<VectorGrid> {
+        let kind = ValueKind::from_tree_type(&gd.tree_type).map_err(|e| e.at(&self.path))?;
+        if !kind.is_vector() {
+            return Err(not_a_vector(&self.path, &gd.display_name, kind.name()));
+        }
+        let x = self.open_lazy_as(gd, Pick::Component(0))?.load_all()?;
+        let y = self.open_lazy_as(gd, Pick::Component(1))?.load_all()?;
+        let z = self.open_lazy_as(gd, Pick::Component(2))?.load_all()?;
+        Ok(VectorGrid::from_components([x, y, z]))
+    }
+
     /// The header of grid `gd` (from this archive): compression, metadata and transform, read
     /// without its tree, so any grid type has one.
     ///
@@ -145,7 +233,7 @@ impl Archive {
     /// [`Error::Io`] or [`Error::Invalid`] naming the file for a header that cannot be read.
     pub fn header(&self, gd: &GridDescriptor) -> Result<GridHeader> {
         // The value type only matters for the topology, which is not read.
-        let (head, _) = self.head(gd, ValueKind::Float, false)?;
+        let (head, _) = self.head(gd, ValueKind::Float, None)?;
         Ok(GridHeader {
             class: metadata::meta_string(&head.metadata, "class").map(str::to_string),
             transform: head.transform,
@@ -155,12 +243,13 @@ impl Archive {
     }
 
     /// Parse a grid's head (compression, metadata, transform, and with `topology` its tree
-    /// without leaf values) through a growing window; returns the open file for the buffers.
+    /// without leaf values, vector values as the pick says) through a growing window; returns
+    /// the open file for the buffers.
     fn head(
         &self,
         gd: &GridDescriptor,
         kind: ValueKind,
-        topology: bool,
+        topology: Option<Pick>,
     ) -> Result<(Head, std::fs::File)> {
         let path = &self.path;
         let mut file = std::fs::File::open(path).map_err(|err| Error::Io {
@@ -178,10 +267,11 @@ impl Archive {
                 let compression = Compression::from_flags(r.u32("compression flags")?);
                 let (metadata, delayed_load) = metadata::read_grid_meta_map(r)?;
                 let transform = transform::read_transform(r)?;
-                let topology = if topology {
+                let topology = if let Some(pick) = topology {
                     let t = decode::read_topology(
                         r,
                         kind,
+                        pick,
                         gd.saved_as_half,
                         compression,
                         gd.block_pos,
@@ -216,7 +306,8 @@ impl Archive {
         } else {
             Some(self.instance_parent(gd)?)
         };
-        let (head, _) = self.head(gd, kind, parent.is_none())?;
+        let pick = parent.is_none().then_some(Pick::Length);
+        let (head, _) = self.head(gd, kind, pick)?;
         let value_box = match (head.topology, parent) {
             (Some(t), _) => t.value_box(),
             (None, Some(p)) => self.extent(p)?.value_box,

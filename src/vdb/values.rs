@@ -1,7 +1,8 @@
 //! Value types and OpenVDB's node-value compression (`io::readCompressedValues`): the per-node
 //! metadata byte, up to two inactive values, the selection mask, then the (active or all) values,
 //! optionally as 16-bit halves, raw, zlib or blosc compressed. Everything decodes to `f32`, the
-//! precision umbra traces in.
+//! precision umbra traces in; a vector value to the part of it a [`Pick`] selects (its length,
+//! or one component).
 
 use super::archive::Compression;
 use super::blosc;
@@ -22,12 +23,24 @@ pub enum ValueKind {
     Int64,
     /// `bool`
     Bool,
-    /// `vec3s`; umbra keeps the vector length.
+    /// `vec3s`; a `Grid` keeps the vector length, a `VectorGrid` its components.
     Vec3s,
-    /// `vec3d`; umbra keeps the vector length.
+    /// `vec3d`; a `Grid` keeps the vector length, a `VectorGrid` its components.
     Vec3d,
-    /// `vec3i`; umbra keeps the vector length.
+    /// `vec3i`; a `Grid` keeps the vector length, a `VectorGrid` its components.
     Vec3i,
+}
+
+/// What one `f32` of a decoded tree holds of a stored value: scalars are themselves whatever
+/// the pick; a vector value is its length or one of its components (0 = x, 1 = y, 2 = z). The
+/// background, tile, inactive and voxel values of a tree are all decoded with one pick.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub(crate) enum Pick {
+    /// The vector length (what a tree of a vector grid holds unless asked otherwise).
+    #[default]
+    Length,
+    /// Component `k` (0, 1 or 2) of the vector.
+    Component(usize),
 }
 
 impl ValueKind {
@@ -79,6 +92,12 @@ impl ValueKind {
         matches!(self, Self::Float | Self::Double)
     }
 
+    /// True for the vector types (`vec3s`, `vec3d`, `vec3i`).
+    #[must_use]
+    pub fn is_vector(self) -> bool {
+        matches!(self, Self::Vec3s | Self::Vec3d | Self::Vec3i)
+    }
+
     /// True for types OpenVDB stores as halves when "save as half" is on.
     fn is_real(self) -> bool {
         matches!(self, Self::Float | Self::Double | Self::Vec3s | Self::Vec3d)
@@ -105,8 +124,8 @@ impl ValueKind {
         }
     }
 
-    /// Decode one full-precision value (`b.len() == self.size()`).
-    pub(crate) fn decode(self, b: &[u8]) -> f32 {
+    /// Decode one full-precision value (`b.len() == self.size()`), a vector as `pick` says.
+    pub(crate) fn decode(self, b: &[u8], pick: Pick) -> f32 {
         let f32_at = |i: usize| f32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
         let i32_at = |i: usize| i32::from_le_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]);
         let f64_at = |i: usize| {
@@ -125,24 +144,44 @@ impl ValueKind {
                 i64::from_le_bytes(a) as f32
             }
             Self::Bool => f32::from(u8::from(b[0] != 0)),
+            Self::Vec3s | Self::Vec3d | Self::Vec3i if pick != Pick::Length => {
+                let k = pick.component();
+                match self {
+                    Self::Vec3s => f32_at(4 * k),
+                    Self::Vec3d => f64_at(8 * k) as f32,
+                    _ => i32_at(4 * k) as f32,
+                }
+            }
             Self::Vec3s => len3(f32_at(0).into(), f32_at(4).into(), f32_at(8).into()),
             Self::Vec3d => len3(f64_at(0), f64_at(8), f64_at(16)),
             Self::Vec3i => len3(i32_at(0).into(), i32_at(4).into(), i32_at(8).into()),
         }
     }
 
-    /// Decode one array element (half precision when `half` and the type is real).
-    fn decode_array(self, b: &[u8], half: bool) -> f32 {
+    /// Decode one array element (half precision when `half` and the type is real), a vector
+    /// as `pick` says.
+    fn decode_array(self, b: &[u8], half: bool, pick: Pick) -> f32 {
         if !(half && self.is_real()) {
-            return self.decode(b);
+            return self.decode(b, pick);
         }
         let h = |i: usize| half::f16::from_le_bytes([b[i], b[i + 1]]).to_f32();
-        match self {
-            Self::Float | Self::Double => h(0),
-            _ => {
+        match (self, pick) {
+            (Self::Float | Self::Double, _) => h(0),
+            (_, Pick::Component(_)) => h(2 * pick.component()),
+            (_, Pick::Length) => {
                 let (x, y, z) = (h(0), h(2), h(4));
                 (x * x + y * y + z * z).sqrt()
             }
+        }
+    }
+}
+
+impl Pick {
+    /// The component index (0, 1 or 2; a length picks 0, never asked).
+    fn component(self) -> usize {
+        match self {
+            Self::Length => 0,
+            Self::Component(k) => k.min(2),
         }
     }
 }
@@ -187,6 +226,8 @@ impl PrecisionLoss {
 #[derive(Debug, Clone)]
 pub(crate) struct StreamInfo {
     pub kind: ValueKind,
+    /// What of a vector value the decoded tree holds.
+    pub pick: Pick,
     pub half: bool,
     pub compression: Compression,
     pub background: f32,
@@ -308,9 +349,13 @@ pub(crate) fn read_compressed_values(
         meta,
         NO_MASK_AND_ONE_INACTIVE_VAL | MASK_AND_ONE_INACTIVE_VAL | MASK_AND_TWO_INACTIVE_VALS
     ) {
-        inactive0 = s.kind.decode(r.take(s.kind.size(), "inactive value")?);
+        inactive0 = s
+            .kind
+            .decode(r.take(s.kind.size(), "inactive value")?, s.pick);
         if meta == MASK_AND_TWO_INACTIVE_VALS {
-            inactive1 = s.kind.decode(r.take(s.kind.size(), "inactive value")?);
+            inactive1 = s
+                .kind
+                .decode(r.take(s.kind.size(), "inactive value")?, s.pick);
         }
     }
     // Leaves have 8 mask words; only internal nodes need more (no 4 KiB zeroing per leaf).
@@ -361,7 +406,7 @@ pub(crate) fn read_compressed_values(
     let data = read_data(r, s.compression, count * elem, &mut scratch)?;
     s.track_doubles(data);
     if !only_active {
-        decode_array_into(s.kind, half, data, dest);
+        decode_array_into(s.kind, half, s.pick, data, dest);
         return Ok(());
     }
     // Decode the active values contiguously, then scatter them to the mask's set bits.
@@ -373,7 +418,7 @@ pub(crate) fn read_compressed_values(
         heap.resize(count, 0.0);
         &mut heap
     };
-    decode_array_into(s.kind, half, data, vals);
+    decode_array_into(s.kind, half, s.pick, data, vals);
     fill_inactive(dest);
     let mut next = 0;
     for (w, &word) in mask.iter().enumerate() {
@@ -453,9 +498,9 @@ pub(crate) fn skip_compressed_values(
     )
 }
 
-/// Decode a value array (`out.len()` elements of `data`) into `out`, with the common types'
-/// loops specialised (no per-value dispatch).
-fn decode_array_into(kind: ValueKind, half: bool, data: &[u8], out: &mut [f32]) {
+/// Decode a value array (`out.len()` elements of `data`) into `out`, vectors as `pick` says,
+/// with the common types' loops specialised (no per-value dispatch).
+fn decode_array_into(kind: ValueKind, half: bool, pick: Pick, data: &[u8], out: &mut [f32]) {
     match (kind, half) {
         (ValueKind::Float, false) => {
             for (o, c) in out.iter_mut().zip(data.chunks_exact(4)) {
@@ -474,10 +519,16 @@ fn decode_array_into(kind: ValueKind, half: bool, data: &[u8], out: &mut [f32]) 
                 *o = f64::from_le_bytes(a) as f32;
             }
         }
+        (ValueKind::Vec3s, false) if pick != Pick::Length => {
+            let at = 4 * pick.component();
+            for (o, c) in out.iter_mut().zip(data.chunks_exact(12)) {
+                *o = f32::from_le_bytes([c[at], c[at + 1], c[at + 2], c[at + 3]]);
+            }
+        }
         _ => {
             let elem = kind.array_size(half);
             for (o, c) in out.iter_mut().zip(data.chunks_exact(elem)) {
-                *o = kind.decode_array(c, half);
+                *o = kind.decode_array(c, half, pick);
             }
         }
     }
@@ -490,6 +541,7 @@ mod tests {
     fn stream(comp: u32, half: bool) -> StreamInfo {
         StreamInfo {
             kind: ValueKind::Float,
+            pick: Pick::Length,
             half,
             compression: Compression::from_flags(comp),
             background: 0.5,

@@ -37,4 +37,5 @@ mod tree_bounds;
 mod usd_corrupt;
 mod vdb_write;
 mod vdbrs_crosscheck;
+mod vector;
 mod xform;
