@@ -32,6 +32,7 @@ fn job(out: PathBuf, est: Estimator, interp: Interp, product: Product) -> BakeJo
         sigma_t: None,
         levelset_solid: false,
         stage: Default::default(),
+        motion: None,
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([0.3, -1.0, 0.2]),

@@ -2174,6 +2174,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
+        motion: None,
     };
     stage.set("bake");
     match job.run_loaded(&umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {

@@ -119,6 +119,7 @@ fn job(view: View, settings: BakeSettings) -> BakeJob {
         layout: ExrLayout::default(),
         max_memory: None,
         product: Product::Map,
+        motion: None,
     }
 }
 

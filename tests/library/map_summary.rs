@@ -45,6 +45,7 @@ fn job(out: PathBuf, est: Estimator, spp: u32, std_err: bool) -> BakeJob {
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
+        motion: None,
     }
 }
 
