@@ -571,6 +571,68 @@ mod tests {
     }
 
     #[test]
+    fn a_pick_keeps_one_component_of_every_vector_type() {
+        let (x, y, z) = (3.0f64, -4.0f64, 12.0f64);
+        let mut s = Vec::new();
+        let mut d = Vec::new();
+        let mut i = Vec::new();
+        let mut h = Vec::new();
+        for c in [x, y, z] {
+            s.extend_from_slice(&(c as f32).to_le_bytes());
+            d.extend_from_slice(&c.to_le_bytes());
+            i.extend_from_slice(&(c as i32).to_le_bytes());
+            h.extend_from_slice(&half::f16::from_f64(c).to_le_bytes());
+        }
+        for (kind, b) in [
+            (ValueKind::Vec3s, &s),
+            (ValueKind::Vec3d, &d),
+            (ValueKind::Vec3i, &i),
+        ] {
+            assert_eq!(kind.decode(b, Pick::Length), 13.0, "{kind:?}");
+            let picked = [0, 1, 2].map(|k| kind.decode(b, Pick::Component(k)));
+            assert_eq!(picked, [3.0, -4.0, 12.0], "{kind:?}");
+            let mut out = [0f32; 1];
+            decode_array_into(kind, false, Pick::Component(2), b, &mut out);
+            assert_eq!(out, [12.0], "{kind:?}");
+        }
+        for kind in [ValueKind::Vec3s, ValueKind::Vec3d] {
+            assert_eq!(kind.decode_array(&h, true, Pick::Length), 13.0);
+            let picked = [0, 1, 2].map(|k| kind.decode_array(&h, true, Pick::Component(k)));
+            assert_eq!(picked, [3.0, -4.0, 12.0], "{kind:?}");
+        }
+        // A scalar is itself whatever the pick.
+        let f = 2.5f32.to_le_bytes();
+        assert_eq!(ValueKind::Float.decode(&f, Pick::Component(1)), 2.5);
+    }
+
+    #[test]
+    fn vector_inactive_values_are_minus_the_background_component() {
+        // Active-mask compression, node metadata 1: inactive voxels are -background.
+        let mut mask = [0u64; 8];
+        mask[0] = 0b1;
+        let mut bytes = vec![1u8];
+        for c in [1.0f32, 2.0, 3.0] {
+            bytes.extend_from_slice(&c.to_le_bytes());
+        }
+        for (k, (bg, active)) in [(0.5f32, 1.0f32), (-0.25, 2.0), (1.5, 3.0)]
+            .into_iter()
+            .enumerate()
+        {
+            let s = StreamInfo {
+                kind: ValueKind::Vec3s,
+                pick: Pick::Component(k),
+                background: bg,
+                ..stream(2, false)
+            };
+            let mut dest = [9.0f32; 512];
+            let mut r = ByteReader::new(&bytes, 0);
+            let res = read_compressed_values(&mut r, &s, &mask, &mut dest);
+            assert!(res.is_ok(), "{res:?}");
+            assert_eq!((dest[0], dest[1], dest[511]), (active, -bg, -bg));
+        }
+    }
+
+    #[test]
     fn precision_loss_counts_overflow_underflow_and_rounding() {
         let mut p = PrecisionLoss::default();
         for v in [1.0, 0.1, 1e300, 1e-300, 0.0] {

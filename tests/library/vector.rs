@@ -6,7 +6,8 @@
 //! instance of it and a float grid beside it), once saved as half, once of class staggered
 //! with `vector_type` and `is_local_space`; then reads each file back and records what OpenVDB
 //! decodes at every probe voxel. Each component tree must hold exactly those components and
-//! active states, the `.nvdb` of `nanovdb_convert` (codecs none, zip, blosc) the same, and the
+//! active states, so must the files `vdb_tool` rewrites with codecs none, zip and active mask
+//! only, and the `.nvdb` of `nanovdb_convert` (codecs none, zip, blosc); the
 //! length decoding (`GridFile::load`) stays the length. Needs Debian's `python3-openvdb`
 //! (`UMBRA_SKIP_ORACLE=1` skips without it) and `libnanovdb-tools`.
 
@@ -121,11 +122,12 @@ fn check_components(v: &VectorGrid, e: &Expect, what: &str) {
     }
 }
 
-/// `GridFile::load`'s length tree is still the length of the components. With `vdb`, as the
-/// `.vdb` decoder has always done: an inactive voxel OpenVDB stores as "minus the background"
+/// `GridFile::load`'s length tree is still the length of the components. With `implicit` (a
+/// `.vdb` with active-mask compression), as the `.vdb` decoder has always done: an inactive
+/// voxel OpenVDB stores as "minus the background"
 /// (node metadata 1 and 3) is minus the background's *length* there, so `-bg` reads as
 /// `-|bg|` (a `.nvdb` stores the vector itself: `|bg|`).
-fn check_length(file: &GridFile, grid: &str, e: &Expect, half: bool, vdb: bool, what: &str) {
+fn check_length(file: &GridFile, grid: &str, e: &Expect, half: bool, implicit: bool, what: &str) {
     let g = file.load(grid).unwrap();
     let minus_bg = e.background.map(|c| -c);
     let len = |c: [f32; 3]| {
@@ -139,8 +141,8 @@ fn check_length(file: &GridFile, grid: &str, e: &Expect, half: bool, vdb: bool, 
     for &(ijk, want, _) in &e.probes {
         // The leaves at (32, 0, 0) and (40, 0, 0) hold their `-bg` voxels implicitly; the one
         // at (0, 32, 0) stores every value (three distinct inactive values).
-        let implicit = (32..48).contains(&ijk[0]) && ijk[1] < 8;
-        let sign = if vdb && implicit && want == minus_bg {
+        let in_leaf = (32..48).contains(&ijk[0]) && ijk[1] < 8;
+        let sign = if implicit && in_leaf && want == minus_bg {
             -1.0
         } else {
             1.0
@@ -215,6 +217,62 @@ fn vector_grids_decode_to_openvdbs_components() {
         .zip(&expect["plain.vdb"].probes)
         .any(|(h, p)| h.1 != p.1);
     assert!(differs, "the half file holds full-precision values");
+}
+
+/// The plain and half files rewritten by `vdb_tool` (Debian libopenvdb-tools) with codecs
+/// none, zip and active mask only: the same components (the rewrite is lossless).
+#[test]
+fn every_vdb_codec_decodes_to_the_same_components() {
+    let dir = tempfile::tempdir().unwrap();
+    let Some(expect) = generated(dir.path()) else {
+        return;
+    };
+    for src in ["plain.vdb", "half.vdb"] {
+        for (codec, zip, active_mask) in [
+            ("none", false, false),
+            ("zip", true, true),
+            ("active", false, true),
+        ] {
+            let out = dir.path().join(format!("{src}.{codec}.vdb"));
+            let o = std::process::Command::new("vdb_tool")
+                .arg("-read")
+                .arg(dir.path().join(src))
+                .arg("-write")
+                .arg(format!("codec={codec}"))
+                .arg(&out)
+                .output();
+            let o = match o {
+                Ok(o) => o,
+                Err(e) => {
+                    assert!(
+                        std::env::var("UMBRA_SKIP_ORACLE").as_deref() == Ok("1"),
+                        "vdb_tool could not be run ({e}): apt-get install libopenvdb-tools"
+                    );
+                    return;
+                }
+            };
+            assert!(
+                o.status.success() && out.is_file(),
+                "vdb_tool: {}",
+                String::from_utf8_lossy(&o.stderr)
+            );
+            let what = format!("{src} as {codec}");
+            let file = GridFile::open(&out).unwrap();
+            let g = file.load("vel").unwrap();
+            let c = g.compression;
+            assert_eq!(
+                (c.zip, c.blosc, c.active_mask),
+                (zip, false, active_mask),
+                "{what}"
+            );
+            assert_eq!(g.saved_as_half, src == "half.vdb", "{what}");
+            let v = file.load_vector("vel").unwrap();
+            check_components(&v, &expect[src], &what);
+            // Without active-mask compression every value is stored: no implicit `-bg`.
+            let half = src == "half.vdb";
+            check_length(&file, "vel", &expect[src], half, active_mask, &what);
+        }
+    }
 }
 
 #[test]
