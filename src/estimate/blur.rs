@@ -117,6 +117,26 @@ impl Extinction for BlurredMedium<'_> {
     }
 }
 
+/// The standard error of the mean of `x`, one value per shutter stratum (jittered, `K` of
+/// them), from neighbouring pairs: each pair's difference `d_j = x_2j+1 - x_2j` is the noise of
+/// two strata plus the trend of `T` over one stratum, so the spread of the `d_j` about their
+/// mean (a linear trend removed) estimates twice the per-stratum variance `s^2`, and
+/// `Var(mean) ~= s^2 / K`. Fewer than two pairs (`K < 4`): collapsed strata, `sum d_j^2 / K^2`.
+/// 0 for one stratum.
+fn strata_std_err(x: &[f64]) -> f64 {
+    let k = x.len();
+    let d: Vec<f64> = x.chunks_exact(2).map(|p| p[1] - p[0]).collect();
+    match d.len() {
+        0 => 0.0,
+        1 => d[0].abs() / k as f64,
+        j => {
+            let mean = d.iter().sum::<f64>() / j as f64;
+            let var_d = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (j - 1) as f64;
+            (var_d / 2.0 / k as f64).sqrt()
+        }
+    }
+}
+
 /// The blurred transmittance estimate of `est` along `ray` (module docs).
 ///
 /// # Errors
@@ -184,6 +204,8 @@ pub(crate) fn estimate(
         Spread::of(est, bounds)
     };
     let (mut capped, mut violations) = (0u64, 0u64);
+    // The deterministic marcher's stratum values, for its error bar ([`strata_std_err`]).
+    let mut strata_values = Vec::new();
     for i in 0..samples {
         let mut x = 0.0;
         for k in 0..strata {
@@ -204,6 +226,7 @@ pub(crate) fn estimate(
             let v = known * (-tau_opaque).exp() * t;
             if samples == 1 && marches {
                 spread.push(v);
+                strata_values.push(v);
             }
             x += v / f64::from(strata);
         }
@@ -211,9 +234,14 @@ pub(crate) fn estimate(
             spread.push(x);
         }
     }
+    let std_err = if strata_values.is_empty() {
+        spread.std_err()
+    } else {
+        strata_std_err(&strata_values)
+    };
     Ok(Estimate {
         value: spread.mean,
-        std_err: spread.std_err(),
+        std_err,
         lookups: medium.lookups(),
         segments: (segs.len() + opaque.len()) as u64,
         samples,

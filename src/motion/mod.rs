@@ -228,7 +228,16 @@ impl MotionRequest {
     /// [`Error::GridNotFound`], a grid that is not a vec3 grid (naming the file and grid), and
     /// decoding and map errors.
     pub fn field(&self, path: &std::path::Path) -> Result<VelocityField> {
-        let g = crate::input::GridFile::open(path)?.load_vector(&self.velocity)?;
+        let as_flag = |e: Error| match e {
+            Error::GridNotFound { .. } | Error::Unsupported { .. } => Error::InvalidArgument {
+                name: "velocity".into(),
+                reason: e.to_string(),
+            },
+            other => other,
+        };
+        let g = crate::input::GridFile::open(path)?
+            .load_vector(&self.velocity)
+            .map_err(as_flag)?;
         if !g.transform.is_affine() {
             return Err(Error::Unsupported {
                 path: path.to_path_buf(),

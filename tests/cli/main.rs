@@ -20,6 +20,7 @@ mod corpus_manifest;
 mod deep_map;
 mod friction;
 mod hostile;
+mod motion;
 mod mutation;
 mod nvdb;
 mod stress;

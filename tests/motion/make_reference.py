@@ -7,6 +7,7 @@ Each cache holds a float `density` (a Gaussian puff and a hard-edged block) and 
 a swirl about an axis parallel to z, an expansion and an updraft,
 v(p) = w (-(y - cy), x - cx, 0) + e (p - c) + (0, 0, vz), world units per second. `swirl.vdb` stores it at voxel centres; `staggered.vdb` (class
 staggered) stores component k on the face p - e_k / 2 of voxel p, as OpenVDB's MAC grids do.
+`constant.vdb` holds the same density and a constant `vel` (an empty grid's background).
 The field is linear, so any correct trilinear reading of either file gives the analytic field
 exactly; the reference uses the analytic field, which makes it independent of how the file
 stores it: a cell-centred reading of the staggered file would be half a voxel off.
@@ -32,6 +33,7 @@ W, E, VZ = 20.0, 6.0, 72.0
 SHUTTER, FPS, SCALE = (-0.5, 0.5), 24.0, 1.0
 DENSITY_SCALE = 0.06
 VEL_LO, VEL_HI = -16, N + 16
+CONSTANT = (30.0, -12.0, 6.0)
 
 
 def velocity(p):
@@ -143,6 +145,16 @@ for name, staggered in (("swirl.vdb", False), ("staggered.vdb", True)):
         t, still = blurred(dens, o, d, length)
         entries.append({"origin": list(o), "dir": list(d), "length": length, "T": t, "still": still})
     ref["files"][name] = entries
+# A constant velocity (the background of an empty vec3s grid): the blur is a translation.
+dens_grid = vdb.FloatGrid()
+dens_grid.copyFromArray(density_array(), ijk=(0, 0, 0), tolerance=0)
+dens_grid.name = "density"
+dens_grid.transform = transform()
+still_vel = vdb.Vec3SGrid(CONSTANT)
+still_vel.name = "vel"
+still_vel.transform = transform()
+vdb.write(f"{OUT}/constant.vdb", grids=[dens_grid, still_vel])
+ref["constant"] = list(CONSTANT)
 rng = np.random.default_rng(11)
 probes = CENTRE + rng.uniform(-8.0, 8.0, size=(64, 3))
 ref["probes"] = [list(p) + list(v) for p, v in zip(probes, velocity(probes))]

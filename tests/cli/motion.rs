@@ -1,0 +1,263 @@
+//! Motion blur on the command line (`--velocity`, `--shutter`, `--fps`, `--velocity-scale`,
+//! `--time-samples`): a constant velocity is a translation, so a blurred map (and its slices,
+//! the time-averaged visibility at given depths) equals the mean of exact maps of the volume
+//! moved by `--xform` through the same camera; bad input ends in exit 1, one `umbra: error:`
+//! line naming the flag or grid, and nothing written. The caches are written by OpenVDB
+//! (`tests/motion/make_reference.py`, pyopenvdb).
+
+use crate::bake_support::read_exr;
+use crate::common;
+use std::path::Path;
+use std::process::Output;
+
+fn umbra(args: &[&str]) -> Output {
+    std::process::Command::new(env!("CARGO_BIN_EXE_umbra"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(args: &[&str]) {
+    let o = umbra(args);
+    assert!(
+        o.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// The caches of `make_reference.py` in `dir`, and its JSON; `None` without pyopenvdb.
+fn caches(dir: &Path) -> Option<serde_json::Value> {
+    if !common::oracle_available() {
+        return None;
+    }
+    let script =
+        std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/motion/make_reference.py");
+    let o = std::process::Command::new("/usr/bin/python3")
+        .arg(script)
+        .arg(dir)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let text = std::fs::read_to_string(dir.join("reference.json")).unwrap();
+    Some(serde_json::from_str(&text).unwrap())
+}
+
+#[test]
+fn a_blurred_map_is_the_mean_of_translated_maps_through_one_camera() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some(reference) = caches(d) else { return };
+    let v: Vec<f64> = reference["constant"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    let file = d.join("constant.vdb");
+    let file = file.to_str().unwrap();
+    let blur = d.join("blur.exr");
+    let (open, close, fps) = (-0.5, 1.0, 24.0);
+    let common_args = ["--density-scale", "0.06", "--depths", "14,18,22", "--quiet"];
+    let mut args = vec![
+        "bake",
+        file,
+        "-o",
+        blur.to_str().unwrap(),
+        "--light-dir",
+        "0.2,-0.3,-1",
+        "--res",
+        "40",
+        "--velocity",
+        "vel",
+        "--shutter",
+        "-0.5,1",
+        "--fps",
+        "24",
+        "--estimator",
+        "riemann",
+        "--step",
+        "0.25",
+        "--time-samples",
+        "64",
+    ];
+    args.extend_from_slice(&common_args);
+    ok(&args);
+    let blurred = read_exr(&blur);
+    // The mean of exact maps of the volume moved by v t / F, 48 shutter midpoints.
+    let n = 48;
+    let mut mean: std::collections::HashMap<String, Vec<f64>> = Default::default();
+    for j in 0..n {
+        let t = open + (close - open) * (j as f64 + 0.5) / n as f64;
+        let s = v.iter().map(|c| c * t / fps).collect::<Vec<_>>();
+        let xform = format!("1,0,0,{},0,1,0,{},0,0,1,{},0,0,0,1", s[0], s[1], s[2]);
+        let out = d.join(format!("still{j}.exr"));
+        let mut a = vec![
+            "bake",
+            file,
+            "-o",
+            out.to_str().unwrap(),
+            "--camera",
+            blur.to_str().unwrap(),
+            "--xform",
+            &xform,
+        ];
+        a.extend_from_slice(&common_args);
+        ok(&a);
+        for (name, px) in read_exr(&out).ch {
+            let m = mean.entry(name).or_insert_with(|| vec![0.0; px.len()]);
+            for (m, p) in m.iter_mut().zip(px) {
+                *m += f64::from(p) / n as f64;
+            }
+        }
+    }
+    let mut moved = 0.0f64;
+    for (name, want) in &mean {
+        let got = &blurred.ch[name];
+        for (i, (g, w)) in got.iter().zip(want).enumerate() {
+            assert!(
+                (f64::from(*g) - w).abs() < 3e-3,
+                "{name} pixel {i}: blurred {g} vs mean of moved maps {w}"
+            );
+        }
+    }
+    // The blur is visible: the still map differs from the mean by much more.
+    let still = d.join("still.exr");
+    let mut a = vec![
+        "bake",
+        file,
+        "-o",
+        still.to_str().unwrap(),
+        "--camera",
+        blur.to_str().unwrap(),
+    ];
+    a.extend_from_slice(&common_args);
+    ok(&a);
+    let still = read_exr(&still);
+    for (s, w) in still.ch["T"].iter().zip(&mean["T"]) {
+        moved = moved.max((f64::from(*s) - w).abs());
+    }
+    assert!(moved > 0.05, "the test must blur: {moved}");
+    assert_eq!(mean.len(), 4, "T and three slices: {:?}", mean.keys());
+}
+
+#[test]
+fn bad_motion_input_is_one_line_naming_the_flag_or_grid_and_nothing_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some(_) = caches(d) else { return };
+    let file = d.join("swirl.vdb");
+    let file = file.to_str().unwrap();
+    let out = d.join("m.exr");
+    let out_s = out.to_str().unwrap();
+    let cases: &[(&[&str], &str)] = &[
+        (&["--velocity", "vel"], "--estimator"),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--shutter",
+                "1,0",
+            ],
+            "--shutter",
+        ),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--shutter",
+                "nan,1",
+            ],
+            "--shutter",
+        ),
+        (
+            &["--velocity", "vel", "--estimator", "ratio", "--fps", "0"],
+            "--fps",
+        ),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--velocity-scale",
+                "inf",
+            ],
+            "--velocity-scale",
+        ),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "riemann",
+                "--time-samples",
+                "0",
+            ],
+            "--time-samples",
+        ),
+        (&["--shutter", "0,1"], "--shutter"),
+        (&["--time-samples", "4"], "--time-samples"),
+        (&["--velocity", "density", "--estimator", "ratio"], "vec3"),
+        (&["--velocity", "nope", "--estimator", "ratio"], "nope"),
+    ];
+    for (extra, named) in cases {
+        for cmd in ["bake", "query"] {
+            let mut a = vec![cmd, file];
+            if cmd == "bake" {
+                a.extend_from_slice(&["-o", out_s, "--light-dir", "0,0,-1", "--res", "8"]);
+            } else {
+                a.extend_from_slice(&["--from", "13,-20,10", "--to", "13,30,10"]);
+            }
+            a.extend_from_slice(extra);
+            let o = umbra(&a);
+            let err = String::from_utf8_lossy(&o.stderr);
+            assert_eq!(o.status.code(), Some(1), "{a:?}: {err}");
+            assert_eq!(err.lines().count(), 1, "{a:?}: {err}");
+            assert!(
+                err.starts_with("umbra: error:") && err.contains(named),
+                "{a:?}: {err}"
+            );
+            assert!(!out.exists(), "{a:?} wrote {}", out.display());
+        }
+    }
+}
+
+#[test]
+fn queries_blur_and_the_still_shutter_is_the_still_answer() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some(_) = caches(d) else { return };
+    let file = d.join("swirl.vdb");
+    let file = file.to_str().unwrap();
+    let t = |extra: &[&str]| {
+        let mut a = vec![
+            "query",
+            file,
+            "--json",
+            "--density-scale",
+            "0.06",
+            "--from",
+            "13.3,-20,10.7",
+            "--to",
+            "13.3,30,10.7",
+            "--estimator",
+            "ratio",
+            "--spp",
+            "64",
+        ];
+        a.extend_from_slice(extra);
+        let o = umbra(&a);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+        v["T"].as_f64().unwrap()
+    };
+    let still = t(&[]);
+    assert_eq!(t(&["--velocity", "vel", "--shutter", "0,0"]), still);
+    assert_eq!(t(&["--velocity", "vel", "--velocity-scale", "0"]), still);
+    assert_ne!(t(&["--velocity", "vel", "--shutter", "-1,1"]), still);
+}
