@@ -152,6 +152,7 @@ impl NativeVolume {
             xform,
             levelset_solid: false,
             stage,
+            motion: None,
         };
         let scene = py
             .detach(|| umbra::scene::load(&path, &opts))
@@ -169,6 +170,7 @@ impl NativeVolume {
             interp,
             warnings,
             stats: std::sync::OnceLock::new(),
+            moving: std::sync::Mutex::new(None),
         })
     }
 
@@ -201,8 +203,10 @@ impl NativeVolume {
     /// or [`ROWS_PER_CALL_BY_RAY`]: each chunk's rays are made on the worker threads and handed
     /// to the library together (`scene::estimate_many`: exact queries in batches on the SIMD
     /// kernel), then dropped; Ctrl-C is seen between chunks.
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn trace_rays(
         &self,
+        scene: &umbra::scene::Scene,
         n: usize,
         ray_of: &(dyn Fn(usize) -> Result<Ray, String> + Sync),
         est: &Estimator,
@@ -210,7 +214,7 @@ impl NativeVolume {
         ray_id: u64,
         cancel: &AtomicBool,
     ) -> Result<Traced, String> {
-        let c = self.scene.channels();
+        let c = scene.channels();
         let (mut t, mut err, mut tau) = (vec![0.0; n * c], vec![0.0; n * c], vec![0.0; n * c]);
         let mut tally = Tally::default();
         let per_call = if *est == Estimator::REGULAR && opts.interp == Interp::Trilinear {
@@ -233,7 +237,7 @@ impl NativeVolume {
                 })
                 .unzip();
             let mut answers =
-                umbra::scene::estimate_many(&self.scene, &rays, &ids, est, opts).into_iter();
+                umbra::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
             for (k, made) in made.into_iter().enumerate() {
                 let row = start + k;
                 let at = row * c..(row + 1) * c;
@@ -298,12 +302,18 @@ impl NativeVolume {
         threads: usize,
     ) -> PyResult<TraceOut<'py>> {
         let (est, opts) = EstimatorOptions::from_json(options)
-            .and_then(|o| o.resolve(self.interp))
+            .and_then(|o| {
+                // `regular` with a velocity is refused here, by the keyword.
+                o.motion(None)?;
+                o.resolve(self.interp)
+            })
             .map_err(py_err)?;
+        let scene = self.scene_for(py, options)?;
+        let scene = &*scene;
         let cancel = AtomicBool::new(false);
         let work = || {
             on_threads(threads, || {
-                for f in self.scene.fogs() {
+                for f in scene.fogs() {
                     umbra::estimate::budget::check_job(
                         f.volume(),
                         &est,
@@ -312,7 +322,7 @@ impl NativeVolume {
                         "samples",
                     )?;
                 }
-                Ok(self.trace_rays(rows, &ray_of, &est, &opts, ray_id, &cancel))
+                Ok(self.trace_rays(scene, rows, &ray_of, &est, &opts, ray_id, &cancel))
             })
         };
         // Short calls run inline: watching for Ctrl-C costs a thread.

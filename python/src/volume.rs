@@ -6,7 +6,9 @@ use crate::trace::*;
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use std::path::PathBuf;
+use std::sync::Arc;
 use umbra::bake::{BakeJob, Camera};
+use umbra::internals::motion::MotionRequest;
 use umbra::request::{BakeOptions, BakePlan, BakeRequest};
 use umbra::scene::Scene;
 use umbra::{Interp, Light, Ray};
@@ -23,6 +25,65 @@ pub(crate) struct NativeVolume {
     pub(crate) warnings: Vec<String>,
     /// Each fog volume's tree statistics, computed on first use (a pass over every leaf).
     pub(crate) stats: std::sync::OnceLock<Vec<umbra::internals::tree::TreeStats>>,
+    /// The last moving copy a call's motion keywords asked for ([`NativeVolume::scene_for`]).
+    pub(crate) moving: std::sync::Mutex<Option<(MotionRequest, Arc<Scene>)>>,
+}
+
+/// The scene a call traces: the loaded one, or a moving copy of it.
+pub(crate) enum SceneRef<'a> {
+    Still(&'a Scene),
+    Moving(Arc<Scene>),
+}
+
+impl std::ops::Deref for SceneRef<'_> {
+    type Target = Scene;
+    fn deref(&self) -> &Scene {
+        match self {
+            Self::Still(s) => s,
+            Self::Moving(s) => s,
+        }
+    }
+}
+
+/// The motion keywords of a call's options (JSON text, already checked by the options'
+/// own parse; other keys ignored).
+#[derive(Default)]
+struct MotionKeys {
+    velocity: Option<String>,
+    shutter: Option<[f64; 2]>,
+    fps: Option<f64>,
+    velocity_scale: Option<f64>,
+    time_samples: Option<u32>,
+}
+
+impl MotionKeys {
+    fn of(options: &str) -> Self {
+        let Ok(v) = serde_json::from_str::<serde_json::Value>(options) else {
+            return Self::default();
+        };
+        let num = |k: &str| v.get(k).and_then(serde_json::Value::as_f64);
+        Self {
+            velocity: v
+                .get("velocity")
+                .and_then(|s| s.as_str())
+                .map(str::to_string),
+            shutter: v.get("shutter").and_then(|s| s.as_array()).and_then(|a| {
+                match (
+                    a.first().and_then(|x| x.as_f64()),
+                    a.get(1).and_then(|x| x.as_f64()),
+                ) {
+                    (Some(o), Some(c)) if a.len() == 2 => Some([o, c]),
+                    _ => None,
+                }
+            }),
+            fps: num("fps"),
+            velocity_scale: num("velocity_scale"),
+            time_samples: v
+                .get("time_samples")
+                .and_then(serde_json::Value::as_u64)
+                .map(|n| u32::try_from(n).unwrap_or(u32::MAX)),
+        }
+    }
 }
 
 /// `(T, std_err, tau, warnings)`, arrays of shape `(N, C)`.
@@ -61,14 +122,77 @@ pub(crate) fn stats_json(st: &umbra::bake::VolumeStats) -> PyResult<String> {
 }
 
 impl NativeVolume {
+    /// The scene a call with `options` (the Python keywords, JSON text) traces: the loaded
+    /// one, or, when `velocity` is given, the loaded grid blurred by that velocity grid of its
+    /// file (`umbra::request::motion_request`; kept for the next call with the same motion).
+    pub(crate) fn scene_for(&self, py: Python<'_>, options: &str) -> PyResult<SceneRef<'_>> {
+        let keys = MotionKeys::of(options);
+        let Some(velocity) = keys.velocity else {
+            let given = [
+                ("shutter", keys.shutter.is_some()),
+                ("fps", keys.fps.is_some()),
+                ("velocity_scale", keys.velocity_scale.is_some()),
+                ("time_samples", keys.time_samples.is_some()),
+            ];
+            if let Some((k, _)) = given.iter().find(|(_, g)| *g) {
+                return Err(arg(
+                    k,
+                    "applies to motion blur: give the velocity grid (velocity)",
+                ));
+            }
+            return Ok(SceneRef::Still(&self.scene));
+        };
+        let request = umbra::request::motion_request(
+            &velocity,
+            keys.shutter,
+            keys.fps,
+            keys.velocity_scale,
+            keys.time_samples,
+        )
+        .map_err(py_err)?;
+        let mut cache = self
+            .moving
+            .lock()
+            .map_err(|_| raise(Class::Other, "a motion blur call panicked".into()))?;
+        if let Some((r, s)) = cache.as_ref() {
+            if *r == request {
+                return Ok(SceneRef::Moving(s.clone()));
+            }
+        }
+        if !umbra::input::InputKind::of(&self.path).is_grid_file() {
+            return Err(arg(
+                "velocity",
+                "motion blur reads the velocity grid of a grid file (.vdb, .nvdb)",
+            ));
+        }
+        let vol = self.single("velocity")?.clone();
+        let scene = py
+            .detach(|| -> umbra::Result<Scene> {
+                let field = request.field(&self.path)?;
+                Scene::new(
+                    vec![umbra::scene::Fog::new(
+                        vol.with_motion(request.spec, field)?,
+                        [1.0; 3],
+                    )?],
+                    Vec::new(),
+                    false,
+                )
+            })
+            .map_err(py_err)?;
+        let scene = Arc::new(scene);
+        *cache = Some((request, scene.clone()));
+        Ok(SceneRef::Moving(scene))
+    }
+
     /// This volume's transmittance volume as the options (the Python keywords, JSON text) ask
     /// for it, written to `output` (or a name only, in memory): the request's plan, checked
     /// as the CLI checks it, and the loaded grid.
     pub(crate) fn volume_plan(
         &self,
+        py: Python<'_>,
         options: &str,
         output: PathBuf,
-    ) -> PyResult<(&umbra::Volume, umbra::bake::VolumeJob)> {
+    ) -> PyResult<(SceneRef<'_>, umbra::bake::VolumeJob)> {
         let request = self.request(options, output)?;
         let plan = request.plan().map_err(py_err)?;
         let BakePlan::Volume(job) = plan else {
@@ -77,8 +201,8 @@ impl NativeVolume {
                 "a transmittance volume is written to a .vdb file",
             ));
         };
-        let vol = self.single("transmittance volume")?;
-        Ok((vol, *job))
+        self.single("transmittance volume")?;
+        Ok((self.scene_for(py, options)?, *job))
     }
 
     /// A transmittance volume's warnings as the CLI prints them: `FILE: warning`.
@@ -311,16 +435,15 @@ impl NativeVolume {
                 ))
             }
         };
+        let traced = self.scene_for(py, options)?;
+        let scene = &*traced;
         // A direction that is no direction fails the call, not each row.
         if let Light::Directional { .. } = light {
-            light
-                .ray_from_scene(&self.scene, [0.0; 3])
-                .map_err(py_err)?;
+            light.ray_from_scene(scene, [0.0; 3]).map_err(py_err)?;
         }
         let p = points(&points_)?;
         drop(points_);
         let n = p.len();
-        let scene = &self.scene;
         let ray_of = |row: usize| {
             light
                 .ray_from_scene(scene, p[row])
@@ -337,7 +460,10 @@ impl NativeVolume {
         py: Python<'py>,
         options: &str,
     ) -> PyResult<VolumeOut<'py>> {
-        let (vol, job) = self.volume_plan(options, PathBuf::from("memory.vdb"))?;
+        let (scene, job) = self.volume_plan(py, options, PathBuf::from("memory.vdb"))?;
+        let vol = scene
+            .single()
+            .ok_or_else(|| arg("velocity", "one volume"))?;
         let (light, est, opts, threads) = (job.light, job.estimator, job.options, job.threads);
         let (ijk, t, stats) = py
             .detach(|| -> umbra::Result<_> {
@@ -378,7 +504,10 @@ impl NativeVolume {
         path: PathBuf,
         options: &str,
     ) -> PyResult<(String, Vec<String>)> {
-        let (vol, job) = self.volume_plan(options, path)?;
+        let (scene, job) = self.volume_plan(py, options, path)?;
+        let vol = scene
+            .single()
+            .ok_or_else(|| arg("velocity", "one volume"))?;
         let report = py.detach(|| job.run_on(vol, &|_| {})).map_err(py_err)?;
         Ok((
             stats_json(&report.stats)?,
@@ -391,10 +520,12 @@ impl NativeVolume {
     fn bake<'py>(&self, py: Python<'py>, options: &str) -> PyResult<BakeOut<'py>> {
         let request = self.request(options, PathBuf::new())?;
         let threads = request.options.threads;
+        let scene = self.scene_for(py, options)?;
+        let scene = &*scene;
         let report = py
             .detach(|| -> umbra::Result<_> {
-                let (job, camera) = self.map_plan(&request)?;
-                on_threads(threads, || job.bake_in_memory(&self.scene, camera, &|_| {}))?
+                let (job, camera) = self.map_plan(&request, scene)?;
+                on_threads(threads, || job.bake_in_memory(scene, camera, &|_| {}))?
             })
             .map_err(py_err)?;
         let map = &report.map;
@@ -433,6 +564,8 @@ impl NativeVolume {
         let mut request = self.request(options, path)?;
         request.options.deep = request.options.deep_format.is_none();
         let threads = request.options.threads;
+        let scene = self.scene_for(py, options)?;
+        let scene = &*scene;
         // The CLI's order: the request is planned (a camera file read), the outputs checked,
         // then the camera framed.
         let report = py
@@ -440,8 +573,8 @@ impl NativeVolume {
                 if let BakePlan::Map(job) = request.plan()? {
                     job.check_outputs()?;
                 }
-                let (job, camera) = self.map_plan(&request)?;
-                on_threads(threads, || job.run_loaded(&self.scene, camera, &|_| {}))?
+                let (job, camera) = self.map_plan(&request, scene)?;
+                on_threads(threads, || job.run_loaded(scene, camera, &|_| {}))?
             })
             .map_err(py_err)?;
         let deep = match (report.deep.as_ref(), report.fixed.as_ref()) {
@@ -474,8 +607,13 @@ impl NativeVolume {
         })
     }
 
-    /// The map of a request on this volume: its fixed camera, or the one its view frames.
-    pub(crate) fn map_plan(&self, request: &BakeRequest) -> umbra::Result<(BakeJob, Camera)> {
+    /// The map of a request on this volume (traced as `scene`, [`NativeVolume::scene_for`]):
+    /// its fixed camera, or the one its view frames.
+    pub(crate) fn map_plan(
+        &self,
+        request: &BakeRequest,
+        scene: &Scene,
+    ) -> umbra::Result<(BakeJob, Camera)> {
         let BakePlan::Map(job) = request.plan()? else {
             return Err(umbra::Error::InvalidArgument {
                 name: "output".into(),
@@ -484,7 +622,7 @@ impl NativeVolume {
         };
         let camera = match job.camera {
             Some(c) => c,
-            None => Camera::frame(&job.view, &self.scene.box_corners()?)?,
+            None => Camera::frame(&job.view, &scene.box_corners()?)?,
         };
         Ok((*job, camera))
     }

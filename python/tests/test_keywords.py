@@ -51,6 +51,7 @@ def test_the_list_is_the_librarys():
     assert list(OPTIONS) == [
         "estimator", "samples", "seed", "step", "kernel", "points",
         "granularity", "global_majorant", "colour_walk",
+        "velocity", "shutter", "fps", "velocity_scale", "time_samples",
     ]
     assert OPTIONS["estimator"] == "regular" and OPTIONS["samples"] == 64
     assert umbra._ESTIMATOR_OPTIONS == OPTIONS

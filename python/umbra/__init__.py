@@ -140,7 +140,8 @@ def _count(name: str, v: Any) -> int:
 
 #: The estimator keywords with their library defaults, in order (``estimator``, ``samples``,
 #: ``seed``, ``step``, ``kernel``, ``points``, ``granularity``, ``global_majorant``,
-#: ``colour_walk``): the library's one list (``request::EstimatorOptions``). Every call that
+#: ``colour_walk``, and motion blur's ``velocity``, ``shutter``, ``fps``, ``velocity_scale``,
+#: ``time_samples``): the library's one list (``request::EstimatorOptions``). Every call that
 #: takes an estimator takes all of them, forwarded through :func:`_estimator_options`
 #: (``tests/test_keywords.py`` holds the signatures and stubs to it).
 _ESTIMATOR_OPTIONS: Dict[str, Any] = json.loads(_umbra.estimator_options_json())
@@ -669,6 +670,11 @@ def bake(
     granularity: str = "leaf",
     global_majorant: bool = False,
     colour_walk: str = "auto",
+    velocity: Optional[str] = None,
+    shutter: Optional[Tuple[float, float]] = None,
+    fps: Optional[float] = None,
+    velocity_scale: Optional[float] = None,
+    time_samples: Optional[int] = None,
     order: str = "auto",
     threads: int = 0,
     max_memory: Union[None, int, str] = None,
@@ -763,6 +769,11 @@ def usd_point_transmittance(
     granularity: str = "leaf",
     global_majorant: bool = False,
     colour_walk: str = "auto",
+    velocity: Optional[str] = None,
+    shutter: Optional[Tuple[float, float]] = None,
+    fps: Optional[float] = None,
+    velocity_scale: Optional[float] = None,
+    time_samples: Optional[int] = None,
     threads: int = 0,
 ) -> Dict[float, np.ndarray]:
     """How much of a stage light reaches every point of a ``UsdGeom.Points`` prim (its
@@ -1005,6 +1016,11 @@ class Volume:
         global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ):
         """Transmittance ``T = exp(-tau)`` along each segment ``origins[n] -> ends[n]`` (world
         points, (N, 3) arrays): an (N,) float64 array ((N, 3) for an RGB scene), and with
@@ -1017,7 +1033,10 @@ class Volume:
         ``"upper"``) and ``global_majorant``: the null-collision estimators' majorants, as
         ``--granularity`` and ``--global-majorant``. ``threads``: 0 for every core.
         ``colour_walk`` (an RGB scene): ``"auto"``, ``"shared"`` or ``"split"``, as
-        ``--colour-walk``.
+        ``--colour-walk``. ``velocity`` (a vec3 grid of this volume's file) blurs the density
+        over ``shutter`` (frames, default ``(-0.25, 0.25)``) at ``fps`` (24) with
+        ``velocity_scale`` (1), as ``--velocity`` etc. (docs/motion.md; every call that takes
+        an estimator takes them).
         """
         options = _estimator_options(locals())
         o, e = _segments(origins, ends)
@@ -1053,6 +1072,11 @@ class Volume:
         global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ):
         """How much of a light reaches each point (what ``umbra query --at P`` answers):
         with ``light_dir`` (the direction the light travels) the ray from the point against it
@@ -1085,6 +1109,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ) -> Tuple[np.ndarray, np.ndarray, Dict[str, Any]]:
         """``T = exp(-tau)`` toward a light at every active voxel (tiles count as the voxels they
         cover): what ``umbra bake FILE --light-dir D -o OUT.vdb`` stores, in memory.
@@ -1131,6 +1160,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         grid: Optional[str] = None,
         overwrite: Optional[bool] = None,
     ) -> Dict[str, Any]:
@@ -1181,6 +1215,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -1256,6 +1295,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         order: str = "auto",
         spp: Optional[int] = None,
         overwrite: Optional[bool] = None,

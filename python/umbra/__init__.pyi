@@ -65,6 +65,11 @@ def usd_point_transmittance(
     granularity: str = "leaf",
     global_majorant: bool = False,
     colour_walk: str = "auto",
+    velocity: Optional[str] = None,
+    shutter: Optional[Tuple[float, float]] = None,
+    fps: Optional[float] = None,
+    velocity_scale: Optional[float] = None,
+    time_samples: Optional[int] = None,
     threads: int = 0,
 ) -> Dict[float, np.ndarray]: ...
 def bake(
@@ -113,6 +118,11 @@ def bake(
     granularity: str = "leaf",
     global_majorant: bool = False,
     colour_walk: str = "auto",
+    velocity: Optional[str] = None,
+    shutter: Optional[Tuple[float, float]] = None,
+    fps: Optional[float] = None,
+    velocity_scale: Optional[float] = None,
+    time_samples: Optional[int] = None,
     order: str = "auto",
     threads: int = 0,
     max_memory: Union[None, int, str] = None,
@@ -230,6 +240,11 @@ class Volume:
         global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ) -> npt.NDArray[np.float64]: ...
     @overload
     def transmittance(
@@ -249,6 +264,11 @@ class Volume:
         global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
     def optical_depth(
         self, origins: _Points, ends: _Points, *, threads: int = 0
@@ -272,6 +292,11 @@ class Volume:
         global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ) -> npt.NDArray[np.float64]: ...
     @overload
     def transmittance_to_light(
@@ -292,6 +317,11 @@ class Volume:
         global_majorant: bool = False,
         threads: int = 0,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
     def transmittance_volume(
         self,
@@ -308,6 +338,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
     ) -> Tuple[npt.NDArray[np.int32], npt.NDArray[np.float32], Dict[str, Any]]: ...
     def write_transmittance_volume(
         self,
@@ -328,6 +363,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         grid: Optional[str] = None,
         overwrite: Optional[bool] = None,
     ) -> Dict[str, Any]: ...
@@ -356,6 +396,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -386,6 +431,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -416,6 +466,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         order: str = "auto",
         threads: int = 0,
         spp: Optional[int] = None,
@@ -446,6 +501,11 @@ class Volume:
         granularity: str = "leaf",
         global_majorant: bool = False,
         colour_walk: str = "auto",
+        velocity: Optional[str] = None,
+        shutter: Optional[Tuple[float, float]] = None,
+        fps: Optional[float] = None,
+        velocity_scale: Optional[float] = None,
+        time_samples: Optional[int] = None,
         order: str = "auto",
         spp: Optional[int] = None,
         overwrite: Optional[bool] = None,

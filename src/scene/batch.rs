@@ -46,7 +46,14 @@ pub fn estimate_many(
             })
             .collect()
     };
-    if *est != Estimator::REGULAR || opts.interp != Interp::Trilinear || ids.len() < rays.len() {
+    // A volume with motion goes ray by ray: the batch kernel reads the still grid, and the
+    // ray path refuses `regular` on it.
+    let motion = scene.fogs.iter().any(|f| f.volume.motion().is_some());
+    if *est != Estimator::REGULAR
+        || opts.interp != Interp::Trilinear
+        || ids.len() < rays.len()
+        || motion
+    {
         return by_ray();
     }
     let checked = opts.validate().and_then(|()| {

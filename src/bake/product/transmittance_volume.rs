@@ -241,6 +241,13 @@ pub fn transmittance_leaves(
     progress: &dyn crate::progress::Progress,
 ) -> Result<(Vec<LeafOut>, VolumeStats)> {
     opts.validate()?;
+    if vol.motion().is_some() && *est == Estimator::REGULAR {
+        // The exact paths below read the still grid.
+        return Err(crate::Error::InvalidArgument {
+            name: "estimator".into(),
+            reason: crate::estimate::blur::REGULAR_REFUSED.into(),
+        });
+    }
     let start = std::time::Instant::now();
     let mut leaves = output_blocks(vol)?;
     let leaf_count = vol

@@ -1,0 +1,82 @@
+"""Motion blur from Python: the motion keywords (``velocity``, ``shutter``, ``fps``,
+``velocity_scale``, ``time_samples``) answer as ``umbra query --velocity ...`` does, bit for
+bit, and bad ones fail with the CLI's message. The caches are written by OpenVDB
+(``tests/motion/make_reference.py`` under Debian's python3 with pyopenvdb)."""
+
+import pathlib
+import subprocess
+
+import numpy as np
+import pytest
+
+import umbra
+from conftest import REPO, cli_error, json_lines
+
+SCRIPT = REPO / "tests" / "motion" / "make_reference.py"
+
+
+@pytest.fixture(scope="module")
+def caches(tmp_path_factory):
+    d = tmp_path_factory.mktemp("motion")
+    p = subprocess.run(["/usr/bin/python3", str(SCRIPT), str(d)], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    return d
+
+
+def rays(n=40, seed=3):
+    rng = np.random.default_rng(seed)
+    centre = np.array([13.3, 8.9, 10.7])
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    a = centre + rng.uniform(-3, 3, (n, 3)) - 20 * d
+    return a, a + 40 * d
+
+
+@pytest.mark.parametrize(
+    "kw,flags",
+    [
+        (dict(estimator="riemann", step=0.5, time_samples=16, shutter=(-1.0, 1.0)),
+         ["--estimator", "riemann", "--step", "0.5", "--time-samples", "16", "--shutter", "-1,1"]),
+        (dict(estimator="ratio", samples=32, seed=5, fps=30.0, velocity_scale=0.5),
+         ["--estimator", "ratio", "--samples", "32", "--seed", "5", "--fps", "30",
+          "--velocity-scale", "0.5"]),
+    ],
+)
+def test_blurred_transmittance_equals_the_cli(caches, cli, tmp_path, kw, flags):
+    path = caches / "staggered.vdb"
+    vol = umbra.Volume(path, density_scale=0.06)
+    a, b = rays()
+    with open(tmp_path / "rays.csv", "w") as f:
+        f.write("ox,oy,oz,ex,ey,ez\n")
+        for p, q in zip(a, b):
+            f.write(",".join(repr(float(v)) for v in (*p, *q)) + "\n")
+    _, out, _ = cli("query", path, "--density-scale", "0.06", "--rays", tmp_path / "rays.csv",
+                    "--json", "--velocity", "vel", *flags)
+    want = np.array([r["T"] for r in json_lines(out)])
+    got, err = vol.transmittance(a, b, velocity="vel", return_stderr=True, **kw)
+    assert np.array_equal(got, want), np.abs(got - want).max()
+    still = vol.transmittance(a, b, **{k: v for k, v in kw.items()
+                                       if k not in ("shutter", "fps", "velocity_scale", "time_samples")})
+    assert np.abs(got - still).max() > 0.01, "the rays must cross moving density"
+
+
+@pytest.mark.parametrize(
+    "kw,flags",
+    [
+        (dict(velocity="vel"), ["--velocity", "vel"]),
+        (dict(velocity="vel", estimator="ratio", shutter=(1, 0)),
+         ["--velocity", "vel", "--estimator", "ratio", "--shutter", "1,0"]),
+        (dict(estimator="ratio", time_samples=4), ["--estimator", "ratio", "--time-samples", "4"]),
+        (dict(velocity="density", estimator="ratio"),
+         ["--velocity", "density", "--estimator", "ratio"]),
+    ],
+)
+def test_bad_motion_keywords_fail_as_the_cli(caches, cli, kw, flags):
+    path = caches / "swirl.vdb"
+    vol = umbra.Volume(path)
+    a, b = rays(2)
+    code, _, stderr = cli("query", path, "--from", "1,2,3", "--to", "4,5,6", *flags, check=False)
+    assert code == 1
+    with pytest.raises(umbra.Error) as e:
+        vol.transmittance(a, b, **kw)
+    assert str(e.value) == cli_error(stderr)
