@@ -306,6 +306,7 @@ impl NativeVolume {
             volumes,
             field,
             light,
+            velocity: None,
         };
         Self::load(
             py,

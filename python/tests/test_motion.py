@@ -80,3 +80,34 @@ def test_bad_motion_keywords_fail_as_the_cli(caches, cli, kw, flags):
     with pytest.raises(umbra.Error) as e:
         vol.transmittance(a, b, **kw)
     assert str(e.value) == cli_error(stderr)
+
+
+def test_a_usd_volumes_velocity_field_and_the_stages_rate(caches, cli, tmp_path):
+    """A stage written by usd-core: the Volume's ``field:velocity`` (an OpenVDBAsset naming
+    the grid ``vel``) and the stage's ``timeCodesPerSecond`` (48) blur it as ``--velocity vel
+    --fps 48`` blurs the file itself; an explicit ``--fps`` wins."""
+    from pxr import Sdf, Usd, UsdVol
+
+    stage = Usd.Stage.CreateNew(str(tmp_path / "shot.usda"))
+    stage.SetTimeCodesPerSecond(48)
+    vol = UsdVol.Volume.Define(stage, "/World/Smoke")
+    for field, grid in (("density", "density"), ("velocity", "vel")):
+        asset = UsdVol.OpenVDBAsset.Define(stage, f"/World/Smoke/{field}")
+        asset.CreateFilePathAttr().Set(Sdf.AssetPath(str(caches / "swirl.vdb")))
+        asset.CreateFieldNameAttr().Set(grid)
+        vol.CreateFieldRelationship(field, asset.GetPath())
+    stage.GetRootLayer().Save()
+    ray = ["--from", "13.3,-20,10.7", "--to", "13.3,30,10.7", "--density-scale", "0.06",
+           "--estimator", "ratio", "--samples", "64", "--json", "--shutter", "-1,1"]
+
+    def t(path, *flags):
+        _, out, _ = cli("query", path, *ray, *flags)
+        return json_lines(out)[0]["T"]
+
+    on_stage = t(tmp_path / "shot.usda", "--velocity", "velocity")
+    assert on_stage == t(caches / "swirl.vdb", "--velocity", "vel", "--fps", "48")
+    assert on_stage != t(caches / "swirl.vdb", "--velocity", "vel")
+    assert t(tmp_path / "shot.usda", "--velocity", "velocity", "--fps", "24") == t(
+        caches / "swirl.vdb", "--velocity", "vel")
+    code, _, err = cli("query", tmp_path / "shot.usda", *ray, "--velocity", "vel", check=False)
+    assert code == 1 and "vel" in err, err

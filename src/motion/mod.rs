@@ -131,6 +131,14 @@ impl MotionSpec {
         self.time_samples
     }
 
+    /// The same spec at another frame rate.
+    ///
+    /// # Errors
+    /// As [`MotionSpec::new`] for `fps`.
+    pub fn with_fps(self, fps: f64) -> Result<Self> {
+        Self::new([self.open, self.close], fps, self.scale, self.time_samples)
+    }
+
     /// The shutter time of fraction `u` in `[0, 1)` of the shutter: `o + u (c - o)`.
     #[must_use]
     pub fn time_at(&self, u: f64) -> f64 {
@@ -209,14 +217,20 @@ pub const DEFAULT_SHUTTER: [f64; 2] = [-0.25, 0.25];
 /// Stratified shutter times per marching sample when none is given.
 pub const DEFAULT_TIME_SAMPLES: u32 = 8;
 
-/// Motion blur as a request names it: the velocity grid (of the file the density comes from)
-/// and the spec.
+/// Motion blur as a request names it: the velocity grid (of the file the density comes from,
+/// unless `file` says otherwise) and the spec.
 #[derive(Debug, Clone, PartialEq)]
 pub struct MotionRequest {
-    /// The vec3 grid's name in the density's file.
+    /// The vec3 grid's name (a USD stage: the field relationship, `field:<velocity>`, until
+    /// the stage is read and it becomes the grid that field names).
     pub velocity: String,
     /// Shutter, frame rate, scale, time samples.
     pub spec: MotionSpec,
+    /// The file holding the velocity grid when it is not the density's (a USD field's asset).
+    pub file: Option<std::path::PathBuf>,
+    /// Whether the frame rate was given; when not, a USD stage's `timeCodesPerSecond` replaces
+    /// the default.
+    pub fps_given: bool,
 }
 
 impl MotionRequest {
@@ -228,6 +242,7 @@ impl MotionRequest {
     /// [`Error::GridNotFound`], a grid that is not a vec3 grid (naming the file and grid), and
     /// decoding and map errors.
     pub fn field(&self, path: &std::path::Path) -> Result<VelocityField> {
+        let path = self.file.as_deref().unwrap_or(path);
         let as_flag = |e: Error| match e {
             Error::GridNotFound { .. } | Error::Unsupported { .. } => Error::InvalidArgument {
                 name: "velocity".into(),

@@ -285,6 +285,8 @@ pub fn motion_request(
     Ok(MotionRequest {
         velocity: velocity.to_string(),
         spec,
+        file: None,
+        fps_given: fps.is_some(),
     })
 }
 

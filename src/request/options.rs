@@ -404,6 +404,7 @@ impl BakeOptions {
             volumes: self.volume.clone().unwrap_or_default(),
             field: self.field.clone().unwrap_or_else(|| "density".into()),
             light: self.light.clone(),
+            velocity: None,
         }
     }
 

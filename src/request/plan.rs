@@ -128,13 +128,37 @@ impl BakeRequest {
                     "the stage places its volumes and names their grids (volume, field)",
                 ));
             }
-            let shot = crate::usd::read(&self.input, &o.stage_selection())?;
+            let motion = o.estimator_options().motion(None)?;
+            let sel = crate::usd::Selection {
+                velocity: motion.as_ref().map(|m| m.velocity.clone()),
+                ..o.stage_selection()
+            };
+            let shot = crate::usd::read(&self.input, &sel)?;
             let v = shot.single_volume()?;
+            // The stage's velocity field: its grid in its own file, at the stage's rate.
+            let motion = match (motion, &v.velocity) {
+                (Some(mut m), Some((asset, grid))) => {
+                    let crate::usd::Asset::File(f) = asset else {
+                        return Err(bad(
+                            "velocity",
+                            format!("{} is packaged: unpack it to read it", asset.display()),
+                        ));
+                    };
+                    m.velocity.clone_from(grid);
+                    m.file = Some(f.clone());
+                    if !m.fps_given {
+                        m.spec = m.spec.with_fps(shot.fps)?;
+                    }
+                    Some(m)
+                }
+                (m, _) => m,
+            };
             Some((
                 v.file()?.to_path_buf(),
                 v.grid.clone(),
                 o.density_scale * v.grey_scale()?,
                 v.xform,
+                motion,
             ))
         } else {
             None
@@ -168,13 +192,14 @@ impl BakeRequest {
             }
         };
         let (estimator, options) = o.estimator()?;
-        let (input, grid, density_scale, xform) = match stage {
-            Some((f, g, s, x)) => (f, g, s, Some(x)),
+        let (input, grid, density_scale, xform, motion) = match stage {
+            Some((f, g, s, x, m)) => (f, g, s, Some(x), m),
             None => (
                 self.input.clone(),
                 o.grid.clone(),
                 o.density_scale,
                 o.xform()?,
+                o.estimator_options().motion(None)?,
             ),
         };
         Ok(VolumeJob {
@@ -193,7 +218,7 @@ impl BakeRequest {
                 .unwrap_or_else(|| DEFAULT_OUT_GRID.to_string()),
             half: o.half,
             overwrite: o.force,
-            motion: o.estimator_options().motion(None)?,
+            motion,
         })
     }
 

@@ -222,11 +222,20 @@ struct Entry {
     xform: Option<Xform>,
     /// `volume[i] (file)` (a stage: `at time t: /prim (file)`), for messages.
     at: String,
+    /// A stage volume's velocity field (asset and grid), when motion blur asked for it.
+    velocity: Option<(crate::usd::Asset, String)>,
+    /// A stage's `timeCodesPerSecond`, for a shutter given without fps.
+    fps: Option<f64>,
 }
 
 /// The grids of a USD stage at the selection's time code, with `opts` applied on top.
 fn stage_entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
-    let shot = crate::usd::read(path, &opts.stage)?;
+    // Motion blur names each volume's velocity field (`field:<velocity>`).
+    let sel = crate::usd::Selection {
+        velocity: opts.motion.as_ref().map(|m| m.velocity.clone()),
+        ..opts.stage.clone()
+    };
+    let shot = crate::usd::read(path, &sel)?;
     let mut rgb = opts.sigma_t.is_some();
     let tint = opts.sigma_t.unwrap_or([1.0; 3]);
     let mut entries = Vec::new();
@@ -251,6 +260,8 @@ fn stage_entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)>
             sigma: std::array::from_fn(|c| sigma[c] * tint[c]),
             xform: Some(xform),
             at,
+            velocity: v.velocity,
+            fps: Some(shot.fps),
         });
     }
     if entries.iter().filter(|e| !e.solid).count() > super::MAX_VOLUMES {
@@ -393,6 +404,8 @@ fn parse(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
             sigma,
             xform,
             at: at.clone(),
+            velocity: None,
+            fps: None,
         };
         match v.kind.as_deref().unwrap_or("fog") {
             "solid" => {
@@ -476,7 +489,20 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
                 vol = vol.with_xform(x).map_err(placed)?;
             }
             if let Some(m) = &opts.motion {
-                let field = m.field(file).map_err(failed)?;
+                let mut m = m.clone();
+                if let (false, Some(fps)) = (m.fps_given, e.fps) {
+                    m.spec = m.spec.with_fps(fps)?;
+                }
+                // A stage's velocity field: its grid in its own asset.
+                let velocity_asset = match &e.velocity {
+                    Some((asset, grid)) => {
+                        m.velocity.clone_from(grid);
+                        Some(asset.open()?)
+                    }
+                    None => None,
+                };
+                let vfile = velocity_asset.as_ref().map_or(file, |o| o.path());
+                let field = m.field(vfile).map_err(failed)?;
                 vol = vol.with_motion(m.spec, field).map_err(failed)?;
             }
             fogs.push(Fog::new(vol, e.sigma)?);
@@ -493,6 +519,10 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
 /// As [`load`], for what reading topology can find.
 pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Vec<DVec3>> {
     let path = path.as_ref();
+    if opts.motion.is_some() {
+        // Where blurred density reaches depends on the velocity's values: load it.
+        return load(path, opts)?.box_corners();
+    }
     let entries = if !InputKind::of(path).is_grid_file() {
         entries(path, opts)?.0
     } else {
@@ -504,6 +534,8 @@ pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<V
             sigma: [1.0; 3],
             xform: opts.xform,
             at: String::new(),
+            velocity: None,
+            fps: None,
         }]
     };
     let mut out = Vec::new();

@@ -100,6 +100,9 @@ pub struct Selection {
     /// whose shadows are off (`inputs:shadow:enable = false`) is refused. `None`: every
     /// selected volume (a bake toward light-dir / light-pos, a listing).
     pub light: Option<String>,
+    /// Motion blur: the field relationship of each volume's velocity (`field:<name>`, as
+    /// `--velocity` names it for a stage: `velocity`, `vel`); `None`: none read.
+    pub velocity: Option<String>,
 }
 
 impl Default for Selection {
@@ -109,6 +112,7 @@ impl Default for Selection {
             volumes: Vec::new(),
             field: "density".into(),
             light: None,
+            velocity: None,
         }
     }
 }
@@ -201,6 +205,8 @@ pub struct StageVolume {
     pub rgb: bool,
     /// `umbra:kind = "solid"`: a level set traced as an opaque occluder.
     pub solid: bool,
+    /// The velocity field's asset and grid (`field:<Selection::velocity>`), when asked for.
+    pub velocity: Option<(Asset, String)>,
 }
 
 impl StageVolume {
@@ -328,6 +334,9 @@ pub struct Shot {
     pub volumes: Vec<StageVolume>,
     /// Every light of the stage, in stage order.
     pub lights: Vec<StageLight>,
+    /// The stage's `timeCodesPerSecond` (else `framesPerSecond`, else 24): what a shutter in
+    /// frames is converted to seconds with when no `--fps` is given.
+    pub fps: f64,
 }
 
 impl Shot {

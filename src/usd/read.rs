@@ -305,6 +305,7 @@ pub fn read(path: &Path, sel: &Selection) -> Result<Shot> {
             up: r.up()?,
             volumes: Vec::new(),
             lights: r.lights(&prims, &visible)?,
+            fps: r.stage.time_codes_per_second(),
         };
         let names = match &sel.light {
             Some(l) => shot.linked(l, names)?,
@@ -338,6 +339,7 @@ pub fn lights_at(path: &Path, time: Option<f64>) -> Result<Shot> {
             up,
             volumes: Vec::new(),
             lights,
+            fps: r.stage.time_codes_per_second(),
         })
     })
 }

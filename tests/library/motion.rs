@@ -273,6 +273,8 @@ fn swirling_and_staggered_files_match_an_independent_numpy_march() {
     let request = umbra::internals::motion::MotionRequest {
         velocity: "vel".into(),
         spec,
+        file: None,
+        fps_given: true,
     };
     let riemann = Estimator::with_params("riemann", &[("step", 0.1)]).unwrap();
     let ratio = Estimator::from_name("ratio").unwrap();

@@ -350,6 +350,7 @@ impl StageArgs {
             volumes: self.volume.clone(),
             field: self.field.clone().unwrap_or_else(|| "density".into()),
             light: None,
+            velocity: None,
         }
     }
 

@@ -23,6 +23,10 @@ impl Reader<'_> {
         let density_scale = self.number(prim, "umbra:densityScale")?.unwrap_or(1.0);
         let (sigma_t, rgb) = self.sigma_t(prim)?;
         let solid = self.solid(prim)?;
+        let velocity = match &sel.velocity {
+            Some(name) => Some(self.velocity(prim, sel, name)?),
+            None => None,
+        };
         Ok(StageVolume {
             prim: prim.to_string(),
             field_prim,
@@ -34,7 +38,23 @@ impl Reader<'_> {
             sigma_t,
             rgb,
             solid,
+            velocity,
         })
+    }
+
+    /// The velocity field of volume `prim`: the asset and grid its `field:<name>`
+    /// relationship targets, checked as the density's field is.
+    fn velocity(&self, prim: &str, sel: &Selection, name: &str) -> Result<(Asset, String)> {
+        let sel = Selection {
+            field: name.to_string(),
+            ..sel.clone()
+        };
+        let rel = format!("field:{name}");
+        let field_prim = self.field_prim(prim, &sel, &rel)?;
+        self.check_field_type(prim, &field_prim, &rel)?;
+        super::super::clips::check(&self.stage, &field_prim).map_err(|r| self.err(r))?;
+        let (_, asset) = self.field_asset(&field_prim)?;
+        Ok((asset, self.grid_name(&field_prim, &sel)?))
     }
 
     /// The one prim the volume's relationship `rel` (`field:<name>` of the selection) targets.
