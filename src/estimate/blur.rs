@@ -1,7 +1,7 @@
 //! Motion-blurred estimates: the shutter mean of the transmittance through the advected
 //! density `rho_t(x) = rho(x - S v(x) t / F)` ([`crate::motion`]).
 //!
-//! The ray is cut by the blurred bounds ([`crate::motion::BlurBounds::segments`]: one segment
+//! The ray is cut by the blurred bounds ([`BlurBounds`], walked by `bound_segments`: one segment
 //! per run of `8^3` blocks, majorant valid at every shutter time, minorant 0); the background
 //! outside them is closed form. Then:
 //! - marchers (`riemann`, `mc`, `jittered`): each sample is the mean over `K` stratified
@@ -21,13 +21,14 @@ use super::{Algo, Cap, Estimate, Estimator, Extinction, Options};
 use crate::error::{Error, Result};
 use crate::estimate::error_bar::{Bounds, Spread};
 use crate::math::{floor_i64, scaled};
-use crate::motion::{Motion, VelocityLookup};
+use crate::motion::{BlurBounds, Motion, VelocityLookup};
 use crate::ray::Ray;
 use crate::rng::Rng;
-use crate::traverse::Segment;
+use crate::traverse::{dda, Cells, Segment};
 use crate::tree::Accessor;
 use crate::volume::{Interp, Volume};
 use glam::{DAffine3, DVec3};
+use std::ops::ControlFlow;
 
 /// Step of the fine march that stands in for an exact integral, in voxels.
 const FINE_STEP: f64 = 0.25;
@@ -117,6 +118,64 @@ impl Extinction for BlurredMedium<'_> {
     }
 }
 
+/// The segments of the index-space line `q + d t` over `[t0, t1]` inside `bounds`' dense box,
+/// in order, each with majorant `scale * maj` of its blocks (runs of equal majorants merged)
+/// and minorant 0; returns the length of `[t0, t1]` outside the box (background).
+fn bound_segments(
+    bounds: &BlurBounds,
+    q: [f64; 3],
+    d: [f64; 3],
+    (t0, t1): (f64, f64),
+    scale: f64,
+    out: &mut Vec<Segment>,
+) -> f64 {
+    let total = (t1 - t0).max(0.0);
+    let (lo, dims) = bounds.dense_box();
+    if dims.contains(&0) {
+        return total;
+    }
+    // Clip to the box [8 lo, 8 (lo + dims)).
+    let (mut a, mut b) = (t0, t1);
+    for k in 0..3 {
+        let box_lo = (lo[k] * 8) as f64;
+        let box_hi = ((lo[k] + dims[k] as i64) * 8) as f64;
+        if d[k] == 0.0 {
+            if q[k] < box_lo || q[k] >= box_hi {
+                return total;
+            }
+            continue;
+        }
+        let (ta, tb) = ((box_lo - q[k]) / d[k], (box_hi - q[k]) / d[k]);
+        a = a.max(ta.min(tb));
+        b = b.min(ta.max(tb));
+    }
+    if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
+        return total;
+    }
+    let cells = Cells {
+        size: 8.0,
+        lo,
+        hi: [0, 1, 2].map(|k| lo[k] + dims[k] as i64 - 1),
+    };
+    let start = out.len();
+    let _ = dda(q, d, (a, b), &cells, |c, ta, tb| {
+        let mu = scaled(scale, f64::from(bounds.block(c)));
+        let run = out.len() > start;
+        match out.last_mut() {
+            Some(s) if run && s.mu_maj == mu && s.t_max == ta => s.t_max = tb,
+            _ => out.push(Segment {
+                t_min: ta,
+                t_max: tb,
+                mu_min: 0.0,
+                mu_maj: mu,
+                level: 0,
+            }),
+        }
+        ControlFlow::Continue(())
+    });
+    total - (b - a)
+}
+
 /// The standard error of the mean of `x`, one value per shutter stratum (jittered, `K` of
 /// them), from neighbouring pairs: each pair's difference `d_j = x_2j+1 - x_2j` is the noise of
 /// two strata plus the trend of `T` over one stratum, so the spread of the `d_j` about their
@@ -158,7 +217,8 @@ pub(crate) fn estimate(
     let q = vol.to_index(ray.origin()).to_array();
     let d = vol.to_index_dir(ray.direction()).to_array();
     let mut all = Vec::new();
-    let gap = m.bounds().segments(
+    let gap = bound_segments(
+        m.bounds(),
         q,
         d,
         (ray.t_min(), ray.t_max()),

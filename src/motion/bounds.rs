@@ -13,11 +13,9 @@
 
 use super::{MotionSpec, VelocityField};
 use crate::error::{Error, Result};
-use crate::traverse::{dda, Cells, Segment};
 use crate::tree::{RootSlot, Tree};
 use glam::{DAffine3, DVec3};
 use rayon::prelude::*;
-use std::ops::ControlFlow;
 
 /// The most blocks the dense majorant array may hold (64 MiB of `f32`).
 pub const MAX_BLOCKS: u64 = 1 << 24;
@@ -240,61 +238,11 @@ impl BlurBounds {
         self.maj[i]
     }
 
-    /// The segments of the index-space line `q + d t` over `[t0, t1]` inside the box, in
-    /// order, each with majorant `scale * maj` of its blocks (runs of equal majorants merged)
-    /// and minorant 0; returns the length of `[t0, t1]` outside the box (background).
-    pub fn segments(
-        &self,
-        q: [f64; 3],
-        d: [f64; 3],
-        (t0, t1): (f64, f64),
-        scale: f64,
-        out: &mut Vec<Segment>,
-    ) -> f64 {
-        let total = (t1 - t0).max(0.0);
-        if self.maj.is_empty() {
-            return total;
-        }
-        // Clip to the box [8 lo, 8 (lo + dims)).
-        let (mut a, mut b) = (t0, t1);
-        for k in 0..3 {
-            let lo = (self.lo[k] * 8) as f64;
-            let hi = ((self.lo[k] + self.dims[k] as i64) * 8) as f64;
-            if d[k] == 0.0 {
-                if q[k] < lo || q[k] >= hi {
-                    return total;
-                }
-                continue;
-            }
-            let (ta, tb) = ((lo - q[k]) / d[k], (hi - q[k]) / d[k]);
-            a = a.max(ta.min(tb));
-            b = b.min(ta.max(tb));
-        }
-        if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
-            return total;
-        }
-        let cells = Cells {
-            size: 8.0,
-            lo: self.lo,
-            hi: [0, 1, 2].map(|k| self.lo[k] + self.dims[k] as i64 - 1),
-        };
-        let start = out.len();
-        let _ = dda(q, d, (a, b), &cells, |c, ta, tb| {
-            let mu = crate::math::scaled(scale, f64::from(self.block(c)));
-            let run = out.len() > start;
-            match out.last_mut() {
-                Some(s) if run && s.mu_maj == mu && s.t_max == ta => s.t_max = tb,
-                _ => out.push(Segment {
-                    t_min: ta,
-                    t_max: tb,
-                    mu_min: 0.0,
-                    mu_maj: mu,
-                    level: 0,
-                }),
-            }
-            ControlFlow::Continue(())
-        });
-        total - (b - a)
+    /// The dense box: its smallest block coordinate per axis and its blocks per axis (block
+    /// `b` holds voxels `[8b, 8b + 8)`); outside it, [`BlurBounds::block`] is the background.
+    #[must_use]
+    pub fn dense_box(&self) -> ([i64; 3], [usize; 3]) {
+        (self.lo, self.dims)
     }
 }
 
