@@ -261,3 +261,97 @@ fn queries_blur_and_the_still_shutter_is_the_still_answer() {
     assert_eq!(t(&["--velocity", "vel", "--velocity-scale", "0"]), still);
     assert_ne!(t(&["--velocity", "vel", "--shutter", "-1,1"]), still);
 }
+
+#[test]
+fn every_product_and_a_batch_job_take_the_motion() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some(_) = caches(d) else { return };
+    let file = d.join("swirl.vdb");
+    let f = file.to_str().unwrap();
+    let out = |n: &str| d.join(n).to_str().unwrap().to_string();
+    let motion = [
+        "--velocity",
+        "vel",
+        "--shutter",
+        "-1,1",
+        "--estimator",
+        "riemann",
+        "--density-scale",
+        "0.06",
+        "--quiet",
+    ];
+    let bake = |o: &str, extra: &[&str], moving: bool| {
+        let mut a = vec!["bake", f, "-o", o];
+        a.extend_from_slice(extra);
+        if moving {
+            a.extend_from_slice(&motion);
+        } else {
+            a.extend_from_slice(&[
+                "--estimator",
+                "riemann",
+                "--density-scale",
+                "0.06",
+                "--quiet",
+            ]);
+        }
+        ok(&a);
+    };
+    // Maps blur wherever the camera looks from; deep and fixed-size deep maps and
+    // transmittance volumes are made with the motion too.
+    for (name, extra) in [
+        ("ortho", vec!["--light-dir", "0.2,-0.3,-1", "--res", "24"]),
+        ("persp", vec!["--light-pos", "13,9,40", "--res", "24"]),
+        (
+            "omni",
+            vec!["--light-pos", "13,9,11", "--omni", "cube", "--res", "8"],
+        ),
+    ] {
+        let (a, b) = (
+            out(&format!("{name}_blur.exr")),
+            out(&format!("{name}_still.exr")),
+        );
+        bake(&a, &extra, true);
+        bake(&b, &extra, false);
+        let (a, b) = (read_exr(Path::new(&a)), read_exr(Path::new(&b)));
+        let diff = a.ch["T"]
+            .iter()
+            .zip(&b.ch["T"])
+            .fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(diff > 0.01, "{name}: the blurred map equals the still one");
+    }
+    for extra in [vec!["--deep"], vec!["--deep-format", "fourier:7"]] {
+        let o = out("deep.exr");
+        let mut a = vec!["--light-dir", "0.2,-0.3,-1", "--res", "12", "--force"];
+        a.extend_from_slice(&extra);
+        bake(&o, &a, true);
+    }
+    bake(&out("t.vdb"), &["--light-dir", "0.2,-0.3,-1"], true);
+    // A job's [bake] keys: the same map as the command line's, bit for bit.
+    let job = d.join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "output = \"{}/job_{{stem}}.exr\"\n[[inputs]]\nfile = \"{f}\"\n[[lights]]\nname = \
+             \"sun\"\ndir = [0.2, -0.3, -1.0]\n[bake]\nres = 24\nvelocity = \"vel\"\nshutter = \
+             [-1.0, 1.0]\nestimator = \"riemann\"\ndensity_scale = 0.06\n",
+            d.display()
+        ),
+    )
+    .unwrap();
+    ok(&["batch", job.to_str().unwrap(), "--quiet"]);
+    let from_job = read_exr(&d.join("job_swirl.exr"));
+    let direct = read_exr(&d.join("ortho_blur.exr"));
+    assert_eq!(from_job.ch["T"], direct.ch["T"]);
+    let schema = umbra(&["batch", "--schema"]);
+    let schema = String::from_utf8_lossy(&schema.stdout);
+    for key in [
+        "velocity",
+        "shutter",
+        "fps",
+        "velocity_scale",
+        "time_samples",
+    ] {
+        assert!(schema.contains(&format!("\"{key}\"")), "schema lacks {key}");
+    }
+}

@@ -323,3 +323,47 @@ fn swirling_and_staggered_files_match_an_independent_numpy_march() {
     }
     assert!(blur_seen > 0.05, "the reference must blur: {blur_seen}");
 }
+
+#[test]
+fn non_finite_velocities_are_zeroed_counted_and_warned_about() {
+    let mut b = TreeBuilder::new(0.0);
+    b.set([20, 22, 18], f32::NAN)
+        .set([21, 22, 18], f32::INFINITY);
+    let x = b.build();
+    let comps = [
+        x,
+        TreeBuilder::new(0.0).build(),
+        TreeBuilder::new(0.0).build(),
+    ];
+    let field = VelocityField::new("vel".into(), comps, rows([0.0; 3]), false, false);
+    // The components must share a topology: the x component has a leaf the others lack.
+    assert!(field.unwrap_err().to_string().contains("topology"));
+    let mut b = TreeBuilder::new(0.0);
+    b.set([20, 22, 18], f32::NAN)
+        .set([21, 22, 18], f32::INFINITY);
+    let t = b.build();
+    let field = VelocityField::new(
+        "vel".into(),
+        [t.clone(), t.clone(), t],
+        rows([0.0; 3]),
+        false,
+        false,
+    )
+    .unwrap();
+    let vol = volume([0.0; 3])
+        .with_motion(MotionSpec::new([-1.0, 1.0], 24.0, 1.0, 4).unwrap(), field)
+        .unwrap();
+    let w = umbra::bake::velocity_warning(&vol).unwrap();
+    assert_eq!(
+        w.to_string(),
+        "velocity grid 'vel': 6 NaN or infinite components read as 0"
+    );
+    let e = estimate(
+        &vol,
+        &rays()[0],
+        0,
+        &Estimator::from_name("ratio").unwrap(),
+        &opts(8),
+    );
+    assert!(e.unwrap().value.is_finite());
+}

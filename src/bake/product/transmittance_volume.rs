@@ -801,7 +801,10 @@ impl VolumeJob {
         crate::vdb::write_vdb(&self.output, &grid, self.overwrite)?;
         Ok(VolumeReport {
             stats,
-            warnings: crate::bake::volume_warnings(&vol.sanitized()),
+            warnings: crate::bake::volume_warnings(&vol.sanitized())
+                .into_iter()
+                .chain(crate::bake::velocity_warning(vol))
+                .collect(),
         })
     }
 }

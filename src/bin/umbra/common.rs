@@ -137,6 +137,7 @@ fn load_error(e: umbra::Error, file: &Path, opts: &umbra::scene::SceneOptions) -
 fn warn_sanitized(file: &Path, scene: &umbra::scene::Scene) {
     let mut warnings = volume_warnings(&scene.sanitized());
     warnings.extend(umbra::bake::solid_warnings(scene));
+    warnings.extend(umbra::bake::motion_warnings(scene));
     for w in warnings {
         eprintln!("umbra: warning: {}: {w}", file.display());
     }

@@ -17,7 +17,9 @@ mod warning;
 
 pub use bounded::{BoundedPlan, IMPLIED_BUDGET};
 pub use failure::{BakeError, Step};
-pub use warning::{map_warnings, solid_warnings, volume_warnings, Warning};
+pub use warning::{
+    map_warnings, motion_warnings, solid_warnings, velocity_warning, volume_warnings, Warning,
+};
 
 /// One bake from a file to an EXR map (and optionally a PNG preview).
 #[derive(Debug, Clone, PartialEq)]
@@ -482,6 +484,7 @@ impl BakeJob {
     ) -> BakeReport {
         let mut warnings = volume_warnings(&scene.sanitized().merged(leaves));
         warnings.extend(solid_warnings(scene));
+        warnings.extend(warning::motion_warnings(scene));
         if self.max_memory.is_some() {
             let kind = crate::input::InputKind::of(&self.input);
             if kind.is_scene_file() {

@@ -65,6 +65,13 @@ pub enum Warning {
         /// How far the box reaches outside the window, pixels (`inf`: behind the light).
         pixels: f64,
     },
+    /// NaN or infinite components of a velocity grid were read as 0 (motion blur).
+    BadVelocity {
+        /// The velocity grid.
+        grid: String,
+        /// Components set to 0 (over voxels, tiles and the background).
+        non_finite: u64,
+    },
     /// `max_memory` was given for a bake that does not go in parts (a colour map, a scene
     /// file or a NanoVDB grid loads whole): the budget was not honoured.
     MemoryBudgetIgnored {
@@ -89,6 +96,14 @@ impl std::fmt::Display for Warning {
                 f,
                 "--fov {fov_deg} crops the volume: its box reaches {pixels:.1} pixels outside \
                  the window, and density there is not in the map (drop --fov to frame it whole)"
+            ),
+            Self::BadVelocity {
+                ref grid,
+                non_finite,
+            } => write!(
+                f,
+                "velocity grid '{}': {non_finite} NaN or infinite components read as 0",
+                crate::text::escape(grid)
             ),
             Self::MemoryBudgetIgnored { what } => write!(
                 f,
@@ -200,6 +215,26 @@ pub fn solid_warnings(scene: &Scene) -> Vec<Warning> {
             background: s.background(),
         })
         .collect()
+}
+
+/// Warnings about the velocity grids of a scene's moving volumes: non-finite components.
+#[must_use]
+pub fn motion_warnings(scene: &Scene) -> Vec<Warning> {
+    scene
+        .fogs()
+        .iter()
+        .filter_map(|f| velocity_warning(f.volume()))
+        .collect()
+}
+
+/// The warning about `vol`'s velocity grid, if it had non-finite components.
+#[must_use]
+pub fn velocity_warning(vol: &crate::Volume) -> Option<Warning> {
+    let field = vol.motion()?.field();
+    (field.non_finite() > 0).then(|| Warning::BadVelocity {
+        grid: field.name().to_string(),
+        non_finite: field.non_finite(),
+    })
 }
 
 /// Warnings about a volume's bad voxels.
