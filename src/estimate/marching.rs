@@ -70,7 +70,7 @@ pub(crate) fn step_world(voxels_per_world_unit: f64, step_voxels: f64) -> f64 {
 /// Every chord of the sampled segments, in ray order (spans cut at the block lattice of
 /// `lattice`, [`block_chords`], or whole): `f(a, n, dt, block)` with its start, its `n` pieces
 /// of length `dt` and the `8^3` block it lies in (`None` without a lattice).
-fn for_chords(
+pub(crate) fn for_chords(
     segs: &[Segment],
     lattice: Option<([f64; 3], [f64; 3])>,
     h: f64,
