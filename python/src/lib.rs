@@ -11,6 +11,7 @@ use pyo3::prelude::*;
 
 mod errors;
 mod functions;
+mod motion;
 mod trace;
 mod volume;
 

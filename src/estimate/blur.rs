@@ -252,30 +252,9 @@ pub(crate) fn estimate(
             reason: REGULAR_REFUSED.into(),
         });
     }
-    let q = vol.to_index(ray.origin()).to_array();
-    let d = vol.to_index_dir(ray.direction()).to_array();
-    let mut all = Vec::new();
-    let gap = bound_segments(
-        m.bounds(),
-        q,
-        d,
-        (ray.t_min(), ray.t_max()),
-        vol.density_scale(),
-        &mut all,
-    );
-    let mu_bg = vol.mu_background();
-    let tau_known = if mu_bg != 0.0 && gap > 0.0 {
-        mu_bg * gap
-    } else {
-        0.0
-    };
-    let (segs, opaque): (Vec<Segment>, Vec<Segment>) = all
-        .into_iter()
-        .filter(|s| s.mu_maj > 0.0)
-        .partition(|s| s.mu_maj.is_finite());
-    let known = (-tau_known).exp();
-    let mut medium = BlurredMedium::new(vol, m, ray, opts.interp);
-    if segs.is_empty() && opaque.is_empty() {
+    let ray_part = RayPart::of(vol, m, ray);
+    let known = (-ray_part.tau_known).exp();
+    if ray_part.segs.is_empty() && ray_part.opaque.is_empty() {
         return Ok(Estimate {
             value: known,
             std_err: 0.0,
@@ -284,90 +263,187 @@ pub(crate) fn estimate(
             samples: 1,
             capped: 0,
             majorant_violations: 0,
-            tau: Some(tau_known),
+            tau: Some(ray_part.tau_known),
             spread: Spread::default(),
         });
     }
-    let marches = est.marches();
-    let samples = if est.is_deterministic() {
-        1
+    let mut medium = BlurredMedium::new(vol, m, ray, opts.interp);
+    let bounds = Bounds::of_segments(ray_part.tau_known, &ray_part.segs);
+    let (samples, e) = if let (Algo::Riemann, step) = est.algo() {
+        let mut w = Walks::new(Spread::new(None, bounds));
+        riemann_strata(&ray_part, &mut medium, m, step, (opts.seed, ray_id), &mut w);
+        (1, w)
     } else {
-        opts.samples.max(1)
+        let samples = if est.is_deterministic() {
+            1
+        } else {
+            opts.samples.max(1)
+        };
+        let spread = if est.marches() {
+            Spread::new(None, bounds)
+        } else {
+            Spread::of(est, bounds)
+        };
+        let mut w = Walks::new(spread);
+        sampled(
+            &ray_part,
+            &mut medium,
+            m,
+            est,
+            opts,
+            (ray_id, samples),
+            &mut w,
+        );
+        (samples, w)
     };
-    let strata = if marches { m.spec().time_samples() } else { 1 };
-    let bounds = Bounds::of_segments(tau_known, &segs);
-    let mut spread = if marches {
-        Spread::new(None, bounds)
+    let std_err = if e.strata.is_empty() {
+        e.spread.std_err()
     } else {
-        Spread::of(est, bounds)
+        strata_std_err(&e.strata)
     };
-    let (mut capped, mut violations) = (0u64, 0u64);
-    // The deterministic marcher's stratum values, for its error bar ([`strata_std_err`]).
-    let mut strata_values = Vec::new();
-    if let (Algo::Riemann, step) = est.algo() {
-        // Every stratum's time from its stream, then one march for all of them.
-        let times: Vec<f64> = (0..strata)
-            .map(|k| {
-                let u = Rng::new(opts.seed, ray_id, u64::from(k)).uniform();
-                m.spec().time_at((f64::from(k) + u) / f64::from(strata))
-            })
-            .collect();
-        let ks: Vec<f64> = times
-            .iter()
-            .map(|&t| m.spec().displacement_per_velocity(t))
-            .collect();
-        let mut taus = vec![0.0; ks.len()];
-        riemann_times(&segs, &mut medium, step, &ks, &mut taus);
-        for (&t, tau) in times.iter().zip(&taus) {
-            medium.set_time(m, t);
-            let tau_opaque: f64 = opaque.iter().map(|s| medium.exact(s.t_min, s.t_max)).sum();
-            let v = known * (-tau_opaque).exp() * (-tau).exp();
-            spread.push(v);
-            strata_values.push(v);
+    Ok(Estimate {
+        value: e.spread.mean,
+        std_err,
+        lookups: medium.lookups(),
+        segments: (ray_part.segs.len() + ray_part.opaque.len()) as u64,
+        samples,
+        capped: e.capped,
+        majorant_violations: e.violations,
+        tau: None,
+        spread: e.spread,
+    })
+}
+
+/// A ray cut by the blurred bounds: the sampled segments, those with an infinite majorant, and
+/// the background's optical depth outside them.
+struct RayPart {
+    segs: Vec<Segment>,
+    opaque: Vec<Segment>,
+    tau_known: f64,
+}
+
+impl RayPart {
+    fn of(vol: &Volume, m: &Motion, ray: &Ray) -> Self {
+        let q = vol.to_index(ray.origin()).to_array();
+        let d = vol.to_index_dir(ray.direction()).to_array();
+        let mut all = Vec::new();
+        let range = (ray.t_min(), ray.t_max());
+        let gap = bound_segments(m.bounds(), q, d, range, vol.density_scale(), &mut all);
+        let mu_bg = vol.mu_background();
+        let tau_known = if mu_bg != 0.0 && gap > 0.0 {
+            mu_bg * gap
+        } else {
+            0.0
+        };
+        let (segs, opaque) = all
+            .into_iter()
+            .filter(|s| s.mu_maj > 0.0)
+            .partition(|s| s.mu_maj.is_finite());
+        Self {
+            segs,
+            opaque,
+            tau_known,
         }
     }
-    for i in 0..if strata_values.is_empty() { samples } else { 0 } {
+
+    /// `T` of the ray at the medium's current time given the sampled part's `t`: the closed
+    /// form outside, the opaque segments by the fine march.
+    fn transmittance(&self, medium: &mut BlurredMedium<'_>, t: f64) -> f64 {
+        let tau_opaque: f64 = self
+            .opaque
+            .iter()
+            .map(|s| medium.exact(s.t_min, s.t_max))
+            .sum();
+        (-self.tau_known).exp() * (-tau_opaque).exp() * t
+    }
+}
+
+/// What the walks of one ray gave: their spread, the deterministic marcher's per-stratum values
+/// (for [`strata_std_err`]), capped samples and majorant violations.
+struct Walks {
+    spread: Spread,
+    strata: Vec<f64>,
+    capped: u64,
+    violations: u64,
+}
+
+impl Walks {
+    fn new(spread: Spread) -> Self {
+        Self {
+            spread,
+            strata: Vec::new(),
+            capped: 0,
+            violations: 0,
+        }
+    }
+}
+
+/// `riemann` over the `K` stratified times of stream `(seed, ray_id)`: every stratum's time
+/// from its stream, then one march for all of them ([`riemann_times`]); each stratum is a
+/// value of the spread.
+fn riemann_strata(
+    part: &RayPart,
+    medium: &mut BlurredMedium<'_>,
+    m: &Motion,
+    step: f64,
+    (seed, ray_id): (u64, u64),
+    w: &mut Walks,
+) {
+    let strata = m.spec().time_samples();
+    let times: Vec<f64> = (0..strata)
+        .map(|k| {
+            let u = Rng::new(seed, ray_id, u64::from(k)).uniform();
+            m.spec().time_at((f64::from(k) + u) / f64::from(strata))
+        })
+        .collect();
+    let ks: Vec<f64> = times
+        .iter()
+        .map(|&t| m.spec().displacement_per_velocity(t))
+        .collect();
+    let mut taus = vec![0.0; ks.len()];
+    riemann_times(&part.segs, medium, step, &ks, &mut taus);
+    for (&t, tau) in times.iter().zip(&taus) {
+        medium.set_time(m, t);
+        let v = part.transmittance(medium, (-tau).exp());
+        w.spread.push(v);
+        w.strata.push(v);
+    }
+}
+
+/// `samples` samples of `est` along the ray of `ray_id`: a marcher's sample is the mean of
+/// `K` walks at stratified times, any other estimator's one walk at a uniform time; each time
+/// is drawn first from the walk's own stream.
+fn sampled(
+    part: &RayPart,
+    medium: &mut BlurredMedium<'_>,
+    m: &Motion,
+    est: &Estimator,
+    opts: &Options,
+    (ray_id, samples): (u64, u32),
+    w: &mut Walks,
+) {
+    let strata = if est.marches() {
+        m.spec().time_samples()
+    } else {
+        1
+    };
+    for i in 0..samples {
         let mut x = 0.0;
         for k in 0..strata {
             let index = u64::from(i) * u64::from(strata) + u64::from(k);
             let mut rng = Rng::new(opts.seed, ray_id, index);
             let u = rng.uniform();
-            let frac = (f64::from(k) + u) / f64::from(strata);
-            medium.set_time(m, m.spec().time_at(frac));
-            let tau_opaque: f64 = opaque.iter().map(|s| medium.exact(s.t_min, s.t_max)).sum();
+            medium.set_time(m, m.spec().time_at((f64::from(k) + u) / f64::from(strata)));
             let mut cap = Cap::new(opts.max_collisions);
-            let t = if segs.is_empty() {
+            let t = if part.segs.is_empty() {
                 1.0
             } else {
-                super::sample_once(est, &segs, &mut medium, &mut rng, &mut cap)
+                super::sample_once(est, &part.segs, medium, &mut rng, &mut cap)
             };
-            capped += u64::from(cap.hit);
-            violations += cap.violations;
-            let v = known * (-tau_opaque).exp() * t;
-            if samples == 1 && marches {
-                spread.push(v);
-                strata_values.push(v);
-            }
-            x += v / f64::from(strata);
+            w.capped += u64::from(cap.hit);
+            w.violations += cap.violations;
+            x += part.transmittance(medium, t) / f64::from(strata);
         }
-        if !(samples == 1 && marches) {
-            spread.push(x);
-        }
+        w.spread.push(x);
     }
-    let std_err = if strata_values.is_empty() {
-        spread.std_err()
-    } else {
-        strata_std_err(&strata_values)
-    };
-    Ok(Estimate {
-        value: spread.mean,
-        std_err,
-        lookups: medium.lookups(),
-        segments: (segs.len() + opaque.len()) as u64,
-        samples,
-        capped,
-        majorant_violations: violations,
-        tau: None,
-        spread,
-    })
 }

@@ -168,40 +168,12 @@ impl BlurBounds {
                             let (wlo, whi) = world_box(&world_from_index, c);
                             radius(field.speed_bound(wlo, whi))
                         };
-                        let mut m = outside;
-                        let range = |a: usize| {
-                            let v0 = ((c[a] * 8) as f64 - r[a]).floor() as i64;
-                            let v1 = ((c[a] * 8 + 8) as f64 + r[a]).floor() as i64;
-                            (
-                                (v0 >> 3).max(lo[a]),
-                                (v1 >> 3).min(lo[a] + dims[a] as i64 - 1),
-                            )
-                        };
-                        let (rx, ry, rz) = (range(0), range(1), range(2));
-                        for bx in rx.0..=rx.1 {
-                            for by in ry.0..=ry.1 {
-                                for bz in rz.0..=rz.1 {
-                                    m = m.max(src[at([bx, by, bz])]);
-                                }
-                            }
-                        }
+                        let m = max_within(&src, outside, (lo, dims), c, r);
                         out[y * dims[2] + z] = m;
                     }
                 }
             });
-        let mut value_box: Option<[[i64; 3]; 2]> = None;
-        for (i, &m) in maj.iter().enumerate() {
-            if m == outside {
-                continue;
-            }
-            let b = [i / slab, (i / dims[2]) % dims[1], i % dims[2]];
-            let v = [0, 1, 2].map(|a| (lo[a] + b[a] as i64) * 8);
-            let bb = value_box.get_or_insert([v, v.map(|c| c + 7)]);
-            for a in 0..3 {
-                bb[0][a] = bb[0][a].min(v[a]);
-                bb[1][a] = bb[1][a].max(v[a] + 7);
-            }
-        }
+        let value_box = value_box_of(&maj, outside, lo, dims);
         Ok(Self {
             lo,
             dims,
@@ -228,12 +200,12 @@ impl BlurBounds {
     #[must_use]
     pub fn block(&self, b: [i64; 3]) -> f32 {
         let mut i = 0usize;
-        for a in 0..3 {
-            let k = b[a] - self.lo[a];
-            if k < 0 || k >= self.dims[a] as i64 {
+        for ((&c, &lo), &dim) in b.iter().zip(&self.lo).zip(&self.dims) {
+            let k = c - lo;
+            if k < 0 || k >= dim as i64 {
                 return self.outside;
             }
-            i = i * self.dims[a] + k as usize;
+            i = i * dim + k as usize;
         }
         self.maj[i]
     }
@@ -244,6 +216,64 @@ impl BlurBounds {
     pub fn dense_box(&self) -> ([i64; 3], [usize; 3]) {
         (self.lo, self.dims)
     }
+}
+
+/// The largest of `src` (dense over `lo`, `dims`, z fastest) over the blocks that meet the
+/// voxels `[8c - r, 8c + 8 + r]` on each axis, and `outside`.
+fn max_within(
+    src: &[f32],
+    outside: f32,
+    (lo, dims): ([i64; 3], [usize; 3]),
+    c: [i64; 3],
+    r: [f64; 3],
+) -> f32 {
+    let range = |a: usize| {
+        let v0 = ((c[a] * 8) as f64 - r[a]).floor() as i64;
+        let v1 = ((c[a] * 8 + 8) as f64 + r[a]).floor() as i64;
+        (
+            (v0 >> 3).max(lo[a]),
+            (v1 >> 3).min(lo[a] + dims[a] as i64 - 1),
+        )
+    };
+    let (rx, ry, rz) = (range(0), range(1), range(2));
+    let mut m = outside;
+    for bx in rx.0..=rx.1 {
+        for by in ry.0..=ry.1 {
+            let row = ((bx - lo[0]) as usize * dims[1] + (by - lo[1]) as usize) * dims[2];
+            for bz in rz.0..=rz.1 {
+                m = m.max(src[row + (bz - lo[2]) as usize]);
+            }
+        }
+    }
+    m
+}
+
+/// The index box of the voxels of every block of `maj` (dense over `lo`, `dims`, z fastest)
+/// whose majorant is not `outside`.
+fn value_box_of(
+    maj: &[f32],
+    outside: f32,
+    lo: [i64; 3],
+    dims: [usize; 3],
+) -> Option<[[i64; 3]; 2]> {
+    let mut value_box: Option<[[i64; 3]; 2]> = None;
+    for (i, &m) in maj.iter().enumerate() {
+        if m == outside {
+            continue;
+        }
+        let b = [
+            i / (dims[1] * dims[2]),
+            (i / dims[2]) % dims[1],
+            i % dims[2],
+        ];
+        let v = [0, 1, 2].map(|a| (lo[a] + b[a] as i64) * 8);
+        let bb = value_box.get_or_insert([v, v.map(|c| c + 7)]);
+        for a in 0..3 {
+            bb[0][a] = bb[0][a].min(v[a]);
+            bb[1][a] = bb[1][a].max(v[a] + 7);
+        }
+    }
+    value_box
 }
 
 /// The world box of block `c`'s voxels `[8c - 1, 8c + 9]` (one voxel beyond, for the lookup

@@ -130,7 +130,8 @@ impl VelocityField {
         };
         let det = world_from_index.matrix3.determinant();
         let index_from_world = world_from_index.inverse();
-        if !(det.is_finite() && det != 0.0)
+        let invertible = det.is_finite() && det != 0.0;
+        if !invertible
             || !index_from_world
                 .matrix3
                 .to_cols_array()
@@ -187,7 +188,7 @@ impl VelocityField {
         } else {
             a.matrix3 * self.to_world
         };
-        self.speed_max = self.speed_max * norm_bound(&a.matrix3);
+        self.speed_max *= norm_bound(&a.matrix3);
         self
     }
 

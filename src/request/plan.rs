@@ -11,6 +11,30 @@ use crate::input::InputKind;
 
 use super::{bad, is_volume_output, BakeRequest, LevelSet};
 
+/// A transmittance volume's motion on a stage: the velocity field of its volume `v` (its grid
+/// in its own file) at the stage's rate `fps` unless fps was given.
+fn stage_motion(
+    motion: Option<crate::motion::MotionRequest>,
+    v: &crate::usd::StageVolume,
+    fps: f64,
+) -> Result<Option<crate::motion::MotionRequest>> {
+    let (Some(mut m), Some((asset, grid))) = (motion.clone(), &v.velocity) else {
+        return Ok(motion);
+    };
+    let crate::usd::Asset::File(f) = asset else {
+        return Err(bad(
+            "velocity",
+            format!("{} is packaged: unpack it to read it", asset.display()),
+        ));
+    };
+    m.velocity.clone_from(grid);
+    m.file = Some(f.clone());
+    if !m.fps_given {
+        m.spec = m.spec.with_fps(fps)?;
+    }
+    Ok(Some(m))
+}
+
 impl BakeRequest {
     /// The stage's part of a request: options that only a USD stage reads are refused for
     /// other inputs; for a stage without light-dir, light-pos or camera, the light named by
@@ -135,24 +159,7 @@ impl BakeRequest {
             };
             let shot = crate::usd::read(&self.input, &sel)?;
             let v = shot.single_volume()?;
-            // The stage's velocity field: its grid in its own file, at the stage's rate.
-            let motion = match (motion, &v.velocity) {
-                (Some(mut m), Some((asset, grid))) => {
-                    let crate::usd::Asset::File(f) = asset else {
-                        return Err(bad(
-                            "velocity",
-                            format!("{} is packaged: unpack it to read it", asset.display()),
-                        ));
-                    };
-                    m.velocity.clone_from(grid);
-                    m.file = Some(f.clone());
-                    if !m.fps_given {
-                        m.spec = m.spec.with_fps(shot.fps)?;
-                    }
-                    Some(m)
-                }
-                (m, _) => m,
-            };
+            let motion = stage_motion(motion, v, shot.fps)?;
             Some((
                 v.file()?.to_path_buf(),
                 v.grid.clone(),
