@@ -339,10 +339,17 @@ pub(crate) fn read_compressed_values(
         )));
     }
     let bg = s.background;
-    let mut inactive0 = if meta == NO_MASK_OR_INACTIVE_VALS {
+    // "Minus the background" of a vector grid read as its length is the background's length:
+    // |-v| = |v|.
+    let minus_bg = if s.kind.is_vector() && s.pick == Pick::Length {
         bg
     } else {
         -bg
+    };
+    let mut inactive0 = if meta == NO_MASK_OR_INACTIVE_VALS {
+        bg
+    } else {
+        minus_bg
     };
     let mut inactive1 = bg;
     if matches!(
