@@ -190,21 +190,7 @@ impl Volume {
     ) -> Result<Self> {
         check_density_scale(density_scale)?;
         let mut s = Sanitized::default();
-        sanitize(&mut tree.background, &mut s);
-        for e in &mut tree.root {
-            if let RootSlot::Tile { value, .. } = &mut e.slot {
-                sanitize(value, &mut s);
-            }
-        }
-        for n in tree.uppers.iter_mut().chain(tree.lowers.iter_mut()) {
-            for i in 0..n.slots.len() {
-                if !n.has_child(i) {
-                    let mut v = f32::from_bits(n.slots[i]);
-                    sanitize(&mut v, &mut s);
-                    n.slots[i] = v.to_bits();
-                }
-            }
-        }
+        tree.tile_values_mut(|v| sanitize(v, &mut s));
         // Leaf values in parallel; a block that is all finite and non-negative (the usual
         // case) is passed over by one vectorised test.
         let leaves = tree

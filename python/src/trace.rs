@@ -301,14 +301,11 @@ impl NativeVolume {
         ray_id: u64,
         threads: usize,
     ) -> PyResult<TraceOut<'py>> {
-        let (est, opts) = EstimatorOptions::from_json(options)
-            .and_then(|o| {
-                // `regular` with a velocity is refused here, by the keyword.
-                o.motion(None)?;
-                o.resolve(self.interp)
-            })
-            .map_err(py_err)?;
-        let scene = self.scene_for(py, options)?;
+        let o = EstimatorOptions::from_json(options).map_err(py_err)?;
+        // `regular` with a velocity is refused here, by the keyword.
+        let motion = o.motion(None).map_err(py_err)?;
+        let (est, opts) = o.resolve(self.interp).map_err(py_err)?;
+        let scene = self.scene_for(py, motion)?;
         let scene = &*scene;
         let cancel = AtomicBool::new(false);
         let work = || {

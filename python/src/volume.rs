@@ -8,7 +8,7 @@ use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use std::path::PathBuf;
 use umbra::bake::{BakeJob, Camera};
-use umbra::request::{BakeOptions, BakePlan, BakeRequest};
+use umbra::request::{BakeOptions, BakePlan, BakeRequest, EstimatorOptions};
 use umbra::scene::Scene;
 use umbra::{Interp, Light, Ray};
 
@@ -82,7 +82,7 @@ impl NativeVolume {
             ));
         };
         self.single("transmittance volume")?;
-        Ok((self.scene_for(py, options)?, *job))
+        Ok((self.scene_for(py, job.motion.clone())?, *job))
     }
 
     /// A transmittance volume's warnings as the CLI prints them: `FILE: warning`.
@@ -316,7 +316,8 @@ impl NativeVolume {
                 ))
             }
         };
-        let traced = self.scene_for(py, options)?;
+        let motion = EstimatorOptions::from_json(options).and_then(|o| o.motion(None));
+        let traced = self.scene_for(py, motion.map_err(py_err)?)?;
         let scene = &*traced;
         // A direction that is no direction fails the call, not each row.
         if let Light::Directional { .. } = light {
@@ -401,7 +402,8 @@ impl NativeVolume {
     fn bake<'py>(&self, py: Python<'py>, options: &str) -> PyResult<BakeOut<'py>> {
         let request = self.request(options, PathBuf::new())?;
         let threads = request.options.threads;
-        let scene = self.scene_for(py, options)?;
+        let motion = request.options.estimator_options().motion(None);
+        let scene = self.scene_for(py, motion.map_err(py_err)?)?;
         let scene = &*scene;
         let report = py
             .detach(|| -> umbra::Result<_> {
@@ -445,7 +447,8 @@ impl NativeVolume {
         let mut request = self.request(options, path)?;
         request.options.deep = request.options.deep_format.is_none();
         let threads = request.options.threads;
-        let scene = self.scene_for(py, options)?;
+        let motion = request.options.estimator_options().motion(None);
+        let scene = self.scene_for(py, motion.map_err(py_err)?)?;
         let scene = &*scene;
         // The CLI's order: the request is planned (a camera file read), the outputs checked,
         // then the camera framed.

@@ -252,26 +252,72 @@ pub(crate) fn estimate(
             reason: REGULAR_REFUSED.into(),
         });
     }
-    let ray_part = RayPart::of(vol, m, ray);
-    let known = (-ray_part.tau_known).exp();
-    if ray_part.segs.is_empty() && ray_part.opaque.is_empty() {
-        return Ok(Estimate {
-            value: known,
+    let run = |s: &mut Scratch| estimate_in(vol, m, ray, (ray_id, est, opts), s);
+    Ok(SCRATCH.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut s) => run(&mut s),
+        // Re-entered on this thread (not done today): fresh buffers rather than a panic.
+        Err(_) => run(&mut Scratch::default()),
+    }))
+}
+
+/// Buffers [`estimate`] fills and empties for each ray, kept per thread so that a warm thread
+/// allocates nothing per ray.
+#[derive(Debug, Default)]
+struct Scratch {
+    part: RayPart,
+    /// `riemann`'s stratum times, their displacements per velocity, and their optical depths
+    /// (then their transmittances).
+    times: Vec<f64>,
+    ks: Vec<f64>,
+    taus: Vec<f64>,
+}
+
+thread_local! {
+    /// Per-thread buffers of [`estimate`].
+    static SCRATCH: std::cell::RefCell<Scratch> = std::cell::RefCell::new(Scratch::default());
+}
+
+/// [`estimate`] (`regular` already refused) in the buffers `s`.
+fn estimate_in(
+    vol: &Volume,
+    m: &Motion,
+    ray: &Ray,
+    (ray_id, est, opts): (u64, &Estimator, &Options),
+    s: &mut Scratch,
+) -> Estimate {
+    s.part.fill(vol, m, ray);
+    let part = &s.part;
+    if part.segs.is_empty() && part.opaque.is_empty() {
+        return Estimate {
+            value: (-part.tau_known).exp(),
             std_err: 0.0,
             lookups: 0,
             segments: 0,
             samples: 1,
             capped: 0,
             majorant_violations: 0,
-            tau: Some(ray_part.tau_known),
+            tau: Some(part.tau_known),
             spread: Spread::default(),
-        });
+        };
     }
     let mut medium = BlurredMedium::new(vol, m, ray, opts.interp);
-    let bounds = Bounds::of_segments(ray_part.tau_known, &ray_part.segs);
-    let (samples, e) = if let (Algo::Riemann, step) = est.algo() {
+    let bounds = Bounds::of_segments(part.tau_known, &part.segs);
+    let riemann_step = match est.algo() {
+        (Algo::Riemann, step) => Some(step),
+        _ => None,
+    };
+    let (samples, w) = if let Some(step) = riemann_step {
         let mut w = Walks::new(Spread::new(None, bounds));
-        riemann_strata(&ray_part, &mut medium, m, step, (opts.seed, ray_id), &mut w);
+        let bufs = (&mut s.times, &mut s.ks, &mut s.taus);
+        riemann_strata(
+            part,
+            &mut medium,
+            m,
+            step,
+            (opts.seed, ray_id),
+            bufs,
+            &mut w.spread,
+        );
         (1, w)
     } else {
         let samples = if est.is_deterministic() {
@@ -285,37 +331,30 @@ pub(crate) fn estimate(
             Spread::of(est, bounds)
         };
         let mut w = Walks::new(spread);
-        sampled(
-            &ray_part,
-            &mut medium,
-            m,
-            est,
-            opts,
-            (ray_id, samples),
-            &mut w,
-        );
+        sampled(part, &mut medium, m, est, opts, (ray_id, samples), &mut w);
         (samples, w)
     };
-    let std_err = if e.strata.is_empty() {
-        e.spread.std_err()
+    let std_err = if riemann_step.is_some() {
+        strata_std_err(&s.taus)
     } else {
-        strata_std_err(&e.strata)
+        w.spread.std_err()
     };
-    Ok(Estimate {
-        value: e.spread.mean,
+    Estimate {
+        value: w.spread.mean,
         std_err,
         lookups: medium.lookups(),
-        segments: (ray_part.segs.len() + ray_part.opaque.len()) as u64,
+        segments: (part.segs.len() + part.opaque.len()) as u64,
         samples,
-        capped: e.capped,
-        majorant_violations: e.violations,
+        capped: w.capped,
+        majorant_violations: w.violations,
         tau: None,
-        spread: e.spread,
-    })
+        spread: w.spread,
+    }
 }
 
 /// A ray cut by the blurred bounds: the sampled segments, those with an infinite majorant, and
 /// the background's optical depth outside them.
+#[derive(Debug, Default)]
 struct RayPart {
     segs: Vec<Segment>,
     opaque: Vec<Segment>,
@@ -323,27 +362,24 @@ struct RayPart {
 }
 
 impl RayPart {
-    fn of(vol: &Volume, m: &Motion, ray: &Ray) -> Self {
+    /// This ray's parts, in the buffers already held.
+    fn fill(&mut self, vol: &Volume, m: &Motion, ray: &Ray) {
         let q = vol.to_index(ray.origin()).to_array();
         let d = vol.to_index_dir(ray.direction()).to_array();
-        let mut all = Vec::new();
+        self.segs.clear();
+        self.opaque.clear();
         let range = (ray.t_min(), ray.t_max());
-        let gap = bound_segments(m.bounds(), q, d, range, vol.density_scale(), &mut all);
+        let gap = bound_segments(m.bounds(), q, d, range, vol.density_scale(), &mut self.segs);
         let mu_bg = vol.mu_background();
-        let tau_known = if mu_bg != 0.0 && gap > 0.0 {
+        self.tau_known = if mu_bg != 0.0 && gap > 0.0 {
             mu_bg * gap
         } else {
             0.0
         };
-        let (segs, opaque) = all
-            .into_iter()
-            .filter(|s| s.mu_maj > 0.0)
-            .partition(|s| s.mu_maj.is_finite());
-        Self {
-            segs,
-            opaque,
-            tau_known,
-        }
+        let opaque = |s: &Segment| s.mu_maj > 0.0 && !s.mu_maj.is_finite();
+        self.opaque
+            .extend(self.segs.iter().filter(|s| opaque(s)).copied());
+        self.segs.retain(|s| s.mu_maj > 0.0 && s.mu_maj.is_finite());
     }
 
     /// `T` of the ray at the medium's current time given the sampled part's `t`: the closed
@@ -358,11 +394,9 @@ impl RayPart {
     }
 }
 
-/// What the walks of one ray gave: their spread, the deterministic marcher's per-stratum values
-/// (for [`strata_std_err`]), capped samples and majorant violations.
+/// What the walks of one ray gave: their spread, capped samples and majorant violations.
 struct Walks {
     spread: Spread,
-    strata: Vec<f64>,
     capped: u64,
     violations: u64,
 }
@@ -371,7 +405,6 @@ impl Walks {
     fn new(spread: Spread) -> Self {
         Self {
             spread,
-            strata: Vec::new(),
             capped: 0,
             violations: 0,
         }
@@ -379,34 +412,31 @@ impl Walks {
 }
 
 /// `riemann` over the `K` stratified times of stream `(seed, ray_id)`: every stratum's time
-/// from its stream, then one march for all of them ([`riemann_times`]); each stratum is a
-/// value of the spread.
+/// from its stream, then one march for all of them ([`riemann_times`]); each stratum's `T`
+/// is a value of `spread` and is left in `taus` (for [`strata_std_err`]).
 fn riemann_strata(
     part: &RayPart,
     medium: &mut BlurredMedium<'_>,
     m: &Motion,
     step: f64,
     (seed, ray_id): (u64, u64),
-    w: &mut Walks,
+    (times, ks, taus): (&mut Vec<f64>, &mut Vec<f64>, &mut Vec<f64>),
+    spread: &mut Spread,
 ) {
     let strata = m.spec().time_samples();
-    let times: Vec<f64> = (0..strata)
-        .map(|k| {
-            let u = Rng::new(seed, ray_id, u64::from(k)).uniform();
-            m.spec().time_at((f64::from(k) + u) / f64::from(strata))
-        })
-        .collect();
-    let ks: Vec<f64> = times
-        .iter()
-        .map(|&t| m.spec().displacement_per_velocity(t))
-        .collect();
-    let mut taus = vec![0.0; ks.len()];
-    riemann_times(&part.segs, medium, step, &ks, &mut taus);
-    for (&t, tau) in times.iter().zip(&taus) {
+    times.clear();
+    times.extend((0..strata).map(|k| {
+        let u = Rng::new(seed, ray_id, u64::from(k)).uniform();
+        m.spec().time_at((f64::from(k) + u) / f64::from(strata))
+    }));
+    ks.clear();
+    ks.extend(times.iter().map(|&t| m.spec().displacement_per_velocity(t)));
+    taus.resize(ks.len(), 0.0);
+    riemann_times(&part.segs, medium, step, ks, taus);
+    for (&t, tau) in times.iter().zip(taus.iter_mut()) {
         medium.set_time(m, t);
-        let v = part.transmittance(medium, (-tau).exp());
-        w.spread.push(v);
-        w.strata.push(v);
+        *tau = part.transmittance(medium, (-*tau).exp());
+        spread.push(*tau);
     }
 }
 

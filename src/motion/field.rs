@@ -7,7 +7,7 @@
 //! map, as OpenVDB transforms contravariant vectors).
 
 use crate::error::{Error, Result};
-use crate::tree::{Accessor, RootSlot, Tree};
+use crate::tree::{Accessor, Tree};
 use glam::{DAffine3, DMat3, DVec3};
 use std::collections::HashMap;
 
@@ -39,25 +39,14 @@ fn set_finite(v: &mut f32, bad: &mut u64) {
     }
 }
 
-/// Set the non-finite values of `tree` (background, tiles, leaves) to 0, counting them; the
-/// bounds recomputed when any changed.
-fn sanitise(tree: &mut Tree) -> u64 {
-    let mut bad = 0;
-    set_finite(&mut tree.background, &mut bad);
-    for e in &mut tree.root {
-        if let RootSlot::Tile { value, .. } = &mut e.slot {
-            set_finite(value, &mut bad);
-        }
-    }
-    for n in tree.uppers.iter_mut().chain(tree.lowers.iter_mut()) {
-        for i in 0..n.slots.len() {
-            if !n.has_child(i) {
-                let mut v = f32::from_bits(n.slots[i]);
-                set_finite(&mut v, &mut bad);
-                n.slots[i] = v.to_bits();
-            }
-        }
-    }
+/// Set the non-finite values of `tree` (background, tiles, leaves) to 0, counting them (the
+/// bounds recomputed when any changed); with the largest `|value|` outside the leaves.
+fn sanitise(tree: &mut Tree) -> (u64, f32) {
+    let (mut bad, mut tiles) = (0, 0f32);
+    tree.tile_values_mut(|v| {
+        set_finite(v, &mut bad);
+        tiles = tiles.max(v.abs());
+    });
     for leaf in &mut tree.values {
         for v in leaf.iter_mut() {
             set_finite(v, &mut bad);
@@ -66,25 +55,7 @@ fn sanitise(tree: &mut Tree) -> u64 {
     if bad > 0 && !tree.shell {
         tree.compute_bounds();
     }
-    bad
-}
-
-/// The largest `|value|` of `tree` outside its leaves: the background and every tile.
-fn max_abs_outside_leaves(tree: &Tree) -> f32 {
-    let mut m = tree.background.abs();
-    for e in &tree.root {
-        if let RootSlot::Tile { value, .. } = e.slot {
-            m = m.max(value.abs());
-        }
-    }
-    for n in tree.uppers.iter().chain(tree.lowers.iter()) {
-        for i in 0..n.slots.len() {
-            if !n.has_child(i) {
-                m = m.max(n.tile_value(i).abs());
-            }
-        }
-    }
-    m
+    (bad, tiles)
 }
 
 impl VelocityField {
@@ -140,13 +111,22 @@ impl VelocityField {
         {
             return Err(bad("its map cannot be inverted".into()));
         }
-        let non_finite = components.iter_mut().map(sanitise).sum();
+        // Non-finite components zeroed; each component's largest magnitude anywhere.
+        let (mut non_finite, mut most) = (0, [0f32; 3]);
+        for (k, t) in components.iter_mut().enumerate() {
+            let (bad, tiles) = sanitise(t);
+            non_finite += bad;
+            most[k] = tiles;
+        }
         let mut leaf_max = HashMap::with_capacity(leaves);
         for i in 0..leaves {
             let m = [0, 1, 2].map(|k| {
                 let b = components[k].leaves[i].bounds;
                 b.min.abs().max(b.max.abs())
             });
+            for k in 0..3 {
+                most[k] = most[k].max(m[k]);
+            }
             leaf_max.insert(components[0].leaves[i].origin, m);
         }
         let to_world = if local_space {
@@ -154,7 +134,8 @@ impl VelocityField {
         } else {
             DMat3::IDENTITY
         };
-        let mut f = Self {
+        let speed_max = speed_of(&to_world, most);
+        let f = Self {
             name,
             components,
             world_from_index,
@@ -164,15 +145,8 @@ impl VelocityField {
             staggered,
             non_finite,
             leaf_max,
-            speed_max: 0.0,
+            speed_max,
         };
-        f.speed_max = f.speed_of([0, 1, 2].map(|k| {
-            let t = &f.components[k];
-            let leaves = t.leaves.iter().fold(0f32, |m, l| {
-                m.max(l.bounds.min.abs()).max(l.bounds.max.abs())
-            });
-            leaves.max(max_abs_outside_leaves(t))
-        }));
         Ok(f)
     }
 
@@ -222,13 +196,6 @@ impl VelocityField {
         }
     }
 
-    /// A bound on `|v|` in world units from bounds `m` on each component's magnitude:
-    /// `|L m|_2 <= |L|_2 |m|_2` ([`norm_bound`]).
-    fn speed_of(&self, m: [f32; 3]) -> f64 {
-        let m = DVec3::new(m[0].into(), m[1].into(), m[2].into());
-        norm_bound(&self.to_world) * m.length()
-    }
-
     /// A bound on the speed the field gives anywhere in the world box `[lo, hi]`: the
     /// components' magnitudes over every voxel the interpolation reads there (the box in the
     /// grid's index space, grown by the trilinear stencil and the staggered half voxel).
@@ -269,8 +236,15 @@ impl VelocityField {
                 }
             }
         }
-        self.speed_of(m).min(self.speed_max)
+        speed_of(&self.to_world, m).min(self.speed_max)
     }
+}
+
+/// A bound on `|v|` in world units from bounds `m` on each component's magnitude, the
+/// vectors turned to world by `to_world`: `|L m|_2 <= |L|_2 |m|_2` ([`norm_bound`]).
+fn speed_of(to_world: &DMat3, m: [f32; 3]) -> f64 {
+    let m = DVec3::new(m[0].into(), m[1].into(), m[2].into());
+    norm_bound(to_world) * m.length()
 }
 
 /// A bound on the spectral norm: `|A|_2 <= sqrt(|A|_1 |A|_inf)` (largest column and row sums

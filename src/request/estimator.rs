@@ -257,13 +257,12 @@ impl EstimatorParams {
 /// The motion blur of velocity grid `velocity` with the other options given or their
 /// defaults (shutter [`crate::motion::DEFAULT_SHUTTER`], 24 fps, scale 1,
 /// [`crate::motion::DEFAULT_TIME_SAMPLES`]): what [`EstimatorOptions::motion`] checks after
-/// the options that need a velocity, and what a caller that loads a moving volume before it
-/// knows its estimator (the Python `Volume`) asks.
+/// the options that need a velocity.
 ///
 /// # Errors
 /// [`crate::Error::InvalidArgument`] naming `velocity` (empty), `shutter`, `fps`,
 /// `velocity-scale` or `time-samples` out of range.
-pub fn motion_request(
+fn motion_request(
     velocity: &str,
     shutter: Option<[f64; 2]>,
     fps: Option<f64>,

@@ -30,7 +30,7 @@ use std::path::{Path, PathBuf};
 
 #[macro_use]
 mod estimator;
-pub use estimator::{motion_request, EstimatorOptions, EstimatorParams};
+pub use estimator::{EstimatorOptions, EstimatorParams};
 use options::{bad, VOLUME_ONLY};
 pub use options::{parse_box, parse_pair, parse_size, parse_vec3, BakeOptions, VOLUME_OPTIONS};
 mod options;

@@ -410,6 +410,27 @@ impl Tree {
         }
     }
 
+    /// Every value held outside the leaves, changed in place by `f`: the background, each root
+    /// tile and each internal tile (what a value policy such as the bad-voxel one visits before
+    /// the leaves). Bounds are not recomputed: the caller does so if any changed.
+    pub(crate) fn tile_values_mut(&mut self, mut f: impl FnMut(&mut f32)) {
+        f(&mut self.background);
+        for e in &mut self.root {
+            if let RootSlot::Tile { value, .. } = &mut e.slot {
+                f(value);
+            }
+        }
+        for n in self.uppers.iter_mut().chain(self.lowers.iter_mut()) {
+            for i in 0..n.slots.len() {
+                if !n.has_child(i) {
+                    let mut v = f32::from_bits(n.slots[i]);
+                    f(&mut v);
+                    n.slots[i] = v.to_bits();
+                }
+            }
+        }
+    }
+
     /// The value at voxel `ijk` (active or not), as OpenVDB's `tree.getValue(ijk)`.
     #[must_use]
     pub fn value(&self, ijk: [i32; 3]) -> f32 {
