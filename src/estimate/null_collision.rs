@@ -29,7 +29,9 @@
 //!   last `h` world units before the end `b` (0 before `b - h`, 1 at `b`): a kernel estimate of
 //!   the free-flight CDF. Biased: its mean is the average of `T` over `[b - h, b]`, so it
 //!   overestimates `T` by O(h).
-//! - `ratio`: never stops; weight `prod (1 - mu / mu_maj)`. `E = exp(-int mu)`;
+//! - `ratio`: weight `prod (1 - mu / mu_maj)`; the walk stops when the weight is spent (0, or
+//!   below the smallest normal `f64`: [`stop_if_spent`]), and a weight below a millionth after
+//!   a thousand collisions plays its factors by Russian roulette ([`Weight`], unbiased). `E = exp(-int mu)`;
 //!   `Var = T^2 (exp(int mu^2 / mu_maj) - 1)`.
 //! - `residual_ratio`: `mu = mu_c + mu_r`; `exp(-int mu_c)` in closed form times ratio tracking
 //!   of `mu_r` with rate `r`: minorant control (`r = mu_maj - mu_min`, weights in [0, 1]) or
@@ -286,11 +288,72 @@ pub(crate) fn decomposition(
     delta(segs, m, rng, cap, true, |_| 0.0)
 }
 
+/// Tentative collisions a ratio weight takes deterministically before [`Weight::times`] may
+/// play its factors as survival chances.
+pub const ROULETTE_AFTER: u32 = 1024;
+
+/// A ratio weight below this (after [`ROULETTE_AFTER`] collisions) has its factors played as
+/// survival chances.
+pub const ROULETTE_BELOW: f64 = 1e-6;
+
+/// A ratio-tracking weight with its collision count. [`Weight::times`] multiplies it by a
+/// collision's factor `f = 1 - (mu - mu_c) / r`, except that a weight already below
+/// [`ROULETTE_BELOW`] after more than [`ROULETTE_AFTER`] collisions plays a factor `0 <= f <= 1`
+/// as a survival chance (Russian roulette): it stays as it is with probability `f` and is 0
+/// otherwise. The expected weight after the collision is `f w` either way, so the estimate
+/// stays unbiased; a weight that no longer matters (a millionth of the light) stops after about
+/// as many collisions as delta tracking would take, instead of walking on at the majorant's
+/// rate until it underflows (a thick voxel under a huge majorant: 28x delta tracking's
+/// lookups). Walks with fewer collisions, or weights that still matter, are untouched, bit for
+/// bit.
+#[derive(Debug, Clone, Copy)]
+struct Weight {
+    w: f64,
+    collisions: u32,
+}
+
+impl Weight {
+    fn new(w: f64) -> Self {
+        Self { w, collisions: 0 }
+    }
+
+    /// The weight after a collision of factor `f` (see the type's docs); `Break` once spent.
+    #[inline]
+    fn times(&mut self, f: f64, rng: &mut Rng) -> ControlFlow<()> {
+        self.collisions = self.collisions.saturating_add(1);
+        if self.collisions > ROULETTE_AFTER && self.w.abs() < ROULETTE_BELOW && (0.0..=1.0).contains(&f) {
+            if rng.uniform() >= f {
+                self.w = 0.0;
+            }
+        } else {
+            self.w *= f;
+        }
+        stop_if_spent(&mut self.w)
+    }
+}
+
+/// Whether a ratio weight `w` is spent: exactly 0, below the smallest normal `f64`
+/// (`2.2e-308`), or not finite. A subnormal weight is set to 0 and ends the walk: there a
+/// factor `1 - mu / r` close to 1 rounds back to the same subnormal, so without this the walk
+/// would go on through every later collision for nothing (a thick voxel under a huge
+/// majorant: millions of lookups for a sample already at 0). Dropping a weight below
+/// `2.2e-308` moves the sample by less than that.
+#[inline]
+fn stop_if_spent(w: &mut f64) -> ControlFlow<()> {
+    if w.is_finite() && w.abs() >= f64::MIN_POSITIVE {
+        return ControlFlow::Continue(());
+    }
+    if w.is_finite() {
+        *w = 0.0;
+    }
+    ControlFlow::Break(())
+}
+
 /// (Residual) ratio tracking: weight `prod (1 - (mu - mu_c) / r)` times the closed-form control
 /// transmittance `exp(-int mu_c)`.
 struct RatioTracker {
     control: Option<Control>,
-    w: f64,
+    w: Weight,
 }
 
 impl Tracker for RatioTracker {
@@ -305,12 +368,9 @@ impl Tracker for RatioTracker {
         // Control first: a weight that underflows to 0 stops before the residual weights
         // (which reach 2 per collision with the midpoint control) can overflow to inf * 0.
         if mu_c != 0.0 {
-            self.w *= (-mu_c * s.length()).exp();
+            self.w.w *= (-mu_c * s.length()).exp();
         }
-        if self.w == 0.0 || !self.w.is_finite() {
-            return ControlFlow::Break(());
-        }
-        ControlFlow::Continue(())
+        stop_if_spent(&mut self.w.w)
     }
     fn collide(
         &mut self,
@@ -319,19 +379,15 @@ impl Tracker for RatioTracker {
         mu: f64,
         mu_c: f64,
         rate: f64,
-        _rng: &mut Rng,
+        rng: &mut Rng,
     ) -> ControlFlow<()> {
-        self.w *= 1.0 - (mu - mu_c) / rate;
-        if self.w == 0.0 || !self.w.is_finite() {
-            return ControlFlow::Break(());
-        }
-        ControlFlow::Continue(())
+        self.w.times(1.0 - (mu - mu_c) / rate, rng)
     }
     fn capped(&mut self, rest: Rest) {
-        self.w *= rest.factor();
+        self.w.w *= rest.factor();
     }
     fn value(&self) -> f64 {
-        self.w
+        self.w.w
     }
 }
 
@@ -344,7 +400,7 @@ pub(crate) fn ratio(
 ) -> f64 {
     let mut tr = RatioTracker {
         control: None,
-        w: 1.0,
+        w: Weight::new(1.0),
     };
     free_flight(segs, m, rng, cap, &mut tr)
 }
@@ -359,7 +415,7 @@ pub(crate) fn residual_ratio(
 ) -> f64 {
     let mut tr = RatioTracker {
         control: Some(control),
-        w: 1.0,
+        w: Weight::new(1.0),
     };
     free_flight(segs, m, rng, cap, &mut tr)
 }
@@ -367,7 +423,7 @@ pub(crate) fn residual_ratio(
 /// Next-flight ratio tracking: the ratio weight, plus at every tentative collision the weight
 /// times the majorant transmittance to the end.
 struct NextFlightTracker {
-    w: f64,
+    w: Weight,
     est: f64,
     /// Majorant optical depth of the segments after the current one, kept by subtraction (no
     /// per-sample table; clamped at 0 against rounding).
@@ -389,20 +445,17 @@ impl Tracker for NextFlightTracker {
         mu: f64,
         _mu_c: f64,
         rate: f64,
-        _rng: &mut Rng,
+        rng: &mut Rng,
     ) -> ControlFlow<()> {
-        self.w *= 1.0 - mu / rate;
-        if self.w == 0.0 {
-            return ControlFlow::Break(());
-        }
-        self.est += self.w * (-(rate * (s.t_max - t) + self.tail)).exp();
+        self.w.times(1.0 - mu / rate, rng)?;
+        self.est += self.w.w * (-(rate * (s.t_max - t) + self.tail)).exp();
         ControlFlow::Continue(())
     }
     fn capped(&mut self, rest: Rest) {
         // The walk from here would add `w (T_rest - exp(-tau_maj,rest))` on average (its
         // no-collision term is the one already scored at the last collision).
         let maj_rest = self.tail + rest.rate;
-        self.est += self.w * ((-rest.tau).exp() - (-maj_rest).exp()).max(0.0);
+        self.est += self.w.w * ((-rest.tau).exp() - (-maj_rest).exp()).max(0.0);
     }
     fn value(&self) -> f64 {
         self.est
@@ -418,7 +471,7 @@ pub(crate) fn next_flight(
 ) -> f64 {
     let tau_maj: f64 = segs.iter().map(|s| s.mu_maj * s.length()).sum();
     let mut tr = NextFlightTracker {
-        w: 1.0,
+        w: Weight::new(1.0),
         est: (-tau_maj).exp(),
         tail: tau_maj,
     };
@@ -481,6 +534,44 @@ mod tests {
         let mut cap = Cap::new(1_000_000);
         let mut rng = Rng::new(1, 2, 3);
         let _ = ratio(&[seg], &mut m, &mut rng, &mut cap);
+    }
+
+    #[test]
+    fn roulette_keeps_ratio_tracking_unbiased() {
+        // Density 2 under a valid but loose majorant of 1e4 over 1.6 voxels: ~16,000
+        // collisions a sample, the weight passes a millionth (tau 13.8) after ~13,800 of them
+        // and the roulette plays the rest. Without it every sample would be exactly
+        // exp(-3.2) * ... = prod (1 - 2 / 1e4), the same for all: the roulette spreads them.
+        let (vol, ray, mut seg) = wrong_majorant();
+        seg.t_min = 2.0;
+        seg.t_max = 9.0;
+        seg.mu_maj = 1e4;
+        let mut m = RayMedium::new(&vol, &ray, Interp::Nearest);
+        for control in [None, Some(Control::Minorant)] {
+            let (n, mut sum, mut sum2, mut zeros) = (2000u64, 0.0, 0.0, 0u64);
+            let mut cap = Cap::new(u64::MAX);
+            for i in 0..n {
+                let mut rng = Rng::new(5, 0, i);
+                let w = match control {
+                    None => ratio(&[seg], &mut m, &mut rng, &mut cap),
+                    Some(c) => residual_ratio(&[seg], &mut m, &mut rng, &mut cap, c),
+                };
+                sum += w;
+                sum2 += w * w;
+                zeros += u64::from(w == 0.0);
+            }
+            // T = exp(-2 * 7) = 8.3e-7 (the weight passes 1e-6 just before the end).
+            let exact = (-14.0f64).exp();
+            let mean = sum / n as f64;
+            let var = (sum2 / n as f64 - mean * mean).max(0.0);
+            let se = (var / (n - 1) as f64).sqrt();
+            assert!(zeros > 0 && zeros < n, "{control:?}: roulette fired {zeros} of {n}");
+            assert!(
+                ((mean - exact) / se).abs() < 4.0,
+                "{control:?}: {mean} +- {se} vs {exact}"
+            );
+            assert_eq!(cap.violations, 0);
+        }
     }
 
     #[test]

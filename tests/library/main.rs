@@ -32,6 +32,7 @@ mod oracle_corpus;
 mod readme;
 mod regular_tracking;
 mod scene;
+mod spent_weights;
 mod solid;
 mod tree_bounds;
 mod usd_corrupt;

@@ -115,7 +115,12 @@ impl Chord<'_> {
             v
         } - self.mu_c;
         match self.rule {
-            Rule::Ratio => est.prod[at] *= 1.0 - mu / self.rate,
+            Rule::Ratio => {
+                // A spent weight (below the smallest normal f64) is 0 and spends nothing more
+                // (as the ray path's `stop_if_spent`).
+                let w = est.prod[at] * (1.0 - mu / self.rate);
+                est.prod[at] = if w.abs() < f64::MIN_POSITIVE { 0.0 } else { w };
+            }
             Rule::Delta => {
                 if rng.uniform() * self.rate < mu {
                     est.prod[at] = 0.0;
