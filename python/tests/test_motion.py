@@ -69,6 +69,11 @@ def test_blurred_transmittance_equals_the_cli(caches, cli, tmp_path, kw, flags):
         (dict(estimator="ratio", time_samples=4), ["--estimator", "ratio", "--time-samples", "4"]),
         (dict(velocity="density", estimator="ratio"),
          ["--velocity", "density", "--estimator", "ratio"]),
+        # Reaches from extreme numbers (issue 58): refused with the reach, never a panic.
+        (dict(velocity="vel", estimator="riemann", velocity_scale=1e30),
+         ["--velocity", "vel", "--estimator", "riemann", "--velocity-scale", "1e30"]),
+        (dict(velocity="vel", estimator="ratio", fps=1e-300),
+         ["--velocity", "vel", "--estimator", "ratio", "--fps", "1e-300"]),
     ],
 )
 def test_bad_motion_keywords_fail_as_the_cli(caches, cli, kw, flags):

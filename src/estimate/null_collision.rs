@@ -321,7 +321,10 @@ impl Weight {
     #[inline]
     fn times(&mut self, f: f64, rng: &mut Rng) -> ControlFlow<()> {
         self.collisions = self.collisions.saturating_add(1);
-        if self.collisions > ROULETTE_AFTER && self.w.abs() < ROULETTE_BELOW && (0.0..=1.0).contains(&f) {
+        if self.collisions > ROULETTE_AFTER
+            && self.w.abs() < ROULETTE_BELOW
+            && (0.0..=1.0).contains(&f)
+        {
             if rng.uniform() >= f {
                 self.w = 0.0;
             }
@@ -565,7 +568,10 @@ mod tests {
             let mean = sum / n as f64;
             let var = (sum2 / n as f64 - mean * mean).max(0.0);
             let se = (var / (n - 1) as f64).sqrt();
-            assert!(zeros > 0 && zeros < n, "{control:?}: roulette fired {zeros} of {n}");
+            assert!(
+                zeros > 0 && zeros < n,
+                "{control:?}: roulette fired {zeros} of {n}"
+            );
             assert!(
                 ((mean - exact) / se).abs() < 4.0,
                 "{control:?}: {mean} +- {se} vs {exact}"

@@ -42,6 +42,36 @@ fn refused(reason: String) -> Error {
     }
 }
 
+/// The refusal of a reach whose bounds would pass [`MAX_BLOCKS`] (or no finite reach at
+/// all): the distance in world units and voxels, and the flags that set it.
+fn too_far(field: &VelocityField, spec: &MotionSpec, world: f64, voxels: &[f64; 3]) -> Error {
+    let voxels = voxels.iter().fold(0.0f64, |m, r| m.max(*r - 2.0));
+    let num = if world.is_finite() && voxels.is_finite() {
+        format!(
+            "up to {} world units ({} voxels)",
+            crate::math::sig3(world),
+            crate::math::sig3(voxels)
+        )
+    } else {
+        "no finite distance".to_string()
+    };
+    Error::InvalidArgument {
+        name: "shutter".into(),
+        reason: format!(
+            "the velocity grid '{}' (largest speed {}) moves density {num} over the \
+             shutter {},{} frames at {} fps with velocity scale {}: the blurred bounds would need \
+             more than {MAX_BLOCKS} blocks of 8^3 voxels; shorten the shutter, lower the velocity \
+             scale or raise the frame rate",
+            crate::text::escape(field.name()),
+            crate::math::sig3(field.speed_max()),
+            crate::math::short(spec.open()),
+            crate::math::short(spec.close()),
+            crate::math::short(spec.fps()),
+            crate::math::short(spec.scale())
+        ),
+    }
+}
+
 /// Every block of `tree` with data: `(block, max value)` for each leaf and each tile whose
 /// value is not the background (a 4096^3 root tile is refused: too large to bound by blocks).
 fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32)>> {
@@ -124,25 +154,18 @@ impl BlurBounds {
         let reach = spec.reach_per_velocity();
         let radius = |speed: f64| per_world.map(|p| reach * speed * p + 2.0);
         let rg = radius(field.speed_max());
-        if !rg.iter().all(|r| r.is_finite()) {
-            return Err(refused(format!(
-                "the velocity grid '{}' reaches no finite distance over the shutter",
-                crate::text::escape(field.name())
-            )));
+        // Sized in f64 first: a reach from extreme numbers (a velocity of 1e30, a shutter of
+        // 1e20 frames, 1e-300 fps) is refused by name before any integer is formed.
+        let grow_f = rg.map(|r| (r / 8.0).ceil() + 1.0);
+        let dims_f = [0, 1, 2].map(|a| (shi[a] - slo[a] + 1) as f64 + 2.0 * grow_f[a]);
+        let count_f = dims_f.iter().product::<f64>();
+        if !(count_f.is_finite() && count_f <= MAX_BLOCKS as f64) {
+            return Err(too_far(field, spec, reach * field.speed_max(), &rg));
         }
-        let grow = rg.map(|r| (r / 8.0).ceil() as i64 + 1);
+        let grow = grow_f.map(|g| g as i64);
         let lo = [0, 1, 2].map(|a| slo[a] - grow[a]);
         let dims = [0, 1, 2].map(|a| (shi[a] + grow[a] - lo[a] + 1) as u64);
         let count = dims.iter().product::<u64>();
-        if count > MAX_BLOCKS {
-            return Err(refused(format!(
-                "the velocity grid '{}' moves density up to {} voxels over the shutter: the \
-                 blurred bounds would need {count} blocks (at most {MAX_BLOCKS}); shorten the \
-                 shutter or lower the velocity scale",
-                crate::text::escape(field.name()),
-                crate::math::short(rg.iter().fold(0.0f64, |m, r| m.max(*r)))
-            )));
-        }
         let dims = dims.map(|d| d as usize);
         let at = |b: [i64; 3]| {
             let i = [0, 1, 2].map(|a| (b[a] - lo[a]) as usize);

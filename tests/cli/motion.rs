@@ -202,6 +202,50 @@ fn bad_motion_input_is_one_line_naming_the_flag_or_grid_and_nothing_written() {
         ),
         (&["--shutter", "0,1"], "--shutter"),
         (&["--time-samples", "4"], "--time-samples"),
+        // Reaches from extreme numbers (issue 58): refused with the reach, never a panic or a
+        // wrapped count.
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "riemann",
+                "--velocity-scale",
+                "1e30",
+            ],
+            "world units",
+        ),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--shutter=0,1e20",
+            ],
+            "world units",
+        ),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--fps",
+                "1e-300",
+            ],
+            "world units",
+        ),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--shutter=0,1e6",
+            ],
+            "voxels)",
+        ),
         (&["--velocity", "density", "--estimator", "ratio"], "vec3"),
         (&["--velocity", "nope", "--estimator", "ratio"], "nope"),
     ];
@@ -223,6 +267,12 @@ fn bad_motion_input_is_one_line_naming_the_flag_or_grid_and_nothing_written() {
                 "{a:?}: {err}"
             );
             assert!(!out.exists(), "{a:?} wrote {}", out.display());
+            if err.contains("world units") {
+                assert!(
+                    err.contains("--shutter") && err.contains("16777216 blocks"),
+                    "{err}"
+                );
+            }
         }
     }
 }
@@ -354,4 +404,36 @@ fn every_product_and_a_batch_job_take_the_motion() {
     ] {
         assert!(schema.contains(&format!("\"{key}\"")), "schema lacks {key}");
     }
+}
+
+#[test]
+fn a_job_with_an_extreme_reach_fails_its_task_by_name_not_by_a_panic() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some(_) = caches(d) else { return };
+    let f = d.join("swirl.vdb");
+    let job = d.join("job.toml");
+    std::fs::write(
+        &job,
+        format!(
+            "output = \"{}/job_{{stem}}.exr\"\n[[inputs]]\nfile = \"{}\"\n[[lights]]\nname = \
+             \"sun\"\ndir = [0.2, -0.3, -1.0]\n[bake]\nres = 8\nvelocity = \"vel\"\n\
+             velocity_scale = 1e30\nestimator = \"riemann\"\n",
+            d.display(),
+            f.display()
+        ),
+    )
+    .unwrap();
+    let o = umbra(&["batch", job.to_str().unwrap(), "--quiet"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        matches!(o.status.code(), Some(1 | 3)),
+        "{:?}: {err}",
+        o.status
+    );
+    assert!(
+        err.contains("world units") && !err.contains("panicked"),
+        "{err}"
+    );
+    assert!(!d.join("job_swirl.exr").exists());
 }

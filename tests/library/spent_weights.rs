@@ -31,7 +31,13 @@ fn thick_voxel(hot: f32) -> Volume {
     Volume::from_tree("density".into(), b.build(), unit_map(), 5.0).unwrap()
 }
 
-fn run(vol: &Volume, ray: &Ray, name: &str, samples: u32, interp: Interp) -> umbra::estimate::Estimate {
+fn run(
+    vol: &Volume,
+    ray: &Ray,
+    name: &str,
+    samples: u32,
+    interp: Interp,
+) -> umbra::estimate::Estimate {
     let opts = Options {
         interp,
         samples,
