@@ -19,7 +19,7 @@
 
 use super::{marching, Algo, Cap, Estimate, Estimator, Extinction, Options};
 use crate::error::{Error, Result};
-use crate::estimate::error_bar::{Bounds, Spread};
+use crate::estimate::error_bar::{Bounds, SampleRange, Spread};
 use crate::math::{floor_i64, scaled};
 use crate::motion::{BlurBounds, Motion, VelocityLookup};
 use crate::ray::Ray;
@@ -32,6 +32,10 @@ use std::ops::ControlFlow;
 
 /// Step of the fine march that stands in for an exact integral, in voxels.
 const FINE_STEP: f64 = 0.25;
+
+/// The error bar of a blurred marcher that traced one shutter time in all: unknown (`NaN`,
+/// `null` in JSON), never the 0 of a single value.
+pub const UNKNOWN_STD_ERR: f64 = f64::NAN;
 
 /// The line a volume with motion refuses `regular` with.
 pub const REGULAR_REFUSED: &str = "regular tracking is exact only for a still grid; with a \
@@ -214,26 +218,6 @@ fn bound_segments(
     total - (b - a)
 }
 
-/// The standard error of the mean of `x`, one value per shutter stratum (jittered, `K` of
-/// them), from neighbouring pairs: each pair's difference `d_j = x_2j+1 - x_2j` is the noise of
-/// two strata plus the trend of `T` over one stratum, so the spread of the `d_j` about their
-/// mean (a linear trend removed) estimates twice the per-stratum variance `s^2`, and
-/// `Var(mean) ~= s^2 / K`. Fewer than two pairs (`K < 4`): collapsed strata, `sum d_j^2 / K^2`.
-/// 0 for one stratum.
-fn strata_std_err(x: &[f64]) -> f64 {
-    let k = x.len();
-    let d: Vec<f64> = x.chunks_exact(2).map(|p| p[1] - p[0]).collect();
-    match d.len() {
-        0 => 0.0,
-        1 => d[0].abs() / k as f64,
-        j => {
-            let mean = d.iter().sum::<f64>() / j as f64;
-            let var_d = d.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (j - 1) as f64;
-            (var_d / 2.0 / k as f64).sqrt()
-        }
-    }
-}
-
 /// The blurred transmittance estimate of `est` along `ray` (module docs).
 ///
 /// # Errors
@@ -301,13 +285,13 @@ fn estimate_in(
         };
     }
     let mut medium = BlurredMedium::new(vol, m, ray, opts.interp);
-    let bounds = Bounds::of_segments(part.tau_known, &part.segs);
-    let riemann_step = match est.algo() {
-        (Algo::Riemann, step) => Some(step),
-        _ => None,
-    };
-    let (samples, w) = if let Some(step) = riemann_step {
-        let mut w = Walks::new(Spread::new(None, bounds));
+    let mut bounds = Bounds::of_segments(part.tau_known, &part.segs);
+    if !part.opaque.is_empty() {
+        // An opaque voxel may lie on the ray at some shutter time: nothing bounds T below.
+        bounds.lo = 0.0;
+    }
+    let (samples, w) = if let (Algo::Riemann, step) = est.algo() {
+        let mut w = Walks::new(Spread::new(Some(time_range(bounds)), bounds));
         let bufs = (&mut s.times, &mut s.ks, &mut s.taus);
         riemann_strata(
             part,
@@ -326,7 +310,7 @@ fn estimate_in(
             opts.samples.max(1)
         };
         let spread = if est.marches() {
-            Spread::new(None, bounds)
+            Spread::new(Some(time_range(bounds)), bounds)
         } else {
             Spread::of(est, bounds)
         };
@@ -334,8 +318,10 @@ fn estimate_in(
         sampled(part, &mut medium, m, est, opts, (ray_id, samples), &mut w);
         (samples, w)
     };
-    let std_err = if riemann_step.is_some() {
-        strata_std_err(&s.taus)
+    // One shutter time in all (`--time-samples 1`, one sample): nothing says how T varies
+    // over the shutter, so the error bar is unknown rather than the 0 of a single value.
+    let std_err = if est.marches() && w.spread.n < 2 {
+        UNKNOWN_STD_ERR
     } else {
         w.spread.std_err()
     };
@@ -413,7 +399,7 @@ impl Walks {
 
 /// `riemann` over the `K` stratified times of stream `(seed, ray_id)`: every stratum's time
 /// from its stream, then one march for all of them ([`riemann_times`]); each stratum's `T`
-/// is a value of `spread` and is left in `taus` (for [`strata_std_err`]).
+/// is a value of `spread` (see [`time_range`]).
 fn riemann_strata(
     part: &RayPart,
     medium: &mut BlurredMedium<'_>,
@@ -472,8 +458,32 @@ fn sampled(
             };
             w.capped += u64::from(cap.hit);
             w.violations += cap.violations;
-            x += part.transmittance(medium, t) / f64::from(strata);
+            let tk = part.transmittance(medium, t);
+            if est.marches() {
+                // Each stratum's value is one of the error bar's (see [`time_range`]).
+                w.spread.push(tk);
+            } else {
+                x += tk;
+            }
         }
-        w.spread.push(x);
+        if !est.marches() {
+            w.spread.push(x);
+        }
+    }
+}
+
+/// What the error bar of a blurred marcher knows: `T(t)` lies in the walk's `[L, U]` at every
+/// shutter time (the blurred majorants hold over the whole shutter), so each stratum's value
+/// lies there too, and a feature of the shutter that the `n = K x samples` times all missed
+/// (density crossing the ray for less than a stratum) is an outcome of probability at most
+/// `3 / n` somewhere in `[L, U]` ([`super::error_bar`]'s rule of three, `rare`). The spread
+/// part is the plain sample variance of the `n` values, `s^2 / n`: for one jittered time per
+/// stratum it is at least the variance of the stratified mean (`E[s^2] = mean within-stratum
+/// variance + the spread of the stratum means`), so it never claims the stratification's gain.
+fn time_range(bounds: Bounds) -> SampleRange {
+    SampleRange {
+        a: bounds.lo,
+        b: bounds.hi,
+        rare: true,
     }
 }

@@ -386,7 +386,10 @@ pub fn estimate(
     opts: &Options,
 ) -> Result<Estimate> {
     let e = estimate_unchecked(vol, ray, ray_id, est, opts)?;
-    if e.value.is_nan() || e.std_err.is_nan() {
+    // A NaN error bar is a fault, except the unknown one of a blurred marcher that traced one
+    // shutter time ([`blur::UNKNOWN_STD_ERR`]).
+    let unknown_ok = vol.moving().is_some() && est.marches();
+    if e.value.is_nan() || (e.std_err.is_nan() && !unknown_ok) {
         return Err(crate::Error::nan_on_ray(
             format!("{} transmittance estimate", est.name()),
             ray,

@@ -190,7 +190,10 @@ pub fn estimate(
     } else {
         sampled(scene, ray, ray_id, est, opts)
     };
-    let nan = e.value.iter().chain(&e.std_err).any(|v| v.is_nan());
+    // A blurred marcher's error bar may be unknown (NaN, [`crate::estimate::blur::UNKNOWN_STD_ERR`]).
+    let unknown_ok = est.marches() && scene.fogs().iter().any(|f| f.volume().moving().is_some());
+    let nan =
+        e.value.iter().any(|v| v.is_nan()) || (!unknown_ok && e.std_err.iter().any(|v| v.is_nan()));
     if nan {
         return Err(crate::Error::nan_on_ray(
             format!("{} transmittance estimate", est.name()),

@@ -14,6 +14,7 @@ mod vdb_writer;
 
 mod bake;
 mod bake_files;
+mod blur_error_bars;
 mod camera_control;
 mod camera_reuse;
 mod data_samples;

@@ -499,7 +499,9 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                     let tau = e.tau.map_or(String::new(), |t| {
                         format!(", tau = {}", list(t, &|x| full(x)))
                     });
-                    let err = if e.std_err.iter().any(|s| *s > 0.0) {
+                    let err = if e.std_err[..nc].iter().any(|s| s.is_nan()) {
+                        " +- unknown".to_string()
+                    } else if e.std_err.iter().any(|s| *s > 0.0) {
                         format!(" +- {}", list(e.std_err, &|x| format!("{x:.2e}")))
                     } else {
                         String::new()
