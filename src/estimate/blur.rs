@@ -2,8 +2,10 @@
 //! density `rho_t(x) = rho(x - S v(x) t / F)` ([`crate::motion`]).
 //!
 //! The ray is cut by the blurred bounds ([`BlurBounds`], walked by `bound_segments`: one segment
-//! per run of `8^3` blocks, majorant valid at every shutter time, minorant 0); the background
-//! outside them is closed form. Then:
+//! per run of `8^3` blocks, minorant and majorant valid at every shutter time, or one segment
+//! under the whole grid's bounds with `--global-majorant`); the background outside them is
+//! closed form. The minorant is what the controls of `residual-ratio` and `decomposition` take
+//! in closed form, as on a still grid. Then:
 //! - marchers (`riemann`, `mc`, `jittered`): each sample is the mean over `K` stratified
 //!   shutter times `t_k = o + (k + u_k) / K (c - o)`, `u_k` uniform from the stream of sample
 //!   index `i K + k`, each time marched as the still estimator marches it. For the
@@ -40,8 +42,8 @@ pub const UNKNOWN_STD_ERR: f64 = f64::NAN;
 /// The line a volume with motion refuses `regular` with.
 pub const REGULAR_REFUSED: &str = "regular tracking is exact only for a still grid; with a \
     velocity use riemann, mc or jittered (marching over stratified shutter times) or a \
-    null-collision estimator (ratio, residual, delta, next-flight, decomposition: a time per \
-    sample)";
+    null-collision estimator (ratio, residual-ratio, track-length, next-flight, decomposition: \
+    a time per sample)";
 
 /// The extinction along one ray at one shutter time: the density read at `x - k v(x)`.
 #[derive(Debug, Clone)]
@@ -161,14 +163,14 @@ fn riemann_times(
 }
 
 /// The segments of the index-space line `q + d t` over `[t0, t1]` inside `bounds`' dense box,
-/// in order, each with majorant `scale * maj` of its blocks (runs of equal majorants merged)
-/// and minorant 0; returns the length of `[t0, t1]` outside the box (background).
+/// in order, each with the minorant and majorant `scale * (min, max)` of its blocks (runs of
+/// equal bounds merged), or with `global`, one segment under the whole grid's bounds
+/// (`--global-majorant`); returns the length of `[t0, t1]` outside the box (background).
 fn bound_segments(
     bounds: &BlurBounds,
-    q: [f64; 3],
-    d: [f64; 3],
+    (q, d): ([f64; 3], [f64; 3]),
     (t0, t1): (f64, f64),
-    scale: f64,
+    (scale, global): (f64, bool),
     out: &mut Vec<Segment>,
 ) -> f64 {
     let total = (t1 - t0).max(0.0);
@@ -194,6 +196,17 @@ fn bound_segments(
     if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
         return total;
     }
+    if global {
+        let (lo, hi) = bounds.global_range();
+        out.push(Segment {
+            t_min: a,
+            t_max: b,
+            mu_min: scaled(scale, f64::from(lo)),
+            mu_maj: scaled(scale, f64::from(hi)),
+            level: 4,
+        });
+        return total - (b - a);
+    }
     let cells = Cells {
         size: 8.0,
         lo,
@@ -201,14 +214,17 @@ fn bound_segments(
     };
     let start = out.len();
     let _ = dda(q, d, (a, b), &cells, |c, ta, tb| {
-        let mu = scaled(scale, f64::from(bounds.block(c)));
+        let (lo, hi) = bounds.block_range(c);
+        let (mu_min, mu) = (scaled(scale, f64::from(lo)), scaled(scale, f64::from(hi)));
         let run = out.len() > start;
         match out.last_mut() {
-            Some(s) if run && s.mu_maj == mu && s.t_max == ta => s.t_max = tb,
+            Some(s) if run && s.mu_maj == mu && s.mu_min == mu_min && s.t_max == ta => {
+                s.t_max = tb;
+            }
             _ => out.push(Segment {
                 t_min: ta,
                 t_max: tb,
-                mu_min: 0.0,
+                mu_min,
                 mu_maj: mu,
                 level: 0,
             }),
@@ -269,7 +285,7 @@ fn estimate_in(
     (ray_id, est, opts): (u64, &Estimator, &Options),
     s: &mut Scratch,
 ) -> Estimate {
-    s.part.fill(vol, m, ray);
+    s.part.fill(vol, m, ray, opts.global_majorant);
     let part = &s.part;
     if part.segs.is_empty() && part.opaque.is_empty() {
         return Estimate {
@@ -349,13 +365,14 @@ struct RayPart {
 
 impl RayPart {
     /// This ray's parts, in the buffers already held.
-    fn fill(&mut self, vol: &Volume, m: &Motion, ray: &Ray) {
+    fn fill(&mut self, vol: &Volume, m: &Motion, ray: &Ray, global: bool) {
         let q = vol.to_index(ray.origin()).to_array();
         let d = vol.to_index_dir(ray.direction()).to_array();
         self.segs.clear();
         self.opaque.clear();
         let range = (ray.t_min(), ray.t_max());
-        let gap = bound_segments(m.bounds(), q, d, range, vol.density_scale(), &mut self.segs);
+        let scale = (vol.density_scale(), global);
+        let gap = bound_segments(m.bounds(), (q, d), range, scale, &mut self.segs);
         let mu_bg = vol.mu_background();
         self.tau_known = if mu_bg != 0.0 && gap > 0.0 {
             mu_bg * gap

@@ -29,6 +29,12 @@ pub struct BlurBounds {
     dims: [usize; 3],
     /// Raw density majorant per block (z fastest), before the density scale.
     maj: Vec<f32>,
+    /// Raw density minorant per block (z fastest): the smallest value any lookup in the
+    /// block can read at any shutter time.
+    min: Vec<f32>,
+    /// The largest and smallest of `maj` and `min` over every block and the background (one
+    /// majorant for the whole grid: `--global-majorant`).
+    global: (f32, f32),
     /// The density outside the box (its background).
     outside: f32,
     /// The index box of the voxels of every block whose majorant is not the background.
@@ -72,9 +78,10 @@ fn too_far(field: &VelocityField, spec: &MotionSpec, world: f64, voxels: &[f64; 
     }
 }
 
-/// Every block of `tree` with data: `(block, max value)` for each leaf and each tile whose
-/// value is not the background (a 4096^3 root tile is refused: too large to bound by blocks).
-fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32)>> {
+/// Every block of `tree` with data: `(block, max value, min value)` for each leaf (its bounds:
+/// every value a lookup in it can return, inactive ones included) and each tile whose value is
+/// not the background (a 4096^3 root tile is refused: too large to bound by blocks).
+fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32, f32)>> {
     let bg = tree.background;
     let mut out = Vec::with_capacity(tree.leaves.len());
     for e in &tree.root {
@@ -101,7 +108,7 @@ fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32)>> {
                     for y in 0..per {
                         for z in 0..per {
                             let b = [o[0] / 8 + x, o[1] / 8 + y, o[2] / 8 + z];
-                            out.push((b, n.tile_value(s)));
+                            out.push((b, n.tile_value(s), n.tile_value(s)));
                         }
                     }
                 }
@@ -109,7 +116,11 @@ fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32)>> {
         }
     }
     for l in &tree.leaves {
-        out.push((l.origin.map(|c| i64::from(c) >> 3), l.bounds.max));
+        out.push((
+            l.origin.map(|c| i64::from(c) >> 3),
+            l.bounds.max,
+            l.bounds.min,
+        ));
     }
     Ok(out)
 }
@@ -137,12 +148,14 @@ impl BlurBounds {
                 lo: [0; 3],
                 dims: [0; 3],
                 maj: Vec::new(),
+                min: Vec::new(),
+                global: (outside, outside),
                 outside,
                 value_box: None,
             });
         };
         let (mut slo, mut shi) = (first.0, first.0);
-        for (b, _) in &sources {
+        for (b, _, _) in &sources {
             for a in 0..3 {
                 slo[a] = slo[a].min(b[a]);
                 shi[a] = shi[a].max(b[a]);
@@ -171,15 +184,22 @@ impl BlurBounds {
             let i = [0, 1, 2].map(|a| (b[a] - lo[a]) as usize);
             (i[0] * dims[1] + i[1]) * dims[2] + i[2]
         };
-        let mut src = vec![outside; count as usize];
-        for (b, v) in &sources {
+        // Per source block: its largest value and its smallest (a block no leaf or tile
+        // covers holds the background).
+        let mut src = vec![(outside, f32::INFINITY); count as usize];
+        for (b, hi, lo_v) in &sources {
             let i = at(*b);
-            src[i] = src[i].max(*v);
+            src[i] = (src[i].0.max(*hi), src[i].1.min(*lo_v));
+        }
+        for v in &mut src {
+            if v.1 == f32::INFINITY {
+                v.1 = outside;
+            }
         }
         let world_from_index = index_from_world.inverse();
         let slab = dims[1] * dims[2];
-        let mut maj = vec![outside; count as usize];
-        maj.par_chunks_mut(slab.max(1))
+        let mut both = vec![(outside, outside); count as usize];
+        both.par_chunks_mut(slab.max(1))
             .enumerate()
             .for_each(|(x, out)| {
                 for y in 0..dims[1] {
@@ -191,16 +211,22 @@ impl BlurBounds {
                             let (wlo, whi) = world_box(&world_from_index, c);
                             radius(field.speed_bound(wlo, whi))
                         };
-                        let m = max_within(&src, outside, (lo, dims), c, r);
-                        out[y * dims[2] + z] = m;
+                        out[y * dims[2] + z] = extremes_within(&src, outside, (lo, dims), c, r);
                     }
                 }
             });
+        let (maj, min): (Vec<f32>, Vec<f32>) = both.into_iter().unzip();
+        let global = (
+            maj.iter().fold(outside, |m, v| m.max(*v)),
+            min.iter().fold(outside, |m, v| m.min(*v)),
+        );
         let value_box = value_box_of(&maj, outside, lo, dims);
         Ok(Self {
             lo,
             dims,
             maj,
+            min,
+            global,
             outside,
             value_box,
         })
@@ -222,15 +248,35 @@ impl BlurBounds {
     /// The raw majorant of block `b` (the background outside the box).
     #[must_use]
     pub fn block(&self, b: [i64; 3]) -> f32 {
+        self.index(b).map_or(self.outside, |i| self.maj[i])
+    }
+
+    /// The raw minorant and majorant of block `b`, `(min, max)`: every lookup in the block at
+    /// every shutter time reads a value between them (the background outside the box).
+    #[must_use]
+    pub fn block_range(&self, b: [i64; 3]) -> (f32, f32) {
+        self.index(b)
+            .map_or((self.outside, self.outside), |i| (self.min[i], self.maj[i]))
+    }
+
+    /// The raw `(min, max)` over every block and the background: one bound for the whole
+    /// grid (`--global-majorant`).
+    #[must_use]
+    pub fn global_range(&self) -> (f32, f32) {
+        (self.global.1, self.global.0)
+    }
+
+    /// Where block `b` sits in the dense arrays, `None` outside the box.
+    fn index(&self, b: [i64; 3]) -> Option<usize> {
         let mut i = 0usize;
         for ((&c, &lo), &dim) in b.iter().zip(&self.lo).zip(&self.dims) {
             let k = c - lo;
             if k < 0 || k >= dim as i64 {
-                return self.outside;
+                return None;
             }
             i = i * dim + k as usize;
         }
-        self.maj[i]
+        Some(i)
     }
 
     /// The dense box: its smallest block coordinate per axis and its blocks per axis (block
@@ -241,34 +287,41 @@ impl BlurBounds {
     }
 }
 
-/// The largest of `src` (dense over `lo`, `dims`, z fastest) over the blocks that meet the
-/// voxels `[8c - r, 8c + 8 + r]` on each axis, and `outside`.
-fn max_within(
-    src: &[f32],
+/// The largest maximum and the smallest minimum of `src` (`(max, min)` per block, dense over
+/// `lo`, `dims`, z fastest) over the blocks that meet the voxels `[8c - r, 8c + 8 + r]` on
+/// each axis, and `outside` (the background beyond the box); the minimum is clamped at 0.
+fn extremes_within(
+    src: &[(f32, f32)],
     outside: f32,
     (lo, dims): ([i64; 3], [usize; 3]),
     c: [i64; 3],
     r: [f64; 3],
-) -> f32 {
+) -> (f32, f32) {
     let range = |a: usize| {
         let v0 = ((c[a] * 8) as f64 - r[a]).floor() as i64;
         let v1 = ((c[a] * 8 + 8) as f64 + r[a]).floor() as i64;
-        (
-            (v0 >> 3).max(lo[a]),
-            (v1 >> 3).min(lo[a] + dims[a] as i64 - 1),
-        )
+        (v0 >> 3, v1 >> 3)
     };
     let (rx, ry, rz) = (range(0), range(1), range(2));
-    let mut m = outside;
+    let inside = |(a, b): (i64, i64), k: usize| (a.max(lo[k]), b.min(lo[k] + dims[k] as i64 - 1));
+    // The reach leaves the dense box: the background is read there.
+    let leaves_box = [rx, ry, rz]
+        .iter()
+        .enumerate()
+        .any(|(k, &(a, b))| a < lo[k] || b > lo[k] + dims[k] as i64 - 1);
+    let (rx, ry, rz) = (inside(rx, 0), inside(ry, 1), inside(rz, 2));
+    let (mut hi, mut mn) = (outside, if leaves_box { outside } else { f32::INFINITY });
     for bx in rx.0..=rx.1 {
         for by in ry.0..=ry.1 {
             let row = ((bx - lo[0]) as usize * dims[1] + (by - lo[1]) as usize) * dims[2];
             for bz in rz.0..=rz.1 {
-                m = m.max(src[row + (bz - lo[2]) as usize]);
+                let (m, n) = src[row + (bz - lo[2]) as usize];
+                hi = hi.max(m);
+                mn = mn.min(n);
             }
         }
     }
-    m
+    (hi, mn.min(hi).max(0.0))
 }
 
 /// The index box of the voxels of every block of `maj` (dense over `lo`, `dims`, z fastest)

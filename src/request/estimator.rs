@@ -189,6 +189,30 @@ impl EstimatorOptions {
                 reason: crate::estimate::blur::REGULAR_REFUSED.into(),
             });
         }
+        // Under blur every option is honoured or refused by name: the blurred bounds are per
+        // 8^3 block (or one for the grid), and only marchers stratify the shutter.
+        if self.granularity != Granularity::Leaf {
+            return Err(Error::InvalidArgument {
+                name: "granularity".into(),
+                reason: "with a velocity the majorants are the blurred bounds of each 8^3 \
+                         block (leaf), or one for the grid with global-majorant"
+                    .into(),
+            });
+        }
+        if self.time_samples.is_some() {
+            if let Ok(e) = Estimator::from_name(&self.estimator) {
+                if !e.marches() {
+                    return Err(Error::InvalidArgument {
+                        name: "time-samples".into(),
+                        reason: format!(
+                            "applies to the marching estimators (riemann, mc, jittered); {} \
+                             draws one uniform shutter time per sample (raise samples instead)",
+                            e.name()
+                        ),
+                    });
+                }
+            }
+        }
         motion_request(
             velocity,
             self.shutter,

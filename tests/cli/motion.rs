@@ -202,6 +202,29 @@ fn bad_motion_input_is_one_line_naming_the_flag_or_grid_and_nothing_written() {
         ),
         (&["--shutter", "0,1"], "--shutter"),
         (&["--time-samples", "4"], "--time-samples"),
+        // Options blur cannot take are refused by name (issue 58).
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--time-samples",
+                "4",
+            ],
+            "--time-samples",
+        ),
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "ratio",
+                "--granularity",
+                "lower",
+            ],
+            "--granularity",
+        ),
         // Reaches from extreme numbers (issue 58): refused with the reach, never a panic or a
         // wrapped count.
         (

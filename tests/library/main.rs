@@ -15,6 +15,7 @@ mod vdb_writer;
 mod bake;
 mod bake_files;
 mod blur_error_bars;
+mod blur_options;
 mod camera_control;
 mod camera_reuse;
 mod data_samples;
