@@ -23,7 +23,8 @@ pub struct InfoArgs {
     /// JSON: one object per file (an array of them for several files).
     #[arg(long)]
     json: bool,
-    /// Only this grid (display name such as `density[1]`, or the stored name).
+    /// Only this grid (display name such as `density[1]`; unnamed grids, as Warp writes them,
+    /// are `[0]`, `[1]`, ... in file order; or the stored name).
     #[arg(long, value_parser = clap::builder::NonEmptyStringValueParser::new())]
     grid: Option<String>,
     /// A USD stage: the time code and the volumes to report.
