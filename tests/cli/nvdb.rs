@@ -228,3 +228,38 @@ fn bad_nvdb_files_end_in_one_error_line_naming_the_file() {
         }
     }
 }
+
+/// `info` tells the checksum kinds apart, in text and JSON (issue 58): `nanovdb_convert -c full`
+/// writes head and tail (`full`), its default the head alone (`partial`), `-c none` nothing.
+#[test]
+fn info_tells_full_from_partial_checksums() {
+    let dir = tempfile::tempdir().unwrap();
+    let vdb = common::data("cloud.vdb");
+    for (flags, kind, text) in [
+        (
+            &["-c", "full"][..],
+            "full",
+            "checksum: full (head and nodes: every byte of the grid checked)",
+        ),
+        (
+            &[][..],
+            "partial",
+            "checksum: partial (head only: the headers checked, not the nodes)",
+        ),
+        (
+            &["-c", "none"][..],
+            "absent",
+            "checksum: absent (the file carries none)",
+        ),
+    ] {
+        let nvdb = dir.path().join(format!("{kind}.nvdb"));
+        nanovdb_convert(flags, &vdb, &nvdb);
+        let o = umbra(&["info", "--json", s(&nvdb)]);
+        assert!(o.status.success());
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(v["grids"][0]["checksum"], kind);
+        let o = umbra(&["info", "-v", s(&nvdb)]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(out.contains(text), "{kind}: {out}");
+    }
+}
