@@ -10,9 +10,10 @@
 //!   then each leaf (in memory order; a node's `sizeof`, so 96 bytes for an FpN leaf), stored as
 //!   `std::uint_fast32_t`: 8 bytes each on the 64-bit Linux and macOS that write these files, 4
 //!   on Windows and from NanoVDB 32.7 on (both are accepted);
-//! - 32.5 to 32.6.0: the head runs from byte 16 to the first upper node (with no upper node: to
-//!   the blind metadata, or the end of the grid); the tail is the *blocked* CRC-32 of the rest of
-//!   the grid. Since NanoVDB 32.7 computes these grids' tail the 32.4 way, both are accepted;
+//! - 32.5 to 32.6.0: the head runs from byte 16 to the tree header's offset of the upper nodes
+//!   (with none: to the blind metadata, or the end of the grid); the tail is the *blocked* CRC-32
+//!   of the rest of the grid. Since NanoVDB 32.7 computes these grids' tail the 32.4 way, both
+//!   are accepted;
 //! - after 32.6.0: the head covers the grid and tree headers only (bytes 16 to 736); the tail is
 //!   the blocked CRC-32 of bytes 736 to the grid's end (nodes and blind data).
 //!
@@ -100,8 +101,10 @@ pub(crate) fn check(
         return Ok(Checksum::Absent);
     }
     let root_end = GRID_BYTES + TREE_BYTES + l.root_bytes + nodes.table_size * TILE_BYTES;
-    // Where the head ends (and a blocked tail starts), by version.
-    let mid_32_6 = if h.node_count[2] > 0 {
+    // Where the head ends (and a blocked tail starts), by version. 32.6 ends it at the first
+    // upper node's offset (set even with no upper node: then the root's), else at the blind
+    // metadata, else at the end of the grid.
+    let mid_32_6 = if h.node_offset[2] != 0 {
         nodes.first[0]
     } else if h.blind_count > 0 {
         u64::try_from(h.blind_offset).unwrap_or(u64::MAX)
