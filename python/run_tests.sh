@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Build and install the Python module into a fresh virtual environment (what `pip install
 # ./python` does for a user), then run its tests against the `umbra` binary built beside it.
+# NVIDIA Warp (warp-lang, on the CPU) and python-blosc write the .nvdb files of
+# test_nvdb_warp.py at test time.
 # Run from anywhere; PYTHON picks the interpreter (default python3, CPython >= 3.9).
 # UMBRA_PROFILE picks the cargo profile of the module and the binary under test (default
 # `quick`, the Rust tests' profile, so the README's test command builds the binary once; the
@@ -14,7 +16,7 @@ rm -rf "$venv"
 "${PYTHON:-python3}" -m venv "$venv"
 "$venv/bin/python" -m pip install -q --upgrade pip
 MATURIN_PEP517_ARGS="--profile $profile" \
-  "$venv/bin/python" -m pip install -q "$repo/python" pytest "OpenEXR>=3.2" mypy usd-core openjd-cli opencue-pyoutline packaging moderngl
+  "$venv/bin/python" -m pip install -q "$repo/python" pytest "OpenEXR>=3.2" mypy usd-core openjd-cli opencue-pyoutline packaging moderngl warp-lang blosc
 # Blender as a Python module (the bpy wheel, Cycles built with OSL) runs
 # examples/deep_formats.osl in the tests. It pins its own numpy and wants CPython 3.11, so it
 # gets a venv of its own, kept between runs (the wheel is about 350 MB).

@@ -39,6 +39,15 @@ pub enum Error {
         /// What is wrong, with the byte offset where it was found.
         reason: String,
     },
+    /// The file is a NanoVDB (`.nvdb`) file but its content is corrupt or truncated, or its
+    /// metadata disagrees with its grids (a checksum mismatch included).
+    #[error("{}: corrupt NanoVDB file: {reason}", path.display())]
+    InvalidNanoVdb {
+        /// File concerned.
+        path: PathBuf,
+        /// What is wrong, with the byte offset or the grid where it was found.
+        reason: String,
+    },
     /// The file is valid but uses a feature umbra does not implement.
     #[error("{}: unsupported: {what}", path.display())]
     Unsupported {
@@ -139,6 +148,16 @@ impl DecodeError {
     }
     pub(crate) fn unsupported(msg: impl Into<String>) -> Self {
         Self::Unsupported(msg.into())
+    }
+    /// Attach the path of a NanoVDB file: corrupt data is [`Error::InvalidNanoVdb`].
+    pub(crate) fn at_nvdb(self, path: &std::path::Path) -> Error {
+        match self {
+            Self::Invalid(reason) | Self::Truncated { msg: reason, .. } => Error::InvalidNanoVdb {
+                path: path.to_path_buf(),
+                reason,
+            },
+            other => other.at(path),
+        }
     }
     /// Attach the file path, turning this into a public [`Error`].
     pub(crate) fn at(self, path: &std::path::Path) -> Error {

@@ -68,10 +68,62 @@ pub struct GridInfo {
     /// `.nvdb` only: how the leaves quantise values (`none`, `fp4`, `fp8`, `fp16`, `fpN`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub quantisation: Option<String>,
-    /// `.nvdb` only: `checked` (the grid matches the checksum the file carries), `absent` (the
-    /// file carries none) or `mismatch` (then `error` says what disagrees).
+    /// `.nvdb` only: `full` (the file carries a full checksum, head and tail, and every byte
+    /// of the grid matches it), `partial` (the file carries only the head's, NanoVDB's default:
+    /// the headers match, the nodes were not checked), `absent` (the file carries none) or
+    /// `mismatch` (then `error` says what disagrees).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub checksum: Option<String>,
+    /// `.nvdb` only: the grid buffer's NanoVDB version (`32.8.0`); the file header's may
+    /// differ (Warp writes 32.3.3 there).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub nanovdb_version: Option<String>,
+    /// Vector grids only: what a motion or advection setup needs to know of the vectors.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vector: Option<VectorInfo>,
+}
+
+/// What a vector grid's metadata says of its vectors.
+#[derive(Debug, Clone, Serialize)]
+pub struct VectorInfo {
+    /// Component type: `vec3s`, `vec3d` or `vec3i`.
+    pub value_type: String,
+    /// Whether the grid's class is `staggered` (a MAC grid: each component sits on a face,
+    /// not at the voxel centre).
+    pub staggered: bool,
+    /// OpenVDB's `vector_type` metadata (`invariant`, `covariant`, `covariant normalize`,
+    /// `contravariant relative`, `contravariant absolute`), if the file has it.
+    pub vector_type: Option<String>,
+    /// OpenVDB's `is_local_space` metadata (vectors in index space, not world space), if the
+    /// file has it.
+    pub is_local_space: Option<bool>,
+}
+
+impl VectorInfo {
+    /// The vector facts of `grid`, `None` for a scalar grid.
+    #[must_use]
+    pub fn of(grid: &Grid) -> Option<Self> {
+        use crate::vdb::MetaValue;
+        if !matches!(
+            grid.value_type,
+            ValueKind::Vec3s | ValueKind::Vec3d | ValueKind::Vec3i
+        ) {
+            return None;
+        }
+        let get = |key: &str| grid.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v);
+        Some(Self {
+            value_type: grid.value_type.name().to_string(),
+            staggered: grid.class.as_deref() == Some("staggered"),
+            vector_type: match get("vector_type") {
+                Some(MetaValue::String(s)) => Some(s.clone()),
+                _ => None,
+            },
+            is_local_space: match get("is_local_space") {
+                Some(MetaValue::Bool(b)) => Some(*b),
+                _ => None,
+            },
+        })
+    }
 }
 
 /// A float as JSON: a number when finite, else `"inf"`, `"-inf"` or `"nan"`.
@@ -165,6 +217,8 @@ impl GridInfo {
             codec: None,
             quantisation: None,
             checksum: None,
+            nanovdb_version: None,
+            vector: VectorInfo::of(grid),
         }
     }
 
@@ -238,6 +292,8 @@ impl GridInfo {
             codec: None,
             quantisation: None,
             checksum: None,
+            nanovdb_version: None,
+            vector: None,
         }
     }
 }
@@ -258,6 +314,8 @@ pub struct FileInfo {
     pub library_version: String,
     /// File UUID (`.nvdb`: empty, NanoVDB files have none).
     pub uuid: String,
+    /// Grids the file holds (`grids` has fewer when one grid was asked for).
+    pub grid_count: usize,
     /// Grids in file order.
     pub grids: Vec<GridInfo>,
 }
@@ -339,6 +397,7 @@ impl FileInfo {
                 archive.library_version.0, archive.library_version.1
             ),
             uuid: archive.uuid.clone(),
+            grid_count: archive.grids.len(),
             grids,
         }
     }
@@ -363,6 +422,7 @@ impl FileInfo {
             file_version: version.map_or(0, crate::nvdb::Version::major),
             library_version: version.map_or_else(String::new, |v| v.to_string()),
             uuid: String::new(),
+            grid_count: file.grids.len(),
             grids,
         })
     }
@@ -381,6 +441,7 @@ impl GridInfo {
                     info.error = Some(format!("checksum mismatch: {why}"));
                 }
                 info.checksum = Some(d.checksum.name().to_string());
+                info.nanovdb_version = Some(d.version.to_string());
                 info
             }
             Err(crate::Error::Unsupported { what, .. })
@@ -388,19 +449,28 @@ impl GridInfo {
             {
                 let [lo, hi] = meta.index_bbox;
                 let empty = (0..3).any(|a| lo[a] > hi[a]);
+                // Counts a writer left out (Warp's zeros) are not reported as counts.
+                let counted = meta.counted.then_some(());
                 Self {
                     class: Some(class_name(meta.grid_class).to_string()),
                     voxel_size: Some(meta.voxel_size),
-                    index_bbox: (!empty).then_some(meta.index_bbox),
+                    index_bbox: counted.and((!empty).then_some(meta.index_bbox)),
                     world_bbox: (!empty).then_some(meta.world_bbox),
-                    active_voxels: Some(meta.voxel_count),
-                    leaf_count: Some(u64::from(meta.node_count[0])),
-                    tiles: Some(
+                    active_voxels: counted.map(|()| meta.voxel_count),
+                    leaf_count: counted.map(|()| u64::from(meta.node_count[0])),
+                    tiles: counted.map(|()| {
                         json!({"root": meta.tile_count[2], "upper": meta.tile_count[1],
-                        "lower": meta.tile_count[0]}),
-                    ),
+                        "lower": meta.tile_count[0]})
+                    }),
                     error: None,
-                    note: Some(format!("{what}: described from the file's metadata")),
+                    note: Some(format!(
+                        "{what}: described from the file's metadata{}",
+                        if meta.counted {
+                            ""
+                        } else {
+                            " (its writer left the counts and index bbox out)"
+                        }
+                    )),
                     ..Self::failed(&file.names[i], &meta.name, tree_type, false, String::new())
                 }
             }

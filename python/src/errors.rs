@@ -25,6 +25,7 @@ pub(crate) fn class_of(e: &umbra::Error) -> Class {
         E::Io { .. }
         | E::NotVdb { .. }
         | E::Invalid { .. }
+        | E::InvalidNanoVdb { .. }
         | E::Unsupported { .. }
         | E::Output { .. }
         | E::Exists { .. }

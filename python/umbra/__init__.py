@@ -863,8 +863,9 @@ def write_exr(
 
 
 class Volume:
-    """A volume loaded for tracing: grid ``grid`` of a ``.vdb`` file (what ``--grid`` takes:
-    a display name such as ``density[1]``, or the stored name), decoded whole.
+    """A volume loaded for tracing: grid ``grid`` of a ``.vdb`` or ``.nvdb`` file (what
+    ``--grid`` takes: a display name such as ``density[1]``; ``"[0]"``, ``"[1]"``, ... for the
+    unnamed grids in file order, as Warp writes them; or the stored name), decoded whole.
 
     ``density_scale``: extinction ``mu_t = density_scale x value`` per world unit.
     ``interp``: ``"trilinear"`` (OpenVDB's BoxSampler, the default) or ``"nearest"``

@@ -1,9 +1,11 @@
-//! The NanoVDB file layer (`nanovdb/util/IO.h`, format 32.4, OpenVDB 10): a file is one or
-//! more *segments* back to back, each
+//! The NanoVDB file layer (`nanovdb/io/IO.h`, formats 32.0 to 32.8: OpenVDB 10 to 12's
+//! `nanovdb_convert`, Warp's `Volume.save_to_nvdb`, fVDB): a file is one or more *segments*
+//! back to back, each
 //!
 //! ```text
-//! Header   16 B   magic "NanoVDB0" (u64), version (u32: major << 21 | minor << 10 | patch),
-//!                 grid count (u16), codec (u16: 0 NONE, 1 ZIP, 2 BLOSC)
+//! Header   16 B   magic "NanoVDB0" or, from 32.7 on, "NanoVDB2" (u64), version (u32: major
+//!                 << 21 | minor << 10 | patch), grid count (u16), codec (u16: 0 NONE, 1 ZIP,
+//!                 2 BLOSC)
 //! MetaData 176 B  per grid: grid size, file size, name key, voxel count (u64 each), grid type,
 //!                 grid class (u32), world bbox (6 f64), index bbox (6 i32), voxel size (3 f64),
 //!                 name size (u32, with the NUL), node counts (4 u32), tile counts (3 u32),
@@ -13,24 +15,34 @@
 //!                 uncompressed bytes, each a u64 byte count and a blosc buffer (BLOSC)
 //! ```
 //!
+//! Warp writes the same header (version 32.3.3 whatever its grids' version) with only the sizes,
+//! type, class, world bbox, voxel size, name and codec of the metadata filled in (the counts,
+//! index bbox and name key are zero: [`GridMeta::counted`] is false), and a ZIP or BLOSC blob as
+//! one u64 byte count and one stream, the count not included in the file size.
+//!
 //! Every size is checked against the file before it is used; a blob decompresses to exactly
 //! its grid size or the file is refused.
 
 use super::bytes::Bytes;
 use crate::error::{DecodeError, DecodeResult};
 
-/// `NANOVDB_MAGIC_NUMBER`: "NanoVDB0" read as a little-endian u64.
+/// `NANOVDB_MAGIC_NUMB`: "NanoVDB0" read as a little-endian u64, the magic number of every
+/// segment header and of grids before 32.7.
 pub(crate) const MAGIC: u64 = 0x3042_4456_6f6e_614e;
+/// `NANOVDB_MAGIC_GRID`: "NanoVDB1", the magic number of grids from 32.7 on (Warp, OpenVDB 12).
+pub(crate) const MAGIC_GRID: u64 = 0x3142_4456_6f6e_614e;
+/// `NANOVDB_MAGIC_FILE`: "NanoVDB2", the newer segment header's magic number (32.7 on, when
+/// NanoVDB is built with its new magic numbers).
+pub(crate) const MAGIC_FILE: u64 = 0x3242_4456_6f6e_614e;
 /// The major version of the format umbra reads (the ABI, which fixes the file layout).
 pub(crate) const MAJOR: u32 = 32;
-/// The newest minor version of major 32 whose layout umbra knows (NanoVDB 32.4, OpenVDB 10).
-pub(crate) const MAX_MINOR: u32 = 4;
+/// The newest minor version of major 32 umbra reads: 32.8 (OpenVDB 12.1, Warp 1.19, fVDB);
+/// the node layouts are those of 32.4, the magic number and the checksum changed (32.6, 32.7).
+pub(crate) const MAX_MINOR: u32 = 8;
 /// Bytes of a segment header.
 const HEADER_BYTES: u64 = 16;
 /// Bytes of a grid's file metadata before its name.
 const META_BYTES: u64 = 176;
-/// NanoVDB's BLOSC chunk: at most 2^30 uncompressed bytes each.
-const BLOSC_CHUNK: u64 = 1 << 30;
 /// The most a grid buffer may expand from its compressed bytes (zlib's limit is about 1032:1;
 /// blosc with LZ4 about 255:1): a grid size beyond it is a lie, refused before any allocation.
 const MAX_RATIO: u64 = 1100;
@@ -68,7 +80,8 @@ impl Codec {
 }
 
 /// A NanoVDB version number, `major << 21 | minor << 10 | patch`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// Ordered as versions are (major, then minor, then patch).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Version(pub u32);
 
 impl Version {
@@ -126,8 +139,14 @@ pub struct GridMeta {
     pub tile_count: [u32; 3],
     /// The codec of the grid's segment.
     pub codec: Codec,
-    /// The segment's version.
+    /// The segment's version (Warp writes 32.3.3 here whatever its grids' version).
     pub version: Version,
+    /// Bytes of the grid's blob in the file: `file_size`, or `file_size + 8` when a ZIP or
+    /// BLOSC blob's byte count is not counted in it (as Warp writes them).
+    pub blob_bytes: u64,
+    /// Whether the writer filled in the name key, voxel, node and tile counts and index bbox
+    /// (NanoVDB does; Warp leaves them zero, so the grid's own headers are all there is).
+    pub counted: bool,
 }
 
 /// Reads `n` bytes at absolute file offset `at` (the caller checks them against the file).
@@ -145,7 +164,7 @@ pub(crate) fn parse_segments(
         return Err(None);
     }
     let head = read(0, 8).map_err(Some)?;
-    if Bytes::new(&head).u64(0).map_err(Some)? != MAGIC {
+    if !is_file_magic(Bytes::new(&head).u64(0).map_err(Some)?) {
         return Err(None);
     }
     let mut grids = Vec::new();
@@ -167,13 +186,13 @@ fn parse_segment(
     let bytes = read(start, HEADER_BYTES)?;
     let h = Bytes::new(&bytes);
     let magic = h.u64(0)?;
-    if magic != MAGIC {
+    if !is_file_magic(magic) {
         return Err(DecodeError::invalid(format!(
             "segment at byte {start}: magic number {magic:#018x} is not NanoVDB's"
         )));
     }
     let version = Version(h.u32(8)?);
-    check_version(version, &format!("segment at byte {start}"))?;
+    check_version(version, &format!("file header (segment at byte {start})"))?;
     let count = h.u16(12)?;
     let raw_codec = h.u16(14)?;
     let codec = Codec::from_u16(raw_codec).ok_or_else(|| {
@@ -196,20 +215,41 @@ fn parse_segment(
     }
     for g in &mut grids[first..] {
         g.offset = p;
+        g.blob_bytes = blob_bytes(len, read, p, g)?;
         p = p
-            .checked_add(g.file_size)
+            .checked_add(g.blob_bytes)
             .filter(|&e| e <= len)
             .ok_or_else(|| {
                 DecodeError::invalid(format!(
                     "grid '{}' claims {} bytes at byte {p}, past the end of the file ({len} bytes)",
                     crate::text::escape(&g.name),
-                    g.file_size,
+                    g.blob_bytes,
                 ))
             })?;
         check_sizes(g)?;
     }
     *at = p;
     Ok(())
+}
+
+/// Whether `magic` opens a segment: "NanoVDB0", or "NanoVDB2" from 32.7 on.
+fn is_file_magic(magic: u64) -> bool {
+    magic == MAGIC || magic == MAGIC_FILE
+}
+
+/// Bytes of grid `g`'s blob at `p`: a ZIP or BLOSC blob opens with a u64 byte count, which
+/// NanoVDB counts in the file size (so it is `file size - 8`, or less for several BLOSC chunks)
+/// and Warp does not (it equals the file size, and the blob is 8 bytes longer).
+fn blob_bytes(len: u64, read: ReadAt<'_>, p: u64, g: &GridMeta) -> DecodeResult<u64> {
+    if g.codec == Codec::None || p.saturating_add(8) > len {
+        return Ok(g.file_size);
+    }
+    let count = Bytes::new(&read(p, 8)?).u64(0)?;
+    Ok(if count == g.file_size {
+        g.file_size.saturating_add(8)
+    } else {
+        g.file_size
+    })
 }
 
 /// A grid's metadata at `p` and the length of its name field.
@@ -236,7 +276,11 @@ fn parse_meta(read: ReadAt<'_>, p: u64, codec: Codec) -> DecodeResult<(GridMeta,
         )));
     }
     let version = Version(b.u32(172)?);
-    check_version(version, &format!("grid '{}'", crate::text::escape(&name)))?;
+    check_version(
+        version,
+        &format!("grid '{}' (file metadata)", crate::text::escape(&name)),
+    )?;
+    let node_count = [b.u32(140)?, b.u32(144)?, b.u32(148)?, b.u32(152)?];
     let m = GridMeta {
         grid_size: b.u64(0)?,
         file_size: b.u64(8)?,
@@ -248,10 +292,13 @@ fn parse_meta(read: ReadAt<'_>, p: u64, codec: Codec) -> DecodeResult<(GridMeta,
         world_bbox: [b.vec3d(40)?, b.vec3d(64)?],
         index_bbox: [b.vec3i(88)?, b.vec3i(100)?],
         voxel_size: b.vec3d(112)?,
-        node_count: [b.u32(140)?, b.u32(144)?, b.u32(148)?, b.u32(152)?],
+        node_count,
         tile_count: [b.u32(156)?, b.u32(160)?, b.u32(164)?],
         codec,
         version,
+        blob_bytes: 0,
+        // Every tree has one root: a root count of 0 says the counts were not written.
+        counted: node_count[3] != 0,
         name,
     };
     Ok((m, name_size))
@@ -273,7 +320,7 @@ fn check_sizes(g: &GridMeta) -> DecodeResult<()> {
             g.grid_size, g.file_size
         )));
     }
-    if g.name_key != name_hash(&g.name) {
+    if g.counted && g.name_key != name_hash(&g.name) {
         return Err(DecodeError::invalid(format!(
             "grid '{name}': the name key {:#x} is not the hash of its name",
             g.name_key
@@ -293,12 +340,13 @@ pub(crate) fn name_hash(name: &str) -> u64 {
     })
 }
 
-/// Only major version 32 up to minor [`MAX_MINOR`] has the layout umbra reads.
+/// Only major version 32 up to minor [`MAX_MINOR`] has a layout umbra reads; `what` names the
+/// structure (`grid 'density'`, `file header (segment at byte 0)`).
 pub(crate) fn check_version(v: Version, what: &str) -> DecodeResult<()> {
     if v.major() != MAJOR || v.minor() > MAX_MINOR {
         return Err(DecodeError::unsupported(format!(
-            "{what}: NanoVDB format {v} (umbra reads {MAJOR}.0 to {MAJOR}.{MAX_MINOR}, written by \
-             OpenVDB 10)"
+            "NanoVDB {v} {what}: not supported (umbra reads NanoVDB {MAJOR}.0 to \
+             {MAJOR}.{MAX_MINOR}, as OpenVDB 10 to 12, Warp and fVDB write it)"
         )));
     }
     Ok(())
@@ -350,7 +398,8 @@ pub(crate) fn grid_buffer(g: &GridMeta, blob: Vec<u8>) -> DecodeResult<Vec<u8>> 
     }
 }
 
-/// BLOSC blobs: chunks of `min(rest, 2^30)` bytes, each after its u64 compressed size.
+/// BLOSC blobs: chunks, each after its u64 compressed size, each expanding to the size its own
+/// header says (NanoVDB cuts at 2^30 bytes; Warp writes one chunk whatever the size).
 fn blosc_chunks(blob: &[u8], want: usize) -> DecodeResult<Vec<u8>> {
     let b = Bytes::new(blob);
     // The chunks' own headers (uncompressed size, u32 at byte 4) must add up to the grid size
@@ -373,12 +422,13 @@ fn blosc_chunks(blob: &[u8], want: usize) -> DecodeResult<Vec<u8>> {
     loop {
         let n = b.u64(at)?;
         let src = b.slice(at + 8, n)?;
-        let chunk = (want - done).min(BLOSC_CHUNK as usize);
+        // Within `want`: the chunks' sizes were added up above.
+        let chunk = (Bytes::new(src).u32(4)? as usize).min(want - done);
         crate::vdb::blosc::decompress_into(src, &mut out[done..done + chunk])
             .map_err(|e| prefix(e, &format!("BLOSC chunk at blob byte {at}")))?;
         done += chunk;
         at += 8 + n;
-        if done == want {
+        if done == want || chunk == 0 {
             break;
         }
     }
@@ -405,12 +455,22 @@ mod tests {
     }
 
     #[test]
-    fn versions_split_and_only_32_up_to_4_is_read() {
+    fn versions_split_and_only_32_up_to_8_is_read() {
         let v = Version(32 << 21 | 4 << 10 | 2);
         assert_eq!((v.major(), v.minor(), v.patch()), (32, 4, 2));
         assert_eq!(v.to_string(), "32.4.2");
         assert!(check_version(v, "x").is_ok());
-        assert!(check_version(Version(32 << 21 | 6 << 10), "x").is_err());
+        assert!(check_version(Version(32 << 21 | 8 << 10 | 3), "x").is_ok());
+        assert!(check_version(Version(32 << 21 | 9 << 10), "x").is_err());
         assert!(check_version(Version(31 << 21), "x").is_err());
+        let e = check_version(Version(33 << 21), "grid 'd'").unwrap_err();
+        assert_eq!(
+            e,
+            DecodeError::Unsupported(
+                "NanoVDB 33.0.0 grid 'd': not supported (umbra reads NanoVDB 32.0 to 32.8, as \
+                 OpenVDB 10 to 12, Warp and fVDB write it)"
+                    .into()
+            )
+        );
     }
 }

@@ -1,5 +1,7 @@
-//! The NanoVDB grid buffer (`NanoVDB.h`, ABI 32.4): where each structure sits and how big it is
-//! for each value type. A grid buffer is
+//! The NanoVDB grid buffer (`NanoVDB.h`, ABI 32; the same layout from 32.4 to 32.8, whose grids
+//! differ only in their magic number, "NanoVDB0" before 32.7 and "NanoVDB1" from it, and in
+//! their checksum): where each structure sits and how big it is for each value type. A grid
+//! buffer is
 //!
 //! ```text
 //! GridData  672 B  magic (u64) @0, checksum (u64) @8, version @16, flags @20, grid index @24,
@@ -52,9 +54,35 @@ pub(crate) enum Leaves {
 /// NanoVDB's `GridType` codes.
 #[must_use]
 pub fn type_name(code: u32) -> &'static str {
-    const NAMES: [&str; 20] = [
-        "unknown", "float", "double", "int16", "int32", "int64", "Vec3f", "Vec3d", "mask", "half",
-        "uint32", "bool", "RGBA8", "Fp4", "Fp8", "Fp16", "FpN", "Vec4f", "Vec4d", "index",
+    // Codes 20 to 26 came with 32.5 to 32.8.
+    const NAMES: [&str; 27] = [
+        "unknown",
+        "float",
+        "double",
+        "int16",
+        "int32",
+        "int64",
+        "Vec3f",
+        "Vec3d",
+        "mask",
+        "half",
+        "uint32",
+        "bool",
+        "RGBA8",
+        "Fp4",
+        "Fp8",
+        "Fp16",
+        "FpN",
+        "Vec4f",
+        "Vec4d",
+        "index",
+        "onindex",
+        "indexmask",
+        "onindexmask",
+        "pointindex",
+        "Vec3u8",
+        "Vec3u16",
+        "uint8",
     ];
     NAMES.get(code as usize).copied().unwrap_or("unknown")
 }
@@ -71,6 +99,7 @@ pub fn class_name(code: u32) -> &'static str {
         6 => "topology",
         7 => "voxel volume",
         8 => "index",
+        9 => "tensor",
         _ => "unknown",
     }
 }
@@ -189,6 +218,9 @@ pub(crate) struct GridHead {
     pub translation: [f64; 3],
     pub grid_class: u32,
     pub grid_type: u32,
+    /// Offset of the blind metadata from the grid, and their count.
+    pub blind_offset: i64,
+    pub blind_count: u32,
     /// Offsets from the tree to the first leaf, lower, upper node and the root.
     pub node_offset: [u64; 4],
     pub node_count: [u32; 3],
@@ -200,9 +232,10 @@ impl GridHead {
     /// Parse the grid and tree headers of `buf`.
     pub(crate) fn parse(buf: &super::bytes::Bytes<'_>) -> crate::error::DecodeResult<Self> {
         let magic = buf.u64(0)?;
-        if magic != super::file::MAGIC {
+        if magic != super::file::MAGIC && magic != super::file::MAGIC_GRID {
             return Err(super::bytes::invalid(format!(
-                "the grid buffer starts with {magic:#018x}, not NanoVDB's magic number"
+                "the grid buffer starts with {magic:#018x}, not a NanoVDB grid's magic number \
+                 (\"NanoVDB0\" or \"NanoVDB1\")"
             )));
         }
         let raw_name = buf.slice(40, 256)?;
@@ -224,6 +257,8 @@ impl GridHead {
             translation: buf.vec3d(528)?,
             grid_class: buf.u32(632)?,
             grid_type: buf.u32(636)?,
+            blind_offset: buf.i64(640)?,
+            blind_count: buf.u32(648)?,
             node_offset: [
                 buf.u64(t)?,
                 buf.u64(t + 8)?,

@@ -1,4 +1,5 @@
-//! Reading NanoVDB `.nvdb` files (format 32.4, as OpenVDB 10's `nanovdb_convert` writes them):
+//! Reading NanoVDB `.nvdb` files (formats 32.0 to 32.8, as OpenVDB 10 to 12's `nanovdb_convert`,
+//! Warp's `Volume.save_to_nvdb` and fVDB write them; a newer version is refused by name):
 //! the segments and their grid metadata ([`file`]), each grid's buffer decompressed whole (codecs
 //! NONE, ZIP, BLOSC), its checksum verified ([`checksum`]) and its tree decoded into umbra's
 //! flat [`crate::tree::Tree`] ([`tree`]), the buffer's structures laid out as [`layout`] says.
@@ -48,6 +49,8 @@ pub struct Decoded {
     pub grid: Grid,
     /// What checking its checksum found.
     pub checksum: Checksum,
+    /// The grid buffer's own version (the file header may say another).
+    pub version: Version,
 }
 
 impl NvdbFile {
@@ -55,8 +58,8 @@ impl NvdbFile {
     ///
     /// # Errors
     /// [`Error::Io`]; [`Error::NotVdb`] (shown as "not a NanoVDB file") for an empty or short
-    /// file or one without NanoVDB's magic number; [`Error::Invalid`] for corrupt metadata;
-    /// [`Error::Unsupported`] for another format version.
+    /// file or one without NanoVDB's magic number; [`Error::InvalidNanoVdb`] for corrupt
+    /// metadata; [`Error::Unsupported`] for another format version.
     pub fn open(path: &Path) -> Result<Self> {
         let io = |err| Error::Io {
             path: path.to_path_buf(),
@@ -73,7 +76,7 @@ impl NvdbFile {
             Ok(g) => g,
             Err(None) if len == 0 => return Err(not_nvdb(path, "empty file")),
             Err(None) => return Err(not_nvdb(path, "bad magic number")),
-            Err(Some(e)) => return Err(e.at(path)),
+            Err(Some(e)) => return Err(e.at_nvdb(path)),
         };
         let names = display_names(&grids);
         Ok(Self {
@@ -110,7 +113,7 @@ impl NvdbFile {
     /// Decode grid `i` whole; a checksum mismatch is an error.
     ///
     /// # Errors
-    /// As [`NvdbFile::decode`], and [`Error::Invalid`] for a checksum mismatch.
+    /// As [`NvdbFile::decode`], and [`Error::InvalidNanoVdb`] for a checksum mismatch.
     pub fn load(&self, i: usize) -> Result<Grid> {
         let d = self.decode(i)?;
         if let Checksum::Mismatch(why) = &d.checksum {
@@ -139,7 +142,7 @@ impl NvdbFile {
             ));
         }
         let picks = [0, 1, 2].map(Pick::Component);
-        let (grids, checksum) = self.decode_picks(i, &picks)?;
+        let (grids, checksum, _) = self.decode_picks(i, &picks)?;
         if let Checksum::Mismatch(why) = &checksum {
             return Err(self.invalid(i, &format!("checksum mismatch: {why}")));
         }
@@ -168,18 +171,22 @@ impl NvdbFile {
     ///
     /// # Errors
     /// [`Error::Io`]; [`Error::Unsupported`] for a grid type umbra does not decode;
-    /// [`Error::Invalid`] naming the file, the grid and what is corrupt or disagrees.
+    /// [`Error::InvalidNanoVdb`] naming the file, the grid and what is corrupt or disagrees.
     pub fn decode(&self, i: usize) -> Result<Decoded> {
-        let (mut grids, checksum) = self.decode_picks(i, &[Pick::Length])?;
+        let (mut grids, checksum, version) = self.decode_picks(i, &[Pick::Length])?;
         let grid = grids
             .pop()
             .ok_or_else(|| self.invalid(i, "no tree decoded"))?;
-        Ok(Decoded { grid, checksum })
+        Ok(Decoded {
+            grid,
+            checksum,
+            version,
+        })
     }
 
     /// Decode grid `i` once per pick (vector values as it says): the buffer is read, checked
-    /// and its checksum computed once.
-    fn decode_picks(&self, i: usize, picks: &[Pick]) -> Result<(Vec<Grid>, Checksum)> {
+    /// and its checksum computed once; with the grid's checksum and version.
+    fn decode_picks(&self, i: usize, picks: &[Pick]) -> Result<(Vec<Grid>, Checksum, Version)> {
         let meta = self
             .grids
             .get(i)
@@ -200,13 +207,15 @@ impl NvdbFile {
         let b = Bytes::new(&buf);
         let at = |e: DecodeError| self.decode_err(i, e);
         let head = layout::GridHead::parse(&b).map_err(at)?;
+        let grid_what = format!("grid '{}'", text::escape(&self.names[i]));
+        file::check_version(head.version, &grid_what).map_err(at)?;
         agree(meta, &head, b.len()).map_err(at)?;
         let nodes = tree::locate(&b, &head, &layout).map_err(at)?;
         let root_bbox = [
             b.vec3i(nodes.root).map_err(at)?,
             b.vec3i(nodes.root + 12).map_err(at)?,
         ];
-        if root_bbox != meta.index_bbox {
+        if meta.counted && root_bbox != meta.index_bbox {
             return Err(self.invalid(
                 i,
                 &format!(
@@ -215,21 +224,15 @@ impl NvdbFile {
                 ),
             ));
         }
-        let checksum = checksum::check(
-            &b,
-            head.checksum,
-            head.flags,
-            &layout,
-            &nodes,
-            head.node_count,
-        )
-        .map_err(at)?;
+        let checksum = checksum::check(&b, &head, &layout, &nodes).map_err(at)?;
         let transform = self.transform(i, &head)?;
         let mut grids = Vec::with_capacity(picks.len());
         for &pick in picks {
             let d = tree::decode(&b, &head, &layout, &nodes, pick).map_err(at)?;
             let tiles = head.tile_count.map(u64::from);
-            if d.voxels != head.voxel_count || d.tiles != tiles {
+            // Warp (whose file metadata is not counted) writes its node counts where the tree
+            // header's tile counts belong: only the voxel count is its own to check.
+            if d.voxels != head.voxel_count || (meta.counted && d.tiles != tiles) {
                 return Err(self.invalid(
                     i,
                     &format!(
@@ -242,7 +245,7 @@ impl NvdbFile {
             let kind = layout.kind;
             grids.push(self.grid(i, kind, transform.clone(), d.tree, d.precision));
         }
-        Ok((grids, checksum))
+        Ok((grids, checksum, head.version))
     }
 
     /// The grid's affine map, which must be finite and invertible.
@@ -292,12 +295,13 @@ impl NvdbFile {
             path: self.path.clone(),
             err,
         })?;
-        read_at(&file, self.file_len, meta.offset, meta.file_size).map_err(|e| e.at(&self.path))
+        read_at(&file, self.file_len, meta.offset, meta.blob_bytes)
+            .map_err(|e| e.at_nvdb(&self.path))
     }
 
     fn invalid(&self, i: usize, why: &str) -> Error {
         let name = self.names.get(i).map_or("?", String::as_str);
-        DecodeError::invalid(format!("grid '{}': {why}", text::escape(name))).at(&self.path)
+        DecodeError::invalid(format!("grid '{}': {why}", text::escape(name))).at_nvdb(&self.path)
     }
 
     fn decode_err(&self, i: usize, e: DecodeError) -> Error {
@@ -311,9 +315,9 @@ impl NvdbFile {
     }
 }
 
-/// The file's metadata and the grid's own headers must agree.
+/// The file's metadata and the grid's own headers must agree (on the counts only where the
+/// writer filled them in: see [`GridMeta::counted`]).
 fn agree(meta: &GridMeta, h: &layout::GridHead, len: u64) -> crate::error::DecodeResult<()> {
-    file::check_version(h.version, "the grid buffer")?;
     let name_ok = h.flags & layout::LONG_NAME != 0 || h.name == meta.name.as_bytes();
     let checks: [(&str, bool, String); 8] = [
         (
@@ -345,17 +349,17 @@ fn agree(meta: &GridMeta, h: &layout::GridHead, len: u64) -> crate::error::Decod
         ),
         (
             "node counts",
-            h.node_count[..] == meta.node_count[..3] && meta.node_count[3] == 1,
+            !meta.counted || h.node_count[..] == meta.node_count[..3] && meta.node_count[3] == 1,
             format!("{:?} / {:?}", meta.node_count, h.node_count),
         ),
         (
             "tile counts",
-            h.tile_count == meta.tile_count,
+            !meta.counted || h.tile_count == meta.tile_count,
             format!("{:?} / {:?}", meta.tile_count, h.tile_count),
         ),
         (
             "voxel count",
-            h.voxel_count == meta.voxel_count,
+            !meta.counted || h.voxel_count == meta.voxel_count,
             format!("{} / {}", meta.voxel_count, h.voxel_count),
         ),
         (

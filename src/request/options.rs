@@ -22,7 +22,8 @@ with_estimator_options! {
     #[cfg_attr(feature = "cli", derive(clap::Args))]
     #[serde(deny_unknown_fields, default)]
     pub struct BakeOptions {
-        /// Grid to trace (display name such as `density[1]`, or the stored name).
+        /// Grid to trace (display name such as `density[1]`; unnamed grids, as Warp writes them,
+        /// are `[0]`, `[1]`, ... in file order; or the stored name).
         #[cfg_attr(
             feature = "cli",
             arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())

@@ -285,3 +285,56 @@ fn issue_46_friction_is_mended() {
         "{out}"
     );
 }
+
+/// Issue 58's `info` frictions, on real files: a vector grid's `-v` report says what a TD needs
+/// of its vectors (value type, staggered or not, `vector_type`, `is_local_space` as the file has
+/// them); `--grid` on a file of 17 grids says it shows 1 of 17; a file with no grids says so.
+#[test]
+fn info_tells_vectors_grid_selections_and_empty_files() {
+    let Some(corpus) = crate::common::corpus_dir() else {
+        return;
+    };
+    let blender = corpus.join("real/blender_smoke_fluid_data_0050.vdb");
+    let o = umbra()
+        .args(["info", "-v", "--grid", "velocity"])
+        .arg(&blender)
+        .output()
+        .unwrap();
+    assert!(o.status.success());
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains(", 1 of 17 grids shown (--grid)"), "{text}");
+    assert!(
+        text.contains("  vector: vec3s  staggered: yes  vector_type: "),
+        "{text}"
+    );
+    let o = umbra()
+        .args(["info", "--json", "--grid", "velocity"])
+        .arg(&blender)
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(v["grid_count"], 17);
+    let vector = &v["grids"][0]["vector"];
+    assert_eq!(
+        (&vector["value_type"], &vector["staggered"]),
+        (&"vec3s".into(), &true.into())
+    );
+    // A scalar grid has no vector report.
+    let o = umbra()
+        .args(["info", "--json", "--grid", "density"])
+        .arg(&blender)
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(v["grids"][0].get("vector").is_none(), "{v}");
+    let empty = corpus.join("real/houdini20_no_grids.vdb");
+    for args in [&["info"][..], &["info", "-v"]] {
+        let o = umbra().args(args).arg(&empty).output().unwrap();
+        assert!(o.status.success(), "{args:?}");
+        let text = String::from_utf8_lossy(&o.stdout);
+        assert!(
+            text.trim_end().ends_with("no grids (the file holds none)"),
+            "{args:?}: {text}"
+        );
+    }
+}

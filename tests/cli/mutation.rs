@@ -1848,7 +1848,7 @@ fn kind(e: &umbra::Error) -> &'static str {
     match e {
         umbra::Error::Io { .. } => "Io",
         umbra::Error::NotVdb { .. } => "NotVdb",
-        umbra::Error::Invalid { .. } => "Invalid",
+        umbra::Error::Invalid { .. } | umbra::Error::InvalidNanoVdb { .. } => "Invalid",
         umbra::Error::Unsupported { .. } => "Unsupported",
         umbra::Error::GridNotFound { .. } => "GridNotFound",
         umbra::Error::InvalidArgument { .. } => "InvalidArgument",

@@ -156,17 +156,26 @@ fn grid_selection_and_info_on_a_multi_grid_nvdb() {
     for g in grids {
         assert_eq!(g["codec"], "BLOSC");
         assert_eq!(g["quantisation"], "none");
-        assert_eq!(g["checksum"], "checked");
+        assert_eq!(g["checksum"], "partial");
+        assert_eq!(g["nanovdb_version"], "32.4.2");
         assert!(g["active_voxels"].as_u64().unwrap() > 0);
     }
     assert_eq!(grids[2]["value_stats_of"], "vector length");
     let o = umbra(&["info", "-v", "--grid", "density", s(&nvdb)]);
     let text = String::from_utf8_lossy(&o.stdout);
-    assert!(text.contains("NanoVDB format 32, library 32.4.2"), "{text}");
     assert!(
-        text.contains("NanoVDB codec: BLOSC  quantisation: none  checksum: checked"),
+        text.contains("NanoVDB format 32, library 32.4.2, ")
+            && text.contains(" 1 of 3 grids shown (--grid)"),
         "{text}"
     );
+    assert!(
+        text.contains(
+            "NanoVDB 32.4.2  codec: BLOSC  quantisation: none  checksum: partial (head only: \
+             the headers checked, not the nodes)"
+        ),
+        "{text}"
+    );
+    assert_eq!(v["grid_count"], 3);
     let vdb = umbra(&["info", "--json", s(&common::data("cloud.vdb"))]);
     let v: Value = serde_json::from_slice(&vdb.stdout).unwrap();
     assert_eq!(v["format"], "vdb");
@@ -197,7 +206,7 @@ fn bad_nvdb_files_end_in_one_error_line_naming_the_file() {
         (
             "cut.nvdb",
             good[..good.len() / 3].to_vec(),
-            "corrupt VDB file",
+            "corrupt NanoVDB file",
         ),
         ("flip.nvdb", flipped, "checksum mismatch"),
     ];
@@ -217,5 +226,40 @@ fn bad_nvdb_files_end_in_one_error_line_naming_the_file() {
             assert!(err.contains(name) && err.contains(want), "{name}: {err}");
             assert!(o.stdout.is_empty() && !out.exists(), "{name}: output left");
         }
+    }
+}
+
+/// `info` tells the checksum kinds apart, in text and JSON (issue 58): `nanovdb_convert -c full`
+/// writes head and tail (`full`), its default the head alone (`partial`), `-c none` nothing.
+#[test]
+fn info_tells_full_from_partial_checksums() {
+    let dir = tempfile::tempdir().unwrap();
+    let vdb = common::data("cloud.vdb");
+    for (flags, kind, text) in [
+        (
+            &["-c", "full"][..],
+            "full",
+            "checksum: full (head and nodes: every byte of the grid checked)",
+        ),
+        (
+            &[][..],
+            "partial",
+            "checksum: partial (head only: the headers checked, not the nodes)",
+        ),
+        (
+            &["-c", "none"][..],
+            "absent",
+            "checksum: absent (the file carries none)",
+        ),
+    ] {
+        let nvdb = dir.path().join(format!("{kind}.nvdb"));
+        nanovdb_convert(flags, &vdb, &nvdb);
+        let o = umbra(&["info", "--json", s(&nvdb)]);
+        assert!(o.status.success());
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(v["grids"][0]["checksum"], kind);
+        let o = umbra(&["info", "-v", s(&nvdb)]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(out.contains(text), "{kind}: {out}");
     }
 }

@@ -29,6 +29,7 @@ mod map_summary;
 mod motion;
 mod near_lattice;
 mod nvdb;
+mod nvdb32;
 mod omni;
 mod oracle_corpus;
 mod readme;

@@ -23,7 +23,8 @@ pub struct InfoArgs {
     /// JSON: one object per file (an array of them for several files).
     #[arg(long)]
     json: bool,
-    /// Only this grid (display name such as `density[1]`, or the stored name).
+    /// Only this grid (display name such as `density[1]`; unnamed grids, as Warp writes them,
+    /// are `[0]`, `[1]`, ... in file order; or the stored name).
     #[arg(long, value_parser = clap::builder::NonEmptyStringValueParser::new())]
     grid: Option<String>,
     /// A USD stage: the time code and the volumes to report.
@@ -172,7 +173,7 @@ fn stored_half(g: &GridInfo) -> bool {
 /// The name and type columns are as wide as the file's longest (at least 16 and 12), so long
 /// names do not push the other columns out of line.
 fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
-    writeln!(out, "{}:", escape(&info.path))?;
+    writeln!(out, "{}:{}", escape(&info.path), shown(info, ""))?;
     let ty = |g: &GridInfo| {
         format!(
             "{}{}",
@@ -218,7 +219,7 @@ fn print_short(out: &mut impl Write, info: &FileInfo) -> Result<()> {
 fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
     writeln!(
         out,
-        "{}: {} format {}, library {}, {} bytes, {} grid(s)",
+        "{}: {} format {}, library {}, {} bytes,{}",
         escape(&info.path),
         if info.format == umbra::input::InputKind::Nvdb.format() {
             "NanoVDB"
@@ -228,12 +229,27 @@ fn print_long(out: &mut impl Write, info: &FileInfo) -> Result<()> {
         info.file_version,
         info.library_version,
         info.file_bytes,
-        info.grids.len()
+        shown(info, " grid(s)")
     )?;
     for g in &info.grids {
         print_grid(out, g)?;
     }
     Ok(())
+}
+
+/// How many grids the file holds and how many are shown: ` no grids`, ` 17` + `all`, ` 1 of
+/// 17 grids shown` (after `--grid`); empty for the short form of a file whose grids are all shown.
+fn shown(info: &FileInfo, all: &str) -> String {
+    let (n, total) = (info.grids.len(), info.grid_count);
+    if total == 0 {
+        " no grids (the file holds none)".into()
+    } else if n < total {
+        format!(" {n} of {total} grids shown (--grid)")
+    } else if all.is_empty() {
+        String::new()
+    } else {
+        format!(" {total}{all}")
+    }
 }
 
 fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
@@ -261,9 +277,21 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
     if let Some(codec) = &g.codec {
         writeln!(
             out,
-            "  NanoVDB codec: {codec}  quantisation: {}  checksum: {}",
+            "  NanoVDB {}  codec: {codec}  quantisation: {}  checksum: {}",
+            g.nanovdb_version.as_deref().unwrap_or("-"),
             g.quantisation.as_deref().unwrap_or("-"),
-            g.checksum.as_deref().unwrap_or("-")
+            checksum_text(g.checksum.as_deref())
+        )?;
+    }
+    if let Some(v) = &g.vector {
+        writeln!(
+            out,
+            "  vector: {}  staggered: {}  vector_type: {}  is_local_space: {}",
+            v.value_type,
+            if v.staggered { "yes" } else { "no" },
+            escape(v.vector_type.as_deref().unwrap_or("- (not in the file)")),
+            v.is_local_space
+                .map_or("- (not in the file)".into(), |b| b.to_string())
         )?;
     }
     writeln!(
@@ -335,6 +363,18 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
         g.file_mem_bytes.map_or("-".to_string(), |b| b.to_string())
     )?;
     Ok(())
+}
+
+/// A NanoVDB checksum kind with what it covered.
+fn checksum_text(kind: Option<&str>) -> String {
+    let what = match kind {
+        Some("full") => "head and nodes: every byte of the grid checked",
+        Some("partial") => "head only: the headers checked, not the nodes",
+        Some("absent") => "the file carries none",
+        Some("mismatch") => "the grid disagrees with it",
+        _ => return "-".into(),
+    };
+    format!("{} ({what})", kind.unwrap_or("-"))
 }
 
 fn vec3f(v: [f64; 3]) -> String {

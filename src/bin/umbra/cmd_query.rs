@@ -18,7 +18,8 @@ pub struct QueryArgs {
     /// The .vdb file, a .toml scene file (several volumes, colour, solids) or a USD stage
     /// (.usd, .usda, .usdc, .usdz: its volumes and lights at --frame).
     file: PathBuf,
-    /// Grid to trace (display name such as `density[1]`, or the stored name).
+    /// Grid to trace (display name such as `density[1]`; unnamed grids, as Warp writes them, are
+    /// `[0]`, `[1]`, ... in file order; or the stored name).
     #[arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())]
     grid: String,
     /// Segment start, world space: X,Y,Z (with --to).
