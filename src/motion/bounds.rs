@@ -39,6 +39,11 @@ pub struct BlurBounds {
     outside: f32,
     /// The index box of the voxels of every block whose majorant is not the background.
     value_box: Option<[[i64; 3]; 2]>,
+    /// How far the shutter moves density at the largest speed: world units and voxels (the
+    /// largest over the index axes).
+    reach: (f64, f64),
+    /// The density's own extent in voxels (the largest over the axes of its blocks' box).
+    extent: f64,
 }
 
 fn refused(reason: String) -> Error {
@@ -152,6 +157,8 @@ impl BlurBounds {
                 global: (outside, outside),
                 outside,
                 value_box: None,
+                reach: (0.0, 0.0),
+                extent: 0.0,
             });
         };
         let (mut slo, mut shi) = (first.0, first.0);
@@ -176,6 +183,11 @@ impl BlurBounds {
             return Err(too_far(field, spec, reach * field.speed_max(), &rg));
         }
         let grow = grow_f.map(|g| g as i64);
+        let moved = (
+            reach * field.speed_max(),
+            rg.iter().fold(0.0f64, |m, r| m.max(r - 2.0)),
+        );
+        let extent = (0..3).fold(0.0f64, |m, a| m.max(((shi[a] - slo[a] + 1) * 8) as f64));
         let lo = [0, 1, 2].map(|a| slo[a] - grow[a]);
         let dims = [0, 1, 2].map(|a| (shi[a] + grow[a] - lo[a] + 1) as u64);
         let count = dims.iter().product::<u64>();
@@ -229,6 +241,8 @@ impl BlurBounds {
             global,
             outside,
             value_box,
+            reach: moved,
+            extent,
         })
     }
 
@@ -237,6 +251,14 @@ impl BlurBounds {
     #[must_use]
     pub fn value_box(&self) -> Option<[[i64; 3]; 2]> {
         self.value_box
+    }
+
+    /// How far the shutter moves density at the field's largest speed, `(world units,
+    /// voxels)`, and the density's own extent in voxels (its blocks' box): a move past the
+    /// extent blurs the cache beyond its own size (usually a wrong velocity scale or unit).
+    #[must_use]
+    pub fn reach(&self) -> ((f64, f64), f64) {
+        (self.reach, self.extent)
     }
 
     /// Blocks held (the dense box).

@@ -233,7 +233,13 @@ impl EstimatorOptions {
         let estimator = self.params().apply(&self.estimator)?;
         let options = Options {
             interp,
-            samples: self.samples,
+            // A deterministic estimator answers with one sample whatever was asked: recorded
+            // as 1 (the EXR's `spp`, summaries), not as the 64 it never took.
+            samples: if estimator.is_deterministic() {
+                1
+            } else {
+                self.samples
+            },
             seed: self.seed,
             granularity: self.granularity,
             global_majorant: self.global_majorant,

@@ -460,3 +460,37 @@ fn a_job_with_an_extreme_reach_fails_its_task_by_name_not_by_a_panic() {
     );
     assert!(!d.join("job_swirl.exr").exists());
 }
+
+#[test]
+fn a_shutter_that_moves_the_cache_past_its_own_size_is_warned_about() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let Some(_) = caches(d) else { return };
+    let file = d.join("swirl.vdb");
+    let file = file.to_str().unwrap();
+    let q = |scale: &str| {
+        umbra(&[
+            "query",
+            file,
+            "--from",
+            "13,-20,10",
+            "--to",
+            "13,30,10",
+            "--velocity",
+            "vel",
+            "--estimator",
+            "riemann",
+            "--velocity-scale",
+            scale,
+        ])
+    };
+    let far = q("5");
+    let err = String::from_utf8_lossy(&far.stderr);
+    assert!(far.status.success(), "{err}");
+    assert!(
+        err.contains("farther than the cache's own size") && err.contains("voxels"),
+        "{err}"
+    );
+    let near = q("1");
+    assert!(!String::from_utf8_lossy(&near.stderr).contains("farther"));
+}

@@ -72,6 +72,18 @@ pub enum Warning {
         /// Components set to 0 (over voxels, tiles and the background).
         non_finite: u64,
     },
+    /// The shutter moves density farther than the cache's own size: usually a velocity in
+    /// other units, a wrong velocity scale or frame rate.
+    ShutterMovesFar {
+        /// The velocity grid.
+        grid: String,
+        /// The largest move over the shutter, world units.
+        world: f64,
+        /// The same in voxels.
+        voxels: f64,
+        /// The density's extent, voxels.
+        extent: f64,
+    },
     /// `max_memory` was given for a bake that does not go in parts (a colour map, a scene
     /// file or a NanoVDB grid loads whole): the budget was not honoured.
     MemoryBudgetIgnored {
@@ -104,6 +116,21 @@ impl std::fmt::Display for Warning {
                 f,
                 "velocity grid '{}': {non_finite} NaN or infinite components read as 0",
                 crate::text::escape(grid)
+            ),
+            Self::ShutterMovesFar {
+                ref grid,
+                world,
+                voxels,
+                extent,
+            } => write!(
+                f,
+                "velocity grid '{}' moves density up to {} world units ({} voxels) over the \
+                 shutter, farther than the cache's own size ({} voxels): check the velocity's \
+                 units, --velocity-scale and --fps",
+                crate::text::escape(grid),
+                crate::math::sig3(world),
+                crate::math::sig3(voxels),
+                crate::math::sig3(extent)
             ),
             Self::MemoryBudgetIgnored { what } => write!(
                 f,
@@ -217,24 +244,43 @@ pub fn solid_warnings(scene: &Scene) -> Vec<Warning> {
         .collect()
 }
 
-/// Warnings about the velocity grids of a scene's moving volumes: non-finite components.
+/// Warnings about the velocity grids of a scene's moving volumes: non-finite components, a
+/// shutter that moves density past the cache's own size.
 #[must_use]
 pub fn motion_warnings(scene: &Scene) -> Vec<Warning> {
     scene
         .fogs()
         .iter()
-        .filter_map(|f| velocity_warning(f.volume()))
+        .flat_map(|f| velocity_warning(f.volume()))
         .collect()
 }
 
-/// The warning about `vol`'s velocity grid, if it had non-finite components.
+/// The warnings about `vol`'s velocity grid: non-finite components
+/// ([`Warning::BadVelocity`]), a shutter moving density farther than the cache's own extent
+/// ([`Warning::ShutterMovesFar`]).
 #[must_use]
-pub fn velocity_warning(vol: &crate::Volume) -> Option<Warning> {
-    let field = vol.motion()?.field();
-    (field.non_finite() > 0).then(|| Warning::BadVelocity {
-        grid: field.name().to_string(),
-        non_finite: field.non_finite(),
-    })
+pub fn velocity_warning(vol: &crate::Volume) -> Vec<Warning> {
+    let Some(m) = vol.motion() else {
+        return Vec::new();
+    };
+    let field = m.field();
+    let mut out = Vec::new();
+    if field.non_finite() > 0 {
+        out.push(Warning::BadVelocity {
+            grid: field.name().to_string(),
+            non_finite: field.non_finite(),
+        });
+    }
+    let ((world, voxels), extent) = m.bounds().reach();
+    if extent > 0.0 && voxels > extent {
+        out.push(Warning::ShutterMovesFar {
+            grid: field.name().to_string(),
+            world,
+            voxels,
+            extent,
+        });
+    }
+    out
 }
 
 /// Warnings about a volume's bad voxels.
