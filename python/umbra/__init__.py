@@ -602,7 +602,8 @@ def emit_job(
     ``PATH``, made absolute); ``directory``: where the template will be written (default: the
     job file's; its path defaults are relative to it); ``chunk``: farm tasks of up to that many
     job tasks; ``show``, ``shot`` (OpenCue; default ``$SHOW``/``$SHOT``, else ``testing`` and
-    ``default`` as pyoutline), the user from ``$USER``."""
+    ``default`` as pyoutline), the user from ``$USER``, else ``$LOGNAME``, else this uid's
+    login name (as the CLI finds it)."""
     import shutil
     exe = _path("umbra", umbra) if umbra is not None else shutil.which("umbra")
     if exe is None:
