@@ -380,3 +380,88 @@ fn issue_58_a_query_missing_every_voxel_says_so() {
         "{err}"
     );
 }
+
+/// The budget labels of `error_vs_time.svg`: (x, y, text) of every coloured `<text>` (the axes,
+/// caption and legend are black).
+fn budget_labels(svg: &str) -> Vec<(i32, i32, String)> {
+    let mut out = Vec::new();
+    for el in svg.split("<text ").skip(1) {
+        let (attrs, rest) = el.split_once('>').unwrap();
+        let attr = |k: &str| {
+            let at = attrs.find(&format!(" {k}=\"")).map(|i| i + k.len() + 3);
+            at.map(|i| attrs[i..].split('"').next().unwrap().to_string())
+        };
+        if attr("fill").is_none_or(|f| f == "#000000") {
+            continue;
+        }
+        let x = attrs
+            .strip_prefix("x=\"")
+            .and_then(|s| s.split('"').next())
+            .unwrap();
+        let text = rest.split("</text>").next().unwrap().trim().to_string();
+        out.push((
+            x.parse().unwrap(),
+            attr("y").unwrap().parse().unwrap(),
+            text,
+        ));
+    }
+    out
+}
+
+/// Issue 58: `compare` says when collision scores as track-length (crossing rays), and the
+/// plot's budget labels do not overprint (coinciding points share one label).
+#[test]
+fn issue_58_compare_says_collision_is_track_length_and_labels_do_not_overlap() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |estimators: &str, out: &str| {
+        let o = umbra()
+            .args([
+                "compare",
+                "data/cloud.vdb",
+                "--rays",
+                "300",
+                "--repeats",
+                "1",
+                "-q",
+            ])
+            .args(["--estimators", estimators, "-o"])
+            .arg(dir.path().join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let read = |f: &str| std::fs::read_to_string(dir.path().join(out).join(f)).unwrap();
+        (
+            read("report.md"),
+            read("report.json"),
+            read("error_vs_time.svg"),
+        )
+    };
+    let (md, json, svg) = run("collision,track-length,ratio", "a");
+    assert!(
+        md.contains("Note: collision's errors equal track-length's at every budget"),
+        "{md}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(v["notes"].as_array().unwrap().len(), 1, "{json}");
+    let labels = budget_labels(&svg);
+    // 12 budget points; coinciding ones may share a label, every budget is labelled once.
+    assert!(labels.len() >= 8 && labels.len() <= 12, "{labels:?}");
+    for budget in ["1", "4", "16", "64"] {
+        assert!(labels.iter().any(|l| l.2 == budget), "{budget}: {labels:?}");
+    }
+    // Boxes of 12 px sans-serif labels (drawn at 9.7 px): no two overlap.
+    let boxes: Vec<[i32; 4]> = labels
+        .iter()
+        .map(|(x, y, t)| [*x, *y, x + 7 * t.len() as i32, y + 12])
+        .collect();
+    for (i, a) in boxes.iter().enumerate() {
+        for b in &boxes[i + 1..] {
+            let apart = a[2] <= b[0] || b[2] <= a[0] || a[3] <= b[1] || b[3] <= a[1];
+            assert!(apart, "labels overlap: {a:?} {b:?} in {labels:?}");
+        }
+    }
+    let (md, json, _) = run("track-length,ratio", "b");
+    assert!(!md.contains("Note:"), "{md}");
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(v["notes"], serde_json::json!([]), "{json}");
+}
