@@ -20,6 +20,7 @@ fn help(command: &str) -> String {
         .unwrap()
         .args([command, "--help"])
         .env_remove("COLUMNS")
+        .env_remove("CLICOLOR_FORCE")
         .output()
         .unwrap();
     assert!(o.status.success(), "umbra {command} --help");
