@@ -362,9 +362,7 @@ impl NativeVolume {
             );
         }
         if n > 0 && traced.met == 0 {
-            warnings.push(
-                umbra::bake::Warning::MissedEveryVoxel { queries: n as u64 }.to_string(),
-            );
+            warnings.push(umbra::bake::Warning::MissedEveryVoxel { queries: n as u64 }.to_string());
         }
         Ok((
             shape(traced.t)?,
