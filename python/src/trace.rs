@@ -99,6 +99,8 @@ pub(crate) struct Traced {
     tau: Vec<f64>,
     capped: u64,
     violations: u64,
+    /// Rows whose ray met an active voxel (walked a segment, hit a solid or lost light).
+    met: u64,
 }
 
 /// Rows handed to the library in one call by `trace_rays` for exact answers (their rays held
@@ -113,6 +115,7 @@ pub(crate) const ROWS_PER_CALL_BY_RAY: usize = 1_024;
 pub(crate) struct Tally {
     capped: u64,
     violations: u64,
+    met: u64,
     failed: u64,
     first: Option<(usize, String)>,
 }
@@ -121,6 +124,7 @@ impl Tally {
     pub(crate) fn merge(mut self, o: Self) -> Self {
         self.capped += o.capped;
         self.violations += o.violations;
+        self.met += o.met;
         self.failed += o.failed;
         self.first = match (self.first, o.first) {
             (Some(a), Some(b)) => Some(if a.0 <= b.0 { a } else { b }),
@@ -253,9 +257,13 @@ impl NativeVolume {
                             Some(x) => tau[at].copy_from_slice(&x[..c]),
                             None => tau[at].fill(f64::NAN),
                         }
+                        let met = v.segments > 0
+                            || v.hit.is_some()
+                            || v.value[..c].iter().any(|x| *x != 1.0);
                         Tally {
                             capped: v.capped,
                             violations: v.majorant_violations,
+                            met: u64::from(met),
                             ..Tally::default()
                         }
                     }
@@ -286,6 +294,7 @@ impl NativeVolume {
             tau,
             capped: tally.capped,
             violations: tally.violations,
+            met: tally.met,
         })
     }
 
@@ -351,6 +360,9 @@ impl NativeVolume {
                 }
                 .to_string(),
             );
+        }
+        if n > 0 && traced.met == 0 {
+            warnings.push(umbra::bake::Warning::MissedEveryVoxel { queries: n as u64 }.to_string());
         }
         Ok((
             shape(traced.t)?,

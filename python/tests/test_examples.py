@@ -138,3 +138,9 @@ def test_readme_python_example_runs_as_written(tmp_path, monkeypatch):
     assert names["T"].shape == (2,) and names["image"].shape == (256, 256)
     assert abs(float(names["T_sun"][0]) - 0.3116) < 1e-3
     assert (tmp_path / "shadow_py.exr").is_file()
+    # Run from the repository root, as the README says, what it writes is git-ignored (no
+    # untracked files left in the checkout).
+    ignored = (pathlib.Path(__file__).resolve().parents[2] / ".gitignore").read_text().split()
+    written = sorted(p.name for p in tmp_path.iterdir() if p.name != "data")
+    assert written == ["shadow_py.exr", "shadow_tiled.exr"], written
+    assert all(f"/{n}" in ignored for n in written), (written, ignored)

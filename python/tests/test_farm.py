@@ -294,17 +294,30 @@ def test_an_opencue_spec_is_the_one_pyoutline_writes_and_runs_as_rqd_runs_it(
     code, _, _ = cli("batch", farm, "--force", "--quiet", check=False)
     assert code == 3 and _maps(farm.parent) == by_engine and len(by_engine) == 4
     # A name cuebot cannot take is refused, naming the flag; without USER the user is the
-    # password database's name of this uid, as pyoutline's getpass finds it.
+    # password database's name of this uid, as pyoutline's getpass finds it; LOGNAME, LNAME and
+    # USERNAME come first, in that order.
     p = subprocess.run([str(exe), "batch", str(farm), "--emit", "opencue", "--show", "my show"],
                        capture_output=True, text=True, env=env)
     assert p.returncode == 1 and "'--show'" in p.stderr and not p.stdout, p.stderr
     import pwd
     p = subprocess.run([str(exe), "batch", str(farm), "--emit", "opencue"], capture_output=True,
                        text=True, env={k: v for k, v in env.items()
-                                       if k not in ("USER", "LOGNAME")})
+                                       if k not in ("USER", "LOGNAME", "LNAME", "USERNAME")})
     assert p.returncode == 0, p.stderr
     user = ET.fromstring(p.stdout.split("\n", 2)[2]).find("user").text
     assert user == pwd.getpwuid(os.getuid()).pw_name
+    # The user is the one pyoutline's own get_user() finds, whichever variables are set.
+    bare = {k: v for k, v in env.items() if k not in ("USER", "LOGNAME", "LNAME", "USERNAME")}
+    for given in ({"LOGNAME": "td_l", "LNAME": "td_n"}, {"LNAME": "td_n", "USERNAME": "td_u"},
+                  {"USERNAME": "td_u"}, {"USER": "td_a", "LOGNAME": "td_l"}, {}):
+        e = dict(bare, **given)
+        p = subprocess.run([str(exe), "batch", str(farm), "--emit", "opencue"],
+                           capture_output=True, text=True, env=e)
+        assert p.returncode == 0, p.stderr
+        got = ET.fromstring(p.stdout.split("\n", 2)[2]).find("user").text
+        want = subprocess.run([sys.executable, "-c", "import outline.util as u; print(u.get_user())"],
+                              capture_output=True, text=True, env=e, check=True).stdout.strip()
+        assert got == want, (given, got, want)
 
 
 CUE_TOKENS = ["#ZFRAME#", "#IFRAME#", "#FRAME_START#", "#FRAME_END#", "#FRAME_CHUNK#",

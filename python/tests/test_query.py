@@ -194,3 +194,25 @@ def test_a_nanovdb_file_answers_as_its_vdb(corpus, tmp_path):
         bad = tmp_path / "bad.nvdb"
         bad.write_bytes(b"not nanovdb at all, just text")
         umbra.Volume(bad)
+
+
+def test_rays_missing_every_voxel_warn_as_the_cli_does():
+    """Issue 58: rays that all miss every active voxel (T = 1 for each) warn, with the CLI's
+    words; one ray through the cloud among them, or a light ray through it, does not."""
+    import warnings
+    vol = umbra.Volume(DATA / "cloud.vdb")
+    far = np.array([[100.0, 100.0, 100.0], [100.0, 90.0, 0.0]])
+    to = far + np.array([1.0, 0.0, 0.0])
+    with pytest.warns(RuntimeWarning, match="none of the 2 queries met an active voxel") as rec:
+        t = vol.transmittance(far, to)
+    assert np.array_equal(t, [1.0, 1.0])
+    assert "--xform" in str(rec[0].message)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        both = vol.transmittance(np.vstack([far[:1], [[-5.0, 1.5, 0.0]]]),
+                                 np.vstack([to[:1], [[5.0, 1.5, 0.0]]]))
+        assert both[0] == 1.0 and both[1] < 1.0
+        assert vol.transmittance_to_light(np.array([[0.0, 1.5, 0.0]]),
+                                          light_dir=(-1, -1, 0))[0] < 1.0
+    with pytest.warns(RuntimeWarning, match="the query met no active voxel"):
+        vol.transmittance_to_light(np.array([[0.0, 20.0, 0.0]]), light_dir=(0, -1, 0))

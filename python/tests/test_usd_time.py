@@ -171,15 +171,16 @@ def test_every_xform_op_interpolates_at_subframes_as_usd_core_does(cli, tmp_path
     st = _op_stage(tmp_path / "shot.usda", name, add, a, b)
     text = (tmp_path / "shot.usda").read_text()
     assert "timeSamples" in text
-    for t in (1.25, 1.5):
+    for t in (1.05, 1.25, 1.5):
         _, js, _ = cli("query", tmp_path / "shot.usda", "--frame", t, "--at", "0.2,0.9,0.1",
                        "--json")
         _, want, _ = cli("query", CLOUD, f"--xform={_xform(st, '/World/cloud', t)}",
                          f"--light-dir={_sun(st, '/World/sun', t)}", "--at", "0.2,0.9,0.1",
                          "--json")
         got, exp = json.loads(js), json.loads(want)
-        # Doubles compose to the same matrix within an ulp or so (the README of test_usd.py);
-        # the quaternion is slerped, and a quatf op is single precision.
+        # Doubles compose to the same matrix within an ulp or so (the README of test_usd.py).
+        # A quatf op is slerped by usd-core in f32, by umbra in f64 (docs/usd.md): measured
+        # over 20 subframes, tau 3.4e-6 and length 1.8e-6 apart (relative), the worst at 1.05.
         tol = 5e-6 if name == "orient" else 1e-9
         assert got["tau"] == pytest.approx(exp["tau"], rel=tol, abs=1e-12), (name, t)
         assert got["length"] == pytest.approx(exp["length"], rel=tol), (name, t)

@@ -573,11 +573,12 @@ def job_status(path: PathLike, *, logs: Sequence[PathLike] = ()) -> Dict[str, An
 
 
 def _user() -> str:
-    """The user a farm job runs as: ``$USER``, ``$LOGNAME``, else the password database's name
-    for this process's uid (as the CLI finds it)."""
-    name = os.environ.get("USER") or os.environ.get("LOGNAME")
-    if name:
-        return name
+    """The user a farm job runs as, as pyoutline finds it (and the CLI): ``$USER``, ``$LOGNAME``,
+    ``$LNAME``, ``$USERNAME``, else the password database's name for this process's uid."""
+    for key in ("USER", "LOGNAME", "LNAME", "USERNAME"):
+        name = os.environ.get(key)
+        if name:
+            return name
     try:
         import pwd
         return pwd.getpwuid(os.getuid()).pw_name
@@ -602,7 +603,8 @@ def emit_job(
     ``PATH``, made absolute); ``directory``: where the template will be written (default: the
     job file's; its path defaults are relative to it); ``chunk``: farm tasks of up to that many
     job tasks; ``show``, ``shot`` (OpenCue; default ``$SHOW``/``$SHOT``, else ``testing`` and
-    ``default`` as pyoutline), the user from ``$USER``."""
+    ``default`` as pyoutline), the user as pyoutline finds it: ``$USER``, else ``$LOGNAME``,
+    ``$LNAME``, ``$USERNAME``, else this uid's login name (as the CLI does)."""
     import shutil
     exe = _path("umbra", umbra) if umbra is not None else shutil.which("umbra")
     if exe is None:

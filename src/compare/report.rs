@@ -81,7 +81,7 @@ pub fn write_reports(dir: &Path, rows: &[Row], meta: &Meta, svg: Option<&str>) -
             .collect();
         serde_json::to_writer_pretty(
             &mut *w,
-            &serde_json::json!({ "meta": meta, "rows": rows_json }),
+            &serde_json::json!({ "meta": meta, "notes": notes(rows), "rows": rows_json }),
         )
         .map_err(io)?;
         writeln!(w).map_err(io)
@@ -97,6 +97,39 @@ pub fn write_reports(dir: &Path, rows: &[Row], meta: &Meta, svg: Option<&str>) -
     commit_all(staged)
 }
 
+/// What the rows say that a reader would otherwise have to find out: `collision` scoring the
+/// same as `track-length` at every budget (its ramp kernel only scores collisions within
+/// `--kernel` voxels before the end of a ray's last stretch of active voxels, and the compared
+/// rays cross the whole volume).
+#[must_use]
+pub fn notes(rows: &[Row]) -> Vec<String> {
+    let of = |name: &str| -> Vec<&Row> { rows.iter().filter(|r| r.estimator == name).collect() };
+    let (collision, track) = (of("collision"), of("track-length"));
+    let same = !collision.is_empty()
+        && collision.iter().all(|c| {
+            track.iter().any(|t| {
+                t.budget == c.budget
+                    && t.rmse.to_bits() == c.rmse.to_bits()
+                    && t.bias.to_bits() == c.bias.to_bits()
+                    && t.max_error.to_bits() == c.max_error.to_bits()
+            })
+        });
+    let mut out = Vec::new();
+    if same {
+        out.push(
+            "collision's errors equal track-length's at every budget (only their times \
+             differ): both walk the same delta-tracking flights, and collision's ramp kernel \
+             scores only a real collision within --kernel voxels before the end of the ray's \
+             last stretch of active voxels. Every compared ray crosses the volume, so that \
+             stretch is the medium's faint edge, where no real collision landed. The two \
+             differ on segments that end inside the medium (a shadow ray from a point in the \
+             cloud: `query --at`, `--from/--to`)."
+                .to_string(),
+        );
+    }
+    out
+}
+
 /// The markdown report: settings, then rows grouped by budget rank (cheapest first), the most
 /// efficient stochastic estimator of each group in bold.
 #[must_use]
@@ -108,6 +141,9 @@ pub fn markdown(rows: &[Row], meta: &Meta) -> String {
         meta.source, meta.rays, meta.threads, meta.repeats, meta.medium, meta.reference, meta.machine
     ));
     s.push_str("Efficiency is 1 / (MSE x seconds); **bold** marks the most efficient estimator at each budget level.\n\n");
+    for n in notes(rows) {
+        s.push_str(&format!("Note: {n}\n\n"));
+    }
     // Budget levels: position in each estimator's ladder.
     let mut by_level: BTreeMap<usize, Vec<&Row>> = BTreeMap::new();
     let mut seen: BTreeMap<&str, usize> = BTreeMap::new();

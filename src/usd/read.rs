@@ -87,10 +87,7 @@ impl Reader<'_> {
     /// `over`s), each op evaluated by openusd-schemas' `XformOp`.
     fn local(&self, prim: &Prim) -> Result<(Matrix4d, bool)> {
         let path = prim.path().as_str().to_string();
-        let order = prim
-            .attribute("xformOpOrder")
-            .get_at::<Value>(None)
-            .map_err(|e| self.at(&path, format!("xformOpOrder: {e:#}")))?;
+        let order = self.uniform(prim, "xformOpOrder")?;
         let entries: Vec<String> = match order {
             None => Vec::new(),
             Some(Value::TokenVec(v)) => v.iter().map(|t| t.as_str().to_string()).collect(),
@@ -146,6 +143,23 @@ impl Reader<'_> {
         Ok(m)
     }
 
+    /// A `uniform` attribute's value as usd-core's readers take it: at the default time, time
+    /// samples ignored (`UsdCollectionAPI::ComputeMembershipQuery` and
+    /// `UsdGeomXformable::GetOrderedXformOps` read `Get(UsdTimeCode::Default())`). An attribute
+    /// with only time samples reads as its schema fallback, or as unauthored where the schema
+    /// gives none. The uniform attributes umbra reads: `xformOpOrder` (UsdGeomXformable) and a
+    /// collection's `includeRoot`, `expansionRule`, `mode` and `membershipExpression`
+    /// (UsdCollectionAPI, a light's `shadowLink` and the collections it includes); every other
+    /// attribute it reads is varying ([`Reader::value`]).
+    fn uniform(&self, prim: &Prim, attr: &str) -> Result<Option<Value>> {
+        prim.attribute(attr)
+            .get_at::<Value>(None)
+            .map_err(|e| self.at(prim.path().as_str(), format!("{attr}: {e:#}")))
+    }
+
+    /// A varying attribute's value at the time code (`UsdAttribute::Get(time)`): the schemas'
+    /// varying attributes and umbra's own `umbra:*` ones, whatever variability a layer
+    /// declares for those.
     fn value(&self, prim: &str, attr: &str) -> Result<Option<Value>> {
         self.prim(prim)?
             .attribute(attr)

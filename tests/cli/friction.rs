@@ -337,4 +337,183 @@ fn info_tells_vectors_grid_selections_and_empty_files() {
             "{args:?}: {text}"
         );
     }
+
+/// Issue 58: a point light inside the cloud with `--fov` is told what works (an omni map), not
+/// to drop `--fov` (which is refused, naming `--omni`); the omni map it names bakes.
+#[test]
+fn issue_58_a_light_inside_the_cloud_is_told_what_works() {
+    let dir = tempfile::tempdir().unwrap();
+    let bake = |extra: &[&str], out: &str| {
+        umbra()
+            .args([
+                "bake",
+                "data/cloud.vdb",
+                "--light-pos=0,1.5,0",
+                "--res",
+                "16",
+                "-q",
+            ])
+            .args(extra)
+            .arg("-o")
+            .arg(dir.path().join(out))
+            .output()
+            .unwrap()
+    };
+    let o = bake(&["--fov", "60"], "fov.exr");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("--fov 60 crops the volume"), "{err}");
+    assert!(
+        err.contains("behind the light") && err.contains("--omni"),
+        "{err}"
+    );
+    assert!(!err.contains("drop --fov") && !err.contains("inf"), "{err}");
+    let o = bake(&[], "none.exr");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("--omni cube|latlong"), "{err}");
+    assert!(!dir.path().join("none.exr").exists());
+    let o = bake(&["--omni", "cube"], "omni.exr");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(
+        o.stderr.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+}
+
+/// Issue 58: queries that meet no active voxel (T = 1 for each) say so, on stderr and in each
+/// `--json` line's `warnings`; a query through the cloud, or a file where one ray meets it,
+/// does not.
+#[test]
+fn issue_58_a_query_missing_every_voxel_says_so() {
+    let query = |args: &[&str]| {
+        let o = umbra()
+            .args(["query", "data/cloud.vdb"])
+            .args(args)
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        (
+            String::from_utf8_lossy(&o.stdout).to_string(),
+            String::from_utf8_lossy(&o.stderr).to_string(),
+        )
+    };
+    let miss = ["--from", "100,100,100", "--to", "101,100,100"];
+    let (out, err) = query(&miss);
+    assert!(out.starts_with("T = 1.0"), "{out}");
+    assert!(
+        err.contains("warning: the query met no active voxel (T = 1, tau = 0)")
+            && err.contains("--xform"),
+        "{err}"
+    );
+    let (out, _) = query(&[&miss[..], &["--json"]].concat());
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(v["warnings"][0]["kind"], "missed-every-voxel", "{out}");
+    assert_eq!(v["warnings"][0]["queries"], 1, "{out}");
+    // A light direction pointing away from the cloud from outside it: the same.
+    let (_, err) = query(&["--at", "0,20,0", "--light-dir=0,-1,0"]);
+    assert!(err.contains("met no active voxel"), "{err}");
+    // Through the cloud: no warning, an empty list.
+    let (out, err) = query(&["--at", "0,1.5,0", "--light-dir=-1,-1,0", "--json"]);
+    assert!(err.is_empty(), "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(v["warnings"], serde_json::json!([]), "{out}");
+    // A file of rays: one through the cloud silences it; all missing names the count.
+    let dir = tempfile::tempdir().unwrap();
+    let rays = dir.path().join("r.csv");
+    std::fs::write(&rays, "100,100,100,101,100,100\n-5,1.5,0,5,1.5,0\n").unwrap();
+    let (_, err) = query(&["--rays", rays.to_str().unwrap()]);
+    assert!(err.is_empty(), "{err}");
+    std::fs::write(&rays, "100,100,100,101,100,100\n-5,90,0,5,90,0\n").unwrap();
+    let (_, err) = query(&["--rays", rays.to_str().unwrap()]);
+    assert!(
+        err.contains("warning: none of the 2 queries met an active voxel (T = 1, tau = 0)"),
+        "{err}"
+    );
+}
+
+/// The budget labels of `error_vs_time.svg`: (x, y, text) of every coloured `<text>` (the axes,
+/// caption and legend are black).
+fn budget_labels(svg: &str) -> Vec<(i32, i32, String)> {
+    let mut out = Vec::new();
+    for el in svg.split("<text ").skip(1) {
+        let (attrs, rest) = el.split_once('>').unwrap();
+        let attr = |k: &str| {
+            let at = attrs.find(&format!(" {k}=\"")).map(|i| i + k.len() + 3);
+            at.map(|i| attrs[i..].split('"').next().unwrap().to_string())
+        };
+        if attr("fill").is_none_or(|f| f == "#000000") {
+            continue;
+        }
+        let x = attrs
+            .strip_prefix("x=\"")
+            .and_then(|s| s.split('"').next())
+            .unwrap();
+        let text = rest.split("</text>").next().unwrap().trim().to_string();
+        out.push((
+            x.parse().unwrap(),
+            attr("y").unwrap().parse().unwrap(),
+            text,
+        ));
+    }
+    out
+}
+
+/// Issue 58: `compare` says when collision scores as track-length (crossing rays), and the
+/// plot's budget labels do not overprint (coinciding points share one label).
+#[test]
+fn issue_58_compare_says_collision_is_track_length_and_labels_do_not_overlap() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |estimators: &str, out: &str| {
+        let o = umbra()
+            .args([
+                "compare",
+                "data/cloud.vdb",
+                "--rays",
+                "300",
+                "--repeats",
+                "1",
+                "-q",
+            ])
+            .args(["--estimators", estimators, "-o"])
+            .arg(dir.path().join(out))
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        let read = |f: &str| std::fs::read_to_string(dir.path().join(out).join(f)).unwrap();
+        (
+            read("report.md"),
+            read("report.json"),
+            read("error_vs_time.svg"),
+        )
+    };
+    let (md, json, svg) = run("collision,track-length,ratio", "a");
+    assert!(
+        md.contains("Note: collision's errors equal track-length's at every budget"),
+        "{md}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(v["notes"].as_array().unwrap().len(), 1, "{json}");
+    let labels = budget_labels(&svg);
+    // 12 budget points; coinciding ones may share a label, every budget is labelled once.
+    assert!(labels.len() >= 8 && labels.len() <= 12, "{labels:?}");
+    for budget in ["1", "4", "16", "64"] {
+        assert!(labels.iter().any(|l| l.2 == budget), "{budget}: {labels:?}");
+    }
+    // Boxes of 12 px sans-serif labels (drawn at 9.7 px): no two overlap.
+    let boxes: Vec<[i32; 4]> = labels
+        .iter()
+        .map(|(x, y, t)| [*x, *y, x + 7 * t.len() as i32, y + 12])
+        .collect();
+    for (i, a) in boxes.iter().enumerate() {
+        for b in &boxes[i + 1..] {
+            let apart = a[2] <= b[0] || b[2] <= a[0] || a[3] <= b[1] || b[3] <= a[1];
+            assert!(apart, "labels overlap: {a:?} {b:?} in {labels:?}");
+        }
+    }
+    let (md, json, _) = run("track-length,ratio", "b");
+    assert!(!md.contains("Note:"), "{md}");
+    let v: serde_json::Value = serde_json::from_str(&json).unwrap();
+    assert_eq!(v["notes"], serde_json::json!([]), "{json}");
 }

@@ -16,6 +16,7 @@ mod batch;
 mod cli_bake;
 mod cli_contract;
 mod cli_query;
+mod commands_doc;
 mod corpus_manifest;
 mod deep_map;
 mod friction;

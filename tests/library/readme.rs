@@ -62,8 +62,8 @@ fn readme_rust_example_is_the_example_and_runs() {
     assert!(lines[1].contains(" +- "), "{out}");
 }
 
-/// The README's install lists are what a fresh machine needs: its `apt-get install` names the
-/// Debian packages `.ci/run` installs, and it names every package `python/run_tests.sh` takes
+/// The README's install lists are what a fresh machine needs: its `apt-get install` (and
+/// docs/testing.md's) names the Debian packages `.ci/run` installs, and it names every package `python/run_tests.sh` takes
 /// from PyPI.
 #[test]
 fn readme_install_lists_match_what_ci_installs() {
@@ -93,6 +93,9 @@ fn readme_install_lists_match_what_ci_installs() {
     ci.sort();
     readme.sort();
     assert_eq!(readme, ci, "README's apt-get list vs .ci/run's");
+    let mut testing = command(&read("docs/testing.md"), "sudo apt-get install");
+    testing.sort();
+    assert_eq!(testing, ci, "docs/testing.md's apt-get list vs .ci/run's");
     let readme_text = read("README.md");
     let pip = command(
         &read("python/run_tests.sh"),

@@ -113,8 +113,11 @@ fn emit(job: &umbra::batch::Job, a: &BatchArgs, engine: Engine) -> Result<ExitCo
             let env = |k: &str| std::env::var(k).ok().filter(|v| !v.is_empty());
             let show = a.show.clone().or_else(|| env("SHOW"));
             let shot = a.shot.clone().or_else(|| env("SHOT"));
-            let Some(user) = env("USER")
-                .or_else(|| env("LOGNAME"))
+            // pyoutline's `outline.util.get_user()`: $USER, else `getpass.getuser()` ($LOGNAME,
+            // $LNAME, $USERNAME, then the password database's name of the uid).
+            let Some(user) = ["USER", "LOGNAME", "LNAME", "USERNAME"]
+                .into_iter()
+                .find_map(env)
                 .or_else(|| uid().and_then(passwd_name))
             else {
                 anyhow::bail!("--emit opencue: set USER to the user the job runs as");

@@ -448,7 +448,18 @@ fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
 fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> Result<ExitCode> {
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let mut failed: Vec<String> = Vec::new();
-    let (mut capped, mut violations) = (0u64, 0u64);
+    let warnings = run_warnings(answers);
+    // In JSON each line carries the run's warnings (as data, with the line stderr prints).
+    let warnings_json: Vec<serde_json::Value> = warnings
+        .iter()
+        .map(|w| {
+            let mut v = serde_json::to_value(w).unwrap_or_default();
+            if let Some(o) = v.as_object_mut() {
+                o.insert("message".into(), w.to_string().into());
+            }
+            v
+        })
+        .collect();
     for a in answers {
         let at = a.line.map_or(String::new(), |n| format!("line {n}: "));
         match &a.result {
@@ -462,8 +473,6 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                 failed.push(format!("{at}{e}"));
             }
             Ok((ray, e, seconds)) => {
-                capped += e.capped;
-                violations += e.majorant_violations;
                 let nc = e.channels;
                 if json {
                     // Grey: numbers; RGB: [r, g, b] arrays.
@@ -484,7 +493,7 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                         "lookups": e.lookups,
                         "estimator": est, "samples": e.samples, "interp": interp,
                         "length": ray.t_max(), "segments": e.segments, "capped": e.capped,
-                        "seconds": seconds,
+                        "seconds": seconds, "warnings": warnings_json,
                     });
                     if let Some(h) = e.hit {
                         v["solid_hit"] = h.into();
@@ -520,16 +529,8 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
         }
     }
     out.flush()?;
-    for w in [
-        Warning::Capped { samples: capped },
-        Warning::MajorantViolations {
-            lookups: violations,
-        },
-    ] {
-        if matches!(w, Warning::Capped { samples: n } | Warning::MajorantViolations { lookups: n } if n > 0)
-        {
-            eprintln!("umbra: warning: {w}");
-        }
+    for w in &warnings {
+        eprintln!("umbra: warning: {w}");
     }
     if let Some(first) = failed.first() {
         eprintln!(
@@ -541,6 +542,35 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
         return Ok(ExitCode::from(3));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// What the answers want their user to know: capped samples, majorant violations, and every
+/// query missing every active voxel (each answered, T = 1, no segment walked, no solid hit).
+fn run_warnings(answers: &[Answer]) -> Vec<Warning> {
+    let ok: Vec<&SceneEstimate> = answers
+        .iter()
+        .filter_map(|a| a.result.as_ref().ok().map(|(_, e, _)| e))
+        .collect();
+    let capped = ok.iter().map(|e| e.capped).sum::<u64>();
+    let violations = ok.iter().map(|e| e.majorant_violations).sum::<u64>();
+    let mut out = Vec::new();
+    if capped > 0 {
+        out.push(Warning::Capped { samples: capped });
+    }
+    if violations > 0 {
+        out.push(Warning::MajorantViolations {
+            lookups: violations,
+        });
+    }
+    let missed = |e: &SceneEstimate| {
+        e.segments == 0 && e.hit.is_none() && e.value[..e.channels].iter().all(|v| *v == 1.0)
+    };
+    if !ok.is_empty() && ok.iter().all(|e| missed(e)) {
+        out.push(Warning::MissedEveryVoxel {
+            queries: ok.len() as u64,
+        });
+    }
+    out
 }
 
 /// A value printed so that it can be read back: nine decimals in `[1e-4, 1e6)` (and for 0),

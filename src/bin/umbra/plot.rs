@@ -58,6 +58,12 @@ pub fn svg(rows: &[Row]) -> Result<String> {
         names.sort_unstable();
         names.dedup();
         let mut keys = Vec::new();
+        let mut labels = Labels::default();
+        // The points first, so no label covers one.
+        for r in &pts {
+            let (x, y) = chart.backend_coord(&(r.seconds, r.rmse));
+            labels.taken.push([x - 4, y - 4, x + 4, y + 4]);
+        }
         for r in &exact {
             let color = BLACK.mix(0.7);
             let line = vec![(r.seconds, y0 / 1.5), (r.seconds, y1 * 1.5)];
@@ -79,13 +85,15 @@ pub fn svg(rows: &[Row]) -> Result<String> {
                 .map_err(|e| err(&e))?;
             for r in &line {
                 let label = r.budget.split('=').nth(1).unwrap_or(&r.budget).to_string();
-                chart
-                    .draw_series(std::iter::once(Text::new(
+                let at = chart.backend_coord(&(r.seconds, r.rmse));
+                if let Some(p) = labels.place(at, &label) {
+                    root.draw(&Text::new(
                         label,
-                        (r.seconds * 1.04, r.rmse * 1.12),
+                        p,
                         ("sans-serif", 12).into_font().color(&color),
-                    )))
+                    ))
                     .map_err(|e| err(&e))?;
+                }
             }
             keys.push(((*name).to_string(), color, false));
         }
@@ -127,6 +135,46 @@ pub fn svg(rows: &[Row]) -> Result<String> {
         root.present().map_err(|e| err(&e))?;
     }
     Ok(out)
+}
+
+/// The budget labels placed so far, as pixel boxes `[x0, y0, x1, y1]`: a label goes to the first
+/// spot around its point that overlaps none (above right, below right, above left, below left,
+/// then further out), or is left out when every spot is taken (estimators whose points
+/// coincide, such as `collision` and `track-length` on crossing rays, share the first's).
+#[derive(Default)]
+struct Labels {
+    taken: Vec<[i32; 4]>,
+}
+
+impl Labels {
+    /// Approximate size of a 12 px sans-serif label.
+    fn size(text: &str) -> (i32, i32) {
+        (7 * text.chars().count() as i32, 12)
+    }
+
+    fn place(&mut self, (x, y): (i32, i32), text: &str) -> Option<(i32, i32)> {
+        let (w, h) = Self::size(text);
+        let spots = [
+            (x + 5, y - h - 4),
+            (x + 5, y + 4),
+            (x - w - 5, y - h - 4),
+            (x - w - 5, y + 4),
+            (x + 5, y - 2 * h - 6),
+            (x + 5, y + h + 6),
+            (x - w - 5, y - 2 * h - 6),
+            (x - w - 5, y + h + 6),
+        ];
+        let free = |b: [i32; 4]| {
+            self.taken
+                .iter()
+                .all(|t| b[2] <= t[0] || t[2] <= b[0] || b[3] <= t[1] || t[3] <= b[1])
+        };
+        let spot = spots
+            .into_iter()
+            .find(|&(sx, sy)| free([sx, sy, sx + w, sy + h]))?;
+        self.taken.push([spot.0, spot.1, spot.0 + w, spot.1 + h]);
+        Some(spot)
+    }
 }
 
 /// `deep_error_vs_bytes.svg` of `umbra compare --deep`: error in T against bytes per texel
@@ -401,4 +449,25 @@ pub fn colour_svg(
         root.present().map_err(|e| err(&e))?;
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Labels;
+
+    /// Two estimators' points at the same spot (collision and track-length on crossing rays):
+    /// the second label goes beside the first, not over it; a spot ringed by labels drops one.
+    #[test]
+    fn labels_of_coinciding_points_do_not_overprint() {
+        let mut l = Labels::default();
+        let a = l.place((300, 200), "64").unwrap();
+        let b = l.place((300, 200), "64").unwrap();
+        assert_ne!(a, b);
+        let (w, h) = Labels::size("64");
+        let apart = a.0 + w <= b.0 || b.0 + w <= a.0 || a.1 + h <= b.1 || b.1 + h <= a.1;
+        assert!(apart, "{a:?} {b:?}");
+        let placed = (0..20).filter_map(|_| l.place((300, 200), "64")).count();
+        assert_eq!(placed, 6, "eight spots around a point");
+        assert!(l.place((300, 200), "64").is_none());
+    }
 }

@@ -102,8 +102,12 @@ impl Reader<'_> {
         seen: &mut std::collections::BTreeSet<String>,
     ) -> Result<Link> {
         let key = |k: &str| format!("collection:{name}:{k}");
+        let owner = self.prim(prim)?;
+        // Every attribute of a collection is uniform: read at the default time, as
+        // ComputeMembershipQuery does (time samples ignored).
+        let uniform = |k: &str| self.uniform(&owner, &key(k));
         let token = |k: &str| -> Result<Option<String>> {
-            Ok(match self.value(prim, &key(k))? {
+            Ok(match uniform(k)? {
                 None => None,
                 Some(Value::Token(t)) => Some(t.as_str().to_string()),
                 Some(Value::String(s)) => Some(s),
@@ -123,7 +127,7 @@ impl Reader<'_> {
                 )
             })?,
         };
-        let include_root = match self.value(prim, &key("includeRoot"))? {
+        let include_root = match uniform("includeRoot")? {
             None => root_fallback,
             Some(Value::Bool(b)) => b,
             Some(v) => return Err(self.at(prim, format!("{} is {v:?}", key("includeRoot")))),
@@ -148,7 +152,7 @@ impl Reader<'_> {
         };
         if expression {
             // Expression mode: only membershipExpression counts; an empty one holds nothing.
-            let authored = self.value(prim, &key("membershipExpression"))?;
+            let authored = uniform("membershipExpression")?;
             let empty = match &authored {
                 None => true,
                 Some(Value::String(s)) => s.trim().is_empty(),

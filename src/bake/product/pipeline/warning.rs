@@ -65,6 +65,13 @@ pub enum Warning {
         /// How far the box reaches outside the window, pixels (`inf`: behind the light).
         pixels: f64,
     },
+    /// No query's segment met an active voxel, so T = 1 for each (`umbra query`): usually the
+    /// volume is not where the rays are (its transform or units) or the light's direction is
+    /// wrong.
+    MissedEveryVoxel {
+        /// Queries answered.
+        queries: u64,
+    },
     /// NaN or infinite components of a velocity grid were read as 0 (motion blur).
     BadVelocity {
         /// The velocity grid.
@@ -104,10 +111,30 @@ impl std::fmt::Display for Warning {
                  as on the surface; traced as outside (a hit needs phi < 0)",
                 crate::text::escape(grid)
             ),
+            // Behind the light (a light inside or beside the box): no perspective view holds
+            // the box, so dropping --fov is refused too; the omni map covers every direction.
+            Self::CroppedByFov { fov_deg, pixels } if pixels.is_infinite() => write!(
+                f,
+                "--fov {fov_deg} crops the volume: part of its box is behind the light (the \
+                 light is inside or beside it), and density there is not in the map; no \
+                 perspective view from the light holds the whole box (--omni cube|latlong bakes \
+                 every direction around it)"
+            ),
             Self::CroppedByFov { fov_deg, pixels } => write!(
                 f,
                 "--fov {fov_deg} crops the volume: its box reaches {pixels:.1} pixels outside \
                  the window, and density there is not in the map (drop --fov to frame it whole)"
+            ),
+            Self::MissedEveryVoxel { queries } => write!(
+                f,
+                "{} (T = 1, tau = 0): check where the volume is against the rays (its --xform \
+                 or the stage's transforms, its units: `umbra info -v` prints its world bbox) \
+                 and the light's direction",
+                if queries == 1 {
+                    "the query met no active voxel".to_string()
+                } else {
+                    format!("none of the {queries} queries met an active voxel")
+                }
             ),
             Self::BadVelocity {
                 ref grid,
