@@ -337,6 +337,7 @@ fn info_tells_vectors_grid_selections_and_empty_files() {
             "{args:?}: {text}"
         );
     }
+}
 
 /// Issue 58: a point light inside the cloud with `--fov` is told what works (an omni map), not
 /// to drop `--fov` (which is refused, naming `--omni`); the omni map it names bakes.
