@@ -57,7 +57,7 @@ pub use map::{
 pub use product::deep_map::{bake_deep, deep_attributes, DeepMap, DeepStats, STOCHASTIC_DEPTHS};
 pub use product::fixed_map::{bake_fixed, FixedMap, FixedStats, PROFILE_ERROR};
 pub use product::pipeline::{
-    map_warnings, motion_warnings, solid_warnings, velocity_warning, volume_warnings, BakeError,
+    map_warnings, motion_warnings, solid_warnings, velocity_warnings, volume_warnings, BakeError,
     BakeJob, BakeReport, BoundedPlan, Product, Step, Warning, IMPLIED_BUDGET,
 };
 pub use product::transmittance_volume::{

@@ -51,7 +51,8 @@ macro_rules! with_estimator_options {
                 #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
                 pub seed: u64,
             } {
-                /// Majorant granularity of the HDDA.
+                /// Majorant granularity of the HDDA (with a velocity: leaf, the blurred
+                /// bounds per 8^3 block).
                 #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "leaf"))]
                 pub granularity: Granularity,
                 /// One majorant for the whole grid (the naive baseline).
@@ -85,7 +86,8 @@ macro_rules! with_estimator_options {
                 #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
                 pub velocity_scale: Option<f64>,
                 /// With velocity: stratified shutter times per sample of a marching estimator
-                /// (default 8); null-collision estimators draw a time per sample.
+                /// (default 8; 1 leaves the error bar unknown); refused for the null-collision
+                /// estimators, which draw one time per sample.
                 #[cfg_attr(feature = "cli", arg(long))]
                 pub time_samples: Option<u32>,
                 $($after)*

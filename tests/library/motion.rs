@@ -353,7 +353,10 @@ fn non_finite_velocities_are_zeroed_counted_and_warned_about() {
     let vol = volume([0.0; 3])
         .with_motion(MotionSpec::new([-1.0, 1.0], 24.0, 1.0, 4).unwrap(), field)
         .unwrap();
-    let w = umbra::bake::velocity_warning(&vol).unwrap();
+    let w = umbra::bake::velocity_warnings(&vol)
+        .into_iter()
+        .next()
+        .unwrap();
     assert_eq!(
         w.to_string(),
         "velocity grid 'vel': 6 NaN or infinite components read as 0"

@@ -803,7 +803,7 @@ impl VolumeJob {
             stats,
             warnings: crate::bake::volume_warnings(&vol.sanitized())
                 .into_iter()
-                .chain(crate::bake::velocity_warning(vol))
+                .chain(crate::bake::velocity_warnings(vol))
                 .collect(),
         })
     }

@@ -18,7 +18,7 @@ mod warning;
 pub use bounded::{BoundedPlan, IMPLIED_BUDGET};
 pub use failure::{BakeError, Step};
 pub use warning::{
-    map_warnings, motion_warnings, solid_warnings, velocity_warning, volume_warnings, Warning,
+    map_warnings, motion_warnings, solid_warnings, velocity_warnings, volume_warnings, Warning,
 };
 
 /// One bake from a file to an EXR map (and optionally a PNG preview).

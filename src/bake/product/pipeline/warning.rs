@@ -278,7 +278,7 @@ pub fn motion_warnings(scene: &Scene) -> Vec<Warning> {
     scene
         .fogs()
         .iter()
-        .flat_map(|f| velocity_warning(f.volume()))
+        .flat_map(|f| velocity_warnings(f.volume()))
         .collect()
 }
 
@@ -286,7 +286,7 @@ pub fn motion_warnings(scene: &Scene) -> Vec<Warning> {
 /// ([`Warning::BadVelocity`]), a shutter moving density farther than the cache's own extent
 /// ([`Warning::ShutterMovesFar`]).
 #[must_use]
-pub fn velocity_warning(vol: &crate::Volume) -> Vec<Warning> {
+pub fn velocity_warnings(vol: &crate::Volume) -> Vec<Warning> {
     let Some(m) = vol.motion() else {
         return Vec::new();
     };
