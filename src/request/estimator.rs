@@ -233,15 +233,9 @@ impl EstimatorOptions {
     /// an option out of range.
     pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
         let estimator = self.params().apply(&self.estimator)?;
-        let options = Options {
+        let mut options = Options {
             interp,
-            // A deterministic estimator answers with one sample whatever was asked: recorded
-            // as 1 (the EXR's `spp`, summaries), not as the 64 it never took.
-            samples: if estimator.is_deterministic() {
-                1
-            } else {
-                self.samples
-            },
+            samples: self.samples,
             seed: self.seed,
             granularity: self.granularity,
             global_majorant: self.global_majorant,
@@ -249,6 +243,11 @@ impl EstimatorOptions {
             ..Options::default()
         };
         options.validate()?;
+        if estimator.is_deterministic() {
+            // A deterministic estimator answers with one sample whatever was asked: recorded
+            // as 1 (the EXR's `spp`, summaries), not as the 64 it never took.
+            options.samples = 1;
+        }
         Ok((estimator, options))
     }
 }
@@ -375,10 +374,16 @@ mod tests {
             serde_json::from_str(r#"{"estimator": "riemann", "spp": 3, "step": 0.5}"#).unwrap();
         assert_eq!((o.samples, o.step), (3, Some(0.5)));
         let (e, opts) = o.resolve(Interp::Nearest).unwrap();
+        // A deterministic estimator takes one sample whatever was asked, and says so.
         assert_eq!(
             (e.name(), opts.samples, opts.interp),
-            ("riemann", 3, Interp::Nearest)
+            ("riemann", 1, Interp::Nearest)
         );
+        let mc = EstimatorOptions {
+            estimator: "mc".into(),
+            ..o.clone()
+        };
+        assert_eq!(mc.resolve(Interp::Nearest).unwrap().1.samples, 3);
         let bad = EstimatorOptions {
             kernel: Some(2.0),
             ..o
