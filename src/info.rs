@@ -156,7 +156,7 @@ impl GridInfo {
     ///
     /// # Errors
     /// Decoding errors of the leaf values.
-    pub fn from_lazy(lazy: &LazyGrid, tree_type: &str) -> crate::Result<Self> {
+    pub fn from_lazy(lazy: &LazyGrid, tree_type: &str) -> crate::error::Result<Self> {
         let (stats, precision) = lazy.stats()?;
         let mut info = Self::describe(lazy.shell(), tree_type, &stats);
         info.memory_bytes = Some(lazy.loaded_memory_bytes());
@@ -325,12 +325,12 @@ impl FileInfo {
     /// `density[1]`, or the stored name), whose values alone are then read.
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] (name `files`) for a scene file; opening errors;
-    /// [`crate::Error::GridNotFound`]. A grid that cannot be decoded is reported with its
+    /// [`crate::error::Error::InvalidArgument`] (name `files`) for a scene file; opening errors;
+    /// [`crate::error::Error::GridNotFound`]. A grid that cannot be decoded is reported with its
     /// error instead.
-    pub fn read(path: &std::path::Path, grid: Option<&str>) -> crate::Result<Self> {
+    pub fn read(path: &std::path::Path, grid: Option<&str>) -> crate::error::Result<Self> {
         if crate::input::InputKind::of(path).is_scene_file() {
-            return Err(crate::Error::InvalidArgument {
+            return Err(crate::error::Error::InvalidArgument {
                 name: "files".into(),
                 reason: format!(
                     "{} is a scene file; info reports on .vdb files (run it on the files the \
@@ -370,7 +370,7 @@ impl FileInfo {
             .iter()
             .filter(|gd| wanted(gd))
             .map(|gd| {
-                let failed = |e: crate::Error| {
+                let failed = |e: crate::error::Error| {
                     let (name, stored, half) =
                         (&gd.display_name, &gd.stored_name, gd.saved_as_half);
                     GridInfo::failed(name, stored, &gd.tree_type, half, e.to_string())
@@ -407,7 +407,7 @@ impl FileInfo {
     /// The report on a NanoVDB file: every grid (or only `grid`) decoded whole and described
     /// with the keys of a `.vdb` grid plus its codec, quantisation and checksum; a grid type
     /// umbra does not decode is described from the file's metadata (a note, not an error).
-    fn read_nvdb(path: &std::path::Path, grid: Option<&str>) -> crate::Result<Self> {
+    fn read_nvdb(path: &std::path::Path, grid: Option<&str>) -> crate::error::Result<Self> {
         let file = crate::nvdb::NvdbFile::open(path)?;
         let only = grid.map(|g| file.find_grid(g)).transpose()?;
         let grids = (0..file.grids.len())
@@ -444,7 +444,7 @@ impl GridInfo {
                 info.nanovdb_version = Some(d.version.to_string());
                 info
             }
-            Err(crate::Error::Unsupported { what, .. })
+            Err(crate::error::Error::Unsupported { what, .. })
                 if !crate::nvdb::is_decoded(meta.grid_type) =>
             {
                 let [lo, hi] = meta.index_bbox;

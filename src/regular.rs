@@ -73,7 +73,7 @@ pub fn optical_depth(vol: &Volume, ray: &Ray, interp: Interp) -> Result<OpticalD
     };
     let (tau, w) = walk_tau(vol, ray, interp, Granularity::Leaf, &mut acc, &mut n, leaf);
     if tau.is_nan() {
-        return Err(crate::Error::nan_on_ray("optical depth", ray));
+        return Err(crate::error::Error::nan_on_ray("optical depth", ray));
     }
     Ok(OpticalDepth {
         tau,

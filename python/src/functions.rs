@@ -2,8 +2,8 @@
 //! points, and a bake from a file.
 
 use crate::errors::*;
+use crate::native::*;
 use crate::trace::*;
-use crate::volume::*;
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 use std::path::PathBuf;
@@ -227,16 +227,6 @@ pub(crate) fn write_exr(
 // ---------------------------------------------------------------------------------------------
 // Volumes
 
-/// `umbra bake --json`'s `deep` object.
-pub(crate) fn deep_json(d: &umbra::bake::DeepStats) -> serde_json::Value {
-    serde_json::json!({
-        "max_error": d.max_error, "samples": d.samples,
-        "mean_samples_per_pixel": d.mean_samples(), "max_samples_per_pixel": d.max_samples,
-        "empty_pixels": d.empty_pixels, "profile_breakpoints": d.breakpoints,
-        "coarse_cells": d.coarse_cells, "rms_error": d.rms_error, "seconds": d.seconds,
-    })
-}
-
 /// The lights of the USD stage `path` at `time` as JSON: `{"time", "up", "lights": [{"prim",
 /// "name", "type", "kind", "dir" | "pos", "shadow_enable", "linked"}]}` (`kind` null for a
 /// type umbra does not trace; `linked`: the volumes its shadow link includes).
@@ -365,10 +355,4 @@ pub(crate) fn bake_file(
             Ok((stats_json(&report.stats)?, warnings))
         }
     }
-}
-
-/// A finished map's summary (the camera dict), as JSON text.
-pub(crate) fn summary_json(report: &umbra::bake::BakeReport) -> PyResult<String> {
-    let summary = MapSummary::new(&report.map, &report.provenance);
-    serde_json::to_string(&summary).map_err(|e| raise(Class::Other, e.to_string()))
 }

@@ -12,11 +12,12 @@ use pyo3::prelude::*;
 mod errors;
 mod functions;
 mod motion;
+mod native;
 mod trace;
 mod volume;
 
 use functions::*;
-use volume::NativeVolume;
+use native::NativeVolume;
 
 /// umbra's native module: see the `umbra` package.
 #[pymodule]

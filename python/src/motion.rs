@@ -2,7 +2,7 @@
 //! the loaded one or a moving copy of it (kept for the next call with the same motion).
 
 use crate::errors::*;
-use crate::volume::NativeVolume;
+use crate::native::NativeVolume;
 use pyo3::prelude::*;
 use std::sync::Arc;
 use umbra::internals::motion::MotionRequest;
@@ -70,6 +70,3 @@ impl NativeVolume {
         Ok(SceneRef::Moving(scene))
     }
 }
-
-/// The cache of [`NativeVolume::scene_for`]: the last motion asked for and its scene.
-pub(crate) type MovingCache = std::sync::Mutex<Option<(MotionRequest, Arc<Scene>)>>;

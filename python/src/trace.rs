@@ -2,7 +2,7 @@
 //! tallies of what the estimators reported.
 
 use crate::errors::*;
-use crate::volume::*;
+use crate::native::*;
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use rayon::prelude::*;

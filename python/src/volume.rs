@@ -1,67 +1,16 @@
 //! The native `Volume`: a loaded grid, scene or stage and the Python methods on it.
 
 use crate::errors::*;
-use crate::functions::*;
 use crate::motion::SceneRef;
+use crate::native::*;
 use crate::trace::*;
-use numpy::{PyArray1, PyArray2, PyArrayMethods, PyReadonlyArray2};
+use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use std::path::PathBuf;
 use umbra::bake::{BakeJob, Camera};
 use umbra::request::{BakeOptions, BakePlan, BakeRequest, EstimatorOptions};
 use umbra::scene::Scene;
 use umbra::{Interp, Light, Ray};
-
-/// A loaded volume (a grid of a `.vdb` file, or a scene) with what it was loaded with.
-#[pyclass(frozen, module = "umbra._umbra", name = "Volume")]
-pub(crate) struct NativeVolume {
-    pub(crate) scene: Scene,
-    pub(crate) path: PathBuf,
-    pub(crate) grid: String,
-    pub(crate) density_scale: f64,
-    pub(crate) xform: Option<umbra::internals::xform::Xform>,
-    pub(crate) interp: Interp,
-    pub(crate) warnings: Vec<String>,
-    /// Each fog volume's tree statistics, computed on first use (a pass over every leaf).
-    pub(crate) stats: std::sync::OnceLock<Vec<umbra::internals::tree::TreeStats>>,
-    /// The last moving copy a call's motion keywords asked for ([`NativeVolume::scene_for`]).
-    pub(crate) moving: crate::motion::MovingCache,
-}
-
-/// `(T, std_err, tau, warnings)`, arrays of shape `(N, C)`.
-pub(crate) type TraceOut<'py> = (
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray2<f64>>,
-    Bound<'py, PyArray2<f64>>,
-    Vec<String>,
-);
-
-/// A baked image: `(T, std_err or None, summary JSON, warnings)`, arrays of shape `(C, H, W)`
-/// flattened channel-major.
-pub(crate) type BakeOut<'py> = (
-    Bound<'py, PyArray1<f32>>,
-    Option<Bound<'py, PyArray1<f32>>>,
-    String,
-    Vec<String>,
-);
-
-/// A transmittance volume in memory: `(ijk, T, stats JSON, warnings)`, `ijk` of shape `(N, 3)`.
-pub(crate) type VolumeOut<'py> = (
-    Bound<'py, PyArray2<i32>>,
-    Bound<'py, PyArray1<f32>>,
-    String,
-    Vec<String>,
-);
-
-/// A transmittance volume's stats as a JSON object: [`umbra::bake::VolumeStats`]'s fields
-/// and `ns_per_voxel`.
-pub(crate) fn stats_json(st: &umbra::bake::VolumeStats) -> PyResult<String> {
-    let mut v = serde_json::to_value(st).map_err(|e| raise(Class::Other, e.to_string()))?;
-    if let Some(o) = v.as_object_mut() {
-        o.insert("ns_per_voxel".into(), serde_json::json!(st.ns_per_voxel()));
-    }
-    Ok(v.to_string())
-}
 
 impl NativeVolume {
     /// This volume's transmittance volume as the options (the Python keywords, JSON text) ask

@@ -105,9 +105,9 @@ impl Job {
                 // A missing file or grid, or a malformed scene, fails the job before any
                 // task runs.
                 Err(
-                    e @ (crate::Error::Io { .. }
-                    | crate::Error::GridNotFound { .. }
-                    | crate::Error::Scene { .. }),
+                    e @ (crate::error::Error::Io { .. }
+                    | crate::error::Error::GridNotFound { .. }
+                    | crate::error::Error::Scene { .. }),
                 ) => return Err(e.into()),
                 // A corrupt or unsupported frame adds nothing here and fails alone.
                 Err(_) => {}

@@ -112,12 +112,12 @@ pub enum BatchError {
     },
     /// A task's bake failed (load, framing, settings, write).
     #[error(transparent)]
-    Task(#[from] crate::Error),
+    Task(#[from] crate::error::Error),
     /// An option of the run ([`RunOptions`]: `task`, `shard`, `log`) is out of range: an
-    /// [`crate::Error::InvalidArgument`] in the library's spelling, which each front end
+    /// [`crate::error::Error::InvalidArgument`] in the library's spelling, which each front end
     /// respells (the CLI `--task`, Python `task`).
     #[error(transparent)]
-    Options(crate::Error),
+    Options(crate::error::Error),
     /// A task panicked (a bug): the panic message.
     #[error("task panicked: {0}")]
     Panic(String),
@@ -373,7 +373,7 @@ impl Job {
     pub fn bake_job(&self, task: &Task, threads: usize) -> Result<BakeJob, BatchError> {
         match self.plan(task, threads)? {
             BakePlan::Map(j) => Ok(*j),
-            BakePlan::Volume(_) => Err(BatchError::Task(crate::Error::InvalidArgument {
+            BakePlan::Volume(_) => Err(BatchError::Task(crate::error::Error::InvalidArgument {
                 name: "output".into(),
                 reason: "this job writes transmittance volumes, not maps".into(),
             })),
@@ -385,7 +385,7 @@ impl Job {
     /// is left to its own task, which fails alone.
     ///
     /// # Errors
-    /// [`BatchError::Task`] with [`crate::Error::Io`] or [`crate::Error::GridNotFound`],
+    /// [`BatchError::Task`] with [`crate::error::Error::Io`] or [`crate::error::Error::GridNotFound`],
     /// naming the first input that fails.
     pub fn check_inputs(&self) -> Result<(), BatchError> {
         let mut inputs: Vec<&Task> = self.tasks.iter().collect();
@@ -401,10 +401,10 @@ impl Job {
                 crate::input::GridFile::open(input).and_then(|f| f.check_grid(&task.grid))
             };
             if let Err(
-                e @ (crate::Error::Io { .. }
-                | crate::Error::GridNotFound { .. }
-                | crate::Error::Scene { .. }
-                | crate::Error::Stage { .. }),
+                e @ (crate::error::Error::Io { .. }
+                | crate::error::Error::GridNotFound { .. }
+                | crate::error::Error::Scene { .. }
+                | crate::error::Error::Stage { .. }),
             ) = found
             {
                 return Err(e.into());
@@ -520,7 +520,7 @@ impl Job {
         match self.run_planned(task, threads, BakePlan::Map(Box::new(job)), progress)? {
             crate::request::BakeOutcome::Map { report, .. } => Ok(*report),
             crate::request::BakeOutcome::Volume { .. } => {
-                Err(BatchError::Task(crate::Error::InvalidArgument {
+                Err(BatchError::Task(crate::error::Error::InvalidArgument {
                     name: "output".into(),
                     reason: "this job writes maps, not transmittance volumes".into(),
                 }))
@@ -556,7 +556,7 @@ impl Job {
     ) -> Result<crate::bake::VolumeJob, BatchError> {
         match self.plan(task, threads)? {
             BakePlan::Volume(j) => Ok(*j),
-            BakePlan::Map(_) => Err(BatchError::Task(crate::Error::InvalidArgument {
+            BakePlan::Map(_) => Err(BatchError::Task(crate::error::Error::InvalidArgument {
                 name: "output".into(),
                 reason: "this job writes maps, not transmittance volumes".into(),
             })),
@@ -577,7 +577,7 @@ impl Job {
         match self.run_planned(task, threads, BakePlan::Volume(Box::new(job)), progress)? {
             crate::request::BakeOutcome::Volume { report, .. } => Ok(report),
             crate::request::BakeOutcome::Map { .. } => {
-                Err(BatchError::Task(crate::Error::InvalidArgument {
+                Err(BatchError::Task(crate::error::Error::InvalidArgument {
                     name: "output".into(),
                     reason: "this job writes transmittance volumes, not maps".into(),
                 }))

@@ -548,7 +548,7 @@ fn shared_options(
     }
     .plan()
     .map_err(|e| match e {
-        crate::Error::InvalidArgument { name, reason } => {
+        crate::error::Error::InvalidArgument { name, reason } => {
             let key = match name.as_str() {
                 "output" => "output".to_string(),
                 n => format!("bake.{}", n.replace('-', "_")),
@@ -598,7 +598,7 @@ pub(super) fn entry_read(
     if let Some(x) = &inp.xform {
         crate::xform::Xform::from_row_major(x).map_err(|e| {
             let reason = match e {
-                crate::Error::InvalidArgument { reason, .. } => reason,
+                crate::error::Error::InvalidArgument { reason, .. } => reason,
                 other => other.to_string(),
             };
             err(path, &key("xform"), reason)

@@ -96,7 +96,7 @@ impl PositionsTask {
     }
 
     /// How the stage is read at this task's frame.
-    fn scene(&self) -> crate::Result<crate::scene::SceneOptions> {
+    fn scene(&self) -> crate::error::Result<crate::scene::SceneOptions> {
         let mut s = self.options.scene_options()?;
         #[allow(clippy::cast_precision_loss)]
         {
@@ -276,8 +276,8 @@ fn entry_options(
             format!("{} is not a finite scale >= 0", o.density_scale),
         ));
     }
-    let named = |e: crate::Error| match e {
-        crate::Error::InvalidArgument { name, reason } => {
+    let named = |e: crate::error::Error| match e {
+        crate::error::Error::InvalidArgument { name, reason } => {
             err(path, &key(&name.replace('-', "_")), reason)
         }
         other => err(path, &key("estimator"), other),
@@ -382,7 +382,7 @@ impl Job {
             positions: f.positions,
         };
         if let Some(d) = t.output.parent() {
-            std::fs::create_dir_all(d).map_err(|e| crate::Error::Io {
+            std::fs::create_dir_all(d).map_err(|e| crate::error::Error::Io {
                 path: d.to_path_buf(),
                 err: e,
             })?;
@@ -441,12 +441,12 @@ impl Job {
 }
 
 fn read_frame(p: &Path) -> Result<FrameFile, BatchError> {
-    let text = std::fs::read_to_string(p).map_err(|e| crate::Error::Io {
+    let text = std::fs::read_to_string(p).map_err(|e| crate::error::Error::Io {
         path: p.to_path_buf(),
         err: e,
     })?;
     serde_json::from_str(&text).map_err(|e| {
-        BatchError::Task(crate::Error::InvalidArgument {
+        BatchError::Task(crate::error::Error::InvalidArgument {
             name: p.display().to_string(),
             reason: format!("not a per-frame answers file: {e}"),
         })

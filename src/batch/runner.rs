@@ -264,7 +264,7 @@ fn prepare(
 
 /// An I/O error on `path` as a batch error.
 fn io(path: &Path, e: std::io::Error) -> BatchError {
-    BatchError::Task(crate::Error::Io {
+    BatchError::Task(crate::error::Error::Io {
         path: path.to_path_buf(),
         err: e,
     })
@@ -387,7 +387,7 @@ fn run_points(
 }
 
 fn invalid(option: &str, reason: String) -> BatchError {
-    BatchError::Options(crate::Error::InvalidArgument {
+    BatchError::Options(crate::error::Error::InvalidArgument {
         name: option.into(),
         reason,
     })

@@ -84,10 +84,12 @@ pub fn deep_row(job: &BakeJob) -> Result<DeepRow> {
             seconds: map_seconds + d.seconds,
         });
     }
-    let f = report.fixed.ok_or_else(|| crate::Error::InvalidArgument {
-        name: "deep".into(),
-        reason: "compare --deep compares deep products only".into(),
-    })?;
+    let f = report
+        .fixed
+        .ok_or_else(|| crate::error::Error::InvalidArgument {
+            name: "deep".into(),
+            reason: "compare --deep compares deep products only".into(),
+        })?;
     Ok(DeepRow {
         family: f.format.split(':').next().unwrap_or_default().to_string(),
         encoding: f.format.clone(),

@@ -39,9 +39,9 @@ fn io(e: impl std::fmt::Display) -> String {
 /// `error_vs_time.svg` when given.
 ///
 /// # Errors
-/// [`crate::Error::Output`] when a file cannot be written (then none is).
+/// [`crate::error::Error::Output`] when a file cannot be written (then none is).
 pub fn write_reports(dir: &Path, rows: &[Row], meta: &Meta, svg: Option<&str>) -> Result<()> {
-    std::fs::create_dir_all(dir).map_err(|e| crate::Error::Io {
+    std::fs::create_dir_all(dir).map_err(|e| crate::error::Error::Io {
         path: dir.to_path_buf(),
         err: e,
     })?;

@@ -58,7 +58,7 @@ fn case(
     t: [f64; 3],
     scale: f64,
     rays: usize,
-) -> crate::Result<Case> {
+) -> crate::error::Result<Case> {
     let volume = Volume::from_tree(name.into(), b.build(), map(voxel, t), scale)?;
     let rays = random_rays(&volume, rays, 17);
     Ok(Case {
@@ -74,7 +74,7 @@ fn case(
 ///
 /// # Errors
 /// None expected (the media are fixed); a volume constructor's error is passed on.
-pub fn catalogue(rays: usize) -> crate::Result<Vec<Case>> {
+pub fn catalogue(rays: usize) -> crate::error::Result<Vec<Case>> {
     let mut out = Vec::new();
     let smooth16 = block(16, smooth);
     // Optical depth along a ray through 16 voxels of ~1: ~16 * voxel * scale.

@@ -93,13 +93,13 @@ impl ColourWalk {
     /// The walk called `name`: `auto`, `shared` or `split`.
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] named `colour-walk` for any other name.
+    /// [`crate::error::Error::InvalidArgument`] named `colour-walk` for any other name.
     pub fn from_name(name: &str) -> Result<Self> {
         match name {
             "auto" => Ok(Self::Auto),
             "shared" => Ok(Self::Shared),
             "split" => Ok(Self::Split),
-            other => Err(crate::Error::InvalidArgument {
+            other => Err(crate::error::Error::InvalidArgument {
                 name: "colour-walk".into(),
                 reason: format!("'{other}': expected auto, shared or split"),
             }),
@@ -174,17 +174,17 @@ impl Options {
     /// Check the options: at least one sample, a collision cap of at least one.
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] naming the field (`samples`, `max-collisions`).
+    /// [`crate::error::Error::InvalidArgument`] naming the field (`samples`, `max-collisions`).
     pub fn validate(&self) -> Result<()> {
         if self.samples == 0 {
-            return Err(crate::Error::InvalidArgument {
+            return Err(crate::error::Error::InvalidArgument {
                 name: "samples".into(),
                 reason: "must be at least 1".into(),
             });
         }
         budget::check_samples("samples", u64::from(self.samples))?;
         if self.max_collisions == 0 {
-            return Err(crate::Error::InvalidArgument {
+            return Err(crate::error::Error::InvalidArgument {
                 name: "max-collisions".into(),
                 reason: "must be at least 1".into(),
             });
@@ -376,7 +376,7 @@ fn prepare_into(
 /// Estimate the transmittance along `ray` (ray index `ray_id` selects the random streams).
 ///
 /// # Errors
-/// [`crate::Error::InvalidArgument`] for invalid [`Options`] (see [`Options::validate`]);
+/// [`crate::error::Error::InvalidArgument`] for invalid [`Options`] (see [`Options::validate`]);
 /// rays and estimators are valid by construction.
 pub fn estimate(
     vol: &Volume,
@@ -390,7 +390,7 @@ pub fn estimate(
     // shutter time ([`blur::UNKNOWN_STD_ERR`]).
     let unknown_ok = vol.moving().is_some() && est.marches();
     if e.value.is_nan() || (e.std_err.is_nan() && !unknown_ok) {
-        return Err(crate::Error::nan_on_ray(
+        return Err(crate::error::Error::nan_on_ray(
             format!("{} transmittance estimate", est.name()),
             ray,
         ));
@@ -409,7 +409,7 @@ fn estimate_unchecked(
     opts.validate()?;
     budget::check_ray(vol, est, opts.samples)?;
     if vol.motion().is_some() && est.algo().0 == Algo::Regular {
-        return Err(crate::Error::InvalidArgument {
+        return Err(crate::error::Error::InvalidArgument {
             name: "estimator".into(),
             reason: blur::REGULAR_REFUSED.into(),
         });

@@ -29,9 +29,9 @@ impl GridFile {
     /// grid file of another format is read as `.vdb`, whose reader says why it is not one).
     ///
     /// # Errors
-    /// As [`Archive::open`] (or the NanoVDB reader's open for `.nvdb`): [`crate::Error::Io`],
-    /// [`crate::Error::NotVdb`],
-    /// [`crate::Error::Unsupported`], [`crate::Error::Invalid`], naming the file.
+    /// As [`Archive::open`] (or the NanoVDB reader's open for `.nvdb`): [`crate::error::Error::Io`],
+    /// [`crate::error::Error::NotVdb`],
+    /// [`crate::error::Error::Unsupported`], [`crate::error::Error::Invalid`], naming the file.
     pub fn open(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         let reader = match super::InputKind::of(path) {
@@ -53,7 +53,7 @@ impl GridFile {
     /// Check that the file holds grid `grid` (display, stored or unique base name).
     ///
     /// # Errors
-    /// [`crate::Error::GridNotFound`] listing the grids it holds.
+    /// [`crate::error::Error::GridNotFound`] listing the grids it holds.
     pub fn check_grid(&self, grid: &str) -> Result<()> {
         match &self.reader {
             Reader::Vdb(a) => a.find_grid(grid).map(|_| ()),
@@ -64,7 +64,7 @@ impl GridFile {
     /// Decode grid `grid` whole: identity, metadata, transform and tree.
     ///
     /// # Errors
-    /// [`crate::Error::GridNotFound`], or a decoding error naming the file.
+    /// [`crate::error::Error::GridNotFound`], or a decoding error naming the file.
     pub fn load(&self, grid: &str) -> Result<Grid> {
         match &self.reader {
             Reader::Vdb(a) => a.load(a.find_grid(grid)?),
@@ -76,7 +76,7 @@ impl GridFile {
     /// its three components, each a scalar tree of the grid's topology ([`VectorGrid`]).
     ///
     /// # Errors
-    /// [`crate::Error::GridNotFound`]; [`crate::Error::Unsupported`] naming the file and the
+    /// [`crate::error::Error::GridNotFound`]; [`crate::error::Error::Unsupported`] naming the file and the
     /// grid when it is not a vector grid; a decoding error naming the file.
     pub fn load_vector(&self, grid: &str) -> Result<VectorGrid> {
         match &self.reader {
@@ -90,7 +90,7 @@ impl GridFile {
     /// the grid whole ([`GridFile::load`]).
     ///
     /// # Errors
-    /// [`crate::Error::GridNotFound`], or a decoding error of the head, the topology or the
+    /// [`crate::error::Error::GridNotFound`], or a decoding error of the head, the topology or the
     /// buffer headers, naming the file.
     pub fn lazy(&self, grid: &str) -> Result<Option<LazyGrid>> {
         match &self.reader {
@@ -104,7 +104,7 @@ impl GridFile {
     /// needs).
     ///
     /// # Errors
-    /// [`crate::Error::GridNotFound`], or a decoding error of the head or the topology, naming
+    /// [`crate::error::Error::GridNotFound`], or a decoding error of the head or the topology, naming
     /// the file.
     pub fn extent(&self, grid: &str) -> Result<GridExtent> {
         match &self.reader {
@@ -138,7 +138,7 @@ mod tests {
         file.check_grid("density").unwrap();
         let missing = file.check_grid("no such grid").unwrap_err();
         assert!(
-            matches!(missing, crate::Error::GridNotFound { .. }),
+            matches!(missing, crate::error::Error::GridNotFound { .. }),
             "{missing}"
         );
         let archive = Archive::open(&path).unwrap();

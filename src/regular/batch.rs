@@ -139,7 +139,7 @@ fn chunk_depths(vol: &Volume, rays: &[Ray]) -> Vec<Result<OpticalDepth>> {
                 reads += if *c > 0 { 4 + 4 * u64::from(*c) } else { 0 };
             }
             if tau.is_nan() {
-                return Err(crate::Error::nan_on_ray("optical depth", ray));
+                return Err(crate::error::Error::nan_on_ray("optical depth", ray));
             }
             Ok(OpticalDepth {
                 tau,

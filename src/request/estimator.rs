@@ -143,7 +143,7 @@ impl Default for EstimatorOptions {
 impl EstimatorOptions {
     /// Options from a JSON object, as the Python module passes its keywords (the names of
     /// [`EstimatorOptions::default`] serialised: the one list Python's keywords come from): a
-    /// value of the wrong type or an unknown name is an [`crate::Error::InvalidArgument`]
+    /// value of the wrong type or an unknown name is an [`crate::error::Error::InvalidArgument`]
     /// naming that option.
     ///
     /// # Errors
@@ -166,7 +166,7 @@ impl EstimatorOptions {
     /// `velocity`; `default_fps` is a USD shot's `timeCodesPerSecond` (else 24).
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] naming `shutter`, `fps`, `velocity-scale` or
+    /// [`crate::error::Error::InvalidArgument`] naming `shutter`, `fps`, `velocity-scale` or
     /// `time-samples` given without `velocity` or out of range, an empty `velocity`, or
     /// `estimator` when it is `regular` (exact only for a still grid).
     pub fn motion(&self, default_fps: Option<f64>) -> Result<Option<MotionRequest>> {
@@ -229,7 +229,7 @@ impl EstimatorOptions {
     /// lookups by `interp`, validated.
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] naming `estimator`, a parameter it does not take, or
+    /// [`crate::error::Error::InvalidArgument`] naming `estimator`, a parameter it does not take, or
     /// an option out of range.
     pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
         let estimator = self.params().apply(&self.estimator)?;
@@ -279,7 +279,7 @@ impl EstimatorParams {
     /// Estimator `name` with these parameters.
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] naming the estimator, or a parameter it does not take.
+    /// [`crate::error::Error::InvalidArgument`] naming the estimator, or a parameter it does not take.
     pub fn apply(&self, name: &str) -> Result<Estimator> {
         Estimator::with_params(name, &self.given())
     }
@@ -291,7 +291,7 @@ impl EstimatorParams {
 /// the options that need a velocity.
 ///
 /// # Errors
-/// [`crate::Error::InvalidArgument`] naming `velocity` (empty), `shutter`, `fps`,
+/// [`crate::error::Error::InvalidArgument`] naming `velocity` (empty), `shutter`, `fps`,
 /// `velocity-scale` or `time-samples` out of range.
 fn motion_request(
     velocity: &str,

@@ -14,7 +14,7 @@
 //!
 //! **One set of defaults, one set of errors.** [`BakeOptions::default`] is every front end's
 //! default (a test holds the CLI's to it). [`BakeRequest::plan`] refuses what cannot be
-//! baked with [`crate::Error::InvalidArgument`] naming the option in the library's spelling; each
+//! baked with [`crate::error::Error::InvalidArgument`] naming the option in the library's spelling; each
 //! front end respells the name (`--step`, `step =`, `step=`).
 //!
 //! **What a product reads.** The output's extension picks the product: `.vdb` a
@@ -88,7 +88,7 @@ impl CameraSource {
     /// The camera, at `res` when given (the same window at that size).
     ///
     /// # Errors
-    /// [`crate::Error::Io`] or [`crate::Error::InvalidArgument`] from reading it.
+    /// [`crate::error::Error::Io`] or [`crate::error::Error::InvalidArgument`] from reading it.
     pub fn read(&self, res: Option<Resolution>) -> Result<Camera> {
         match self {
             Self::File(p) => crate::bake::read_camera(p, res),
@@ -103,7 +103,7 @@ impl CameraSource {
 /// One bake: an input, an output and the options.
 #[derive(Debug, Clone, PartialEq)]
 pub struct BakeRequest {
-    /// The `.vdb` file, or a `.toml` scene file.
+    /// The `.vdb` or `.nvdb` file, a `.toml` scene file or a USD stage.
     pub input: PathBuf,
     /// The output: an OpenEXR map (`.exr`) or a transmittance volume (`.vdb`).
     pub output: PathBuf,
@@ -134,7 +134,7 @@ impl BakeRequest {
     /// are checked when the plan runs ([`BakeJob::check_outputs`], [`VolumeJob::check_outputs`]).
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
+    /// [`crate::error::Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
     /// spelling, which each front end respells); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
         let with_light = self.with_stage_light()?;

@@ -143,7 +143,7 @@ fn layer_text(samples: &[crate::usd::ShadowSample]) -> Result<String> {
 /// Without USD support no request has a stage light (its input fails to read first).
 #[cfg(not(feature = "usd"))]
 fn layer_text(_samples: &[crate::usd::ShadowSample]) -> Result<String> {
-    Err(crate::Error::Unsupported {
+    Err(crate::error::Error::Unsupported {
         path: PathBuf::from("usd-out"),
         what: "USD layers (this umbra was built without the \"usd\" feature)".into(),
     })

@@ -39,7 +39,7 @@ pub fn estimate_many(
             .enumerate()
             .map(|(i, r)| match ids.get(i) {
                 Some(&id) => estimate(scene, r, id, est, opts),
-                None => Err(crate::Error::InvalidArgument {
+                None => Err(crate::error::Error::InvalidArgument {
                     name: "ids".into(),
                     reason: format!("{} ray ids for {} rays", ids.len(), rays.len()),
                 }),
@@ -119,7 +119,7 @@ pub fn estimate_many(
             }
             // One sum per open ray, taken in order.
             let Some(sum) = open_sums.next() else {
-                return Err(crate::Error::nan_on_ray("optical depth", &rays[0]));
+                return Err(crate::error::Error::nan_on_ray("optical depth", &rays[0]));
             };
             let (tau, lookups, segments) = sum?;
             Ok(SceneEstimate::exact(channels, tau, lookups, segments))

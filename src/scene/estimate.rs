@@ -195,7 +195,7 @@ pub fn estimate(
     let nan =
         e.value.iter().any(|v| v.is_nan()) || (!unknown_ok && e.std_err.iter().any(|v| v.is_nan()));
     if nan {
-        return Err(crate::Error::nan_on_ray(
+        return Err(crate::error::Error::nan_on_ray(
             format!("{} transmittance estimate", est.name()),
             ray,
         ));

@@ -97,7 +97,7 @@ pub struct Leaf {
 pub(crate) const UNLOADED: u32 = u32::MAX;
 
 /// What reading an unloaded leaf returns: NaN, which every answer refuses
-/// ([`crate::Error::NotANumber`]) instead of returning a wrong number. Partial loads read every
+/// ([`crate::error::Error::NotANumber`]) instead of returning a wrong number. Partial loads read every
 /// leaf a job's rays touch, so no correct caller sees these.
 pub(crate) static UNLOADED_VALUES: [f32; 512] = [f32::NAN; 512];
 

@@ -217,9 +217,9 @@ impl LazyGrid {
     /// load gives (`Volume::load_for` picks the leaves).
     ///
     /// # Errors
-    /// [`crate::Error::Io`] if the file cannot be read, [`crate::Error::Invalid`] naming the
+    /// [`crate::error::Error::Io`] if the file cannot be read, [`crate::error::Error::Invalid`] naming the
     /// file, the leaf and the byte offset of its buffer when its data is corrupt;
-    /// [`crate::Error::InvalidArgument`] for an index past the leaf count.
+    /// [`crate::error::Error::InvalidArgument`] for an index past the leaf count.
     pub fn load(&self, leaves: &[u32]) -> Result<Grid> {
         let ids = self.check_leaves(leaves)?;
         self.decode(&ids, self.shell.tree.clone())
@@ -249,7 +249,7 @@ impl LazyGrid {
     /// alone: what a part of a bake in parts holds, in place of a copy of the whole topology.
     ///
     /// # Errors
-    /// As [`LazyGrid::load`]; [`crate::Error::InvalidArgument`] for a leaf outside the kept
+    /// As [`LazyGrid::load`]; [`crate::error::Error::InvalidArgument`] for a leaf outside the kept
     /// lower nodes.
     pub(crate) fn load_region(
         &self,
@@ -262,10 +262,14 @@ impl LazyGrid {
         let (tree, index) = topology.region(lowers);
         let mut at = Vec::with_capacity(ids.len());
         for &l in &ids {
-            at.push(index.leaf(l).ok_or_else(|| crate::Error::InvalidArgument {
-                name: "leaves".into(),
-                reason: format!("leaf {l} is outside the region's lower nodes"),
-            })?);
+            at.push(
+                index
+                    .leaf(l)
+                    .ok_or_else(|| crate::error::Error::InvalidArgument {
+                        name: "leaves".into(),
+                        reason: format!("leaf {l} is outside the region's lower nodes"),
+                    })?,
+            );
         }
         let (values, precision) = self.read_values(topology, &ids)?;
         Ok((self.grid_of(tree, &at, values, precision), index))
@@ -274,7 +278,7 @@ impl LazyGrid {
     /// An error unless `topology` has this grid's leaf count.
     fn check_topology(&self, topology: &crate::tree::Tree) -> Result<()> {
         if topology.leaves.len() + 1 != self.offsets.len() {
-            return Err(crate::Error::InvalidArgument {
+            return Err(crate::error::Error::InvalidArgument {
                 name: "topology".into(),
                 reason: "not this grid's topology".into(),
             });
@@ -301,7 +305,7 @@ impl LazyGrid {
         ids.sort_unstable();
         ids.dedup();
         if let Some(&l) = ids.last().filter(|&&l| l as usize >= n) {
-            return Err(crate::Error::InvalidArgument {
+            return Err(crate::error::Error::InvalidArgument {
                 name: "leaves".into(),
                 reason: format!("leaf {l} of a grid with {n} leaves"),
             });

@@ -98,7 +98,7 @@ impl Camera {
     /// `t_max = max |c - P|` over `corners` (past which every ray has left the box).
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`](crate::Error::InvalidArgument) naming `res` for a size out of
+    /// [`Error::InvalidArgument`](crate::error::Error::InvalidArgument) naming `res` for a size out of
     /// range or of the wrong shape, `light-pos` for a non-finite light.
     pub fn omni(
         kind: Projection,

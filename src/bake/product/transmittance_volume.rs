@@ -243,7 +243,7 @@ pub fn transmittance_leaves(
     opts.validate()?;
     if vol.motion().is_some() && *est == Estimator::REGULAR {
         // The exact paths below read the still grid.
-        return Err(crate::Error::InvalidArgument {
+        return Err(crate::error::Error::InvalidArgument {
             name: "estimator".into(),
             reason: crate::estimate::blur::REGULAR_REFUSED.into(),
         });

@@ -249,7 +249,7 @@ fn pixel(
 /// closure `|n| ...` will do.
 ///
 /// # Errors
-/// [`crate::Error::InvalidArgument`] for bad settings (samples, target error, depths, threads, an
+/// [`crate::error::Error::InvalidArgument`] for bad settings (samples, target error, depths, threads, an
 /// oversized image); estimator errors of any pixel.
 pub fn bake(
     vol: &Volume,

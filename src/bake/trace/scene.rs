@@ -157,7 +157,7 @@ pub(crate) fn exact(
             (n % camera.width as usize) as u32,
             (n / camera.width as usize) as u32,
         )?;
-        return Err(crate::Error::nan_on_ray("optical depth", &ray));
+        return Err(crate::error::Error::nan_on_ray("optical depth", &ray));
     }
     let chans = tau.iter().map(|t| {
         let value = |n: usize, k: usize| -> f32 {

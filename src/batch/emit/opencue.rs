@@ -34,16 +34,16 @@ impl CueIdentity {
     /// Validate the names.
     ///
     /// # Errors
-    /// [`crate::Error::InvalidArgument`] naming `show`, `shot` or `user` when one is empty or
+    /// [`crate::error::Error::InvalidArgument`] naming `show`, `shot` or `user` when one is empty or
     /// holds another character.
-    pub fn new(show: &str, shot: &str, user: &str, uid: Option<u32>) -> crate::Result<Self> {
+    pub fn new(show: &str, shot: &str, user: &str, uid: Option<u32>) -> crate::error::Result<Self> {
         for (name, value) in [("show", show), ("shot", shot), ("user", user)] {
             let ok = !value.is_empty()
                 && value
                     .chars()
                     .all(|c| c.is_ascii_alphanumeric() || "._-".contains(c));
             if !ok {
-                return Err(crate::Error::InvalidArgument {
+                return Err(crate::error::Error::InvalidArgument {
                     name: name.into(),
                     reason: format!(
                         "{value:?}: an OpenCue {name} is made of ASCII letters, digits, '.', '_' \
@@ -87,11 +87,16 @@ fn xml(s: &str) -> Option<String> {
 /// carries the two paths; no e-mail address.
 ///
 /// # Errors
-/// [`crate::Error::InvalidArgument`] when `chunk` is 0; [`crate::Error::Unsupported`] when the
+/// [`crate::error::Error::InvalidArgument`] when `chunk` is 0; [`crate::error::Error::Unsupported`] when the
 /// command holds a character XML cannot carry.
-pub fn opencue(job: &Job, exe: &Path, chunk: usize, id: &CueIdentity) -> crate::Result<String> {
+pub fn opencue(
+    job: &Job,
+    exe: &Path,
+    chunk: usize,
+    id: &CueIdentity,
+) -> crate::error::Result<String> {
     if chunk == 0 {
-        return Err(crate::Error::InvalidArgument {
+        return Err(crate::error::Error::InvalidArgument {
             name: "chunk".into(),
             reason: "give N >= 1 job tasks per farm task".into(),
         });
@@ -102,7 +107,7 @@ pub fn opencue(job: &Job, exe: &Path, chunk: usize, id: &CueIdentity) -> crate::
         "#IFRAME#"
     };
     let cmd = format!("\"$UMBRA\" batch \"$UMBRA_JOB\" --quiet --task {frames}");
-    let control = || crate::Error::Unsupported {
+    let control = || crate::error::Error::Unsupported {
         path: job.path.clone(),
         what: "a control character in the umbra binary's or the job file's path: an OpenCue \
                spec (XML 1.0) cannot carry it"

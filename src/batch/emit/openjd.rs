@@ -15,12 +15,17 @@ use std::path::Path;
 /// character but ASCII letters, digits, `_` and `-` as `_`.
 ///
 /// # Errors
-/// [`crate::Error::InvalidArgument`] (name `output`) when `dir` is below the job file's
+/// [`crate::error::Error::InvalidArgument`] (name `output`) when `dir` is below the job file's
 /// directory: the spec's path defaults may not climb out of the template's directory.
-pub fn openjd(job: &Job, exe: &Path, dir: &Path, chunks: Option<Chunks>) -> crate::Result<String> {
+pub fn openjd(
+    job: &Job,
+    exe: &Path,
+    dir: &Path,
+    chunks: Option<Chunks>,
+) -> crate::error::Result<String> {
     let job_dir = job.path.parent().unwrap_or(Path::new("."));
     if relative(&job.path, dir).starts_with("..") {
-        return Err(crate::Error::InvalidArgument {
+        return Err(crate::error::Error::InvalidArgument {
             name: "output".into(),
             reason: format!(
                 "an Open Job Description template's path defaults are relative to its \

@@ -13,7 +13,8 @@ use umbra::request::{BakeOptions, BakeOutcome, BakeRequest};
 #[derive(Debug, clap::Args)]
 #[command(mut_arg("estimator", |a| a.long_help(crate::common::estimator_help())))]
 pub struct BakeArgs {
-    /// The .vdb file, or a .toml scene file (several volumes, colour, solids).
+    /// The .vdb or NanoVDB .nvdb file, a .toml scene file (several volumes, colour, solids) or
+    /// a USD stage (.usd, .usda, .usdc, .usdz: its volumes and lights at --frame).
     file: PathBuf,
     /// Output: an OpenEXR map (.exr; written atomically, together with the preview), or a
     /// transmittance volume (.vdb: T toward the light at every active voxel of the density).

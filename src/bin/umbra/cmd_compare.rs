@@ -10,7 +10,7 @@ use umbra::{Interp, Volume};
 /// Arguments of `umbra compare`.
 #[derive(Debug, clap::Args)]
 pub struct CompareArgs {
-    /// The .vdb file, or a USD stage with one volume (or --volume naming one) at --frame
+    /// The .vdb or .nvdb file, or a USD stage with one volume (or --volume naming one) at --frame
     /// (optional with --stress alone).
     file: Option<PathBuf>,
     /// Grid to trace.

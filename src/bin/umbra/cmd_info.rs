@@ -13,7 +13,7 @@ use umbra::internals::text::escape;
 /// Arguments of `umbra info`.
 #[derive(Debug, clap::Args)]
 pub struct InfoArgs {
-    /// The .vdb files, or one USD stage (.usd, .usda, .usdc, .usdz): its volumes and lights
+    /// The .vdb and .nvdb files, or one USD stage (.usd, .usda, .usdc, .usdz): its volumes and lights
     /// at --frame.
     #[arg(required = true)]
     files: Vec<PathBuf>,

@@ -15,7 +15,8 @@ use umbra::{Interp, Light, Ray};
 #[derive(Debug, clap::Args)]
 #[command(mut_arg("estimator", |a| a.long_help(crate::common::estimator_help())))]
 pub struct QueryArgs {
-    /// The .vdb file, a .toml scene file (several volumes, colour, solids) or a USD stage
+    /// The .vdb or NanoVDB .nvdb file, a .toml scene file (several volumes, colour, solids) or a
+    /// USD stage
     /// (.usd, .usda, .usdc, .usdz: its volumes and lights at --frame).
     file: PathBuf,
     /// Grid to trace (display name such as `density[1]`; unnamed grids, as Warp writes them, are

@@ -42,7 +42,7 @@ struct Cli {
 
 #[derive(Subcommand, Debug)]
 enum Command {
-    /// Describe the grids of .vdb files: one line per grid (-v: everything), or JSON.
+    /// Describe the grids of .vdb and .nvdb files (or a USD stage): one line per grid (-v: everything), or JSON.
     Info(cmd_info::InfoArgs),
     /// Optical depth and transmittance along world-space segments.
     Query(cmd_query::QueryArgs),

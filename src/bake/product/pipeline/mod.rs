@@ -113,7 +113,7 @@ impl BakeJob {
     /// `overwrite`, the map and the preview distinct.
     ///
     /// # Errors
-    /// [`crate::Error::Output`] naming the file.
+    /// [`crate::error::Error::Output`] naming the file.
     pub fn check_outputs(&self) -> Result<()> {
         for p in std::iter::once(&self.output).chain(&self.preview) {
             if p.as_os_str() == "-" {

@@ -528,7 +528,7 @@ pub(super) fn finish_samples(
             } else {
                 "optical depth"
             };
-            return Err(crate::Error::nan_on_ray(what, &ray));
+            return Err(crate::error::Error::nan_on_ray(what, &ray));
         }
         let mean_of = |slot: usize| {
             let t = move |i: usize| {

@@ -320,7 +320,7 @@ fn finish_band(
         if px.iter().any(|x| x.is_nan()) {
             let (i, j) = (n as u32 % w, y0 + n as u32 / w);
             let ray = camera.pixel_ray(i, j)?;
-            return Err(crate::Error::nan_on_ray("optical depth", &ray));
+            return Err(crate::error::Error::nan_on_ray("optical depth", &ray));
         }
         t_band[n] = (-px[0]).exp() as f32;
         slices.extend(px[1..].iter().map(|x| (-x).exp() as f32));

@@ -253,7 +253,7 @@ impl Streaming<'_> {
             let (view, rays) = (&self.views[v], self.rays[v]);
             let sweep = Sweep::from_pieces(&vol, view, rays, pieces, false, self.rows, self.depths)
                 .marching(self.march, None)
-                .ok_or_else(|| crate::Error::InvalidArgument {
+                .ok_or_else(|| crate::error::Error::InvalidArgument {
                     name: "max-memory".into(),
                     reason: "a part of this map cannot be marched in object order".into(),
                 })?;
@@ -351,7 +351,7 @@ fn own(index: &RegionIndex, l: u32) -> Result<usize> {
     index
         .lower(l)
         .map(|r| r as usize)
-        .ok_or_else(|| crate::Error::InvalidArgument {
+        .ok_or_else(|| crate::error::Error::InvalidArgument {
             name: "region".into(),
             reason: format!("lower node {l} is not in its part's region"),
         })
@@ -440,7 +440,7 @@ pub(crate) fn render_streamed(
     } else {
         maps.pop()
     }
-    .ok_or_else(|| crate::Error::InvalidArgument {
+    .ok_or_else(|| crate::error::Error::InvalidArgument {
         name: "camera".into(),
         reason: "a map without a view".into(),
     })?;
