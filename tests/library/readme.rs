@@ -1,5 +1,6 @@
 //! The README's Rust example is `examples/readme.rs` verbatim (its `main` and imports), and
 //! that example runs and prints the transmittance it promises.
+//! ARCHITECTURE.md keeps short lines and its links to its own headings resolve.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::Path;
@@ -113,4 +114,58 @@ fn readme_install_lists_match_what_ci_installs() {
             "README does not name {name}, which python/run_tests.sh installs"
         );
     }
+}
+
+/// ARCHITECTURE.md stays short prose and tables (issue 59): no line over 400 characters (a
+/// table row that long is a section's worth of prose in one cell), and every link to one of
+/// its own headings (`](#anchor)`) names a heading it has, by GitHub's anchor rules.
+#[test]
+fn architecture_has_short_lines_and_its_anchors_resolve() {
+    const LIMIT: usize = 400;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+    let text = std::fs::read_to_string(root.join("ARCHITECTURE.md")).unwrap();
+    let long: Vec<String> = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.chars().count()))
+        .filter(|&(_, n)| n > LIMIT)
+        .map(|(line, n)| format!("line {line}: {n} characters"))
+        .collect();
+    assert!(
+        long.is_empty(),
+        "ARCHITECTURE.md has lines over {LIMIT} characters:\n{}",
+        long.join("\n")
+    );
+    // GitHub's anchor of a heading: lower case, punctuation but `-` and `_` dropped, spaces
+    // to `-` (a repeated heading's `-1` suffix is not needed here: none repeats).
+    let mut in_code = false;
+    let mut anchors = Vec::new();
+    for line in text.lines() {
+        if line.starts_with("```") {
+            in_code = !in_code;
+        } else if !in_code && line.starts_with('#') {
+            let title = line.trim_start_matches('#').trim();
+            let anchor: String = title
+                .chars()
+                .filter(|c| c.is_alphanumeric() || matches!(c, '-' | '_' | ' '))
+                .map(|c| if c == ' ' { '-' } else { c })
+                .collect::<String>()
+                .to_lowercase();
+            anchors.push(anchor);
+        }
+    }
+    let mut missing = Vec::new();
+    for (i, line) in text.lines().enumerate() {
+        for link in line.split("](#").skip(1) {
+            let anchor = link.split(')').next().unwrap_or("");
+            if !anchors.iter().any(|a| a == anchor) {
+                missing.push(format!("line {}: #{anchor}", i + 1));
+            }
+        }
+    }
+    assert!(
+        missing.is_empty(),
+        "ARCHITECTURE.md links to headings it does not have:\n{}",
+        missing.join("\n")
+    );
 }
