@@ -12,7 +12,8 @@
 //!   [`Volume::data_reach`] (the longest index-space length a ray can spend in non-background
 //!   nodes, so a sparse grid spanning the index range is not charged for its empty space);
 //!   `samples x steps <= `[`MAX_LOOKUPS_PER_RAY`] and `rays x samples x steps <=
-//!   `[`MAX_LOOKUPS_PER_JOB`].
+//!   `[`MAX_LOOKUPS_PER_JOB`], a blurred marcher's samples counted once per stratified shutter
+//!   time (`--time-samples`).
 //!
 //! Null-collision estimators' cost depends on the data (the majorant optical depth); each
 //! sample is capped by `Options::max_collisions`, and long bakes show progress and stop
@@ -78,7 +79,17 @@ fn chord_pieces(vol: &Volume) -> f64 {
 pub fn check_ray(vol: &Volume, est: &Estimator, samples: u32) -> Result<()> {
     check_samples("samples", u64::from(samples))?;
     let samples = if est.spec().deterministic { 1 } else { samples };
-    check_steps(vol, est, f64::from(samples), MAX_LOOKUPS_PER_RAY, "per ray")
+    let marches = f64::from(samples) * marches_per_sample(vol, est);
+    check_steps(vol, est, marches, MAX_LOOKUPS_PER_RAY, "per ray")
+}
+
+/// Marches per sample: a marcher on a moving volume marches each of its `K` stratified shutter
+/// times (`--time-samples`), every other case once.
+fn marches_per_sample(vol: &Volume, est: &Estimator) -> f64 {
+    match vol.moving() {
+        Some(m) if est.marches() => f64::from(m.spec().time_samples()),
+        _ => 1.0,
+    }
 }
 
 /// Check a job of `rays` rays of up to `samples` samples each (`name`: the option that sets
@@ -102,7 +113,8 @@ pub fn check_job(vol: &Volume, est: &Estimator, rays: u64, samples: u64, name: &
             ),
         ));
     }
-    check_steps(vol, est, total as f64, MAX_LOOKUPS_PER_JOB, "per job")
+    let marches = total as f64 * marches_per_sample(vol, est);
+    check_steps(vol, est, marches, MAX_LOOKUPS_PER_JOB, "per job")
 }
 
 fn check_steps(vol: &Volume, est: &Estimator, samples: f64, budget: f64, per: &str) -> Result<()> {
@@ -122,7 +134,8 @@ fn check_steps(vol: &Volume, est: &Estimator, samples: f64, budget: f64, per: &s
         return Err(refuse(
             "step",
             format!(
-                "a {} voxel step over up to {} voxels of data ({} samples) is {} lookups, \
+                "a {} voxel step over up to {} voxels of data ({} marches: samples x shutter \
+                 times) is {} lookups, \
                  beyond the work budget of {} {per}: a step of at least {} voxels is accepted",
                 short(step),
                 approx(vol.data_reach()),

@@ -225,6 +225,22 @@ fn bad_motion_input_is_one_line_naming_the_flag_or_grid_and_nothing_written() {
             ],
             "--granularity",
         ),
+        // A blurred march counts every shutter time in the work budget (issue 58).
+        (
+            &[
+                "--velocity",
+                "vel",
+                "--estimator",
+                "jittered",
+                "--samples",
+                "4096",
+                "--time-samples",
+                "1024",
+                "--step",
+                "0.005",
+            ],
+            "shutter times",
+        ),
         // Reaches from extreme numbers (issue 58): refused with the reach, never a panic or a
         // wrapped count.
         (
