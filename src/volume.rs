@@ -463,7 +463,7 @@ impl Volume {
     /// The volume blurred over `spec`'s shutter by the velocity `field` (given in the grid's
     /// own world frame; an object transform already applied moves it too): every estimate
     /// through [`crate::estimate::estimate`] is then the shutter mean of the transmittance
-    /// through `rho(x - S v(x) t / F)` ([`crate::motion`]).
+    /// through `rho(x - S v(x) t / F)` (`crate::motion`).
     ///
     /// # Errors
     /// As [`crate::motion::Motion::new`]: a partial tree, a root tile, a reach too far to bound.

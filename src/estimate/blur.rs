@@ -1,5 +1,5 @@
 //! Motion-blurred estimates: the shutter mean of the transmittance through the advected
-//! density `rho_t(x) = rho(x - S v(x) t / F)` ([`crate::motion`]).
+//! density `rho_t(x) = rho(x - S v(x) t / F)` (`crate::motion`).
 //!
 //! The ray is cut by the blurred bounds ([`BlurBounds`], walked by `bound_segments`: one segment
 //! per run of `8^3` blocks, minorant and majorant valid at every shutter time, or one segment
@@ -123,7 +123,7 @@ impl Extinction for BlurredMedium<'_> {
         self.mu_moved(p, v, self.k)
     }
 
-    /// A midpoint march of [`FINE_STEP`] voxels (no closed form through a warped density).
+    /// A midpoint march of `FINE_STEP` voxels (no closed form through a warped density).
     fn exact(&mut self, t0: f64, t1: f64) -> f64 {
         let len = t1 - t0;
         if len.partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {

@@ -59,7 +59,9 @@
 //! cost, every sample averaging the whole ray, no rare outcome) gets the floor only when all
 //! its samples agree (clamped at 0 or 1). Marchers (`mc`, `jittered`) have no rare outcome
 //! to miss and report the sample standard error alone (noise, not bias); deterministic ones
-//! (`regular`, `riemann`) report 0.
+//! (`regular`, `riemann`) report 0. On a moving volume the marchers' values are shutter times,
+//! which can miss a passing feature: there they get the range `[L, U]` and the floor too
+//! (`super::blur`), and one time in all reports an unknown (NaN) error bar.
 
 use super::{Algo, Control, Estimator};
 use crate::traverse::Segment;

@@ -1,5 +1,5 @@
 //! [`BlurBounds`]: a majorant of the blurred density per `8^3` block of the density's index
-//! space, valid at every shutter time (module docs of [`crate::motion`]).
+//! space, valid at every shutter time (module docs of `crate::motion`).
 //!
 //! For a block `C` (voxels `[8c, 8c + 8)`), every point `x` of `C` reads the density at
 //! `x - k v(x)` with `|k| <= K = max |S t / F|` over the shutter, so within

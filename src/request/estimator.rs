@@ -162,7 +162,7 @@ impl EstimatorOptions {
         }
     }
 
-    /// The motion blur these options ask for ([`crate::motion`]), checked: `None` without
+    /// The motion blur these options ask for (`crate::motion`), checked: `None` without
     /// `velocity`; `default_fps` is a USD shot's `timeCodesPerSecond` (else 24).
     ///
     /// # Errors

@@ -46,7 +46,7 @@ pub struct SceneOptions {
     /// What to read of a USD stage input (time code, volumes, field); ignored otherwise.
     pub stage: crate::usd::Selection,
     /// Motion blur: every fog volume blurred by the velocity grid of this name in its own file
-    /// ([`crate::motion`]); such inputs are loaded whole.
+    /// (`crate::motion`); such inputs are loaded whole.
     pub motion: Option<crate::motion::MotionRequest>,
 }
 

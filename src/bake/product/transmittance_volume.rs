@@ -647,7 +647,7 @@ pub struct VolumeJob {
     pub half: bool,
     /// Replace an existing output.
     pub overwrite: bool,
-    /// Motion blur from a velocity grid of the input ([`crate::motion`]): T at each voxel is
+    /// Motion blur from a velocity grid of the input (`crate::motion`): T at each voxel is
     /// the shutter mean.
     pub motion: Option<crate::motion::MotionRequest>,
 }

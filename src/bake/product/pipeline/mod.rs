@@ -60,7 +60,7 @@ pub struct BakeJob {
     pub max_memory: Option<u64>,
     /// What `output` holds: a flat map (the default) or a deep map.
     pub product: Product,
-    /// Motion blur from a velocity grid of the input ([`crate::motion`]); such a grid is
+    /// Motion blur from a velocity grid of the input (`crate::motion`); such a grid is
     /// loaded whole and its map traced ray by ray.
     pub motion: Option<crate::motion::MotionRequest>,
 }
