@@ -103,25 +103,18 @@ impl VectorInfo {
     /// The vector facts of `grid`, `None` for a scalar grid.
     #[must_use]
     pub fn of(grid: &Grid) -> Option<Self> {
-        use crate::vdb::MetaValue;
+        use crate::input::VectorFacts;
         if !matches!(
             grid.value_type,
             ValueKind::Vec3s | ValueKind::Vec3d | ValueKind::Vec3i
         ) {
             return None;
         }
-        let get = |key: &str| grid.metadata.iter().find(|(k, _)| k == key).map(|(_, v)| v);
         Some(Self {
             value_type: grid.value_type.name().to_string(),
-            staggered: grid.class.as_deref() == Some("staggered"),
-            vector_type: match get("vector_type") {
-                Some(MetaValue::String(s)) => Some(s.clone()),
-                _ => None,
-            },
-            is_local_space: match get("is_local_space") {
-                Some(MetaValue::Bool(b)) => Some(*b),
-                _ => None,
-            },
+            staggered: grid.is_staggered(),
+            vector_type: grid.vector_type().map(str::to_string),
+            is_local_space: grid.local_space(),
         })
     }
 }

@@ -16,7 +16,7 @@ pub use source::{load_grid, GridFile};
 // What every reader gives: a decoded grid (identity, metadata, transform, tree), a vector grid
 // as its three components, a grid opened for partial reads, a grid's extent, its
 // index-to-world transform.
-pub use crate::vdb::{Grid, GridExtent, LazyGrid, Transform, VectorGrid};
+pub use crate::vdb::{Grid, GridExtent, LazyGrid, Transform, VectorFacts, VectorGrid};
 
 use std::path::Path;
 

@@ -262,6 +262,7 @@ impl MotionRequest {
                 ),
             });
         }
+        use crate::input::VectorFacts;
         let (staggered, local) = (g.is_staggered(), g.is_local_space());
         let m = g.transform.world_from_index;
         VelocityField::new(g.name, g.components, [m[0], m[1], m[2]], staggered, local).map_err(

@@ -92,27 +92,56 @@ impl VectorGrid {
             components: [x.tree, y.tree, z.tree],
         }
     }
+}
+
+/// What a grid's class and metadata say of its vectors: one reading for a decoded vector grid
+/// ([`VectorGrid`], what motion blur samples) and for a grid `info` describes ([`Grid`]).
+pub trait VectorFacts {
+    /// The grid class (`staggered` for a MAC grid).
+    fn grid_class(&self) -> Option<&str>;
+    /// The grid's metadata.
+    fn grid_metadata(&self) -> &MetaMap;
 
     /// Whether the grid's class is `staggered` (OpenVDB's `GRID_STAGGERED`: a MAC grid, each
     /// component sampled at the centre of its voxel's lower face on that axis).
-    #[must_use]
-    pub fn is_staggered(&self) -> bool {
-        self.class.as_deref() == Some("staggered")
+    fn is_staggered(&self) -> bool {
+        self.grid_class() == Some("staggered")
     }
 
     /// Whether the bool metadata `is_local_space` (OpenVDB's `META_IS_LOCAL_SPACE`) is true:
     /// the vectors are in index space, not world space.
-    #[must_use]
-    pub fn is_local_space(&self) -> bool {
-        metadata::meta_bool(&self.metadata, "is_local_space") == Some(true)
+    fn is_local_space(&self) -> bool {
+        self.local_space() == Some(true)
+    }
+
+    /// The bool metadata `is_local_space` as the file has it (`None`: not in the file).
+    fn local_space(&self) -> Option<bool> {
+        metadata::meta_bool(self.grid_metadata(), "is_local_space")
     }
 
     /// The string metadata `vector_type` (OpenVDB's `META_VECTOR_TYPE`: `invariant`,
     /// `covariant`, `covariant normalize`, `contravariant relative`, `contravariant
     /// absolute`), if any.
-    #[must_use]
-    pub fn vector_type(&self) -> Option<&str> {
-        metadata::meta_string(&self.metadata, "vector_type")
+    fn vector_type(&self) -> Option<&str> {
+        metadata::meta_string(self.grid_metadata(), "vector_type")
+    }
+}
+
+impl VectorFacts for Grid {
+    fn grid_class(&self) -> Option<&str> {
+        self.class.as_deref()
+    }
+    fn grid_metadata(&self) -> &MetaMap {
+        &self.metadata
+    }
+}
+
+impl VectorFacts for VectorGrid {
+    fn grid_class(&self) -> Option<&str> {
+        self.class.as_deref()
+    }
+    fn grid_metadata(&self) -> &MetaMap {
+        &self.metadata
     }
 }
 

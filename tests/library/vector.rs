@@ -13,7 +13,7 @@
 
 use crate::common;
 use std::path::{Path, PathBuf};
-use umbra::input::{GridFile, VectorGrid};
+use umbra::input::{GridFile, VectorFacts, VectorGrid};
 use umbra::internals::vdb::ValueKind;
 use umbra::Error;
 
