@@ -39,6 +39,13 @@ const FINE_STEP: f64 = 0.25;
 /// `null` in JSON), never the 0 of a single value.
 pub const UNKNOWN_STD_ERR: f64 = f64::NAN;
 
+/// Whether an estimate of `est` may carry [`UNKNOWN_STD_ERR`]: a marcher on a volume that
+/// moves (`moving`). Everywhere else a NaN error bar is a fault, as a NaN value always is.
+#[must_use]
+pub fn may_be_unknown(est: &Estimator, moving: bool) -> bool {
+    moving && est.marches()
+}
+
 /// The line a volume with motion refuses `regular` with.
 pub const REGULAR_REFUSED: &str = "regular tracking is exact only for a still grid; with a \
     velocity use riemann, mc or jittered (marching over stratified shutter times) or a \
@@ -455,11 +462,10 @@ fn sampled(
     (ray_id, samples): (u64, u32),
     w: &mut Walks,
 ) {
-    let strata = if est.marches() {
-        m.spec().time_samples()
-    } else {
-        1
-    };
+    // A marcher's values are its strata (each one of the error bar's, see [`time_range`]);
+    // any other estimator's value is its one walk.
+    let marches = est.marches();
+    let strata = if marches { m.spec().time_samples() } else { 1 };
     for i in 0..samples {
         let mut x = 0.0;
         for k in 0..strata {
@@ -476,14 +482,13 @@ fn sampled(
             w.capped += u64::from(cap.hit);
             w.violations += cap.violations;
             let tk = part.transmittance(medium, t);
-            if est.marches() {
-                // Each stratum's value is one of the error bar's (see [`time_range`]).
+            if marches {
                 w.spread.push(tk);
             } else {
                 x += tk;
             }
         }
-        if !est.marches() {
+        if !marches {
             w.spread.push(x);
         }
     }

@@ -386,9 +386,7 @@ pub fn estimate(
     opts: &Options,
 ) -> Result<Estimate> {
     let e = estimate_unchecked(vol, ray, ray_id, est, opts)?;
-    // A NaN error bar is a fault, except the unknown one of a blurred marcher that traced one
-    // shutter time ([`blur::UNKNOWN_STD_ERR`]).
-    let unknown_ok = vol.moving().is_some() && est.marches();
+    let unknown_ok = blur::may_be_unknown(est, vol.moving().is_some());
     if e.value.is_nan() || (e.std_err.is_nan() && !unknown_ok) {
         return Err(crate::error::Error::nan_on_ray(
             format!("{} transmittance estimate", est.name()),

@@ -267,12 +267,6 @@ impl BlurBounds {
         self.maj.len()
     }
 
-    /// The raw majorant of block `b` (the background outside the box).
-    #[must_use]
-    pub fn block(&self, b: [i64; 3]) -> f32 {
-        self.index(b).map_or(self.outside, |i| self.maj[i])
-    }
-
     /// The raw minorant and majorant of block `b`, `(min, max)`: every lookup in the block at
     /// every shutter time reads a value between them (the background outside the box).
     #[must_use]

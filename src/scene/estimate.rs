@@ -190,8 +190,8 @@ pub fn estimate(
     } else {
         sampled(scene, ray, ray_id, est, opts)
     };
-    // A blurred marcher's error bar may be unknown (NaN, [`crate::estimate::blur::UNKNOWN_STD_ERR`]).
-    let unknown_ok = est.marches() && scene.fogs().iter().any(|f| f.volume().moving().is_some());
+    let moving = scene.fogs().iter().any(|f| f.volume().moving().is_some());
+    let unknown_ok = crate::estimate::blur::may_be_unknown(est, moving);
     let nan =
         e.value.iter().any(|v| v.is_nan()) || (!unknown_ok && e.std_err.iter().any(|v| v.is_nan()));
     if nan {
