@@ -12,7 +12,7 @@
 
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
-use crate::scene::SceneOptions;
+use crate::input::Source;
 use crate::Light;
 use std::path::Path;
 
@@ -59,8 +59,8 @@ pub struct PointQuery<'a> {
     pub frames: &'a [f64],
 }
 
-/// Answer every point of `q.prim` toward `q.light` at each of `q.frames`. `scene` carries the grid, density scale, sigma and field
-/// options (its stage selection's time is set per frame); `on_frame` is called after each
+/// Answer every point of `q.prim` toward `q.light` at each of `q.frames`. `source` is the stage with its
+/// read options (grid, density scale, sigma, field; its frame and light are set per frame); `on_frame` is called after each
 /// frame (progress).
 ///
 /// # Errors
@@ -70,7 +70,7 @@ pub struct PointQuery<'a> {
 /// grey); any error of loading or estimating a frame.
 pub fn point_transmittance(
     q: &PointQuery<'_>,
-    scene: &SceneOptions,
+    source: &Source,
     est: &Estimator,
     opts: &Options,
     on_frame: &mut dyn FnMut(&PointFrame),
@@ -96,11 +96,11 @@ pub fn point_transmittance(
             crate::usd::Emitter::Directional { dir } => Light::Directional { dir },
             crate::usd::Emitter::Point { pos } => Light::Point { pos },
         };
-        let mut so = scene.clone();
-        so.stage.time = Some(t);
+        let mut so = source.clone();
+        so.options_mut().frame = Some(t);
         // Toward the light: only the volumes its shadow link includes.
-        so.stage.light = Some(l.prim.clone());
-        let sc = crate::scene::load(stage, &so)?;
+        so.options_mut().light = Some(l.prim.clone());
+        let sc = so.load()?;
         if sc.channels() != 1 {
             return Err(Error::Stage {
                 path: stage.to_path_buf(),

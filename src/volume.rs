@@ -15,29 +15,8 @@ use crate::tree::{Bounds, RootSlot, Tree};
 use glam::{DAffine3, DMat3, DVec3};
 use rayon::prelude::*;
 
-/// How the density between voxel centres is defined.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, serde::Serialize, serde::Deserialize)]
-#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum Interp {
-    /// OpenVDB `PointSampler`: the voxel `floor(p + 0.5)`, piecewise constant.
-    Nearest,
-    /// OpenVDB `BoxSampler`: trilinear interpolation of the 8 voxels around `p`.
-    Trilinear,
-}
-
-impl Interp {
-    /// Offset added to index coordinates so that the lookup cell is `floor(q)`: nearest lookups
-    /// own `[i - 0.5, i + 0.5)`, trilinear ones the dual cell `[i, i + 1)`.
-    #[must_use]
-    pub fn shift(self) -> f64 {
-        match self {
-            Self::Nearest => 0.5,
-            Self::Trilinear => 0.0,
-        }
-    }
-}
+/// How the density between voxel centres is defined (declared with the read options).
+pub use crate::input::Interp;
 
 /// Counts of voxels changed by the bad-voxel policy (tiles count once per tile).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]

@@ -301,13 +301,14 @@ struct Row {
 
 fn job(args: &Args, scale: f64, output: PathBuf, camera: Option<Camera>) -> BakeJob {
     BakeJob {
-        input: args.file.clone(),
-        grid: args.grid.clone(),
-        density_scale: scale,
-        xform: None,
-        sigma_t: None,
-        levelset_solid: false,
-        stage: Default::default(),
+        source: umbra::input::Source::new(
+            args.file.clone(),
+            umbra::input::SourceOptions {
+                grid: args.grid.clone(),
+                density_scale: scale,
+                ..umbra::input::SourceOptions::default()
+            },
+        ),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some(args.light_dir),
@@ -328,7 +329,6 @@ fn job(args: &Args, scale: f64, output: PathBuf, camera: Option<Camera>) -> Bake
         layout: ExrLayout::default(),
         max_memory: None,
         product: Product::Map,
-        motion: None,
     }
 }
 

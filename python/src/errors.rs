@@ -3,7 +3,6 @@
 use pyo3::prelude::*;
 use pyo3::sync::PyOnceLock;
 use pyo3::types::PyType;
-use std::path::Path;
 
 // ---------------------------------------------------------------------------------------------
 // Errors
@@ -95,14 +94,17 @@ pub(crate) fn cli_worded(e: umbra::Error) -> umbra::Error {
 
 /// A load error as `umbra query`/`bake` print it: `loading grid 'NAME': ...` (`loading the
 /// scene: ...`), argument errors as they are.
-pub(crate) fn load_err(e: umbra::Error, file: &Path, grid: &str) -> PyErr {
+pub(crate) fn load_err(e: umbra::Error, source: &umbra::input::Source) -> PyErr {
     let class = class_of(&e);
     match e {
         umbra::Error::InvalidArgument { .. } => py_err(e),
-        other if umbra::input::InputKind::of(file).is_scene_file() => {
+        other if source.kind().is_scene_file() => {
             raise(class, format!("loading the scene: {other}"))
         }
-        other => raise(class, format!("loading grid '{grid}': {other}")),
+        other => raise(
+            class,
+            format!("loading grid '{}': {other}", source.options().grid),
+        ),
     }
 }
 

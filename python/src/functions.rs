@@ -168,8 +168,19 @@ pub(crate) fn estimators_json() -> PyResult<String> {
 /// taken from (and `python/tests/test_keywords.py` holds them to).
 #[pyfunction]
 pub(crate) fn estimator_options_json() -> PyResult<String> {
-    serde_json::to_string(&EstimatorOptions::default())
-        .map_err(|e| raise(Class::Other, e.to_string()))
+    // The estimator options, then the motion keys of the read options (what a traced
+    // query of a moving volume takes), in field order.
+    let err = |e: serde_json::Error| raise(Class::Other, e.to_string());
+    let text = serde_json::to_string(&EstimatorOptions::default()).map_err(err)?;
+    let read = serde_json::to_value(umbra::input::SourceOptions::default()).map_err(err)?;
+    let mut out = text.trim_end_matches('}').to_string();
+    for (k, _) in umbra::input::SourceOptions::default().motion_keys() {
+        let k = k.replace('-', "_");
+        let v = serde_json::to_string(&read[k.as_str()]).map_err(err)?;
+        out.push_str(&format!(",\"{k}\":{v}"));
+    }
+    out.push('}');
+    Ok(out)
 }
 
 /// Write an image and its summary (a map's `camera` dict, as JSON text) as the OpenEXR file
@@ -280,8 +291,10 @@ pub(crate) fn usd_points_json(
     options: &str,
 ) -> PyResult<(String, Vec<String>)> {
     let o = BakeOptions::from_json(options).map_err(py_err)?;
-    let (est, opts) = o.estimator().map_err(py_err)?;
-    let scene = o.scene_options().map_err(py_err)?;
+    let (est, opts) = o.resolve_estimator().map_err(py_err)?;
+    o.motion().map_err(py_err)?;
+    let source = umbra::input::Source::new(&stage, o.source.clone());
+    source.xform().map_err(py_err)?;
     let answers = py
         .detach(|| {
             let frames = if frames.is_empty() {
@@ -296,7 +309,7 @@ pub(crate) fn usd_points_json(
                 frames: &frames,
             };
             on_threads(o.threads, || {
-                umbra::internals::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})
+                umbra::internals::points::point_transmittance(&q, &source, &est, &opts, &mut |_| {})
             })?
         })
         .map_err(py_err)?;

@@ -5,7 +5,6 @@ use crate::errors::*;
 use crate::native::NativeVolume;
 use pyo3::prelude::*;
 use std::sync::Arc;
-use umbra::internals::motion::MotionRequest;
 use umbra::scene::Scene;
 
 /// The scene a call traces: the loaded one, or a moving copy of it.
@@ -25,48 +24,47 @@ impl std::ops::Deref for SceneRef<'_> {
 }
 
 impl NativeVolume {
-    /// The scene a call traces: the loaded one, or, with `motion` (the call's options'
-    /// motion, [`umbra::request::EstimatorOptions::motion`]), the loaded grid blurred by that
-    /// velocity grid of its file, kept for the next call with the same motion.
+    /// The scene a call traces: the loaded one, or, when the call's read options `read` ask
+    /// for motion (their motion keys, checked by the caller:
+    /// [`umbra::request::EstimatorOptions::motion`]), the loaded source with that motion,
+    /// loaded by [`umbra::input::Source::load`] and kept for the next call with the same
+    /// motion.
     pub(crate) fn scene_for(
         &self,
         py: Python<'_>,
-        motion: Option<MotionRequest>,
+        read: umbra::input::SourceOptions,
     ) -> PyResult<SceneRef<'_>> {
-        let Some(request) = motion else {
+        if read.velocity.is_none() {
             return Ok(SceneRef::Still(&self.scene));
-        };
+        }
+        // The loaded source with the call's motion keys: the one key set that names it.
+        let mut options = self.source.options().clone();
+        options.velocity = read.velocity;
+        options.shutter = read.shutter;
+        options.fps = read.fps;
+        options.velocity_scale = read.velocity_scale;
+        options.time_samples = read.time_samples;
         let mut cache = self
             .moving
             .lock()
             .map_err(|_| raise(Class::Other, "a motion blur call panicked".into()))?;
         if let Some((r, s)) = cache.as_ref() {
-            if *r == request {
+            if *r == options {
                 return Ok(SceneRef::Moving(s.clone()));
             }
         }
-        if !umbra::input::InputKind::of(&self.path).is_grid_file() {
+        if !self.source.kind().is_grid_file() {
             return Err(arg(
                 "velocity",
                 "motion blur reads the velocity grid of a grid file (.vdb, .nvdb)",
             ));
         }
-        let vol = self.single("velocity")?.clone();
-        let scene = py
-            .detach(|| -> umbra::Result<Scene> {
-                let field = request.field(&self.path)?;
-                Scene::new(
-                    vec![umbra::scene::Fog::new(
-                        vol.with_motion(request.spec, field)?,
-                        [1.0; 3],
-                    )?],
-                    Vec::new(),
-                    false,
-                )
-            })
-            .map_err(py_err)?;
+        self.single("velocity")?;
+        let mut moving = self.source.clone();
+        moving.options_mut().clone_from(&options);
+        let scene = py.detach(|| moving.load()).map_err(py_err)?;
         let scene = Arc::new(scene);
-        *cache = Some((request, scene.clone()));
+        *cache = Some((options, scene.clone()));
         Ok(SceneRef::Moving(scene))
     }
 }

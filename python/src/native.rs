@@ -7,20 +7,17 @@
 use crate::errors::*;
 use numpy::{PyArray1, PyArray2};
 use pyo3::prelude::*;
-use std::path::PathBuf;
 use umbra::bake::MapSummary;
 use umbra::scene::Scene;
-use umbra::Interp;
 
 /// A loaded volume (a grid of a `.vdb` file, or a scene) with what it was loaded with.
 #[pyclass(frozen, module = "umbra._umbra", name = "Volume")]
 pub(crate) struct NativeVolume {
     pub(crate) scene: Scene,
-    pub(crate) path: PathBuf,
-    pub(crate) grid: String,
-    pub(crate) density_scale: f64,
-    pub(crate) xform: Option<umbra::internals::xform::Xform>,
-    pub(crate) interp: Interp,
+    /// What was loaded: the path, its kind and how it was read (grid, density scale,
+    /// interpolation, `xform`, a stage's selection); a moving copy is this source with the
+    /// call's motion, loaded by [`umbra::input::Source::load`].
+    pub(crate) source: umbra::input::Source,
     pub(crate) warnings: Vec<String>,
     /// Each fog volume's tree statistics, computed on first use (a pass over every leaf).
     pub(crate) stats: std::sync::OnceLock<Vec<umbra::internals::tree::TreeStats>>,
@@ -79,11 +76,7 @@ pub(crate) fn summary_json(report: &umbra::bake::BakeReport) -> PyResult<String>
     serde_json::to_string(&summary).map_err(|e| raise(Class::Other, e.to_string()))
 }
 
-/// The cache of [`NativeVolume::scene_for`] (`motion.rs`): the last motion asked for and its
-/// scene.
-pub(crate) type MovingCache = std::sync::Mutex<
-    Option<(
-        umbra::internals::motion::MotionRequest,
-        std::sync::Arc<Scene>,
-    )>,
->;
+/// The cache of [`NativeVolume::scene_for`] (`motion.rs`): the last motion asked for (the
+/// read options that name it) and its scene.
+pub(crate) type MovingCache =
+    std::sync::Mutex<Option<(umbra::input::SourceOptions, std::sync::Arc<Scene>)>>;

@@ -9,8 +9,7 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use umbra::estimate::{Estimator, Options};
-use umbra::request::EstimatorOptions;
-use umbra::scene::SceneOptions;
+use umbra::request::TraceOptions;
 use umbra::{Interp, Ray};
 
 pub(crate) fn parse_interp(s: &str) -> PyResult<Interp> {
@@ -135,50 +134,43 @@ impl Tally {
 }
 
 impl NativeVolume {
-    pub(crate) fn load(
-        py: Python<'_>,
+    /// What `path` is read as: grid `grid`, `density_scale`, `interp` (its Python name),
+    /// `xform` (16 numbers, row-major).
+    pub(crate) fn source(
         path: PathBuf,
         grid: String,
         density_scale: f64,
         interp: &str,
         xform: Option<Vec<f64>>,
-        stage: umbra::usd::Selection,
-    ) -> PyResult<Self> {
-        let interp = parse_interp(interp)?;
-        let xform = xform
-            .map(|v| umbra::internals::xform::Xform::from_row_major(&v))
-            .transpose()
-            .map_err(py_err)?;
-        let opts = SceneOptions {
-            grid: grid.clone(),
+    ) -> PyResult<umbra::input::Source> {
+        let options = umbra::input::SourceOptions {
+            grid,
             density_scale,
-            sigma_t: None,
+            interp: parse_interp(interp)?,
             xform,
-            levelset_solid: false,
-            stage,
-            motion: None,
+            ..umbra::input::SourceOptions::default()
         };
+        Ok(umbra::input::Source::new(path, options))
+    }
+
+    /// Load `source` ([`umbra::input::Source::load`]), keeping what it was loaded with.
+    pub(crate) fn load(py: Python<'_>, source: umbra::input::Source) -> PyResult<Self> {
         let scene = py
-            .detach(|| umbra::scene::load(&path, &opts))
-            .map_err(|e| load_err(e, &path, &grid))?;
+            .detach(|| source.load())
+            .map_err(|e| load_err(e, &source))?;
         let warnings = umbra::bake::volume_warnings(&scene.sanitized())
             .iter()
-            .map(|w| format!("{}: {w}", path.display()))
+            .map(|w| format!("{}: {w}", source.path().display()))
             .collect();
         Ok(Self {
             scene,
-            path,
-            grid,
-            density_scale,
-            xform,
-            interp,
+            source,
             warnings,
             stats: std::sync::OnceLock::new(),
             moving: std::sync::Mutex::new(None),
         })
     }
 
-    /// The tree statistics of each fog volume, in scene order.
     pub(crate) fn stats(&self) -> &[umbra::internals::tree::TreeStats] {
         self.stats.get_or_init(|| {
             self.scene
@@ -310,10 +302,14 @@ impl NativeVolume {
         ray_id: u64,
         threads: usize,
     ) -> PyResult<TraceOut<'py>> {
-        let o = EstimatorOptions::from_json(options).map_err(py_err)?;
+        let o = TraceOptions::from_json(options).map_err(py_err)?;
         // `regular` with a velocity is refused here, by the keyword.
-        let motion = o.motion(None).map_err(py_err)?;
-        let (est, opts) = o.resolve(self.interp).map_err(py_err)?;
+        o.estimator.motion(&o.source).map_err(py_err)?;
+        let motion = o.source;
+        let (est, opts) = o
+            .estimator
+            .resolve(self.source.options().interp)
+            .map_err(py_err)?;
         let scene = self.scene_for(py, motion)?;
         let scene = &*scene;
         let cancel = AtomicBool::new(false);

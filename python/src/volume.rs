@@ -8,7 +8,7 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2};
 use pyo3::prelude::*;
 use std::path::PathBuf;
 use umbra::bake::{BakeJob, Camera};
-use umbra::request::{BakeOptions, BakePlan, BakeRequest, EstimatorOptions};
+use umbra::request::{BakeOptions, BakePlan, BakeRequest, TraceOptions};
 use umbra::scene::Scene;
 use umbra::{Interp, Light, Ray};
 
@@ -31,13 +31,13 @@ impl NativeVolume {
             ));
         };
         self.single("transmittance volume")?;
-        Ok((self.scene_for(py, job.motion.clone())?, *job))
+        Ok((self.scene_for(py, request.options.source)?, *job))
     }
 
     /// A transmittance volume's warnings as the CLI prints them: `FILE: warning`.
     pub(crate) fn volume_warnings(&self, w: &[umbra::bake::Warning]) -> Vec<String> {
         w.iter()
-            .map(|w| format!("{}: {w}", self.path.display()))
+            .map(|w| format!("{}: {w}", self.source.path().display()))
             .collect()
     }
 }
@@ -55,7 +55,8 @@ impl NativeVolume {
         interp: &str,
         xform: Option<Vec<f64>>,
     ) -> PyResult<Self> {
-        if umbra::input::InputKind::of(&path).is_scene_file() {
+        let source = Self::source(path.clone(), grid, density_scale, interp, xform)?;
+        if source.kind().is_scene_file() {
             return Err(arg(
                 "path",
                 format!(
@@ -64,15 +65,7 @@ impl NativeVolume {
                 ),
             ));
         }
-        Self::load(
-            py,
-            path,
-            grid,
-            density_scale,
-            interp,
-            xform,
-            Default::default(),
-        )
+        Self::load(py, source)
     }
 
     /// Load the `.toml` scene file `path`.
@@ -85,7 +78,8 @@ impl NativeVolume {
         interp: &str,
         xform: Option<Vec<f64>>,
     ) -> PyResult<Self> {
-        if !umbra::input::InputKind::of(&path).is_scene_file() {
+        let source = Self::source(path.clone(), "density".into(), density_scale, interp, xform)?;
+        if !source.kind().is_scene_file() {
             return Err(arg(
                 "path",
                 format!(
@@ -94,15 +88,7 @@ impl NativeVolume {
                 ),
             ));
         }
-        Self::load(
-            py,
-            path,
-            "density".into(),
-            density_scale,
-            interp,
-            xform,
-            Default::default(),
-        )
+        Self::load(py, source)
     }
 
     /// Load the volumes of the USD stage `path` at time code `time` (default: its start);
@@ -121,7 +107,9 @@ impl NativeVolume {
         xform: Option<Vec<f64>>,
         light: Option<String>,
     ) -> PyResult<Self> {
-        if !umbra::input::InputKind::of(&path).is_stage() {
+        let mut source =
+            Self::source(path.clone(), "density".into(), density_scale, interp, xform)?;
+        if !source.kind().is_stage() {
             return Err(arg(
                 "path",
                 format!(
@@ -130,22 +118,12 @@ impl NativeVolume {
                 ),
             ));
         }
-        let sel = umbra::usd::Selection {
-            time,
-            volumes,
-            field,
-            light,
-            velocity: None,
-        };
-        Self::load(
-            py,
-            path,
-            "density".into(),
-            density_scale,
-            interp,
-            xform,
-            sel,
-        )
+        let o = source.options_mut();
+        o.frame = time;
+        o.volume = (!volumes.is_empty()).then_some(volumes);
+        o.field = Some(field);
+        o.light = light;
+        Self::load(py, source)
     }
 
     /// What the bad-voxel policy changed, as warning lines.
@@ -156,7 +134,7 @@ impl NativeVolume {
 
     #[getter]
     fn path(&self) -> PathBuf {
-        self.path.clone()
+        self.source.path().to_path_buf()
     }
 
     #[getter]
@@ -166,12 +144,12 @@ impl NativeVolume {
 
     #[getter]
     fn density_scale(&self) -> f64 {
-        self.density_scale
+        self.source.options().density_scale
     }
 
     #[getter]
     fn interp(&self) -> &'static str {
-        match self.interp {
+        match self.source.options().interp {
             Interp::Nearest => "nearest",
             Interp::Trilinear => "trilinear",
         }
@@ -265,8 +243,9 @@ impl NativeVolume {
                 ))
             }
         };
-        let motion = EstimatorOptions::from_json(options).and_then(|o| o.motion(None));
-        let traced = self.scene_for(py, motion.map_err(py_err)?)?;
+        let o = TraceOptions::from_json(options).map_err(py_err)?;
+        o.estimator.motion(&o.source).map_err(py_err)?;
+        let traced = self.scene_for(py, o.source)?;
         let scene = &*traced;
         // A direction that is no direction fails the call, not each row.
         if let Light::Directional { .. } = light {
@@ -351,8 +330,8 @@ impl NativeVolume {
     fn bake<'py>(&self, py: Python<'py>, options: &str) -> PyResult<BakeOut<'py>> {
         let request = self.request(options, PathBuf::new())?;
         let threads = request.options.threads;
-        let motion = request.options.estimator_options().motion(None);
-        let scene = self.scene_for(py, motion.map_err(py_err)?)?;
+        request.options.motion().map_err(py_err)?;
+        let scene = self.scene_for(py, request.options.source.clone())?;
         let scene = &*scene;
         let report = py
             .detach(|| -> umbra::Result<_> {
@@ -396,8 +375,8 @@ impl NativeVolume {
         let mut request = self.request(options, path)?;
         request.options.deep = request.options.deep_format.is_none();
         let threads = request.options.threads;
-        let motion = request.options.estimator_options().motion(None);
-        let scene = self.scene_for(py, motion.map_err(py_err)?)?;
+        request.options.motion().map_err(py_err)?;
+        let scene = self.scene_for(py, request.options.source.clone())?;
         let scene = &*scene;
         // The CLI's order: the request is planned (a camera file read), the outputs checked,
         // then the camera framed.
@@ -427,14 +406,13 @@ impl NativeVolume {
     /// was loaded with (file, grid, density scale, interpolation, `xform`) recorded.
     pub(crate) fn request(&self, options: &str, output: PathBuf) -> PyResult<BakeRequest> {
         let mut o = BakeOptions::from_json(options).map_err(py_err)?;
-        o.grid.clone_from(&self.grid);
-        o.density_scale = self.density_scale;
-        o.interp = self.interp;
-        o.xform = self
-            .xform
-            .map(|x| x.rows().iter().flatten().copied().collect());
+        let loaded = self.source.options();
+        o.source.grid.clone_from(&loaded.grid);
+        o.source.density_scale = loaded.density_scale;
+        o.source.interp = loaded.interp;
+        o.source.xform.clone_from(&loaded.xform);
         Ok(BakeRequest {
-            input: self.path.clone(),
+            input: self.source.path().to_path_buf(),
             output,
             options: o,
         })

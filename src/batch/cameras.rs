@@ -98,9 +98,9 @@ impl Job {
         let mut union = Vec::new();
         for (input, time) in inputs {
             // Every task of a sequence reads its files as its [[inputs]] entry says.
-            let mut opts = self.scene_options(first);
-            opts.stage.time = time;
-            match crate::scene::read_box_corners(input, &opts) {
+            let mut source = first.source.at(input);
+            source.options_mut().frame = time;
+            match source.box_corners() {
                 Ok(c) => union.extend(c),
                 // A missing file or grid, or a malformed scene, fails the job before any
                 // task runs.
@@ -222,7 +222,7 @@ impl Job {
             "ortho": o.ortho,
             "up": o.up,
             "frame_box": o.frame_box,
-            "xform": o.xform,
+            "xform": o.source.xform,
             "tasks": tasks,
         })
         .to_string()

@@ -174,6 +174,10 @@ pub struct Task {
     pub sequence: usize,
     /// Input file.
     pub input: PathBuf,
+    /// What the task reads: its input, its kind, and how it is read (the entry's read options
+    /// over `[bake]`'s, toward the task's stage light at its frame).
+    #[serde(skip)]
+    pub source: crate::input::Source,
     /// Grid baked in the input (its `[[inputs]]` entry's, else the job's).
     pub grid: String,
     /// Density scale (its entry's, else `[bake]`'s).
@@ -202,10 +206,10 @@ impl Task {
     /// Put how this task reads its input (grid, density scale, level sets, transform) into
     /// `options`.
     pub fn read_into(&self, options: &mut BakeOptions) {
-        options.grid.clone_from(&self.grid);
-        options.density_scale = self.density_scale;
-        options.levelset = self.levelset;
-        options.xform.clone_from(&self.xform);
+        options.source.grid.clone_from(&self.grid);
+        options.source.density_scale = self.density_scale;
+        options.source.levelset = self.levelset;
+        options.source.xform.clone_from(&self.xform);
     }
 
     /// The time code a USD stage input is read at: the task's frame (`None` for other inputs,
@@ -214,7 +218,7 @@ impl Task {
     pub fn time(&self) -> Option<f64> {
         #[allow(clippy::cast_precision_loss)]
         self.frame
-            .filter(|_| crate::input::InputKind::of(&self.input).is_stage())
+            .filter(|_| self.source.kind().is_stage())
             .map(|f| f as f64)
     }
 }
@@ -308,9 +312,7 @@ impl Job {
     /// when they cannot be listed (the bake will say why).
     #[must_use]
     pub fn sources(&self, task: &Task) -> Option<Vec<PathBuf>> {
-        let mut opts = self.scene_options(task);
-        opts.stage.time = task.time();
-        crate::scene::file::sources(&task.input, &opts).ok()
+        task.source.files().ok()
     }
 
     /// Whether a task's output exists and is not older than any of its sources
@@ -336,8 +338,8 @@ impl Job {
         // that the fixed camera then replaces.
         options.light_dir = task.dir;
         options.light_pos = task.pos;
-        options.light.clone_from(&task.usd_light);
-        options.frame = task.time();
+        options.source.light.clone_from(&task.usd_light);
+        options.source.frame = task.time();
         options.preview.clone_from(&task.preview);
         options.threads = threads;
         options.force = true;
@@ -392,11 +394,11 @@ impl Job {
         inputs.dedup_by(|a, b| a.input == b.input && a.grid == b.grid);
         for task in inputs {
             let input = task.input.as_path();
-            let kind = crate::input::InputKind::of(input);
+            let kind = task.source.kind();
             let found = if kind.is_stage() {
                 crate::usd::lights_at(input, None).map(|_| ())
             } else if kind.is_scene_file() {
-                crate::scene::read_box_corners(input, &self.scene_options(task)).map(|_| ())
+                task.source.box_corners().map(|_| ())
             } else {
                 crate::input::GridFile::open(input).and_then(|f| f.check_grid(&task.grid))
             };
@@ -435,7 +437,7 @@ impl Job {
                 l.prim
             ));
         }
-        let wanted = self.options.volume.as_deref();
+        let wanted = self.options.source.volume.as_deref();
         let read = |v: &&String| wanted.is_none_or(|w| w.contains(v));
         let any = l
             .shadow
@@ -451,30 +453,6 @@ impl Job {
             ));
         }
         None
-    }
-
-    /// How `task` reads its input (grid, scale, colour, transform, level sets).
-    #[must_use]
-    pub fn scene_options(&self, task: &Task) -> crate::scene::SceneOptions {
-        let xform = task
-            .xform
-            .as_deref()
-            .and_then(|x| crate::xform::Xform::from_row_major(x).ok());
-        crate::scene::SceneOptions {
-            grid: task.grid.clone(),
-            density_scale: task.density_scale,
-            sigma_t: self.options.sigma_t,
-            // Checked when the job was parsed.
-            xform,
-            levelset_solid: task.levelset == Some(crate::request::LevelSet::Solid),
-            // Toward the task's stage light: only the volumes its shadow link includes.
-            stage: crate::usd::Selection {
-                light: task.usd_light.clone(),
-                ..self.options.stage_selection()
-            },
-            // Checked when the job was parsed (every task plans through its request).
-            motion: self.options.estimator_options().motion(None).ok().flatten(),
-        }
     }
 
     /// Check every task as a run would before it bakes anything: every input holds its

@@ -7,7 +7,7 @@ pub(super) use super::checks::{err, frame_list};
 use super::patterns::{expand_pattern, fill_output, pattern_pad, MAX_FRAME_PAD};
 use super::schema::{InputSpec, JobFile};
 use super::{BatchError, Job, Task};
-use crate::input::InputKind;
+use crate::input::Source;
 use crate::request::{BakeOptions, BakePlan, BakeRequest};
 use std::path::{Path, PathBuf};
 
@@ -56,7 +56,7 @@ fn stage_lights(
 
 /// One file of a job: its path, its frame (patterns and frames of a stage), and the index of
 /// its `[[inputs]]` entry.
-type Input = (PathBuf, Option<i64>, usize);
+type Input = (Source, Option<i64>, usize);
 
 /// Parse and validate a job file's text; `path` is the job file (relative paths in it are
 /// relative to its directory). The steps: the TOML, the grid, the inputs, the lights, the
@@ -96,8 +96,8 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let (inputs, reads) = inputs(&path, &file, &grid, &resolve)?;
     let stage_input = inputs
         .iter()
-        .find(|(p, _, _)| InputKind::of(p).is_stage())
-        .map(|(p, f, _)| (p.clone(), *f));
+        .find(|(s, _, _)| s.kind().is_stage())
+        .map(|(s, f, _)| (s.path().to_path_buf(), *f));
     let lights = lights(&path, &file, stage_input.as_ref())?;
     check_lights(&path, &lights, stage_input.is_some())?;
     if file.bake.camera.is_some() && lights.len() > 1 {
@@ -169,10 +169,13 @@ fn read_toml(path: &Path, text: &str) -> Result<JobFile, BatchError> {
     toml::from_str(text).map_err(|e| {
         let message = match e.span() {
             Some(r) if r.start <= text.len() => {
-                let before = &text[..r.start];
+                // A key of a flattened set (the read and estimator options in `[bake]`) is
+                // reported at its table's header: find the key itself.
+                let at = culprit_key(text, r.start).unwrap_or(r.start);
+                let before = &text[..at];
                 let line = before.matches('\n').count() + 1;
                 let column = r.start - before.rfind('\n').map_or(0, |i| i + 1) + 1;
-                let key = key_at(text, r.start)
+                let key = key_at(text, at)
                     .map(|k| format!("{k}: "))
                     .unwrap_or_default();
                 format!("line {line}, column {column}: {key}{}", e.message().trim())
@@ -186,9 +189,65 @@ fn read_toml(path: &Path, text: &str) -> Result<JobFile, BatchError> {
     })
 }
 
+/// Where the key that fails stands, when a parse error points at the header of the table
+/// holding it (`[bake]`, `[[positions]]`): serde reports the keys of a flattened set there.
+/// Each key of that table is tried alone (every key has a default); the first whose value
+/// fails alone is the culprit, and its line's start is returned. `None`: not at a header, or
+/// no single key fails.
+fn culprit_key(text: &str, at: usize) -> Option<usize> {
+    let header = text[at..].lines().next()?.trim();
+    if !header.starts_with('[') {
+        return None;
+    }
+    let name = header
+        .trim_matches(|c| c == '[' || c == ']')
+        .trim()
+        .to_string();
+    let array = header.starts_with("[[");
+    let nth = if array {
+        text[..at].lines().filter(|l| l.trim() == header).count()
+    } else {
+        0
+    };
+    let root: toml::Table = toml::from_str(text).ok()?;
+    let table = match root.get(&name)? {
+        toml::Value::Table(t) => t.clone(),
+        toml::Value::Array(a) => a.get(nth)?.as_table()?.clone(),
+        _ => return None,
+    };
+    let bad = table.iter().find(|(k, v)| {
+        let mut one = root.clone();
+        let alone = toml::Table::from_iter([((*k).clone(), (*v).clone())]);
+        match one.get_mut(&name) {
+            Some(toml::Value::Array(a)) => a[nth] = toml::Value::Table(alone),
+            Some(slot) => *slot = toml::Value::Table(alone),
+            None => return false,
+        }
+        toml::Value::Table(one).try_into::<JobFile>().is_err()
+    })?;
+    // The key's line within the table's section.
+    let section_end = text[at + header.len()..]
+        .find("\n[")
+        .map_or(text.len(), |i| at + header.len() + i);
+    let mut pos = at;
+    for line in text[at..section_end].split_inclusive('\n') {
+        let key = line
+            .split('=')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .trim_matches('"');
+        if key == bad.0 {
+            return Some(pos + (line.len() - line.trim_start().len()));
+        }
+        pos += line.len();
+    }
+    None
+}
+
 /// The grid every task bakes: at the top level (the original place) or in `[bake]`, once.
 fn job_grid(path: &Path, file: &JobFile) -> Result<String, BatchError> {
-    let grid = match (&file.grid, file.bake.grid.as_str()) {
+    let grid = match (&file.grid, file.bake.source.grid.as_str()) {
         (Some(g), "density") => g.clone(),
         (Some(_), _) => {
             return Err(err(
@@ -217,10 +276,18 @@ fn inputs(
     let mut reads: Vec<EntryRead> = Vec::new();
     for (i, inp) in file.inputs.iter().enumerate() {
         let key = |k: &str| format!("inputs[{i}].{k}");
-        reads.push(entry_read(path, &key, inp, grid, &file.bake)?);
+        let read = entry_read(path, &key, inp, grid, &file.bake)?;
+        let mut options = file.bake.source.clone();
+        options.grid.clone_from(&read.grid);
+        options.density_scale = read.density_scale;
+        options.levelset = read.levelset;
+        options.xform.clone_from(&read.xform);
+        reads.push(read);
+        // Each file the entry names, read as the entry says.
+        let source = |p: PathBuf| Source::new(p, options.clone());
         match (&inp.file, &inp.pattern, &inp.usd) {
             (None, None, Some(u)) => {
-                if !InputKind::of(Path::new(u)).is_stage() {
+                if !source(resolve(u)).kind().is_stage() {
                     return Err(err(
                         path,
                         &key("usd"),
@@ -228,10 +295,10 @@ fn inputs(
                     ));
                 }
                 match inp.frames {
-                    None => inputs.push((resolve(u), None, i)),
+                    None => inputs.push((source(resolve(u)), None, i)),
                     Some(frames) => {
                         for f in frame_list(path, &key, frames, inp.step)? {
-                            inputs.push((resolve(u), Some(f), i));
+                            inputs.push((source(resolve(u)), Some(f), i));
                         }
                     }
                 }
@@ -244,12 +311,12 @@ fn inputs(
                         "frames/step go with pattern, not file",
                     ));
                 }
-                inputs.push((resolve(f), None, i));
+                inputs.push((source(resolve(f)), None, i));
             }
             (None, Some(p), None) => {
                 for f in pattern_frames(path, &key, inp, p)? {
                     let name = expand_pattern(p, f).unwrap_or_default();
-                    inputs.push((resolve(&name), Some(f), i));
+                    inputs.push((source(resolve(&name)), Some(f), i));
                 }
             }
             _ => {
@@ -308,18 +375,19 @@ fn lights(
     let b = &file.bake;
     Ok(match (file.lights.is_empty(), b.light_dir, b.light_pos) {
         (true, None, None) => match stage_input {
-            Some((stage, frame)) if b.camera.is_none() && b.light.is_none() => {
+            Some((stage, frame)) if b.camera.is_none() && b.source.light.is_none() => {
                 stage_lights(path, stage, *frame)?
             }
-            Some(_) if b.light.is_some() => vec![JobLight {
+            Some(_) if b.source.light.is_some() => vec![JobLight {
                 name: b
+                    .source
                     .light
                     .as_deref()
                     .map_or("light", |l| l.rsplit('/').next().unwrap_or(l))
                     .to_string(),
                 dir: None,
                 pos: None,
-                usd: b.light.clone(),
+                usd: b.source.light.clone(),
             }],
             _ => {
                 return Err(err(
@@ -444,7 +512,8 @@ fn tasks(
 ) -> Result<Vec<Task>, BatchError> {
     let mut tasks = Vec::new();
     let mut seen = std::collections::HashMap::new();
-    for (input, frame, sequence) in inputs {
+    for (source, frame, sequence) in inputs {
+        let input = source.path();
         let stem = input
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -478,7 +547,8 @@ fn tasks(
             tasks.push(Task {
                 index,
                 sequence: *sequence,
-                input: input.clone(),
+                input: input.to_path_buf(),
+                source: task_source(source, *frame, l),
                 grid: read.grid.clone(),
                 density_scale: read.density_scale,
                 levelset: read.levelset,
@@ -494,6 +564,20 @@ fn tasks(
         }
     }
     Ok(tasks)
+}
+
+/// What a task reads: its input as its entry reads it, toward its stage light, at its frame
+/// when the input is a stage.
+fn task_source(source: &Source, frame: Option<i64>, l: &JobLight) -> Source {
+    let mut s = source.clone();
+    let stage = s.kind().is_stage();
+    let o = s.options_mut();
+    o.light.clone_from(&l.usd);
+    #[allow(clippy::cast_precision_loss)]
+    {
+        o.frame = frame.filter(|_| stage).map(|f| f as f64);
+    }
+    s
 }
 
 /// What every task of a job shares: `[bake]` without the per-task parts, its framing, the
@@ -516,11 +600,11 @@ fn shared_options(
     resolve: &dyn Fn(&str) -> PathBuf,
 ) -> Result<Shared, BatchError> {
     let mut options = b.clone();
-    options.grid = grid.to_string();
+    options.source.grid = grid.to_string();
     options.light_dir = None;
     options.light_pos = None;
-    options.light = None;
-    options.frame = None;
+    options.source.light = None;
+    options.source.frame = None;
     options.preview = None;
     let framing = options.framing.take().unwrap_or_default();
     // One layer for the whole job, written by the runner: no task writes its own.
@@ -538,9 +622,9 @@ fn shared_options(
     if template.camera.is_none() {
         template.light_dir = first.dir;
         template.light_pos = first.pos;
-        template.light.clone_from(&first.usd_light);
+        template.source.light.clone_from(&first.usd_light);
     }
-    template.frame = first.time();
+    template.source.frame = first.time();
     let plan = BakeRequest {
         input: first.input.clone(),
         output: first.output.clone(),
@@ -606,8 +690,8 @@ pub(super) fn entry_read(
     }
     Ok(EntryRead {
         grid: inp.grid.clone().unwrap_or_else(|| grid.to_string()),
-        density_scale: inp.density_scale.unwrap_or(b.density_scale),
-        levelset: inp.levelset.or(b.levelset),
-        xform: inp.xform.clone().or_else(|| b.xform.clone()),
+        density_scale: inp.density_scale.unwrap_or(b.source.density_scale),
+        levelset: inp.levelset.or(b.source.levelset),
+        xform: inp.xform.clone().or_else(|| b.source.xform.clone()),
     })
 }

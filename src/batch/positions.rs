@@ -96,13 +96,13 @@ impl PositionsTask {
     }
 
     /// How the stage is read at this task's frame.
-    fn scene(&self) -> crate::error::Result<crate::scene::SceneOptions> {
-        let mut s = self.options.scene_options()?;
+    fn source(&self) -> crate::input::Source {
+        let mut s = crate::input::Source::new(&self.stage, self.options.source.clone());
         #[allow(clippy::cast_precision_loss)]
         {
-            s.stage.time = Some(self.frame as f64);
+            s.options_mut().frame = Some(self.frame as f64);
         }
-        Ok(s)
+        s
     }
 }
 
@@ -121,7 +121,10 @@ pub(super) fn tasks(
     let mut layers = std::collections::HashMap::new();
     for (i, s) in specs.iter().enumerate() {
         let key = |k: &str| format!("positions[{i}].{k}");
-        if !crate::input::InputKind::of(Path::new(&s.usd)).is_stage() {
+        if !crate::input::Source::new(&s.usd, b.source.clone())
+            .kind()
+            .is_stage()
+        {
             return Err(err(
                 path,
                 &key("usd"),
@@ -186,7 +189,7 @@ pub(super) fn job(
              give their own usd_out)",
         ));
     }
-    options.grid.clone_from(&grid);
+    options.source.grid.clone_from(&grid);
     let framing = options.framing.take().unwrap_or_default();
     options.camera = None;
     options.preview = None;
@@ -249,31 +252,31 @@ fn entry_options(
     grid: &str,
 ) -> Result<BakeOptions, BatchError> {
     let mut o = b.clone();
-    o.grid = grid.to_string();
-    o.frame = None;
+    o.source.grid = grid.to_string();
+    o.source.frame = None;
     if let Some(v) = &s.estimator {
-        o.estimator.clone_from(v);
+        o.estimator.estimator.clone_from(v);
     }
-    o.samples = s.samples.unwrap_or(o.samples);
-    o.seed = s.seed.unwrap_or(o.seed);
-    o.step = s.step.or(o.step);
-    o.kernel = s.kernel.or(o.kernel);
-    o.points = s.points.or(o.points);
-    o.interp = s.interp.unwrap_or(o.interp);
-    o.granularity = s.granularity.unwrap_or(o.granularity);
-    o.global_majorant = s.global_majorant.unwrap_or(o.global_majorant);
-    o.density_scale = s.density_scale.unwrap_or(o.density_scale);
+    o.estimator.samples = s.samples.unwrap_or(o.estimator.samples);
+    o.estimator.seed = s.seed.unwrap_or(o.estimator.seed);
+    o.estimator.params.step = s.step.or(o.estimator.params.step);
+    o.estimator.params.kernel = s.kernel.or(o.estimator.params.kernel);
+    o.estimator.params.points = s.points.or(o.estimator.params.points);
+    o.source.interp = s.interp.unwrap_or(o.source.interp);
+    o.estimator.granularity = s.granularity.unwrap_or(o.estimator.granularity);
+    o.estimator.global_majorant = s.global_majorant.unwrap_or(o.estimator.global_majorant);
+    o.source.density_scale = s.density_scale.unwrap_or(o.source.density_scale);
     if s.volume.is_some() {
-        o.volume.clone_from(&s.volume);
+        o.source.volume.clone_from(&s.volume);
     }
     if s.field.is_some() {
-        o.field.clone_from(&s.field);
+        o.source.field.clone_from(&s.field);
     }
-    if !(o.density_scale.is_finite() && o.density_scale >= 0.0) {
+    if !(o.source.density_scale.is_finite() && o.source.density_scale >= 0.0) {
         return Err(err(
             path,
             &key("density_scale"),
-            format!("{} is not a finite scale >= 0", o.density_scale),
+            format!("{} is not a finite scale >= 0", o.source.density_scale),
         ));
     }
     let named = |e: crate::error::Error| match e {
@@ -282,8 +285,11 @@ fn entry_options(
         }
         other => err(path, &key("estimator"), other),
     };
-    o.estimator().map_err(named)?;
-    o.scene_options().map_err(named)?;
+    o.resolve_estimator().map_err(named)?;
+    o.motion().map_err(named)?;
+    crate::input::Source::new(&s.usd, o.source.clone())
+        .xform()
+        .map_err(named)?;
     Ok(o)
 }
 
@@ -314,8 +320,7 @@ impl Job {
     /// volumes name at the frame. `None` when they cannot be listed.
     #[must_use]
     pub fn positions_sources(&self, t: &PositionsTask) -> Option<Vec<PathBuf>> {
-        let opts = t.scene().ok()?;
-        crate::scene::file::sources(&t.stage, &opts).ok()
+        t.source().files().ok()
     }
 
     /// Whether a positions task's per-frame file exists and is not older than its sources.
@@ -355,8 +360,8 @@ impl Job {
     /// # Errors
     /// [`BatchError::Task`] for any error reading the stage, estimating or writing.
     pub fn run_positions_task(&self, t: &PositionsTask) -> Result<usize, BatchError> {
-        let scene = t.scene()?;
-        let (est, opts) = t.options.estimator()?;
+        let source = t.source();
+        let (est, opts) = t.options.resolve_estimator()?;
         #[allow(clippy::cast_precision_loss)]
         let frames = [t.frame as f64];
         let q = crate::points::PointQuery {
@@ -365,7 +370,7 @@ impl Job {
             light: t.light.as_deref(),
             frames: &frames,
         };
-        let answers = crate::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})?;
+        let answers = crate::points::point_transmittance(&q, &source, &est, &opts, &mut |_| {})?;
         let Some(f) = answers.frames.into_iter().next() else {
             return Ok(0);
         };

@@ -427,7 +427,12 @@ fn points_record(
     Record {
         task: t.index,
         input: t.stage.clone(),
-        grid: t.options.field.clone().unwrap_or_else(|| "density".into()),
+        grid: t
+            .options
+            .source
+            .field
+            .clone()
+            .unwrap_or_else(|| "density".into()),
         light: t.light_name(),
         output: t.output.clone(),
         status,

@@ -1,171 +1,253 @@
-//! [`GridFile`]: a grid file opened by the reader its kind names, and what the layers above ask
-//! of it: a grid decoded whole ([`GridFile::load`]), opened for partial reads
-//! ([`GridFile::lazy`]), a vector grid as its three components ([`GridFile::load_vector`]), or
-//! its transform and index box alone ([`GridFile::extent`]). The
-//! model builds a [`crate::Volume`] from the [`Grid`] it gives; no module above this layer
-//! opens a grid file itself.
+//! [`Source`]: what a job reads, made once from a path, and [`InputKind`], what kind of input
+//! a path is: the one place an input's kind is decided ([`InputKind::of`], asked by
+//! [`Source::new`] and by [`super::GridFile::open`] alone).
 
-use crate::error::Result;
-use crate::vdb::{Archive, Grid, GridExtent, LazyGrid, VectorGrid};
-use std::path::Path;
+use super::options::SourceOptions;
+use std::path::{Path, PathBuf};
 
-/// A grid file opened for reading: its header and list of grids read, no grid decoded.
-#[derive(Debug)]
-pub struct GridFile {
-    reader: Reader,
+/// What kind of input a path is, from its extension (any case).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[non_exhaustive]
+pub enum InputKind {
+    /// An OpenVDB grid file (`.vdb`), and any path no other kind claims: it is read as one,
+    /// and the reader's error says why it is not.
+    Vdb,
+    /// A NanoVDB grid file (`.nvdb`): each grid one contiguous block, read whole.
+    Nvdb,
+    /// A scene file (`.toml`): `[[volume]]` tables naming grid files.
+    Scene,
+    /// A USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`); `package` for a `.usdz` package (a zip
+    /// archive whose root layer and assets are its members).
+    Stage {
+        /// Whether the stage is a `.usdz` package.
+        package: bool,
+    },
 }
 
-/// The reader of each grid format.
-#[derive(Debug)]
-enum Reader {
-    /// An OpenVDB archive.
-    Vdb(Archive),
-    /// A NanoVDB file ([`crate::nvdb`]): each grid one contiguous block, decoded whole.
-    Nvdb(crate::nvdb::NvdbFile),
-}
-
-impl GridFile {
-    /// Open `path` with the reader of its kind ([`super::InputKind::of`]; a path that is not a
-    /// grid file of another format is read as `.vdb`, whose reader says why it is not one).
-    ///
-    /// # Errors
-    /// As [`Archive::open`] (or the NanoVDB reader's open for `.nvdb`): [`crate::error::Error::Io`],
-    /// [`crate::error::Error::NotVdb`],
-    /// [`crate::error::Error::Unsupported`], [`crate::error::Error::Invalid`], naming the file.
-    pub fn open(path: impl AsRef<Path>) -> Result<Self> {
-        let path = path.as_ref();
-        let reader = match super::InputKind::of(path) {
-            super::InputKind::Nvdb => Reader::Nvdb(crate::nvdb::NvdbFile::open(path)?),
-            _ => Reader::Vdb(Archive::open(path)?),
-        };
-        Ok(Self { reader })
+impl InputKind {
+    /// The kind of input `path` names, from its extension (any case).
+    #[must_use]
+    pub fn of(path: &Path) -> Self {
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("");
+        let is = |x: &str| ext.eq_ignore_ascii_case(x);
+        if is("toml") {
+            Self::Scene
+        } else if is("nvdb") {
+            Self::Nvdb
+        } else if is("usdz") {
+            Self::Stage { package: true }
+        } else if is("usd") || is("usda") || is("usdc") {
+            Self::Stage { package: false }
+        } else {
+            Self::Vdb
+        }
     }
 
-    /// The file it reads.
+    /// Whether the input is a grid file, read through [`GridFile`] (its grid named by `grid`),
+    /// rather than a file naming grid files (a scene file or a stage).
+    #[must_use]
+    pub fn is_grid_file(self) -> bool {
+        matches!(self, Self::Vdb | Self::Nvdb)
+    }
+
+    /// Whether a grid of the input can be read in part (only the leaves a job touches): `.vdb`
+    /// grids can; a NanoVDB grid is one block, read whole ([`GridFile::lazy`] is `None`).
+    #[must_use]
+    pub fn has_partial_reads(self) -> bool {
+        self == Self::Vdb
+    }
+
+    /// The format's short name, as reports give it (`umbra info`'s `format`): `vdb`, `nvdb`,
+    /// `scene`, `usd`.
+    #[must_use]
+    pub fn format(self) -> &'static str {
+        match self {
+            Self::Vdb => "vdb",
+            Self::Nvdb => "nvdb",
+            Self::Scene => "scene",
+            Self::Stage { .. } => "usd",
+        }
+    }
+
+    /// Whether the input is a scene file (`.toml`).
+    #[must_use]
+    pub fn is_scene_file(self) -> bool {
+        self == Self::Scene
+    }
+
+    /// Whether the input is a USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`).
+    #[must_use]
+    pub fn is_stage(self) -> bool {
+        matches!(self, Self::Stage { .. })
+    }
+
+    /// Whether the input is a USD package (`.usdz`).
+    #[must_use]
+    pub fn is_package(self) -> bool {
+        self == Self::Stage { package: true }
+    }
+}
+
+/// What a job reads: its input's path, the kind of that input (decided when the source is
+/// made, [`InputKind::of`]) and how it is read ([`SourceOptions`]: the grid or stage
+/// selection, what the values mean, the placement, the motion). Every product takes one; the
+/// layers above ask it ([`Source::kind`]) instead of the path. Loaded by `Source::load` and
+/// its siblings (`crate::scene::file`, which builds scenes from it).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Source {
+    path: PathBuf,
+    kind: InputKind,
+    options: SourceOptions,
+}
+
+impl Source {
+    /// The source at `path`, read with `options`; its kind from the path's extension.
+    #[must_use]
+    pub fn new(path: impl Into<PathBuf>, options: SourceOptions) -> Self {
+        let path = path.into();
+        let kind = InputKind::of(&path);
+        Self {
+            path,
+            kind,
+            options,
+        }
+    }
+
+    /// The input's path.
     #[must_use]
     pub fn path(&self) -> &Path {
-        match &self.reader {
-            Reader::Vdb(a) => &a.path,
-            Reader::Nvdb(f) => &f.path,
-        }
+        &self.path
     }
 
-    /// Check that the file holds grid `grid` (display, stored or unique base name).
+    /// What kind of input it is.
+    #[must_use]
+    pub fn kind(&self) -> InputKind {
+        self.kind
+    }
+
+    /// How it is read.
+    #[must_use]
+    pub fn options(&self) -> &SourceOptions {
+        &self.options
+    }
+
+    /// How it is read, to change.
+    pub fn options_mut(&mut self) -> &mut SourceOptions {
+        &mut self.options
+    }
+
+    /// The same read options at another path (a grid file a stage names, a frame of a
+    /// sequence), its kind decided anew.
+    #[must_use]
+    pub fn at(&self, path: impl Into<PathBuf>) -> Self {
+        Self::new(path, self.options.clone())
+    }
+
+    /// Check what only some kinds of input read: the stage options (`frame`, `volume`,
+    /// `field`, `light`) are refused for an input that is not a USD stage; a stage's `frame`
+    /// must be finite and its `field` not empty.
     ///
     /// # Errors
-    /// [`crate::error::Error::GridNotFound`] listing the grids it holds.
-    pub fn check_grid(&self, grid: &str) -> Result<()> {
-        match &self.reader {
-            Reader::Vdb(a) => a.find_grid(grid).map(|_| ()),
-            Reader::Nvdb(f) => f.find_grid(grid).map(|_| ()),
+    /// [`crate::error::Error::InvalidArgument`] naming the option.
+    pub fn check(&self) -> crate::error::Result<()> {
+        let o = &self.options;
+        let bad = |name: &str, reason: String| crate::error::Error::InvalidArgument {
+            name: name.into(),
+            reason,
+        };
+        if !self.kind.is_stage() {
+            let given = [
+                ("frame", o.frame.is_some()),
+                ("volume", o.volume.is_some()),
+                ("field", o.field.is_some()),
+                ("light", o.light.is_some()),
+            ];
+            return match given.iter().find(|(_, g)| *g) {
+                Some((k, _)) => Err(bad(k, self.not_a_stage())),
+                None => Ok(()),
+            };
         }
+        if let Some(f) = o.frame {
+            if !f.is_finite() {
+                return Err(bad("frame", format!("{f} is not a finite time code")));
+            }
+        }
+        if o.field.as_deref() == Some("") {
+            return Err(bad("field", "must not be empty".into()));
+        }
+        Ok(())
     }
 
-    /// Decode grid `grid` whole: identity, metadata, transform and tree.
+    /// Why a stage option does not apply to this input.
+    #[must_use]
+    pub fn not_a_stage(&self) -> String {
+        format!(
+            "applies to USD stages (.usd, .usda, .usdc, .usdz); {} is not one",
+            self.path.display()
+        )
+    }
+
+    /// The placement transform, checked.
     ///
     /// # Errors
-    /// [`crate::error::Error::GridNotFound`], or a decoding error naming the file.
-    pub fn load(&self, grid: &str) -> Result<Grid> {
-        match &self.reader {
-            Reader::Vdb(a) => a.load(a.find_grid(grid)?),
-            Reader::Nvdb(f) => f.load(f.find_grid(grid)?),
-        }
+    /// [`crate::error::Error::InvalidArgument`] naming `xform`.
+    pub fn xform(&self) -> crate::error::Result<Option<crate::xform::Xform>> {
+        self.options
+            .xform
+            .as_deref()
+            .map(crate::xform::Xform::from_row_major)
+            .transpose()
     }
 
-    /// Decode the vector grid `grid` (`.vdb`: `vec3s`, `vec3d`, `vec3i`; `.nvdb`: `Vec3f`) as
-    /// its three components, each a scalar tree of the grid's topology ([`VectorGrid`]).
-    ///
-    /// # Errors
-    /// [`crate::error::Error::GridNotFound`]; [`crate::error::Error::Unsupported`] naming the file and the
-    /// grid when it is not a vector grid; a decoding error naming the file.
-    pub fn load_vector(&self, grid: &str) -> Result<VectorGrid> {
-        match &self.reader {
-            Reader::Vdb(a) => a.load_vector(a.find_grid(grid)?),
-            Reader::Nvdb(f) => f.load_vector(f.find_grid(grid)?),
+    /// What a USD stage input is read at: `frame`, `volume`, `field`, and `light`, whose
+    /// shadow link picks the volumes (the velocity field is the motion's: `None` here).
+    #[must_use]
+    pub fn stage_selection(&self) -> crate::usd::Selection {
+        let o = &self.options;
+        crate::usd::Selection {
+            time: o.frame,
+            volumes: o.volume.clone().unwrap_or_default(),
+            field: o.field.clone().unwrap_or_else(|| "density".into()),
+            light: o.light.clone(),
+            velocity: None,
         }
     }
-
-    /// Open grid `grid` for partial reads: its topology and where its leaves are, no value
-    /// decoded ([`LazyGrid`]). `None` when the format has no partial reads: the caller loads
-    /// the grid whole ([`GridFile::load`]).
-    ///
-    /// # Errors
-    /// [`crate::error::Error::GridNotFound`], or a decoding error of the head, the topology or the
-    /// buffer headers, naming the file.
-    pub fn lazy(&self, grid: &str) -> Result<Option<LazyGrid>> {
-        match &self.reader {
-            Reader::Vdb(a) => a.open_lazy(a.find_grid(grid)?).map(Some),
-            // One contiguous block per grid, with no index of its nodes outside it.
-            Reader::Nvdb(f) => f.find_grid(grid).map(|_| None),
-        }
-    }
-
-    /// Grid `grid`'s transform and index box, read without its voxel values (what framing
-    /// needs).
-    ///
-    /// # Errors
-    /// [`crate::error::Error::GridNotFound`], or a decoding error of the head or the topology, naming
-    /// the file.
-    pub fn extent(&self, grid: &str) -> Result<GridExtent> {
-        match &self.reader {
-            Reader::Vdb(a) => a.extent(a.find_grid(grid)?),
-            Reader::Nvdb(f) => f.extent(f.find_grid(grid)?),
-        }
-    }
-}
-
-/// Load grid `grid` of the grid file `path` whole ([`GridFile::open`], [`GridFile::load`]).
-///
-/// # Errors
-/// As [`GridFile::open`] and [`GridFile::load`].
-pub fn load_grid(path: impl AsRef<Path>, grid: &str) -> Result<Grid> {
-    GridFile::open(path)?.load(grid)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn cloud() -> std::path::PathBuf {
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb")
-    }
+    use crate::input::is_usda_layer;
 
     #[test]
-    fn a_grid_file_gives_what_the_vdb_reader_gives() {
-        let path = cloud();
-        let file = GridFile::open(&path).unwrap();
-        assert_eq!(file.path(), path.as_path());
-        file.check_grid("density").unwrap();
-        let missing = file.check_grid("no such grid").unwrap_err();
-        assert!(
-            matches!(missing, crate::error::Error::GridNotFound { .. }),
-            "{missing}"
-        );
-        let archive = Archive::open(&path).unwrap();
-        let gd = archive.find_grid("density").unwrap();
-        let eager = file.load("density").unwrap();
-        let direct = archive.load(gd).unwrap();
-        assert_eq!(eager.name, direct.name);
-        assert_eq!(eager.tree.values, direct.tree.values);
+    fn kinds_by_extension_in_any_case() {
+        let of = |p: &str| InputKind::of(Path::new(p));
+        assert_eq!(of("a/cloud.vdb"), InputKind::Vdb);
+        assert_eq!(of("a/cloud.VDB"), InputKind::Vdb);
+        assert_eq!(of("cloud"), InputKind::Vdb);
+        assert_eq!(of("cloud.bin"), InputKind::Vdb);
+        assert_eq!(of("scene.TOML"), InputKind::Scene);
+        assert_eq!(of("a/smoke.nvdb"), InputKind::Nvdb);
+        assert_eq!(of("smoke.0001.NVDB"), InputKind::Nvdb);
+        assert!(of("a.NvDb").is_grid_file() && !of("a.nvdb").is_scene_file());
+        assert!(!of("a.nvdb").is_stage());
         assert_eq!(
-            eager.transform.world_from_index,
-            direct.transform.world_from_index
+            (of("a.nvdb").format(), of("a.vdb").format()),
+            ("nvdb", "vdb")
         );
-        let lazy = file.lazy("density").unwrap().unwrap();
-        assert_eq!(lazy.head_bytes(), gd.block_pos - gd.grid_pos);
-        assert_eq!(lazy.leaf_count(), direct.tree.leaves.len());
-        let extent = file.extent("density").unwrap();
-        assert_eq!(extent.name, "density");
-        assert_eq!(extent.value_box, archive.extent(gd).unwrap().value_box);
-        let loaded = load_grid(&path, "density").unwrap();
-        assert_eq!(loaded.tree.values, direct.tree.values);
-    }
-
-    #[test]
-    fn a_path_that_is_no_grid_file_says_so_as_the_vdb_reader_does() {
-        let scene = Path::new(env!("CARGO_MANIFEST_DIR")).join("Cargo.toml");
-        let ours = GridFile::open(&scene).unwrap_err().to_string();
-        let theirs = Archive::open(&scene).unwrap_err().to_string();
-        assert_eq!(ours, theirs);
+        assert_eq!(of("a/b.USDZ"), InputKind::Stage { package: true });
+        for s in ["s.usd", "s.usda", "s.USDC", "s.UsdA"] {
+            assert_eq!(of(s), InputKind::Stage { package: false }, "{s}");
+        }
+        assert!(of("a.usdz").is_stage() && of("a.usdz").is_package());
+        assert!(of("a.usd").is_stage() && !of("a.usd").is_package());
+        assert!(of("a.vdb").is_grid_file() && !of("a.vdb").is_stage());
+        assert!(of("a.toml").is_scene_file() && !of("a.toml").is_grid_file());
+        assert!(!of("a.usda").is_grid_file() && !of("a.usda").is_scene_file());
+        // A name that is all extension has none.
+        assert_eq!(of(".toml"), InputKind::Vdb);
+        assert!(is_usda_layer(Path::new("o/shadows.USDA")));
+        assert!(!is_usda_layer(Path::new("o/shadows.usdc")));
+        assert!(!is_usda_layer(Path::new("usda")));
     }
 }

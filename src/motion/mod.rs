@@ -234,6 +234,41 @@ pub struct MotionRequest {
 }
 
 impl MotionRequest {
+    /// The motion blur the read options `o` ask for, with the options not given at their
+    /// defaults (shutter [`DEFAULT_SHUTTER`], [`DEFAULT_FPS`], scale 1,
+    /// [`DEFAULT_TIME_SAMPLES`]): `None` without `velocity`. The checks that involve the
+    /// estimator are the request's (`EstimatorOptions::motion`).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `shutter`, `fps`, `velocity-scale` or `time-samples`
+    /// given without `velocity` or out of range, or an empty `velocity`.
+    pub fn of(o: &crate::input::SourceOptions) -> Result<Option<Self>> {
+        let Some(velocity) = &o.velocity else {
+            return match o.motion_keys().iter().find(|(_, g)| *g) {
+                Some((k, _)) => Err(invalid(
+                    k,
+                    "applies to motion blur: give the velocity grid (velocity)".into(),
+                )),
+                None => Ok(None),
+            };
+        };
+        if velocity.is_empty() {
+            return Err(invalid("velocity", "must name a vec3 grid".into()));
+        }
+        let spec = MotionSpec::new(
+            o.shutter.unwrap_or(DEFAULT_SHUTTER),
+            o.fps.unwrap_or(DEFAULT_FPS),
+            o.velocity_scale.unwrap_or(1.0),
+            o.time_samples.unwrap_or(DEFAULT_TIME_SAMPLES),
+        )?;
+        Ok(Some(Self {
+            velocity: velocity.clone(),
+            spec,
+            file: None,
+            fps_given: o.fps.is_some(),
+        }))
+    }
+
     /// Load the velocity grid of `path` ([`crate::input::GridFile::load_vector`]) as a field:
     /// staggered when its class says so, in index space when its metadata says
     /// `is_local_space`.

@@ -5,116 +5,55 @@
 //! in by the macros below, so a job file's `[bake]` stays one flat table whose keys serde
 //! checks with their line and column (serde's `flatten` would lose both).
 
-/// Defines `pub struct NAME { BEFORE.. step, kernel, points, AFTER.. }` with the attributes
-/// given: the estimator parameters' one definition (flag, help, job key, keyword).
-macro_rules! with_estimator_params {
-    ($(#[$m:meta])* pub struct $name:ident { $($before:tt)* } { $($after:tt)* }) => {
-        $(#[$m])*
-        pub struct $name {
-            $($before)*
-            /// Ray-marching step in voxels (riemann, mc, jittered; default 1).
-            #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-            pub step: Option<f64>,
-            /// Kernel width in voxels (collision; default 1).
-            #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-            pub kernel: Option<f64>,
-            /// Points per optical-depth estimate (jackknife; default 10).
-            #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-            pub points: Option<f64>,
-            $($after)*
-        }
-    };
-}
-
-/// Defines `pub struct NAME { BEFORE.. estimator, samples, seed, step, kernel, points,
-/// granularity, global_majorant, colour_walk, AFTER.. }` with the attributes given: the
-/// estimator options' one definition. Defaults are [`EstimatorOptions::default`]'s (the
-/// `default_value`s here are the CLI's spelling of the same values; a test holds them equal).
-macro_rules! with_estimator_options {
-    ($(#[$m:meta])* pub struct $name:ident { $($before:tt)* } { $($after:tt)* }) => {
-        with_estimator_params! {
-            $(#[$m])*
-            pub struct $name {
-                $($before)*
-                /// Estimator (`umbra estimators` lists them with their parameters).
-                #[cfg_attr(feature = "cli", arg(long, default_value = "regular"))]
-                pub estimator: String,
-                /// Independent samples per pixel, voxel or ray (stochastic estimators); alias
-                /// spp.
-                #[cfg_attr(
-                    feature = "cli",
-                    arg(long, visible_alias = "spp", default_value_t = 64)
-                )]
-                #[serde(alias = "spp")]
-                pub samples: u32,
-                /// Seed of the random streams.
-                #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
-                pub seed: u64,
-            } {
-                /// Majorant granularity of the HDDA (with a velocity: leaf, the blurred
-                /// bounds per 8^3 block).
-                #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "leaf"))]
-                pub granularity: Granularity,
-                /// One majorant for the whole grid (the naive baseline).
-                #[cfg_attr(feature = "cli", arg(long))]
-                pub global_majorant: bool,
-                /// How a coloured medium's channels are tracked by a stochastic estimator:
-                /// `shared` (one walk under the largest channel's majorant, lookups shared),
-                /// `split` (a walk per channel on its own majorants), `auto` (the estimator's
-                /// measured choice; docs/colour.md).
-                #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "auto"))]
-                #[serde(default)]
-                pub colour_walk: ColourWalk,
-                /// Motion blur: the vec3 velocity grid of the density's file (cell-centred, or
-                /// staggered as its class says; world units per second unless it is marked
-                /// local-space): T is the shutter mean through rho(x - S v(x) t / F). Needs a
-                /// marching or null-collision estimator (docs/motion.md).
-                #[cfg_attr(feature = "cli", arg(long, value_name = "GRID"))]
-                pub velocity: Option<String>,
-                /// With velocity: the shutter OPEN,CLOSE in frames relative to the baked frame
-                /// (default -0.25,0.25).
-                #[cfg_attr(
-                    feature = "cli",
-                    arg(long, value_parser = crate::request::parse_pair, allow_hyphen_values = true)
-                )]
-                pub shutter: Option<[f64; 2]>,
-                /// With velocity: frames per second (default 24; a USD shot's
-                /// timeCodesPerSecond).
-                #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-                pub fps: Option<f64>,
-                /// With velocity: the velocity scale S (default 1).
-                #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-                pub velocity_scale: Option<f64>,
-                /// With velocity: stratified shutter times per sample of a marching estimator
-                /// (default 8; 1 leaves the error bar unknown); refused for the null-collision
-                /// estimators, which draw one time per sample.
-                #[cfg_attr(feature = "cli", arg(long))]
-                pub time_samples: Option<u32>,
-                $($after)*
-            }
-        }
-    };
-}
-
 use crate::error::{Error, Result};
 use crate::estimate::{ColourWalk, Estimator, Options};
-use crate::motion::{MotionRequest, MotionSpec};
+use crate::input::SourceOptions;
+use crate::motion::MotionRequest;
 use crate::traverse::Granularity;
 use crate::Interp;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-with_estimator_options! {
-    /// Which estimator answers, with its parameters and sampling: `estimator` by its registry
-    /// name ([`crate::estimate::REGISTRY`]), `step` / `kernel` / `points` for the estimators
-    /// that take them (another is refused by name), `samples` per answer, the `seed` of the
-    /// counter-based streams, and the majorants' `granularity`, `global_majorant` and
-    /// `colour_walk`.
-    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-    #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-    #[cfg_attr(feature = "cli", derive(clap::Args))]
-    #[serde(deny_unknown_fields, default)]
-    pub struct EstimatorOptions {} {}
+/// Which estimator answers, with its parameters and sampling: `estimator` by its registry
+/// name ([`crate::estimate::REGISTRY`]), `step` / `kernel` / `points` for the estimators that
+/// take them ([`EstimatorParams`]; another is refused by name), `samples` per answer, the
+/// `seed` of the counter-based streams, and the majorants' `granularity`, `global_majorant`
+/// and `colour_walk`. Flattened into [`super::BakeOptions`], `umbra query`'s flags and the
+/// Python keywords (serde's and clap's `flatten`), so each key is declared here once.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(default)]
+pub struct EstimatorOptions {
+    /// Estimator (`umbra estimators` lists them with their parameters).
+    #[cfg_attr(feature = "cli", arg(long, default_value = "regular"))]
+    pub estimator: String,
+    /// Independent samples per pixel, voxel or ray (stochastic estimators); alias spp.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, visible_alias = "spp", default_value_t = 64)
+    )]
+    #[serde(alias = "spp")]
+    pub samples: u32,
+    /// Seed of the random streams.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub seed: u64,
+    /// The estimator's parameters (`step`, `kernel`, `points`).
+    #[cfg_attr(feature = "cli", command(flatten))]
+    #[serde(flatten)]
+    pub params: EstimatorParams,
+    /// Majorant granularity of the HDDA (with a velocity: leaf, the blurred bounds per 8^3
+    /// block).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "leaf"))]
+    pub granularity: Granularity,
+    /// One majorant for the whole grid (the naive baseline).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub global_majorant: bool,
+    /// How a coloured medium's channels are tracked by a stochastic estimator: `shared` (one
+    /// walk under the largest channel's majorant, lookups shared), `split` (a walk per channel
+    /// on its own majorants), `auto` (the estimator's measured choice; docs/colour.md).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "auto"))]
+    pub colour_walk: ColourWalk,
 }
 
 impl Default for EstimatorOptions {
@@ -125,17 +64,10 @@ impl Default for EstimatorOptions {
             estimator: "regular".into(),
             samples: 64,
             seed: 0,
-            step: None,
-            kernel: None,
-            points: None,
+            params: EstimatorParams::default(),
             granularity: Granularity::Leaf,
             global_majorant: false,
             colour_walk: ColourWalk::Auto,
-            velocity: None,
-            shutter: None,
-            fps: None,
-            velocity_scale: None,
-            time_samples: None,
         }
     }
 }
@@ -152,38 +84,16 @@ impl EstimatorOptions {
         from_json_object(text)
     }
 
-    /// The parameters alone.
-    #[must_use]
-    pub fn params(&self) -> EstimatorParams {
-        EstimatorParams {
-            step: self.step,
-            kernel: self.kernel,
-            points: self.points,
-        }
-    }
-
-    /// The motion blur these options ask for (`crate::motion`), checked: `None` without
-    /// `velocity`; `default_fps` is a USD shot's `timeCodesPerSecond` (else 24).
+    /// The motion blur `source` asks for ([`MotionRequest::of`]), checked against these
+    /// options: `None` without `velocity`.
     ///
     /// # Errors
-    /// [`crate::error::Error::InvalidArgument`] naming `shutter`, `fps`, `velocity-scale` or
-    /// `time-samples` given without `velocity` or out of range, an empty `velocity`, or
-    /// `estimator` when it is `regular` (exact only for a still grid).
-    pub fn motion(&self, default_fps: Option<f64>) -> Result<Option<MotionRequest>> {
-        let Some(velocity) = &self.velocity else {
-            let given = [
-                ("shutter", self.shutter.is_some()),
-                ("fps", self.fps.is_some()),
-                ("velocity-scale", self.velocity_scale.is_some()),
-                ("time-samples", self.time_samples.is_some()),
-            ];
-            return match given.iter().find(|(_, g)| *g) {
-                Some((k, _)) => Err(Error::InvalidArgument {
-                    name: (*k).into(),
-                    reason: "applies to motion blur: give the velocity grid (velocity)".into(),
-                }),
-                None => Ok(None),
-            };
+    /// As [`MotionRequest::of`], and [`crate::error::Error::InvalidArgument`] naming
+    /// `estimator` when it is `regular` (exact only for a still grid), `granularity` other than
+    /// leaf, or `time-samples` for an estimator that does not march.
+    pub fn motion(&self, source: &SourceOptions) -> Result<Option<MotionRequest>> {
+        let Some(request) = MotionRequest::of(source)? else {
+            return Ok(None);
         };
         if self.estimator == Estimator::REGULAR.name() {
             return Err(Error::InvalidArgument {
@@ -201,7 +111,7 @@ impl EstimatorOptions {
                     .into(),
             });
         }
-        if self.time_samples.is_some() {
+        if source.time_samples.is_some() {
             if let Ok(e) = Estimator::from_name(&self.estimator) {
                 if !e.marches() {
                     return Err(Error::InvalidArgument {
@@ -215,14 +125,7 @@ impl EstimatorOptions {
                 }
             }
         }
-        motion_request(
-            velocity,
-            self.shutter,
-            self.fps.or(default_fps),
-            self.velocity_scale,
-            self.time_samples,
-        )
-        .map(Some)
+        Ok(Some(request))
     }
 
     /// The estimator these options select, with its parameters, and the tracing options for
@@ -232,7 +135,7 @@ impl EstimatorOptions {
     /// [`crate::error::Error::InvalidArgument`] naming `estimator`, a parameter it does not take, or
     /// an option out of range.
     pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
-        let estimator = self.params().apply(&self.estimator)?;
+        let estimator = self.params.apply(&self.estimator)?;
         let mut options = Options {
             interp,
             samples: self.samples,
@@ -252,14 +155,22 @@ impl EstimatorOptions {
     }
 }
 
-with_estimator_params! {
-    /// The estimator parameters alone (`step`, `kernel`, `points`): what a ladder of
-    /// estimators shares (`umbra compare`). Unset parameters take each estimator's default.
-    #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-    #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-    #[cfg_attr(feature = "cli", derive(clap::Args))]
-    #[serde(deny_unknown_fields, default)]
-    pub struct EstimatorParams {} {}
+/// The estimator parameters alone (`step`, `kernel`, `points`): what a ladder of
+/// estimators shares (`umbra compare`). Unset parameters take each estimator's default.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(default)]
+pub struct EstimatorParams {
+    /// Ray-marching step in voxels (riemann, mc, jittered; default 1).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub step: Option<f64>,
+    /// Kernel width in voxels (collision; default 1).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub kernel: Option<f64>,
+    /// Points per optical-depth estimate (jackknife; default 10).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub points: Option<f64>,
 }
 
 impl EstimatorParams {
@@ -285,44 +196,47 @@ impl EstimatorParams {
     }
 }
 
-/// The motion blur of velocity grid `velocity` with the other options given or their
-/// defaults (shutter [`crate::motion::DEFAULT_SHUTTER`], 24 fps, scale 1,
-/// [`crate::motion::DEFAULT_TIME_SAMPLES`]): what [`EstimatorOptions::motion`] checks after
-/// the options that need a velocity.
-///
-/// # Errors
-/// [`crate::error::Error::InvalidArgument`] naming `velocity` (empty), `shutter`, `fps`,
-/// `velocity-scale` or `time-samples` out of range.
-fn motion_request(
-    velocity: &str,
-    shutter: Option<[f64; 2]>,
-    fps: Option<f64>,
-    scale: Option<f64>,
-    time_samples: Option<u32>,
-) -> Result<MotionRequest> {
-    if velocity.is_empty() {
-        return Err(Error::InvalidArgument {
-            name: "velocity".into(),
-            reason: "must name a vec3 grid".into(),
-        });
+/// The read options and the estimator options as one flat set of keys: what Python's query
+/// functions take as keywords (besides their question), each key declared once in its own
+/// set.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct TraceOptions {
+    /// How the input is read.
+    #[serde(flatten)]
+    pub source: SourceOptions,
+    /// Which estimator answers.
+    #[serde(flatten)]
+    pub estimator: EstimatorOptions,
+}
+
+impl TraceOptions {
+    /// Options from a JSON object ([`EstimatorOptions::from_json`]'s rules).
+    ///
+    /// # Errors
+    /// [`crate::error::Error::InvalidArgument`] naming the first option that does not parse.
+    pub fn from_json(text: &str) -> Result<Self> {
+        from_json_object(text)
     }
-    let spec = MotionSpec::new(
-        shutter.unwrap_or(crate::motion::DEFAULT_SHUTTER),
-        fps.unwrap_or(crate::motion::DEFAULT_FPS),
-        scale.unwrap_or(1.0),
-        time_samples.unwrap_or(crate::motion::DEFAULT_TIME_SAMPLES),
-    )?;
-    Ok(MotionRequest {
-        velocity: velocity.to_string(),
-        spec,
-        file: None,
-        fps_given: fps.is_some(),
-    })
+}
+
+/// `T` with no key but its own: a set of options with `flatten`ed parts has no
+/// `deny_unknown_fields` of its own (a part sees its parent's keys), so a set read alone is
+/// read through this.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields, bound = "T: DeserializeOwned")]
+struct Strict<T> {
+    #[serde(flatten)]
+    inner: T,
 }
 
 /// A set of options from a JSON object: a value of the wrong type or an unknown name is an
 /// [`Error::InvalidArgument`] naming that option (the first key that does not parse alone).
 pub(crate) fn from_json_object<T: DeserializeOwned>(text: &str) -> Result<T> {
+    from_json_strict::<Strict<T>>(text).map(|s| s.inner)
+}
+
+fn from_json_strict<T: DeserializeOwned>(text: &str) -> Result<T> {
     let bad = |name: &str, reason: &str| Error::InvalidArgument {
         name: name.into(),
         reason: reason.into(),
@@ -363,7 +277,7 @@ mod tests {
         assert_eq!(parsed.options, EstimatorOptions::default());
         assert_eq!(parsed.params, EstimatorParams::default());
         let bake = crate::request::BakeOptions::default();
-        assert_eq!(bake.estimator_options(), EstimatorOptions::default());
+        assert_eq!(bake.estimator, EstimatorOptions::default());
     }
 
     /// The same keys and aliases read a job's `[bake]` and the set alone; a parameter an
@@ -372,7 +286,7 @@ mod tests {
     fn keys_and_resolution() {
         let o: EstimatorOptions =
             serde_json::from_str(r#"{"estimator": "riemann", "spp": 3, "step": 0.5}"#).unwrap();
-        assert_eq!((o.samples, o.step), (3, Some(0.5)));
+        assert_eq!((o.samples, o.params.step), (3, Some(0.5)));
         let (e, opts) = o.resolve(Interp::Nearest).unwrap();
         // A deterministic estimator takes one sample whatever was asked, and says so.
         assert_eq!(
@@ -385,11 +299,17 @@ mod tests {
         };
         assert_eq!(mc.resolve(Interp::Nearest).unwrap().1.samples, 3);
         let bad = EstimatorOptions {
-            kernel: Some(2.0),
+            params: EstimatorParams {
+                kernel: Some(2.0),
+                ..o.params.clone()
+            },
             ..o
         };
         let err = bad.resolve(Interp::Trilinear).unwrap_err().to_string();
         assert!(err.contains("kernel"), "{err}");
-        assert!(serde_json::from_str::<EstimatorOptions>(r#"{"bogus": 1}"#).is_err());
+        assert!(EstimatorOptions::from_json(r#"{"bogus": 1}"#).is_err());
+        // Read alone, a set refuses another set's key; a bake's options take both.
+        assert!(EstimatorOptions::from_json(r#"{"grid": "d"}"#).is_err());
+        assert!(crate::request::BakeOptions::from_json(r#"{"grid": "d", "spp": 2}"#).is_ok());
     }
 }

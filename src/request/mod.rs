@@ -28,27 +28,17 @@ use crate::error::Result;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
-#[macro_use]
 mod estimator;
-pub use estimator::{EstimatorOptions, EstimatorParams};
+pub use crate::input::{parse_pair, parse_vec3, LevelSet, SourceOptions};
+pub use estimator::{EstimatorOptions, EstimatorParams, TraceOptions};
 use options::{bad, VOLUME_ONLY};
-pub use options::{parse_box, parse_pair, parse_size, parse_vec3, BakeOptions, VOLUME_OPTIONS};
+pub use options::{parse_box, parse_size, BakeOptions, VOLUME_OPTIONS};
 mod options;
 mod plan;
 mod run;
 #[cfg(feature = "usd")]
 pub(crate) use run::shadow_sample;
 pub use run::BakeOutcome;
-
-/// What to do with a level-set grid (`levelset`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
-#[serde(rename_all = "lowercase")]
-pub enum LevelSet {
-    /// An opaque occluder: T = 0 from where a ray first enters phi < 0.
-    Solid,
-}
 
 /// How the maps of a batch job are framed (`framing`, job files only).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
@@ -130,6 +120,13 @@ pub fn is_volume_output(output: &Path) -> bool {
 }
 
 impl BakeRequest {
+    /// What the bake reads: the input with the read options ([`crate::input::Source`]; its
+    /// kind decided here, once per plan).
+    #[must_use]
+    pub fn source(&self) -> crate::input::Source {
+        crate::input::Source::new(&self.input, self.options.source.clone())
+    }
+
     /// Check the request and build its plan. Reads nothing but a reused camera's file; outputs
     /// are checked when the plan runs ([`BakeJob::check_outputs`], [`VolumeJob::check_outputs`]).
     ///
@@ -179,7 +176,10 @@ mod tests {
         assert!(BakeOptions::default().changed().is_empty());
         let o = BakeOptions {
             tile: Some(64),
-            samples: 8,
+            estimator: EstimatorOptions {
+                samples: 8,
+                ..EstimatorOptions::default()
+            },
             ..BakeOptions::default()
         };
         assert_eq!(o.changed(), ["samples", "tile"]);
@@ -188,7 +188,7 @@ mod tests {
     #[test]
     fn aliases_and_errors_name_the_option() {
         let o = BakeOptions::from_json(r#"{"spp": 4, "overwrite": true}"#).unwrap();
-        assert_eq!((o.samples, o.force), (4, true));
+        assert_eq!((o.estimator.samples, o.force), (4, true));
         let e = BakeOptions::from_json(r#"{"tile": 4, "fov": "wide"}"#).unwrap_err();
         assert!(
             matches!(e, Error::InvalidArgument { ref name, .. } if name == "fov"),

@@ -4,192 +4,150 @@
 
 use crate::bake::{Omni, Order, Projection, Resolution, View};
 use crate::error::{Error, Result};
-use crate::estimate::{ColourWalk, Estimator, Options};
-use crate::traverse::Granularity;
-use crate::Interp;
+use crate::estimate::{Estimator, Options};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
 use super::estimator::{from_json_object, EstimatorOptions};
-use super::{CameraSource, Framing, LevelSet};
+use super::{CameraSource, Framing};
+use crate::input::SourceOptions;
 
-with_estimator_options! {
-    /// Everything a bake can be asked for besides its input and output: the one definition of a
-    /// bake's options. Fields are the options' canonical names (see the module docs for the
-    /// naming rule); every field has its default, so a request names only what it changes.
-    #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-    #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-    #[cfg_attr(feature = "cli", derive(clap::Args))]
-    #[serde(deny_unknown_fields, default)]
-    pub struct BakeOptions {
-        /// Grid to trace (display name such as `density[1]`; unnamed grids, as Warp writes them,
-        /// are `[0]`, `[1]`, ... in file order; or the stored name).
-        #[cfg_attr(
-            feature = "cli",
-            arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())
-        )]
-        pub grid: String,
-        /// Direction the light travels, DX,DY,DZ: an orthographic map framing the volume box (with
-        /// light-pos it aims the perspective map); for a transmittance volume, a sun.
-        #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
-        pub light_dir: Option<[f64; 3]>,
-        /// Light position X,Y,Z: a perspective map from the light (aimed at the volume box centre
-        /// unless light-dir is given); for a transmittance volume, a point light.
-        #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
-        pub light_pos: Option<[f64; 3]>,
-        /// With light-pos: an orthographic map whose image plane passes through the light.
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub ortho: bool,
-        /// With light-pos: an omnidirectional map around the light, inside, beside or outside the
-        /// volume, in the world's axes: `cube` (six N x N faces in one N x 6N image, OpenEXR's
-        /// `envmap = cube`) or `latlong` (2N x N, `envmap = latlong`); res gives N (default 512).
-        #[cfg_attr(feature = "cli", arg(long, value_enum))]
-        pub omni: Option<Omni>,
-        /// Perspective field of view across the longer image side, degrees in (0, 180) (default:
-        /// just holds the volume box).
-        #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-        pub fov: Option<f64>,
-        /// The world direction that is up in the map, X,Y,Z (default 0,1,0; when it is parallel to
-        /// the light, the default's rule applies).
-        #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
-        pub up: Option<[f64; 3]>,
-        /// Frame this world box instead of the volume box (the rays still cover the whole volume in
-        /// depth): X0,Y0,Z0,X1,Y1,Z1 on the command line, [[x0, y0, z0], [x1, y1, z1]] as data.
-        #[cfg_attr(feature = "cli", arg(long, value_parser = parse_box, allow_hyphen_values = true))]
-        pub frame_box: Option<[[f64; 3]; 2]>,
-        /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 numbers, row-major, the
-        /// translation in the last column.
-        #[cfg_attr(
-            feature = "cli",
-            arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)
-        )]
-        pub xform: Option<Vec<f64>>,
-        /// USD stage inputs: the time code to read (default: the stage's startTimeCode).
-        #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-        pub frame: Option<f64>,
-        /// USD stage inputs: a Volume prim to trace, by path (repeatable; default: every active,
-        /// visible Volume of the stage).
-        #[cfg_attr(feature = "cli", arg(long, value_name = "PRIM"))]
-        pub volume: Option<Vec<String>>,
-        /// USD stage inputs: the field a Volume's density is (its field:NAME relationship; default
-        /// density).
-        #[cfg_attr(feature = "cli", arg(long, value_name = "NAME"))]
-        pub field: Option<String>,
-        /// USD stage inputs: also write a .usda layer that puts the map and its camera on the light
-        /// prim (time-sampled umbra:shadowMap and umbra:worldToShadow), to sublayer over the shot.
-        #[cfg_attr(feature = "cli", arg(long, value_name = "LAYER.usda"))]
-        pub usd_out: Option<PathBuf>,
-        /// USD stage inputs: the UsdLux light to bake from, by prim path or name (default: the
-        /// stage's only light; light-dir / light-pos override it).
-        #[cfg_attr(feature = "cli", arg(long, value_name = "PRIM"))]
-        pub light: Option<String>,
-        /// Reuse exactly the camera of an earlier umbra map (.exr), of a JSON file holding the
-        /// `camera` object `bake --json` prints, or (as data) that object; its resolution unless
-        /// res is given (then the same window at that size).
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub camera: Option<CameraSource>,
-        /// Resolution: WxH, or N for N pixels on the long side with the framed box's aspect
-        /// (default 1024); as data also [W, H].
-        #[cfg_attr(feature = "cli", arg(long, allow_hyphen_values = true))]
-        pub res: Option<Resolution>,
-        /// Write a tiled EXR with N x N tiles (renderers page large maps in by tile).
-        #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
-        pub tile: Option<u32>,
-        /// With tile: also write box-filtered mip levels of every channel (round-down, down to
-        /// 1x1; each level pixel the mean of T over its footprint).
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub mipmap: bool,
-        /// Write a deep OpenEXR map: per pixel the whole transmittance function along its ray as
-        /// volumetric samples (channels A, Z, ZBack; AR, AG, AB, OpenEXR's per-channel
-        /// opacities, with colour).
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub deep: bool,
-        /// With deep: the bound E on |T_deep(z) - T(z)| at every depth z (default 0.002).
-        #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-        pub deep_error: Option<f64>,
-        /// A deep map at a fixed size per texel, as channels of a flat EXR next to T:
-        /// fourier:K (K odd, 3-63), moments:4, moments:6 or avsm:K (K nodes, 2-32); the error in
-        /// T it reaches is in the header (umbra:deep_max_error).
-        #[cfg_attr(feature = "cli", arg(long, value_name = "FORMAT"))]
-        pub deep_format: Option<String>,
-        /// A transmittance volume (.vdb output): the name of the written grid (default
-        /// `transmittance`).
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub out_grid: Option<String>,
-        /// A transmittance volume (.vdb output): store 16-bit half floats.
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub half: bool,
-        /// Also write an 8-bit grayscale PNG preview of T here (.png; in a job, a pattern like the
-        /// output's).
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub preview: Option<PathBuf>,
-        /// K extra channels `sliceNN.T`: T at K depths evenly spaced across the volume's depth range.
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub slices: Option<usize>,
-        /// Extra channels `sliceNN.T` at these depths (world distance along each ray): a,b,c.
-        #[cfg_attr(
-            feature = "cli",
-            arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)
-        )]
-        pub depths: Option<Vec<f64>>,
-        /// Also write each pixel's standard error (`T.stderr`).
-        #[cfg_attr(feature = "cli", arg(long))]
-        pub stderr: bool,
-        /// Adaptive sampling: double a pixel's samples until its standard error is below E.
-        #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
-        pub target_error: Option<f64>,
-        /// Cap on samples per pixel for target-error.
-        #[cfg_attr(feature = "cli", arg(long, default_value_t = 65_536))]
-        pub max_spp: u32,
-        /// How the density between voxel centres is defined.
-        #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "trilinear"))]
-        pub interp: Interp,
-        /// mu_t = S x value, per world unit.
-        #[cfg_attr(
-            feature = "cli",
-            arg(long, default_value_t = 1.0, allow_negative_numbers = true)
-        )]
-        pub density_scale: f64,
-        /// Extinction colour R,G,B: T per channel (an RGB map), mu_c = sigma_t[c] x density-scale
-        /// x value (multiplies a scene's own sigma_t).
-        #[cfg_attr(feature = "cli", arg(long, value_parser = parse_vec3, allow_hyphen_values = true))]
-        pub sigma_t: Option<[f64; 3]>,
-        /// `solid`: trace a level-set grid as an opaque solid (T = 0 from where a ray enters it)
-        /// instead of refusing it.
-        #[cfg_attr(feature = "cli", arg(long, value_enum))]
-        pub levelset: Option<LevelSet>,
-    } {
-        /// Tracing order of a map: `auto` (object order where the sweep takes the map: exact,
-        /// ray-marched and null-collision maps) or `rays` (one ray per pixel; a pixel of a
-        /// null-collision map is then what `query --ray-id` answers).
-        #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "auto"))]
-        pub order: Order,
-        /// Worker threads (0: all cores).
-        #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
-        pub threads: usize,
-        /// Memory budget (bytes, or with K, M, G: `512M`, `1.5G`; powers of 1024). When the
-        /// decoded grid and the image would not fit, the map is baked a part of the grid at a time
-        /// (the same map, bit for bit); a budget below the least part is refused before any work.
-        /// Without it, exact maps of caches over 1 GiB decoded go in parts of 1 GiB; a larger
-        /// budget holds them whole.
-        #[cfg_attr(feature = "cli", arg(long, value_parser = parse_size))]
-        pub max_memory: Option<String>,
-        /// Replace existing outputs (alias overwrite).
-        #[cfg_attr(feature = "cli", arg(long, visible_alias = "overwrite"))]
-        #[serde(alias = "overwrite")]
-        pub force: bool,
-        /// Batch jobs only: `shared` (one camera per light for a whole sequence) or `per-frame`.
-        #[cfg_attr(feature = "cli", arg(skip))]
-        pub framing: Option<Framing>,
-    }
+/// Everything a bake can be asked for besides its input and output: the one definition of a
+/// bake's options. Fields are the options' canonical names (see the module docs for the
+/// naming rule); every field has its default, so a request names only what it changes.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(deny_unknown_fields, default)]
+pub struct BakeOptions {
+    /// How the input is read: grid or stage selection, interpolation, scale, colour, level
+    /// sets, placement, motion ([`SourceOptions`]).
+    #[cfg_attr(feature = "cli", command(flatten))]
+    #[serde(flatten)]
+    pub source: SourceOptions,
+    /// Direction the light travels, DX,DY,DZ: an orthographic map framing the volume box (with
+    /// light-pos it aims the perspective map); for a transmittance volume, a sun.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true))]
+    pub light_dir: Option<[f64; 3]>,
+    /// Light position X,Y,Z: a perspective map from the light (aimed at the volume box centre
+    /// unless light-dir is given); for a transmittance volume, a point light.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true))]
+    pub light_pos: Option<[f64; 3]>,
+    /// With light-pos: an orthographic map whose image plane passes through the light.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub ortho: bool,
+    /// With light-pos: an omnidirectional map around the light, inside, beside or outside the
+    /// volume, in the world's axes: `cube` (six N x N faces in one N x 6N image, OpenEXR's
+    /// `envmap = cube`) or `latlong` (2N x N, `envmap = latlong`); res gives N (default 512).
+    #[cfg_attr(feature = "cli", arg(long, value_enum))]
+    pub omni: Option<Omni>,
+    /// Perspective field of view across the longer image side, degrees in (0, 180) (default:
+    /// just holds the volume box).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub fov: Option<f64>,
+    /// The world direction that is up in the map, X,Y,Z (default 0,1,0; when it is parallel to
+    /// the light, the default's rule applies).
+    #[cfg_attr(feature = "cli", arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true))]
+    pub up: Option<[f64; 3]>,
+    /// Frame this world box instead of the volume box (the rays still cover the whole volume in
+    /// depth): X0,Y0,Z0,X1,Y1,Z1 on the command line, [[x0, y0, z0], [x1, y1, z1]] as data.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_box, allow_hyphen_values = true))]
+    pub frame_box: Option<[[f64; 3]; 2]>,
+    /// USD stage inputs: also write a .usda layer that puts the map and its camera on the light
+    /// prim (time-sampled umbra:shadowMap and umbra:worldToShadow), to sublayer over the shot.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "LAYER.usda"))]
+    pub usd_out: Option<PathBuf>,
+    /// Reuse exactly the camera of an earlier umbra map (.exr), of a JSON file holding the
+    /// `camera` object `bake --json` prints, or (as data) that object; its resolution unless
+    /// res is given (then the same window at that size).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub camera: Option<CameraSource>,
+    /// Resolution: WxH, or N for N pixels on the long side with the framed box's aspect
+    /// (default 1024); as data also [W, H].
+    #[cfg_attr(feature = "cli", arg(long, allow_hyphen_values = true))]
+    pub res: Option<Resolution>,
+    /// Write a tiled EXR with N x N tiles (renderers page large maps in by tile).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
+    pub tile: Option<u32>,
+    /// With tile: also write box-filtered mip levels of every channel (round-down, down to
+    /// 1x1; each level pixel the mean of T over its footprint).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub mipmap: bool,
+    /// Write a deep OpenEXR map: per pixel the whole transmittance function along its ray as
+    /// volumetric samples (channels A, Z, ZBack; AR, AG, AB, OpenEXR's per-channel
+    /// opacities, with colour).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub deep: bool,
+    /// With deep: the bound E on |T_deep(z) - T(z)| at every depth z (default 0.002).
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub deep_error: Option<f64>,
+    /// A deep map at a fixed size per texel, as channels of a flat EXR next to T:
+    /// fourier:K (K odd, 3-63), moments:4, moments:6 or avsm:K (K nodes, 2-32); the error in
+    /// T it reaches is in the header (umbra:deep_max_error).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "FORMAT"))]
+    pub deep_format: Option<String>,
+    /// A transmittance volume (.vdb output): the name of the written grid (default
+    /// `transmittance`).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub out_grid: Option<String>,
+    /// A transmittance volume (.vdb output): store 16-bit half floats.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub half: bool,
+    /// Also write an 8-bit grayscale PNG preview of T here (.png; in a job, a pattern like the
+    /// output's).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub preview: Option<PathBuf>,
+    /// K extra channels `sliceNN.T`: T at K depths evenly spaced across the volume's depth range.
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub slices: Option<usize>,
+    /// Extra channels `sliceNN.T` at these depths (world distance along each ray): a,b,c.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)
+    )]
+    pub depths: Option<Vec<f64>>,
+    /// Also write each pixel's standard error (`T.stderr`).
+    #[cfg_attr(feature = "cli", arg(long))]
+    pub stderr: bool,
+    /// Adaptive sampling: double a pixel's samples until its standard error is below E.
+    #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
+    pub target_error: Option<f64>,
+    /// Cap on samples per pixel for target-error.
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 65_536))]
+    pub max_spp: u32,
+    /// Which estimator answers, with its parameters and sampling ([`EstimatorOptions`]).
+    #[cfg_attr(feature = "cli", command(flatten))]
+    #[serde(flatten)]
+    pub estimator: EstimatorOptions,
+    /// Tracing order of a map: `auto` (object order where the sweep takes the map: exact,
+    /// ray-marched and null-collision maps) or `rays` (one ray per pixel; a pixel of a
+    /// null-collision map is then what `query --ray-id` answers).
+    #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "auto"))]
+    pub order: Order,
+    /// Worker threads (0: all cores).
+    #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
+    pub threads: usize,
+    /// Memory budget (bytes, or with K, M, G: `512M`, `1.5G`; powers of 1024). When the
+    /// decoded grid and the image would not fit, the map is baked a part of the grid at a time
+    /// (the same map, bit for bit); a budget below the least part is refused before any work.
+    /// Without it, exact maps of caches over 1 GiB decoded go in parts of 1 GiB; a larger
+    /// budget holds them whole.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_size))]
+    pub max_memory: Option<String>,
+    /// Replace existing outputs (alias overwrite).
+    #[cfg_attr(feature = "cli", arg(long, visible_alias = "overwrite"))]
+    #[serde(alias = "overwrite")]
+    pub force: bool,
+    /// Batch jobs only: `shared` (one camera per light for a whole sequence) or `per-frame`.
+    #[cfg_attr(feature = "cli", arg(skip))]
+    pub framing: Option<Framing>,
 }
 
 impl Default for BakeOptions {
+    /// The read options' and the estimator options' defaults are theirs.
     fn default() -> Self {
-        // The estimator options' defaults are theirs.
-        let e = EstimatorOptions::default();
         Self {
-            grid: "density".into(),
+            source: SourceOptions::default(),
             light_dir: None,
             light_pos: None,
             ortho: false,
@@ -197,11 +155,6 @@ impl Default for BakeOptions {
             fov: None,
             up: None,
             frame_box: None,
-            xform: None,
-            frame: None,
-            volume: None,
-            field: None,
-            light: None,
             usd_out: None,
             camera: None,
             res: None,
@@ -218,24 +171,7 @@ impl Default for BakeOptions {
             stderr: false,
             target_error: None,
             max_spp: 65_536,
-            interp: Interp::Trilinear,
-            density_scale: 1.0,
-            sigma_t: None,
-            levelset: None,
-            estimator: e.estimator,
-            samples: e.samples,
-            seed: e.seed,
-            step: e.step,
-            kernel: e.kernel,
-            points: e.points,
-            granularity: e.granularity,
-            global_majorant: e.global_majorant,
-            colour_walk: e.colour_walk,
-            velocity: e.velocity,
-            shutter: e.shutter,
-            fps: e.fps,
-            velocity_scale: e.velocity_scale,
-            time_samples: e.time_samples,
+            estimator: EstimatorOptions::default(),
             order: Order::Auto,
             threads: 0,
             max_memory: None,
@@ -283,38 +219,6 @@ pub(super) fn bad(name: &str, reason: impl Into<String>) -> Error {
     Error::InvalidArgument {
         name: name.into(),
         reason: reason.into(),
-    }
-}
-
-/// Parse `A,B` into two numbers (`--shutter`; finiteness is the motion spec's check).
-///
-/// # Errors
-/// A message naming what is wrong.
-pub fn parse_pair(s: &str) -> std::result::Result<[f64; 2], String> {
-    let v: Vec<&str> = s.split(',').collect();
-    if v.len() != 2 {
-        return Err(format!("expected two numbers A,B, got '{s}'"));
-    }
-    let n = |t: &str| {
-        t.trim()
-            .parse::<f64>()
-            .map_err(|_| format!("'{}' is not a number", t.trim()))
-    };
-    Ok([n(v[0])?, n(v[1])?])
-}
-
-/// Parse `X,Y,Z` into three finite numbers (`--light-dir`, `--up`, `--sigma-t`).
-///
-/// # Errors
-/// A message naming what is wrong.
-pub fn parse_vec3(s: &str) -> std::result::Result<[f64; 3], String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|c| c.trim().parse::<f64>().map_err(|e| format!("'{c}': {e}")))
-        .collect::<std::result::Result<_, _>>()?;
-    match v.as_slice() {
-        [x, y, z] if v.iter().all(|c| c.is_finite()) => Ok([*x, *y, *z]),
-        _ => Err(format!("expected three finite numbers X,Y,Z, got '{s}'")),
     }
 }
 
@@ -367,74 +271,21 @@ impl BakeOptions {
         from_json_object(text)
     }
 
-    /// The estimator these options select, with its parameters.
+    /// The estimator these options select, with its parameters, for lookups by the read
+    /// options' `interp`.
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] naming `estimator` or a parameter it does not take.
-    pub fn estimator(&self) -> Result<(Estimator, Options)> {
-        self.estimator_options().resolve(self.interp)
+    pub fn resolve_estimator(&self) -> Result<(Estimator, Options)> {
+        self.estimator.resolve(self.source.interp)
     }
 
-    /// The estimator options of these options.
-    #[must_use]
-    pub fn estimator_options(&self) -> EstimatorOptions {
-        EstimatorOptions {
-            estimator: self.estimator.clone(),
-            samples: self.samples,
-            seed: self.seed,
-            step: self.step,
-            kernel: self.kernel,
-            points: self.points,
-            granularity: self.granularity,
-            global_majorant: self.global_majorant,
-            colour_walk: self.colour_walk,
-            velocity: self.velocity.clone(),
-            shutter: self.shutter,
-            fps: self.fps,
-            velocity_scale: self.velocity_scale,
-            time_samples: self.time_samples,
-        }
-    }
-
-    /// What a USD stage input is read at: `frame`, `volume`, `field`, and `light`, whose
-    /// shadow link picks the volumes.
-    #[must_use]
-    pub fn stage_selection(&self) -> crate::usd::Selection {
-        crate::usd::Selection {
-            time: self.frame,
-            volumes: self.volume.clone().unwrap_or_default(),
-            field: self.field.clone().unwrap_or_else(|| "density".into()),
-            light: self.light.clone(),
-            velocity: None,
-        }
-    }
-
-    /// How the input is read (grid, scale, colour, level sets, a stage's selection), with
-    /// the placement `xform` checked.
+    /// The motion blur these options ask for, checked ([`EstimatorOptions::motion`]).
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] naming `xform`.
-    pub fn scene_options(&self) -> Result<crate::scene::SceneOptions> {
-        Ok(crate::scene::SceneOptions {
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            sigma_t: self.sigma_t,
-            xform: self.xform()?,
-            levelset_solid: self.levelset == Some(LevelSet::Solid),
-            stage: self.stage_selection(),
-            motion: self.estimator_options().motion(None)?,
-        })
-    }
-
-    /// The placement transform, checked.
-    ///
-    /// # Errors
-    /// [`Error::InvalidArgument`] naming `xform`.
-    pub fn xform(&self) -> Result<Option<crate::xform::Xform>> {
-        self.xform
-            .as_deref()
-            .map(crate::xform::Xform::from_row_major)
-            .transpose()
+    /// As [`EstimatorOptions::motion`].
+    pub fn motion(&self) -> Result<Option<crate::motion::MotionRequest>> {
+        self.estimator.motion(&self.source)
     }
 
     /// The memory budget in bytes.
@@ -450,13 +301,14 @@ impl BakeOptions {
 
     /// The checks every product shares: scale, transform, estimator, threads.
     pub(super) fn check_common(&self) -> Result<()> {
-        if self.grid.is_empty() {
+        let s = &self.source;
+        if s.grid.is_empty() {
             return Err(bad("grid", "must not be empty"));
         }
-        if !(self.density_scale.is_finite() && self.density_scale >= 0.0) {
+        if !(s.density_scale.is_finite() && s.density_scale >= 0.0) {
             return Err(bad(
                 "density-scale",
-                format!("{} is not a finite non-negative number", self.density_scale),
+                format!("{} is not a finite non-negative number", s.density_scale),
             ));
         }
         crate::bake::check_threads(self.threads)?;

@@ -7,9 +7,9 @@ use crate::bake::{
     DEFAULT_OUT_GRID,
 };
 use crate::error::{Error, Result};
-use crate::input::InputKind;
+use crate::input::{Source, SourceOptions};
 
-use super::{bad, is_volume_output, BakeRequest, LevelSet};
+use super::{bad, is_volume_output, BakeRequest};
 
 /// A transmittance volume's motion on a stage: the velocity field of its volume `v` (its grid
 /// in its own file) at the stage's rate `fps` unless fps was given.
@@ -43,32 +43,14 @@ impl BakeRequest {
     /// parallel to the light). `None`: nothing to change.
     pub(super) fn with_stage_light(&self) -> Result<Option<Self>> {
         let o = &self.options;
-        if !InputKind::of(&self.input).is_stage() {
-            let given = [
-                ("frame", o.frame.is_some()),
-                ("volume", o.volume.is_some()),
-                ("field", o.field.is_some()),
-                ("light", o.light.is_some()),
-                ("usd-out", o.usd_out.is_some()),
-            ];
-            if let Some((k, _)) = given.iter().find(|(_, g)| *g) {
-                return Err(bad(
-                    k,
-                    format!(
-                        "applies to USD stages (.usd, .usda, .usdc, .usdz); {} is not one",
-                        self.input.display()
-                    ),
-                ));
+        let s = &o.source;
+        let source = self.source();
+        source.check()?;
+        if !source.kind().is_stage() {
+            if o.usd_out.is_some() {
+                return Err(bad("usd-out", source.not_a_stage()));
             }
             return Ok(None);
-        }
-        if let Some(f) = o.frame {
-            if !f.is_finite() {
-                return Err(bad("frame", format!("{f} is not a finite time code")));
-            }
-        }
-        if o.field.as_deref() == Some("") {
-            return Err(bad("field", "must not be empty"));
         }
         let explicit = o.light_dir.is_some() || o.light_pos.is_some();
         if let Some(u) = &o.usd_out {
@@ -82,7 +64,7 @@ impl BakeRequest {
             if o.camera.is_some() {
                 // A reused camera fixes the view; the layer still needs the light it belongs
                 // to, named (or the stage's only one), checked before any work.
-                crate::usd::lights_at(&self.input, o.frame)?.light(o.light.as_deref())?;
+                crate::usd::lights_at(&self.input, s.frame)?.light(s.light.as_deref())?;
             }
             if !crate::input::is_usda_layer(u) {
                 return Err(bad(
@@ -91,13 +73,13 @@ impl BakeRequest {
                 ));
             }
         }
-        if o.light.is_some() && explicit {
+        if s.light.is_some() && explicit {
             return Err(bad(
                 "light",
                 "give a stage light or light-dir / light-pos, not both",
             ));
         }
-        if o.light.is_some() && o.camera.is_some() && o.usd_out.is_none() {
+        if s.light.is_some() && o.camera.is_some() && o.usd_out.is_none() {
             return Err(bad(
                 "light",
                 "a reused camera fixes the view: the light only names the prim a --usd-out \
@@ -107,11 +89,11 @@ impl BakeRequest {
         if explicit || o.camera.is_some() {
             return Ok(None);
         }
-        let shot = crate::usd::lights_at(&self.input, o.frame)?;
-        let (light, emitter) = shot.light(o.light.as_deref())?;
+        let shot = crate::usd::lights_at(&self.input, s.frame)?;
+        let (light, emitter) = shot.light(s.light.as_deref())?;
         let mut options = o.clone();
         // The light by its path: the scene is read toward it (its shadow link).
-        options.light = Some(light.prim.clone());
+        options.source.light = Some(light.prim.clone());
         let dir = match emitter {
             crate::usd::Emitter::Directional { dir } => {
                 options.light_dir = Some(dir);
@@ -142,20 +124,24 @@ impl BakeRequest {
         let o = &self.options;
         // A stage's one volume: its grid, placement and scale (the stage places it: no xform,
         // no grid; density-scale applies on top, as for scenes).
-        let stage = if InputKind::of(&self.input).is_stage() {
-            if let Some(k) = [("xform", o.xform.is_some()), ("grid", o.grid != "density")]
-                .iter()
-                .find(|(_, g)| *g)
+        let source = self.source();
+        let stage = if source.kind().is_stage() {
+            if let Some(k) = [
+                ("xform", o.source.xform.is_some()),
+                ("grid", o.source.grid != "density"),
+            ]
+            .iter()
+            .find(|(_, g)| *g)
             {
                 return Err(bad(
                     k.0,
                     "the stage places its volumes and names their grids (volume, field)",
                 ));
             }
-            let motion = o.estimator_options().motion(None)?;
+            let motion = o.motion()?;
             let sel = crate::usd::Selection {
                 velocity: motion.as_ref().map(|m| m.velocity.clone()),
-                ..o.stage_selection()
+                ..source.stage_selection()
             };
             let shot = crate::usd::read(&self.input, &sel)?;
             let v = shot.single_volume()?;
@@ -163,14 +149,14 @@ impl BakeRequest {
             Some((
                 v.file()?.to_path_buf(),
                 v.grid.clone(),
-                o.density_scale * v.grey_scale()?,
+                o.source.density_scale * v.grey_scale()?,
                 v.xform,
                 motion,
             ))
         } else {
             None
         };
-        if InputKind::of(&self.input).is_scene_file() {
+        if source.kind().is_scene_file() {
             return Err(bad(
                 "output",
                 format!(
@@ -198,22 +184,30 @@ impl BakeRequest {
                 ))
             }
         };
-        let (estimator, options) = o.estimator()?;
-        let (input, grid, density_scale, xform, motion) = match stage {
-            Some((f, g, s, x, m)) => (f, g, s, Some(x), m),
-            None => (
-                self.input.clone(),
-                o.grid.clone(),
-                o.density_scale,
-                o.xform()?,
-                o.estimator_options().motion(None)?,
-            ),
+        let (estimator, options) = o.resolve_estimator()?;
+        let (source, motion) = match stage {
+            // The stage's volume, as a grid file read with the stage's grid, scale and
+            // placement.
+            Some((file, grid, density_scale, xform, m)) => {
+                let read = SourceOptions {
+                    grid,
+                    density_scale,
+                    xform: Some(xform.rows().iter().flatten().copied().collect()),
+                    frame: None,
+                    volume: None,
+                    field: None,
+                    light: None,
+                    ..o.source.clone()
+                };
+                (Source::new(file, read), m)
+            }
+            None => {
+                source.xform()?;
+                (source, o.motion()?)
+            }
         };
         Ok(VolumeJob {
-            input,
-            grid,
-            density_scale,
-            xform,
+            source,
             light,
             estimator,
             options,
@@ -269,10 +263,10 @@ impl BakeRequest {
             (None, Some(d)) => Depths::At(d.clone()),
             (None, None) => Depths::None,
         };
-        if let Some(s) = o.sigma_t {
+        if let Some(s) = o.source.sigma_t {
             crate::scene::check_sigma(s)?;
         }
-        let (estimator, options) = o.estimator()?;
+        let (estimator, options) = o.resolve_estimator()?;
         let settings = BakeSettings {
             target_error: o.target_error,
             max_spp: o.max_spp,
@@ -312,14 +306,11 @@ impl BakeRequest {
                 Product::Deep { max_error }
             }
         };
+        let source = self.source();
+        source.xform()?;
+        o.motion()?;
         Ok(BakeJob {
-            input: self.input.clone(),
-            grid: o.grid.clone(),
-            density_scale: o.density_scale,
-            xform: o.xform()?,
-            sigma_t: o.sigma_t,
-            levelset_solid: o.levelset == Some(LevelSet::Solid),
-            stage: o.stage_selection(),
+            source,
             view,
             camera,
             settings,
@@ -329,7 +320,6 @@ impl BakeRequest {
             layout,
             max_memory: o.max_memory()?,
             product,
-            motion: o.estimator_options().motion(None)?,
         })
     }
 }

@@ -96,8 +96,8 @@ impl BakeRequest {
         };
         let sample = shadow_sample(
             &self.input,
-            self.options.frame,
-            self.options.light.as_deref(),
+            self.options.source.frame,
+            self.options.source.light.as_deref(),
             layer,
             &self.output,
             camera,

@@ -21,7 +21,7 @@
 
 use super::{check_sigma, Fog, Scene};
 use crate::error::{Error, Result};
-use crate::input::InputKind;
+use crate::input::{InputKind, Source};
 use crate::solid::Solid;
 use crate::volume::Volume;
 use crate::xform::Xform;
@@ -29,9 +29,12 @@ use glam::DVec3;
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
-/// How to read a scene, and what applies on top of it.
+/// How to read a scene, and what applies on top of it: a [`Source`]'s read options, checked
+/// ([`SceneOptions::of`]).
 #[derive(Debug, Clone, PartialEq)]
-pub struct SceneOptions {
+pub(crate) struct SceneOptions {
+    /// What kind of input the path is (the source's).
+    pub kind: InputKind,
     /// Grid of a `.vdb` input (ignored by scene files, which name their grids).
     pub grid: String,
     /// Multiplies every volume's density scale.
@@ -50,18 +53,84 @@ pub struct SceneOptions {
     pub motion: Option<crate::motion::MotionRequest>,
 }
 
-impl Default for SceneOptions {
-    fn default() -> Self {
-        Self {
-            grid: "density".into(),
-            density_scale: 1.0,
-            sigma_t: None,
-            xform: None,
-            levelset_solid: false,
-            stage: crate::usd::Selection::default(),
-            motion: None,
-        }
+impl SceneOptions {
+    /// The read options of `source`, checked: its placement and its motion
+    /// ([`crate::motion::MotionRequest::of`]).
+    fn of(source: &Source) -> Result<Self> {
+        let o = source.options();
+        Ok(Self {
+            kind: source.kind(),
+            grid: o.grid.clone(),
+            density_scale: o.density_scale,
+            sigma_t: o.sigma_t,
+            xform: source.xform()?,
+            levelset_solid: o.levelset == Some(crate::input::LevelSet::Solid),
+            stage: source.stage_selection(),
+            motion: crate::motion::MotionRequest::of(o)?,
+        })
     }
+}
+
+impl Source {
+    /// Load the scene this source reads: a scene file (`.toml`), a USD stage (its volumes at
+    /// the selection's time code, [`crate::usd`]) or one grid of a grid file, with the read
+    /// options applied (scale, colour, placement, level sets, motion).
+    ///
+    /// # Errors
+    /// As [`load`], and [`Error::InvalidArgument`] naming `xform` or a motion option.
+    pub fn load(&self) -> Result<Scene> {
+        load(self.path(), &SceneOptions::of(self)?)
+    }
+
+    /// [`Source::load`] for a job whose rays are known before it traces ([`load_for_rays`]).
+    ///
+    /// # Errors
+    /// As [`load_for_rays`].
+    pub fn load_for_rays(
+        &self,
+        gran: crate::traverse::Granularity,
+        lazy_from: u64,
+        rays: impl FnOnce(&Scene) -> Vec<crate::ray::Ray>,
+    ) -> Result<(Scene, Vec<crate::ray::Ray>)> {
+        let interp = self.options().interp;
+        load_for_rays(
+            self.path(),
+            &SceneOptions::of(self)?,
+            interp,
+            gran,
+            lazy_from,
+            rays,
+        )
+    }
+
+    /// The files a load reads ([`sources`]).
+    ///
+    /// # Errors
+    /// As [`sources`].
+    pub fn files(&self) -> Result<Vec<PathBuf>> {
+        sources(self.path(), &SceneOptions::of(self)?)
+    }
+
+    /// The world corners of every grid box the source reads ([`read_box_corners`]).
+    ///
+    /// # Errors
+    /// As [`read_box_corners`].
+    pub fn box_corners(&self) -> Result<Vec<DVec3>> {
+        read_box_corners(self.path(), &SceneOptions::of(self)?)
+    }
+}
+
+/// Blur `vol` by motion `m`, its velocity grid read from `file` (or the request's own file):
+/// the one place a volume is set moving.
+///
+/// # Errors
+/// As [`crate::motion::MotionRequest::field`] and [`Volume::with_motion`].
+pub(crate) fn blurred(
+    vol: Volume,
+    m: &crate::motion::MotionRequest,
+    file: &Path,
+) -> Result<Volume> {
+    vol.with_motion(m.spec, m.field(file)?)
 }
 
 /// Load the scene at `path`: a scene file (`.toml`), a USD stage (`.usd`, `.usda`, `.usdc`,
@@ -71,13 +140,13 @@ impl Default for SceneOptions {
 /// # Errors
 /// Every loading error of the files it names ([`Volume::load`], [`Solid::load`]), and
 /// [`Error::Scene`] naming the scene file and the `[[volume]]` entry for a malformed scene.
-pub fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
+pub(crate) fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
     let path = path.as_ref();
     crate::volume::check_density_scale(opts.density_scale)?;
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
     }
-    if !InputKind::of(path).is_grid_file() {
+    if !opts.kind.is_grid_file() {
         return load_file(path, opts);
     }
     let grid = crate::input::load_grid(path, &opts.grid)?;
@@ -96,7 +165,7 @@ pub fn load(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Scene> {
 /// # Errors
 /// As [`load`], and decoding errors of the touched leaves (naming the file, the leaf and the
 /// byte offset of its buffer).
-pub fn load_for_rays(
+pub(crate) fn load_for_rays(
     path: impl AsRef<Path>,
     opts: &SceneOptions,
     interp: crate::volume::Interp,
@@ -109,7 +178,7 @@ pub fn load_for_rays(
     if let Some(s) = opts.sigma_t {
         check_sigma(s)?;
     }
-    if !InputKind::of(path).is_grid_file() {
+    if !opts.kind.is_grid_file() {
         let scene = load_file(path, opts)?;
         let r = rays(&scene);
         return Ok((scene, r));
@@ -166,7 +235,7 @@ fn scene_of_grid(grid: crate::input::Grid, path: &Path, opts: &SceneOptions) -> 
             v = v.with_xform(x)?;
         }
         if let Some(m) = &opts.motion {
-            v = v.with_motion(m.spec, m.field(path)?)?;
+            v = blurred(v, m, path)?;
         }
         fogs.push(Fog::new(v, opts.sigma_t.unwrap_or([1.0; 3]))?);
     }
@@ -279,9 +348,9 @@ fn stage_entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)>
 ///
 /// # Errors
 /// As reading the scene file or the stage.
-pub fn sources(path: &Path, opts: &SceneOptions) -> Result<Vec<PathBuf>> {
+pub(crate) fn sources(path: &Path, opts: &SceneOptions) -> Result<Vec<PathBuf>> {
     let mut out = vec![path.to_path_buf()];
-    if !InputKind::of(path).is_grid_file() {
+    if !opts.kind.is_grid_file() {
         for e in entries(path, opts)?.0 {
             out.push(match e.file {
                 crate::usd::Asset::File(p) => p,
@@ -295,7 +364,7 @@ pub fn sources(path: &Path, opts: &SceneOptions) -> Result<Vec<PathBuf>> {
 
 /// The grids of a scene file or a USD stage.
 fn entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
-    if InputKind::of(path).is_stage() {
+    if opts.kind.is_stage() {
         stage_entries(path, opts)
     } else {
         parse(path, opts)
@@ -304,8 +373,8 @@ fn entries(path: &Path, opts: &SceneOptions) -> Result<(Vec<Entry>, bool)> {
 
 /// An error loading a stage's asset, naming the stage, the time, the prim and the asset (not
 /// the scratch copy a packaged member is read from).
-fn asset_err(path: &Path, e: &Entry, opened: &Path, err: Error) -> Error {
-    if !InputKind::of(path).is_stage() {
+fn asset_err(path: &Path, stage: bool, e: &Entry, opened: &Path, err: Error) -> Error {
+    if !stage {
         return err;
     }
     let msg = err
@@ -476,7 +545,7 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
         let placed = |err: Error| scene_err(path, format!("{}: xform: {}", e.at, reason(err)));
         let opened = e.file.open()?;
         let file = opened.path();
-        let failed = |err: Error| asset_err(path, &e, file, err);
+        let failed = |err: Error| asset_err(path, opts.kind.is_stage(), &e, file, err);
         if e.solid {
             let mut s = Solid::load(file, &e.grid).map_err(failed)?;
             if let Some(x) = &e.xform {
@@ -502,8 +571,7 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
                     None => None,
                 };
                 let vfile = velocity_asset.as_ref().map_or(file, |o| o.path());
-                let field = m.field(vfile).map_err(failed)?;
-                vol = vol.with_motion(m.spec, field).map_err(failed)?;
+                vol = blurred(vol, &m, vfile).map_err(failed)?;
             }
             fogs.push(Fog::new(vol, e.sigma)?);
         }
@@ -517,13 +585,13 @@ fn load_file(path: &Path, opts: &SceneOptions) -> Result<Scene> {
 ///
 /// # Errors
 /// As [`load`], for what reading topology can find.
-pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Vec<DVec3>> {
+pub(crate) fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<Vec<DVec3>> {
     let path = path.as_ref();
     if opts.motion.is_some() {
         // Where blurred density reaches depends on the velocity's values: load it.
         return load(path, opts)?.box_corners();
     }
-    let entries = if !InputKind::of(path).is_grid_file() {
+    let entries = if !opts.kind.is_grid_file() {
         entries(path, opts)?.0
     } else {
         vec![Entry {
@@ -542,7 +610,7 @@ pub fn read_box_corners(path: impl AsRef<Path>, opts: &SceneOptions) -> Result<V
     for e in entries {
         let opened = e.file.open()?;
         let corners = Volume::read_box_corners(opened.path(), &e.grid)
-            .map_err(|err| asset_err(path, &e, opened.path(), err))?;
+            .map_err(|err| asset_err(path, opts.kind.is_stage(), &e, opened.path(), err))?;
         if let Some(c) = corners {
             match &e.xform {
                 Some(x) => out.extend(c.map(|p| x.point(p))),

@@ -14,7 +14,6 @@ pub mod file;
 
 pub use batch::estimate_many;
 pub use estimate::{estimate, SceneEstimate};
-pub use file::{load, read_box_corners, SceneOptions};
 
 use crate::error::{Error, Result};
 use crate::solid::Solid;

@@ -25,14 +25,14 @@ fn cloud() -> PathBuf {
 
 fn job(out: PathBuf, est: Estimator, interp: Interp, product: Product) -> BakeJob {
     BakeJob {
-        input: cloud(),
-        grid: "density".into(),
-        density_scale: 4.0,
-        xform: None,
-        sigma_t: None,
-        levelset_solid: false,
-        stage: Default::default(),
-        motion: None,
+        source: umbra::input::Source::new(
+            cloud(),
+            umbra::input::SourceOptions {
+                grid: "density".into(),
+                density_scale: 4.0,
+                ..umbra::input::SourceOptions::default()
+            },
+        ),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([0.3, -1.0, 0.2]),
@@ -125,7 +125,7 @@ fn check_exact(
         interp,
         Product::Deep { max_error: e },
     );
-    j.sigma_t = sigma;
+    j.source.options_mut().sigma_t = sigma;
     if name.starts_with("persp") {
         // A pinhole light outside the box, aimed at it.
         j.view = View {
@@ -429,11 +429,16 @@ fn scene_deep_maps_hold_the_bound_and_stop_at_solids() {
         Interp::Trilinear,
         Product::Deep { max_error: e },
     );
-    j.input = shot.clone();
-    j.density_scale = 3.0;
+    j.source = umbra::input::Source::new(
+        &shot,
+        umbra::input::SourceOptions {
+            density_scale: 3.0,
+            ..j.source.options().clone()
+        },
+    );
     j.view.light_dir = Some([-0.4, -1.0, -0.3]);
     let report = j.run(&|_| {}).unwrap();
-    let scene = umbra::scene::load(&shot, &j.scene_options()).unwrap();
+    let scene = j.source.load().unwrap();
     let cam = report.map.camera;
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let Some(pixels) = dump(&out, w, h) else {

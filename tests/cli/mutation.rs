@@ -2158,13 +2158,14 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         }
     };
     let job = BakeJob {
-        input: path.to_path_buf(),
-        grid: name.to_string(),
-        density_scale: 1.0,
-        xform: None,
-        sigma_t: None,
-        levelset_solid: false,
-        stage: Default::default(),
+        source: umbra::input::Source::new(
+            path.to_path_buf(),
+            umbra::input::SourceOptions {
+                grid: name.to_string(),
+                density_scale: 1.0,
+                ..umbra::input::SourceOptions::default()
+            },
+        ),
         view,
         camera: None,
         settings,
@@ -2174,7 +2175,6 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
-        motion: None,
     };
     stage.set("bake");
     match job.run_loaded(&umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {

@@ -130,8 +130,8 @@ fn minorant_controls_and_the_global_majorant_hold_under_blur() {
 #[test]
 fn options_that_blur_cannot_take_are_refused_by_name() {
     let with = |json: &str| {
-        let o = EstimatorOptions::from_json(json).unwrap();
-        o.motion(None).map(|_| ())
+        let o = umbra::request::TraceOptions::from_json(json).unwrap();
+        o.estimator.motion(&o.source).map(|_| ())
     };
     let name = |r: Result<(), umbra::Error>| match r {
         Err(umbra::Error::InvalidArgument { name, .. }) => name,

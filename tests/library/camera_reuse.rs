@@ -103,13 +103,14 @@ fn write_frame(dir: &Path, n: usize) -> PathBuf {
 
 fn job(view: View, settings: BakeSettings) -> BakeJob {
     BakeJob {
-        input: "frame.vdb".into(),
-        grid: "density".into(),
-        density_scale: 1.0,
-        xform: None,
-        sigma_t: None,
-        levelset_solid: false,
-        stage: Default::default(),
+        source: umbra::input::Source::new(
+            "frame.vdb",
+            umbra::input::SourceOptions {
+                grid: "density".into(),
+                density_scale: 1.0,
+                ..umbra::input::SourceOptions::default()
+            },
+        ),
         view,
         camera: None,
         settings,
@@ -119,7 +120,6 @@ fn job(view: View, settings: BakeSettings) -> BakeJob {
         layout: ExrLayout::default(),
         max_memory: None,
         product: Product::Map,
-        motion: None,
     }
 }
 

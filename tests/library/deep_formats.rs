@@ -21,17 +21,19 @@ fn corpus(name: &str) -> PathBuf {
 
 fn job(input: &Path, out: PathBuf, format: DeepFormat, solid: bool) -> BakeJob {
     BakeJob {
-        input: input.to_path_buf(),
-        grid: if solid {
-            "ls_sphere".into()
-        } else {
-            "density".into()
-        },
-        density_scale: 1.0,
-        xform: None,
-        sigma_t: None,
-        levelset_solid: solid,
-        stage: Default::default(),
+        source: umbra::input::Source::new(
+            input.to_path_buf(),
+            umbra::input::SourceOptions {
+                grid: if solid {
+                    "ls_sphere".into()
+                } else {
+                    "density".into()
+                },
+                density_scale: 1.0,
+                levelset: (solid).then_some(umbra::input::LevelSet::Solid),
+                ..umbra::input::SourceOptions::default()
+            },
+        ),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([0.3, -1.0, 0.2]),
@@ -46,7 +48,6 @@ fn job(input: &Path, out: PathBuf, format: DeepFormat, solid: bool) -> BakeJob {
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: Product::Fixed { format },
-        motion: None,
     }
 }
 

@@ -12,8 +12,9 @@ use common::data;
 use rand::{Rng, SeedableRng};
 use std::path::PathBuf;
 use umbra::estimate::{Estimator, Options};
+use umbra::input::SourceOptions;
 use umbra::internals::traverse::Granularity;
-use umbra::scene::{self, SceneOptions};
+use umbra::scene;
 use umbra::{Interp, Ray, Volume};
 
 fn corpus(name: &str) -> PathBuf {
@@ -41,10 +42,10 @@ fn rays(vol: &Volume, n: usize, seed: u64) -> Vec<Ray> {
     out
 }
 
-fn opts(grid: &str) -> SceneOptions {
-    SceneOptions {
+fn opts(grid: &str) -> SourceOptions {
+    SourceOptions {
         grid: grid.into(),
-        ..SceneOptions::default()
+        ..SourceOptions::default()
     }
 }
 
@@ -103,7 +104,9 @@ fn partial_loads_answer_like_eager_loads_bit_for_bit() {
     ];
     let mut partial_somewhere = false;
     for (path, grid) in &files {
-        let eager = scene::load(path, &opts(grid)).unwrap();
+        let eager = umbra::input::Source::new(path, opts(grid).clone())
+            .load()
+            .unwrap();
         let vol = eager.fogs()[0].volume();
         let all = vol.tree().leaves().len();
         for (k, (interp, gran)) in [
@@ -116,20 +119,21 @@ fn partial_loads_answer_like_eager_loads_bit_for_bit() {
         .enumerate()
         {
             let r = rays(vol, 24, 7 + k as u64);
-            let (lazy, got) =
-                scene::file::load_for_rays(path, &opts(grid), interp, gran, 0, |_| r.clone())
-                    .unwrap();
+            let source = umbra::input::Source::new(
+                path,
+                SourceOptions {
+                    interp,
+                    ..opts(grid)
+                },
+            );
+            let (lazy, got) = source.load_for_rays(gran, 0, |_| r.clone()).unwrap();
             assert_eq!(got.len(), r.len());
             let loaded = lazy.fogs()[0].volume().tree().loaded_leaf_count();
             assert!(loaded <= all);
             // One ray reads a small part of a many-leaf grid.
             if k == 0 && all > 100 {
                 let one = &r[..1];
-                let (single, _) =
-                    scene::file::load_for_rays(path, &opts(grid), interp, gran, 0, |_| {
-                        one.to_vec()
-                    })
-                    .unwrap();
+                let (single, _) = source.load_for_rays(gran, 0, |_| one.to_vec()).unwrap();
                 let n = single.fogs()[0].volume().tree().loaded_leaf_count();
                 assert!(
                     n < all / 2,
@@ -177,23 +181,18 @@ fn partial_loads_answer_like_eager_loads_bit_for_bit() {
 
 #[test]
 fn rgb_and_xform_partial_loads_equal_eager_ones() {
-    let o = SceneOptions {
+    let o = SourceOptions {
         sigma_t: Some([0.5, 1.0, 2.0]),
-        xform: Some(
-            umbra::internals::xform::Xform::from_row_major(&[
-                0.0, -2.0, 0.0, 1.0, 2.0, 0.0, 0.0, -0.5, 0.0, 0.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0,
-            ])
-            .unwrap(),
-        ),
-        ..SceneOptions::default()
+        xform: Some(vec![
+            0.0, -2.0, 0.0, 1.0, 2.0, 0.0, 0.0, -0.5, 0.0, 0.0, 2.0, 3.0, 0.0, 0.0, 0.0, 1.0,
+        ]),
+        ..SourceOptions::default()
     };
     let path = data("cloud.vdb");
-    let eager = scene::load(&path, &o).unwrap();
+    let eager = umbra::input::Source::new(&path, o.clone()).load().unwrap();
     let r = rays(eager.fogs()[0].volume(), 30, 11);
-    let (lazy, _) =
-        scene::file::load_for_rays(&path, &o, Interp::Trilinear, Granularity::Leaf, 0, |_| {
-            r.clone()
-        })
+    let (lazy, _) = umbra::input::Source::new(&path, o.clone())
+        .load_for_rays(Granularity::Leaf, 0, |_| r.clone())
         .unwrap();
     let opts = Options {
         samples: 8,
@@ -521,13 +520,14 @@ fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> um
         BakeSettings::new(Estimator::from_name("regular").unwrap(), Options::default());
     settings.depths = Depths::Slices(3);
     BakeJob {
-        input: path.to_path_buf(),
-        grid: "density".into(),
-        density_scale: 1.0,
-        xform: None,
-        sigma_t: None,
-        levelset_solid: false,
-        stage: Default::default(),
+        source: umbra::input::Source::new(
+            path.to_path_buf(),
+            umbra::input::SourceOptions {
+                grid: "density".into(),
+                density_scale: 1.0,
+                ..umbra::input::SourceOptions::default()
+            },
+        ),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([0.3, -1.0, 0.2]),
@@ -545,7 +545,6 @@ fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> um
         max_memory,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
-        motion: None,
     }
 }
 

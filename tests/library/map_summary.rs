@@ -14,13 +14,14 @@ fn cloud() -> PathBuf {
 
 fn job(out: PathBuf, est: Estimator, spp: u32, std_err: bool) -> BakeJob {
     BakeJob {
-        input: cloud(),
-        grid: "density".into(),
-        density_scale: 1.5,
-        xform: None,
-        sigma_t: None,
-        levelset_solid: false,
-        stage: Default::default(),
+        source: umbra::input::Source::new(
+            cloud(),
+            umbra::input::SourceOptions {
+                grid: "density".into(),
+                density_scale: 1.5,
+                ..umbra::input::SourceOptions::default()
+            },
+        ),
         view: View {
             projection: Projection::Ortho,
             light_dir: Some([-1.0, -1.0, 0.2]),
@@ -45,7 +46,6 @@ fn job(out: PathBuf, est: Estimator, spp: u32, std_err: bool) -> BakeJob {
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
-        motion: None,
     }
 }
 
@@ -83,7 +83,7 @@ fn summary_and_pixels_write_the_same_exr() {
         // The camera rebuilds bit for bit (what its rays are made of).
         assert_eq!(summary.camera().unwrap().spec(), report.map.camera.spec());
         // In memory, on the loaded scene: the same map.
-        let scene = umbra::scene::load(&j.input, &j.scene_options()).unwrap();
+        let scene = j.source.load().unwrap();
         let camera = Camera::frame(&j.view, &scene.box_corners().unwrap()).unwrap();
         let mem = j.bake_in_memory(&scene, camera, &|_| {}).unwrap();
         assert_eq!(mem.map.t, report.map.t);

@@ -11,8 +11,9 @@ use glam::DVec3;
 use std::path::PathBuf;
 use umbra::bake::{bake_scene, BakeSettings, Camera, Map, Projection, Resolution, View};
 use umbra::estimate::{Estimator, Options};
+use umbra::input::SourceOptions;
 use umbra::regular::optical_depth;
-use umbra::scene::{Scene, SceneOptions};
+use umbra::scene::Scene;
 use umbra::{Interp, Ray, Volume};
 
 fn data(name: &str) -> PathBuf {
@@ -142,7 +143,9 @@ fn a_light_outside_the_box_and_inside_a_scene() {
          0.5\nxform = [1, 0, 0, 0.4, 0, 1, 0, -0.3, 0, 0, 1, 0.2, 0, 0, 0, 1]\n",
     )
     .unwrap();
-    let two = umbra::scene::load(&toml, &SceneOptions::default()).unwrap();
+    let two = umbra::input::Source::new(&toml, SourceOptions::default())
+        .load()
+        .unwrap();
     let shifted = Volume::load(data("cloud.vdb"), "density", 0.5)
         .unwrap()
         .with_xform(

@@ -9,8 +9,9 @@ use crate::common;
 use std::path::{Path, PathBuf};
 use umbra::bake::{bake_scene, BakeSettings, Camera, Order, Projection, Resolution, View};
 use umbra::estimate::{estimate, ColourWalk, Estimator, Kind, Options, REGISTRY};
+use umbra::input::SourceOptions;
 use umbra::regular::optical_depth;
-use umbra::scene::{self, Scene, SceneOptions};
+use umbra::scene::{self, Scene};
 use umbra::{Interp, Ray, Volume};
 
 fn data(name: &str) -> PathBuf {
@@ -80,7 +81,9 @@ fn rays(n: usize) -> Vec<Ray> {
 #[test]
 fn a_two_volume_scene_is_the_sum_of_the_volumes_exact_depths() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    let scene = umbra::input::Source::new(two_clouds(dir.path(), None), SourceOptions::default())
+        .load()
+        .unwrap();
     assert_eq!(scene.fogs().len(), 2);
     assert_eq!(scene.channels(), 1);
     let (a, b) = two_volumes();
@@ -144,7 +147,9 @@ fn weighted_grids_add_with_their_weights() {
             file.display().to_string()
         ),
     );
-    let scene = scene::load(&scene_path, &SceneOptions::default()).unwrap();
+    let scene = umbra::input::Source::new(&scene_path, SourceOptions::default())
+        .load()
+        .unwrap();
     let d = Volume::load(&file, "density", 20.0).unwrap();
     let f = Volume::load(&file, "flame", 10.0).unwrap();
     let c = d.box_corners().unwrap();
@@ -176,7 +181,9 @@ fn rgb_exact_is_sigma_times_tau_per_channel() {
     let s1 = [0.5, 1.0, 2.0];
     let s2 = [2.0, 1.0, 0.25];
     let path = two_clouds(dir.path(), Some((s1, s2)));
-    let scene = scene::load(&path, &SceneOptions::default()).unwrap();
+    let scene = umbra::input::Source::new(&path, SourceOptions::default())
+        .load()
+        .unwrap();
     assert_eq!(scene.channels(), 3);
     let (a, b) = two_volumes();
     for (i, r) in rays(32).iter().enumerate() {
@@ -198,13 +205,14 @@ fn rgb_exact_is_sigma_times_tau_per_channel() {
         }
     }
     // --sigma-t on the command line multiplies each volume's colour.
-    let tinted = scene::load(
+    let tinted = umbra::input::Source::new(
         &path,
-        &SceneOptions {
+        SourceOptions {
             sigma_t: Some([1.0, 2.0, 0.5]),
-            ..SceneOptions::default()
+            ..SourceOptions::default()
         },
     )
+    .load()
     .unwrap();
     let r = &rays(1)[0];
     let e0 = scene::estimate(&scene, r, 0, &Estimator::REGULAR, &Options::default()).unwrap();
@@ -277,7 +285,9 @@ fn check_unbiased(scene: &Scene, what: &str, walk: ColourWalk) {
 #[test]
 fn unbiased_estimators_on_a_two_volume_scene_match_exact() {
     let dir = tempfile::tempdir().unwrap();
-    let scene = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    let scene = umbra::input::Source::new(two_clouds(dir.path(), None), SourceOptions::default())
+        .load()
+        .unwrap();
     check_unbiased(&scene, "grey scene", ColourWalk::Auto);
 }
 
@@ -285,15 +295,18 @@ fn unbiased_estimators_on_a_two_volume_scene_match_exact() {
 fn unbiased_estimators_on_rgb_match_exact_per_channel() {
     let dir = tempfile::tempdir().unwrap();
     let path = two_clouds(dir.path(), Some(([0.3, 1.0, 2.5], [1.5, 0.7, 0.1])));
-    let scene = scene::load(&path, &SceneOptions::default()).unwrap();
+    let scene = umbra::input::Source::new(&path, SourceOptions::default())
+        .load()
+        .unwrap();
     // One volume in colour (the command line's --sigma-t on a .vdb).
-    let one = scene::load(
+    let one = umbra::input::Source::new(
         data("cloud.vdb"),
-        &SceneOptions {
+        SourceOptions {
             sigma_t: Some([0.25, 1.0, 3.0]),
-            ..SceneOptions::default()
+            ..SourceOptions::default()
         },
     )
+    .load()
     .unwrap();
     // Both walks, whatever `auto` picks for each estimator: the shared walk (one majorant for
     // every channel) and split walks (per-channel majorants).
@@ -306,14 +319,15 @@ fn unbiased_estimators_on_rgb_match_exact_per_channel() {
 #[test]
 fn a_split_walk_is_the_single_channel_estimator_on_its_own_majorants() {
     let tinted = |sigma: [f64; 3], density_scale: f64| {
-        scene::load(
+        umbra::input::Source::new(
             data("cloud.vdb"),
-            &SceneOptions {
+            SourceOptions {
                 sigma_t: Some(sigma),
                 density_scale,
-                ..SceneOptions::default()
+                ..SourceOptions::default()
             },
         )
+        .load()
         .unwrap()
     };
     let rgb = tinted([1.0; 3], 1.0);
@@ -373,14 +387,17 @@ fn a_split_walk_is_the_single_channel_estimator_on_its_own_majorants() {
 
 #[test]
 fn the_shared_walk_looks_the_medium_up_once_for_all_channels() {
-    let grey = scene::load(data("cloud.vdb"), &SceneOptions::default()).unwrap();
-    let rgb = scene::load(
+    let grey = umbra::input::Source::new(data("cloud.vdb"), SourceOptions::default())
+        .load()
+        .unwrap();
+    let rgb = umbra::input::Source::new(
         data("cloud.vdb"),
-        &SceneOptions {
+        SourceOptions {
             sigma_t: Some([1.0, 1.0, 1.0]),
-            ..SceneOptions::default()
+            ..SourceOptions::default()
         },
     )
+    .load()
     .unwrap();
     let ratio = Estimator::from_name("ratio").unwrap();
     let opts = Options {
@@ -413,7 +430,9 @@ fn scene_maps_sweep_equals_rays_and_colour_is_per_channel() {
     let dir = tempfile::tempdir().unwrap();
     let s1 = [0.5, 1.0, 2.0];
     let path = two_clouds(dir.path(), Some((s1, s1)));
-    let rgb = scene::load(&path, &SceneOptions::default()).unwrap();
+    let rgb = umbra::input::Source::new(&path, SourceOptions::default())
+        .load()
+        .unwrap();
     let cam = camera(&rgb, 48);
     let mut s = BakeSettings::new(Estimator::REGULAR, Options::default());
     s.depths = umbra::bake::Depths::Slices(3);
@@ -438,7 +457,9 @@ fn scene_maps_sweep_equals_rays_and_colour_is_per_channel() {
     }
     assert!(dark > 100, "{dark} dark pixels");
     // Grey: T_c = T_grey^sigma_c for a uniformly tinted scene.
-    let grey = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    let grey = umbra::input::Source::new(two_clouds(dir.path(), None), SourceOptions::default())
+        .load()
+        .unwrap();
     s.order = Order::Auto;
     let g = bake_scene(&grey, &cam, &s, &|_| {}).unwrap();
     for (c, sigma) in s1.iter().enumerate() {
@@ -454,7 +475,9 @@ fn scene_maps_sweep_equals_rays_and_colour_is_per_channel() {
 fn stochastic_scene_maps_are_the_per_pixel_estimates() {
     let dir = tempfile::tempdir().unwrap();
     let path = two_clouds(dir.path(), Some(([0.5, 1.0, 2.0], [1.0, 1.0, 1.0])));
-    let rgb = scene::load(&path, &SceneOptions::default()).unwrap();
+    let rgb = umbra::input::Source::new(&path, SourceOptions::default())
+        .load()
+        .unwrap();
     let cam = camera(&rgb, 16);
     let est = Estimator::from_name("ratio").unwrap();
     let opts = Options {
@@ -527,7 +550,8 @@ fn malformed_scenes_name_the_file_and_the_entry() {
     ];
     for (i, (text, want)) in cases.iter().enumerate() {
         let p = write(dir.path(), &format!("bad{i}.toml"), text);
-        let e = scene::load(&p, &SceneOptions::default())
+        let e = umbra::input::Source::new(&p, SourceOptions::default())
+            .load()
             .unwrap_err()
             .to_string();
         assert!(e.contains(want), "case {i}: {e}");
@@ -541,11 +565,14 @@ fn malformed_scenes_name_the_file_and_the_entry() {
 fn scene_boxes_from_topology_equal_the_loaded_boxes() {
     let dir = tempfile::tempdir().unwrap();
     let path = two_clouds(dir.path(), None);
-    let loaded = scene::load(&path, &SceneOptions::default())
+    let loaded = umbra::input::Source::new(&path, SourceOptions::default())
+        .load()
         .unwrap()
         .box_corners()
         .unwrap();
-    let read = scene::read_box_corners(&path, &SceneOptions::default()).unwrap();
+    let read = umbra::input::Source::new(&path, SourceOptions::default())
+        .box_corners()
+        .unwrap();
     assert_eq!(loaded.len(), 16);
     for (a, b) in loaded.iter().zip(&read) {
         assert!((*a - *b).length() < 1e-12, "{a} vs {b}");
@@ -567,15 +594,17 @@ fn a_solid_in_a_scene_casts_the_analytic_shadow() {
          xform = [0.35, 0, 0, 0, 0, 0.35, 0, 0.1, 0, 0, 0.35, 0, 0, 0, 0, 1]\n"
     );
     let fog = format!("[[volume]]\nfile = {cloud:?}\nsigma_t = [0.6, 0.9, 1.3]\n");
-    let with = scene::load(
+    let with = umbra::input::Source::new(
         write(dir.path(), "with.toml", &format!("{fog}\n{solid}")),
-        &SceneOptions::default(),
+        SourceOptions::default(),
     )
+    .load()
     .unwrap();
-    let without = scene::load(
+    let without = umbra::input::Source::new(
         write(dir.path(), "without.toml", &fog),
-        &SceneOptions::default(),
+        SourceOptions::default(),
     )
+    .load()
     .unwrap();
     let c = glam::DVec3::new(0.035, -0.07 + 0.1, 0.105);
     let (r, voxel) = (0.35, 0.007);
@@ -683,7 +712,9 @@ fn the_cli_bakes_and_queries_scenes_in_colour() {
         .assert()
         .success();
     let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
-    let scene = scene::load(&path, &SceneOptions::default()).unwrap();
+    let scene = umbra::input::Source::new(&path, SourceOptions::default())
+        .load()
+        .unwrap();
     let r = Ray::between([-2.0, 0.0, 0.0], [2.0, 0.5, 0.0]).unwrap();
     let e = scene::estimate_many(&scene, &[r], &[0], &Estimator::REGULAR, &Options::default())
         .pop()
@@ -840,13 +871,18 @@ fn batch_jobs_take_colour_and_scene_inputs() {
 #[test]
 fn a_batch_of_rays_answers_as_each_ray_alone() {
     let dir = tempfile::tempdir().unwrap();
-    let grey = scene::load(data("cloud.vdb"), &SceneOptions::default()).unwrap();
-    let two = scene::load(two_clouds(dir.path(), None), &SceneOptions::default()).unwrap();
+    let grey = umbra::input::Source::new(data("cloud.vdb"), SourceOptions::default())
+        .load()
+        .unwrap();
+    let two = umbra::input::Source::new(two_clouds(dir.path(), None), SourceOptions::default())
+        .load()
+        .unwrap();
     let sub = tempfile::tempdir().unwrap();
-    let rgb = scene::load(
+    let rgb = umbra::input::Source::new(
         two_clouds(sub.path(), Some(([0.5, 1.0, 2.0], [2.0, 1.0, 0.25]))),
-        &SceneOptions::default(),
+        SourceOptions::default(),
     )
+    .load()
     .unwrap();
     let rays = rays(300);
     for (what, s) in [("grey", &grey), ("two", &two), ("rgb", &rgb)] {
@@ -938,13 +974,14 @@ fn the_colour_walk_is_asked_for_on_every_front_end() {
         .assert()
         .success();
     let v: serde_json::Value = serde_json::from_slice(&o.get_output().stdout).unwrap();
-    let scene = scene::load(
+    let scene = umbra::input::Source::new(
         &cloud,
-        &SceneOptions {
+        SourceOptions {
             sigma_t: Some([1.0, 0.1, 0.1]),
-            ..SceneOptions::default()
+            ..SourceOptions::default()
         },
     )
+    .load()
     .unwrap();
     let r = Ray::between([-2.0, 0.0, 0.0], [2.0, 0.5, 0.0]).unwrap();
     let est = Estimator::from_name("track-length").unwrap();

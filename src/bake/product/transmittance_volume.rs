@@ -623,14 +623,9 @@ fn by_lattice(
 /// One transmittance volume from a file to a `.vdb`: what `umbra bake ... -o NAME.vdb` runs.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VolumeJob {
-    /// The `.vdb` file.
-    pub input: std::path::PathBuf,
-    /// The density grid.
-    pub grid: String,
-    /// `mu_t = density_scale x value`.
-    pub density_scale: f64,
-    /// Where the volume sits in the shot; the output grid's transform includes it.
-    pub xform: Option<crate::xform::Xform>,
+    /// The grid file and how it is read: its density grid, `mu_t = density_scale x value`,
+    /// where the volume sits in the shot (the output grid's transform includes it).
+    pub source: crate::input::Source,
     /// The light.
     pub light: Light,
     /// Estimator of every voxel's ray (regular tracking: exact).
@@ -687,7 +682,9 @@ impl VolumeJob {
                 ),
             });
         }
-        if self.out_grid == self.grid && crate::output::same_file(&self.output, &self.input) {
+        if self.out_grid == self.source.options().grid
+            && crate::output::same_file(&self.output, self.source.path())
+        {
             return Err(Error::InvalidArgument {
                 name: "output".into(),
                 reason: "the transmittance volume would replace the density it is made from".into(),
@@ -701,22 +698,23 @@ impl VolumeJob {
     /// # Errors
     /// Load errors.
     pub fn load(&self) -> Result<Volume> {
-        if crate::input::InputKind::of(&self.input).is_scene_file() {
+        let (path, o) = (self.source.path(), self.source.options());
+        if self.source.kind().is_scene_file() {
             return Err(Error::InvalidArgument {
                 name: "output".into(),
                 reason: format!(
                     "a transmittance volume (.vdb) is made from one density grid; {} is a scene \
                      file",
-                    self.input.display()
+                    path.display()
                 ),
             });
         }
-        let mut v = Volume::load(&self.input, &self.grid, self.density_scale)?;
-        if let Some(x) = &self.xform {
+        let mut v = Volume::load(path, &o.grid, o.density_scale)?;
+        if let Some(x) = &self.source.xform()? {
             v = v.with_xform(x)?;
         }
         match &self.motion {
-            Some(m) => v.with_motion(m.spec, m.field(&self.input)?),
+            Some(m) => crate::scene::file::blurred(v, m, path),
             None => Ok(v),
         }
     }
@@ -741,7 +739,7 @@ impl VolumeJob {
         self.options.validate().map_err(check)?;
         let vol = self
             .load()
-            .map_err(|e| BakeError::loading(&self.input, &self.grid, e))?;
+            .map_err(|e| BakeError::loading(&self.source, e))?;
         self.run_on(&vol, progress)
             .map_err(|e| BakeError::at(Step::Bake, e))
     }
@@ -787,8 +785,14 @@ impl VolumeJob {
                 "umbra:interp",
                 format!("{:?}", self.options.interp).to_lowercase(),
             ),
-            ("umbra:density_scale", format!("{}", self.density_scale)),
-            ("umbra:source_file", self.input.display().to_string()),
+            (
+                "umbra:density_scale",
+                format!("{}", self.source.options().density_scale),
+            ),
+            (
+                "umbra:source_file",
+                self.source.path().display().to_string(),
+            ),
             ("umbra:grid", vol.name().to_string()),
             (
                 "umbra:software",

@@ -262,7 +262,7 @@ fn report_volume(
     let mut out = std::io::stdout().lock();
     if a.json {
         let v = serde_json::json!({
-            "output": a.output, "grid": job.out_grid, "source_grid": job.grid, "half": job.half,
+            "output": a.output, "grid": job.out_grid, "source_grid": job.source.options().grid, "half": job.half,
             "light": job.light, "estimator": job.estimator.name(), "interp": job.options.interp,
             "voxels": st.voxels, "leaves": st.leaves, "tile_leaves": st.tile_leaves,
             "sharing": st.sharing, "line_step": st.line_step, "rays": st.rays, "lookups": st.lookups,

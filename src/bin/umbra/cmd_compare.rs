@@ -5,7 +5,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use umbra::compare::{self, stress, Meta, Settings};
 use umbra::estimate::{Estimator, Options};
-use umbra::{Interp, Volume};
+use umbra::Volume;
 
 /// Arguments of `umbra compare`.
 #[derive(Debug, clap::Args)]
@@ -31,16 +31,6 @@ pub struct CompareArgs {
     /// `ratio-global-majorant`.
     #[arg(long)]
     global_baseline: bool,
-    /// mu_t = S x value, per world unit.
-    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
-    density_scale: f64,
-    /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 comma-separated numbers,
-    /// row-major, the translation in the last column (positions stay in world space).
-    #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
-    xform: Option<umbra::internals::xform::Xform>,
-    /// Lookup interpolation.
-    #[arg(long, value_enum, default_value = "trilinear")]
-    interp: Interp,
     /// Seed of the rays and of the estimators' random streams.
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -70,20 +60,18 @@ pub struct CompareArgs {
     /// With --deep: the maps' resolution, N pixels on the long side.
     #[arg(long, default_value_t = 128)]
     res: u32,
-    /// Compare the colour walks instead: FILE's grid as a coloured medium (mu_c = sigma_t[c] x
-    /// density-scale x value), every non-exact estimator over its ladder with the shared walk
-    /// and with split walks (per-channel majorants): colour.{md,json}, colour_walks.svg.
-    #[arg(long, value_parser = umbra::request::parse_vec3)]
-    sigma_t: Option<[f64; 3]>,
     /// Samples per ray in the stress suite.
     #[arg(long, default_value_t = 16)]
     stress_samples: u32,
     /// No progress messages.
     #[arg(long, short)]
     quiet: bool,
-    /// A USD stage input: which volume, at which time code.
+    /// How FILE is read: its grid (or a USD stage's one volume, at a time code), scale,
+    /// placement, interpolation; with sigma-t, compare the colour walks instead: FILE's grid
+    /// as a coloured medium, every non-exact estimator over its ladder with the shared walk
+    /// and with split walks (per-channel majorants): colour.{md,json}, colour_walks.svg.
     #[command(flatten)]
-    stage: crate::common::StageArgs,
+    source: umbra::input::SourceOptions,
 }
 
 fn machine() -> String {
@@ -152,7 +140,7 @@ pub fn run(a: &CompareArgs) -> Result<ExitCode> {
             eprintln!("umbra compare: {m}");
         }
     };
-    if a.sigma_t.is_some() && (a.deep || a.global_baseline) {
+    if a.source.sigma_t.is_some() && (a.deep || a.global_baseline) {
         anyhow::bail!(
             "invalid argument '--sigma-t': compares the colour walks; run {} without it",
             if a.deep {
@@ -213,16 +201,16 @@ fn run_estimators(
     pool: &rayon::ThreadPool,
     say: &(dyn Fn(&str) + Sync),
 ) -> Result<Option<ExitCode>> {
-    if umbra::input::InputKind::of(file).is_scene_file() {
+    let source = read_source(a, file)?;
+    if source.kind().is_scene_file() {
         anyhow::bail!(
             "{}: compare takes one grid of a .vdb file; scenes (.toml) are traced by query \
              and bake",
             file.display()
         );
     }
-    a.stage.check(file)?;
-    let interp = a.interp;
-    let (vol, source) = load(a, file)?;
+    let interp = a.source.interp;
+    let (vol, source) = load(&source)?;
     let rays = compare::random_rays(&vol, a.rays, a.seed);
     if rays.is_empty() {
         anyhow::bail!("{source} is empty, nothing to compare");
@@ -238,7 +226,7 @@ fn run_estimators(
         threads,
         global_baseline: a.global_baseline,
     };
-    if let Some(sigma) = a.sigma_t {
+    if let Some(sigma) = a.source.sigma_t {
         return run_colour(
             a, vol, &rays, estimators, &settings, sigma, source, pool, say,
         )
@@ -255,7 +243,7 @@ fn run_estimators(
         repeats: a.repeats,
         medium: format!(
             "{interp:?} lookups, density scale {}, seed {}",
-            a.density_scale, a.seed
+            a.source.density_scale, a.seed
         ),
         machine: machine(),
         reference: format!(
@@ -340,7 +328,7 @@ fn run_colour(
         repeats: a.repeats,
         medium: format!(
             "{:?} lookups, density scale {}, seed {}",
-            settings.options.interp, a.density_scale, a.seed
+            settings.options.interp, a.source.density_scale, a.seed
         ),
         machine: machine(),
         reference: format!(
@@ -376,7 +364,7 @@ fn run_deep(
     threads: usize,
     say: &dyn Fn(&str),
 ) -> Result<()> {
-    if !umbra::input::InputKind::of(file).is_grid_file() {
+    if !read_source(a, file)?.kind().is_grid_file() {
         anyhow::bail!(
             "{}: compare --deep takes one grid of a .vdb file",
             file.display()
@@ -402,14 +390,9 @@ fn run_deep(
             umbra::bake::Product::Map => continue,
         };
         let options = umbra::request::BakeOptions {
-            grid: a.grid.clone(),
+            source: a.source.clone(),
             light_dir: Some(a.light_dir.unwrap_or([0.0, -1.0, 0.0])),
             res: Some(umbra::bake::Resolution::LongSide(a.res)),
-            density_scale: a.density_scale,
-            xform: a
-                .xform
-                .map(|x| x.rows().iter().flatten().copied().collect()),
-            interp: a.interp,
             deep,
             deep_error,
             deep_format,
@@ -430,7 +413,7 @@ fn run_deep(
         say(&format!("deep encoding {name}"));
         rows.push(compare::deep::deep_row(&job)?);
     }
-    let source = format!("{} grid '{}'", file.display(), a.grid);
+    let source = format!("{} grid '{}'", file.display(), a.source.grid);
     let md = compare::deep::deep_markdown(&rows, &source);
     let json = serde_json::to_string_pretty(&serde_json::json!({
         "source": source, "machine": machine(), "threads": threads, "res": a.res,
@@ -469,34 +452,56 @@ fn write_together(
     Ok(())
 }
 
+/// What `compare` reads: FILE with the read options, checked (stage options only for a
+/// stage; no level sets or motion: compare traces one still fog grid).
+fn read_source(a: &CompareArgs, file: &std::path::Path) -> Result<umbra::input::Source> {
+    let source = umbra::input::Source::new(file, a.source.clone());
+    source.check().map_err(crate::common::flag_error)?;
+    let o = source.options();
+    let still = [("--levelset", o.levelset.is_some())]
+        .into_iter()
+        .chain(o.motion_keys().map(|(k, g)| (k, g)));
+    for (k, given) in still {
+        if given {
+            anyhow::bail!(
+                "invalid argument '--{}': compare traces one still fog grid",
+                k.trim_start_matches('-')
+            );
+        }
+    }
+    Ok(source)
+}
+
 /// The volume `compare` traces, and how the report names it: a grid of a `.vdb`, or the one
 /// volume of a USD stage (its grid, placement and grey scale; `--density-scale` on top).
-fn load(a: &CompareArgs, file: &std::path::Path) -> Result<(Volume, String)> {
-    if !umbra::input::InputKind::of(file).is_stage() {
-        let mut vol = Volume::load(file, &a.grid, a.density_scale)
-            .with_context(|| format!("loading grid '{}'", a.grid))?;
-        if let Some(x) = &a.xform {
+fn load(source: &umbra::input::Source) -> Result<(Volume, String)> {
+    let (file, o) = (source.path(), source.options());
+    if !source.kind().is_stage() {
+        let mut vol = Volume::load(file, &o.grid, o.density_scale)
+            .with_context(|| format!("loading grid '{}'", o.grid))?;
+        if let Some(x) = &source.xform().map_err(crate::common::flag_error)? {
             vol = vol.with_xform(x).map_err(crate::common::flag_error)?;
         }
-        return Ok((vol, format!("{} grid '{}'", file.display(), a.grid)));
+        return Ok((vol, format!("{} grid '{}'", file.display(), o.grid)));
     }
-    if a.stage.light.is_some() {
+    if o.light.is_some() {
         anyhow::bail!("invalid argument '--light': compare traces random rays, not toward a light");
     }
-    if a.xform.is_some() || a.grid != "density" {
+    if o.xform.is_some() || o.grid != "density" {
         anyhow::bail!(
             "invalid argument '{}': the stage places its volumes and names their grids \
              (--volume, --field)",
-            if a.xform.is_some() {
+            if o.xform.is_some() {
                 "--xform"
             } else {
                 "--grid"
             }
         );
     }
-    let shot = umbra::usd::read(file, &a.stage.selection()).map_err(crate::common::flag_error)?;
+    let shot =
+        umbra::usd::read(file, &source.stage_selection()).map_err(crate::common::flag_error)?;
     let v = shot.single_volume().map_err(crate::common::flag_error)?;
-    let scale = v.grey_scale().map_err(crate::common::flag_error)? * a.density_scale;
+    let scale = v.grey_scale().map_err(crate::common::flag_error)? * o.density_scale;
     let path = v.asset.open()?;
     let vol = Volume::load(path.path(), &v.grid, scale)
         .with_context(|| format!("loading grid '{}' of {}", v.grid, v.asset.display()))?

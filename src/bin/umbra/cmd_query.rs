@@ -19,10 +19,6 @@ pub struct QueryArgs {
     /// USD stage
     /// (.usd, .usda, .usdc, .usdz: its volumes and lights at --frame).
     file: PathBuf,
-    /// Grid to trace (display name such as `density[1]`; unnamed grids, as Warp writes them, are
-    /// `[0]`, `[1]`, ... in file order; or the stored name).
-    #[arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())]
-    grid: String,
     /// Segment start, world space: X,Y,Z (with --to).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     from: Option<[f64; 3]>,
@@ -45,20 +41,11 @@ pub struct QueryArgs {
     /// line is answered.
     #[arg(long)]
     rays: Option<PathBuf>,
-    /// How the density between voxel centres is defined.
-    #[arg(long, value_enum, default_value = "trilinear")]
-    interp: Interp,
-    /// mu_t = S x value, per world unit.
-    #[arg(long, default_value_t = 1.0, allow_negative_numbers = true)]
-    density_scale: f64,
-    /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 comma-separated numbers,
-    /// row-major, the translation in the last column (positions stay in world space).
-    #[arg(long, value_parser = crate::common::parse_xform, allow_hyphen_values = true)]
-    xform: Option<umbra::internals::xform::Xform>,
+    /// How FILE is read: grid or stage selection (the stage light --at is toward),
+    /// interpolation, scale, colour, level sets, placement (positions stay in world space),
+    /// motion.
     #[command(flatten)]
-    trace: crate::common::TraceArgs,
-    #[command(flatten)]
-    stage: crate::common::StageArgs,
+    source: umbra::input::SourceOptions,
     /// One JSON object per query on stdout.
     #[arg(long)]
     json: bool,
@@ -124,20 +111,11 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         Some(p) => Some(read_rays(p)?),
         None => None,
     };
-    let interp = a.interp;
+    let interp = a.source.interp;
     let (est, opts) = a.est.resolve(interp).map_err(flag_error)?;
-    let scene_opts = umbra::scene::SceneOptions {
-        grid: a.grid.clone(),
-        density_scale: a.density_scale,
-        sigma_t: a.trace.sigma_t,
-        xform: a.xform,
-        levelset_solid: a.trace.levelset.is_some(),
-        stage: umbra::usd::Selection {
-            light: toward,
-            ..a.stage.selection()
-        },
-        motion: a.est.motion(None).map_err(flag_error)?,
-    };
+    a.est.motion(&a.source).map_err(flag_error)?;
+    let mut source = umbra::input::Source::new(&a.file, a.source.clone());
+    source.options_mut().light = toward;
     let pool = thread_pool(a.threads)?;
     // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray
     // that cannot be made keeps its error here and asks for nothing to be decoded.
@@ -156,7 +134,7 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         };
         ray.map_err(|e| ray_error = Some(e)).into_iter().collect()
     };
-    let (scene, rays) = pool.install(|| load(a, &scene_opts, interp, &opts, make_rays))?;
+    let (scene, rays) = pool.install(|| load(a, &source, &opts, make_rays))?;
     if let Some(e) = ray_error {
         return Err(e.into());
     }
@@ -214,19 +192,20 @@ fn asked(a: &QueryArgs) -> Result<Asked> {
         }
         _ => None,
     };
-    a.stage.check(&a.file)?;
+    let source = umbra::input::Source::new(&a.file, a.source.clone());
+    source.check().map_err(flag_error)?;
     // The stage light the query is toward (named, or the stage's only one): the scene holds
     // only the volumes its shadow link includes.
-    let mut toward = a.stage.light.clone();
+    let mut toward = a.source.light.clone();
     let light = match (a.light_dir, a.light_pos) {
         (Some(_), Some(_)) => bail!("give --light-dir or --light-pos, not both"),
-        (Some(_), None) | (None, Some(_)) if a.stage.light.is_some() => {
+        (Some(_), None) | (None, Some(_)) if a.source.light.is_some() => {
             bail!("give --light (a stage light) or --light-dir / --light-pos, not both")
         }
         (Some(dir), None) => Some(Light::Directional { dir }),
         (None, Some(pos)) => Some(Light::Point { pos }),
-        (None, None) if a.at.is_some() && umbra::input::InputKind::of(&a.file).is_stage() => {
-            let (l, prim) = a.stage.light_of(&a.file)?;
+        (None, None) if a.at.is_some() && source.kind().is_stage() => {
+            let (l, prim) = crate::common::light_of(&source)?;
             toward = Some(prim);
             Some(l)
         }
@@ -256,26 +235,18 @@ fn asked(a: &QueryArgs) -> Result<Asked> {
 /// which is every leaf's bound), else only what the rays cross.
 fn load(
     a: &QueryArgs,
-    scene_opts: &umbra::scene::SceneOptions,
-    interp: Interp,
+    source: &umbra::input::Source,
     opts: &Options,
     mut make_rays: impl FnMut(&Scene) -> Vec<Ray>,
 ) -> Result<(Scene, Vec<Ray>)> {
     if a.load == LoadMode::Eager || opts.global_majorant {
-        load_scene(&a.file, scene_opts).map(|s| {
+        load_scene(source).map(|s| {
             let r = make_rays(&s);
             (s, r)
         })
     } else {
         let always = a.load == LoadMode::Lazy;
-        load_scene_for(
-            &a.file,
-            scene_opts,
-            interp,
-            opts.granularity,
-            always,
-            make_rays,
-        )
+        load_scene_for(source, opts.granularity, always, make_rays)
     }
 }
 
@@ -312,12 +283,9 @@ fn answer_rows(
 
 /// `--positions PRIM`: every point of a stage's points prim, frame by frame.
 fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
-    if !umbra::input::InputKind::of(&a.file).is_stage() {
-        bail!(
-            "invalid argument '--positions': applies to USD stages (.usd, .usda, .usdc, .usdz); \
-             {} is not one",
-            a.file.display()
-        );
+    let source = umbra::input::Source::new(&a.file, a.source.clone());
+    if !source.kind().is_stage() {
+        bail!("invalid argument '--positions': {}", source.not_a_stage());
     }
     let others = [
         ("--from", a.from.is_some()),
@@ -326,40 +294,31 @@ fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
         ("--rays", a.rays.is_some()),
         ("--light-dir", a.light_dir.is_some()),
         ("--light-pos", a.light_pos.is_some()),
-        ("--xform", a.xform.is_some()),
+        ("--xform", a.source.xform.is_some()),
     ];
     if let Some((flag, _)) = others.iter().find(|(_, g)| *g) {
         bail!("invalid argument '{flag}': --positions answers every point toward a stage light");
     }
-    a.stage.check(&a.file)?;
-    let frames = match (&a.frames, a.stage.frame) {
+    source.check().map_err(flag_error)?;
+    let frames = match (&a.frames, a.source.frame) {
         (Some(_), Some(_)) => bail!("give --frame F or --frames A-B, not both"),
         (Some(f), None) => f.0.clone(),
         (None, Some(f)) => vec![f],
         (None, None) => vec![umbra::usd::lights_at(&a.file, None)?.time],
     };
-    let interp = a.interp;
-    let (est, opts) = a.est.resolve(interp).map_err(flag_error)?;
-    let scene_opts = umbra::scene::SceneOptions {
-        grid: a.grid.clone(),
-        density_scale: a.density_scale,
-        sigma_t: a.trace.sigma_t,
-        xform: None,
-        levelset_solid: a.trace.levelset.is_some(),
-        stage: a.stage.selection(),
-        motion: a.est.motion(None).map_err(flag_error)?,
-    };
+    let (est, opts) = a.est.resolve(a.source.interp).map_err(flag_error)?;
+    a.est.motion(&a.source).map_err(flag_error)?;
     let spec = crate::query_points::Spec {
         file: &a.file,
         prim,
-        light: a.stage.light.as_deref(),
+        light: a.source.light.as_deref(),
         frames: &frames,
         usd_out: a.usd_out.as_deref(),
         force: a.force,
         json: a.json,
     };
     let pool = thread_pool(a.threads)?;
-    pool.install(|| crate::query_points::run(&spec, &scene_opts, &est, &opts))
+    pool.install(|| crate::query_points::run(&spec, &source, &est, &opts))
 }
 
 fn answer(

@@ -1,7 +1,7 @@
 //! What the commands share: the estimator help, flag errors, vector parsing, loading with
 //! warnings, thread pools, progress bars.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{Context, Result};
 use std::path::Path;
 use umbra::bake::volume_warnings;
 
@@ -56,56 +56,21 @@ pub fn estimator_help() -> String {
     s
 }
 
-/// What `query` and `bake` trace besides the grid: colour and level sets.
-#[derive(Debug, Clone, clap::Args)]
-pub struct TraceArgs {
-    /// Extinction colour R,G,B: T per channel (an RGB map), mu_c = sigma_t[c] x density-scale
-    /// x value (multiplies a scene's own sigma_t).
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    pub sigma_t: Option<[f64; 3]>,
-    /// `solid`: trace a level-set grid as an opaque solid (T = 0 from where a ray enters it)
-    /// instead of refusing it.
-    #[arg(long, value_enum)]
-    pub levelset: Option<LevelSetArg>,
-}
-
-/// `--levelset`: what to do with a level-set grid.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum LevelSetArg {
-    /// An opaque occluder: T = 0 from where a ray first enters phi < 0.
-    Solid,
-}
-
 pub use umbra::request::parse_vec3;
 
-/// Parse `--xform`: 16 comma-separated numbers, row-major.
-pub fn parse_xform(s: &str) -> std::result::Result<umbra::internals::xform::Xform, String> {
-    let v: Vec<f64> = s
-        .split(',')
-        .map(|c| c.trim().parse::<f64>())
-        .collect::<std::result::Result<_, _>>()
-        .map_err(|_| format!("'{s}': expected 16 comma-separated numbers"))?;
-    umbra::internals::xform::Xform::from_row_major(&v).map_err(|e| match e {
-        umbra::Error::InvalidArgument { reason, .. } => reason,
-        other => other.to_string(),
-    })
-}
-
-/// Load a `.vdb` grid or a `.toml` scene for tracing, warning about voxels the bad-voxel
-/// policy changed.
-pub fn load_scene(file: &Path, opts: &umbra::scene::SceneOptions) -> Result<umbra::scene::Scene> {
-    let scene = umbra::scene::load(file, opts).map_err(|e| load_error(e, file, opts))?;
-    warn_sanitized(file, &scene);
+/// Load what `source` reads for tracing ([`umbra::input::Source::load`]), warning about
+/// voxels the bad-voxel policy changed.
+pub fn load_scene(source: &umbra::input::Source) -> Result<umbra::scene::Scene> {
+    let scene = source.load().map_err(|e| load_error(e, source))?;
+    warn_sanitized(source.path(), &scene);
     Ok(scene)
 }
 
 /// [`load_scene`] for a job whose rays `rays` makes from the scene's boxes: a `.vdb` is read
-/// lazily and only the leaves those rays touch are decoded (`umbra::scene::file::load_for_rays`;
-/// `always`: however small the grid).
+/// lazily and only the leaves those rays touch are decoded
+/// ([`umbra::input::Source::load_for_rays`]; `always`: however small the grid).
 pub fn load_scene_for(
-    file: &Path,
-    opts: &umbra::scene::SceneOptions,
-    interp: umbra::Interp,
+    source: &umbra::input::Source,
     gran: umbra::internals::traverse::Granularity,
     always: bool,
     rays: impl FnOnce(&umbra::scene::Scene) -> Vec<umbra::Ray>,
@@ -115,22 +80,23 @@ pub fn load_scene_for(
     } else {
         umbra::scene::file::LAZY_MIN_BYTES
     };
-    let (scene, r) = umbra::scene::file::load_for_rays(file, opts, interp, gran, from, rays)
-        .map_err(|e| load_error(e, file, opts))?;
-    warn_sanitized(file, &scene);
+    let (scene, r) = source
+        .load_for_rays(gran, from, rays)
+        .map_err(|e| load_error(e, source))?;
+    warn_sanitized(source.path(), &scene);
     Ok((scene, r))
 }
 
-fn load_error(e: umbra::Error, file: &Path, opts: &umbra::scene::SceneOptions) -> anyhow::Error {
+fn load_error(e: umbra::Error, source: &umbra::input::Source) -> anyhow::Error {
     match e {
         umbra::Error::InvalidArgument { .. } => anyhow::Error::from(flag_error(e)),
-        other if umbra::input::InputKind::of(file).is_scene_file() => {
+        other if source.kind().is_scene_file() => {
             anyhow::Error::from(other).context("loading the scene")
         }
-        other if umbra::input::InputKind::of(file).is_stage() => {
-            anyhow::Error::from(other).context("loading the shot")
+        other if source.kind().is_stage() => anyhow::Error::from(other).context("loading the shot"),
+        other => {
+            anyhow::Error::from(other).context(format!("loading grid '{}'", source.options().grid))
         }
-        other => anyhow::Error::from(other).context(format!("loading grid '{}'", opts.grid)),
     }
 }
 
@@ -298,74 +264,17 @@ impl umbra::progress::Progress for CliProgress {
     }
 }
 
-/// What a command reads of a USD stage input (`--frame`, `--volume`, `--field`, `--light`).
-#[derive(Debug, Clone, clap::Args)]
-pub struct StageArgs {
-    /// USD stage inputs: the time code to read (default: the stage's startTimeCode).
-    #[arg(long, allow_negative_numbers = true)]
-    pub frame: Option<f64>,
-    /// USD stage inputs: a Volume prim to trace, by path (repeatable; default: every active,
-    /// visible Volume).
-    #[arg(long, value_name = "PRIM")]
-    pub volume: Vec<String>,
-    /// USD stage inputs: the field a Volume's density is (field:NAME; default density).
-    #[arg(long, value_name = "NAME")]
-    pub field: Option<String>,
-    /// USD stage inputs: the UsdLux light, by prim path or name (default: the stage's only
-    /// light).
-    #[arg(long, value_name = "PRIM")]
-    pub light: Option<String>,
-}
-
-impl StageArgs {
-    /// Refuse stage options on an input that is not a stage.
-    pub fn check(&self, file: &Path) -> Result<()> {
-        if umbra::input::InputKind::of(file).is_stage() {
-            if let Some(f) = self.frame {
-                if !f.is_finite() {
-                    bail!("invalid argument '--frame': {f} is not a finite time code");
-                }
-            }
-            return Ok(());
-        }
-        let given = [
-            ("--frame", self.frame.is_some()),
-            ("--volume", !self.volume.is_empty()),
-            ("--field", self.field.is_some()),
-            ("--light", self.light.is_some()),
-        ];
-        if let Some((k, _)) = given.iter().find(|(_, g)| *g) {
-            bail!(
-                "invalid argument '{k}': applies to USD stages (.usd, .usda, .usdc, .usdz); {} \
-                 is not one",
-                file.display()
-            );
-        }
-        Ok(())
-    }
-
-    /// The library's selection.
-    pub fn selection(&self) -> umbra::usd::Selection {
-        umbra::usd::Selection {
-            time: self.frame,
-            volumes: self.volume.clone(),
-            field: self.field.clone().unwrap_or_else(|| "density".into()),
-            light: None,
-            velocity: None,
-        }
-    }
-
-    /// The stage light `--light` names (or the stage's only light), as umbra traces it, and
-    /// its prim path (the scene is read toward it: its shadow link).
-    pub fn light_of(&self, file: &Path) -> Result<(umbra::Light, String)> {
-        let shot = umbra::usd::lights_at(file, self.frame)?;
-        let (l, e) = shot.light(self.light.as_deref())?;
-        let light = match e {
-            umbra::usd::Emitter::Directional { dir } => umbra::Light::Directional { dir },
-            umbra::usd::Emitter::Point { pos } => umbra::Light::Point { pos },
-        };
-        Ok((light, l.prim.clone()))
-    }
+/// The stage light a source's `light` names (or the stage's only light), as umbra traces it,
+/// and its prim path (the scene is read toward it: its shadow link).
+pub fn light_of(source: &umbra::input::Source) -> Result<(umbra::Light, String)> {
+    let o = source.options();
+    let shot = umbra::usd::lights_at(source.path(), o.frame)?;
+    let (l, e) = shot.light(o.light.as_deref())?;
+    let light = match e {
+        umbra::usd::Emitter::Directional { dir } => umbra::Light::Directional { dir },
+        umbra::usd::Emitter::Point { pos } => umbra::Light::Point { pos },
+    };
+    Ok((light, l.prim.clone()))
 }
 
 /// A number as a person reads it: integers plainly, others with 6 significant digits

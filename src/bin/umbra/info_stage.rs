@@ -9,7 +9,7 @@ use std::path::Path;
 use umbra::usd::{Emitter, StageLight};
 
 /// The stage's report as JSON (what `--json` prints; the text form is drawn from it).
-fn report(file: &Path, stage: &crate::common::StageArgs) -> Result<Value> {
+fn report(file: &Path, stage: &crate::cmd_info::StageArgs) -> Result<Value> {
     if stage.light.is_some() {
         bail!("invalid argument '--light': info lists every light of the stage");
     }
@@ -102,7 +102,7 @@ fn shadow_line(s: &Value) -> String {
 }
 
 /// Print the stage's report (text, or JSON with `json`).
-pub fn print(file: &Path, stage: &crate::common::StageArgs, json: bool) -> Result<()> {
+pub fn print(file: &Path, stage: &crate::cmd_info::StageArgs, json: bool) -> Result<()> {
     let r = report(file, stage)?;
     let mut out = std::io::stdout().lock();
     if json {

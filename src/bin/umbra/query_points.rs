@@ -48,7 +48,7 @@ pub fn parse_frames(s: &str) -> std::result::Result<Frames, String> {
 /// Answer, print and write the layer.
 pub fn run(
     s: &Spec<'_>,
-    scene: &umbra::scene::SceneOptions,
+    source: &umbra::input::Source,
     est: &Estimator,
     opts: &Options,
 ) -> Result<ExitCode> {
@@ -96,7 +96,7 @@ pub fn run(
         let _ = out.flush();
     };
     let answers =
-        umbra::internals::points::point_transmittance(&q, scene, est, opts, &mut print_frame)
+        umbra::internals::points::point_transmittance(&q, source, est, opts, &mut print_frame)
             .map_err(crate::common::flag_error)?;
     for w in &answers.warnings {
         eprintln!("umbra: warning: {w}");

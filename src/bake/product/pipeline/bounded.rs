@@ -38,16 +38,13 @@ impl BakeJob {
         };
         self.check_outputs()?;
         self.settings.validate()?;
-        if crate::input::InputKind::of(&self.input).is_scene_file()
-            || self.sigma_t.is_some()
-            || self.motion.is_some()
-        {
+        if self.source.kind().is_scene_file() || self.sigma_t().is_some() || self.moving() {
             // Scenes, colour maps and blurred maps load whole (a velocity moves density
             // anywhere its reach allows).
             return Ok(None);
         }
-        let file = crate::input::GridFile::open(&self.input)?;
-        let Some(mut lazy) = file.lazy(&self.grid)? else {
+        let file = crate::input::GridFile::open(self.source.path())?;
+        let Some(mut lazy) = file.lazy(&self.source.options().grid)? else {
             // A format without partial reads loads whole, as scenes do.
             return Ok(None);
         };
@@ -127,7 +124,7 @@ impl BakeJob {
             Some(b) => Some((b, false)),
             None if self.product == Product::Map
                 && self.is_exact_sweep()
-                && file_len(&self.input) >= IMPLIED_MIN_FILE =>
+                && file_len(self.source.path()) >= IMPLIED_MIN_FILE =>
             {
                 Some((IMPLIED_BUDGET, true))
             }
@@ -182,7 +179,7 @@ impl BakeJob {
                     "{} is below what baking {} needs: at least {} in parts (its topology, the \
                      image, {what}; opening it takes {}; the whole grid and the image need {})",
                     mib(z.budget),
-                    self.input.display(),
+                    self.source.path().display(),
                     mib(least),
                     mib(z.opening),
                     mib(z.whole)
@@ -212,7 +209,7 @@ impl BakeJob {
         let volume_of = |g: crate::vdb::Grid| self.volume_of(g);
         let Some(shell) = plan.shell.fogs().first().map(crate::scene::Fog::volume) else {
             return Err(Error::Invalid {
-                path: self.input.clone(),
+                path: self.source.path().to_path_buf(),
                 reason: "the grid's shell is not a fog volume".into(),
             });
         };
@@ -232,7 +229,7 @@ impl BakeJob {
                     name: "max-memory".into(),
                     reason: format!(
                         "{} does not fit and this map cannot be swept in parts",
-                        self.input.display()
+                        self.source.path().display()
                     ),
                 });
             };

@@ -40,16 +40,14 @@ impl BakeError {
         }
     }
 
-    /// A load error of `input` (grid `grid`): in the context of loading it, unless it is about
+    /// A load error of `source` (its grid): in the context of loading it, unless it is about
     /// an argument or an output, which speak for themselves.
     #[must_use]
-    pub fn loading(input: &std::path::Path, grid: &str, error: Error) -> Self {
+    pub fn loading(source: &crate::input::Source, error: Error) -> Self {
         let context = match error {
             Error::Output { .. } | Error::Exists { .. } | Error::InvalidArgument { .. } => None,
-            _ if crate::input::InputKind::of(input).is_scene_file() => {
-                Some("loading the scene".to_string())
-            }
-            _ => Some(format!("loading grid '{grid}'")),
+            _ if source.kind().is_scene_file() => Some("loading the scene".to_string()),
+            _ => Some(format!("loading grid '{}'", source.options().grid)),
         };
         Self {
             step: Step::Load,

@@ -8,7 +8,7 @@ use crate::bake::{bake_scene, BakeSettings, Camera, Map, Provenance, View};
 use crate::error::{Error, Result};
 use crate::output::{check_writable, Staged};
 use crate::progress::{Progress, Silent, Work};
-use crate::scene::{Scene, SceneOptions};
+use crate::scene::Scene;
 use std::path::PathBuf;
 
 mod bounded;
@@ -24,21 +24,10 @@ pub use warning::{
 /// One bake from a file to an EXR map (and optionally a PNG preview).
 #[derive(Debug, Clone, PartialEq)]
 pub struct BakeJob {
-    /// The `.vdb` file, or a `.toml` scene file ([`crate::scene::file`]).
-    pub input: PathBuf,
-    /// Grid to trace (a `.vdb` input).
-    pub grid: String,
-    /// `mu_t = density_scale x value` (multiplies a scene's own scales).
-    pub density_scale: f64,
-    /// Where the volume sits in the shot (world-from-object), applied after loading (after a
-    /// scene's own transforms).
-    pub xform: Option<crate::xform::Xform>,
-    /// Extinction colour: an RGB map with `mu_c = sigma_t[c] x density_scale x value`.
-    pub sigma_t: Option<[f64; 3]>,
-    /// Trace a level-set grid of a `.vdb` input as an opaque solid (`--levelset solid`).
-    pub levelset_solid: bool,
-    /// What a USD stage input is read at (time code, volumes, field); ignored otherwise.
-    pub stage: crate::usd::Selection,
+    /// What the bake reads: the input (a grid file, a scene file or a USD stage), its kind,
+    /// and how it is read (grid, scale, colour, placement, level sets, stage selection,
+    /// motion).
+    pub source: crate::input::Source,
     /// Camera request.
     pub view: View,
     /// A fixed camera (an earlier map's, or one shared by a sequence): used as it is instead
@@ -60,9 +49,6 @@ pub struct BakeJob {
     pub max_memory: Option<u64>,
     /// What `output` holds: a flat map (the default) or a deep map.
     pub product: Product,
-    /// Motion blur from a velocity grid of the input (`crate::motion`); such a grid is
-    /// loaded whole and its map traced ray by ray.
-    pub motion: Option<crate::motion::MotionRequest>,
 }
 
 /// What a bake writes at its output.
@@ -194,7 +180,7 @@ impl BakeJob {
         let check = |e| BakeError::at(Step::Check, e);
         self.check_outputs().map_err(check)?;
         self.settings.validate().map_err(check)?;
-        let load = |e| BakeError::loading(&self.input, &self.grid, e);
+        let load = |e| BakeError::loading(&self.source, e);
         let bake = |e| BakeError::at(Step::Bake, e);
         let traced = match self.plan_bounded().map_err(load)? {
             Some(plan) => self.trace_bounded(plan, progress).map_err(bake)?,
@@ -283,8 +269,8 @@ impl BakeJob {
 
     /// The grid `g` of the input as this job traces it (density scale, transform).
     fn volume_of(&self, g: crate::vdb::Grid) -> Result<crate::Volume> {
-        let mut v = crate::Volume::new(g, self.density_scale, &self.input)?;
-        if let Some(x) = &self.xform {
+        let mut v = crate::Volume::new(g, self.density_scale(), self.source.path())?;
+        if let Some(x) = &self.source.xform()? {
             v = v.with_xform(x)?;
         }
         Ok(v)
@@ -300,7 +286,7 @@ impl BakeJob {
     pub fn prepare(&self) -> Result<(Scene, Camera)> {
         self.check_outputs()?;
         self.settings.validate()?;
-        let scene = crate::scene::load(&self.input, &self.scene_options())?;
+        let scene = self.source.load()?;
         let camera = match self.camera {
             Some(c) => c,
             None => Camera::frame(&self.view, &scene.box_corners()?)?,
@@ -308,18 +294,22 @@ impl BakeJob {
         Ok((scene, camera))
     }
 
-    /// How [`BakeJob::prepare`] reads the input.
+    /// `mu_t = density_scale x value` (multiplies a scene's own scales): the source's.
     #[must_use]
-    pub fn scene_options(&self) -> SceneOptions {
-        SceneOptions {
-            grid: self.grid.clone(),
-            density_scale: self.density_scale,
-            sigma_t: self.sigma_t,
-            xform: self.xform,
-            levelset_solid: self.levelset_solid,
-            stage: self.stage.clone(),
-            motion: self.motion.clone(),
-        }
+    pub fn density_scale(&self) -> f64 {
+        self.source.options().density_scale
+    }
+
+    /// The extinction colour (an RGB map), the source's.
+    #[must_use]
+    pub fn sigma_t(&self) -> Option<[f64; 3]> {
+        self.source.options().sigma_t
+    }
+
+    /// Whether the source moves (a velocity grid is read).
+    #[must_use]
+    pub fn moving(&self) -> bool {
+        self.source.options().velocity.is_some()
     }
 
     /// [`BakeJob::run`] on a scene already loaded, kept by the caller (the Python module's
@@ -486,12 +476,12 @@ impl BakeJob {
         warnings.extend(solid_warnings(scene));
         warnings.extend(warning::motion_warnings(scene));
         if self.max_memory.is_some() {
-            let kind = crate::input::InputKind::of(&self.input);
+            let kind = self.source.kind();
             if kind.is_scene_file() {
                 warnings.push(Warning::MemoryBudgetIgnored {
                     what: "scene files",
                 });
-            } else if self.sigma_t.is_some() {
+            } else if self.sigma_t().is_some() {
                 warnings.push(Warning::MemoryBudgetIgnored {
                     what: "colour maps (--sigma-t)",
                 });
@@ -510,13 +500,13 @@ impl BakeJob {
         });
         // The map warnings speak of the density scale: a scene's largest extinction is
         // expressed per unit of it.
-        let v_max = if self.density_scale > 0.0 {
-            scene.mu_max() / self.density_scale
+        let v_max = if self.density_scale() > 0.0 {
+            scene.mu_max() / self.density_scale()
         } else {
             0.0
         };
         if scene.solids().is_empty() {
-            warnings.extend(map_warnings(&map, self.density_scale, v_max, diagonal));
+            warnings.extend(map_warnings(&map, self.density_scale(), v_max, diagonal));
         }
         // Framed here, a camera holds the whole box unless a frame box or a field of view
         // crops it (a frame box on purpose; a field of view is said, it may not be); a reused
@@ -548,13 +538,13 @@ impl BakeJob {
             }
         }
         let provenance = Provenance {
-            source_file: self.input.display().to_string(),
+            source_file: self.source.path().display().to_string(),
             grid: scene.grid_names(),
-            density_scale: self.density_scale,
+            density_scale: self.density_scale(),
             light_dir,
             light_pos,
-            xform: self.xform.map(|x| x.rows()),
-            sigma_t: self.sigma_t,
+            xform: self.source.xform().ok().flatten().map(|x| x.rows()),
+            sigma_t: self.sigma_t(),
         };
         if map.stats.capped > 0 {
             warnings.push(Warning::Capped {
