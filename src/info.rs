@@ -322,7 +322,8 @@ impl FileInfo {
     /// [`crate::error::Error::GridNotFound`]. A grid that cannot be decoded is reported with its
     /// error instead.
     pub fn read(path: &std::path::Path, grid: Option<&str>) -> crate::error::Result<Self> {
-        if crate::input::InputKind::of(path).is_scene_file() {
+        let source = crate::input::Source::new(path, crate::input::SourceOptions::default());
+        if source.kind().is_scene_file() {
             return Err(crate::error::Error::InvalidArgument {
                 name: "files".into(),
                 reason: format!(
@@ -332,7 +333,7 @@ impl FileInfo {
                 ),
             });
         }
-        if crate::input::InputKind::of(path) == crate::input::InputKind::Nvdb {
+        if source.kind() == crate::input::InputKind::Nvdb {
             return Self::read_nvdb(path, grid);
         }
         let archive = crate::vdb::open(path)?;

@@ -520,6 +520,48 @@ fn one_place_classifies_inputs() {
     );
 }
 
+/// The decision of what kind of input a path is, is made once, when its `input::Source` is
+/// made (and when `GridFile::open` picks a reader, or the USD reader tells a package): only
+/// `src/input/source.rs` and `src/input/grid_file.rs` call `InputKind::of`; every other file
+/// of the library, the binary and the Python module asks a `Source` (`source.kind()`).
+#[test]
+fn a_source_decides_its_kind_once() {
+    let found = hits(&["InputKind::of("], &[]);
+    check_allowed(
+        &found,
+        &[
+            (
+                "src/input/source.rs",
+                2,
+                "Source::new decides a source's kind; is_package tells the USD reader a package",
+            ),
+            (
+                "src/input/grid_file.rs",
+                1,
+                "GridFile::open picks the reader of a grid file's format",
+            ),
+        ],
+        "files deciding an input's kind (make a umbra::input::Source and ask its kind())",
+    );
+}
+
+/// A volume is set moving at one site, `scene::file::blurred` (which `Source::load` and a
+/// transmittance volume's load call): no other file calls `Volume::with_motion`.
+#[test]
+fn one_site_sets_a_volume_moving() {
+    let found = hits(&[".with_motion("], &[]);
+    check_allowed(
+        &found,
+        &[(
+            "src/scene/file.rs",
+            1,
+            "blurred: the velocity field read and the volume set moving",
+        )],
+        "files setting a volume moving (load a Source with the motion keys, or call \
+         scene::file::blurred)",
+    );
+}
+
 /// Nothing above the input layer opens a grid file but through `input::GridFile` (or
 /// `input::load_grid`), so a new grid format is read everywhere once `GridFile` knows it.
 #[test]

@@ -172,8 +172,11 @@ pub(crate) fn estimator_options_json() -> PyResult<String> {
     // query of a moving volume takes), in field order.
     let err = |e: serde_json::Error| raise(Class::Other, e.to_string());
     let text = serde_json::to_string(&EstimatorOptions::default()).map_err(err)?;
+    let params = serde_json::to_string(&umbra::request::EstimatorParams::default()).map_err(err)?;
     let read = serde_json::to_value(umbra::input::SourceOptions::default()).map_err(err)?;
     let mut out = text.trim_end_matches('}').to_string();
+    out.push(',');
+    out.push_str(params.trim_start_matches('{').trim_end_matches('}'));
     for (k, _) in umbra::input::SourceOptions::default().motion_keys() {
         let k = k.replace('-', "_");
         let v = serde_json::to_string(&read[k.as_str()]).map_err(err)?;

@@ -305,12 +305,11 @@ impl NativeVolume {
         let o = TraceOptions::from_json(options).map_err(py_err)?;
         // `regular` with a velocity is refused here, by the keyword.
         o.estimator.motion(&o.source).map_err(py_err)?;
-        let motion = o.source;
         let (est, opts) = o
             .estimator
-            .resolve(self.source.options().interp)
+            .resolve(&o.params, self.source.options().interp)
             .map_err(py_err)?;
-        let scene = self.scene_for(py, motion)?;
+        let scene = self.scene_for(py, o.source)?;
         let scene = &*scene;
         let cancel = AtomicBool::new(false);
         let work = || {

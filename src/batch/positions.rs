@@ -26,39 +26,32 @@ pub struct PositionsSpec {
     pub usd: String,
     /// The `Points` or `PointInstancer` prim (path).
     pub prim: String,
-    /// The stage light (a prim path or a name); the stage's only light when not given.
-    pub light: Option<String>,
     /// Inclusive frame range `[first, last]` (time codes, one task each; one frame:
     /// `[F, F]`); without it, the stage's start time code.
     pub frames: Option<[i64; 2]>,
     /// The `.usda` layer written: `float[] primvars:umbra:transmittance:<light>` on the prim,
     /// one time sample per frame. Per-frame answers go to `<stem>.points/<frame>.json` beside it.
     pub usd_out: String,
-    /// Estimator (default: `[bake]`'s).
-    pub estimator: Option<String>,
-    /// Samples per point (stochastic estimators; default: `[bake]`'s); alias spp.
-    #[serde(alias = "spp")]
-    pub samples: Option<u32>,
-    /// Seed (default: `[bake]`'s).
-    pub seed: Option<u64>,
-    /// Ray-marching step in voxels (default: `[bake]`'s).
-    pub step: Option<f64>,
-    /// Kernel width in voxels (default: `[bake]`'s).
-    pub kernel: Option<f64>,
-    /// Points per optical-depth estimate (default: `[bake]`'s).
-    pub points: Option<f64>,
-    /// Interpolation (default: `[bake]`'s).
-    pub interp: Option<crate::Interp>,
-    /// Majorant granularity (default: `[bake]`'s).
-    pub granularity: Option<crate::traverse::Granularity>,
-    /// One majorant for the whole grid (default: `[bake]`'s).
-    pub global_majorant: Option<bool>,
-    /// Density scale (default: `[bake]`'s).
-    pub density_scale: Option<f64>,
-    /// The stage's volumes to read, by prim path (default: `[bake]`'s; all).
-    pub volume: Option<Vec<String>>,
-    /// The volumes' field (default: `[bake]`'s; `density`).
-    pub field: Option<String>,
+    /// The entry's own read and estimator keys, over `[bake]`'s: any key of the read options
+    /// ([`crate::input::SourceOptions`]: `light`, the stage light (a prim path or a name; the
+    /// stage's only light when not given, not `[bake]`'s), `volume`, `field`,
+    /// `density_scale`, `interp`, the motion keys, ...), of the estimator options and of its
+    /// parameters ([`crate::request::TraceOptions`]), each declared there once; `frame` and
+    /// `xform` do not apply (`frames`; points stand in the world).
+    #[serde(flatten)]
+    #[cfg_attr(feature = "schema", schemars(with = "crate::request::TraceOptions"))]
+    pub overrides: serde_json::Map<String, serde_json::Value>,
+}
+
+impl PositionsSpec {
+    /// The stage light the entry names (its own `light` key).
+    #[must_use]
+    pub fn light(&self) -> Option<String> {
+        self.overrides
+            .get("light")
+            .and_then(|l| l.as_str())
+            .map(str::to_string)
+    }
 }
 
 /// One frame of one `[[positions]]` entry.
@@ -161,7 +154,7 @@ pub(super) fn tasks(
                 entry: i,
                 stage: resolve(&s.usd),
                 prim: s.prim.clone(),
-                light: s.light.clone(),
+                light: s.light(),
                 frame: f,
                 output: dir.join(format!("{f}.json")),
                 usd_out: usd_out.clone(),
@@ -243,7 +236,8 @@ fn frames_dir(usd_out: &Path) -> PathBuf {
     usd_out.with_file_name(format!("{stem}.points"))
 }
 
-/// `[bake]` with the entry's estimator and read keys, checked.
+/// `[bake]` with the entry's read and estimator keys over it, checked (errors name the
+/// entry's key).
 fn entry_options(
     path: &Path,
     key: &dyn Fn(&str) -> String,
@@ -251,27 +245,34 @@ fn entry_options(
     b: &BakeOptions,
     grid: &str,
 ) -> Result<BakeOptions, BatchError> {
+    let named = |e: crate::error::Error| match e {
+        crate::error::Error::InvalidArgument { name, reason } => {
+            err(path, &key(&name.replace('-', "_")), reason)
+        }
+        other => err(path, &key("estimator"), other),
+    };
+    for (k, why) in [
+        (
+            "frame",
+            "give the frames to answer with frames = [first, last]",
+        ),
+        (
+            "xform",
+            "does not apply to points, which stand in the world",
+        ),
+    ] {
+        if s.overrides.contains_key(k) {
+            return Err(err(path, &key(k), why));
+        }
+    }
+    // Only read and estimator keys, each of its type.
+    let keys = serde_json::Value::Object(s.overrides.clone()).to_string();
+    crate::request::TraceOptions::from_json(&keys).map_err(named)?;
     let mut o = b.clone();
     o.source.grid = grid.to_string();
     o.source.frame = None;
-    if let Some(v) = &s.estimator {
-        o.estimator.estimator.clone_from(v);
-    }
-    o.estimator.samples = s.samples.unwrap_or(o.estimator.samples);
-    o.estimator.seed = s.seed.unwrap_or(o.estimator.seed);
-    o.estimator.params.step = s.step.or(o.estimator.params.step);
-    o.estimator.params.kernel = s.kernel.or(o.estimator.params.kernel);
-    o.estimator.params.points = s.points.or(o.estimator.params.points);
-    o.source.interp = s.interp.unwrap_or(o.source.interp);
-    o.estimator.granularity = s.granularity.unwrap_or(o.estimator.granularity);
-    o.estimator.global_majorant = s.global_majorant.unwrap_or(o.estimator.global_majorant);
-    o.source.density_scale = s.density_scale.unwrap_or(o.source.density_scale);
-    if s.volume.is_some() {
-        o.source.volume.clone_from(&s.volume);
-    }
-    if s.field.is_some() {
-        o.source.field.clone_from(&s.field);
-    }
+    o.source.light = None;
+    let o = o.with_overrides(&s.overrides).map_err(named)?;
     if !(o.source.density_scale.is_finite() && o.source.density_scale >= 0.0) {
         return Err(err(
             path,
@@ -279,17 +280,8 @@ fn entry_options(
             format!("{} is not a finite scale >= 0", o.source.density_scale),
         ));
     }
-    let named = |e: crate::error::Error| match e {
-        crate::error::Error::InvalidArgument { name, reason } => {
-            err(path, &key(&name.replace('-', "_")), reason)
-        }
-        other => err(path, &key("estimator"), other),
-    };
     o.resolve_estimator().map_err(named)?;
     o.motion().map_err(named)?;
-    crate::input::Source::new(&s.usd, o.source.clone())
-        .xform()
-        .map_err(named)?;
     Ok(o)
 }
 

@@ -88,6 +88,13 @@ impl InputKind {
     }
 }
 
+/// Whether `path` names a USD package (`.usdz`): how the USD reader tells a layer or an
+/// asset read through a package (a path inside the input layer, not a job's input).
+#[must_use]
+pub fn is_package(path: &Path) -> bool {
+    InputKind::of(path).is_package()
+}
+
 /// What a job reads: its input's path, the kind of that input (decided when the source is
 /// made, [`InputKind::of`]) and how it is read ([`SourceOptions`]: the grid or stage
 /// selection, what the values mean, the placement, the motion). Every product takes one; the
@@ -197,20 +204,6 @@ impl Source {
             .as_deref()
             .map(crate::xform::Xform::from_row_major)
             .transpose()
-    }
-
-    /// What a USD stage input is read at: `frame`, `volume`, `field`, and `light`, whose
-    /// shadow link picks the volumes (the velocity field is the motion's: `None` here).
-    #[must_use]
-    pub fn stage_selection(&self) -> crate::usd::Selection {
-        let o = &self.options;
-        crate::usd::Selection {
-            time: o.frame,
-            volumes: o.volume.clone().unwrap_or_default(),
-            field: o.field.clone().unwrap_or_else(|| "density".into()),
-            light: o.light.clone(),
-            velocity: None,
-        }
     }
 }
 

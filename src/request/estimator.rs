@@ -38,10 +38,6 @@ pub struct EstimatorOptions {
     /// Seed of the random streams.
     #[cfg_attr(feature = "cli", arg(long, default_value_t = 0))]
     pub seed: u64,
-    /// The estimator's parameters (`step`, `kernel`, `points`).
-    #[cfg_attr(feature = "cli", command(flatten))]
-    #[serde(flatten)]
-    pub params: EstimatorParams,
     /// Majorant granularity of the HDDA (with a velocity: leaf, the blurred bounds per 8^3
     /// block).
     #[cfg_attr(feature = "cli", arg(long, value_enum, default_value = "leaf"))]
@@ -64,7 +60,6 @@ impl Default for EstimatorOptions {
             estimator: "regular".into(),
             samples: 64,
             seed: 0,
-            params: EstimatorParams::default(),
             granularity: Granularity::Leaf,
             global_majorant: false,
             colour_walk: ColourWalk::Auto,
@@ -81,7 +76,7 @@ impl EstimatorOptions {
     /// # Errors
     /// As above.
     pub fn from_json(text: &str) -> Result<Self> {
-        from_json_object(text)
+        from_json_object::<Strict<Self>>(text).map(|s| s.inner)
     }
 
     /// The motion blur `source` asks for ([`MotionRequest::of`]), checked against these
@@ -134,8 +129,12 @@ impl EstimatorOptions {
     /// # Errors
     /// [`crate::error::Error::InvalidArgument`] naming `estimator`, a parameter it does not take, or
     /// an option out of range.
-    pub fn resolve(&self, interp: Interp) -> Result<(Estimator, Options)> {
-        let estimator = self.params.apply(&self.estimator)?;
+    pub fn resolve(
+        &self,
+        params: &EstimatorParams,
+        interp: Interp,
+    ) -> Result<(Estimator, Options)> {
+        let estimator = params.apply(&self.estimator)?;
         let mut options = Options {
             interp,
             samples: self.samples,
@@ -200,6 +199,7 @@ impl EstimatorParams {
 /// functions take as keywords (besides their question), each key declared once in its own
 /// set.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
 #[serde(deny_unknown_fields, default)]
 pub struct TraceOptions {
     /// How the input is read.
@@ -208,6 +208,20 @@ pub struct TraceOptions {
     /// Which estimator answers.
     #[serde(flatten)]
     pub estimator: EstimatorOptions,
+    /// Its parameters.
+    #[serde(flatten)]
+    pub params: EstimatorParams,
+}
+
+impl TraceOptions {
+    /// The estimator these options select, with its parameters, for lookups by the read
+    /// options' `interp` ([`EstimatorOptions::resolve`]).
+    ///
+    /// # Errors
+    /// As [`EstimatorOptions::resolve`].
+    pub fn resolve(&self) -> Result<(Estimator, Options)> {
+        self.estimator.resolve(&self.params, self.source.interp)
+    }
 }
 
 impl TraceOptions {
@@ -230,13 +244,10 @@ struct Strict<T> {
     inner: T,
 }
 
-/// A set of options from a JSON object: a value of the wrong type or an unknown name is an
-/// [`Error::InvalidArgument`] naming that option (the first key that does not parse alone).
+/// A set of options from a JSON object: a value of the wrong type or an unknown name (for a
+/// set that denies them) is an [`Error::InvalidArgument`] naming that option (the first key
+/// that does not parse alone).
 pub(crate) fn from_json_object<T: DeserializeOwned>(text: &str) -> Result<T> {
-    from_json_strict::<Strict<T>>(text).map(|s| s.inner)
-}
-
-fn from_json_strict<T: DeserializeOwned>(text: &str) -> Result<T> {
     let bad = |name: &str, reason: &str| Error::InvalidArgument {
         name: name.into(),
         reason: reason.into(),
@@ -285,9 +296,10 @@ mod tests {
     #[test]
     fn keys_and_resolution() {
         let o: EstimatorOptions =
-            serde_json::from_str(r#"{"estimator": "riemann", "spp": 3, "step": 0.5}"#).unwrap();
-        assert_eq!((o.samples, o.params.step), (3, Some(0.5)));
-        let (e, opts) = o.resolve(Interp::Nearest).unwrap();
+            serde_json::from_str(r#"{"estimator": "riemann", "spp": 3}"#).unwrap();
+        let p: EstimatorParams = serde_json::from_str(r#"{"step": 0.5}"#).unwrap();
+        assert_eq!((o.samples, p.step), (3, Some(0.5)));
+        let (e, opts) = o.resolve(&p, Interp::Nearest).unwrap();
         // A deterministic estimator takes one sample whatever was asked, and says so.
         assert_eq!(
             (e.name(), opts.samples, opts.interp),
@@ -297,15 +309,12 @@ mod tests {
             estimator: "mc".into(),
             ..o.clone()
         };
-        assert_eq!(mc.resolve(Interp::Nearest).unwrap().1.samples, 3);
-        let bad = EstimatorOptions {
-            params: EstimatorParams {
-                kernel: Some(2.0),
-                ..o.params.clone()
-            },
-            ..o
+        assert_eq!(mc.resolve(&p, Interp::Nearest).unwrap().1.samples, 3);
+        let bad = EstimatorParams {
+            kernel: Some(2.0),
+            ..p
         };
-        let err = bad.resolve(Interp::Trilinear).unwrap_err().to_string();
+        let err = o.resolve(&bad, Interp::Trilinear).unwrap_err().to_string();
         assert!(err.contains("kernel"), "{err}");
         assert!(EstimatorOptions::from_json(r#"{"bogus": 1}"#).is_err());
         // Read alone, a set refuses another set's key; a bake's options take both.

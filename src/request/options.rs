@@ -8,7 +8,7 @@ use crate::estimate::{Estimator, Options};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 
-use super::estimator::{from_json_object, EstimatorOptions};
+use super::estimator::{from_json_object, EstimatorOptions, EstimatorParams};
 use super::{CameraSource, Framing};
 use crate::input::SourceOptions;
 
@@ -119,6 +119,10 @@ pub struct BakeOptions {
     #[cfg_attr(feature = "cli", command(flatten))]
     #[serde(flatten)]
     pub estimator: EstimatorOptions,
+    /// The estimator's parameters (`step`, `kernel`, `points`; [`EstimatorParams`]).
+    #[cfg_attr(feature = "cli", command(flatten))]
+    #[serde(flatten)]
+    pub params: EstimatorParams,
     /// Tracing order of a map: `auto` (object order where the sweep takes the map: exact,
     /// ray-marched and null-collision maps) or `rays` (one ray per pixel; a pixel of a
     /// null-collision map is then what `query --ray-id` answers).
@@ -172,6 +176,7 @@ impl Default for BakeOptions {
             target_error: None,
             max_spp: 65_536,
             estimator: EstimatorOptions::default(),
+            params: EstimatorParams::default(),
             order: Order::Auto,
             threads: 0,
             max_memory: None,
@@ -277,7 +282,7 @@ impl BakeOptions {
     /// # Errors
     /// [`Error::InvalidArgument`] naming `estimator` or a parameter it does not take.
     pub fn resolve_estimator(&self) -> Result<(Estimator, Options)> {
-        self.estimator.resolve(self.source.interp)
+        self.estimator.resolve(&self.params, self.source.interp)
     }
 
     /// The motion blur these options ask for, checked ([`EstimatorOptions::motion`]).
@@ -286,6 +291,45 @@ impl BakeOptions {
     /// As [`EstimatorOptions::motion`].
     pub fn motion(&self) -> Result<Option<crate::motion::MotionRequest>> {
         self.estimator.motion(&self.source)
+    }
+
+    /// These options with `keys` (a JSON object of options by name, as a job's `[[positions]]`
+    /// entry gives them) over them: each key replaces this set's value of it, an alias
+    /// (`spp`) its canonical key's (`samples`).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming a key that is no option of the set or whose value
+    /// does not parse.
+    pub fn with_overrides(
+        &self,
+        keys: &serde_json::Map<String, serde_json::Value>,
+    ) -> Result<Self> {
+        let Ok(serde_json::Value::Object(mut base)) = serde_json::to_value(self) else {
+            return Err(bad("options", "cannot be written as JSON"));
+        };
+        for (k, v) in keys {
+            base.insert(k.clone(), v.clone());
+        }
+        // serde knows the aliases: a key given as an alias and present under its canonical
+        // name is a duplicate, and the given one wins.
+        for _ in 0..=keys.len() {
+            match serde_json::from_value::<Self>(serde_json::Value::Object(base.clone())) {
+                Ok(o) => return Ok(o),
+                Err(e) => {
+                    let text = e.to_string();
+                    let dup = text
+                        .strip_prefix("duplicate field `")
+                        .and_then(|r| r.split('`').next())
+                        .filter(|d| !keys.contains_key(*d))
+                        .map(str::to_string);
+                    match dup {
+                        Some(d) if base.remove(&d).is_some() => {}
+                        _ => return from_json_object(&serde_json::Value::Object(base).to_string()),
+                    }
+                }
+            }
+        }
+        from_json_object(&serde_json::Value::Object(base).to_string())
     }
 
     /// The memory budget in bytes.

@@ -141,7 +141,7 @@ impl BakeRequest {
             let motion = o.motion()?;
             let sel = crate::usd::Selection {
                 velocity: motion.as_ref().map(|m| m.velocity.clone()),
-                ..source.stage_selection()
+                ..crate::usd::Selection::of(source.options())
             };
             let shot = crate::usd::read(&self.input, &sel)?;
             let v = shot.single_volume()?;

@@ -65,7 +65,7 @@ impl SceneOptions {
             sigma_t: o.sigma_t,
             xform: source.xform()?,
             levelset_solid: o.levelset == Some(crate::input::LevelSet::Solid),
-            stage: source.stage_selection(),
+            stage: crate::usd::Selection::of(source.options()),
             motion: crate::motion::MotionRequest::of(o)?,
         })
     }

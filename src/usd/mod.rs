@@ -105,6 +105,22 @@ pub struct Selection {
     pub velocity: Option<String>,
 }
 
+impl Selection {
+    /// What a source's read options `o` read of a stage: `frame`, `volume`, `field` (default
+    /// `density`), and `light`, whose shadow link picks the volumes (the velocity field is the
+    /// motion's: `None` here).
+    #[must_use]
+    pub fn of(o: &crate::input::SourceOptions) -> Self {
+        Self {
+            time: o.frame,
+            volumes: o.volume.clone().unwrap_or_default(),
+            field: o.field.clone().unwrap_or_else(|| "density".into()),
+            light: o.light.clone(),
+            velocity: None,
+        }
+    }
+}
+
 impl Default for Selection {
     fn default() -> Self {
         Self {
@@ -533,7 +549,7 @@ pub fn resolve_asset(authored: &str, layer: &str) -> Asset {
     if path.is_absolute() {
         return Asset::File(path.to_path_buf());
     }
-    let is_package = |l: &str| crate::input::InputKind::of(Path::new(l)).is_package();
+    let is_package = |l: &str| crate::input::is_package(Path::new(l));
     // A package's root layer is named by the package itself.
     let packaged = split_packaged(layer).or_else(|| is_package(layer).then_some((layer, "")));
     if let Some((outer, inner)) = packaged {

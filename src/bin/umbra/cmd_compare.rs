@@ -13,9 +13,6 @@ pub struct CompareArgs {
     /// The .vdb or .nvdb file, or a USD stage with one volume (or --volume naming one) at --frame
     /// (optional with --stress alone).
     file: Option<PathBuf>,
-    /// Grid to trace.
-    #[arg(long, default_value = "density", value_parser = clap::builder::NonEmptyStringValueParser::new())]
-    grid: String,
     /// Output directory for report.{csv,json,md} and error_vs_time.svg (and stress.*); created
     /// if missing (its parent must exist).
     #[arg(short = 'o', long = "output", visible_alias = "out")]
@@ -498,8 +495,8 @@ fn load(source: &umbra::input::Source) -> Result<(Volume, String)> {
             }
         );
     }
-    let shot =
-        umbra::usd::read(file, &source.stage_selection()).map_err(crate::common::flag_error)?;
+    let shot = umbra::usd::read(file, &umbra::usd::Selection::of(source.options()))
+        .map_err(crate::common::flag_error)?;
     let v = shot.single_volume().map_err(crate::common::flag_error)?;
     let scale = v.grey_scale().map_err(crate::common::flag_error)? * o.density_scale;
     let path = v.asset.open()?;

@@ -63,6 +63,8 @@ pub struct QueryArgs {
     load: LoadMode,
     #[command(flatten)]
     est: umbra::request::EstimatorOptions,
+    #[command(flatten)]
+    params: umbra::request::EstimatorParams,
     /// USD stage inputs: answer every point of this Points prim (`points`) or PointInstancer
     /// (`positions`), placed in the world at each frame, toward the stage light.
     #[arg(long, value_name = "PRIM")]
@@ -112,7 +114,7 @@ pub fn run(a: &QueryArgs) -> Result<ExitCode> {
         None => None,
     };
     let interp = a.source.interp;
-    let (est, opts) = a.est.resolve(interp).map_err(flag_error)?;
+    let (est, opts) = a.est.resolve(&a.params, interp).map_err(flag_error)?;
     a.est.motion(&a.source).map_err(flag_error)?;
     let mut source = umbra::input::Source::new(&a.file, a.source.clone());
     source.options_mut().light = toward;
@@ -306,7 +308,10 @@ fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
         (None, Some(f)) => vec![f],
         (None, None) => vec![umbra::usd::lights_at(&a.file, None)?.time],
     };
-    let (est, opts) = a.est.resolve(a.source.interp).map_err(flag_error)?;
+    let (est, opts) = a
+        .est
+        .resolve(&a.params, a.source.interp)
+        .map_err(flag_error)?;
     a.est.motion(&a.source).map_err(flag_error)?;
     let spec = crate::query_points::Spec {
         file: &a.file,

@@ -117,3 +117,28 @@ fn run(cli: Cli) -> Result<ExitCode> {
         Command::Estimators { json } => cmd_estimators::run(json),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    /// clap's own checks of every command's arguments (one id per flag: a flattened set of
+    /// options and a command's own flag cannot both declare a key), which release builds skip.
+    #[test]
+    fn every_command_passes_clap_checks() {
+        use clap::CommandFactory;
+        let mut cmd = super::Cli::command();
+        cmd.build();
+        for sub in cmd.get_subcommands() {
+            let mut ids: Vec<&str> = sub.get_arguments().map(|a| a.get_id().as_str()).collect();
+            let n = ids.len();
+            ids.sort_unstable();
+            ids.dedup();
+            assert_eq!(
+                ids.len(),
+                n,
+                "{}: an argument declared twice",
+                sub.get_name()
+            );
+        }
+        super::Cli::command().debug_assert();
+    }
+}
