@@ -8,7 +8,10 @@ use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 use std::path::PathBuf;
 use umbra::bake::{Channel, MapSummary};
-use umbra::request::{BakeOptions, BakeOutcome, BakeRequest, EstimatorOptions};
+use umbra::request::{
+    BakeOptions, BakeOutcome, BakeRequest, EstimatorOptions, PointsOutcome, QueryOutcome,
+    QueryRequest,
+};
 
 /// The `umbra info --json` report on `path` (every grid, or only `grid`), as JSON text.
 #[pyfunction]
@@ -280,26 +283,32 @@ pub(crate) fn usd_points_json(
     options: &str,
 ) -> PyResult<(String, Vec<String>)> {
     let o = BakeOptions::from_json(options).map_err(py_err)?;
-    let (est, opts) = o.estimator().map_err(py_err)?;
-    let scene = o.scene_options().map_err(py_err)?;
-    let answers = py
-        .detach(|| {
-            let frames = if frames.is_empty() {
-                vec![umbra::usd::lights_at(&stage, None)?.time]
-            } else {
-                frames
-            };
-            let q = umbra::internals::points::PointQuery {
-                stage: &stage,
-                prim: &prim,
-                light: light.as_deref(),
-                frames: &frames,
-            };
-            on_threads(o.threads, || {
-                umbra::internals::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})
-            })?
-        })
-        .map_err(py_err)?;
+    o.estimator().map_err(py_err)?;
+    let read = o.scene_options().map_err(py_err)?;
+    let request = QueryRequest {
+        positions: Some(prim),
+        frames: (!frames.is_empty()).then_some(frames),
+        read: umbra::scene::SceneOptions {
+            stage: umbra::usd::Selection {
+                light,
+                ..read.stage.clone()
+            },
+            ..read
+        },
+        interp: o.interp,
+        estimator: o.estimator_options(),
+        threads: o.threads,
+        ..QueryRequest::new(stage)
+    };
+    let outcome = py
+        .detach(|| request.run(&mut |_| {}))
+        .map_err(|e| py_err(e.error))?;
+    let QueryOutcome::Points(PointsOutcome { answers, .. }) = outcome else {
+        return Err(raise(
+            Class::Other,
+            "a positions query answered rays".into(),
+        ));
+    };
     let frames: Vec<serde_json::Value> = answers
         .frames
         .iter()

@@ -355,17 +355,30 @@ impl Job {
     /// # Errors
     /// [`BatchError::Task`] for any error reading the stage, estimating or writing.
     pub fn run_positions_task(&self, t: &PositionsTask) -> Result<usize, BatchError> {
-        let scene = t.scene()?;
-        let (est, opts) = t.options.estimator()?;
         #[allow(clippy::cast_precision_loss)]
-        let frames = [t.frame as f64];
-        let q = crate::points::PointQuery {
-            stage: &t.stage,
-            prim: &t.prim,
-            light: t.light.as_deref(),
-            frames: &frames,
+        let frame = t.frame as f64;
+        let o = &t.options;
+        let request = crate::request::QueryRequest {
+            positions: Some(t.prim.clone()),
+            frames: Some(vec![frame]),
+            read: crate::scene::SceneOptions {
+                stage: crate::usd::Selection {
+                    light: t.light.clone(),
+                    ..o.stage_selection()
+                },
+                ..o.scene_options()?
+            },
+            interp: o.interp,
+            estimator: o.estimator_options(),
+            // Tasks run one after another, each on every core.
+            threads: 0,
+            ..crate::request::QueryRequest::new(&t.stage)
         };
-        let answers = crate::points::point_transmittance(&q, &scene, &est, &opts, &mut |_| {})?;
+        let outcome = request.run(&mut |_| {}).map_err(|e| e.error)?;
+        let crate::request::QueryOutcome::Points(p) = outcome else {
+            return Ok(0);
+        };
+        let (answers, estimator) = (p.answers, p.estimator);
         let Some(f) = answers.frames.into_iter().next() else {
             return Ok(0);
         };
@@ -375,7 +388,7 @@ impl Job {
             type_name: answers.type_name,
             light: answers.light,
             light_name: answers.light_name,
-            estimator: est.name().to_string(),
+            estimator,
             frame: f.frame,
             transmittance: f.transmittance,
             std_err: f.std_err,

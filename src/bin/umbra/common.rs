@@ -1,9 +1,7 @@
-//! What the commands share: the estimator help, flag errors, vector parsing, loading with
-//! warnings, thread pools, progress bars.
+//! What the commands share: the estimator help, flag errors, vector parsing, progress bars.
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
 use std::path::Path;
-use umbra::bake::volume_warnings;
 
 /// A library argument error, with its name spelled as the flag: the library names an option in
 /// kebab case (`deep-error`), the command line types `--deep-error`.
@@ -11,6 +9,10 @@ pub fn flag_error(e: umbra::Error) -> umbra::Error {
     match e {
         umbra::Error::InvalidArgument { name, reason } => umbra::Error::InvalidArgument {
             name: flag(&name),
+            reason,
+        },
+        umbra::Error::Conflict { names, reason } => umbra::Error::Conflict {
+            names: names.iter().map(|n| flag(n)).collect(),
             reason,
         },
         other => other,
@@ -89,67 +91,6 @@ pub fn parse_xform(s: &str) -> std::result::Result<umbra::internals::xform::Xfor
         umbra::Error::InvalidArgument { reason, .. } => reason,
         other => other.to_string(),
     })
-}
-
-/// Load a `.vdb` grid or a `.toml` scene for tracing, warning about voxels the bad-voxel
-/// policy changed.
-pub fn load_scene(file: &Path, opts: &umbra::scene::SceneOptions) -> Result<umbra::scene::Scene> {
-    let scene = umbra::scene::load(file, opts).map_err(|e| load_error(e, file, opts))?;
-    warn_sanitized(file, &scene);
-    Ok(scene)
-}
-
-/// [`load_scene`] for a job whose rays `rays` makes from the scene's boxes: a `.vdb` is read
-/// lazily and only the leaves those rays touch are decoded (`umbra::scene::file::load_for_rays`;
-/// `always`: however small the grid).
-pub fn load_scene_for(
-    file: &Path,
-    opts: &umbra::scene::SceneOptions,
-    interp: umbra::Interp,
-    gran: umbra::internals::traverse::Granularity,
-    always: bool,
-    rays: impl FnOnce(&umbra::scene::Scene) -> Vec<umbra::Ray>,
-) -> Result<(umbra::scene::Scene, Vec<umbra::Ray>)> {
-    let from = if always {
-        0
-    } else {
-        umbra::scene::file::LAZY_MIN_BYTES
-    };
-    let (scene, r) = umbra::scene::file::load_for_rays(file, opts, interp, gran, from, rays)
-        .map_err(|e| load_error(e, file, opts))?;
-    warn_sanitized(file, &scene);
-    Ok((scene, r))
-}
-
-fn load_error(e: umbra::Error, file: &Path, opts: &umbra::scene::SceneOptions) -> anyhow::Error {
-    match e {
-        umbra::Error::InvalidArgument { .. } => anyhow::Error::from(flag_error(e)),
-        other if umbra::input::InputKind::of(file).is_scene_file() => {
-            anyhow::Error::from(other).context("loading the scene")
-        }
-        other if umbra::input::InputKind::of(file).is_stage() => {
-            anyhow::Error::from(other).context("loading the shot")
-        }
-        other => anyhow::Error::from(other).context(format!("loading grid '{}'", opts.grid)),
-    }
-}
-
-fn warn_sanitized(file: &Path, scene: &umbra::scene::Scene) {
-    let mut warnings = volume_warnings(&scene.sanitized());
-    warnings.extend(umbra::bake::solid_warnings(scene));
-    warnings.extend(umbra::bake::motion_warnings(scene));
-    for w in warnings {
-        eprintln!("umbra: warning: {}: {w}", file.display());
-    }
-}
-
-/// A rayon pool of `threads` workers (0: as many as cores).
-pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
-    umbra::bake::check_threads(threads).map_err(flag_error)?;
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("starting worker threads")
 }
 
 /// A progress bar on stderr over `len` units with `template` (indicatif syntax), hidden with
@@ -353,18 +294,6 @@ impl StageArgs {
             light: None,
             velocity: None,
         }
-    }
-
-    /// The stage light `--light` names (or the stage's only light), as umbra traces it, and
-    /// its prim path (the scene is read toward it: its shadow link).
-    pub fn light_of(&self, file: &Path) -> Result<(umbra::Light, String)> {
-        let shot = umbra::usd::lights_at(file, self.frame)?;
-        let (l, e) = shot.light(self.light.as_deref())?;
-        let light = match e {
-            umbra::usd::Emitter::Directional { dir } => umbra::Light::Directional { dir },
-            umbra::usd::Emitter::Point { pos } => umbra::Light::Point { pos },
-        };
-        Ok((light, l.prim.clone()))
     }
 }
 
