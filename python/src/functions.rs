@@ -3,7 +3,6 @@
 
 use crate::errors::*;
 use crate::native::*;
-use crate::trace::*;
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 use std::path::PathBuf;
