@@ -99,7 +99,7 @@ pub struct QueryError {
     /// The error.
     pub error: Error,
     /// The input's warnings, when it was read before the failure.
-    pub load_warnings: Vec<Warning>,
+    pub load_warnings: Box<[Warning]>,
 }
 
 impl QueryError {
@@ -109,7 +109,7 @@ impl QueryError {
             step,
             context: None,
             error,
-            load_warnings: Vec::new(),
+            load_warnings: Box::default(),
         }
     }
 
@@ -257,7 +257,7 @@ impl QueryRequest {
         let (scene, rays) = self.load_scene(read, opts, make_rays)?;
         let load_warnings = load_warnings(&scene);
         let with_warnings = |e: QueryError| QueryError {
-            load_warnings: load_warnings.clone(),
+            load_warnings: load_warnings.clone().into(),
             ..e
         };
         if let Some(e) = ray_error {
