@@ -121,6 +121,26 @@ pub enum Error {
         /// Why it is invalid.
         reason: String,
     },
+    /// Caller-supplied options that do not go together, or one given without another it
+    /// needs. `names` are the options in the library's spelling (kebab case) and `reason`
+    /// names them as `{0}`, `{1}`, ... (its display fills them in), so that each front end
+    /// respells every name as its user types it, as for [`Error::InvalidArgument`].
+    #[error("{}", fill_names(reason, names))]
+    Conflict {
+        /// The options the reason names, in the library's spelling.
+        names: Vec<String>,
+        /// Why they conflict, with `{i}` where `names[i]` goes.
+        reason: String,
+    },
+}
+
+/// `template` with `{i}` replaced by `names[i]` (the last first, so `{1}` never eats `{10}`).
+fn fill_names(template: &str, names: &[String]) -> String {
+    let mut s = template.to_string();
+    for (i, n) in names.iter().enumerate().rev() {
+        s = s.replace(&format!("{{{i}}}"), n);
+    }
+    s
 }
 
 /// A decoding error without a path: the byte reader and decoders produce these, and

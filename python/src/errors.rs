@@ -29,7 +29,7 @@ pub(crate) fn class_of(e: &umbra::Error) -> Class {
         | E::Output { .. }
         | E::Exists { .. }
         | E::Scene { .. } => Class::File,
-        E::InvalidArgument { .. } | E::GridNotFound { .. } => Class::Argument,
+        E::InvalidArgument { .. } | E::Conflict { .. } | E::GridNotFound { .. } => Class::Argument,
         _ => Class::Other,
     }
 }
@@ -70,6 +70,10 @@ pub(crate) fn py_worded(e: umbra::Error) -> umbra::Error {
     match e {
         umbra::Error::InvalidArgument { name, reason } => umbra::Error::InvalidArgument {
             name: name.trim_start_matches("--").replace('-', "_"),
+            reason,
+        },
+        umbra::Error::Conflict { names, reason } => umbra::Error::Conflict {
+            names: names.iter().map(|n| n.replace('-', "_")).collect(),
             reason,
         },
         umbra::Error::Exists { path } => umbra::Error::Output {

@@ -3,12 +3,14 @@
 
 use crate::errors::*;
 use crate::native::*;
-use crate::trace::*;
 use numpy::PyReadonlyArray1;
 use pyo3::prelude::*;
 use std::path::PathBuf;
 use umbra::bake::{Channel, MapSummary};
-use umbra::request::{BakeOptions, BakeOutcome, BakeRequest, EstimatorOptions};
+use umbra::request::{
+    BakeOptions, BakeOutcome, BakeRequest, EstimatorOptions, PointsOutcome, QueryOutcome,
+    QueryRequest,
+};
 
 /// The `umbra info --json` report on `path` (every grid, or only `grid`), as JSON text.
 #[pyfunction]
@@ -294,28 +296,26 @@ pub(crate) fn usd_points_json(
     options: &str,
 ) -> PyResult<(String, Vec<String>)> {
     let o = BakeOptions::from_json(options).map_err(py_err)?;
-    let (est, opts) = o.resolve_estimator().map_err(py_err)?;
-    o.motion().map_err(py_err)?;
-    let source = umbra::input::Source::new(&stage, o.source.clone());
-    source.xform().map_err(py_err)?;
-    let answers = py
-        .detach(|| {
-            let frames = if frames.is_empty() {
-                vec![umbra::usd::lights_at(&stage, None)?.time]
-            } else {
-                frames
-            };
-            let q = umbra::internals::points::PointQuery {
-                stage: &stage,
-                prim: &prim,
-                light: light.as_deref(),
-                frames: &frames,
-            };
-            on_threads(o.threads, || {
-                umbra::internals::points::point_transmittance(&q, &source, &est, &opts, &mut |_| {})
-            })?
-        })
-        .map_err(py_err)?;
+    o.resolve_estimator().map_err(py_err)?;
+    let mut source = umbra::input::Source::new(&stage, o.source.clone());
+    source.options_mut().light = light;
+    let request = QueryRequest {
+        positions: Some(prim),
+        frames: (!frames.is_empty()).then_some(frames),
+        estimator: o.estimator.clone(),
+        params: o.params.clone(),
+        threads: o.threads,
+        ..QueryRequest::new(source)
+    };
+    let outcome = py
+        .detach(|| request.run(&mut |_| {}))
+        .map_err(|e| py_err(e.error))?;
+    let QueryOutcome::Points(PointsOutcome { answers, .. }) = outcome else {
+        return Err(raise(
+            Class::Other,
+            "a positions query answered rays".into(),
+        ));
+    };
     let frames: Vec<serde_json::Value> = answers
         .frames
         .iter()

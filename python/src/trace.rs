@@ -9,7 +9,7 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use umbra::estimate::{Estimator, Options};
-use umbra::request::TraceOptions;
+use umbra::request::{QueryTally, TraceOptions};
 use umbra::{Interp, Ray};
 
 pub(crate) fn parse_interp(s: &str) -> PyResult<Interp> {
@@ -96,10 +96,8 @@ pub(crate) struct Traced {
     t: Vec<f64>,
     err: Vec<f64>,
     tau: Vec<f64>,
-    capped: u64,
-    violations: u64,
-    /// Rows whose ray met an active voxel (walked a segment, hit a solid or lost light).
-    met: u64,
+    /// What the answers tell their user (the library's tally, as `umbra query` counts).
+    tally: QueryTally,
 }
 
 /// Rows handed to the library in one call by `trace_rays` for exact answers (their rays held
@@ -109,21 +107,17 @@ pub(crate) const ROWS_PER_CALL: usize = 65_536;
 /// is seen between calls within a fraction of a second even at many samples.
 pub(crate) const ROWS_PER_CALL_BY_RAY: usize = 1_024;
 
-/// Counters and the first failure (lowest row) of a batch.
+/// The library's tally of the answers and the first failure (lowest row) of a batch.
 #[derive(Default)]
 pub(crate) struct Tally {
-    capped: u64,
-    violations: u64,
-    met: u64,
+    answers: QueryTally,
     failed: u64,
     first: Option<(usize, String)>,
 }
 
 impl Tally {
     pub(crate) fn merge(mut self, o: Self) -> Self {
-        self.capped += o.capped;
-        self.violations += o.violations;
-        self.met += o.met;
+        self.answers = self.answers.merge(o.answers);
         self.failed += o.failed;
         self.first = match (self.first, o.first) {
             (Some(a), Some(b)) => Some(if a.0 <= b.0 { a } else { b }),
@@ -197,8 +191,9 @@ impl NativeVolume {
     /// Trace `n` rays, row `row` along `ray_of(row)` with ray id `ray_id + row`; a ray that
     /// could not be made is its row's failure. Rows go in chunks of [`ROWS_PER_CALL`] (exact)
     /// or [`ROWS_PER_CALL_BY_RAY`]: each chunk's rays are made on the worker threads and handed
-    /// to the library together (`scene::estimate_many`: exact queries in batches on the SIMD
-    /// kernel), then dropped; Ctrl-C is seen between chunks.
+    /// to the library together (`umbra::request::answer_rows`, as `umbra query --rays` answers
+    /// its rows: exact queries in batches on the SIMD kernel), then dropped; Ctrl-C is seen
+    /// between chunks.
     #[allow(clippy::too_many_arguments)]
     pub(crate) fn trace_rays(
         &self,
@@ -224,23 +219,11 @@ impl NativeVolume {
             }
             let end = (start + per_call).min(n);
             let made: Vec<Result<Ray, String>> = (start..end).into_par_iter().map(ray_of).collect();
-            let (rays, ids): (Vec<Ray>, Vec<u64>) = made
-                .iter()
-                .enumerate()
-                .filter_map(|(k, r)| {
-                    let id = ray_id.wrapping_add((start + k) as u64);
-                    r.as_ref().ok().map(|r| (*r, id))
-                })
-                .unzip();
-            let mut answers =
-                umbra::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
-            for (k, made) in made.into_iter().enumerate() {
+            let first_id = ray_id.wrapping_add(start as u64);
+            let answers = umbra::request::answer_rows(scene, &made, first_id, est, opts);
+            for (k, r) in answers.into_iter().enumerate() {
                 let row = start + k;
                 let at = row * c..(row + 1) * c;
-                let r = made.and_then(|_| match answers.next() {
-                    Some(a) => a.map_err(|e| e.to_string()),
-                    None => Err("no answer for this row".to_string()),
-                });
                 let one = match r {
                     Ok(v) => {
                         t[at.clone()].copy_from_slice(&v.value[..c]);
@@ -249,13 +232,10 @@ impl NativeVolume {
                             Some(x) => tau[at].copy_from_slice(&x[..c]),
                             None => tau[at].fill(f64::NAN),
                         }
-                        let met = v.segments > 0
-                            || v.hit.is_some()
-                            || v.value[..c].iter().any(|x| *x != 1.0);
+                        let mut answers = QueryTally::default();
+                        answers.add(&v);
                         Tally {
-                            capped: v.capped,
-                            violations: v.majorant_violations,
-                            met: u64::from(met),
+                            answers,
                             ..Tally::default()
                         }
                     }
@@ -284,14 +264,12 @@ impl NativeVolume {
             t,
             err,
             tau,
-            capped: tally.capped,
-            violations: tally.violations,
-            met: tally.met,
+            tally: tally.answers,
         })
     }
 
     /// Estimate along `rows` rays (`ray_of(row)`) after the CLI's up-front checks (the
-    /// estimator, its options and the job's work budget). `options`: the estimator options
+    /// estimator, its options and the job's work budget, `umbra::request::check_budget`). `options`: the estimator options
     /// as JSON ([`EstimatorOptions::from_json`]).
     pub(crate) fn run<'py>(
         &self,
@@ -314,15 +292,7 @@ impl NativeVolume {
         let cancel = AtomicBool::new(false);
         let work = || {
             on_threads(threads, || {
-                for f in scene.fogs() {
-                    umbra::estimate::budget::check_job(
-                        f.volume(),
-                        &est,
-                        rows as u64,
-                        u64::from(opts.samples),
-                        "samples",
-                    )?;
-                }
+                umbra::request::check_budget(scene, &est, &opts, rows as u64)?;
                 Ok(self.trace_rays(scene, rows, &ray_of, &est, &opts, ray_id, &cancel))
             })
         };
@@ -339,26 +309,12 @@ impl NativeVolume {
         let shape = |v: Vec<f64>| -> PyResult<Bound<'py, PyArray2<f64>>> {
             PyArray1::from_vec(py, v).reshape([n, c])
         };
-        let mut warnings = Vec::new();
-        if traced.capped > 0 {
-            warnings.push(
-                umbra::bake::Warning::Capped {
-                    samples: traced.capped,
-                }
-                .to_string(),
-            );
-        }
-        if traced.violations > 0 {
-            warnings.push(
-                umbra::bake::Warning::MajorantViolations {
-                    lookups: traced.violations,
-                }
-                .to_string(),
-            );
-        }
-        if n > 0 && traced.met == 0 {
-            warnings.push(umbra::bake::Warning::MissedEveryVoxel { queries: n as u64 }.to_string());
-        }
+        let warnings = traced
+            .tally
+            .warnings()
+            .iter()
+            .map(ToString::to_string)
+            .collect();
         Ok((
             shape(traced.t)?,
             shape(traced.err)?,

@@ -352,17 +352,26 @@ impl Job {
     /// # Errors
     /// [`BatchError::Task`] for any error reading the stage, estimating or writing.
     pub fn run_positions_task(&self, t: &PositionsTask) -> Result<usize, BatchError> {
-        let source = t.source();
-        let (est, opts) = t.options.resolve_estimator()?;
         #[allow(clippy::cast_precision_loss)]
-        let frames = [t.frame as f64];
-        let q = crate::points::PointQuery {
-            stage: &t.stage,
-            prim: &t.prim,
-            light: t.light.as_deref(),
-            frames: &frames,
+        let frame = t.frame as f64;
+        let o = &t.options;
+        let mut source = t.source();
+        source.options_mut().light.clone_from(&t.light);
+        source.options_mut().frame = None;
+        let request = crate::request::QueryRequest {
+            positions: Some(t.prim.clone()),
+            frames: Some(vec![frame]),
+            estimator: o.estimator.clone(),
+            params: o.params.clone(),
+            // Tasks run one after another, each on every core.
+            threads: 0,
+            ..crate::request::QueryRequest::new(source)
         };
-        let answers = crate::points::point_transmittance(&q, &source, &est, &opts, &mut |_| {})?;
+        let outcome = request.run(&mut |_| {}).map_err(|e| e.error)?;
+        let crate::request::QueryOutcome::Points(p) = outcome else {
+            return Ok(0);
+        };
+        let (answers, estimator) = (p.answers, p.estimator);
         let Some(f) = answers.frames.into_iter().next() else {
             return Ok(0);
         };
@@ -372,7 +381,7 @@ impl Job {
             type_name: answers.type_name,
             light: answers.light,
             light_name: answers.light_name,
-            estimator: est.name().to_string(),
+            estimator,
             frame: f.frame,
             transmittance: f.transmittance,
             std_err: f.std_err,

@@ -35,6 +35,11 @@ use options::{bad, VOLUME_ONLY};
 pub use options::{parse_box, parse_size, BakeOptions, VOLUME_OPTIONS};
 mod options;
 mod plan;
+mod query;
+pub use query::{
+    answer_rows, check_budget, Answer, Answered, LoadMode, PointsOutcome, QueryError, QueryOutcome,
+    QueryRequest, QueryStep, QueryTally, RayAnswers, RayRow,
+};
 mod run;
 #[cfg(feature = "usd")]
 pub(crate) use run::shadow_sample;

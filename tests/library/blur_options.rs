@@ -10,7 +10,6 @@ use glam::DVec3;
 use umbra::estimate::{estimate, Estimator, Options};
 use umbra::internals::tree::TreeBuilder;
 use umbra::regular::optical_depth;
-use umbra::request::EstimatorOptions;
 use umbra::volume::{MotionSpec, VelocityField};
 use umbra::{Interp, Ray, Volume};
 

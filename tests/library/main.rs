@@ -32,6 +32,7 @@ mod nvdb;
 mod nvdb32;
 mod omni;
 mod oracle_corpus;
+mod query_request;
 mod readme;
 mod regular_tracking;
 mod scene;

@@ -1,15 +1,13 @@
 //! `umbra query`: what does the cloud attenuate along a segment, toward a light, or along
 //! thousands of segments from a CSV file?
 
-use crate::common::{flag_error, load_scene, load_scene_for, parse_vec3, thread_pool};
+use crate::common::{flag_error, parse_vec3};
 use anyhow::{anyhow, bail, Context, Result};
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use umbra::bake::Warning;
-use umbra::estimate::{Estimator, Options};
-use umbra::scene::{Scene, SceneEstimate};
-use umbra::{Interp, Light, Ray};
+use umbra::request::{LoadMode, QueryOutcome, QueryRequest, RayAnswers, RayRow};
+use umbra::{Interp, Ray};
 
 /// Arguments of `umbra query`.
 #[derive(Debug, clap::Args)]
@@ -41,7 +39,7 @@ pub struct QueryArgs {
     /// line is answered.
     #[arg(long)]
     rays: Option<PathBuf>,
-    /// How FILE is read: grid or stage selection (the stage light --at is toward),
+    /// How FILE is read: grid or stage selection (--light: the stage light --at is toward),
     /// interpolation, scale, colour, level sets, placement (positions stay in world space),
     /// motion.
     #[command(flatten)]
@@ -81,268 +79,69 @@ pub struct QueryArgs {
     force: bool,
 }
 
-/// `--load`: how much of a grid a query decodes.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum LoadMode {
-    /// Lazy for large grids, whole for small ones.
-    Auto,
-    /// Only the leaves the rays touch.
-    Lazy,
-    /// The whole grid.
-    Eager,
-}
-
-/// One answered (or failed) query.
-struct Answer {
-    line: Option<usize>,
-    result: Result<(Ray, SceneEstimate, f64), String>,
-}
-
-/// Run the query and print the answer(s): check the flags, load what the rays cross, answer.
+/// Run the query through the library's one entry point ([`QueryRequest::run`]) and print the
+/// answer(s). The flags are checked before a file of rays is read, and that file before the
+/// (possibly slow) load, so a missing file fails fast.
 pub fn run(a: &QueryArgs) -> Result<ExitCode> {
-    if let Some(prim) = &a.positions {
-        return run_points(a, prim);
+    let mut request = request(a);
+    request.check().map_err(flag_error)?;
+    if let Some(p) = &a.rays {
+        request.rays = Some(read_rays(p)?);
     }
-    let Asked {
-        single,
-        light,
-        toward,
-    } = asked(a)?;
-    // Read the batch before the (possibly slow) load so a missing file fails fast.
-    let batch = match &a.rays {
-        Some(p) => Some(read_rays(p)?),
-        None => None,
-    };
-    let interp = a.source.interp;
-    let (est, opts) = a.est.resolve(&a.params, interp).map_err(flag_error)?;
-    a.est.motion(&a.source).map_err(flag_error)?;
-    let mut source = umbra::input::Source::new(&a.file, a.source.clone());
-    source.options_mut().light = toward;
-    let pool = thread_pool(a.threads)?;
-    // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray
-    // that cannot be made keeps its error here and asks for nothing to be decoded.
-    let mut ray_error = None;
-    let make_rays = |scene: &Scene| -> Vec<Ray> {
-        if let Some(rows) = &batch {
-            return rows
-                .iter()
-                .filter_map(|(_, r)| r.as_ref().ok().copied())
-                .collect();
+    let json = a.json;
+    let mut on_frame = |f: &umbra::internals::points::PointFrame| {
+        if !json {
+            crate::query_points::print_frame(f);
         }
-        let ray = match (single, a.at, light) {
-            (Some((from, to)), _, _) => Ray::between(from, to),
-            (None, Some(at), Some(l)) => l.ray_from_scene(scene, at),
-            _ => return Vec::new(),
-        };
-        ray.map_err(|e| ray_error = Some(e)).into_iter().collect()
     };
-    let (scene, rays) = pool.install(|| load(a, &source, &opts, make_rays))?;
-    if let Some(e) = ray_error {
-        return Err(e.into());
-    }
-    // The work budget, up front: per ray and for every ray of the batch together.
-    let n_rays = batch.as_ref().map_or(1, Vec::len) as u64;
-    for f in scene.fogs() {
-        umbra::estimate::budget::check_job(
-            f.volume(),
-            &est,
-            n_rays,
-            u64::from(opts.samples),
-            "samples",
-        )
-        .map_err(flag_error)?;
-    }
-    let answers: Vec<Answer> = if let Some(rows) = batch {
-        pool.install(|| answer_rows(&scene, &rows, &rays, a.ray_id, (&est, &opts)))
-    } else {
-        let Some(ray) = rays.first() else {
-            bail!("nothing to query");
-        };
-        let r = answer(&scene, ray, a.ray_id, &est, &opts)?;
-        vec![Answer {
-            line: None,
-            result: Ok(r),
-        }]
-    };
-    print_answers(&answers, est.name(), interp, a.json)
-}
-
-/// What a query asks, from its flags: a segment, or a light (and the stage light it is, whose
-/// shadow link picks the volumes) for `--at`.
-struct Asked {
-    single: Option<([f64; 3], [f64; 3])>,
-    light: Option<Light>,
-    toward: Option<String>,
-}
-
-/// The flags checked against each other: exactly one of a segment, a point toward a light, or
-/// a file of rays; `--frames`, `--usd-out` and `--force` only with `--positions`.
-fn asked(a: &QueryArgs) -> Result<Asked> {
-    for (flag, given) in [
-        ("--frames", a.frames.is_some()),
-        ("--usd-out", a.usd_out.is_some()),
-        ("--force", a.force),
-    ] {
-        if given {
-            bail!("invalid argument '{flag}': goes with --positions PRIM");
+    let outcome = request.run(&mut on_frame).map_err(|e| {
+        warn_input(&a.file, &e.load_warnings);
+        let e = e.worded(flag_error);
+        match e.context {
+            Some(c) => anyhow::Error::from(e.error).context(c),
+            None => anyhow::Error::from(e.error),
         }
-    }
-    let single = match (a.from, a.to, a.at) {
-        (Some(from), Some(to), None) => Some((from, to)),
-        (Some(_), None, _) | (None, Some(_), _) => {
-            bail!("--from and --to go together (a segment from one point to the other)")
+    })?;
+    match outcome {
+        QueryOutcome::Rays(r) => {
+            warn_input(&a.file, &r.load_warnings);
+            print_answers(&r, json)
         }
-        _ => None,
-    };
-    let source = umbra::input::Source::new(&a.file, a.source.clone());
-    source.check().map_err(flag_error)?;
-    // The stage light the query is toward (named, or the stage's only one): the scene holds
-    // only the volumes its shadow link includes.
-    let mut toward = a.source.light.clone();
-    let light = match (a.light_dir, a.light_pos) {
-        (Some(_), Some(_)) => bail!("give --light-dir or --light-pos, not both"),
-        (Some(_), None) | (None, Some(_)) if a.source.light.is_some() => {
-            bail!("give --light (a stage light) or --light-dir / --light-pos, not both")
-        }
-        (Some(dir), None) => Some(Light::Directional { dir }),
-        (None, Some(pos)) => Some(Light::Point { pos }),
-        (None, None) if a.at.is_some() && source.kind().is_stage() => {
-            let (l, prim) = crate::common::light_of(&source)?;
-            toward = Some(prim);
-            Some(l)
-        }
-        (None, None) => None,
-    };
-    let modes =
-        usize::from(single.is_some()) + usize::from(a.at.is_some()) + usize::from(a.rays.is_some());
-    if modes != 1 || (a.from.is_some() && a.at.is_some()) {
-        bail!(
-            "give exactly one of --from/--to, --at with --light-dir or --light-pos, or --rays FILE"
-        );
-    }
-    if a.at.is_some() != light.is_some() {
-        bail!(
-            "--at needs --light-dir DX,DY,DZ or --light-pos X,Y,Z (or a stage's light), and \
-             those need --at"
-        );
-    }
-    Ok(Asked {
-        single,
-        light,
-        toward,
-    })
-}
-
-/// The scene and the query's rays: the whole grid (`--load eager`, or a grid-wide majorant,
-/// which is every leaf's bound), else only what the rays cross.
-fn load(
-    a: &QueryArgs,
-    source: &umbra::input::Source,
-    opts: &Options,
-    mut make_rays: impl FnMut(&Scene) -> Vec<Ray>,
-) -> Result<(Scene, Vec<Ray>)> {
-    if a.load == LoadMode::Eager || opts.global_majorant {
-        load_scene(source).map(|s| {
-            let r = make_rays(&s);
-            (s, r)
-        })
-    } else {
-        let always = a.load == LoadMode::Lazy;
-        load_scene_for(source, opts.granularity, always, make_rays)
+        QueryOutcome::Points(p) => crate::query_points::report(&p, json),
     }
 }
 
-/// `--rays FILE`: row `n` has ray id `ray_id + n`; its rays go to the library together (exact
-/// queries in batches on the SIMD kernel), a row's `seconds` is the batch's time per ray.
-fn answer_rows(
-    scene: &Scene,
-    rows: &[(usize, std::result::Result<Ray, String>)],
-    rays: &[Ray],
-    ray_id: u64,
-    (est, opts): (&Estimator, &Options),
-) -> Vec<Answer> {
-    let ids: Vec<u64> = rows
-        .iter()
-        .enumerate()
-        .filter(|(_, (_, seg))| seg.is_ok())
-        .map(|(n, _)| ray_id.wrapping_add(n as u64))
-        .collect();
-    let start = std::time::Instant::now();
-    let results = umbra::scene::estimate_many(scene, rays, &ids, est, opts);
-    let per_ray = start.elapsed().as_secs_f64() / rays.len().max(1) as f64;
-    let mut results = rays.iter().copied().zip(results);
-    rows.iter()
-        .map(|(line, seg)| Answer {
-            line: Some(*line),
-            result: seg.clone().and_then(|_| match results.next() {
-                Some((ray, Ok(e))) => Ok((ray, e, per_ray)),
-                Some((_, Err(e))) => Err(format!("{:#}", anyhow::Error::from(e))),
-                None => Err("no answer for this row".to_string()),
-            }),
-        })
-        .collect()
-}
-
-/// `--positions PRIM`: every point of a stage's points prim, frame by frame.
-fn run_points(a: &QueryArgs, prim: &str) -> Result<ExitCode> {
-    let source = umbra::input::Source::new(&a.file, a.source.clone());
-    if !source.kind().is_stage() {
-        bail!("invalid argument '--positions': {}", source.not_a_stage());
-    }
-    let others = [
-        ("--from", a.from.is_some()),
-        ("--to", a.to.is_some()),
-        ("--at", a.at.is_some()),
-        ("--rays", a.rays.is_some()),
-        ("--light-dir", a.light_dir.is_some()),
-        ("--light-pos", a.light_pos.is_some()),
-        ("--xform", a.source.xform.is_some()),
-    ];
-    if let Some((flag, _)) = others.iter().find(|(_, g)| *g) {
-        bail!("invalid argument '{flag}': --positions answers every point toward a stage light");
-    }
-    source.check().map_err(flag_error)?;
-    let frames = match (&a.frames, a.source.frame) {
-        (Some(_), Some(_)) => bail!("give --frame F or --frames A-B, not both"),
-        (Some(f), None) => f.0.clone(),
-        (None, Some(f)) => vec![f],
-        (None, None) => vec![umbra::usd::lights_at(&a.file, None)?.time],
-    };
-    let (est, opts) = a
-        .est
-        .resolve(&a.params, a.source.interp)
-        .map_err(flag_error)?;
-    a.est.motion(&a.source).map_err(flag_error)?;
-    let spec = crate::query_points::Spec {
-        file: &a.file,
-        prim,
-        light: a.source.light.as_deref(),
-        frames: &frames,
-        usd_out: a.usd_out.as_deref(),
+/// The library's request for the flags: a file of rays is read later ([`read_rays`]).
+fn request(a: &QueryArgs) -> QueryRequest {
+    QueryRequest {
+        source: umbra::input::Source::new(&a.file, a.source.clone()),
+        from: a.from,
+        to: a.to,
+        at: a.at,
+        light_dir: a.light_dir,
+        light_pos: a.light_pos,
+        rays: a.rays.as_ref().map(|_| Vec::new()),
+        positions: a.positions.clone(),
+        frames: a.frames.as_ref().map(|f| f.0.clone()),
+        usd_out: a.usd_out.clone(),
         force: a.force,
-        json: a.json,
-    };
-    let pool = thread_pool(a.threads)?;
-    pool.install(|| crate::query_points::run(&spec, &source, &est, &opts))
+        estimator: a.est.clone(),
+        params: a.params.clone(),
+        ray_id: a.ray_id,
+        threads: a.threads,
+        load: a.load,
+    }
 }
 
-fn answer(
-    scene: &Scene,
-    ray: &Ray,
-    ray_id: u64,
-    est: &Estimator,
-    opts: &Options,
-) -> Result<(Ray, SceneEstimate, f64)> {
-    // Through the batch entry point like `--rays` rows and Python's arrays, so one segment
-    // gets the same number however it is asked.
-    let start = std::time::Instant::now();
-    let mut e = umbra::scene::estimate_many(scene, std::slice::from_ref(ray), &[ray_id], est, opts);
-    let e = e.pop().context("no answer for the query")??;
-    Ok((*ray, e, start.elapsed().as_secs_f64()))
+/// What reading the input changed, one line each.
+fn warn_input(file: &Path, warnings: &[umbra::bake::Warning]) {
+    for w in warnings {
+        eprintln!("umbra: warning: {}: {w}", file.display());
+    }
 }
 
 /// Read a CSV of segments: `(line number, ray or why the line is bad)` per data line.
-fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
+fn read_rays(path: &Path) -> Result<Vec<RayRow>> {
     let text = if path.as_os_str() == "-" {
         let mut s = String::new();
         std::io::stdin()
@@ -405,17 +204,29 @@ fn read_rays(path: &Path) -> Result<Vec<(usize, Result<Ray, String>)>> {
                     .collect::<Result<_, _>>()?;
                 Ray::between([v[0], v[1], v[2]], [v[3], v[4], v[5]]).map_err(|e| e.to_string())
             };
-            (n, parse())
+            RayRow {
+                line: n,
+                ray: parse(),
+            }
         })
         .collect())
 }
 
-fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> Result<ExitCode> {
+/// Print the answers in input order (text, or one JSON object each), then the warnings; exit
+/// 3 when a row failed. A single query that failed is the command's error.
+fn print_answers(r: &RayAnswers, json: bool) -> Result<ExitCode> {
+    if let [umbra::request::Answer {
+        line: None,
+        result: Err(e),
+    }] = r.answers.as_slice()
+    {
+        bail!("{e}");
+    }
     let mut out = std::io::BufWriter::new(std::io::stdout().lock());
     let mut failed: Vec<String> = Vec::new();
-    let warnings = run_warnings(answers);
     // In JSON each line carries the run's warnings (as data, with the line stderr prints).
-    let warnings_json: Vec<serde_json::Value> = warnings
+    let warnings_json: Vec<serde_json::Value> = r
+        .warnings
         .iter()
         .map(|w| {
             let mut v = serde_json::to_value(w).unwrap_or_default();
@@ -425,7 +236,7 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
             v
         })
         .collect();
-    for a in answers {
+    for a in &r.answers {
         let at = a.line.map_or(String::new(), |n| format!("line {n}: "));
         match &a.result {
             Err(e) => {
@@ -437,71 +248,22 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
                 }
                 failed.push(format!("{at}{e}"));
             }
-            Ok((ray, e, seconds)) => {
-                let nc = e.channels;
-                if json {
-                    // Grey: numbers; RGB: [r, g, b] arrays.
-                    let per = |v: [f64; 3], f: &dyn Fn(f64) -> serde_json::Value| {
-                        if nc == 3 {
-                            serde_json::Value::Array(v.iter().map(|x| f(*x)).collect())
-                        } else {
-                            f(v[0])
-                        }
-                    };
-                    let num = |x: f64| serde_json::json!(x);
-                    let tau = match e.tau {
-                        Some(t) => per(t, &|x| tau_json(Some(x))),
-                        None => serde_json::Value::Null,
-                    };
-                    let mut v = serde_json::json!({
-                        "T": per(e.value, &num), "std_err": per(e.std_err, &num), "tau": tau,
-                        "lookups": e.lookups,
-                        "estimator": est, "samples": e.samples, "interp": interp,
-                        "length": ray.t_max(), "segments": e.segments, "capped": e.capped,
-                        "seconds": seconds, "warnings": warnings_json,
-                    });
-                    if let Some(h) = e.hit {
-                        v["solid_hit"] = h.into();
-                    }
-                    if let Some(n) = a.line {
-                        v["line"] = n.into();
-                    }
-                    writeln!(out, "{v}")?;
-                } else {
-                    let list = |v: [f64; 3], f: &dyn Fn(f64) -> String| {
-                        v[..nc].iter().map(|x| f(*x)).collect::<Vec<_>>().join(", ")
-                    };
-                    let tau = e.tau.map_or(String::new(), |t| {
-                        format!(", tau = {}", list(t, &|x| full(x)))
-                    });
-                    let err = if e.std_err[..nc].iter().any(|s| s.is_nan()) {
-                        " +- unknown".to_string()
-                    } else if e.std_err.iter().any(|s| *s > 0.0) {
-                        format!(" +- {}", list(e.std_err, &|x| format!("{x:.2e}")))
-                    } else {
-                        String::new()
-                    };
-                    let hit = e
-                        .hit
-                        .map_or(String::new(), |h| format!(", solid hit at {}", full(h)));
-                    writeln!(
-                        out,
-                        "{at}T = {}{err}{tau}{hit} ({est}, {interp:?}, {} samples, length {}, {} lookups)",
-                        list(e.value, &|x| full(x)), e.samples, full(ray.t_max()), e.lookups
-                    )?;
-                }
+            Ok(ok) if json => {
+                let v = answer_json(ok, a.line, (&r.estimator, r.interp), &warnings_json);
+                writeln!(out, "{v}")?;
             }
+            Ok(ok) => writeln!(out, "{at}{}", answer_text(ok, &r.estimator, r.interp))?,
         }
     }
     out.flush()?;
-    for w in &warnings {
+    for w in &r.warnings {
         eprintln!("umbra: warning: {w}");
     }
     if let Some(first) = failed.first() {
         eprintln!(
             "umbra: error: {} of {} queries failed (first: {})",
             failed.len(),
-            answers.len(),
+            r.answers.len(),
             umbra::internals::text::escape(first)
         );
         return Ok(ExitCode::from(3));
@@ -509,33 +271,70 @@ fn print_answers(answers: &[Answer], est: &str, interp: Interp, json: bool) -> R
     Ok(ExitCode::SUCCESS)
 }
 
-/// What the answers want their user to know: capped samples, majorant violations, and every
-/// query missing every active voxel (each answered, T = 1, no segment walked, no solid hit).
-fn run_warnings(answers: &[Answer]) -> Vec<Warning> {
-    let ok: Vec<&SceneEstimate> = answers
-        .iter()
-        .filter_map(|a| a.result.as_ref().ok().map(|(_, e, _)| e))
-        .collect();
-    let capped = ok.iter().map(|e| e.capped).sum::<u64>();
-    let violations = ok.iter().map(|e| e.majorant_violations).sum::<u64>();
-    let mut out = Vec::new();
-    if capped > 0 {
-        out.push(Warning::Capped { samples: capped });
-    }
-    if violations > 0 {
-        out.push(Warning::MajorantViolations {
-            lookups: violations,
-        });
-    }
-    let missed = |e: &SceneEstimate| {
-        e.segments == 0 && e.hit.is_none() && e.value[..e.channels].iter().all(|v| *v == 1.0)
+/// One answer as JSON: grey values as numbers, RGB as `[r, g, b]` arrays.
+fn answer_json(
+    a: &umbra::request::Answered,
+    line: Option<usize>,
+    (est, interp): (&str, Interp),
+    warnings: &[serde_json::Value],
+) -> serde_json::Value {
+    let (ray, e) = (&a.ray, &a.estimate);
+    let nc = e.channels;
+    let per = |v: [f64; 3], f: &dyn Fn(f64) -> serde_json::Value| {
+        if nc == 3 {
+            serde_json::Value::Array(v.iter().map(|x| f(*x)).collect())
+        } else {
+            f(v[0])
+        }
     };
-    if !ok.is_empty() && ok.iter().all(|e| missed(e)) {
-        out.push(Warning::MissedEveryVoxel {
-            queries: ok.len() as u64,
-        });
+    let num = |x: f64| serde_json::json!(x);
+    let tau = match e.tau {
+        Some(t) => per(t, &|x| tau_json(Some(x))),
+        None => serde_json::Value::Null,
+    };
+    let mut v = serde_json::json!({
+        "T": per(e.value, &num), "std_err": per(e.std_err, &num), "tau": tau,
+        "lookups": e.lookups,
+        "estimator": est, "samples": e.samples, "interp": interp,
+        "length": ray.t_max(), "segments": e.segments, "capped": e.capped,
+        "seconds": a.seconds, "warnings": warnings,
+    });
+    if let Some(h) = e.hit {
+        v["solid_hit"] = h.into();
     }
-    out
+    if let Some(n) = line {
+        v["line"] = n.into();
+    }
+    v
+}
+
+/// One answer as a line of text (after its `line N: `).
+fn answer_text(a: &umbra::request::Answered, est: &str, interp: Interp) -> String {
+    let (ray, e) = (&a.ray, &a.estimate);
+    let nc = e.channels;
+    let list = |v: [f64; 3], f: &dyn Fn(f64) -> String| {
+        v[..nc].iter().map(|x| f(*x)).collect::<Vec<_>>().join(", ")
+    };
+    let tau = e.tau.map_or(String::new(), |t| {
+        format!(", tau = {}", list(t, &|x| full(x)))
+    });
+    let err = if e.std_err[..nc].iter().any(|s| s.is_nan()) {
+        " +- unknown".to_string()
+    } else if e.std_err.iter().any(|s| *s > 0.0) {
+        format!(" +- {}", list(e.std_err, &|x| format!("{x:.2e}")))
+    } else {
+        String::new()
+    };
+    let hit = e
+        .hit
+        .map_or(String::new(), |h| format!(", solid hit at {}", full(h)));
+    format!(
+        "T = {}{err}{tau}{hit} ({est}, {interp:?}, {} samples, length {}, {} lookups)",
+        list(e.value, &|x| full(x)),
+        e.samples,
+        full(ray.t_max()),
+        e.lookups
+    )
 }
 
 /// A value printed so that it can be read back: nine decimals in `[1e-4, 1e6)` (and for 0),

@@ -1,9 +1,4 @@
-//! What the commands share: the estimator help, flag errors, vector parsing, loading with
-//! warnings, thread pools, progress bars.
-
-use anyhow::{Context, Result};
-use std::path::Path;
-use umbra::bake::volume_warnings;
+//! What the commands share: the estimator help, flag errors, vector parsing, progress bars.
 
 /// A library argument error, with its name spelled as the flag: the library names an option in
 /// kebab case (`deep-error`), the command line types `--deep-error`.
@@ -57,66 +52,6 @@ pub fn estimator_help() -> String {
 }
 
 pub use umbra::request::parse_vec3;
-
-/// Load what `source` reads for tracing ([`umbra::input::Source::load`]), warning about
-/// voxels the bad-voxel policy changed.
-pub fn load_scene(source: &umbra::input::Source) -> Result<umbra::scene::Scene> {
-    let scene = source.load().map_err(|e| load_error(e, source))?;
-    warn_sanitized(source.path(), &scene);
-    Ok(scene)
-}
-
-/// [`load_scene`] for a job whose rays `rays` makes from the scene's boxes: a `.vdb` is read
-/// lazily and only the leaves those rays touch are decoded
-/// ([`umbra::input::Source::load_for_rays`]; `always`: however small the grid).
-pub fn load_scene_for(
-    source: &umbra::input::Source,
-    gran: umbra::internals::traverse::Granularity,
-    always: bool,
-    rays: impl FnOnce(&umbra::scene::Scene) -> Vec<umbra::Ray>,
-) -> Result<(umbra::scene::Scene, Vec<umbra::Ray>)> {
-    let from = if always {
-        0
-    } else {
-        umbra::scene::file::LAZY_MIN_BYTES
-    };
-    let (scene, r) = source
-        .load_for_rays(gran, from, rays)
-        .map_err(|e| load_error(e, source))?;
-    warn_sanitized(source.path(), &scene);
-    Ok((scene, r))
-}
-
-fn load_error(e: umbra::Error, source: &umbra::input::Source) -> anyhow::Error {
-    match e {
-        umbra::Error::InvalidArgument { .. } => anyhow::Error::from(flag_error(e)),
-        other if source.kind().is_scene_file() => {
-            anyhow::Error::from(other).context("loading the scene")
-        }
-        other if source.kind().is_stage() => anyhow::Error::from(other).context("loading the shot"),
-        other => {
-            anyhow::Error::from(other).context(format!("loading grid '{}'", source.options().grid))
-        }
-    }
-}
-
-fn warn_sanitized(file: &Path, scene: &umbra::scene::Scene) {
-    let mut warnings = volume_warnings(&scene.sanitized());
-    warnings.extend(umbra::bake::solid_warnings(scene));
-    warnings.extend(umbra::bake::motion_warnings(scene));
-    for w in warnings {
-        eprintln!("umbra: warning: {}: {w}", file.display());
-    }
-}
-
-/// A rayon pool of `threads` workers (0: as many as cores).
-pub fn thread_pool(threads: usize) -> Result<rayon::ThreadPool> {
-    umbra::bake::check_threads(threads).map_err(flag_error)?;
-    rayon::ThreadPoolBuilder::new()
-        .num_threads(threads)
-        .build()
-        .context("starting worker threads")
-}
 
 /// A progress bar on stderr over `len` units with `template` (indicatif syntax), hidden with
 /// `--quiet` or when stderr is not a terminal.
@@ -262,19 +197,6 @@ impl umbra::progress::Progress for CliProgress {
             Shown::Nothing => {}
         }
     }
-}
-
-/// The stage light a source's `light` names (or the stage's only light), as umbra traces it,
-/// and its prim path (the scene is read toward it: its shadow link).
-pub fn light_of(source: &umbra::input::Source) -> Result<(umbra::Light, String)> {
-    let o = source.options();
-    let shot = umbra::usd::lights_at(source.path(), o.frame)?;
-    let (l, e) = shot.light(o.light.as_deref())?;
-    let light = match e {
-        umbra::usd::Emitter::Directional { dir } => umbra::Light::Directional { dir },
-        umbra::usd::Emitter::Point { pos } => umbra::Light::Point { pos },
-    };
-    Ok((light, l.prim.clone()))
 }
 
 /// A number as a person reads it: integers plainly, others with 6 significant digits

@@ -2,22 +2,11 @@
 //! of a `Points` prim or `PointInstancer`, frame by frame, printed (a summary per frame, or
 //! `--json`) and, with `--usd-out`, written back into the shot as a time-sampled primvar.
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use std::io::Write;
-use std::path::Path;
 use std::process::ExitCode;
-use umbra::estimate::{Estimator, Options};
-
-/// What `--positions` answers and where it goes.
-pub struct Spec<'a> {
-    pub file: &'a Path,
-    pub prim: &'a str,
-    pub light: Option<&'a str>,
-    pub frames: &'a [f64],
-    pub usd_out: Option<&'a Path>,
-    pub force: bool,
-    pub json: bool,
-}
+use umbra::internals::points::PointFrame;
+use umbra::request::PointsOutcome;
 
 /// The frames of `--frames A-B`.
 #[derive(Debug, Clone, PartialEq)]
@@ -45,59 +34,35 @@ pub fn parse_frames(s: &str) -> std::result::Result<Frames, String> {
     Ok(Frames((0..n).map(|i| a + i as f64).collect()))
 }
 
-/// Answer, print and write the layer.
-pub fn run(
-    s: &Spec<'_>,
-    source: &umbra::input::Source,
-    est: &Estimator,
-    opts: &Options,
-) -> Result<ExitCode> {
-    if let Some(layer) = s.usd_out {
-        if !umbra::input::is_usda_layer(layer) {
-            bail!(
-                "invalid argument '--usd-out': {} is not a .usda layer",
-                layer.display()
-            );
-        }
-        umbra::internals::output::check_target(layer, s.force)?;
-    }
-    let q = umbra::internals::points::PointQuery {
-        stage: s.file,
-        prim: s.prim,
-        light: s.light,
-        frames: s.frames,
+/// A frame's summary line, as it is answered (text output).
+pub fn print_frame(f: &PointFrame) {
+    let t = &f.transmittance;
+    let (lo, hi) = t
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
+            (l.min(v), h.max(v))
+        });
+    let mean = t.iter().sum::<f64>() / t.len().max(1) as f64;
+    let line = if t.is_empty() {
+        format!("frame {}: no points", crate::common::num(f.frame))
+    } else {
+        format!(
+            "frame {}: {} points, T min {:.6} mean {:.6} max {:.6}",
+            crate::common::num(f.frame),
+            t.len(),
+            lo,
+            mean,
+            hi
+        )
     };
     let mut out = std::io::stdout().lock();
-    let json = s.json;
-    let mut print_frame = |f: &umbra::internals::points::PointFrame| {
-        if json {
-            return;
-        }
-        let t = &f.transmittance;
-        let (lo, hi) = t
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(l, h), &v| {
-                (l.min(v), h.max(v))
-            });
-        let mean = t.iter().sum::<f64>() / t.len().max(1) as f64;
-        let line = if t.is_empty() {
-            format!("frame {}: no points", crate::common::num(f.frame))
-        } else {
-            format!(
-                "frame {}: {} points, T min {:.6} mean {:.6} max {:.6}",
-                crate::common::num(f.frame),
-                t.len(),
-                lo,
-                mean,
-                hi
-            )
-        };
-        let _ = writeln!(out, "{line}");
-        let _ = out.flush();
-    };
-    let answers =
-        umbra::internals::points::point_transmittance(&q, source, est, opts, &mut print_frame)
-            .map_err(crate::common::flag_error)?;
+    let _ = writeln!(out, "{line}");
+    let _ = out.flush();
+}
+
+/// Report the answers: the warnings, the JSON document (`--json`), the layer written.
+pub fn report(p: &PointsOutcome, json: bool) -> Result<ExitCode> {
+    let answers = &p.answers;
     for w in &answers.warnings {
         eprintln!("umbra: warning: {w}");
     }
@@ -118,25 +83,19 @@ pub fn run(
             "prim": answers.prim,
             "type": answers.type_name,
             "light": answers.light,
-            "estimator": est.name(),
+            "estimator": p.estimator,
             "frames": frames,
         });
         writeln!(std::io::stdout().lock(), "{doc}")?;
     }
-    if let Some(layer) = s.usd_out {
-        let text = umbra::internals::points::layer_text(&answers)?;
-        umbra::internals::output::write_atomic(layer, s.force, |w| {
-            w.write_all(text.as_bytes()).map_err(|e| e.to_string())
-        })?;
-        if !json {
-            println!(
-                "wrote {}: primvars:umbra:transmittance:{} on {}, {} frames",
-                layer.display(),
-                answers.light_name,
-                answers.prim,
-                answers.frames.len()
-            );
-        }
+    if let (Some(layer), false) = (&p.usd_out, json) {
+        println!(
+            "wrote {}: primvars:umbra:transmittance:{} on {}, {} frames",
+            layer.display(),
+            answers.light_name,
+            answers.prim,
+            answers.frames.len()
+        );
     }
     Ok(ExitCode::SUCCESS)
 }
