@@ -4,6 +4,32 @@ use crate::error::{Error, Result};
 use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
 
+/// The light a job names by position or direction (a USD stage's own lights are read from the
+/// stage, `light` of the read options): the one declaration of the light keys, flattened into
+/// `umbra bake`'s and `umbra query`'s flags, a job's `[bake]` and the Python keywords.
+#[derive(Debug, Clone, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
+#[cfg_attr(feature = "cli", derive(clap::Args))]
+#[serde(default)]
+pub struct LightOptions {
+    /// Direction the light travels, DX,DY,DZ (a sun): a map is orthographic, framing the
+    /// volume box (with light-pos it aims the perspective map); a query traces from --at
+    /// against it until the ray leaves the volume box; a transmittance volume is lit by it.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true)
+    )]
+    pub light_dir: Option<[f64; 3]>,
+    /// Light position X,Y,Z (a point light): a map is a perspective map from it (aimed at the
+    /// volume box centre unless light-dir is given); a query traces the segment from --at to
+    /// it; a transmittance volume is lit by it.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true)
+    )]
+    pub light_pos: Option<[f64; 3]>,
+}
+
 /// Where a shading point's light comes from.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]

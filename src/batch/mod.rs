@@ -336,8 +336,8 @@ impl Job {
         task.read_into(&mut options);
         // With a fixed camera the light only names the outputs: the plan frames a view from it
         // that the fixed camera then replaces.
-        options.light_dir = task.dir;
-        options.light_pos = task.pos;
+        options.light.light_dir = task.dir;
+        options.light.light_pos = task.pos;
         options.source.light.clone_from(&task.usd_light);
         options.source.frame = task.time();
         options.preview.clone_from(&task.preview);

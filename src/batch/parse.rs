@@ -373,64 +373,66 @@ fn lights(
     stage_input: Option<&(PathBuf, Option<i64>)>,
 ) -> Result<Vec<JobLight>, BatchError> {
     let b = &file.bake;
-    Ok(match (file.lights.is_empty(), b.light_dir, b.light_pos) {
-        (true, None, None) => match stage_input {
-            Some((stage, frame)) if b.camera.is_none() && b.source.light.is_none() => {
-                stage_lights(path, stage, *frame)?
+    Ok(
+        match (file.lights.is_empty(), b.light.light_dir, b.light.light_pos) {
+            (true, None, None) => {
+                match stage_input {
+                    Some((stage, frame)) if b.camera.is_none() && b.source.light.is_none() => {
+                        stage_lights(path, stage, *frame)?
+                    }
+                    Some(_) if b.source.light.is_some() => vec![JobLight {
+                        name: b
+                            .source
+                            .light
+                            .as_deref()
+                            .map_or("light", |l| l.rsplit('/').next().unwrap_or(l))
+                            .to_string(),
+                        dir: None,
+                        pos: None,
+                        usd: b.source.light.clone(),
+                    }],
+                    _ => return Err(err(
+                        path,
+                        "lights",
+                        "give at least one [[lights]] entry, or light_dir / light_pos in [bake]",
+                    )),
+                }
             }
-            Some(_) if b.source.light.is_some() => vec![JobLight {
-                name: b
-                    .source
-                    .light
-                    .as_deref()
-                    .map_or("light", |l| l.rsplit('/').next().unwrap_or(l))
-                    .to_string(),
-                dir: None,
-                pos: None,
-                usd: b.source.light.clone(),
+            (true, dir, pos) => vec![JobLight {
+                name: "light".into(),
+                dir,
+                pos,
+                usd: None,
             }],
-            _ => {
+            (false, None, None) => file
+                .lights
+                .iter()
+                .map(|l| JobLight {
+                    name: l.name.clone().unwrap_or_else(|| {
+                        l.usd
+                            .as_deref()
+                            .map(|u| u.rsplit('/').next().unwrap_or(u).to_string())
+                            .unwrap_or_default()
+                    }),
+                    dir: l.dir,
+                    pos: l.pos,
+                    usd: l.usd.clone(),
+                })
+                .collect(),
+            (false, ..) => {
+                let key = if b.light.light_dir.is_some() {
+                    "bake.light_dir"
+                } else {
+                    "bake.light_pos"
+                };
                 return Err(err(
                     path,
-                    "lights",
-                    "give at least one [[lights]] entry, or light_dir / light_pos in [bake]",
-                ))
+                    key,
+                    "the lights are given as [[lights]] too: give them in one place",
+                ));
             }
         },
-        (true, dir, pos) => vec![JobLight {
-            name: "light".into(),
-            dir,
-            pos,
-            usd: None,
-        }],
-        (false, None, None) => file
-            .lights
-            .iter()
-            .map(|l| JobLight {
-                name: l.name.clone().unwrap_or_else(|| {
-                    l.usd
-                        .as_deref()
-                        .map(|u| u.rsplit('/').next().unwrap_or(u).to_string())
-                        .unwrap_or_default()
-                }),
-                dir: l.dir,
-                pos: l.pos,
-                usd: l.usd.clone(),
-            })
-            .collect(),
-        (false, ..) => {
-            let key = if b.light_dir.is_some() {
-                "bake.light_dir"
-            } else {
-                "bake.light_pos"
-            };
-            return Err(err(
-                path,
-                key,
-                "the lights are given as [[lights]] too: give them in one place",
-            ));
-        }
-    })
+    )
 }
 
 /// Each light's name (usable in a file name, used once) and how it shines (a stage light, or
@@ -601,8 +603,8 @@ fn shared_options(
 ) -> Result<Shared, BatchError> {
     let mut options = b.clone();
     options.source.grid = grid.to_string();
-    options.light_dir = None;
-    options.light_pos = None;
+    options.light.light_dir = None;
+    options.light.light_pos = None;
     options.source.light = None;
     options.source.frame = None;
     options.preview = None;
@@ -620,8 +622,8 @@ fn shared_options(
     first.read_into(&mut template);
     template.preview.clone_from(&first.preview);
     if template.camera.is_none() {
-        template.light_dir = first.dir;
-        template.light_pos = first.pos;
+        template.light.light_dir = first.dir;
+        template.light.light_pos = first.pos;
         template.source.light.clone_from(&first.usd_light);
     }
     template.source.frame = first.time();

@@ -15,7 +15,7 @@ mod options;
 mod source;
 
 pub use grid_file::{load_grid, GridFile};
-pub use options::{parse_pair, parse_vec3, Interp, LevelSet, SourceOptions};
+pub use options::{parse_pair, parse_vec3, parse_xform, Interp, LevelSet, SourceOptions};
 pub use source::{is_package, InputKind, Source};
 // What every reader gives: a decoded grid (identity, metadata, transform, tree), a vector grid
 // as its three components, a grid opened for partial reads, a grid's extent, its

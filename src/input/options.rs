@@ -63,11 +63,9 @@ pub struct SourceOptions {
     pub grid: String,
     /// Place the volume in the shot: a world-from-object 4x4 matrix, 16 numbers, row-major, the
     /// translation in the last column.
-    #[cfg_attr(
-        feature = "cli",
-        arg(long, value_delimiter = ',', num_args = 1, allow_hyphen_values = true)
-    )]
-    pub xform: Option<Vec<f64>>,
+    // A fully qualified `Vec`: clap reads the 16 numbers as one value, checked whole.
+    #[cfg_attr(feature = "cli", arg(long, value_parser = parse_xform, allow_hyphen_values = true))]
+    pub xform: Option<::std::vec::Vec<f64>>,
     /// USD stage inputs: the time code to read (default: the stage's startTimeCode).
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub frame: Option<f64>,
@@ -179,6 +177,24 @@ pub fn parse_pair(s: &str) -> std::result::Result<[f64; 2], String> {
             .map_err(|_| format!("'{}' is not a number", t.trim()))
     };
     Ok([n(v[0])?, n(v[1])?])
+}
+
+/// Parse `--xform`: 16 comma-separated numbers, row-major, a valid placement
+/// ([`crate::xform::Xform::from_row_major`]).
+///
+/// # Errors
+/// A message naming what is wrong.
+pub fn parse_xform(s: &str) -> std::result::Result<Vec<f64>, String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|c| c.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| format!("'{s}': expected 16 comma-separated numbers"))?;
+    crate::xform::Xform::from_row_major(&v).map_err(|e| match e {
+        crate::error::Error::InvalidArgument { reason, .. } => reason,
+        other => other.to_string(),
+    })?;
+    Ok(v)
 }
 
 /// Parse `X,Y,Z` into three finite numbers (`--light-dir`, `--up`, `--sigma-t`).

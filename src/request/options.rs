@@ -25,14 +25,10 @@ pub struct BakeOptions {
     #[cfg_attr(feature = "cli", command(flatten))]
     #[serde(flatten)]
     pub source: SourceOptions,
-    /// Direction the light travels, DX,DY,DZ: an orthographic map framing the volume box (with
-    /// light-pos it aims the perspective map); for a transmittance volume, a sun.
-    #[cfg_attr(feature = "cli", arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true))]
-    pub light_dir: Option<[f64; 3]>,
-    /// Light position X,Y,Z: a perspective map from the light (aimed at the volume box centre
-    /// unless light-dir is given); for a transmittance volume, a point light.
-    #[cfg_attr(feature = "cli", arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true))]
-    pub light_pos: Option<[f64; 3]>,
+    /// The light, by direction or position ([`crate::light::LightOptions`]).
+    #[cfg_attr(feature = "cli", command(flatten))]
+    #[serde(flatten)]
+    pub light: crate::light::LightOptions,
     /// With light-pos: an orthographic map whose image plane passes through the light.
     #[cfg_attr(feature = "cli", arg(long))]
     pub ortho: bool,
@@ -152,8 +148,7 @@ impl Default for BakeOptions {
     fn default() -> Self {
         Self {
             source: SourceOptions::default(),
-            light_dir: None,
-            light_pos: None,
+            light: crate::light::LightOptions::default(),
             ortho: false,
             omni: None,
             fov: None,
@@ -368,14 +363,14 @@ impl BakeOptions {
     /// The view of an omnidirectional map: a light position and a size, nothing that aims or
     /// frames.
     fn omni_view(&self, omni: Omni) -> Result<View> {
-        if self.light_pos.is_none() {
+        if self.light.light_pos.is_none() {
             return Err(bad(
                 "omni",
                 "an omnidirectional map is seen from a point light: give light-pos",
             ));
         }
         let aims = [
-            ("light-dir", self.light_dir.is_some()),
+            ("light-dir", self.light.light_dir.is_some()),
             ("ortho", self.ortho),
             ("fov", self.fov.is_some()),
             ("up", self.up.is_some()),
@@ -392,7 +387,7 @@ impl BakeOptions {
         }
         Ok(View {
             projection: omni.projection(),
-            light_pos: self.light_pos,
+            light_pos: self.light.light_pos,
             res: self.res,
             ..View::default()
         })
@@ -403,7 +398,7 @@ impl BakeOptions {
         if let Some(omni) = self.omni {
             return self.omni_view(omni);
         }
-        let projection = match (self.light_dir, self.light_pos) {
+        let projection = match (self.light.light_dir, self.light.light_pos) {
             (None, None) => {
                 return Err(bad(
                     "light-dir",
@@ -446,8 +441,8 @@ impl BakeOptions {
         }
         Ok(View {
             projection,
-            light_dir: self.light_dir,
-            light_pos: self.light_pos,
+            light_dir: self.light.light_dir,
+            light_pos: self.light.light_pos,
             fov_deg: self.fov,
             res: self.res,
             up: self.up,

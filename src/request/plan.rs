@@ -52,7 +52,7 @@ impl BakeRequest {
             }
             return Ok(None);
         }
-        let explicit = o.light_dir.is_some() || o.light_pos.is_some();
+        let explicit = o.light.light_dir.is_some() || o.light.light_pos.is_some();
         if let Some(u) = &o.usd_out {
             if explicit {
                 return Err(bad(
@@ -96,11 +96,11 @@ impl BakeRequest {
         options.source.light = Some(light.prim.clone());
         let dir = match emitter {
             crate::usd::Emitter::Directional { dir } => {
-                options.light_dir = Some(dir);
+                options.light.light_dir = Some(dir);
                 Some(dir)
             }
             crate::usd::Emitter::Point { pos } => {
-                options.light_pos = Some(pos);
+                options.light.light_pos = Some(pos);
                 None
             }
         };
@@ -166,7 +166,7 @@ impl BakeRequest {
                 ),
             ));
         }
-        let light = match (o.light_dir, o.light_pos) {
+        let light = match (o.light.light_dir, o.light.light_pos) {
             (Some(dir), None) => crate::Light::Directional { dir },
             (None, Some(pos)) => crate::Light::Point { pos },
             (None, None) => {
@@ -234,8 +234,8 @@ impl BakeRequest {
         let (view, camera) = match &o.camera {
             Some(source) => {
                 let fixed = [
-                    ("light-dir", o.light_dir.is_some()),
-                    ("light-pos", o.light_pos.is_some()),
+                    ("light-dir", o.light.light_dir.is_some()),
+                    ("light-pos", o.light.light_pos.is_some()),
                     ("ortho", o.ortho),
                     ("fov", o.fov.is_some()),
                     ("up", o.up.is_some()),

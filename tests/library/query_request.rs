@@ -4,8 +4,8 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use std::path::PathBuf;
-use umbra::request::{EstimatorOptions, QueryOutcome, QueryRequest, RayAnswers, RayRow};
 use umbra::input::{Source, SourceOptions};
+use umbra::request::{EstimatorOptions, QueryOutcome, QueryRequest, RayAnswers, RayRow};
 use umbra::{Interp, Light, Ray, Volume};
 
 fn cloud() -> PathBuf {
@@ -113,8 +113,12 @@ fn a_file_of_rays_keeps_its_bad_rows_and_numbers_its_ray_ids() {
     );
     // Row n has ray id ray_id + n (the bad row counts): each answer is scene::estimate's for
     // that ray and id.
-    let scene = Source::new(cloud(), SourceOptions::default()).load().unwrap();
-    let (est, opts) = estimator.resolve(&Default::default(), Interp::Trilinear).unwrap();
+    let scene = Source::new(cloud(), SourceOptions::default())
+        .load()
+        .unwrap();
+    let (est, opts) = estimator
+        .resolve(&Default::default(), Interp::Trilinear)
+        .unwrap();
     for (n, row) in rows.iter().enumerate() {
         let Ok(ray) = &row.ray else { continue };
         let want = umbra::scene::estimate(&scene, ray, 100 + n as u64, &est, &opts).unwrap();
@@ -162,7 +166,9 @@ fn a_stage_point_toward_the_stage_light() {
         panic!("the sun is directional")
     };
     assert!((d[0] + 1.0).abs() < 1e-9 && d[1].abs() < 1e-9, "{d:?}");
-    let scene = Source::new(cloud(), SourceOptions::default()).load().unwrap();
+    let scene = Source::new(cloud(), SourceOptions::default())
+        .load()
+        .unwrap();
     let ray = Light::Directional { dir: d }
         .ray_from_scene(&scene, at)
         .unwrap();
@@ -199,7 +205,9 @@ fn what_is_asked_is_checked_by_name() {
         "from and to go together (a segment from one point to the other)"
     );
     assert!(matches!(e, umbra::Error::Conflict { ref names, .. } if names == &["from", "to"]));
-    let e = QueryRequest::new(Source::new(cloud(), SourceOptions::default())).check().unwrap_err();
+    let e = QueryRequest::new(Source::new(cloud(), SourceOptions::default()))
+        .check()
+        .unwrap_err();
     assert!(
         e.to_string().starts_with("give exactly one of from/to"),
         "{e}"

@@ -51,9 +51,9 @@ pub struct CompareArgs {
     /// DIR/maps/.
     #[arg(long)]
     deep: bool,
-    /// With --deep: the direction the light travels (default 0,-1,0: a sun overhead).
-    #[arg(long, value_parser = umbra::request::parse_vec3, allow_hyphen_values = true)]
-    light_dir: Option<[f64; 3]>,
+    /// With --deep: the maps' light (default: light-dir 0,-1,0, a sun overhead).
+    #[command(flatten)]
+    light: umbra::request::LightOptions,
     /// With --deep: the maps' resolution, N pixels on the long side.
     #[arg(long, default_value_t = 128)]
     res: u32,
@@ -388,7 +388,7 @@ fn run_deep(
         };
         let options = umbra::request::BakeOptions {
             source: a.source.clone(),
-            light_dir: Some(a.light_dir.unwrap_or([0.0, -1.0, 0.0])),
+            light: deep_light(&a.light),
             res: Some(umbra::bake::Resolution::LongSide(a.res)),
             deep,
             deep_error,
@@ -414,7 +414,7 @@ fn run_deep(
     let md = compare::deep::deep_markdown(&rows, &source);
     let json = serde_json::to_string_pretty(&serde_json::json!({
         "source": source, "machine": machine(), "threads": threads, "res": a.res,
-        "light_dir": a.light_dir.unwrap_or([0.0, -1.0, 0.0]), "rows": rows,
+        "light_dir": deep_light(&a.light).light_dir, "rows": rows,
     }))?;
     let svg = crate::plot::deep_svg(&rows)?;
     write_together(
@@ -426,6 +426,17 @@ fn run_deep(
         ],
         say,
     )
+}
+
+/// The light of `compare --deep`'s maps: the one given, else a sun overhead.
+fn deep_light(l: &umbra::request::LightOptions) -> umbra::request::LightOptions {
+    match (l.light_dir, l.light_pos) {
+        (None, None) => umbra::request::LightOptions {
+            light_dir: Some([0.0, -1.0, 0.0]),
+            light_pos: None,
+        },
+        _ => l.clone(),
+    }
 }
 
 /// Write the text reports `files` (name, text) into `dir`, all of them or none (staged, then

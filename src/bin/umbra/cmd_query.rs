@@ -26,13 +26,8 @@ pub struct QueryArgs {
     /// Shading point, world space: X,Y,Z (with --light-dir or --light-pos).
     #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
     at: Option<[f64; 3]>,
-    /// Direction the light travels, DX,DY,DZ: trace from --at against it until the ray leaves
-    /// the volume box.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    light_dir: Option<[f64; 3]>,
-    /// Point light position X,Y,Z: trace the segment from --at to it.
-    #[arg(long, value_parser = parse_vec3, allow_hyphen_values = true)]
-    light_pos: Option<[f64; 3]>,
+    #[command(flatten)]
+    light: umbra::request::LightOptions,
     /// CSV of segments, one per line: `ox,oy,oz,ex,ey,ez` (with that header in any column
     /// order, or without a header in that order), or `-` for stdin. Answers come in input order;
     /// a bad line is reported on its own output line and makes the exit code 3 once every other
@@ -118,8 +113,7 @@ fn request(a: &QueryArgs) -> QueryRequest {
         from: a.from,
         to: a.to,
         at: a.at,
-        light_dir: a.light_dir,
-        light_pos: a.light_pos,
+        light: a.light.clone(),
         rays: a.rays.as_ref().map(|_| Vec::new()),
         positions: a.positions.clone(),
         frames: a.frames.as_ref().map(|f| f.0.clone()),

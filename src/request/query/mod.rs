@@ -66,10 +66,8 @@ pub struct QueryRequest {
     pub to: Option<[f64; 3]>,
     /// Shading point, world space (toward a light).
     pub at: Option<[f64; 3]>,
-    /// The direction a directional light travels.
-    pub light_dir: Option<[f64; 3]>,
-    /// A point light's position.
-    pub light_pos: Option<[f64; 3]>,
+    /// The light, by direction or position (or, neither given, the stage light).
+    pub light: crate::light::LightOptions,
     /// The rows of a file of segments, answered in order (row `n` with ray id `ray_id + n`).
     pub rays: Option<Vec<RayRow>>,
     /// A stage's `Points` prim or `PointInstancer`: answer every point toward the stage light.
@@ -101,8 +99,7 @@ impl QueryRequest {
             from: None,
             to: None,
             at: None,
-            light_dir: None,
-            light_pos: None,
+            light: crate::light::LightOptions::default(),
             rays: None,
             positions: None,
             frames: None,
@@ -155,7 +152,7 @@ impl QueryRequest {
             _ => None,
         };
         let stage_light = self.source.options().light.is_some();
-        let light = match (self.light_dir, self.light_pos) {
+        let light = match (self.light.light_dir, self.light.light_pos) {
             (Some(_), Some(_)) => {
                 return Err(conflict(
                     &["light-dir", "light-pos"],
@@ -210,8 +207,8 @@ impl QueryRequest {
             ("to", self.to.is_some()),
             ("at", self.at.is_some()),
             ("rays", self.rays.is_some()),
-            ("light-dir", self.light_dir.is_some()),
-            ("light-pos", self.light_pos.is_some()),
+            ("light-dir", self.light.light_dir.is_some()),
+            ("light-pos", self.light.light_pos.is_some()),
             ("xform", self.source.options().xform.is_some()),
         ];
         if let Some((name, _)) = others.iter().find(|(_, g)| *g) {
