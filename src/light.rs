@@ -46,7 +46,50 @@ pub enum Light {
     },
 }
 
+impl From<crate::usd::Emitter> for Light {
+    /// The light a stage light is traced as: every site that answers toward a stage light
+    /// (queries, per-point answers, bakes through [`Light::direction`] / [`Light::position`])
+    /// maps its emitter here.
+    fn from(e: crate::usd::Emitter) -> Self {
+        match e {
+            crate::usd::Emitter::Directional { dir } => Self::Directional { dir },
+            crate::usd::Emitter::Point { pos } => Self::Point { pos },
+        }
+    }
+}
+
+/// The light as a transmittance volume's `umbra:light` metadata names it
+/// (`directional [x, y, z]`, `point [x, y, z]`).
+impl std::fmt::Display for Light {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Directional { dir } => write!(f, "directional {dir:?}"),
+            Self::Point { pos } => write!(f, "point {pos:?}"),
+        }
+    }
+}
+
 impl Light {
+    /// The direction a directional light travels (a bake's `light-dir`); `None` for a light
+    /// at a position.
+    #[must_use]
+    pub fn direction(&self) -> Option<[f64; 3]> {
+        match *self {
+            Self::Directional { dir } => Some(dir),
+            Self::Point { .. } => None,
+        }
+    }
+
+    /// Where a light at a position is traced from (a bake's `light-pos`); `None` for a
+    /// directional light.
+    #[must_use]
+    pub fn position(&self) -> Option<[f64; 3]> {
+        match *self {
+            Self::Directional { .. } => None,
+            Self::Point { pos } => Some(pos),
+        }
+    }
+
     /// The ray from the world point `at` toward the light: for a point light the segment from
     /// `at` to the light; for a directional light the ray `at - t dir / |dir|`, `t` in
     /// `[0, t_exit]`, where `t_exit` is where it leaves the volume box (0 if it never meets it),

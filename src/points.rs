@@ -92,10 +92,7 @@ pub fn point_transmittance(
         let points = crate::usd::points_at(stage, prim, Some(t))?;
         let shot = crate::usd::lights_at(stage, Some(t))?;
         let (l, emitter) = shot.light(light)?;
-        let lamp = match emitter {
-            crate::usd::Emitter::Directional { dir } => Light::Directional { dir },
-            crate::usd::Emitter::Point { pos } => Light::Point { pos },
-        };
+        let lamp = Light::from(emitter);
         let mut so = source.clone();
         so.options_mut().frame = Some(t);
         // Toward the light: only the volumes its shadow link includes.

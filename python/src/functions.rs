@@ -256,28 +256,24 @@ pub(crate) fn usd_lights_json(
     let shot = py
         .detach(|| umbra::usd::lights_at(&path, time))
         .map_err(py_err)?;
-    let lights: Vec<serde_json::Value> = shot
-        .lights
-        .iter()
-        .map(|l| {
-            let mut o = serde_json::json!({
-                "prim": l.prim, "name": l.name(), "type": l.type_name, "kind": null,
-                "shadow_enable": l.shadow.enabled, "linked": l.shadow.linked,
-            });
-            match l.emitter {
-                Some(umbra::usd::Emitter::Directional { dir }) => {
-                    o["kind"] = "directional".into();
-                    o["dir"] = serde_json::json!(dir);
+    let mut lights = Vec::with_capacity(shot.lights.len());
+    for l in &shot.lights {
+        let mut o = serde_json::json!({
+            "prim": l.prim, "name": l.name(), "type": l.type_name, "kind": null,
+            "shadow_enable": l.shadow.enabled, "linked": l.shadow.linked,
+        });
+        // The emitter's own JSON: its `kind` and its fields (`dir`, `pos`, ...).
+        if let Some(e) = l.emitter {
+            if let serde_json::Value::Object(m) =
+                serde_json::to_value(e).map_err(|e| raise(Class::Other, e.to_string()))?
+            {
+                for (k, v) in m {
+                    o[k.as_str()] = v;
                 }
-                Some(umbra::usd::Emitter::Point { pos }) => {
-                    o["kind"] = "point".into();
-                    o["pos"] = serde_json::json!(pos);
-                }
-                None => {}
             }
-            o
-        })
-        .collect();
+        }
+        lights.push(o);
+    }
     Ok(serde_json::json!({"time": shot.time, "up": shot.up, "lights": lights}).to_string())
 }
 

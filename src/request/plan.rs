@@ -94,16 +94,11 @@ impl BakeRequest {
         let mut options = o.clone();
         // The light by its path: the scene is read toward it (its shadow link).
         options.source.light = Some(light.prim.clone());
-        let dir = match emitter {
-            crate::usd::Emitter::Directional { dir } => {
-                options.light.light_dir = Some(dir);
-                Some(dir)
-            }
-            crate::usd::Emitter::Point { pos } => {
-                options.light.light_pos = Some(pos);
-                None
-            }
-        };
+        // Neither was given (`explicit` is false): the stage light gives one of them.
+        let lamp = crate::Light::from(emitter);
+        options.light.light_dir = lamp.direction();
+        options.light.light_pos = lamp.position();
+        let dir = options.light.light_dir;
         // A transmittance volume has no view, so no up.
         if options.up.is_none() && !is_volume_output(&self.output) {
             let u = shot.up;

@@ -32,6 +32,7 @@
 
 #[cfg(feature = "usd")]
 mod clips;
+mod emitter;
 mod link;
 #[cfg(feature = "usd")]
 mod read;
@@ -40,6 +41,7 @@ use crate::error::{Error, Result};
 use crate::xform::Xform;
 use std::path::{Path, PathBuf};
 
+pub use emitter::Emitter;
 pub use link::{Link, Rule};
 #[cfg(feature = "usd")]
 pub use read::{lights_at, points_at, points_layer, read, shadow_layer};
@@ -269,21 +271,6 @@ impl StageVolume {
             }),
         }
     }
-}
-
-/// How a USD light shines, as umbra traces it.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub enum Emitter {
-    /// A distant light: the unit direction the light travels (world `-Z` of the prim).
-    Directional {
-        /// Direction of travel.
-        dir: [f64; 3],
-    },
-    /// A local light, traced as a point at the prim's world origin.
-    Point {
-        /// World position.
-        pos: [f64; 3],
-    },
 }
 
 /// One UsdLux light of a stage.

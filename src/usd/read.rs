@@ -17,9 +17,6 @@ pub use points::{points_at, points_layer};
 const RESET_XFORM_STACK: &str = "!resetXformStack!";
 const INVERT_PREFIX: &str = "!invert!";
 
-/// Light types traced as points at their origin.
-const POINT_LIGHTS: [&str; 4] = ["SphereLight", "DiskLight", "RectLight", "CylinderLight"];
-
 struct Reader<'a> {
     path: &'a Path,
     stage: Stage,

@@ -770,10 +770,7 @@ impl VolumeJob {
         let mut grid =
             crate::vdb::FloatGridOut::new(&self.out_grid, 1.0, vol.world_from_index(), leaves)?
                 .with_half(self.half);
-        let light = match self.light {
-            Light::Directional { dir } => format!("directional {dir:?}"),
-            Light::Point { pos } => format!("point {pos:?}"),
-        };
+        let light = self.light.to_string();
         let meta = [
             (
                 "umbra:quantity",

@@ -213,11 +213,7 @@ impl QueryRequest {
                 let shot = crate::usd::lights_at(self.source.path(), self.source.options().frame)
                     .map_err(at(QueryStep::Ray))?;
                 let (l, e) = shot.light(named.as_deref()).map_err(at(QueryStep::Ray))?;
-                let light = match e {
-                    crate::usd::Emitter::Directional { dir } => Light::Directional { dir },
-                    crate::usd::Emitter::Point { pos } => Light::Point { pos },
-                };
-                Ok((Some(light), Some(l.prim.clone())))
+                Ok((Some(Light::from(e)), Some(l.prim.clone())))
             }
             Asked::Toward {
                 light: AskedLight::Given(l),

@@ -2,7 +2,7 @@
 //! collections that choose which volumes cast shadows.
 
 use super::super::{Emitter, Link, Rule, Shadow, StageLight};
-use super::{Reader, POINT_LIGHTS};
+use super::Reader;
 use crate::error::{Error, Result};
 use openusd::sdf::Value;
 
@@ -29,26 +29,12 @@ impl Reader<'_> {
             if !is_light || !self.visible(p)? {
                 continue;
             }
-            let emitter = if ty == "DistantLight" {
-                let m = self.local_to_world(p)?;
-                let d = [-m.0[8], -m.0[9], -m.0[10]];
-                let n = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-                if !(n.is_finite() && n > 0.0) {
-                    return Err(self.at(p, "its world -Z axis is degenerate"));
-                }
-                Some(Emitter::Directional {
-                    dir: d.map(|c| c / n),
-                })
-            } else if POINT_LIGHTS.contains(&ty.as_str()) {
-                let m = self.local_to_world(p)?;
-                let pos = [m.0[12], m.0[13], m.0[14]];
-                if !pos.iter().all(|c| c.is_finite()) {
-                    return Err(self.at(p, "its world position is not finite"));
-                }
-                Some(Emitter::Point { pos })
-            } else {
-                None
-            };
+            let emitter = Emitter::of_light(
+                ty,
+                || Ok(self.local_to_world(p)?.0),
+                |attr| self.number(p, attr),
+                |reason| self.at(p, reason),
+            )?;
             // A light whose controls cannot be read fails only when it is chosen.
             let shadow = self.shadow(p, volumes).unwrap_or_else(|e| Shadow {
                 unreadable: Some(match e {
