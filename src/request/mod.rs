@@ -215,7 +215,10 @@ mod tests {
             options,
         };
         let e = r(BakeOptions {
-            light_dir: Some([0.0, -1.0, 0.0]),
+            light: crate::light::LightOptions {
+                light_dir: Some([0.0, -1.0, 0.0]),
+                light_pos: None,
+            },
             tile: Some(16),
             ..BakeOptions::default()
         })
@@ -226,7 +229,10 @@ mod tests {
             "{e}"
         );
         let ok = r(BakeOptions {
-            light_dir: Some([0.0, -1.0, 0.0]),
+            light: crate::light::LightOptions {
+                light_dir: Some([0.0, -1.0, 0.0]),
+                light_pos: None,
+            },
             half: true,
             ..BakeOptions::default()
         })

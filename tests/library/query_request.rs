@@ -182,7 +182,10 @@ fn a_stage_point_toward_the_stage_light() {
     // The same light given by its direction: the same answer.
     let given = rays(&QueryRequest {
         at: Some(at),
-        light_dir: Some(d),
+        light: umbra::request::LightOptions {
+            light_dir: Some(d),
+            light_pos: None,
+        },
         ..QueryRequest::new(Source::new(&stage, SourceOptions::default()))
     });
     let g = given.answers[0].result.as_ref().unwrap();

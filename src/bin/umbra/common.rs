@@ -8,6 +8,10 @@ pub fn flag_error(e: umbra::Error) -> umbra::Error {
             name: flag(&name),
             reason,
         },
+        umbra::Error::Conflict { names, reason } => umbra::Error::Conflict {
+            names: names.iter().map(|n| flag(n)).collect(),
+            reason,
+        },
         other => other,
     }
 }
