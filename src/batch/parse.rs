@@ -174,7 +174,7 @@ fn read_toml(path: &Path, text: &str) -> Result<JobFile, BatchError> {
                 let at = culprit_key(text, r.start).unwrap_or(r.start);
                 let before = &text[..at];
                 let line = before.matches('\n').count() + 1;
-                let column = r.start - before.rfind('\n').map_or(0, |i| i + 1) + 1;
+                let column = at - before.rfind('\n').map_or(0, |i| i + 1) + 1;
                 let key = key_at(text, at)
                     .map(|k| format!("{k}: "))
                     .unwrap_or_default();
@@ -276,12 +276,7 @@ fn inputs(
     let mut reads: Vec<EntryRead> = Vec::new();
     for (i, inp) in file.inputs.iter().enumerate() {
         let key = |k: &str| format!("inputs[{i}].{k}");
-        let read = entry_read(path, &key, inp, grid, &file.bake)?;
-        let mut options = file.bake.source.clone();
-        options.grid.clone_from(&read.grid);
-        options.density_scale = read.density_scale;
-        options.levelset = read.levelset;
-        options.xform.clone_from(&read.xform);
+        let (read, options) = entry_read(path, &key, inp, grid, &file.bake)?;
         reads.push(read);
         // Each file the entry names, read as the entry says.
         let source = |p: PathBuf| Source::new(p, options.clone());
@@ -660,28 +655,47 @@ fn shared_options(
     })
 }
 
-/// How the tasks of `[[inputs]]` entry `inp` read their files: its `grid`, `density_scale`,
-/// `levelset` and `xform`, each checked as `[bake]`'s are, else the job's (`grid`, `b`).
+/// How the tasks of `[[inputs]]` entry `inp` read their files: its read keys over `[bake]`'s
+/// (`b`) and the job's `grid`, each checked as `[bake]`'s are (errors name `inputs[i].key`).
 pub(super) fn entry_read(
     path: &Path,
     key: &dyn Fn(&str) -> String,
     inp: &InputSpec,
     grid: &str,
     b: &BakeOptions,
-) -> Result<EntryRead, BatchError> {
-    if inp.grid.as_deref() == Some("") {
-        return Err(err(path, &key("grid"), "must not be empty"));
-    }
-    if let Some(s) = inp.density_scale {
-        if !(s.is_finite() && s >= 0.0) {
-            return Err(err(
-                path,
-                &key("density_scale"),
-                format!("{s} is not a finite scale >= 0"),
-            ));
+) -> Result<(EntryRead, crate::input::SourceOptions), BatchError> {
+    for (k, why) in [
+        (
+            "frame",
+            "give this entry's frames with frames = [first, last]",
+        ),
+        ("light", "the lights of a job are its [[lights]]"),
+    ] {
+        if inp.read.contains_key(k) {
+            return Err(err(path, &key(k), why));
         }
     }
-    if let Some(x) = &inp.xform {
+    let named = |e: crate::error::Error| match e {
+        crate::error::Error::InvalidArgument { name, reason } => {
+            err(path, &key(&name.replace('-', "_")), reason)
+        }
+        other => err(path, &key("file"), other),
+    };
+    crate::request::read_keys(&inp.read).map_err(named)?;
+    let mut base = b.source.clone();
+    base.grid = grid.to_string();
+    let o = crate::request::overlaid(&base, &inp.read).map_err(named)?;
+    if o.grid.is_empty() {
+        return Err(err(path, &key("grid"), "must not be empty"));
+    }
+    if !(o.density_scale.is_finite() && o.density_scale >= 0.0) {
+        return Err(err(
+            path,
+            &key("density_scale"),
+            format!("{} is not a finite scale >= 0", o.density_scale),
+        ));
+    }
+    if let Some(x) = &o.xform {
         crate::xform::Xform::from_row_major(x).map_err(|e| {
             let reason = match e {
                 crate::error::Error::InvalidArgument { reason, .. } => reason,
@@ -690,10 +704,11 @@ pub(super) fn entry_read(
             err(path, &key("xform"), reason)
         })?;
     }
-    Ok(EntryRead {
-        grid: inp.grid.clone().unwrap_or_else(|| grid.to_string()),
-        density_scale: inp.density_scale.unwrap_or(b.source.density_scale),
-        levelset: inp.levelset.or(b.source.levelset),
-        xform: inp.xform.clone().or_else(|| b.source.xform.clone()),
-    })
+    let read = EntryRead {
+        grid: o.grid.clone(),
+        density_scale: o.density_scale,
+        levelset: o.levelset,
+        xform: o.xform.clone(),
+    };
+    Ok((read, o))
 }

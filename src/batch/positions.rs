@@ -20,7 +20,8 @@ use std::path::{Path, PathBuf};
 /// Estimator keys not given are `[bake]`'s.
 #[derive(Debug, Clone, Deserialize)]
 #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-#[serde(deny_unknown_fields)]
+// No `deny_unknown_fields`: the flattened map takes every other key, checked when the
+// job is read (serde would refuse them before the map saw them).
 pub struct PositionsSpec {
     /// The USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`).
     pub usd: String,

@@ -2,7 +2,7 @@
 //! one [`BakeOptions`] type) and their JSON Schema. `parse.rs` checks a file of these types
 //! into a [`super::Job`] of tasks.
 
-use crate::request::{BakeOptions, LevelSet};
+use crate::request::BakeOptions;
 use serde::Deserialize;
 
 /// The job file as written. Its JSON Schema ([`job_schema`], `umbra batch --schema`) is
@@ -47,7 +47,8 @@ pub fn job_schema() -> serde_json::Value {
 /// One `[[inputs]]` entry: `file`, or `pattern` with `frames`.
 #[derive(Debug, Clone, Deserialize)]
 #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-#[serde(deny_unknown_fields)]
+// No `deny_unknown_fields`: the flattened map takes every other key, checked when the
+// job is read (serde would refuse them before the map saw them).
 pub struct InputSpec {
     /// An explicit file.
     pub file: Option<String>,
@@ -60,16 +61,15 @@ pub struct InputSpec {
     /// A USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`): its volumes at every frame of `frames`
     /// (time codes; without `frames`, its start time code).
     pub usd: Option<String>,
-    /// The grid to bake in this entry's files (default: the job's `grid`): a liquid's `phi`
-    /// beside a smoke's `density` in one job.
-    pub grid: Option<String>,
-    /// `density_scale` for this entry's files (default: `[bake]`'s).
-    pub density_scale: Option<f64>,
-    /// `levelset` for this entry's files (default: `[bake]`'s): `solid` traces its grid as
-    /// an opaque occluder.
-    pub levelset: Option<LevelSet>,
-    /// `xform` for this entry's files (default: `[bake]`'s): 16 numbers, row-major.
-    pub xform: Option<Vec<f64>>,
+    /// How this entry's files are read, over `[bake]`'s: any read key
+    /// ([`crate::input::SourceOptions`], declared there once): `grid` (default: the job's; a
+    /// liquid's `phi` beside a smoke's `density` in one job), `density_scale`, `levelset`
+    /// (`solid` traces its grid as an opaque occluder), `xform` (16 numbers, row-major),
+    /// `interp`, `sigma_t`, `volume`, `field`, the motion keys. `frame` (give `frames`) and
+    /// `light` (give `[[lights]]`) are refused by name.
+    #[serde(flatten)]
+    #[cfg_attr(feature = "schema", schemars(with = "crate::input::SourceOptions"))]
+    pub read: serde_json::Map<String, serde_json::Value>,
 }
 
 /// One `[[lights]]` entry.

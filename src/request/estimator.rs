@@ -234,6 +234,59 @@ impl TraceOptions {
     }
 }
 
+/// `base` with `keys` (a JSON object of options by name) over it: each key replaces `base`'s
+/// value of it, an alias (`spp`) its canonical key's (`samples`); a value that does not parse
+/// is an [`Error::InvalidArgument`] naming its key. The caller checks that every key is one of
+/// the set's ([`read_keys`], [`TraceOptions::from_json`]): a set flattened into others does not
+/// deny unknown keys itself.
+///
+/// # Errors
+/// As above.
+pub fn overlaid<T: Serialize + DeserializeOwned>(
+    base: &T,
+    keys: &serde_json::Map<String, serde_json::Value>,
+) -> Result<T> {
+    let Ok(serde_json::Value::Object(mut all)) = serde_json::to_value(base) else {
+        return Err(Error::InvalidArgument {
+            name: "options".into(),
+            reason: "cannot be written as JSON".into(),
+        });
+    };
+    for (k, v) in keys {
+        all.insert(k.clone(), v.clone());
+    }
+    // serde knows the aliases: a key given as an alias while `base` holds its canonical name
+    // is a duplicate, and the given one wins.
+    for _ in 0..=keys.len() {
+        match serde_json::from_value::<T>(serde_json::Value::Object(all.clone())) {
+            Ok(o) => return Ok(o),
+            Err(e) => {
+                let text = e.to_string();
+                let dup = text
+                    .strip_prefix("duplicate field `")
+                    .and_then(|r| r.split('`').next())
+                    .filter(|d| !keys.contains_key(*d))
+                    .map(str::to_string);
+                match dup {
+                    Some(d) if all.remove(&d).is_some() => {}
+                    _ => break,
+                }
+            }
+        }
+    }
+    from_json_object(&serde_json::Value::Object(all).to_string())
+}
+
+/// The read options `keys` give alone (every key a read key, each value of its type): what a
+/// job's `[[inputs]]` entry may set.
+///
+/// # Errors
+/// [`Error::InvalidArgument`] naming the first key that is no read key or does not parse.
+pub fn read_keys(keys: &serde_json::Map<String, serde_json::Value>) -> Result<SourceOptions> {
+    from_json_object::<Strict<SourceOptions>>(&serde_json::Value::Object(keys.clone()).to_string())
+        .map(|s| s.inner)
+}
+
 /// `T` with no key but its own: a set of options with `flatten`ed parts has no
 /// `deny_unknown_fields` of its own (a part sees its parent's keys), so a set read alone is
 /// read through this.

@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 mod estimator;
 pub use crate::input::{parse_pair, parse_vec3, LevelSet, SourceOptions};
 pub use crate::light::LightOptions;
-pub use estimator::{EstimatorOptions, EstimatorParams, TraceOptions};
+pub use estimator::{overlaid, read_keys, EstimatorOptions, EstimatorParams, TraceOptions};
 use options::{bad, VOLUME_ONLY};
 pub use options::{parse_box, parse_size, BakeOptions, VOLUME_OPTIONS};
 mod options;

@@ -288,43 +288,29 @@ impl BakeOptions {
         self.estimator.motion(&self.source)
     }
 
-    /// These options with `keys` (a JSON object of options by name, as a job's `[[positions]]`
-    /// entry gives them) over them: each key replaces this set's value of it, an alias
-    /// (`spp`) its canonical key's (`samples`).
+    /// These options with `keys` (a JSON object of read and estimator options by name, as a
+    /// job's `[[positions]]` entry gives them) over them ([`super::overlaid`]: an alias
+    /// replaces its canonical key).
     ///
     /// # Errors
-    /// [`Error::InvalidArgument`] naming a key that is no option of the set or whose value
-    /// does not parse.
+    /// [`Error::InvalidArgument`] naming a key that is no read or estimator option, or whose
+    /// value does not parse.
     pub fn with_overrides(
         &self,
         keys: &serde_json::Map<String, serde_json::Value>,
     ) -> Result<Self> {
-        let Ok(serde_json::Value::Object(mut base)) = serde_json::to_value(self) else {
-            return Err(bad("options", "cannot be written as JSON"));
+        let trace = super::TraceOptions {
+            source: self.source.clone(),
+            estimator: self.estimator.clone(),
+            params: self.params.clone(),
         };
-        for (k, v) in keys {
-            base.insert(k.clone(), v.clone());
-        }
-        // serde knows the aliases: a key given as an alias and present under its canonical
-        // name is a duplicate, and the given one wins.
-        for _ in 0..=keys.len() {
-            match serde_json::from_value::<Self>(serde_json::Value::Object(base.clone())) {
-                Ok(o) => return Ok(o),
-                Err(e) => {
-                    let text = e.to_string();
-                    let dup = text
-                        .strip_prefix("duplicate field `")
-                        .and_then(|r| r.split('`').next())
-                        .filter(|d| !keys.contains_key(*d))
-                        .map(str::to_string);
-                    match dup {
-                        Some(d) if base.remove(&d).is_some() => {}
-                        _ => return from_json_object(&serde_json::Value::Object(base).to_string()),
-                    }
-                }
-            }
-        }
-        from_json_object(&serde_json::Value::Object(base).to_string())
+        let t = super::overlaid(&trace, keys)?;
+        Ok(Self {
+            source: t.source,
+            estimator: t.estimator,
+            params: t.params,
+            ..self.clone()
+        })
     }
 
     /// The memory budget in bytes.

@@ -37,6 +37,7 @@ mod readme;
 mod regular_tracking;
 mod scene;
 mod solid;
+mod source_options;
 mod spent_weights;
 mod tree_bounds;
 mod usd_corrupt;
