@@ -401,22 +401,33 @@ fn answer_file(
     ray_id: u64,
     (est, opts): (&Estimator, &Options),
 ) -> Vec<Answer> {
-    let made: Vec<std::result::Result<Ray, String>> = rows.iter().map(|r| r.ray.clone()).collect();
+    // The good rows' ids; their rays are `rays`, in order (no copy of the rows: a file may hold
+    // millions).
+    let ids: Vec<u64> = rows
+        .iter()
+        .enumerate()
+        .filter(|(_, r)| r.ray.is_ok())
+        .map(|(n, _)| ray_id.wrapping_add(n as u64))
+        .collect();
     let start = std::time::Instant::now();
-    let results = answer_rows(scene, &made, ray_id, est, opts);
+    let results = crate::scene::estimate_many(scene, rays, &ids, est, opts);
     let per_ray = start.elapsed().as_secs_f64() / rays.len().max(1) as f64;
+    let mut results = rays.iter().copied().zip(results);
     rows.iter()
-        .zip(results)
-        .map(|(row, result)| Answer {
+        .map(|row| Answer {
             line: Some(row.line),
-            result: result.and_then(|estimate| match &row.ray {
-                Ok(ray) => Ok(Answered {
-                    ray: *ray,
-                    estimate,
-                    seconds: per_ray,
-                }),
+            result: match &row.ray {
                 Err(e) => Err(e.clone()),
-            }),
+                Ok(_) => match results.next() {
+                    Some((ray, Ok(estimate))) => Ok(Answered {
+                        ray,
+                        estimate,
+                        seconds: per_ray,
+                    }),
+                    Some((_, Err(e))) => Err(e.to_string()),
+                    None => Err("no answer for this row".to_string()),
+                },
+            },
         })
         .collect()
 }
