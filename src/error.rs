@@ -7,6 +7,10 @@ use std::path::PathBuf;
 /// Result alias used throughout the library.
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+/// How a [`Error::LevelSet`] names the option that traces a level set as a solid, in the
+/// library's spelling: the front ends replace it with theirs.
+pub const LEVELSET_OPTION: &str = "the option levelset set to solid";
+
 /// Every error the umbra library can return. Each variant names the file it concerns so a
 /// one-line message is enough for a user to act on.
 #[derive(Debug, thiserror::Error)]
@@ -55,6 +59,23 @@ pub enum Error {
         path: PathBuf,
         /// The unsupported feature, by its OpenVDB name.
         what: String,
+    },
+    /// A level-set grid asked to be traced as fog: what its values mean forbids it. Each front
+    /// end words [`LEVELSET_OPTION`] in its own spelling (`--levelset solid`, `levelset =
+    /// "solid"`, `levelset="solid"`).
+    #[error(
+        "{}: unsupported: grid '{}' is a level set (signed distance to a surface, not a \
+         density): tracing it as fog would give meaningless transmittance; trace it as an \
+         opaque solid ({LEVELSET_OPTION}; kind = \"solid\" in a scene file), or convert it to \
+         a fog volume (OpenVDB sdfToFogVolume, Houdini VDB Convert)",
+        path.display(),
+        crate::text::escape(grid)
+    )]
+    LevelSet {
+        /// File concerned.
+        path: PathBuf,
+        /// The level-set grid.
+        grid: String,
     },
     /// The requested grid is not in the file.
     #[error("{}: no grid named '{}' (available: {})", path.display(), crate::text::escape(name), if available.is_empty() { "none".to_string() } else { available.iter().map(|a| crate::text::escape(a)).collect::<Vec<_>>().join(", ") })]

@@ -109,21 +109,15 @@ impl Volume {
     /// Prepare `grid` for tracing with extinction `mu_t = density_scale * value`.
     ///
     /// # Errors
-    /// [`Error::Unsupported`] for level sets (grid class `level set`), frustum maps and
+    /// [`Error::LevelSet`] for level sets (grid class `level set`); [`Error::Unsupported`] for
+    /// frustum maps and
     /// non-scalar grids, [`Error::InvalidArgument`] for a negative or non-finite density scale.
     pub fn new(grid: Grid, density_scale: f64, path: &std::path::Path) -> Result<Self> {
         check_density_scale(density_scale)?;
         if grid.class.as_deref() == Some("level set") {
-            return Err(Error::Unsupported {
+            return Err(Error::LevelSet {
                 path: path.to_path_buf(),
-                what: format!(
-                    "grid '{}' is a level set (signed distance to a surface, not a density): \
-                     tracing it as fog would give meaningless transmittance; trace it as an \
-                     opaque solid (`--levelset solid`; `levelset = \"solid\"` in a job file, \
-                     `kind = \"solid\"` in a scene file), or convert it to a fog volume \
-                     (OpenVDB sdfToFogVolume, Houdini VDB Convert)",
-                    crate::text::escape(&grid.name)
-                ),
+                grid: grid.name.clone(),
             });
         }
         if !grid.transform.is_affine() {

@@ -26,6 +26,7 @@ pub(crate) fn class_of(e: &umbra::Error) -> Class {
         | E::Invalid { .. }
         | E::InvalidNanoVdb { .. }
         | E::Unsupported { .. }
+        | E::LevelSet { .. }
         | E::Output { .. }
         | E::Exists { .. }
         | E::Scene { .. } => Class::File,
@@ -61,7 +62,13 @@ pub(crate) fn raise(class: Class, message: String) -> PyErr {
 /// (the library's `deep-error` is `deep_error`), an existing output with how to replace it.
 pub(crate) fn py_err(e: umbra::Error) -> PyErr {
     let e = py_worded(e);
-    raise(class_of(&e), e.to_string())
+    raise(class_of(&e), python_words(&e.to_string()))
+}
+
+/// A library message with the options it names in words (a level set's option) as Python
+/// spells them.
+fn python_words(text: &str) -> String {
+    text.replace(umbra::error::LEVELSET_OPTION, "levelset=\"solid\"")
 }
 
 /// A library error worded for Python: an option named as its keyword (the library's
@@ -103,11 +110,14 @@ pub(crate) fn load_err(e: umbra::Error, source: &umbra::input::Source) -> PyErr 
     match e {
         umbra::Error::InvalidArgument { .. } => py_err(e),
         other if source.kind().is_scene_file() => {
-            raise(class, format!("loading the scene: {other}"))
+            raise(class, python_words(&format!("loading the scene: {other}")))
         }
         other => raise(
             class,
-            format!("loading grid '{}': {other}", source.options().grid),
+            python_words(&format!(
+                "loading grid '{}': {other}",
+                source.options().grid
+            )),
         ),
     }
 }

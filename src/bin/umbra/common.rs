@@ -24,7 +24,11 @@ pub fn flag(name: &str) -> String {
 
 /// How the command line words an error it prints: an existing output says how to replace it.
 pub fn worded(e: &anyhow::Error) -> String {
-    let text = format!("{e:#}");
+    // An option the library names in words (a level set's), as the command line spells it.
+    let text = format!("{e:#}").replace(
+        umbra::error::LEVELSET_OPTION,
+        "--levelset solid; levelset = \"solid\" in a job file",
+    );
     match e.root_cause().downcast_ref::<umbra::Error>() {
         Some(umbra::Error::Exists { .. }) => format!("{text} (use --force to overwrite)"),
         _ => text,
