@@ -48,9 +48,11 @@ def estimator_calls():
 
 
 def test_the_list_is_the_librarys():
+    # The estimator options, their parameters, then the motion keys of the read options, each
+    # set in its declaration order.
     assert list(OPTIONS) == [
-        "estimator", "samples", "seed", "step", "kernel", "points",
-        "granularity", "global_majorant", "colour_walk",
+        "estimator", "samples", "seed", "granularity", "global_majorant", "colour_walk",
+        "step", "kernel", "points",
         "velocity", "shutter", "fps", "velocity_scale", "time_samples",
     ]
     assert OPTIONS["estimator"] == "regular" and OPTIONS["samples"] == 64

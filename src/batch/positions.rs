@@ -20,8 +20,10 @@ use std::path::{Path, PathBuf};
 /// Estimator keys not given are `[bake]`'s.
 #[derive(Debug, Clone, Deserialize)]
 #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-// No `deny_unknown_fields`: the flattened map takes every other key, checked when the
-// job is read (serde would refuse them before the map saw them).
+// No serde `deny_unknown_fields`: the flattened map takes every other key, checked when the
+// job is read (serde would refuse them before the map saw them). The schema still says no
+// other key is allowed.
+#[cfg_attr(feature = "schema", schemars(deny_unknown_fields))]
 pub struct PositionsSpec {
     /// The USD stage (`.usd`, `.usda`, `.usdc`, `.usdz`).
     pub usd: String,

@@ -47,8 +47,10 @@ pub fn job_schema() -> serde_json::Value {
 /// One `[[inputs]]` entry: `file`, or `pattern` with `frames`.
 #[derive(Debug, Clone, Deserialize)]
 #[cfg_attr(feature = "schema", derive(schemars::JsonSchema))]
-// No `deny_unknown_fields`: the flattened map takes every other key, checked when the
-// job is read (serde would refuse them before the map saw them).
+// No serde `deny_unknown_fields`: the flattened map takes every other key, checked when the
+// job is read (serde would refuse them before the map saw them). The schema still says no
+// other key is allowed.
+#[cfg_attr(feature = "schema", schemars(deny_unknown_fields))]
 pub struct InputSpec {
     /// An explicit file.
     pub file: Option<String>,
