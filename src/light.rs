@@ -30,6 +30,20 @@ pub struct LightOptions {
     pub light_pos: Option<[f64; 3]>,
 }
 
+impl LightOptions {
+    /// The light these options give when exactly one of `light_dir` (a directional light)
+    /// and `light_pos` (a point light) is: the one place the light keys become a [`Light`].
+    /// `None` when neither or both are given (each product words what it needs).
+    #[must_use]
+    pub fn light(&self) -> Option<Light> {
+        match (self.light_dir, self.light_pos) {
+            (Some(dir), None) => Some(Light::Directional { dir }),
+            (None, Some(pos)) => Some(Light::Point { pos }),
+            _ => None,
+        }
+    }
+}
+
 /// Where a shading point's light comes from.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]

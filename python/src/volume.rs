@@ -233,10 +233,13 @@ impl NativeVolume {
         ray_id: u64,
         threads: usize,
     ) -> PyResult<TraceOut<'py>> {
-        let light = match (light_dir, light_pos) {
-            (Some(dir), None) => Light::Directional { dir },
-            (None, Some(pos)) => Light::Point { pos },
-            _ => {
+        let given = umbra::request::LightOptions {
+            light_dir,
+            light_pos,
+        };
+        let light = match given.light() {
+            Some(light) => light,
+            None => {
                 return Err(arg(
                     "light_dir",
                     "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them",

@@ -161,9 +161,8 @@ impl BakeRequest {
                 ),
             ));
         }
-        let light = match (o.light.light_dir, o.light.light_pos) {
-            (Some(dir), None) => crate::Light::Directional { dir },
-            (None, Some(pos)) => crate::Light::Point { pos },
+        let light = match (o.light.light(), o.light.light_dir) {
+            (Some(light), _) => light,
             (None, None) => {
                 return Err(bad(
                     "light-dir",
@@ -171,7 +170,7 @@ impl BakeRequest {
                      point light)",
                 ))
             }
-            (Some(_), Some(_)) => {
+            (None, Some(_)) => {
                 return Err(bad(
                     "light-pos",
                     "a transmittance volume is lit by one light: give light-dir or light-pos, \

@@ -165,8 +165,7 @@ impl QueryRequest {
                     "give {0} (a stage light) or {1} / {2}, not both",
                 ))
             }
-            (Some(dir), None) => Some(AskedLight::Given(crate::Light::Directional { dir })),
-            (None, Some(pos)) => Some(AskedLight::Given(crate::Light::Point { pos })),
+            (Some(_), None) | (None, Some(_)) => self.light.light().map(AskedLight::Given),
             (None, None) if self.at.is_some() && self.source.kind().is_stage() => {
                 Some(AskedLight::Stage)
             }
