@@ -1849,7 +1849,7 @@ fn kind(e: &umbra::Error) -> &'static str {
         umbra::Error::Io { .. } => "Io",
         umbra::Error::NotVdb { .. } => "NotVdb",
         umbra::Error::Invalid { .. } | umbra::Error::InvalidNanoVdb { .. } => "Invalid",
-        umbra::Error::Unsupported { .. } => "Unsupported",
+        umbra::Error::Unsupported { .. } | umbra::Error::LevelSet { .. } => "Unsupported",
         umbra::Error::GridNotFound { .. } => "GridNotFound",
         umbra::Error::InvalidArgument { .. } => "InvalidArgument",
         umbra::Error::Output { .. } => "Output",
