@@ -75,7 +75,11 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     if let Err(crate::error::Error::InvalidArgument { name, reason }) =
         file.bake.light.refuse_extent("a batch job")
     {
-        return Err(err(&path, &format!("bake.{}", name.replace('-', "_")), reason));
+        return Err(err(
+            &path,
+            &format!("bake.{}", name.replace('-', "_")),
+            reason,
+        ));
     }
     if file.inputs.is_empty() {
         if file.positions.is_empty() {

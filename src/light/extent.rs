@@ -221,7 +221,7 @@ impl SoftLight {
             (Light::Point { pos }, Extent::Sphere { radius }) => {
                 let v = DVec3::from_array(pos) - at;
                 let d = v.length();
-                if !(d > radius) {
+                if d.is_nan() || d <= radius {
                     return Ok(Cone::All);
                 }
                 let s = radius / d;
@@ -304,7 +304,14 @@ impl SoftLight {
 /// solid's box (each box's bounding sphere lies outside the cone): `T = 1` exactly. A sphere
 /// light's segments are not bounded by the boxes, so it is always sampled.
 fn misses_everything(scene: &Scene, p: DVec3, cone: Cone, extent: Extent) -> bool {
-    let (Extent::Sun { .. }, Cone::Cap { axis, one_minus_cos }) = (extent, cone) else {
+    let (
+        Extent::Sun { .. },
+        Cone::Cap {
+            axis,
+            one_minus_cos,
+        },
+    ) = (extent, cone)
+    else {
         return false;
     };
     let half = (1.0 - one_minus_cos).clamp(-1.0, 1.0).acos();
@@ -319,7 +326,7 @@ fn misses_everything(scene: &Scene, p: DVec3, cone: Cone, extent: Extent) -> boo
         let (centre, rho) = ((lo + hi) / 2.0, (hi - lo).length() / 2.0);
         let to = centre - p;
         let dist = to.length();
-        if !(dist > rho) || !dist.is_finite() {
+        if !dist.is_finite() || dist <= rho {
             return false;
         }
         let apart = (to.dot(axis) / dist).clamp(-1.0, 1.0).acos();
@@ -348,9 +355,11 @@ pub fn combine(channels: usize, per: &[SceneEstimate]) -> SceneEstimate {
         let r = means.len() as f64;
         let mean = means.iter().sum::<f64>() / r;
         let var = means.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (r - 1.0).max(1.0);
-        let (lo, hi) = per.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), e| {
-            (a.min(e.value[c]), b.max(e.value[c]))
-        });
+        let (lo, hi) = per
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), e| {
+                (a.min(e.value[c]), b.max(e.value[c]))
+            });
         out.value[c] = mean;
         out.std_err[c] = if lo == hi {
             let p = (crate::estimate::error_bar::RULE_OF_THREE / n as f64).min(1.0);

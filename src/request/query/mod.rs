@@ -200,13 +200,13 @@ impl QueryRequest {
 
     /// The checks of a request with `positions`.
     fn check_positions(&self) -> Result<()> {
+        self.light.refuse_extent("positions")?;
         if !self.source.kind().is_stage() {
             return Err(Error::InvalidArgument {
                 name: "positions".into(),
                 reason: self.source.not_a_stage(),
             });
         }
-        self.light.refuse_extent("positions")?;
         let others = [
             ("from", self.from.is_some()),
             ("to", self.to.is_some()),
