@@ -4,6 +4,9 @@ use crate::error::{Error, Result};
 use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
 
+pub mod extent;
+pub use extent::{Extent, SoftLight};
+
 /// The light a job names by position or direction (a USD stage's own lights are read from the
 /// stage, `light` of the read options): the one declaration of the light keys, flattened into
 /// `umbra bake`'s and `umbra query`'s flags, a job's `[bake]` and the Python keywords.
@@ -28,6 +31,29 @@ pub struct LightOptions {
         arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true)
     )]
     pub light_pos: Option<[f64; 3]>,
+    /// With light-dir: the sun's angular diameter, degrees in [0, 180) (USD's `inputs:angle`;
+    /// the sun is about 0.53). A query at a point (`query --at`) then answers the mean
+    /// transmittance over the sun's disc (docs/lights.md); 0 is the point light exactly. Other
+    /// products refuse it for now (issue 60).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_name = "DEG", allow_negative_numbers = true)
+    )]
+    pub light_angle: Option<f64>,
+    /// With light-pos: a sphere light's radius (world units). A query at a point
+    /// (`query --at`) then answers the mean transmittance over the sphere's visible surface
+    /// (docs/lights.md); 0 is the point light exactly. Other products refuse it for now
+    /// (issue 60).
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_name = "R", allow_negative_numbers = true)
+    )]
+    pub light_radius: Option<f64>,
+    /// With light-angle or light-radius: the directions traced per receiver, in 8 randomised
+    /// quasi-Monte Carlo replicates (rounded up to a multiple of 8; default 256, at most
+    /// 1048576).
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
+    pub light_samples: Option<u32>,
 }
 
 impl LightOptions {
@@ -41,6 +67,50 @@ impl LightOptions {
             (None, Some(pos)) => Some(Light::Point { pos }),
             _ => None,
         }
+    }
+
+    /// The first key of a light with extent that is given (`light-angle`, `light-radius`,
+    /// `light-samples`), by the library's name.
+    #[must_use]
+    pub fn extent_key(&self) -> Option<&'static str> {
+        [
+            ("light-angle", self.light_angle.is_some()),
+            ("light-radius", self.light_radius.is_some()),
+            ("light-samples", self.light_samples.is_some()),
+        ]
+        .into_iter()
+        .find_map(|(k, given)| given.then_some(k))
+    }
+
+    /// Refuse the keys of a light with extent for a product that does not answer them yet
+    /// (`what`: a bake, a transmittance volume, `positions`): they apply to a query at a
+    /// point for now (issue 60), never silently dropped.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming the first such key given.
+    pub fn refuse_extent(&self, what: &str) -> Result<()> {
+        match self.extent_key() {
+            Some(k) => Err(Error::InvalidArgument {
+                name: k.into(),
+                reason: format!(
+                    "applies to a query at a point (query --at) for now (issue 60: lights \
+                     with extent); {what} traces the light as a point"
+                ),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// The light with extent these options give ([`SoftLight`]), checked: `None` when no
+    /// extent is given or it is 0 (the point light, answered as today, bit for bit).
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `light-angle`, `light-radius` or `light-samples`:
+    /// negative or non-finite values, an angle of 180 degrees or more, an angle without
+    /// light-dir, a radius without light-pos, samples without either, 0 samples or more than
+    /// [`extent::MAX_LIGHT_SAMPLES`].
+    pub fn soft(&self) -> Result<Option<SoftLight>> {
+        extent::check(self)
     }
 }
 

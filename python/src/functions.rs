@@ -293,6 +293,7 @@ pub(crate) fn usd_points_json(
 ) -> PyResult<(String, Vec<String>)> {
     let o = BakeOptions::from_json(options).map_err(py_err)?;
     o.resolve_estimator().map_err(py_err)?;
+    o.light.refuse_extent("positions").map_err(py_err)?;
     let mut source = umbra::input::Source::new(&stage, o.source.clone());
     source.options_mut().light = light;
     let request = QueryRequest {

@@ -236,6 +236,7 @@ impl NativeVolume {
         let given = umbra::request::LightOptions {
             light_dir,
             light_pos,
+            ..umbra::request::LightOptions::default()
         };
         let light = match given.light() {
             Some(light) => light,

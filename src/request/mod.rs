@@ -140,6 +140,12 @@ impl BakeRequest {
     /// [`crate::error::Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
     /// spelling, which each front end respells); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
+        let what = if is_volume_output(&self.output) {
+            "a transmittance volume"
+        } else {
+            "a map"
+        };
+        self.options.light.refuse_extent(what)?;
         let with_light = self.with_stage_light()?;
         let req = with_light.as_ref().unwrap_or(self);
         req.plan_checked()
@@ -218,6 +224,7 @@ mod tests {
             light: crate::light::LightOptions {
                 light_dir: Some([0.0, -1.0, 0.0]),
                 light_pos: None,
+                ..crate::light::LightOptions::default()
             },
             tile: Some(16),
             ..BakeOptions::default()
@@ -232,6 +239,7 @@ mod tests {
             light: crate::light::LightOptions {
                 light_dir: Some([0.0, -1.0, 0.0]),
                 light_pos: None,
+                ..crate::light::LightOptions::default()
             },
             half: true,
             ..BakeOptions::default()

@@ -21,6 +21,7 @@ mod corpus_manifest;
 mod deep_map;
 mod friction;
 mod hostile;
+mod lights_extent;
 mod motion;
 mod mutation;
 mod nvdb;

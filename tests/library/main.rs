@@ -25,6 +25,7 @@ mod estimators;
 mod exr_layout;
 mod lazy;
 mod library_api;
+mod lights_extent;
 mod map_summary;
 mod motion;
 mod near_lattice;

@@ -185,6 +185,7 @@ fn a_stage_point_toward_the_stage_light() {
         light: umbra::request::LightOptions {
             light_dir: Some(d),
             light_pos: None,
+            ..umbra::request::LightOptions::default()
         },
         ..QueryRequest::new(Source::new(&stage, SourceOptions::default()))
     });

@@ -434,6 +434,7 @@ fn deep_light(l: &umbra::request::LightOptions) -> umbra::request::LightOptions 
         (None, None) => umbra::request::LightOptions {
             light_dir: Some([0.0, -1.0, 0.0]),
             light_pos: None,
+            ..l.clone()
         },
         _ => l.clone(),
     }

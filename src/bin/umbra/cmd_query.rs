@@ -299,6 +299,9 @@ fn answer_json(
     if let Some(n) = line {
         v["line"] = n.into();
     }
+    if let Some(n) = a.light_samples {
+        v["light_samples"] = n.into();
+    }
     v
 }
 
@@ -322,8 +325,11 @@ fn answer_text(a: &umbra::request::Answered, est: &str, interp: Interp) -> Strin
     let hit = e
         .hit
         .map_or(String::new(), |h| format!(", solid hit at {}", full(h)));
+    let light = a
+        .light_samples
+        .map_or(String::new(), |n| format!(", {n} light directions"));
     format!(
-        "T = {}{err}{tau}{hit} ({est}, {interp:?}, {} samples, length {}, {} lookups)",
+        "T = {}{err}{tau}{hit} ({est}, {interp:?}, {} samples, length {}, {} lookups{light})",
         list(e.value, &|x| full(x)),
         e.samples,
         full(ray.t_max()),

@@ -141,6 +141,8 @@ impl QueryRequest {
                 ));
             }
         }
+        // The keys of a light with extent, checked (they go with a given light).
+        let soft = self.light.soft()?;
         let segment = match (self.from, self.to, self.at) {
             (Some(from), Some(to), None) => Some((from, to)),
             (Some(_), None, _) | (None, Some(_), _) => {
@@ -165,7 +167,10 @@ impl QueryRequest {
                     "give {0} (a stage light) or {1} / {2}, not both",
                 ))
             }
-            (Some(_), None) | (None, Some(_)) => self.light.light().map(AskedLight::Given),
+            (Some(_), None) | (None, Some(_)) => match soft {
+                Some(s) => Some(AskedLight::Soft(s)),
+                None => self.light.light().map(AskedLight::Given),
+            },
             (None, None) if self.at.is_some() && self.source.kind().is_stage() => {
                 Some(AskedLight::Stage)
             }
@@ -195,6 +200,7 @@ impl QueryRequest {
 
     /// The checks of a request with `positions`.
     fn check_positions(&self) -> Result<()> {
+        self.light.refuse_extent("positions")?;
         if !self.source.kind().is_stage() {
             return Err(Error::InvalidArgument {
                 name: "positions".into(),
@@ -242,6 +248,8 @@ pub(crate) enum Asked {
 pub(crate) enum AskedLight {
     /// A light given by its direction or position.
     Given(crate::Light),
+    /// A sun with an angle or a sphere light with a radius (`light-angle`, `light-radius`).
+    Soft(crate::light::SoftLight),
     /// The stage's light (`read.stage.light`, or its only one).
     Stage,
 }

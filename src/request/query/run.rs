@@ -59,6 +59,9 @@ pub struct Answered {
     pub estimate: SceneEstimate,
     /// Seconds.
     pub seconds: f64,
+    /// Toward a light with extent: the directions traced (0 when the light's whole cone
+    /// provably misses every volume and solid); `None` toward a point (and for segments).
+    pub light_samples: Option<usize>,
 }
 
 /// The answers at every point of a stage's points prim.
@@ -219,6 +222,10 @@ impl QueryRequest {
                 light: AskedLight::Given(l),
                 ..
             } => Ok((Some(l), named)),
+            Asked::Toward {
+                light: AskedLight::Soft(s),
+                ..
+            } => Ok((Some(s.light), named)),
             Asked::Segment { .. } | Asked::Rows => Ok((None, named)),
         }
     }
@@ -234,7 +241,25 @@ impl QueryRequest {
         // The query's rays, made against the scene's boxes (a lazy load's shell): a single ray
         // that cannot be made keeps its error here and asks for nothing to be decoded.
         let mut ray_error = None;
+        let mut soft_rays = None;
         let make_rays = |scene: &Scene| -> Vec<Ray> {
+            if let Asked::Toward {
+                at,
+                light: AskedLight::Soft(s),
+            } = asked
+            {
+                return match s.rays(scene, at, opts.seed, self.ray_id) {
+                    Ok(r) => {
+                        let rays = r.rays.clone();
+                        soft_rays = Some(r);
+                        rays
+                    }
+                    Err(e) => {
+                        ray_error = Some(e);
+                        Vec::new()
+                    }
+                };
+            }
             let ray = match (asked, light) {
                 (Asked::Rows, _) => {
                     let rows = self.rays.as_deref().unwrap_or_default();
@@ -259,19 +284,23 @@ impl QueryRequest {
             return Err(with_warnings(QueryError::at(QueryStep::Ray, e)));
         }
         // The work budget, up front: per ray and for every ray of the batch together.
-        let n_rays = self.rays.as_ref().map_or(1, Vec::len) as u64;
+        let n_rays = match &soft_rays {
+            Some(s) => s.rays.len().max(1),
+            None => self.rays.as_ref().map_or(1, Vec::len),
+        } as u64;
         check_budget(&scene, est, opts, n_rays)
             .map_err(|e| with_warnings(QueryError::at(QueryStep::Check, e)))?;
-        let answers = match (asked, rays.first()) {
-            (Asked::Rows, _) => answer_file(
+        let answers = match (asked, rays.first(), &soft_rays) {
+            (_, _, Some(soft)) => vec![answer_soft(&scene, soft, (est, opts))],
+            (Asked::Rows, ..) => answer_file(
                 &scene,
                 self.rays.as_deref().unwrap_or_default(),
                 &rays,
                 self.ray_id,
                 (est, opts),
             ),
-            (_, Some(ray)) => vec![answer_one(&scene, ray, self.ray_id, (est, opts))],
-            (_, None) => {
+            (_, Some(ray), None) => vec![answer_one(&scene, ray, self.ray_id, (est, opts))],
+            (_, None, None) => {
                 let nothing = Error::Conflict {
                     names: Vec::new(),
                     reason: "nothing to query".into(),
@@ -423,6 +452,7 @@ fn answer_file(
                         ray,
                         estimate,
                         seconds: per_ray,
+                        light_samples: None,
                     }),
                     Some((_, Err(e))) => Err(e.to_string()),
                     None => Err("no answer for this row".to_string()),
@@ -450,7 +480,31 @@ fn answer_one(
             ray: *ray,
             estimate,
             seconds: start.elapsed().as_secs_f64(),
+            light_samples: None,
         });
+    Answer { line: None, result }
+}
+
+/// A receiver toward a light with extent: every direction through the batch entry point, then
+/// their mean and the replicates' error bar ([`crate::light::extent::combine`]); a direction
+/// whose estimate fails is the answer's error.
+fn answer_soft(
+    scene: &Scene,
+    soft: &crate::light::extent::SoftRays,
+    (est, opts): (&Estimator, &Options),
+) -> Answer {
+    let start = std::time::Instant::now();
+    let per: std::result::Result<Vec<SceneEstimate>, String> =
+        crate::scene::estimate_many(scene, &soft.rays, &soft.ids, est, opts)
+            .into_iter()
+            .map(|r| r.map_err(|e| e.to_string()))
+            .collect();
+    let result = per.map(|per| Answered {
+        ray: soft.centre,
+        estimate: crate::light::extent::combine(scene.channels(), &per),
+        seconds: start.elapsed().as_secs_f64(),
+        light_samples: Some(per.len()),
+    });
     Answer { line: None, result }
 }
 
