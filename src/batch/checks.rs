@@ -1,6 +1,6 @@
 //! Checks shared by the job file's parsers (`schema`, `positions`): error values naming their
-//! key, frame ranges, the key under a byte of the text, an `[[inputs]]` entry's read keys,
-//! `bake.usd_out`, and lexical path normalisation.
+//! key, frame ranges, the key under a byte of the text, how an `[[inputs]]` entry reads its
+//! files (`EntryRead`), `bake.usd_out`, and lexical path normalisation.
 
 use super::patterns::MAX_FRAMES;
 use super::{BatchError, Task};

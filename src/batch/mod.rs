@@ -62,6 +62,7 @@ mod layer;
 mod parse;
 mod patterns;
 mod positions;
+mod read;
 mod runner;
 mod schema;
 mod status;

@@ -29,7 +29,7 @@ pub struct InfoArgs {
     grid: Option<String>,
     /// A USD stage: the time code and the volumes to report.
     #[command(flatten)]
-    stage: StageArgs,
+    stage: crate::info_stage::StageArgs,
 }
 
 /// Print the reports. Exit code 3 when some grid or file could not be read but others could;
@@ -391,50 +391,5 @@ fn tiles(t: &Option<Value>) -> String {
             .collect::<Vec<_>>()
             .join(", "),
         other => val(other),
-    }
-}
-
-/// What `umbra info` reads of a USD stage input (`--frame`, `--volume`, `--field`, `--light`):
-/// the listing's own selection (the tracing commands read these keys with the rest of
-/// [`umbra::input::SourceOptions`]).
-#[derive(Debug, Clone, clap::Args)]
-pub struct StageArgs {
-    /// USD stage inputs: the time code to read (default: the stage's startTimeCode).
-    #[arg(long, allow_negative_numbers = true)]
-    pub frame: Option<f64>,
-    /// USD stage inputs: a Volume prim to trace, by path (repeatable; default: every active,
-    /// visible Volume).
-    #[arg(long, value_name = "PRIM")]
-    pub volume: Vec<String>,
-    /// USD stage inputs: the field a Volume's density is (field:NAME; default density).
-    #[arg(long, value_name = "NAME")]
-    pub field: Option<String>,
-    /// USD stage inputs: the UsdLux light, by prim path or name (default: the stage's only
-    /// light).
-    #[arg(long, value_name = "PRIM")]
-    pub light: Option<String>,
-}
-
-impl StageArgs {
-    /// The stage keys as read options (the rest at their defaults).
-    pub fn options(&self) -> umbra::input::SourceOptions {
-        umbra::input::SourceOptions {
-            frame: self.frame,
-            volume: (!self.volume.is_empty()).then(|| self.volume.clone()),
-            field: self.field.clone(),
-            light: self.light.clone(),
-            ..umbra::input::SourceOptions::default()
-        }
-    }
-
-    /// The library's selection.
-    pub fn selection(&self) -> umbra::usd::Selection {
-        umbra::usd::Selection {
-            time: self.frame,
-            volumes: self.volume.clone(),
-            field: self.field.clone().unwrap_or_else(|| "density".into()),
-            light: None,
-            velocity: None,
-        }
     }
 }

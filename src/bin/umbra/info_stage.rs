@@ -9,7 +9,7 @@ use std::path::Path;
 use umbra::usd::{Emitter, StageLight};
 
 /// The stage's report as JSON (what `--json` prints; the text form is drawn from it).
-fn report(file: &Path, stage: &crate::cmd_info::StageArgs) -> Result<Value> {
+fn report(file: &Path, stage: &StageArgs) -> Result<Value> {
     if stage.light.is_some() {
         bail!("invalid argument '--light': info lists every light of the stage");
     }
@@ -102,7 +102,7 @@ fn shadow_line(s: &Value) -> String {
 }
 
 /// Print the stage's report (text, or JSON with `json`).
-pub fn print(file: &Path, stage: &crate::cmd_info::StageArgs, json: bool) -> Result<()> {
+pub fn print(file: &Path, stage: &StageArgs, json: bool) -> Result<()> {
     let r = report(file, stage)?;
     let mut out = std::io::stdout().lock();
     if json {
@@ -181,4 +181,49 @@ fn vector(v: &Value) -> String {
         .as_array()
         .map_or(Vec::new(), |a| a.iter().map(n).collect());
     format!("({})", parts.join(", "))
+}
+
+/// What `umbra info` reads of a USD stage input (`--frame`, `--volume`, `--field`, `--light`):
+/// the listing's own selection (the tracing commands read these keys with the rest of
+/// [`umbra::input::SourceOptions`]).
+#[derive(Debug, Clone, clap::Args)]
+pub struct StageArgs {
+    /// USD stage inputs: the time code to read (default: the stage's startTimeCode).
+    #[arg(long, allow_negative_numbers = true)]
+    pub frame: Option<f64>,
+    /// USD stage inputs: a Volume prim to trace, by path (repeatable; default: every active,
+    /// visible Volume).
+    #[arg(long, value_name = "PRIM")]
+    pub volume: Vec<String>,
+    /// USD stage inputs: the field a Volume's density is (field:NAME; default density).
+    #[arg(long, value_name = "NAME")]
+    pub field: Option<String>,
+    /// USD stage inputs: the UsdLux light, by prim path or name (default: the stage's only
+    /// light).
+    #[arg(long, value_name = "PRIM")]
+    pub light: Option<String>,
+}
+
+impl StageArgs {
+    /// The stage keys as read options (the rest at their defaults).
+    pub fn options(&self) -> umbra::input::SourceOptions {
+        umbra::input::SourceOptions {
+            frame: self.frame,
+            volume: (!self.volume.is_empty()).then(|| self.volume.clone()),
+            field: self.field.clone(),
+            light: self.light.clone(),
+            ..umbra::input::SourceOptions::default()
+        }
+    }
+
+    /// The library's selection.
+    pub fn selection(&self) -> umbra::usd::Selection {
+        umbra::usd::Selection {
+            time: self.frame,
+            volumes: self.volume.clone(),
+            field: self.field.clone().unwrap_or_else(|| "density".into()),
+            light: None,
+            velocity: None,
+        }
+    }
 }
