@@ -545,7 +545,7 @@ fn a_source_decides_its_kind_once() {
     );
 }
 
-/// A volume is set moving at one site, `scene::file::blurred` (which `Source::load` and a
+/// A volume is set moving at one site, `scene::blurred` (which `Source::load` and a
 /// transmittance volume's load call): no other file calls `Volume::with_motion`.
 #[test]
 fn one_site_sets_a_volume_moving() {
@@ -558,7 +558,7 @@ fn one_site_sets_a_volume_moving() {
             "blurred: the velocity field read and the volume set moving",
         )],
         "files setting a volume moving (load a Source with the motion keys, or call \
-         scene::file::blurred)",
+         scene::blurred)",
     );
 }
 

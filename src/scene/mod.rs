@@ -11,6 +11,9 @@
 mod batch;
 mod estimate;
 pub mod file;
+mod source;
+
+pub(crate) use file::blurred;
 
 pub use batch::estimate_many;
 pub use estimate::{estimate, SceneEstimate};

@@ -714,7 +714,7 @@ impl VolumeJob {
             v = v.with_xform(x)?;
         }
         match &self.motion {
-            Some(m) => crate::scene::file::blurred(v, m, path),
+            Some(m) => crate::scene::blurred(v, m, path),
             None => Ok(v),
         }
     }
