@@ -200,6 +200,16 @@ pub struct SoftRays {
     pub centre: Ray,
 }
 
+/// `|v|` without overflow or underflow in its squares (a light at 1e300).
+fn safe_length(v: DVec3) -> f64 {
+    let m = v.abs().max_element();
+    if m > 0.0 && m.is_finite() {
+        m * (v / m).length()
+    } else {
+        m
+    }
+}
+
 impl SoftLight {
     /// The cone from `at` toward the light.
     fn cone(&self, at: DVec3) -> Result<Cone> {
@@ -220,7 +230,7 @@ impl SoftLight {
             }
             (Light::Point { pos }, Extent::Sphere { radius }) => {
                 let v = DVec3::from_array(pos) - at;
-                let d = v.length();
+                let d = safe_length(v);
                 if d.is_nan() || d <= radius {
                     return Ok(Cone::All);
                 }
@@ -241,15 +251,23 @@ impl SoftLight {
     fn ray(&self, scene: &Scene, at: DVec3, d: DVec3) -> Result<Ray> {
         match (self.light, self.extent) {
             (Light::Point { pos }, Extent::Sphere { radius }) => {
+                // In units of the distance to the centre, so a light at 1e300 does not
+                // overflow: t = L (b - sqrt(b^2 - 1 + q^2)), q = r / L.
                 let c = DVec3::from_array(pos) - at;
-                let b = d.dot(c);
-                let disc = (b * b - (c.length_squared() - radius * radius)).max(0.0);
-                // Outside: the nearer crossing; inside: the only one ahead.
-                let root = disc.sqrt();
-                let t = if c.length() > radius {
-                    b - root
+                let l = safe_length(c);
+                let (b, q) = if l > 0.0 {
+                    (d.dot(c / l), radius / l)
                 } else {
-                    b + root
+                    (0.0, 1.0)
+                };
+                let root = (b * b - (1.0 - q * q)).max(0.0).sqrt();
+                // Outside: the nearer crossing; inside: the only one ahead.
+                let t = if l > radius {
+                    l * (b - root)
+                } else if l > 0.0 {
+                    l * (b + root)
+                } else {
+                    radius
                 };
                 Ray::new(at, d, 0.0, t.max(0.0))
             }

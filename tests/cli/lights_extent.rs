@@ -245,3 +245,12 @@ fn every_refusal_names_its_flag() {
         "{err}"
     );
 }
+
+/// A sphere light 1e300 away (its squared distance overflows): answered, T = 1 with an
+/// error bar that is not 0, never an error about a ray without direction.
+#[test]
+fn a_sphere_light_at_1e300_is_answered() {
+    let v = answer(&["--light-pos=1e300,0,0", "--light-radius", "1e299"]);
+    assert_eq!(v["T"], 1.0, "{v}");
+    assert!(v["std_err"].as_f64().unwrap() > 0.0, "{v}");
+}
