@@ -27,12 +27,8 @@ impl QueryRequest {
             ],
         };
         let (est, opts) = self.estimator().map_err(at(QueryStep::Check))?;
-        // The light and the time are set per frame (`point_transmittance`).
-        self.estimator
-            .motion(self.source.options())
-            .map_err(at(QueryStep::Check))?;
-        let mut source = self.source.clone();
-        source.options_mut().xform = None;
+        // The light and the time are set per frame (`point_transmittance`); `check` refused
+        // an xform.
         let pool = self.pool().map_err(at(QueryStep::Check))?;
         self.check_usd_out().map_err(at(QueryStep::Check))?;
         let q = PointQuery {
@@ -42,7 +38,7 @@ impl QueryRequest {
             frames: &frames,
         };
         let answers = pool
-            .install(|| crate::points::point_transmittance(&q, &source, &est, &opts, on_frame))
+            .install(|| crate::points::point_transmittance(&q, &self.source, &est, &opts, on_frame))
             .map_err(at(QueryStep::Load))?;
         if let Some(layer) = &self.usd_out {
             let text = crate::points::layer_text(&answers).map_err(at(QueryStep::Answer))?;

@@ -175,9 +175,6 @@ impl QueryRequest {
         let asked = self.asked().map_err(at(QueryStep::Check))?;
         let (light, toward) = self.light(asked)?;
         let (est, opts) = self.estimator().map_err(at(QueryStep::Check))?;
-        self.estimator
-            .motion(self.source.options())
-            .map_err(at(QueryStep::Check))?;
         let mut read = self.source.clone();
         read.options_mut().light = toward;
         let pool = self.pool().map_err(at(QueryStep::Check))?;
@@ -185,10 +182,14 @@ impl QueryRequest {
             .map(QueryOutcome::Rays)
     }
 
-    /// The estimator and its options at the request's interpolation.
+    /// The estimator and its options at the request's interpolation, checked against the
+    /// source's motion ([`crate::request::EstimatorOptions::motion`]).
     pub(crate) fn estimator(&self) -> Result<(Estimator, Options)> {
-        self.estimator
-            .resolve(&self.params, self.source.options().interp)
+        let resolved = self
+            .estimator
+            .resolve(&self.params, self.source.options().interp)?;
+        self.estimator.motion(self.source.options())?;
+        Ok(resolved)
     }
 
     /// A pool of the request's workers.
