@@ -352,46 +352,48 @@ fn misses_everything(scene: &Scene, p: DVec3, cone: Cone, extent: Extent) -> boo
     })
 }
 
-/// The answer at one receiver from its directions' estimates, in replicate order
-/// ([`SoftRays::rays`]): per channel the mean over every direction, the error bar from the
-/// replicates' spread (module docs). No direction: the cone missed everything, `T = 1`.
-#[must_use]
-pub fn combine(channels: usize, per: &[SceneEstimate]) -> SceneEstimate {
-    let mut out = SceneEstimate::exact(channels, [0.0; 3], 0, 0);
-    out.tau = None;
-    if per.is_empty() {
-        out.value = [1.0; 3];
-        return out;
+impl SoftRays {
+    /// The answer at one receiver from its directions' estimates, in the order of
+    /// [`SoftRays::rays`]: per channel the mean over every direction, the error bar from the
+    /// replicates' spread (module docs). No direction: the cone missed everything, `T = 1`.
+    #[must_use]
+    pub fn combine(&self, channels: usize, per: &[SceneEstimate]) -> SceneEstimate {
+        let mut out = SceneEstimate::exact(channels, [0.0; 3], 0, 0);
+        out.tau = None;
+        if per.is_empty() {
+            out.value = [1.0; 3];
+            return out;
+        }
+        let n = per.len();
+        let m = (n / REPLICATES as usize).max(1);
+        for c in 0..3 {
+            let means: Vec<f64> = per
+                .chunks(m)
+                .map(|ch| ch.iter().map(|e| e.value[c]).sum::<f64>() / ch.len() as f64)
+                .collect();
+            let r = means.len() as f64;
+            let mean = means.iter().sum::<f64>() / r;
+            let var = means.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (r - 1.0).max(1.0);
+            let (lo, hi) = per
+                .iter()
+                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), e| {
+                    (a.min(e.value[c]), b.max(e.value[c]))
+                });
+            out.value[c] = mean;
+            out.std_err[c] = if lo == hi {
+                let p = (crate::estimate::error_bar::RULE_OF_THREE / n as f64).min(1.0);
+                mean.max(1.0 - mean) * (p / n as f64).sqrt()
+            } else {
+                (var / r).sqrt()
+            };
+        }
+        out.lookups = per.iter().map(|e| e.lookups).sum();
+        out.segments = per.iter().map(|e| e.segments).sum();
+        out.samples = per.iter().map(|e| e.samples).max().unwrap_or(1);
+        out.capped = per.iter().map(|e| e.capped).sum();
+        out.majorant_violations = per.iter().map(|e| e.majorant_violations).sum();
+        out
     }
-    let n = per.len();
-    let m = (n / REPLICATES as usize).max(1);
-    for c in 0..3 {
-        let means: Vec<f64> = per
-            .chunks(m)
-            .map(|ch| ch.iter().map(|e| e.value[c]).sum::<f64>() / ch.len() as f64)
-            .collect();
-        let r = means.len() as f64;
-        let mean = means.iter().sum::<f64>() / r;
-        let var = means.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (r - 1.0).max(1.0);
-        let (lo, hi) = per
-            .iter()
-            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), e| {
-                (a.min(e.value[c]), b.max(e.value[c]))
-            });
-        out.value[c] = mean;
-        out.std_err[c] = if lo == hi {
-            let p = (crate::estimate::error_bar::RULE_OF_THREE / n as f64).min(1.0);
-            mean.max(1.0 - mean) * (p / n as f64).sqrt()
-        } else {
-            (var / r).sqrt()
-        };
-    }
-    out.lookups = per.iter().map(|e| e.lookups).sum();
-    out.segments = per.iter().map(|e| e.segments).sum();
-    out.samples = per.iter().map(|e| e.samples).max().unwrap_or(1);
-    out.capped = per.iter().map(|e| e.capped).sum();
-    out.majorant_violations = per.iter().map(|e| e.majorant_violations).sum();
-    out
 }
 
 #[cfg(test)]

@@ -487,7 +487,7 @@ fn answer_one(
 }
 
 /// A receiver toward a light with extent: every direction through the batch entry point, then
-/// their mean and the replicates' error bar ([`crate::light::extent::combine`]); a direction
+/// their mean and the replicates' error bar ([`crate::light::extent::SoftRays::combine`]); a direction
 /// whose estimate fails is the answer's error.
 fn answer_soft(
     scene: &Scene,
@@ -502,7 +502,7 @@ fn answer_soft(
             .collect();
     let result = per.map(|per| Answered {
         ray: soft.centre,
-        estimate: crate::light::extent::combine(scene.channels(), &per),
+        estimate: soft.combine(scene.channels(), &per),
         seconds: start.elapsed().as_secs_f64(),
         light_samples: Some(per.len()),
     });
