@@ -4,7 +4,9 @@ use crate::error::{Error, Result};
 use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
 
+pub mod area;
 pub mod extent;
+pub use area::{Area, Shape};
 pub use extent::{Extent, SoftLight};
 
 /// The light a job names by position or direction (a USD stage's own lights are read from the
@@ -136,8 +138,12 @@ impl From<crate::usd::Emitter> for Light {
     /// maps its emitter here.
     fn from(e: crate::usd::Emitter) -> Self {
         match e {
-            crate::usd::Emitter::Directional { dir } => Self::Directional { dir },
-            crate::usd::Emitter::Point { pos } => Self::Point { pos },
+            crate::usd::Emitter::Directional { dir, .. } => Self::Directional { dir },
+            crate::usd::Emitter::Point { pos }
+            | crate::usd::Emitter::Sphere { pos, .. }
+            | crate::usd::Emitter::Disk { pos, .. }
+            | crate::usd::Emitter::Rect { pos, .. }
+            | crate::usd::Emitter::Cylinder { pos, .. } => Self::Point { pos },
         }
     }
 }
