@@ -159,27 +159,51 @@ impl Area {
     }
 
     /// The point of the lattice point `(u, v)` in `[0, 1)^2` and its weight seen from `x`
-    /// (module docs): 0 for a point of the back side.
+    /// (module docs): 0 for a point of the back side. A cylinder's and a sphere's lattice covers
+    /// only the part `x` can see: a point `q` of either faces `x` when `n . (q_x - q) > 0`, `q_x`
+    /// the receiver in the light's own space (an affine map keeps which side a point is on),
+    /// that is the arc `|phi - phi_x| < acos(r / rho_x)` round a cylinder and the cap
+    /// `n . q_x / |q_x| > r / |q_x|` of a sphere; both are uniform in local area over that
+    /// part, whose size is the same for every lattice point of one receiver (it cancels).
     #[must_use]
     pub fn point(&self, x: DVec3, u: f64, v: f64) -> (DVec3, f64) {
-        let (s, c) = (TAU * v).sin_cos();
+        let qx = self.inverse * (x - self.centre);
         let (q, n) = match self.shape {
             Shape::Disk { radius } => {
                 let r = radius * u.sqrt();
+                let (s, c) = (TAU * v).sin_cos();
                 (DVec3::new(r * c, r * s, 0.0), DVec3::NEG_Z)
             }
             Shape::Rect { width, height } => (
                 DVec3::new((u - 0.5) * width, (v - 0.5) * height, 0.0),
                 DVec3::NEG_Z,
             ),
-            Shape::Cylinder { radius, length } => (
-                DVec3::new((u - 0.5) * length, radius * c, radius * s),
-                DVec3::new(0.0, c, s),
-            ),
+            Shape::Cylinder { radius, length } => {
+                let rho = qx.y.hypot(qx.z);
+                let phi = if radius > 0.0 && rho > radius {
+                    qx.z.atan2(qx.y) + (2.0 * v - 1.0) * (radius / rho).clamp(-1.0, 1.0).acos()
+                } else {
+                    TAU * v
+                };
+                let (s, c) = phi.sin_cos();
+                (
+                    DVec3::new((u - 0.5) * length, radius * c, radius * s),
+                    DVec3::new(0.0, c, s),
+                )
+            }
             Shape::Ellipsoid { radius } => {
-                let z = 1.0 - 2.0 * u;
+                let l = qx.length();
+                // Outside: the visible cap about q_x; inside: the whole sphere.
+                let (axis, lowest) = if l > radius {
+                    (qx / l, radius / l)
+                } else {
+                    (DVec3::Z, -1.0)
+                };
+                let z = 1.0 - u * (1.0 - lowest);
                 let r = (1.0 - z * z).max(0.0).sqrt();
-                let n = DVec3::new(r * c, r * s, z);
+                let (s, c) = (TAU * v).sin_cos();
+                let (b1, b2) = super::extent::basis(axis);
+                let n = b1 * (r * c) + b2 * (r * s) + axis * z;
                 (n * radius, n)
             }
         };

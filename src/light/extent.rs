@@ -219,7 +219,7 @@ impl Cone {
 }
 
 /// An orthonormal basis around the unit vector `n` (Duff et al. 2017, branchless).
-fn basis(n: DVec3) -> (DVec3, DVec3) {
+pub(super) fn basis(n: DVec3) -> (DVec3, DVec3) {
     let sign = 1.0_f64.copysign(n.z);
     let a = -1.0 / (sign + n.z);
     let b = n.x * n.y * a;
