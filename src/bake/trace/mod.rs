@@ -3,7 +3,9 @@
 //! bake of scenes (`scene`). Tracing makes a [`Map`] in memory; it reads no file and writes
 //! none (encoding is `bake/encode`, orchestration `bake/product`).
 
+mod occupancy;
 pub(crate) mod scene;
+mod soft;
 pub(crate) mod sweep;
 
 use crate::bake::camera::{Camera, MAX_PIXELS};
@@ -257,6 +259,14 @@ pub fn bake(
     settings: &BakeSettings,
     progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
+    if settings.soft.is_some() {
+        return Err(bad(
+            "light-angle",
+            "a map toward a light with extent is baked from a scene (bake_scene): its rays are \
+             made against every volume's box"
+                .into(),
+        ));
+    }
     bake_source(Source::Volume(vol), camera, settings, progress)
 }
 
@@ -271,6 +281,9 @@ pub fn bake_scene(
     settings: &BakeSettings,
     progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
+    if let Some(soft) = &settings.soft {
+        return soft::bake_soft(scene, camera, settings, soft, progress);
+    }
     match scene.single() {
         Some(vol) => bake(vol, camera, settings, progress),
         None => bake_source(Source::Scene(scene), camera, settings, progress),

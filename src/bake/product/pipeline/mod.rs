@@ -115,6 +115,17 @@ impl BakeJob {
         if let Product::Deep { max_error } = self.product {
             crate::bake::check_deep_error(max_error)?;
         }
+        if self.settings.soft.is_some() && self.product != Product::Map {
+            return Err(Error::InvalidArgument {
+                name: if matches!(self.product, Product::Deep { .. }) {
+                    "deep"
+                } else {
+                    "deep-format"
+                }
+                .into(),
+                reason: "a deep map toward a light with extent is not made yet (issue 60)".into(),
+            });
+        }
         if self.product != Product::Map {
             let flat_only = |flag: &str, what: &str| Error::InvalidArgument {
                 name: flag.into(),
@@ -364,6 +375,15 @@ impl BakeJob {
         if let crate::bake::Depths::At(d) = &mut settings.depths {
             if delta > 0.0 {
                 d.iter_mut().for_each(|z| *z += delta);
+            }
+        }
+        if let Some(crate::bake::SoftMap {
+            receiver: crate::bake::Receiver::Depth(d),
+            ..
+        }) = &mut settings.soft
+        {
+            if delta > 0.0 {
+                *d += delta;
             }
         }
         settings
