@@ -60,6 +60,9 @@ pub use product::pipeline::{
     map_warnings, motion_warnings, solid_warnings, velocity_warnings, volume_warnings, BakeError,
     BakeJob, BakeReport, BoundedPlan, Product, Step, Warning, IMPLIED_BUDGET,
 };
+pub use product::soft_deep::{
+    soft_deep_attributes, soft_deep_depths, soft_deep_image, SOFT_DEEP_DEPTHS,
+};
 pub use product::transmittance_volume::{
     output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,
     DEFAULT_OUT_GRID, MAX_VOLUME_LEAVES,

@@ -342,6 +342,13 @@ impl BakeRequest {
         let Some(light) = soft else {
             return Ok(None);
         };
+        if o.deep_error.is_some() {
+            return Err(bad(
+                "deep-error",
+                "bounds the fit of a transmittance that never rises with depth; a deep map \
+                 toward a light with extent stores T_L at its receivers as it is (docs/lights.md)",
+            ));
+        }
         if o.max_memory.is_some() {
             return Err(bad(
                 "max-memory",

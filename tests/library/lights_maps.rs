@@ -339,26 +339,24 @@ fn bad_values_are_refused_by_name() {
         name(plan_error(options(sun(4.0), 8), "t.vdb")),
         "light-angle"
     );
-    // Deep maps toward a light with extent refuse their flag.
+    // A deep map stores T_L as it is: no fit, so no deep-error.
+    let o = BakeOptions {
+        deep: true,
+        deep_error: Some(0.01),
+        stderr: false,
+        ..options(sun(4.0), 8)
+    };
+    assert_eq!(name(plan_error(o, "m.exr")), "deep-error");
+    // Fixed-size formats bound their error by monotonicity, which T_L(z) need not have.
     let dir = tempfile::tempdir().unwrap();
-    for (o, flag) in [
-        (
-            BakeOptions {
-                deep: true,
-                stderr: false,
-                ..options(sun(4.0), 8)
-            },
-            "deep",
-        ),
-        (
-            BakeOptions {
-                deep_format: Some("fourier:7".into()),
-                stderr: false,
-                ..options(sun(4.0), 8)
-            },
-            "deep-format",
-        ),
-    ] {
+    for (o, flag) in [(
+        BakeOptions {
+            deep_format: Some("fourier:7".into()),
+            stderr: false,
+            ..options(sun(4.0), 8)
+        },
+        "deep-format",
+    )] {
         let req = BakeRequest {
             input: cloud(),
             output: dir.path().join("deep.exr"),
@@ -369,31 +367,113 @@ fn bad_values_are_refused_by_name() {
     }
 }
 
+/// The slab of [`a_slab_near_a_sphere_light_gives_a_rising_profile`] and its light.
+fn slab(dir: &Path) -> (PathBuf, BakeOptions) {
+    let slab = dir.join("slab.vdb");
+    // A faint leaf 200 below (optical depth 8e-4 at most) makes the box, and the deep
+    // map's receivers, reach down there.
+    let leaves = [[0, 0, 0], [8, 0, 0], [0, 0, 8], [8, 0, 8]]
+        .into_iter()
+        .map(|o| Leaf::filled(o, 2.0))
+        .chain([Leaf::filled([8, -200, 8], 1e-4)])
+        .collect();
+    VdbFile::new(vec![Grid::fog("density", leaves)]).write(&slab);
+    let light = LightOptions {
+        light_samples: Some(256),
+        ..sphere([8.0, 40.0, 8.0], 20.0)
+    };
+    let o = BakeOptions {
+        source: SourceOptions::default(),
+        res: Some(Resolution::LongSide(5)),
+        ..options(light, 5)
+    };
+    (slab, o)
+}
+
+/// A deep map toward the slab's sphere light, read back by OpenImageIO (`oiiotool
+/// --dumpdata`): its samples are those the flat map's slices at the same depths call for
+/// (`A = 1 - T_k / T_(k-1)` between receivers, so compositing gives `T_L` at each), and the
+/// centre texel's `T_L` rises with depth (some sample has a negative alpha).
+#[test]
+fn a_deep_map_stores_a_rising_profile_as_it_is() {
+    let dir = tempfile::tempdir().unwrap();
+    let (slab, o) = slab(dir.path());
+    let deep = dir.path().join("deep.exr");
+    let r = bake(
+        &slab,
+        &deep,
+        BakeOptions {
+            deep: true,
+            stderr: false,
+            ..o.clone()
+        },
+    );
+    let camera = r.map.camera;
+    let depths = umbra::bake::soft_deep_depths(&camera);
+    assert_eq!(depths.len(), umbra::bake::SOFT_DEEP_DEPTHS + 1);
+    let flat = bake(
+        &slab,
+        &dir.path().join("flat.exr"),
+        BakeOptions {
+            depths: Some(depths.clone()),
+            ..o
+        },
+    )
+    .map;
+    let (w, h) = (camera.width() as usize, camera.height() as usize);
+    let Some(pixels) = crate::common::deep_dump(&deep, w, h) else {
+        return;
+    };
+    let mut negative = 0;
+    for (p, samples) in pixels.iter().enumerate() {
+        // The samples the slices call for: A = 1 - T_k / T_(k-1) between receivers, from 0.
+        let mut want = Vec::new();
+        let (mut z0, mut t0) = (0.0f64, 1.0f64);
+        for (k, &z) in depths.iter().enumerate() {
+            let t = f64::from(flat.slices[k][p]);
+            let a = 1.0 - t / t0;
+            if a != 0.0 {
+                want.push([a as f32, z0 as f32, z as f32]);
+            }
+            (z0, t0) = (z, t);
+        }
+        assert_eq!(samples.len(), want.len(), "texel {p}");
+        for (s, w) in samples.iter().zip(&want) {
+            let v = |c: &str| s.iter().find(|(n, _)| n == c).unwrap().1;
+            let got = [v("A"), v("Z"), v("ZBack")];
+            for (g, w) in got.iter().zip(w) {
+                // oiiotool prints about 6 significant digits.
+                assert!(
+                    (g - w).abs() <= 1e-5 * w.abs() + 1e-6,
+                    "texel {p}: {got:?} vs {w:?}"
+                );
+            }
+            negative += usize::from(got[0] < 0.0);
+        }
+    }
+    assert!(negative > 0, "no rising sample");
+    let centre = (h / 2) * w + w / 2;
+    let profile: Vec<f32> = flat.slices.iter().map(|s| s[centre]).collect();
+    assert!(
+        profile.windows(2).any(|p| p[1] > p[0] + 0.05),
+        "{profile:?}"
+    );
+}
+
 /// A 16 x 8 x 16 slab of density 2 (unit voxels, y in [0, 8]) under a sphere light of radius
 /// 20 centred 40 above it: just below the slab it hides the whole light, far below it hides a
 /// small part, so `T_L` along the ray through the slab's centre rises with depth.
 #[test]
 fn a_slab_near_a_sphere_light_gives_a_rising_profile() {
     let dir = tempfile::tempdir().unwrap();
-    let slab = dir.path().join("slab.vdb");
-    let leaves = [[0, 0, 0], [8, 0, 0], [0, 0, 8], [8, 0, 8]]
-        .into_iter()
-        .map(|o| Leaf::filled(o, 2.0))
-        .collect();
-    VdbFile::new(vec![Grid::fog("density", leaves)]).write(&slab);
+    let (slab, o) = slab(dir.path());
     let out = dir.path().join("slab.exr");
-    let light = LightOptions {
-        light_samples: Some(256),
-        ..sphere([8.0, 40.0, 8.0], 20.0)
-    };
     // Depths from the light's centre down its central ray (the slab spans 32..40): just
     // below it, then 40, 80, 160 and 360 below.
     let depths = vec![41.0, 80.0, 120.0, 200.0, 400.0];
     let o = BakeOptions {
-        source: SourceOptions::default(),
         depths: Some(depths.clone()),
-        res: Some(Resolution::LongSide(5)),
-        ..options(light, 5)
+        ..o
     };
     let r = bake(&slab, &out, o);
     let (w, h) = (
