@@ -31,6 +31,8 @@ with OpenEXR.File(sys.argv[1]) as f:
     t, e = ch["T"].pixels, ch["T.stderr"].pixels
 pen = (t > 0.02) & (t < 0.98)
 light = json.load(open(sys.argv[2]))["light"]
+over = int((e[pen] > 5e-3).sum())
 print(f"penumbra texels {int(pen.sum())} of {t.size}, largest std_err there {e[pen].max():.3e}, "
-      f"median {np.median(e[pen]):.3e}; sampled fraction {light['sampled_fraction']:.4f}")
+      f"99th percentile {np.percentile(e[pen], 99):.3e}, median {np.median(e[pen]):.3e}, "
+      f"{over} above 5e-3; sampled fraction {light['sampled_fraction']:.4f}")
 PY
