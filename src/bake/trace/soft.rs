@@ -30,9 +30,9 @@ use crate::scene::{Scene, SceneEstimate};
 use glam::DVec3;
 use rayon::prelude::*;
 
-/// Receivers answered per batch of rays: enough rays for the SIMD batches and every worker,
-/// few enough to hold (256 directions x 512 receivers = 131072 rays).
-const CHUNK: usize = 512;
+/// Receivers answered per batch of rays, one batch per worker at a time: enough rays for the
+/// SIMD batches (256 directions x 32 receivers = 8192 rays), few enough to hold.
+const BLOCK: usize = 32;
 
 /// The soft map of `scene` seen by `camera` toward `soft` (module docs).
 ///
@@ -120,7 +120,7 @@ struct Answer {
     sampled: bool,
 }
 
-/// Every receiver of the map, `CHUNK` at a time; then the images.
+/// Every receiver of the map, `BLOCK` at a time on every worker; then the images.
 fn render(
     scene: &Scene,
     camera: &Camera,
@@ -135,32 +135,57 @@ fn render(
     let occupancy = Occupancy::of(scene);
     let (est, opts) = (&settings.estimator, &settings.options);
     let w = camera.width as usize;
-    let mut answers: Vec<Answer> = Vec::with_capacity(n * per_texel);
-    // Receiver `r` of the map is texel `r % n`'s receiver `r / n` (slices after the map).
+    // Receiver `r` of the map is texel `r % n`'s receiver `r / n` (slices after the map),
+    // answered `BLOCK` at a time on every worker (each block's rays in one batch).
     let total = n * per_texel;
-    let mut r0 = 0;
-    while r0 < total {
-        let r1 = (r0 + CHUNK).min(total);
-        let made: Vec<Result<Option<SoftRays>>> = (r0..r1)
-            .into_par_iter()
-            .map(|r| {
-                let (p, k) = (r % n, r / n);
-                let ray = camera.pixel_ray((p % w) as u32, (p / w) as u32)?;
-                let at = ray.at(receiver_t(scene, &ray, soft.receiver, depths, k));
-                let id = if k == 0 { p } else { (63 + k) * n + p } as u64;
-                let rays = soft.light.rays(scene, at.to_array(), opts.seed, id)?;
-                Ok((!rays.rays.is_empty() && !occupancy.misses(&rays.rays)).then_some(rays))
-            })
-            .collect();
-        let made: Vec<Option<SoftRays>> = made.into_iter().collect::<Result<_>>()?;
-        let (rays, ids): (Vec<Ray>, Vec<u64>) = made
-            .iter()
-            .flatten()
-            .flat_map(|s| s.rays.iter().copied().zip(s.ids.iter().copied()))
-            .unzip();
-        let mut per = crate::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
-        for s in &made {
-            answers.push(match s {
+    let done = std::sync::atomic::AtomicUsize::new(0);
+    let make = |r: usize| -> Result<Option<SoftRays>> {
+        let (p, k) = (r % n, r / n);
+        let ray = camera.pixel_ray((p % w) as u32, (p / w) as u32)?;
+        let at = ray.at(receiver_t(scene, &ray, soft.receiver, depths, k));
+        let id = if k == 0 { p } else { (63 + k) * n + p } as u64;
+        let rays = soft.light.rays(scene, at.to_array(), opts.seed, id)?;
+        Ok((!rays.rays.is_empty() && !occupancy.misses(&rays.rays)).then_some(rays))
+    };
+    let blocks: Vec<Vec<Answer>> = (0..total.div_ceil(BLOCK))
+        .into_par_iter()
+        .map(|b| {
+            let (r0, r1) = (b * BLOCK, ((b + 1) * BLOCK).min(total));
+            let made: Vec<Option<SoftRays>> = (r0..r1).map(make).collect::<Result<_>>()?;
+            let answers = answer_block(scene, &made, (est, opts))?;
+            // Progress in whole texels' worth of receivers.
+            let before = done.fetch_add(r1 - r0, std::sync::atomic::Ordering::Relaxed);
+            progress.advance(((before + r1 - r0) / per_texel - before / per_texel) as u64);
+            Ok(answers)
+        })
+        .collect::<Result<_>>()?;
+    let answers: Vec<Answer> = blocks.into_iter().flatten().collect();
+    Ok(assemble(
+        camera,
+        settings,
+        depths,
+        &answers,
+        scene.channels(),
+        start,
+    ))
+}
+
+/// The answers of one block of receivers (`None`: provably unoccluded), their rays in one
+/// batch ([`crate::scene::estimate_many`]).
+fn answer_block(
+    scene: &Scene,
+    made: &[Option<SoftRays>],
+    (est, opts): (&crate::estimate::Estimator, &crate::estimate::Options),
+) -> Result<Vec<Answer>> {
+    let (rays, ids): (Vec<Ray>, Vec<u64>) = made
+        .iter()
+        .flatten()
+        .flat_map(|s| s.rays.iter().copied().zip(s.ids.iter().copied()))
+        .unzip();
+    let mut per = crate::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
+    made.iter()
+        .map(|s| {
+            Ok(match s {
                 Some(s) => {
                     let mine: Vec<SceneEstimate> =
                         per.by_ref().take(s.rays.len()).collect::<Result<_>>()?;
@@ -173,19 +198,9 @@ fn render(
                     estimate: unsampled(scene.channels()),
                     sampled: false,
                 },
-            });
-        }
-        progress.advance(((r1 - r0) / per_texel) as u64);
-        r0 = r1;
-    }
-    Ok(assemble(
-        camera,
-        settings,
-        depths,
-        &answers,
-        scene.channels(),
-        start,
-    ))
+            })
+        })
+        .collect()
 }
 
 /// A receiver whose every direction provably meets no density: `T = 1` exactly.
