@@ -142,6 +142,36 @@ fn a_texel_is_the_query_at_its_receiver_depth() {
     }
 }
 
+/// Receivers answered without sampling (the map's `T = 1` with `std_err = 0`) are provably
+/// unoccluded: the query at each answers exactly 1, for a sun and a sphere light. And some
+/// receivers were sampled, some not (the test looks at both kinds).
+#[test]
+fn unsampled_receivers_are_unoccluded() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("soft.exr");
+    for light in [sun(8.0), sphere([0.5, 6.0, -0.3], 1.0)] {
+        let o = BakeOptions {
+            receiver_depth: Some(if light.light_dir.is_some() { 4.0 } else { 6.5 }),
+            ..options(light, 24)
+        };
+        let r = bake(&cloud(), &out, o.clone());
+        let d = o.receiver_depth.unwrap();
+        let err = r.map.std_err.as_ref().unwrap();
+        let w = r.map.camera.width() as usize;
+        let mut unsampled = 0;
+        for p in (0..r.map.t.len()).filter(|&p| err[p] == 0.0) {
+            assert_eq!(r.map.t[p], 1.0, "texel {p}");
+            let ray = r.map.camera.pixel_ray((p % w) as u32, (p / w) as u32).unwrap();
+            let (t, _) = query(&cloud(), &o, ray.at(d), p as u64);
+            assert_eq!(t, 1.0, "texel {p}: unsampled but the query answers {t}");
+            unsampled += 1;
+        }
+        let [sampled, all] = r.map.stats.light_sampled.unwrap();
+        assert_eq!(all - sampled, unsampled as u64);
+        assert!(unsampled > 0 && sampled > 0, "{sampled} of {all} sampled");
+    }
+}
+
 /// The default receiver, where the texel's ray leaves the volume box: against the query at
 /// the exit computed here from the box's world corners (a plain slab clip of an axis-aligned
 /// box), within 4 std_err (the exit may differ in its last bits).
