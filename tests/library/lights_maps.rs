@@ -161,7 +161,11 @@ fn unsampled_receivers_are_unoccluded() {
         let mut unsampled = 0;
         for p in (0..r.map.t.len()).filter(|&p| err[p] == 0.0) {
             assert_eq!(r.map.t[p], 1.0, "texel {p}");
-            let ray = r.map.camera.pixel_ray((p % w) as u32, (p / w) as u32).unwrap();
+            let ray = r
+                .map
+                .camera
+                .pixel_ray((p % w) as u32, (p / w) as u32)
+                .unwrap();
             let (t, _) = query(&cloud(), &o, ray.at(d), p as u64);
             assert_eq!(t, 1.0, "texel {p}: unsampled but the query answers {t}");
             unsampled += 1;
