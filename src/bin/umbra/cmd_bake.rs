@@ -260,7 +260,19 @@ fn map_text(
             f.seconds
         )?;
     }
-    if let Some(d) = deep {
+    if let (Some(d), true) = (deep, s.soft.is_some()) {
+        writeln!(
+            out,
+            "deep: {} samples, {:.2} per pixel (most {}), {} empty pixels: T_L at {} receivers \
+             per pixel as it is, not fitted ({:.3} s)",
+            d.samples,
+            d.mean_samples(),
+            d.max_samples,
+            d.empty_pixels,
+            umbra::bake::SOFT_DEEP_DEPTHS + 1,
+            d.seconds
+        )?;
+    } else if let Some(d) = deep {
         writeln!(
             out,
             "deep: {} samples, {:.2} per pixel (most {}), {} empty pixels, within {} in T \
