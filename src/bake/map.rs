@@ -26,6 +26,42 @@ pub enum Depths {
     At(Vec<f64>),
 }
 
+impl Depths {
+    /// The depths these ask for on `camera` (slices across its volume depth range `t_near`
+    /// to `t_max`, or the depths given), checked.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `slices` or `depths`.
+    pub(crate) fn resolve(&self, camera: &Camera) -> Result<Vec<f64>> {
+        match self {
+            Depths::None => Ok(Vec::new()),
+            Depths::Slices(k) => {
+                if *k == 0 || *k > MAX_SLICES {
+                    return Err(bad("slices", format!("{k} is not in 1..={MAX_SLICES}")));
+                }
+                let (a, b) = (camera.t_near, camera.t_max);
+                Ok((1..=*k)
+                    .map(|n| a + (b - a) * n as f64 / *k as f64)
+                    .collect())
+            }
+            Depths::At(v) => {
+                if v.is_empty() || v.len() > MAX_SLICES {
+                    return Err(bad("depths", format!("give 1 to {MAX_SLICES} depths")));
+                }
+                let ok = v.iter().all(|d| d.is_finite() && *d >= 0.0)
+                    && v.windows(2).all(|w| w[0] < w[1]);
+                if !ok {
+                    return Err(bad(
+                        "depths",
+                        format!("{v:?} must be finite, non-negative and strictly increasing"),
+                    ));
+                }
+                Ok(v.clone())
+            }
+        }
+    }
+}
+
 /// Most worker threads accepted (`--threads`): far more than any machine has cores, far fewer
 /// than make thread creation fail.
 pub const MAX_THREADS: usize = 1024;

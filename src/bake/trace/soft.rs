@@ -17,8 +17,8 @@
 //! or the light's own test found nothing) stores `T = 1` with `std_err = 0`, and is not
 //! counted in [`BakeStats::light_sampled`].
 
+use super::in_pool;
 use super::occupancy::Occupancy;
-use super::{in_pool, resolve_depths};
 use crate::bake::camera::{Camera, MAX_PIXELS};
 use crate::bake::map::{
     bad, split_channels, BakeSettings, BakeStats, Channel, Map, Receiver, SoftMap,
@@ -56,7 +56,7 @@ pub(crate) fn bake_soft(
                 .into(),
         ));
     }
-    let depths = resolve_depths(&settings.depths, camera)?;
+    let depths = settings.depths.resolve(camera)?;
     let per_texel = 1 + depths.len();
     let channels = scene.channels();
     let planes = (per_texel as u64 + u64::from(settings.std_err)) * channels as u64;
