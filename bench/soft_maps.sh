@@ -12,7 +12,7 @@ rounds="${4:-3}"
 shift $(( $# < 4 ? $# : 4 ))
 out="$(mktemp -d)"
 trap 'rm -rf "$out"' EXIT
-py="${PYTHON:-/work/main/target/py-venv/bin/python}"
+py="${PYTHON:-python3}"  # with numpy and OpenEXR (the test venv of python/run_tests.sh has both)
 for round in $(seq 0 "$rounds"); do
   for job in hard soft; do
     extra=()
