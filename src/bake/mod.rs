@@ -49,7 +49,7 @@ pub use encode::deep_fit::{
 pub use encode::exr::{write_exr, write_exr_as, write_map, write_png, Provenance};
 pub use encode::fixed::{texel_error, DeepFormat, NormProfile, TexelError, TAU_CAP};
 pub use encode::layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
-pub use encode::summary::{MapSummary, SummaryCamera};
+pub use encode::summary::{MapSummary, SummaryCamera, SummaryLight};
 pub use map::{
     channel_names, check_threads, slice_channel, BakeSettings, BakeStats, Channel, Depths, Map,
     Order, Receiver, SoftMap, MAX_BATCHES, MAX_SLICES, MAX_THREADS,

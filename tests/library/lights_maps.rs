@@ -305,6 +305,18 @@ fn the_header_says_the_receiver_and_the_light() {
         exr.attr("light_samples"),
         exr::meta::attribute::AttributeValue::I32(64)
     ));
+    // The summary (bake --json, Python's dict) says the same, and is not rebuilt into a map.
+    let summary = umbra::bake::MapSummary::new(&r.map, &r.provenance);
+    let light = summary.light.clone().unwrap();
+    assert_eq!(
+        (light.receiver.as_str(), light.extent.as_str()),
+        ("depth 2.5", "Sun { angle: 4.0 }")
+    );
+    assert_eq!([light.sampled, light.receivers], [sampled, all]);
+    let e = summary
+        .to_map(r.map.t.clone(), r.map.std_err.clone(), None)
+        .unwrap_err();
+    assert!(e.to_string().contains("light with extent"), "{e}");
 }
 
 #[test]

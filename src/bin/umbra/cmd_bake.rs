@@ -157,25 +157,8 @@ fn map_json(
     });
     if let (Some(o), serde_json::Value::Object(r)) = (v.as_object_mut(), run) {
         o.extend(r);
-        if let Some(soft) = &map.settings.soft {
-            o.insert("light".into(), soft_json(soft, st));
-        }
     }
     Ok(v)
-}
-
-/// A soft map's light (docs/lights.md): its extent, directions, the receiver, and the
-/// receivers sampled (the others provably meet no density).
-fn soft_json(soft: &umbra::bake::SoftMap, st: &umbra::bake::BakeStats) -> serde_json::Value {
-    let [sampled, receivers] = st.light_sampled.unwrap_or([0, 0]);
-    serde_json::json!({
-        "extent": format!("{:?}", soft.light.extent),
-        "samples": soft.light.samples,
-        "receiver": soft.receiver.to_string(),
-        "receivers": receivers,
-        "sampled": sampled,
-        "sampled_fraction": sampled as f64 / receivers.max(1) as f64,
-    })
 }
 
 /// The text report: what was written, how fast, and the deep products' statistics.
