@@ -185,3 +185,20 @@ def test_umbra_bake_reports_progress(cli, tmp_path):
     assert vox[-1][0] == vox[-1][1] > 0
     with pytest.raises(umbra.InvalidArgument, match="progress"):
         umbra.bake(CLOUD, tmp_path / "x.exr", light_dir=(0, -1, 0), progress=3)
+
+
+def test_a_soft_map_says_its_light(tmp_path):
+    """Toward a light with extent (docs/lights.md), the returned dict says the light, the
+    receiver and the receivers sampled, as `umbra bake --json` does, and so does the header; a
+    point light's dict has no `light`."""
+    out = tmp_path / "soft.exr"
+    d = umbra.bake(DATA / "cloud.vdb", out, light_dir=(0, -1, 0), light_angle=4,
+                   light_samples=16, res=8, receiver_depth=3, stderr=True)
+    light = d["light"]
+    assert light["receiver"] == "depth 3" and light["samples"] == 16
+    assert 0 < light["sampled"] <= light["receivers"] == 8 * d["height"]
+    assert light["sampled_fraction"] == light["sampled"] / light["receivers"]
+    channels, header = read_exr(out)
+    assert header["umbra:receiver"] == "depth 3"
+    hard = umbra.bake(DATA / "cloud.vdb", tmp_path / "hard.exr", light_dir=(0, -1, 0), res=8)
+    assert "light" not in hard

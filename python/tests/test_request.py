@@ -47,6 +47,20 @@ CASES = [
     ),
     ("rgb-scene", None, ["--light-dir=-1,-1,0", "--res", "40x24"], ".exr"),
     (
+        "soft-sun",
+        CLOUD,
+        ["--light-dir=0,-1,0.3", "--res", "20x16", "--light-angle", "6", "--light-samples",
+         "32", "--receiver-depth", "3", "--stderr", "--density-scale", "4"],
+        ".exr",
+    ),
+    (
+        "soft-sphere-deep",
+        CLOUD,
+        ["--light-pos=0,6,0", "--res", "12x12", "--light-radius", "1", "--light-samples", "16",
+         "--deep"],
+        ".exr",
+    ),
+    (
         "colour-split",
         CLOUD,
         ["--light-dir=0,-1,0", "--res", "20x16", "--sigma-t", "1,0.3,0.1", "--density-scale",

@@ -660,6 +660,7 @@ def bake(
     slices: Optional[int] = None,
     depths: Optional[Sequence[float]] = None,
     stderr: bool = False,
+    receiver_depth: Optional[float] = None,
     target_error: Optional[float] = None,
     max_spp: int = 65536,
     interp: str = "trilinear",
@@ -693,8 +694,10 @@ def bake(
     ``umbra bake INPUT -o OUTPUT ...`` does, byte for byte: an OpenEXR map (flat, tiled with
     ``tile``/``mipmap``, deep with ``deep``/``deep_error``, at a fixed size per texel with
     ``deep_format`` (read it with :func:`deep_lookup`), with ``slices``/``depths`` and
-    ``stderr`` channels, RGB with ``sigma_t`` or a scene's colours), or, for an output ending in
-    ``.vdb``, a transmittance volume (``out_grid``, ``half``).
+    ``stderr`` channels, RGB with ``sigma_t`` or a scene's colours; toward a light with extent,
+    ``light_angle`` or ``light_radius``, each texel the mean transmittance over the light at its
+    receiver, ``receiver_depth``), or, for an output ending in ``.vdb``, a transmittance volume
+    (``out_grid``, ``half``).
 
     Every keyword is the command line's long flag with ``_`` for ``-`` (``--deep-error`` is
     ``deep_error``), with the same default and the same checks (a batch job's ``[bake]`` keys
@@ -733,7 +736,8 @@ def bake(
             mipmap=mipmap, deep=deep, deep_error=deep_error, deep_format=deep_format,
             out_grid=out_grid, half=half,
             preview=preview, slices=slices, depths=depths, stderr=stderr,
-            target_error=target_error, max_spp=max_spp, interp=interp,
+            receiver_depth=receiver_depth, target_error=target_error, max_spp=max_spp,
+            interp=interp,
             density_scale=density_scale, sigma_t=sigma_t, levelset=levelset,
             **_estimator_options(locals()),
             order=order, threads=threads, max_memory=max_memory, force=force,

@@ -106,6 +106,7 @@ def bake(
     slices: Optional[int] = None,
     depths: Optional[Sequence[float]] = None,
     stderr: bool = False,
+    receiver_depth: Optional[float] = None,
     target_error: Optional[float] = None,
     max_spp: int = 65536,
     interp: str = "trilinear",

@@ -26,6 +26,42 @@ pub enum Depths {
     At(Vec<f64>),
 }
 
+impl Depths {
+    /// The depths these ask for on `camera` (slices across its volume depth range `t_near`
+    /// to `t_max`, or the depths given), checked.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `slices` or `depths`.
+    pub(crate) fn resolve(&self, camera: &Camera) -> Result<Vec<f64>> {
+        match self {
+            Depths::None => Ok(Vec::new()),
+            Depths::Slices(k) => {
+                if *k == 0 || *k > MAX_SLICES {
+                    return Err(bad("slices", format!("{k} is not in 1..={MAX_SLICES}")));
+                }
+                let (a, b) = (camera.t_near, camera.t_max);
+                Ok((1..=*k)
+                    .map(|n| a + (b - a) * n as f64 / *k as f64)
+                    .collect())
+            }
+            Depths::At(v) => {
+                if v.is_empty() || v.len() > MAX_SLICES {
+                    return Err(bad("depths", format!("give 1 to {MAX_SLICES} depths")));
+                }
+                let ok = v.iter().all(|d| d.is_finite() && *d >= 0.0)
+                    && v.windows(2).all(|w| w[0] < w[1]);
+                if !ok {
+                    return Err(bad(
+                        "depths",
+                        format!("{v:?} must be finite, non-negative and strictly increasing"),
+                    ));
+                }
+                Ok(v.clone())
+            }
+        }
+    }
+}
+
 /// Most worker threads accepted (`--threads`): far more than any machine has cores, far fewer
 /// than make thread creation fail.
 pub const MAX_THREADS: usize = 1024;
@@ -68,6 +104,41 @@ pub struct BakeSettings {
     /// How pixels are traced: [`Order::Auto`] lets exact maps use the object-order sweep; [`Order::Rays`] traces every pixel's ray (the reference the sweep is tested
     /// against).
     pub order: Order,
+    /// A light with extent (issue 60): each texel then stores `T_L` at its receiver
+    /// ([`SoftMap`]); `None` for a point light (the map as ever, bit for bit).
+    #[serde(skip)]
+    pub soft: Option<SoftMap>,
+}
+
+/// A map toward a light with extent: every texel stores the mean transmittance over the light
+/// (`T_L`, docs/lights.md) at a receiver point on the texel's own ray (the hard map's projector
+/// ray from the light's centre), and each slice the same at its depth.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SoftMap {
+    /// The light, its extent and its directions per receiver.
+    pub light: crate::light::SoftLight,
+    /// Where the texel's receiver is on its ray.
+    pub receiver: Receiver,
+}
+
+/// Where a soft map's texel is answered on the texel's ray (`umbra:receiver`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Receiver {
+    /// Where the ray leaves the last volume (or solid) box it crosses; a ray that meets no box
+    /// ends at the camera's `t_max` (the end of the hard map's ray).
+    BoxExit,
+    /// At this world distance along the ray (`receiver-depth`), as `depths` measures it.
+    Depth(f64),
+}
+
+impl std::fmt::Display for Receiver {
+    /// `box exit` or `depth D` (the `umbra:receiver` header attribute).
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::BoxExit => write!(f, "box exit"),
+            Self::Depth(d) => write!(f, "depth {d}"),
+        }
+    }
 }
 
 /// The order in which a map is traced.
@@ -128,6 +199,7 @@ impl BakeSettings {
             std_err: false,
             threads: 0,
             order: Order::Auto,
+            soft: None,
         }
     }
 }
@@ -156,6 +228,11 @@ pub struct BakeStats {
     /// Parts of the grid decoded one after another to stay within `--max-memory` (0: the
     /// whole grid was in memory).
     pub parts: u64,
+    /// A map toward a light with extent: the receivers whose light was sampled (the others'
+    /// every direction provably meets no density: `T = 1` without tracing), over every
+    /// receiver (texels times `1 + slices`). Absent for a point light.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_sampled: Option<[u64; 2]>,
 }
 
 /// A baked map: row-major channels, row 0 at the top, pixel `(i, j)` at index `j W + i`.

@@ -49,16 +49,19 @@ pub use encode::deep_fit::{
 pub use encode::exr::{write_exr, write_exr_as, write_map, write_png, Provenance};
 pub use encode::fixed::{texel_error, DeepFormat, NormProfile, TexelError, TAU_CAP};
 pub use encode::layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
-pub use encode::summary::{MapSummary, SummaryCamera};
+pub use encode::summary::{MapSummary, SummaryCamera, SummaryLight};
 pub use map::{
     channel_names, check_threads, slice_channel, BakeSettings, BakeStats, Channel, Depths, Map,
-    Order, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
+    Order, Receiver, SoftMap, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
 };
 pub use product::deep_map::{bake_deep, deep_attributes, DeepMap, DeepStats, STOCHASTIC_DEPTHS};
 pub use product::fixed_map::{bake_fixed, FixedMap, FixedStats, PROFILE_ERROR};
 pub use product::pipeline::{
     map_warnings, motion_warnings, solid_warnings, velocity_warnings, volume_warnings, BakeError,
     BakeJob, BakeReport, BoundedPlan, Product, Step, Warning, IMPLIED_BUDGET,
+};
+pub use product::soft_deep::{
+    soft_deep_attributes, soft_deep_depths, soft_deep_image, SOFT_DEEP_DEPTHS,
 };
 pub use product::transmittance_volume::{
     output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,

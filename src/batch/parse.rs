@@ -72,17 +72,17 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let resolve = |s: &str| base.join(s);
     let grid = job_grid(&path, &file)?;
-    // Lights with extent answer `query --at` only for now: a job refuses their keys.
-    if let Err(crate::error::Error::InvalidArgument { name, reason }) =
-        file.bake.light.refuse_extent("a batch job")
-    {
-        return Err(err(
-            &path,
-            &format!("bake.{}", name.replace('-', "_")),
-            reason,
-        ));
-    }
     if file.inputs.is_empty() {
+        // Lights with extent answer maps and `query --at`, not per-point answers yet.
+        if let Err(crate::error::Error::InvalidArgument { name, reason }) =
+            file.bake.light.refuse_extent("positions")
+        {
+            return Err(err(
+                &path,
+                &format!("bake.{}", name.replace('-', "_")),
+                reason,
+            ));
+        }
         if file.positions.is_empty() {
             return Err(err(
                 &path,

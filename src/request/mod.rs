@@ -140,12 +140,9 @@ impl BakeRequest {
     /// [`crate::error::Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
     /// spelling, which each front end respells); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
-        let what = if is_volume_output(&self.output) {
-            "a transmittance volume"
-        } else {
-            "a map"
-        };
-        self.options.light.refuse_extent(what)?;
+        if is_volume_output(&self.output) {
+            self.options.light.refuse_extent("a transmittance volume")?;
+        }
         let with_light = self.with_stage_light()?;
         let req = with_light.as_ref().unwrap_or(self);
         req.plan_checked()

@@ -105,6 +105,14 @@ pub struct BakeOptions {
     /// Also write each pixel's standard error (`T.stderr`).
     #[cfg_attr(feature = "cli", arg(long))]
     pub stderr: bool,
+    /// With light-angle or light-radius: each texel's receiver at this world distance along
+    /// its ray (as depths measures it) instead of where the ray leaves the volume box
+    /// (`umbra:receiver`; docs/lights.md). Finite, >= 0.
+    #[cfg_attr(
+        feature = "cli",
+        arg(long, value_name = "D", allow_negative_numbers = true)
+    )]
+    pub receiver_depth: Option<f64>,
     /// Adaptive sampling: double a pixel's samples until its standard error is below E.
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub target_error: Option<f64>,
@@ -168,6 +176,7 @@ impl Default for BakeOptions {
             slices: None,
             depths: None,
             stderr: false,
+            receiver_depth: None,
             target_error: None,
             max_spp: 65_536,
             estimator: EstimatorOptions::default(),

@@ -268,6 +268,7 @@ impl BakeRequest {
             std_err: o.stderr,
             threads: o.threads,
             order: o.order,
+            soft: self.soft_map()?,
             ..BakeSettings::new(estimator, options)
         };
         settings.validate()?;
@@ -315,5 +316,50 @@ impl BakeRequest {
             max_memory: o.max_memory()?,
             product,
         })
+    }
+
+    /// A map toward a light with extent ([`crate::bake::SoftMap`]): the light's extent and
+    /// the texels' receiver, checked; `None` for a point light (zero extent included), which
+    /// refuses `receiver-depth`.
+    fn soft_map(&self) -> Result<Option<crate::bake::SoftMap>> {
+        let o = &self.options;
+        let soft = o.light.soft()?;
+        if let Some(d) = o.receiver_depth {
+            if !(d.is_finite() && d >= 0.0) {
+                return Err(bad(
+                    "receiver-depth",
+                    format!("{d} is not a finite distance >= 0 along the texel's ray"),
+                ));
+            }
+            if soft.is_none() {
+                return Err(bad(
+                    "receiver-depth",
+                    "places the receiver of a map toward a light with extent (light-angle, \
+                     light-radius > 0); a point light's T at a depth is a slice (depths)",
+                ));
+            }
+        }
+        let Some(light) = soft else {
+            return Ok(None);
+        };
+        if o.deep_error.is_some() {
+            return Err(bad(
+                "deep-error",
+                "bounds the fit of a transmittance that never rises with depth; a deep map \
+                 toward a light with extent stores T_L at its receivers as it is (docs/lights.md)",
+            ));
+        }
+        if o.max_memory.is_some() {
+            return Err(bad(
+                "max-memory",
+                "a map toward a light with extent reads the whole grid (every receiver's rays \
+                 cross it): drop max-memory",
+            ));
+        }
+        let receiver = match o.receiver_depth {
+            Some(d) => crate::bake::Receiver::Depth(d),
+            None => crate::bake::Receiver::BoxExit,
+        };
+        Ok(Some(crate::bake::SoftMap { light, receiver }))
     }
 }

@@ -1,7 +1,8 @@
 //! `umbra query --at` toward a light with extent (`--light-angle`, `--light-radius`,
 //! `--light-samples`; issue 60, first slice): zero extent prints today's bytes, the answer
-//! is the same for `--threads 1` and 2, JSON reports the directions traced, and every other
-//! product refuses the flags by name.
+//! is the same for `--threads 1` and 2, JSON reports the directions traced, and the products
+//! that do not answer them yet (transmittance volumes, per-point answers) refuse the flags by
+//! name. Maps: tests/cli/lights_maps.rs.
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use assert_cmd::Command;
@@ -196,12 +197,24 @@ fn every_refusal_names_its_flag() {
             "--light-angle",
         ),
         (
+            vec![
+                "bake",
+                CLOUD,
+                "--light-dir=0,-1,0",
+                "--receiver-depth=2",
+                "-o",
+            ],
+            "--receiver-depth",
+        ),
+        (
             vec!["bake", CLOUD, "--light-pos=0,4,0", "--light-radius=1", "-o"],
             "--light-radius",
         ),
     ];
     for (mut args, flag) in cases {
-        let out = if args[0] == "bake" && flag == "--light-angle" {
+        // A transmittance volume refuses the light's extent; a map refuses a receiver depth
+        // without one.
+        let out = if flag == "--receiver-depth" {
             exr.to_str().unwrap()
         } else {
             vdb.to_str().unwrap()
@@ -217,25 +230,22 @@ fn every_refusal_names_its_flag() {
         );
     }
     assert!(!exr.exists() && !vdb.exists());
-    // A bake says why: the first slice answers query --at only.
+    // A transmittance volume says why: it traces the light as a point.
     let (_, _, err) = umbra(&[
         "bake",
         CLOUD,
         "--light-dir=0,-1,0",
         "--light-angle=2",
         "-o",
-        exr.to_str().unwrap(),
+        vdb.to_str().unwrap(),
     ]);
     assert!(err.contains("issue 60"), "{err}");
-    // A batch job's [bake] keys too.
+    // A batch job of per-point answers too.
     let job = dir.path().join("job.toml");
     std::fs::write(
         &job,
-        format!(
-            "output = \"{}/{{stem}}.exr\"\n[[inputs]]\nfile = \"{CLOUD}\"\n[bake]\n\
-             light_dir = [0, -1, 0]\nlight_angle = 2.0\n",
-            dir.path().display()
-        ),
+        "[[positions]]\nusd = \"shot.usda\"\nprim = \"/pts\"\nusd_out = \"o.usda\"\n[bake]\n\
+         light_dir = [0, -1, 0]\nlight_angle = 2.0\n",
     )
     .unwrap();
     let (code, _, err) = umbra(&["batch", job.to_str().unwrap()]);

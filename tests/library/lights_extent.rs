@@ -445,7 +445,10 @@ fn bad_values_are_refused_by_name() {
 #[test]
 fn other_products_refuse_the_keys_by_name() {
     use umbra::request::{BakeOptions, BakeRequest};
-    for output in ["map.exr", "t.vdb"] {
+    // Maps answer a light with extent (tests/library/lights_maps.rs); transmittance volumes not
+    // yet.
+    {
+        let output = "t.vdb";
         let e = BakeRequest {
             input: cloud(),
             output: output.into(),

@@ -307,7 +307,10 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
             "estimator_params".into(),
             text(&serde_json::to_string(&s.estimator).unwrap_or_default()),
         ),
-        ("interp".into(), text(&format!("{:?}", s.options.interp).to_lowercase())),
+        (
+            "interp".into(),
+            text(&format!("{:?}", s.options.interp).to_lowercase()),
+        ),
         // A deterministic estimator takes one sample whatever `--spp` says.
         (
             "spp".into(),
@@ -317,18 +320,28 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
                 u64::from(s.options.samples)
             })),
         ),
-        ("max_spp".into(), AttributeValue::I32(clamp_i32(u64::from(s.max_spp)))),
+        (
+            "max_spp".into(),
+            AttributeValue::I32(clamp_i32(u64::from(s.max_spp))),
+        ),
         (
             "mean_spp".into(),
             AttributeValue::F64(map.stats.samples as f64 / map.stats.rays.max(1) as f64),
         ),
         ("seed".into(), text(&s.options.seed.to_string())),
-        ("density_scale".into(), AttributeValue::F64(prov.density_scale)),
+        (
+            "density_scale".into(),
+            AttributeValue::F64(prov.density_scale),
+        ),
         ("source_file".into(), text(&prov.source_file)),
         ("grid".into(), text(&prov.grid)),
         (
             "ray_ids".into(),
-            text("pixel (i, j): T uses ray id j*W+i, adaptive batch b ray id b*W*H+j*W+i, slice k ray id (64+k)*W*H+j*W+i"),
+            text(if s.soft.is_some() {
+                "pixel (i, j): T is query --at <receiver> --ray-id j*W+i toward the light, slice k's receiver ray id (64+k)*W*H+j*W+i"
+            } else {
+                "pixel (i, j): T uses ray id j*W+i, adaptive batch b ray id b*W*H+j*W+i, slice k ray id (64+k)*W*H+j*W+i"
+            }),
         ),
     ];
     if let Some(d) = prov.light_dir {
@@ -367,10 +380,39 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
     for (k, d) in map.depths.iter().enumerate() {
         attrs.push((format!("depth.{k:02}"), AttributeValue::F64(*d)));
     }
+    if let Some(soft) = &s.soft {
+        attrs.extend(soft_attributes(soft, &map.stats));
+    }
     attrs
         .into_iter()
         .map(|(k, v)| (format!("umbra:{k}"), v))
         .collect()
+}
+
+/// A soft map's attributes (docs/lights.md): the receiver, the light's extent and directions,
+/// the receivers sampled, and the ray ids (replacing the hard map's `ray_ids`).
+fn soft_attributes(
+    soft: &crate::bake::SoftMap,
+    stats: &crate::bake::BakeStats,
+) -> Vec<(String, AttributeValue)> {
+    let mut attrs = vec![
+        ("receiver".into(), text(&soft.receiver.to_string())),
+        (
+            "light_extent".into(),
+            text(&format!("{:?}", soft.light.extent)),
+        ),
+        (
+            "light_samples".into(),
+            AttributeValue::I32(clamp_i32(u64::from(soft.light.samples))),
+        ),
+    ];
+    if let Some([sampled, all]) = stats.light_sampled {
+        attrs.push((
+            "light_sampled_fraction".into(),
+            AttributeValue::F64(sampled as f64 / all.max(1) as f64),
+        ));
+    }
+    attrs
 }
 
 /// Every channel of `map` with its name: `T` (or `R`, `G`, `B`), each followed by its

@@ -3,13 +3,14 @@
 //! bake of scenes (`scene`). Tracing makes a [`Map`] in memory; it reads no file and writes
 //! none (encoding is `bake/encode`, orchestration `bake/product`).
 
+mod occupancy;
 pub(crate) mod scene;
+mod soft;
 pub(crate) mod sweep;
 
 use crate::bake::camera::{Camera, MAX_PIXELS};
 use crate::bake::map::{
-    bad, split_channels, BakeSettings, BakeStats, Channel, Depths, Map, Order, MAX_BATCHES,
-    MAX_SLICES,
+    bad, split_channels, BakeSettings, BakeStats, Channel, Map, Order, MAX_BATCHES,
 };
 use crate::error::Result;
 use crate::estimate::{estimate, Estimate, Estimator, Options};
@@ -46,36 +47,6 @@ impl Source<'_> {
         match self {
             Self::Volume(_) => 1,
             Self::Scene(s) => s.channels(),
-        }
-    }
-}
-
-/// The slice depths `settings` asks for on `camera`.
-fn resolve_depths(depths: &Depths, camera: &Camera) -> Result<Vec<f64>> {
-    match depths {
-        Depths::None => Ok(Vec::new()),
-        Depths::Slices(k) => {
-            if *k == 0 || *k > MAX_SLICES {
-                return Err(bad("slices", format!("{k} is not in 1..={MAX_SLICES}")));
-            }
-            let (a, b) = (camera.t_near, camera.t_max);
-            Ok((1..=*k)
-                .map(|n| a + (b - a) * n as f64 / *k as f64)
-                .collect())
-        }
-        Depths::At(v) => {
-            if v.is_empty() || v.len() > MAX_SLICES {
-                return Err(bad("depths", format!("give 1 to {MAX_SLICES} depths")));
-            }
-            let ok =
-                v.iter().all(|d| d.is_finite() && *d >= 0.0) && v.windows(2).all(|w| w[0] < w[1]);
-            if !ok {
-                return Err(bad(
-                    "depths",
-                    format!("{v:?} must be finite, non-negative and strictly increasing"),
-                ));
-            }
-            Ok(v.clone())
         }
     }
 }
@@ -257,6 +228,14 @@ pub fn bake(
     settings: &BakeSettings,
     progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
+    if settings.soft.is_some() {
+        return Err(bad(
+            "light-angle",
+            "a map toward a light with extent is baked from a scene (bake_scene): its rays are \
+             made against every volume's box"
+                .into(),
+        ));
+    }
     bake_source(Source::Volume(vol), camera, settings, progress)
 }
 
@@ -271,6 +250,9 @@ pub fn bake_scene(
     settings: &BakeSettings,
     progress: &dyn crate::progress::Progress,
 ) -> Result<Map> {
+    if let Some(soft) = &settings.soft {
+        return soft::bake_soft(scene, camera, settings, soft, progress);
+    }
     match scene.single() {
         Some(vol) => bake(vol, camera, settings, progress),
         None => bake_source(Source::Scene(scene), camera, settings, progress),
@@ -285,7 +267,7 @@ fn bake_source(
 ) -> Result<Map> {
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
-    let depths = resolve_depths(&settings.depths, camera)?;
+    let depths = settings.depths.resolve(camera)?;
     let channels = (1 + depths.len() as u64 + u64::from(settings.std_err)) * src.channels() as u64;
     if camera.pixels() * channels > MAX_PIXELS {
         return Err(bad(
@@ -362,7 +344,7 @@ pub(crate) fn bake_streamed(
     if settings.order != Order::Auto || !(crate::bake::trace::sweep::applies(settings) || marched) {
         return Ok(None);
     }
-    let depths = resolve_depths(&settings.depths, camera)?;
+    let depths = settings.depths.resolve(camera)?;
     let run = || {
         let rows = band_rows(camera.height, rayon::current_num_threads());
         crate::bake::trace::sweep::render_streamed(
@@ -390,7 +372,7 @@ pub(crate) fn bake_rows_streamed(
 ) -> Result<(Map, u64)> {
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
-    let depths = resolve_depths(&settings.depths, camera)?;
+    let depths = settings.depths.resolve(camera)?;
     check_work(&[shell], camera, settings)?;
     let run = || -> Result<(Map, u64)> {
         let start = std::time::Instant::now();

@@ -208,6 +208,18 @@ fn map_text(
         s.estimator.name(),
         summary.mean_spp,
     )?;
+    if let (Some(soft), Some([sampled, receivers])) = (&s.soft, st.light_sampled) {
+        writeln!(
+            out,
+            "light with extent {:?}: {} directions per receiver at the {}; {sampled} of \
+             {receivers} receivers sampled ({:.1}%), largest std_err {:.2e}",
+            soft.light.extent,
+            soft.light.samples,
+            soft.receiver,
+            100.0 * sampled as f64 / receivers.max(1) as f64,
+            st.max_std_err,
+        )?;
+    }
     if st.unconverged > 0 {
         writeln!(
             out,
@@ -231,7 +243,19 @@ fn map_text(
             f.seconds
         )?;
     }
-    if let Some(d) = deep {
+    if let (Some(d), true) = (deep, s.soft.is_some()) {
+        writeln!(
+            out,
+            "deep: {} samples, {:.2} per pixel (most {}), {} empty pixels: T_L at {} receivers \
+             per pixel as it is, not fitted ({:.3} s)",
+            d.samples,
+            d.mean_samples(),
+            d.max_samples,
+            d.empty_pixels,
+            umbra::bake::SOFT_DEEP_DEPTHS + 1,
+            d.seconds
+        )?;
+    } else if let Some(d) = deep {
         writeln!(
             out,
             "deep: {} samples, {:.2} per pixel (most {}), {} empty pixels, within {} in T \

@@ -121,6 +121,10 @@ fn selected(a: &CompareArgs) -> Result<Vec<Estimator>> {
 /// Run the comparison (and the stress suite) and write the reports.
 pub fn run(a: &CompareArgs) -> Result<ExitCode> {
     umbra::bake::check_threads(a.threads).map_err(crate::common::flag_error)?;
+    // Every comparison traces the light as a point (issue 60: lights with extent).
+    a.light
+        .refuse_extent("compare")
+        .map_err(crate::common::flag_error)?;
     let threads = if a.threads == 0 {
         std::thread::available_parallelism().map_or(1, std::num::NonZero::get)
     } else {

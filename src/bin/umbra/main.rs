@@ -47,7 +47,7 @@ enum Command {
     /// Optical depth and transmittance along world-space segments.
     Query(cmd_query::QueryArgs),
     /// Bake a transmittance (shadow) map seen from a light into an OpenEXR file.
-    Bake(cmd_bake::BakeArgs),
+    Bake(Box<cmd_bake::BakeArgs>),
     /// Run a batch job file: many inputs x many lights, resumable, shardable for farms.
     Batch(cmd_batch::BatchArgs),
     /// Error against run time of every estimator, and the stress suite on extreme media.

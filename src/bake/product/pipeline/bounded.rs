@@ -36,6 +36,11 @@ impl BakeJob {
         let Some((budget, implied)) = self.budget() else {
             return Ok(None);
         };
+        if self.settings.soft.is_some() {
+            // A light with extent: every receiver's rays cross the whole grid (plan_map refuses
+            // an explicit budget).
+            return Ok(None);
+        }
         self.check_outputs()?;
         self.settings.validate()?;
         if self.source.kind().is_scene_file() || self.sigma_t().is_some() || self.moving() {

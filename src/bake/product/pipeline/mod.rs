@@ -7,11 +7,12 @@
 use crate::bake::{bake_scene, BakeSettings, Camera, Map, Provenance, View};
 use crate::error::{Error, Result};
 use crate::output::{check_writable, Staged};
-use crate::progress::{Progress, Silent, Work};
+use crate::progress::{Progress, Work};
 use crate::scene::Scene;
 use std::path::PathBuf;
 
 mod bounded;
+mod deep;
 mod failure;
 mod warning;
 
@@ -114,6 +115,15 @@ impl BakeJob {
         self.layout.validate()?;
         if let Product::Deep { max_error } = self.product {
             crate::bake::check_deep_error(max_error)?;
+        }
+        if self.settings.soft.is_some() && matches!(self.product, Product::Fixed { .. }) {
+            return Err(Error::InvalidArgument {
+                name: "deep-format".into(),
+                reason: "a fixed-size deep format encodes a transmittance that never rises with \
+                         depth (its error bound comes from that); toward a light with extent \
+                         T_L(z) can rise: use --deep, which stores it as it is"
+                    .into(),
+            });
         }
         if self.product != Product::Map {
             let flat_only = |flag: &str, what: &str| Error::InvalidArgument {
@@ -366,74 +376,16 @@ impl BakeJob {
                 d.iter_mut().for_each(|z| *z += delta);
             }
         }
-        settings
-    }
-
-    /// A deep product ([`Product::Deep`] or [`Product::Fixed`]) of `scene` seen by `camera`,
-    /// encoded. The flat map is traced first: with regular tracking as asked, and a
-    /// stochastic estimator's with the [`crate::bake::STOCHASTIC_DEPTHS`] slices its deep
-    /// function comes from (removed from the written map); then the deep pass. `progress`
-    /// counts both as [`BakeJob::work`] says.
-    fn deep_product(
-        &self,
-        scene: &Scene,
-        camera: Camera,
-        progress: &dyn Progress,
-    ) -> Result<Traced> {
-        let exact = self.settings.estimator == crate::estimate::Estimator::REGULAR;
-        let (camera, settings) = self.aimed(scene, camera);
-        let mut map = if exact {
-            bake_scene(scene, &camera, &settings, &Silent)?
-        } else {
-            let settings = BakeSettings {
-                depths: crate::bake::Depths::Slices(crate::bake::STOCHASTIC_DEPTHS),
-                ..settings
-            };
-            bake_scene(scene, &camera, &settings, progress)?
-        };
-        let (deep, fixed) = match self.product {
-            Product::Deep { max_error } => (
-                Some(crate::bake::bake_deep(scene, &map, max_error, progress)?),
-                None,
-            ),
-            Product::Fixed { format } => (
-                None,
-                Some(crate::bake::bake_fixed(scene, &map, format, progress)?),
-            ),
-            Product::Map => (None, None),
-        };
-        map.settings.depths = crate::bake::Depths::None;
-        map.depths.clear();
-        map.slices.clear();
-        if let Some(gb) = &mut map.color {
-            for ch in gb.iter_mut() {
-                ch.slices.clear();
+        if let Some(crate::bake::SoftMap {
+            receiver: crate::bake::Receiver::Depth(d),
+            ..
+        }) = &mut settings.soft
+        {
+            if delta > 0.0 {
+                *d += delta;
             }
         }
-        let mut report = self.describe(map, scene, camera);
-        let bytes = if let Some(deep) = deep {
-            let attrs = crate::bake::deep_attributes(&report.map, &report.provenance, &deep.stats);
-            report.deep = Some(deep.stats);
-            Some(crate::bake::encode_deep_exr(&deep.image, &attrs))
-        } else if let Some(fixed) = fixed {
-            let attrs = super::fixed_map::fixed_attributes(&fixed.stats);
-            report.fixed = Some(fixed.stats);
-            let bytes = crate::bake::encode::exr::encode_exr_with(
-                &report.map,
-                &report.provenance,
-                &self.layout,
-                fixed.planes,
-                attrs,
-            )
-            .map_err(|e| Error::Output {
-                path: self.output.clone(),
-                reason: e,
-            })?;
-            Some(bytes)
-        } else {
-            None
-        };
-        Ok(Traced { report, bytes })
+        settings
     }
 
     /// The map of `scene` seen by `camera`, in memory: nothing is read from `input` or
