@@ -67,6 +67,38 @@ pub enum Extent {
     Area(Area),
 }
 
+/// The extent as reports and headers name it (`umbra:light_extent`, a bake's JSON): `sun
+/// 0.53 degrees across`, `sphere of radius 0.5`, and the area lights' shapes and sizes in the
+/// light's own space.
+impl std::fmt::Display for Extent {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        use super::area::Shape;
+        let n = crate::math::sig3;
+        match self {
+            Self::Sun { angle } => write!(f, "sun {} degrees across", n(*angle)),
+            Self::Sphere { radius } => write!(f, "sphere of radius {}", n(*radius)),
+            Self::Area(a) => match a.shape() {
+                Shape::Disk { radius } => write!(f, "disk of radius {}", n(radius)),
+                Shape::Rect { width, height } => {
+                    write!(f, "rect {} x {}", n(width), n(height))
+                }
+                Shape::Cylinder { radius, length } if radius == 0.0 => {
+                    write!(f, "line of length {}", n(length))
+                }
+                Shape::Cylinder { radius, length } => write!(
+                    f,
+                    "cylinder of radius {} and length {}",
+                    n(radius),
+                    n(length)
+                ),
+                Shape::Ellipsoid { radius } => {
+                    write!(f, "sphere of radius {} under an uneven scale", n(radius))
+                }
+            },
+        }
+    }
+}
+
 /// A light with extent: its centre (a directional or point [`Light`]), its extent and the
 /// directions traced per receiver (a multiple of [`REPLICATES`]).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -296,7 +296,7 @@ fn the_header_says_the_receiver_and_the_light() {
     let r = bake(&cloud(), &out, o);
     let exr = read_exr(&out);
     assert_eq!(exr.text("receiver"), "depth 2.5");
-    assert_eq!(exr.text("light_extent"), "Sun { angle: 4.0 }");
+    assert_eq!(exr.text("light_extent"), "sun 4 degrees across");
     let [sampled, all] = r.map.stats.light_sampled.unwrap();
     let f = exr.f64("light_sampled_fraction");
     assert_eq!(f, sampled as f64 / all as f64);
@@ -310,7 +310,7 @@ fn the_header_says_the_receiver_and_the_light() {
     let light = summary.light.clone().unwrap();
     assert_eq!(
         (light.receiver.as_str(), light.extent.as_str()),
-        ("depth 2.5", "Sun { angle: 4.0 }")
+        ("depth 2.5", "sun 4 degrees across")
     );
     assert_eq!([light.sampled, light.receivers], [sampled, all]);
     let e = summary

@@ -399,7 +399,7 @@ fn soft_attributes(
         ("receiver".into(), text(&soft.receiver.to_string())),
         (
             "light_extent".into(),
-            text(&format!("{:?}", soft.light.extent)),
+            text(&soft.light.extent.to_string()),
         ),
         (
             "light_samples".into(),

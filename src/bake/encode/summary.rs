@@ -117,7 +117,7 @@ impl SummaryLight {
         let soft = map.settings.soft.as_ref()?;
         let [sampled, receivers] = map.stats.light_sampled.unwrap_or([0, 0]);
         Some(Self {
-            extent: format!("{:?}", soft.light.extent),
+            extent: soft.light.extent.to_string(),
             samples: soft.light.samples,
             receiver: soft.receiver.to_string(),
             receivers,
