@@ -73,7 +73,7 @@ pub enum Extent {
 impl std::fmt::Display for Extent {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         use super::area::Shape;
-        let n = crate::math::sig3;
+        let n = crate::math::approx;
         match self {
             Self::Sun { angle } => write!(f, "sun {} degrees across", n(*angle)),
             Self::Sphere { radius } => write!(f, "sphere of radius {}", n(*radius)),
