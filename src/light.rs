@@ -5,7 +5,9 @@ use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
 
 pub mod extent;
+mod receivers;
 pub use extent::{Extent, SoftLight};
+pub use receivers::{SoftAnswer, RAYS_PER_BATCH};
 
 /// The light a job names by position or direction (a USD stage's own lights are read from the
 /// stage, `light` of the read options): the one declaration of the light keys, flattened into
@@ -111,6 +113,57 @@ impl LightOptions {
     /// [`extent::MAX_LIGHT_SAMPLES`].
     pub fn soft(&self) -> Result<Option<SoftLight>> {
         extent::check(self)
+    }
+
+    /// The keys of a light with extent applied to a light given elsewhere (a USD stage's
+    /// light, toward which `query --positions` and a query at a point on a stage answer):
+    /// `light-angle` makes a directional light a sun of that angular diameter, `light-radius`
+    /// makes a light at a position a sphere light; these options' own `light-dir` and
+    /// `light-pos` are not read. `None` when no extent is given or it is 0 (the light as a
+    /// point, bit for bit).
+    ///
+    /// # Errors
+    /// As [`LightOptions::soft`], and [`Error::InvalidArgument`] naming `light-angle` for a
+    /// light at a position or `light-radius` for a directional light.
+    pub fn soft_toward(&self, light: Light) -> Result<Option<SoftLight>> {
+        self.check_extent()?;
+        let wrong = |name: &str, reason: &str| Error::InvalidArgument {
+            name: name.into(),
+            reason: format!("{reason} ({light})"),
+        };
+        match light {
+            Light::Point { .. } if self.light_angle.is_some() => Err(wrong(
+                "light-angle",
+                "is a sun's angular diameter, and the light is at a position: give light-radius",
+            )),
+            Light::Directional { .. } if self.light_radius.is_some() => Err(wrong(
+                "light-radius",
+                "is a sphere light's radius, and the light is directional: give light-angle",
+            )),
+            _ => Self {
+                light_dir: light.direction(),
+                light_pos: light.position(),
+                ..self.clone()
+            }
+            .soft(),
+        }
+    }
+
+    /// Check the keys of a light with extent before the light they apply to is known (a
+    /// stage's): each value on its own, and not both an angle and a radius.
+    ///
+    /// # Errors
+    /// As [`LightOptions::soft`]; [`Error::Conflict`] for both `light-angle` and
+    /// `light-radius`.
+    pub fn check_extent(&self) -> Result<()> {
+        extent::values(self)?;
+        if self.light_angle.is_some() && self.light_radius.is_some() {
+            return Err(Error::Conflict {
+                names: vec!["light-angle".into(), "light-radius".into()],
+                reason: "give {0} (a sun) or {1} (a sphere light), not both".into(),
+            });
+        }
+        Ok(())
     }
 }
 

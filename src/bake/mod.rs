@@ -60,6 +60,7 @@ pub use product::pipeline::{
     map_warnings, motion_warnings, solid_warnings, velocity_warnings, volume_warnings, BakeError,
     BakeJob, BakeReport, BoundedPlan, Product, Step, Warning, IMPLIED_BUDGET,
 };
+pub use product::soft_volume::soft_transmittance_leaves;
 pub use product::transmittance_volume::{
     output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,
     DEFAULT_OUT_GRID, MAX_VOLUME_LEAVES,

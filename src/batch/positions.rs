@@ -268,14 +268,23 @@ fn entry_options(
             return Err(err(path, &key(k), why));
         }
     }
-    // Only read and estimator keys, each of its type.
-    let keys = serde_json::Value::Object(s.overrides.clone()).to_string();
+    // The keys of a light with extent are the entry's own, like its light; the others only
+    // read and estimator keys, each of its type.
+    let (extent, overrides) = extent_keys(s);
+    let light: crate::light::LightOptions =
+        crate::request::overlaid(&crate::light::LightOptions::default(), &extent).map_err(named)?;
+    light.check_extent().map_err(|e| match e {
+        crate::error::Error::Conflict { .. } => err(path, &key("light_radius"), e),
+        e => named(e),
+    })?;
+    let keys = serde_json::Value::Object(overrides.clone()).to_string();
     crate::request::TraceOptions::from_json(&keys).map_err(named)?;
     let mut o = b.clone();
     o.source.grid = grid.to_string();
     o.source.frame = None;
     o.source.light = None;
-    let o = o.with_overrides(&s.overrides).map_err(named)?;
+    let mut o = o.with_overrides(&overrides).map_err(named)?;
+    o.light = light;
     if !(o.source.density_scale.is_finite() && o.source.density_scale >= 0.0) {
         return Err(err(
             path,
@@ -287,6 +296,19 @@ fn entry_options(
     o.motion().map_err(named)?;
     Ok(o)
 }
+
+/// The keys of a light with extent of an entry (`light_angle`, `light_radius`,
+/// `light_samples`: they apply to its stage light), and its other keys.
+type Keys = serde_json::Map<String, serde_json::Value>;
+fn extent_keys(s: &PositionsSpec) -> (Keys, Keys) {
+    s.overrides
+        .iter()
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .partition(|(k, _)| EXTENT_KEYS.contains(&k.as_str()))
+}
+
+/// The keys of a light with extent an entry takes.
+const EXTENT_KEYS: [&str; 3] = ["light_angle", "light_radius", "light_samples"];
 
 /// One frame's answers as written to disk.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -302,6 +324,12 @@ struct FrameFile {
     transmittance: Vec<f64>,
     std_err: Vec<f64>,
     positions: Vec<[f64; 3]>,
+    /// Toward a light with extent: directions per sampled point.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    light_samples: Option<u32>,
+    /// Toward a light with extent: the points sampled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sampled: Option<usize>,
 }
 
 impl Job {
@@ -343,8 +371,16 @@ impl Job {
             crate::usd::points_at(&t.stage, &t.prim, time).map_err(|e| err(&self.path, &key, e))?;
             let shot =
                 crate::usd::lights_at(&t.stage, time).map_err(|e| err(&self.path, &key, e))?;
-            shot.light(t.light.as_deref())
+            let (_, emitter) = shot
+                .light(t.light.as_deref())
                 .map_err(|e| err(&self.path, &key, e))?;
+            // An angle for a distant light, a radius for a light at a position.
+            if let Err(crate::error::Error::InvalidArgument { name, reason }) =
+                t.options.light.soft_toward(crate::Light::from(emitter))
+            {
+                let k = format!("{key}.{}", name.replace('-', "_"));
+                return Err(err(&self.path, &k, reason));
+            }
         }
         Ok(())
     }
@@ -364,6 +400,7 @@ impl Job {
         let request = crate::request::QueryRequest {
             positions: Some(t.prim.clone()),
             frames: Some(vec![frame]),
+            light: o.light.clone(),
             estimator: o.estimator.clone(),
             params: o.params.clone(),
             // Tasks run one after another, each on every core.
@@ -389,6 +426,8 @@ impl Job {
             transmittance: f.transmittance,
             std_err: f.std_err,
             positions: f.positions,
+            light_samples: answers.light_samples,
+            sampled: f.sampled,
         };
         if let Some(d) = t.output.parent() {
             std::fs::create_dir_all(d).map_err(|e| crate::error::Error::Io {
@@ -429,12 +468,14 @@ impl Job {
                     light_name: f.light_name.clone(),
                     frames: Vec::new(),
                     warnings: Vec::new(),
+                    light_samples: f.light_samples,
                 });
                 all.frames.push(crate::points::PointFrame {
                     frame: f.frame,
                     positions: f.positions,
                     transmittance: f.transmittance,
                     std_err: f.std_err,
+                    sampled: f.sampled,
                 });
             }
             let Some(mut answers) = answers else { continue };

@@ -82,8 +82,10 @@ fn bad(name: &str, reason: impl Into<String>) -> Error {
     }
 }
 
-/// [`LightOptions::soft`]: the keys of a light with extent, checked.
-pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
+/// The keys of a light with extent, each checked on its own (not yet against the light):
+/// the angle, the radius and the directions per receiver (rounded up to a multiple of
+/// [`REPLICATES`]).
+pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, u32)> {
     let value = |name: &str, v: Option<f64>| -> Result<Option<f64>> {
         match v {
             Some(x) if !x.is_finite() => Err(bad(name, format!("{x} is not a finite number"))),
@@ -93,24 +95,10 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
     };
     let angle = value("light-angle", o.light_angle)?;
     let radius = value("light-radius", o.light_radius)?;
-    if let Some(a) = angle {
-        if a >= 180.0 {
-            return Err(bad(
-                "light-angle",
-                format!("{a} degrees is not below 180 (the sun's angular diameter, degrees)"),
-            ));
-        }
-        if o.light_dir.is_none() {
-            return Err(bad(
-                "light-angle",
-                "is a sun's angular diameter: it goes with light-dir",
-            ));
-        }
-    }
-    if radius.is_some() && o.light_pos.is_none() {
+    if let Some(a) = angle.filter(|a| *a >= 180.0) {
         return Err(bad(
-            "light-radius",
-            "is a sphere light's radius: it goes with light-pos",
+            "light-angle",
+            format!("{a} degrees is not below 180 (the sun's angular diameter, degrees)"),
         ));
     }
     let samples = match o.light_samples {
@@ -130,6 +118,24 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
         }
         Some(n) => n.div_ceil(REPLICATES) * REPLICATES,
     };
+    Ok((angle, radius, samples))
+}
+
+/// [`LightOptions::soft`]: the keys of a light with extent, checked.
+pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
+    let (angle, radius, samples) = values(o)?;
+    if angle.is_some() && o.light_dir.is_none() {
+        return Err(bad(
+            "light-angle",
+            "is a sun's angular diameter: it goes with light-dir",
+        ));
+    }
+    if radius.is_some() && o.light_pos.is_none() {
+        return Err(bad(
+            "light-radius",
+            "is a sphere light's radius: it goes with light-pos",
+        ));
+    }
     let extent = match (angle, radius) {
         (Some(a), _) if a > 0.0 => Extent::Sun { angle: a },
         (_, Some(r)) if r > 0.0 => Extent::Sphere { radius: r },

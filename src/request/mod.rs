@@ -140,12 +140,11 @@ impl BakeRequest {
     /// [`crate::error::Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
     /// spelling, which each front end respells); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
-        let what = if is_volume_output(&self.output) {
-            "a transmittance volume"
-        } else {
-            "a map"
-        };
-        self.options.light.refuse_extent(what)?;
+        // A transmittance volume answers a light with extent (its keys checked when planned);
+        // maps do not yet.
+        if !is_volume_output(&self.output) {
+            self.options.light.refuse_extent("a map")?;
+        }
         let with_light = self.with_stage_light()?;
         let req = with_light.as_ref().unwrap_or(self);
         req.plan_checked()

@@ -200,9 +200,12 @@ impl BakeRequest {
                 (source, o.motion()?)
             }
         };
+        // A light with extent: its keys checked against the light (a stage light's too).
+        let soft = o.light.soft_toward(light)?;
         Ok(VolumeJob {
             source,
             light,
+            soft,
             estimator,
             options,
             threads: o.threads,

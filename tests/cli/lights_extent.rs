@@ -188,7 +188,7 @@ fn every_refusal_names_its_flag() {
             "--light-samples",
         ),
         (
-            vec!["query", CLOUD, "--positions", "/pts", "--light-radius=1"],
+            vec!["query", CLOUD, "--positions", "/pts", "--light-radius=-1"],
             "--light-radius",
         ),
         (
@@ -196,7 +196,13 @@ fn every_refusal_names_its_flag() {
             "--light-angle",
         ),
         (
-            vec!["bake", CLOUD, "--light-pos=0,4,0", "--light-radius=1", "-o"],
+            vec![
+                "bake",
+                CLOUD,
+                "--light-pos=0,4,0",
+                "--light-radius=-1",
+                "-o",
+            ],
             "--light-radius",
         ),
     ];

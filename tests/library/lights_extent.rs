@@ -445,31 +445,31 @@ fn bad_values_are_refused_by_name() {
 #[test]
 fn other_products_refuse_the_keys_by_name() {
     use umbra::request::{BakeOptions, BakeRequest};
-    for output in ["map.exr", "t.vdb"] {
-        let e = BakeRequest {
-            input: cloud(),
-            output: output.into(),
-            options: BakeOptions {
-                light: LightOptions {
-                    light_dir: Some([0.0, -1.0, 0.0]),
-                    light_angle: Some(2.0),
-                    ..LightOptions::default()
-                },
-                ..BakeOptions::default()
+    // A map (a transmittance volume takes them: tests/library/lights_extent_points.rs).
+    let e = BakeRequest {
+        input: cloud(),
+        output: "map.exr".into(),
+        options: BakeOptions {
+            light: LightOptions {
+                light_dir: Some([0.0, -1.0, 0.0]),
+                light_angle: Some(2.0),
+                ..LightOptions::default()
             },
-        }
-        .plan()
-        .unwrap_err();
-        assert!(
-            matches!(&e, Error::InvalidArgument { name, reason }
-                if name == "light-angle" && reason.contains("issue 60")),
-            "{output}: {e}"
-        );
+            ..BakeOptions::default()
+        },
     }
+    .plan()
+    .unwrap_err();
+    assert!(
+        matches!(&e, Error::InvalidArgument { name, reason }
+            if name == "light-angle" && reason.contains("issue 60")),
+        "{e}"
+    );
+    // Positions take them (for the stage light): only bad values are refused before reading.
     let e = QueryRequest {
         positions: Some("/points".into()),
         light: LightOptions {
-            light_radius: Some(1.0),
+            light_radius: Some(-1.0),
             ..LightOptions::default()
         },
         ..QueryRequest::new(Source::new("shot.usda", SourceOptions::default()))
@@ -477,8 +477,7 @@ fn other_products_refuse_the_keys_by_name() {
     .check()
     .unwrap_err();
     assert!(
-        matches!(&e, Error::InvalidArgument { name, reason }
-            if name == "light-radius" && reason.contains("issue 60")),
+        matches!(&e, Error::InvalidArgument { name, .. } if name == "light-radius"),
         "{e}"
     );
 }

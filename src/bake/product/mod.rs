@@ -8,4 +8,5 @@
 pub(crate) mod deep_map;
 pub(crate) mod fixed_map;
 pub(crate) mod pipeline;
+pub(crate) mod soft_volume;
 pub(crate) mod transmittance_volume;

@@ -89,6 +89,18 @@ pub struct VolumeStats {
     pub t_mean: f64,
     /// Wall time of the computation, seconds.
     pub seconds: f64,
+    /// Toward a light with extent: the directions traced per sampled voxel; absent toward a
+    /// point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_samples: Option<u32>,
+    /// Toward a light with extent: the fraction of voxels sampled (the others' whole cone
+    /// provably misses every box: `T = 1` without sampling); absent toward a point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sampled_fraction: Option<f64>,
+    /// Toward a light with extent: the largest error bar of a voxel's `T` (the file holds `T`
+    /// only); absent toward a point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub std_err_max: Option<f64>,
 }
 
 impl VolumeStats {
@@ -136,8 +148,53 @@ pub fn output_voxels(vol: &Volume) -> u64 {
     leaves + tiles(tree.lowers(), 512) + tiles(tree.uppers(), 128 * 128 * 128) + root * (1 << 36)
 }
 
+/// The 8^3 blocks of the output and how many of them are made from active tiles.
+pub(super) fn output_blocks(vol: &Volume) -> Result<(Vec<LeafOut>, u64)> {
+    let leaves = blocks(vol)?;
+    let leaf_count = vol
+        .tree()
+        .leaves()
+        .iter()
+        .filter(|l| l.value_mask.iter().any(|&w| w != 0))
+        .count();
+    let tile_leaves = (leaves.len() - leaf_count) as u64;
+    debug_assert_eq!(
+        output_voxels(vol),
+        leaves
+            .iter()
+            .map(|l| l
+                .active
+                .iter()
+                .map(|w| u64::from(w.count_ones()))
+                .sum::<u64>())
+            .sum::<u64>()
+    );
+    Ok((leaves, tile_leaves))
+}
+
+/// The smallest, largest and mean `T` over the active voxels of `leaves`, and their count
+/// (1 and 1 for none).
+pub(super) fn summarise(leaves: &[LeafOut], stats: &mut VolumeStats) {
+    let mut sum = 0.0f64;
+    for l in leaves {
+        for (n, &v) in l.values.iter().enumerate() {
+            if bit(&l.active, n) {
+                let v = f64::from(v);
+                stats.voxels += 1;
+                stats.t_min = stats.t_min.min(v);
+                stats.t_max = stats.t_max.max(v);
+                sum += v;
+            }
+        }
+    }
+    stats.t_mean = sum / stats.voxels.max(1) as f64;
+    if stats.voxels == 0 {
+        (stats.t_min, stats.t_max) = (1.0, 1.0);
+    }
+}
+
 /// The 8^3 blocks of the output: a leaf's active voxels or an active tile's.
-fn output_blocks(vol: &Volume) -> Result<Vec<LeafOut>> {
+fn blocks(vol: &Volume) -> Result<Vec<LeafOut>> {
     let tree = vol.tree();
     let too_big = |n: usize| Error::InvalidArgument {
         name: "output".into(),
@@ -249,25 +306,7 @@ pub fn transmittance_leaves(
         });
     }
     let start = std::time::Instant::now();
-    let mut leaves = output_blocks(vol)?;
-    let leaf_count = vol
-        .tree()
-        .leaves()
-        .iter()
-        .filter(|l| l.value_mask.iter().any(|&w| w != 0))
-        .count();
-    let tile_leaves = (leaves.len() - leaf_count) as u64;
-    debug_assert_eq!(
-        output_voxels(vol),
-        leaves
-            .iter()
-            .map(|l| l
-                .active
-                .iter()
-                .map(|w| u64::from(w.count_ones()))
-                .sum::<u64>())
-            .sum::<u64>()
-    );
+    let (mut leaves, tile_leaves) = output_blocks(vol)?;
     let step = light_step(vol, light).filter(|_| *est == Estimator::REGULAR);
     // Check the light once (a zero direction is refused here, not per voxel).
     light.ray_from(vol, vol.to_world(glam::DVec3::ZERO).to_array())?;
@@ -310,23 +349,11 @@ pub fn transmittance_leaves(
         t_max: f64::NEG_INFINITY,
         t_mean: 0.0,
         seconds: 0.0,
+        light_samples: None,
+        sampled_fraction: None,
+        std_err_max: None,
     };
-    let mut sum = 0.0f64;
-    for l in &leaves {
-        for (n, &v) in l.values.iter().enumerate() {
-            if bit(&l.active, n) {
-                let v = f64::from(v);
-                stats.voxels += 1;
-                stats.t_min = stats.t_min.min(v);
-                stats.t_max = stats.t_max.max(v);
-                sum += v;
-            }
-        }
-    }
-    stats.t_mean = sum / stats.voxels.max(1) as f64;
-    if stats.voxels == 0 {
-        (stats.t_min, stats.t_max) = (1.0, 1.0);
-    }
+    summarise(&leaves, &mut stats);
     stats.seconds = start.elapsed().as_secs_f64();
     Ok((leaves, stats))
 }
@@ -626,8 +653,11 @@ pub struct VolumeJob {
     /// The grid file and how it is read: its density grid, `mu_t = density_scale x value`,
     /// where the volume sits in the shot (the output grid's transform includes it).
     pub source: crate::input::Source,
-    /// The light.
+    /// The light (a light with extent's centre).
     pub light: Light,
+    /// The light with extent (`light-angle`, `light-radius`): each voxel holds the mean over
+    /// it (`soft_volume`); `None` for the point light, as before, bit for bit.
+    pub soft: Option<crate::light::SoftLight>,
     /// Estimator of every voxel's ray (regular tracking: exact).
     pub estimator: Estimator,
     /// Its options (samples, seed, interpolation).
@@ -744,6 +774,30 @@ impl VolumeJob {
             .map_err(|e| BakeError::at(Step::Bake, e))
     }
 
+    /// The voxels' values and stats, toward the light or the light with extent, without
+    /// writing (the Python module's in-memory volume).
+    ///
+    /// # Errors
+    /// As [`transmittance_leaves`] and [`super::soft_volume::soft_transmittance_leaves`].
+    pub fn leaves(
+        &self,
+        vol: &Volume,
+        progress: &dyn crate::progress::Progress,
+    ) -> Result<(Vec<LeafOut>, VolumeStats)> {
+        let (est, opts) = (&self.estimator, &self.options);
+        match &self.soft {
+            Some(s) => super::soft_volume::soft_transmittance_leaves(
+                vol,
+                s,
+                est,
+                opts,
+                self.threads,
+                progress,
+            ),
+            None => transmittance_leaves(vol, &self.light, est, opts, self.threads, progress),
+        }
+    }
+
     /// [`VolumeJob::run`] on a volume already loaded (the Python module's `Volume`).
     ///
     /// # Errors
@@ -759,14 +813,7 @@ impl VolumeJob {
             what: "transmittance volume",
             unit: Some("voxels"),
         });
-        let (leaves, stats) = transmittance_leaves(
-            vol,
-            &self.light,
-            &self.estimator,
-            &self.options,
-            self.threads,
-            progress,
-        )?;
+        let (leaves, stats) = self.leaves(vol, progress)?;
         let mut grid =
             crate::vdb::FloatGridOut::new(&self.out_grid, 1.0, vol.world_from_index(), leaves)?
                 .with_half(self.half);
@@ -774,7 +821,12 @@ impl VolumeJob {
         let meta = [
             (
                 "umbra:quantity",
-                "transmittance exp(-tau) from each voxel centre toward the light".to_string(),
+                if self.soft.is_some() {
+                    "mean transmittance over the light's extent from each voxel centre"
+                } else {
+                    "transmittance exp(-tau) from each voxel centre toward the light"
+                }
+                .to_string(),
             ),
             ("umbra:light", light),
             ("umbra:estimator", self.estimator.name().to_string()),
@@ -796,7 +848,10 @@ impl VolumeJob {
                 concat!("umbra ", env!("CARGO_PKG_VERSION")).to_string(),
             ),
         ];
-        for (k, v) in meta {
+        let extent = self.soft.as_ref().map_or_else(Vec::new, |s| {
+            super::soft_volume::extent_metadata(s, self.options.seed)
+        });
+        for (k, v) in meta.into_iter().chain(extent) {
             grid = grid.with_metadata(k, &v);
         }
         crate::vdb::write_vdb(&self.output, &grid, self.overwrite)?;

@@ -174,6 +174,9 @@ impl QueryRequest {
         }
         let asked = self.asked().map_err(at(QueryStep::Check))?;
         let (light, toward) = self.light(asked)?;
+        let asked = self
+            .toward_stage(asked, light)
+            .map_err(at(QueryStep::Check))?;
         let (est, opts) = self.estimator().map_err(at(QueryStep::Check))?;
         let mut read = self.source.clone();
         read.options_mut().light = toward;
@@ -228,6 +231,27 @@ impl QueryRequest {
                 ..
             } => Ok((Some(s.light), named)),
             Asked::Segment { .. } | Asked::Rows => Ok((None, named)),
+        }
+    }
+
+    /// A point toward the stage light with the keys of a light with extent: toward that light
+    /// with its extent ([`crate::light::LightOptions::soft_toward`]); otherwise as asked.
+    fn toward_stage(&self, asked: Asked, light: Option<Light>) -> Result<Asked> {
+        match (asked, light) {
+            (
+                Asked::Toward {
+                    at,
+                    light: AskedLight::Stage,
+                },
+                Some(l),
+            ) if self.light.extent_key().is_some() => Ok(match self.light.soft_toward(l)? {
+                Some(s) => Asked::Toward {
+                    at,
+                    light: AskedLight::Soft(s),
+                },
+                None => asked,
+            }),
+            _ => Ok(asked),
         }
     }
 
