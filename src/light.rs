@@ -33,19 +33,20 @@ pub struct LightOptions {
         arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true)
     )]
     pub light_pos: Option<[f64; 3]>,
-    /// With light-dir: the sun's angular diameter, degrees in [0, 180) (USD's `inputs:angle`;
-    /// the sun is about 0.53). A query at a point (`query --at`) then answers the mean
-    /// transmittance over the sun's disc (docs/lights.md); 0 is the point light exactly. Other
-    /// products refuse it for now (issue 60).
+    /// With light-dir (or a stage's distant light): the sun's angular diameter, degrees in
+    /// [0, 180) (USD's `inputs:angle`; the sun is about 0.53). A query (`--at`, `--positions`)
+    /// then answers the mean transmittance over the sun's disc at each receiver, a
+    /// transmittance volume at each voxel centre (docs/lights.md); 0 is the point light
+    /// exactly. Maps refuse it for now (issue 60).
     #[cfg_attr(
         feature = "cli",
         arg(long, value_name = "DEG", allow_negative_numbers = true)
     )]
     pub light_angle: Option<f64>,
-    /// With light-pos: a sphere light's radius (world units). A query at a point
-    /// (`query --at`) then answers the mean transmittance over the sphere's visible surface
-    /// (docs/lights.md); 0 is the point light exactly. Other products refuse it for now
-    /// (issue 60).
+    /// With light-pos (or a stage light at a position): a sphere light's radius (world units).
+    /// A query (`--at`, `--positions`) then answers the mean transmittance over the sphere's
+    /// visible surface at each receiver, a transmittance volume at each voxel centre
+    /// (docs/lights.md); 0 is the point light exactly. Maps refuse it for now (issue 60).
     #[cfg_attr(
         feature = "cli",
         arg(long, value_name = "R", allow_negative_numbers = true)
@@ -85,8 +86,8 @@ impl LightOptions {
     }
 
     /// Refuse the keys of a light with extent for a product that does not answer them yet
-    /// (`what`: a bake, a transmittance volume, `positions`): they apply to a query at a
-    /// point for now (issue 60), never silently dropped.
+    /// (`what`: a map, a batch job's `[bake]`): they apply to queries and transmittance
+    /// volumes for now (issue 60), never silently dropped.
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] naming the first such key given.
@@ -95,8 +96,8 @@ impl LightOptions {
             Some(k) => Err(Error::InvalidArgument {
                 name: k.into(),
                 reason: format!(
-                    "applies to a query at a point (query --at) for now (issue 60: lights \
-                     with extent); {what} traces the light as a point"
+                    "applies to queries (query --at, --positions) and transmittance volumes for \
+                     now (issue 60: lights with extent); {what} traces the light as a point"
                 ),
             }),
             None => Ok(()),

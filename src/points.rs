@@ -203,7 +203,10 @@ fn soft_answers(
     (est, opts): (&Estimator, &Options),
     at_point: impl Fn(usize, &[f64; 3], Error) -> Error,
 ) -> Result<Answered> {
-    crate::request::check_budget(sc, est, opts, u64::from(soft.samples))?;
+    for f in sc.fogs() {
+        let n = u64::from(soft.samples);
+        crate::estimate::budget::check_job(f.volume(), est, n, u64::from(opts.samples), "samples")?;
+    }
     let (mut t, mut err, mut sampled) = (Vec::new(), Vec::new(), 0);
     for (i, (a, p)) in soft
         .answer_many(sc, positions, 0, est, opts)

@@ -72,10 +72,22 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let base = path.parent().map(Path::to_path_buf).unwrap_or_default();
     let resolve = |s: &str| base.join(s);
     let grid = job_grid(&path, &file)?;
-    // Lights with extent answer `query --at` only for now: a job refuses their keys.
-    if let Err(crate::error::Error::InvalidArgument { name, reason }) =
-        file.bake.light.refuse_extent("a batch job")
-    {
+    // Lights with extent: transmittance volumes take `[bake]`'s keys, `[[positions]]`
+    // entries their own; a job of maps refuses them for now.
+    let volumes = file
+        .output
+        .as_deref()
+        .is_some_and(|o| crate::request::is_volume_output(Path::new(o)));
+    let what = if file.inputs.is_empty() {
+        "a job of [[positions]] only (give the keys in each entry, for its light)"
+    } else {
+        "a batch job of maps"
+    };
+    if let Err(crate::error::Error::InvalidArgument { name, reason }) = if volumes {
+        Ok(())
+    } else {
+        file.bake.light.refuse_extent(what)
+    } {
         return Err(err(
             &path,
             &format!("bake.{}", name.replace('-', "_")),

@@ -41,9 +41,31 @@ pub struct PositionsSpec {
     /// `density_scale`, `interp`, the motion keys, ...), of the estimator options and of its
     /// parameters ([`crate::request::TraceOptions`]), each declared there once; `frame` and
     /// `xform` do not apply (`frames`; points stand in the world).
+    /// The keys of a light with extent applied to the stage light (`light_angle` for a
+    /// `DistantLight`, `light_radius` for a light at a position, `light_samples`) are the
+    /// entry's own too, not `[bake]`'s.
     #[serde(flatten)]
-    #[cfg_attr(feature = "schema", schemars(with = "crate::request::TraceOptions"))]
+    #[cfg_attr(feature = "schema", schemars(with = "EntryKeys"))]
     pub overrides: serde_json::Map<String, serde_json::Value>,
+}
+
+/// The keys of a `[[positions]]` entry besides its own (the JSON Schema's view of
+/// [`PositionsSpec::overrides`]): the read and estimator keys, and the keys of a light with
+/// extent for the stage light.
+#[cfg(feature = "schema")]
+#[derive(schemars::JsonSchema)]
+#[allow(dead_code)]
+struct EntryKeys {
+    #[serde(flatten)]
+    trace: crate::request::TraceOptions,
+    /// The stage `DistantLight`'s angular diameter, degrees in [0, 180): each point's mean
+    /// transmittance over the sun's disc (docs/lights.md); 0 is the point light exactly.
+    light_angle: Option<f64>,
+    /// A stage light at a position as a sphere light of this radius (world units).
+    light_radius: Option<f64>,
+    /// With light_angle or light_radius: directions per point (default 256, a multiple of 8,
+    /// at most 1048576).
+    light_samples: Option<u32>,
 }
 
 impl PositionsSpec {

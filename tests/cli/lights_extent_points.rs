@@ -195,3 +195,49 @@ fn a_transmittance_volume_toward_a_sun_with_an_angle() {
     assert!(has(&soft, "umbra:light_extent") && has(&soft, "Sun { angle: 8.0 }"));
     assert!(has(&soft, "umbra:light_samples") && !has(&hard, "umbra:light_extent"));
 }
+
+/// A batch job of transmittance volumes takes `[bake]`'s keys of a light with extent: its
+/// file is `umbra bake`'s, byte for byte; a job of maps still refuses them by name.
+#[test]
+fn a_batch_job_of_transmittance_volumes_takes_the_keys() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = dir.path().join("job.toml");
+    let write = |output: &str| {
+        std::fs::write(
+            &job,
+            format!(
+                "output = \"{}/{output}\"\n[[inputs]]\nfile = \"{CLOUD}\"\n[bake]\n\
+                 light_dir = [0, -1, 0]\nlight_angle = 8.0\nlight_samples = 8\n\
+                 density_scale = 4.0\n",
+                dir.path().display()
+            ),
+        )
+        .unwrap();
+    };
+    write("{stem}.vdb");
+    let (code, _, err) = umbra(&["batch", job.to_str().unwrap()]);
+    assert_eq!(code, 0, "{err}");
+    let cli = dir.path().join("cli.vdb");
+    let (code, _, err) = umbra(&[
+        "bake",
+        CLOUD,
+        "--light-dir=0,-1,0",
+        "--light-angle=8",
+        "--light-samples=8",
+        "--density-scale=4",
+        "-o",
+        cli.to_str().unwrap(),
+    ]);
+    assert_eq!(code, 0, "{err}");
+    assert_eq!(
+        std::fs::read(dir.path().join("cloud.vdb")).unwrap(),
+        std::fs::read(&cli).unwrap()
+    );
+    write("{stem}.exr");
+    let (code, _, err) = umbra(&["batch", job.to_str().unwrap()]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("bake.light_angle") && err.contains("maps"),
+        "{err}"
+    );
+}

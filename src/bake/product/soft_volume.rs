@@ -18,7 +18,9 @@
 //! bar (`std_err_max`), the metadata the light's extent (`umbra:light_extent`,
 //! `umbra:light_samples`, `umbra:seed`).
 
-use super::transmittance_volume::{output_blocks, summarise, Sharing, VolumeStats};
+use super::transmittance_volume::{
+    output_blocks, summarise, transmittance_leaves, Sharing, VolumeJob, VolumeStats,
+};
 use crate::error::Result;
 use crate::estimate::{Estimator, Options};
 use crate::light::SoftLight;
@@ -133,13 +135,34 @@ pub fn soft_transmittance_leaves(
     Ok((leaves, stats))
 }
 
-/// The metadata a transmittance volume toward a light with extent adds: the extent, the
-/// directions per voxel and the seed of their rotations.
-#[must_use]
-pub fn extent_metadata(soft: &SoftLight, seed: u64) -> Vec<(&'static str, String)> {
-    vec![
-        ("umbra:light_extent", format!("{:?}", soft.extent)),
-        ("umbra:light_samples", soft.samples.to_string()),
-        ("umbra:seed", seed.to_string()),
-    ]
+impl VolumeJob {
+    /// The voxels' values and stats, toward the light or the light with extent, without
+    /// writing (what [`VolumeJob::run`] writes; the Python module's in-memory volume).
+    ///
+    /// # Errors
+    /// As [`transmittance_leaves`] and [`soft_transmittance_leaves`].
+    pub fn leaves(
+        &self,
+        vol: &Volume,
+        progress: &dyn crate::progress::Progress,
+    ) -> Result<(Vec<LeafOut>, VolumeStats)> {
+        let (est, opts) = (&self.estimator, &self.options);
+        match &self.soft {
+            Some(s) => soft_transmittance_leaves(vol, s, est, opts, self.threads, progress),
+            None => transmittance_leaves(vol, &self.light, est, opts, self.threads, progress),
+        }
+    }
+
+    /// The metadata a transmittance volume toward a light with extent adds (none toward a
+    /// point): the extent, the directions per voxel and the seed of their rotations.
+    pub(crate) fn extent_metadata(&self) -> Vec<(&'static str, String)> {
+        let Some(soft) = &self.soft else {
+            return Vec::new();
+        };
+        vec![
+            ("umbra:light_extent", format!("{:?}", soft.extent)),
+            ("umbra:light_samples", soft.samples.to_string()),
+            ("umbra:seed", self.options.seed.to_string()),
+        ]
+    }
 }

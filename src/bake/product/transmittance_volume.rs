@@ -774,30 +774,6 @@ impl VolumeJob {
             .map_err(|e| BakeError::at(Step::Bake, e))
     }
 
-    /// The voxels' values and stats, toward the light or the light with extent, without
-    /// writing (the Python module's in-memory volume).
-    ///
-    /// # Errors
-    /// As [`transmittance_leaves`] and [`super::soft_volume::soft_transmittance_leaves`].
-    pub fn leaves(
-        &self,
-        vol: &Volume,
-        progress: &dyn crate::progress::Progress,
-    ) -> Result<(Vec<LeafOut>, VolumeStats)> {
-        let (est, opts) = (&self.estimator, &self.options);
-        match &self.soft {
-            Some(s) => super::soft_volume::soft_transmittance_leaves(
-                vol,
-                s,
-                est,
-                opts,
-                self.threads,
-                progress,
-            ),
-            None => transmittance_leaves(vol, &self.light, est, opts, self.threads, progress),
-        }
-    }
-
     /// [`VolumeJob::run`] on a volume already loaded (the Python module's `Volume`).
     ///
     /// # Errors
@@ -848,10 +824,7 @@ impl VolumeJob {
                 concat!("umbra ", env!("CARGO_PKG_VERSION")).to_string(),
             ),
         ];
-        let extent = self.soft.as_ref().map_or_else(Vec::new, |s| {
-            super::soft_volume::extent_metadata(s, self.options.seed)
-        });
-        for (k, v) in meta.into_iter().chain(extent) {
+        for (k, v) in meta.into_iter().chain(self.extent_metadata()) {
             grid = grid.with_metadata(k, &v);
         }
         crate::vdb::write_vdb(&self.output, &grid, self.overwrite)?;
