@@ -195,7 +195,7 @@ fn hard_answers(
 
 /// Every point toward a light with extent ([`SoftLight::answer_many`]): point `i` with ray id
 /// `i`, so its answer is `query --at` at that point with `--ray-id i`, bit for bit. The work
-/// budget is checked for one point's directions.
+/// budget is checked up front ([`SoftLight::check_budget`]).
 fn soft_answers(
     sc: &crate::scene::Scene,
     soft: &SoftLight,
@@ -203,10 +203,7 @@ fn soft_answers(
     (est, opts): (&Estimator, &Options),
     at_point: impl Fn(usize, &[f64; 3], Error) -> Error,
 ) -> Result<Answered> {
-    for f in sc.fogs() {
-        let n = u64::from(soft.samples);
-        crate::estimate::budget::check_job(f.volume(), est, n, u64::from(opts.samples), "samples")?;
-    }
+    soft.check_budget(sc, positions.len() as u64, est, opts)?;
     let (mut t, mut err, mut sampled) = (Vec::new(), Vec::new(), 0);
     for (i, (a, p)) in soft
         .answer_many(sc, positions, 0, est, opts)

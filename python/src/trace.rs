@@ -311,7 +311,7 @@ impl NativeVolume {
     /// `--light-radius`): point `n` with ray id `ray_id + n`, through the library's one path
     /// for many receivers ([`umbra::internals::light::SoftLight::answer_many`]), so a row equals the
     /// CLI's answer at that point, bit for bit. `tau` is NaN (the mean of T has no single
-    /// optical depth). The work budget is checked for one point's directions.
+    /// optical depth). The work budget is checked up front (`SoftLight::check_budget`).
     pub(crate) fn run_soft<'py>(
         &self,
         py: Python<'py>,
@@ -336,8 +336,7 @@ impl NativeVolume {
         let cancel = AtomicBool::new(false);
         let work = || {
             on_threads(threads, || {
-                let one = u64::from(soft.samples);
-                umbra::request::check_budget(scene, &est, &opts, one)?;
+                soft.check_budget(scene, p.len() as u64, &est, &opts)?;
                 Ok(soft_rows(scene, soft, p, ray_id, (&est, &opts), &cancel))
             })
         };

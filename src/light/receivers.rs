@@ -34,6 +34,51 @@ pub struct SoftAnswer {
 }
 
 impl SoftLight {
+    /// The work budget of `receivers` receivers toward this light on every fog volume of
+    /// `scene`: one receiver's directions as a job of that many rays
+    /// ([`crate::estimate::budget::check_job`]), and every receiver's directions together
+    /// within [`crate::estimate::budget::MAX_SAMPLES_PER_JOB`] samples (a stochastic
+    /// estimator's samples counted), so a huge `light-samples` over many receivers is refused
+    /// up front, never a run of hours.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `samples` or `light-samples`.
+    pub fn check_budget(
+        &self,
+        scene: &Scene,
+        receivers: u64,
+        est: &Estimator,
+        opts: &Options,
+    ) -> Result<()> {
+        let n = u64::from(self.samples);
+        for f in scene.fogs() {
+            crate::estimate::budget::check_job(
+                f.volume(),
+                est,
+                n,
+                u64::from(opts.samples),
+                "samples",
+            )?;
+        }
+        let per = if est.spec().deterministic {
+            1
+        } else {
+            u64::from(opts.samples)
+        };
+        let total = receivers.saturating_mul(n).saturating_mul(per);
+        if total > crate::estimate::budget::MAX_SAMPLES_PER_JOB {
+            return Err(Error::InvalidArgument {
+                name: "light-samples".into(),
+                reason: format!(
+                    "{receivers} receivers x {n} directions x {per} samples is {total} samples, \
+                     beyond the work budget of {} per job: give fewer directions (or samples)",
+                    crate::estimate::budget::MAX_SAMPLES_PER_JOB
+                ),
+            });
+        }
+        Ok(())
+    }
+
     /// Answer every receiver of `receivers` toward this light, receiver `k` with ray id
     /// `first_id + k` (wrapping) and the seed of `opts`: one result per receiver, in order.
     /// Runs on the current rayon pool.

@@ -241,3 +241,67 @@ fn a_batch_job_of_transmittance_volumes_takes_the_keys() {
         "{err}"
     );
 }
+
+/// Extreme lights on a transmittance volume: answered (T in [0, 1]), never a panic; a work
+/// beyond the budget is refused up front by name.
+#[test]
+fn a_transmittance_volume_under_extreme_lights() {
+    let dir = tempfile::tempdir().unwrap();
+    // A 16^3-voxel box of constant density 0.2.
+    let mut leaves = Vec::new();
+    for i in [0, 8] {
+        for j in [0, 8] {
+            for k in [0, 8] {
+                leaves.push(crate::vdb_writer::Leaf::filled([i, j, k], 0.2));
+            }
+        }
+    }
+    let boxed = dir.path().join("box.vdb");
+    crate::vdb_writer::VdbFile::new(vec![crate::vdb_writer::Grid::fog("density", leaves)])
+        .write(&boxed);
+    let tiles = boxed.to_str().unwrap();
+    let out = dir.path().join("t.vdb");
+    for light in [
+        [
+            "--light-dir=0,-1,0",
+            "--light-angle=179.9",
+            "--light-samples=1",
+        ],
+        [
+            "--light-pos=0,0,0",
+            "--light-radius=1e300",
+            "--light-samples=8",
+        ],
+        [
+            "--light-pos=1e300,0,0",
+            "--light-radius=1e299",
+            "--light-samples=8",
+        ],
+    ] {
+        let mut args = vec!["bake", tiles];
+        args.extend(light);
+        args.extend(["-o", out.to_str().unwrap(), "--force", "--json"]);
+        let v = json(&args);
+        let (lo, hi) = (v["T_min"].as_f64().unwrap(), v["T_max"].as_f64().unwrap());
+        assert!(
+            (0.0..=1.0).contains(&lo) && (0.0..=1.0).contains(&hi),
+            "{light:?}: {v}"
+        );
+        assert!(v["std_err_max"].as_f64().unwrap().is_finite(), "{v}");
+    }
+    let (code, _, err) = umbra(&[
+        "bake",
+        CLOUD,
+        "--light-dir=0,-1,0",
+        "--light-angle=8",
+        "--light-samples=1048576",
+        "-o",
+        out.to_str().unwrap(),
+        "--force",
+    ]);
+    assert_eq!(code, 1, "{err}");
+    assert!(
+        err.contains("'--light-samples'") && err.contains("budget"),
+        "{err}"
+    );
+}

@@ -36,8 +36,8 @@ const VOXELS_PER_GROUP: usize = 1 << 14;
 ///
 /// # Errors
 /// [`crate::error::Error::InvalidArgument`] for a volume too large to write voxel by voxel,
-/// regular tracking on a moving volume, the work budget of one voxel's directions; the first
-/// error of any voxel's answer.
+/// regular tracking on a moving volume, the work budget ([`SoftLight::check_budget`]); the
+/// first error of any voxel's answer.
 pub fn soft_transmittance_leaves(
     vol: &Volume,
     soft: &SoftLight,
@@ -53,18 +53,12 @@ pub fn soft_transmittance_leaves(
             reason: crate::estimate::blur::REGULAR_REFUSED.into(),
         });
     }
-    crate::estimate::budget::check_job(
-        vol,
-        est,
-        u64::from(soft.samples),
-        u64::from(opts.samples),
-        "samples",
-    )?;
     let start = std::time::Instant::now();
     let (mut leaves, tile_leaves) = output_blocks(vol)?;
     // The scene the receivers are answered in: this volume alone (sigma 1), as a query reads
     // its file.
     let scene = crate::scene::Scene::from_volume(vol.clone());
+    soft.check_budget(&scene, crate::bake::output_voxels(vol), est, opts)?;
     // Every voxel centre in output order, and where its value goes.
     let mut at = Vec::new();
     for (li, leaf) in leaves.iter().enumerate() {
