@@ -344,3 +344,42 @@ fn a_voxel_holds_query_at_its_centre() {
     assert!(h.iter().zip(&z).all(|(a, b)| a.values == b.values));
     assert_eq!(zs.light_samples, None);
 }
+
+/// A soft transmittance volume with a stochastic estimator: the same values on one thread and
+/// on two (each voxel keyed by its ray id alone).
+#[test]
+fn a_soft_volume_ignores_the_thread_count() {
+    use umbra::request::{BakeOptions, BakePlan, BakeRequest};
+    let job = |threads: usize| {
+        let r = BakeRequest {
+            input: cloud(),
+            output: "t.vdb".into(),
+            options: BakeOptions {
+                light: LightOptions {
+                    light_pos: Some([0.0, 6.0, 0.0]),
+                    ..extent(None, Some(1.0), Some(8))
+                },
+                source: read(),
+                estimator: EstimatorOptions {
+                    estimator: "ratio".into(),
+                    samples: 2,
+                    seed: 9,
+                    ..EstimatorOptions::default()
+                },
+                threads,
+                ..BakeOptions::default()
+            },
+        };
+        let BakePlan::Volume(job) = r.plan().unwrap() else {
+            panic!("a .vdb output is a transmittance volume")
+        };
+        job
+    };
+    let (one, two) = (job(1), job(2));
+    let vol = one.load().unwrap();
+    let (a, sa) = one.leaves(&vol, &|_| {}).unwrap();
+    let (b, sb) = two.leaves(&vol, &|_| {}).unwrap();
+    assert!(a.iter().zip(&b).all(|(x, y)| x.values == y.values));
+    assert_eq!(sa.std_err_max, sb.std_err_max);
+    assert!(sa.std_err_max.unwrap() > 0.0);
+}
