@@ -221,15 +221,25 @@ fn soft_answers(
 
 /// The `.usda` layer of `answers`: an `over` on the points prim holding `float[]
 /// primvars:umbra:transmittance:<light name>` (interpolation `vertex`), one time sample per
-/// frame ([`crate::usd::points_layer`]).
+/// frame, and toward a light with extent `primvars:umbra:transmittance_std_err:<light name>`
+/// beside it, each point's error bar ([`crate::usd::points_layer`]).
 ///
 /// # Errors
 /// As [`crate::usd::points_layer`].
 pub fn layer_text(answers: &PointAnswers) -> Result<String> {
-    let samples: Vec<(f64, Vec<f32>)> = answers
-        .frames
-        .iter()
-        .map(|f| (f.frame, f.transmittance.iter().map(|&v| v as f32).collect()))
-        .collect();
-    crate::usd::points_layer(&answers.prim, &answers.light_name, &samples)
+    let arrays = |of: fn(&PointFrame) -> &Vec<f64>| -> Vec<(f64, Vec<f32>)> {
+        answers
+            .frames
+            .iter()
+            .map(|f| (f.frame, of(f).iter().map(|&v| v as f32).collect()))
+            .collect()
+    };
+    let samples = arrays(|f| &f.transmittance);
+    let errors = answers.light_samples.map(|_| arrays(|f| &f.std_err));
+    crate::usd::points_layer(
+        &answers.prim,
+        &answers.light_name,
+        &samples,
+        errors.as_deref(),
+    )
 }

@@ -127,9 +127,30 @@ fn positions_answer_query_at_each_point_and_the_job_writes_the_same() {
     args.extend(KEYS);
     let (code, _, err) = umbra(&args);
     assert_eq!(code, 0, "{err}");
-    assert_eq!(
-        std::fs::read_to_string(&layer).unwrap(),
-        std::fs::read_to_string(&cmd_layer).unwrap()
+    let text = std::fs::read_to_string(&layer).unwrap();
+    assert_eq!(text, std::fs::read_to_string(&cmd_layer).unwrap());
+    // The error bars beside the answers, one time sample per frame.
+    assert!(
+        text.contains("float[] primvars:umbra:transmittance:sun.timeSamples")
+            && text.contains("float[] primvars:umbra:transmittance_std_err:sun.timeSamples"),
+        "{text}"
+    );
+    // Toward the point light, the layer holds T only, as before.
+    let (code, _, err) = umbra(&[
+        "query",
+        s,
+        "--positions",
+        "/pts",
+        "--usd-out",
+        l,
+        "--force",
+        "--light-angle=0",
+    ]);
+    assert_eq!(code, 0, "{err}");
+    let hard = std::fs::read_to_string(&cmd_layer).unwrap();
+    assert!(
+        !hard.contains("std_err") && hard.contains("transmittance:sun"),
+        "{hard}"
     );
 }
 
