@@ -142,6 +142,21 @@ def test_usd_points_toward_a_stage_light_with_extent(cli, tmp_path):
                             "--at=" + ",".join(repr(float(x)) for x in p), flag,
                             "--light-samples=16", "--seed=4", f"--ray-id={i}", "--json")
             assert json.loads(out)["T"] == t[i]
+        # The layer holds T and the error bars as vertex primvars usd-core reads back.
+        if light == "sun":
+            from pxr import Usd, UsdGeom
+
+            layer = tmp_path / "pts.usda"
+            cli("query", stage, "--positions", prim, "--light", light, "--frames", "1-1", flag,
+                "--light-samples=16", "--seed=4", "--usd-out", layer)
+            shot = Usd.Stage.Open(str(stage))
+            shot.GetRootLayer().subLayerPaths.append(str(layer))
+            pv = UsdGeom.PrimvarsAPI(shot.GetPrimAtPath(prim))
+            e = pv.GetPrimvar("umbra:transmittance_std_err:sun")
+            assert e.GetInterpolation() == "vertex"
+            assert np.array_equal(np.asarray(e.Get(1), dtype=np.float32), err.astype(np.float32))
+            v = pv.GetPrimvar("umbra:transmittance:sun").Get(1)
+            assert np.array_equal(np.asarray(v, dtype=np.float32), t.astype(np.float32))
         # Zero extent: the point light's answers exactly.
         zero = {k: 0.0 for k in kw}
         hard = umbra.usd_point_transmittance(stage, prim, light, [1])[1.0]
