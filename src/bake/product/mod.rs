@@ -10,3 +10,4 @@ pub(crate) mod fixed_map;
 pub(crate) mod pipeline;
 pub(crate) mod soft_volume;
 pub(crate) mod transmittance_volume;
+pub(crate) mod volume_job;

@@ -19,8 +19,9 @@
 //! `umbra:light_samples`, `umbra:seed`).
 
 use super::transmittance_volume::{
-    output_blocks, summarise, transmittance_leaves, Sharing, VolumeJob, VolumeStats,
+    output_blocks, summarise, transmittance_leaves, Sharing, VolumeStats,
 };
+use super::volume_job::VolumeJob;
 use crate::error::Result;
 use crate::estimate::{Estimator, Options};
 use crate::light::SoftLight;
