@@ -122,6 +122,18 @@ impl SoftLight {
     }
 }
 
+impl SoftRays {
+    /// This receiver's answer: every direction through [`crate::scene::estimate_many`], then
+    /// their mean and error bar (what [`SoftLight::answer_many`] gives each of its receivers).
+    ///
+    /// # Errors
+    /// The first error of its directions' estimates.
+    pub fn answer(&self, scene: &Scene, est: &Estimator, opts: &Options) -> Result<SoftAnswer> {
+        let per = crate::scene::estimate_many(scene, &self.rays, &self.ids, est, opts);
+        combined(scene, self, per)
+    }
+}
+
 /// One receiver's answer from its directions' estimates: the first error, or their mean.
 fn combined(scene: &Scene, s: &SoftRays, per: Vec<Result<SceneEstimate>>) -> Result<SoftAnswer> {
     if per.len() != s.rays.len() {

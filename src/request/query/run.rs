@@ -510,26 +510,24 @@ fn answer_one(
     Answer { line: None, result }
 }
 
-/// A receiver toward a light with extent: every direction through the batch entry point, then
-/// their mean and the replicates' error bar ([`crate::light::extent::SoftRays::combine`]); a direction
-/// whose estimate fails is the answer's error.
+/// A receiver toward a light with extent ([`crate::light::extent::SoftRays::answer`]: every
+/// direction through the batch entry point, then their mean and the replicates' error bar); a
+/// direction whose estimate fails is the answer's error.
 fn answer_soft(
     scene: &Scene,
     soft: &crate::light::extent::SoftRays,
     (est, opts): (&Estimator, &Options),
 ) -> Answer {
     let start = std::time::Instant::now();
-    let per: std::result::Result<Vec<SceneEstimate>, String> =
-        crate::scene::estimate_many(scene, &soft.rays, &soft.ids, est, opts)
-            .into_iter()
-            .map(|r| r.map_err(|e| e.to_string()))
-            .collect();
-    let result = per.map(|per| Answered {
-        ray: soft.centre,
-        estimate: soft.combine(scene.channels(), &per),
-        seconds: start.elapsed().as_secs_f64(),
-        light_samples: Some(per.len()),
-    });
+    let result = soft
+        .answer(scene, est, opts)
+        .map(|a| Answered {
+            ray: a.centre,
+            estimate: a.estimate,
+            seconds: start.elapsed().as_secs_f64(),
+            light_samples: Some(a.light_samples),
+        })
+        .map_err(|e| e.to_string());
     Answer { line: None, result }
 }
 
