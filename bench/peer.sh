@@ -30,7 +30,8 @@
 # Environment: PRESET (cloud_fbm | cloud | smoke), ONLY (a regex of entry names to run, e.g.
 # 'umbra_exact_rays|nanovdb_1$|vdb_render_1$|cycles_rate1_spp1'; the exact references always
 # run), RES (512x512), THREADS (nproc), REPS (3), CYCLES (1),
-# NANOVDB (1), MITSUBA (1), VENV (bench/.venv, the Python environment with mitsuba), OUT
+# NANOVDB (1), MITSUBA (1), WARP (1), VENV (bench/.venv, the Python environment with mitsuba),
+# WARP_VENV (bench/.venv-warp), OUT
 # (directory for images, logs and the table, /tmp/umbra-peer). The view follows
 # ../shared/research/peers.md: vdb_render's -absorb is per voxel (= scale x voxel size), rays
 # start on the image plane through CENTER and run along DIR; T = 1 - alpha of its EXR.
@@ -179,6 +180,29 @@ if [ "${NANOVDB:-1}" = 1 ]; then
     entry nanovdb_sfv_0.5 "NanoVDB march step 0.5, SampleFromVoxels" "same spans, nanovdb::SampleFromVoxels<acc, 1> lookups" \
         "$OUT/nanovdb_sfv_0.5.exr:T" "$REF" \
         "$NANO" "$NVDB" "${VIEW[@]}" --threads "$THREADS" --step 0.5 --sampler nanovdb --out "$OUT/nanovdb_sfv_0.5.exr"
+fi
+
+# NVIDIA Warp (WARP=0 skips it; issue 61): bench/warp_march.py, a fixed-step trilinear march of
+# wp.Volume on Warp's CPU device over the same .nvdb (NanoVDB's voxel convention, so scored
+# against umbra's exact image as it is). Its "render_s" is the kernel alone: wp.init, the .nvdb
+# load and the first launch (the kernel's compile) are excluded; Warp's CPU device runs a
+# launch on one OS thread whatever THREADS says. WARP_VENV (bench/.venv-warp) gets warp-lang,
+# numpy and OpenEXR from PyPI when it lacks them.
+if [ "${WARP:-1}" = 1 ]; then
+    WARP_VENV=${WARP_VENV:-bench/.venv-warp}
+    if ! "$WARP_VENV/bin/python" -c 'import warp, OpenEXR, numpy' 2>/dev/null; then
+        echo "creating $WARP_VENV with warp-lang ..." >&2
+        python3 -m venv "$WARP_VENV"
+        "$WARP_VENV/bin/pip" install --quiet warp-lang numpy "OpenEXR>=3.2" >&2
+    fi
+    command -v nanovdb_convert >/dev/null || apt_install libnanovdb-tools
+    NVDB="$OUT/$PRESET.nvdb"
+    [ "$NVDB" -nt "$FILE" ] || nanovdb_convert -f -g density "$FILE" "$NVDB" >&2
+    for step in 0.5 1; do
+        entry "warp_$step" "Warp CPU march step $step (kernel time, 1 thread)" "wp.Volume volume_sample_f LINEAR, no empty-space skipping" \
+            "$OUT/warp_$step.exr:T" "$REF" \
+            "$WARP_VENV/bin/python" bench/warp_march.py "$NVDB" "$OUT/warp_$step.exr" "${VIEW[@]}" --step "$step" --reps 1
+    done
 fi
 
 # Mitsuba 3 (MITSUBA=0 skips it): the grid copied once to a dense array with a zero margin

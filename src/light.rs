@@ -4,8 +4,10 @@ use crate::error::{Error, Result};
 use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
 
+pub mod area;
 pub mod extent;
 mod receivers;
+pub use area::{Area, Shape};
 pub use extent::{Extent, SoftLight};
 pub use receivers::{SoftAnswer, RAYS_PER_BATCH};
 
@@ -190,8 +192,12 @@ impl From<crate::usd::Emitter> for Light {
     /// maps its emitter here.
     fn from(e: crate::usd::Emitter) -> Self {
         match e {
-            crate::usd::Emitter::Directional { dir } => Self::Directional { dir },
-            crate::usd::Emitter::Point { pos } => Self::Point { pos },
+            crate::usd::Emitter::Directional { dir, .. } => Self::Directional { dir },
+            crate::usd::Emitter::Point { pos }
+            | crate::usd::Emitter::Sphere { pos, .. }
+            | crate::usd::Emitter::Disk { pos, .. }
+            | crate::usd::Emitter::Rect { pos, .. }
+            | crate::usd::Emitter::Cylinder { pos, .. } => Self::Point { pos },
         }
     }
 }

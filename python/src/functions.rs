@@ -261,6 +261,7 @@ pub(crate) fn usd_lights_json(
         let mut o = serde_json::json!({
             "prim": l.prim, "name": l.name(), "type": l.type_name, "kind": null,
             "shadow_enable": l.shadow.enabled, "linked": l.shadow.linked,
+            "refused": l.refused,
         });
         // The emitter's own JSON: its `kind` and its fields (`dir`, `pos`, ...).
         if let Some(e) = l.emitter {

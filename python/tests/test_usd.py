@@ -197,9 +197,9 @@ def test_info_on_a_stage_says_what_umbra_reads(cli, tmp_path):
     assert v["info"]["active_voxels"] == json.loads(grid)["grids"][0]["active_voxels"]
     lights = {l["prim"]: l for l in r["lights"]}
     sun = [float(x) for x in _sun(st, "/Lights/sun", 2).split(",")]
-    assert np.allclose(lights["/Lights/sun"]["traced"]["directional"], sun, atol=1e-12)
+    assert np.allclose(lights["/Lights/sun"]["traced"]["dir"], sun, atol=1e-12)
     lamp = [float(x) for x in _origin(st, "/Lights/lamp", 2).split(",")]
-    assert np.allclose(lights["/Lights/lamp"]["traced"]["point"], lamp, atol=1e-12)
+    assert np.allclose(lights["/Lights/lamp"]["traced"]["pos"], lamp, atol=1e-12)
     _, text, _ = cli("info", tmp_path / "shot.usdc", "--frame", 2)
     assert "/World/cloud" in text and "DistantLight" in text and "up +Z" in text, text
     e = _err(cli, "info", tmp_path / "shot.usdc", "--light", "sun")
@@ -273,8 +273,28 @@ def test_a_two_volume_stage_is_the_same_scene_file(cli, tmp_path):
 
 
 def test_a_query_toward_a_sphere_light_is_the_explicit_query(cli, tmp_path):
+    # The lamp's inputs:radius is unauthored: its schema fallback, 0.5, applies (a sphere
+    # light, as renderers draw it); treatAsPoint makes it the point light.
     st = _stage(tmp_path / "shot.usdc")
     at = "1.4,2.6,3.2"
+    for t in (1, 2):
+        vdb = st.GetPrimAtPath("/World/cloud/density").GetAttribute("filePath").Get(t).resolvedPath
+        _, a, _ = cli("query", tmp_path / "shot.usdc", "--frame", t, "--light", "lamp",
+                      "--at", at, "--json")
+        flags = (vdb, f"--xform={_xform(st, '/World/cloud', t)}",
+                 f"--light-pos={_origin(st, '/Lights/lamp', t)}", "--at", at, "--json")
+        _, b, _ = cli("query", *flags, "--light-radius", "0.5")
+        ja, jb = json.loads(a), json.loads(b)
+        # usd-core and umbra's reader compose the same xformOps to within an ulp or two (the
+        # rotation's float angles are widened in a different order), so f64 answers agree to
+        # round-off, not bit for bit; the float maps above are bit for bit.
+        assert ja["tau"] is None and jb["tau"] is None
+        assert ja["T"] == pytest.approx(jb["T"], rel=1e-9, abs=0), (ja, jb)
+        assert ja["std_err"] == pytest.approx(jb["std_err"], rel=1e-6), (ja, jb)
+        assert ja["length"] == pytest.approx(jb["length"], rel=1e-12), (ja, jb)
+        assert 0.0 < ja["T"] < 1.0
+    UsdLux.SphereLight(st.GetPrimAtPath("/Lights/lamp")).CreateTreatAsPointAttr(True)
+    st.Save()
     for t in (1, 2):
         vdb = st.GetPrimAtPath("/World/cloud/density").GetAttribute("filePath").Get(t).resolvedPath
         _, a, _ = cli("query", tmp_path / "shot.usdc", "--frame", t, "--light", "lamp",
@@ -282,12 +302,7 @@ def test_a_query_toward_a_sphere_light_is_the_explicit_query(cli, tmp_path):
         _, b, _ = cli("query", vdb, f"--xform={_xform(st, '/World/cloud', t)}",
                       f"--light-pos={_origin(st, '/Lights/lamp', t)}", "--at", at, "--json")
         ja, jb = json.loads(a), json.loads(b)
-        # usd-core and umbra's reader compose the same xformOps to within an ulp or two (the
-        # rotation's float angles are widened in a different order), so f64 answers agree to
-        # round-off, not bit for bit; the float maps above are bit for bit.
         assert ja["tau"] == pytest.approx(jb["tau"], rel=1e-12, abs=0), (ja, jb)
-        assert ja["length"] == pytest.approx(jb["length"], rel=1e-12), (ja, jb)
-        assert 0.0 < ja["T"] < 1.0
 
 
 def _err(cli, *args):
@@ -397,7 +412,10 @@ def test_python_reads_the_stage_as_the_cli_does(cli, tmp_path):
     got = umbra.usd_lights(tmp_path / "shot.usdc", time=2)
     assert got["time"] == 2 and got["up"] == [0, 0, 1]
     by = {l["name"]: l for l in got["lights"]}
-    assert by["sun"]["kind"] == "directional" and by["lamp"]["kind"] == "point"
+    assert by["sun"]["kind"] == "directional" and by["lamp"]["kind"] == "sphere"
+    # The schema fallbacks, as renderers apply them: the sun 0.53 degrees across, the lamp 0.5.
+    # (The schema's float fallbacks, widened: 0.53 as a float.)
+    assert by["sun"]["angle"] == pytest.approx(0.53, abs=1e-7) and by["lamp"]["radius"] == 0.5
     want = [float(c) for c in _sun(st, "/Lights/sun", 2).split(",")]
     assert by["sun"]["dir"] == pytest.approx(want, abs=1e-12)
     assert by["lamp"]["pos"] == pytest.approx(

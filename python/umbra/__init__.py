@@ -765,12 +765,18 @@ def bake(
 
 def usd_lights(path: PathLike, time: Optional[float] = None) -> Dict[str, Any]:
     """The UsdLux lights of a USD stage at time code ``time`` (default: its start), as umbra
-    reads them: ``{"time", "up", "lights": [{"prim", "name", "type", "kind", "dir" | "pos",
-    "shadow_enable", "linked"}]}``. A ``DistantLight`` is ``kind="directional"`` with the unit
-    direction it travels (its world -Z); a sphere, disk, rect or cylinder light is
-    ``kind="point"`` at its world origin; other types have ``kind=None``. ``shadow_enable`` is
-    its ``inputs:shadow:enable``, ``linked`` the visible volumes its ``collection:shadowLink``
-    includes. ``up`` is the stage's up axis."""
+    reads them: ``{"time", "up", "lights": [{"prim", "name", "type", "kind", ...,
+    "shadow_enable", "linked"}]}``. A ``DistantLight`` is ``kind="directional"`` with ``dir``,
+    the unit direction it travels (its world -Z), and ``angle``, its angular diameter in degrees
+    (the schema's 0.53 when unauthored). A local light has ``pos`` (its world origin) and
+    ``axes`` (the rows X, Y, Z of its world matrix) beside its kind and sizes:
+    ``kind="sphere"`` (``radius``), ``"disk"`` (``radius``), ``"rect"`` (``width``,
+    ``height``), ``"cylinder"`` (``radius``, ``length``; radius 0 for ``treatAsLine``), or
+    ``"point"`` (``treatAsPoint``, or a shape of no size); a light umbra cannot trace (shaped,
+    textured, a bad size: ``refused`` says why) or of another type has ``kind=None``.
+    ``shadow_enable`` is its
+    ``inputs:shadow:enable``, ``linked`` the visible volumes its ``collection:shadowLink``
+    includes. ``up`` is the stage's up axis (docs/lights.md)."""
     t = None if time is None else float(time)
     return json.loads(_umbra.usd_lights_json(_path("path", path), t))
 

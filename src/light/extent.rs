@@ -26,6 +26,7 @@
 //! `max(T0, 1 - T0) sqrt(p / N)`, never 0. It is 0 only when the sun's whole cone provably
 //! misses every volume's box and every solid's box: the answer is then 1 without sampling.
 
+use super::area::Area;
 use super::{Light, LightOptions};
 use crate::error::{Error, Result};
 use crate::ray::Ray;
@@ -49,6 +50,8 @@ const DIRECTION_STREAM: u64 = 0xD1EC_7104_0000_0000;
 const INV_GOLDEN: f64 = 0.618_033_988_749_894_9;
 
 /// A light's extent: what a point light becomes.
+// An area light's frame makes `Area` large; extents are few and copied rarely.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Extent {
     /// A sun of this angular diameter, degrees in (0, 180).
@@ -61,6 +64,9 @@ pub enum Extent {
         /// Radius.
         radius: f64,
     },
+    /// A disk, rect, cylinder or line light, or a sphere its transform does not keep round,
+    /// sampled on its surface and weighted to be uniform in solid angle ([`Area`]).
+    Area(Area),
 }
 
 /// A light with extent: its centre (a directional or point [`Light`]), its extent and the
@@ -101,24 +107,9 @@ pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, u32)
             format!("{a} degrees is not below 180 (the sun's angular diameter, degrees)"),
         ));
     }
-    let samples = match o.light_samples {
-        None => DEFAULT_LIGHT_SAMPLES,
-        Some(_) if angle.is_none() && radius.is_none() => {
-            return Err(bad(
-                "light-samples",
-                "samples a light with extent: give light-angle or light-radius",
-            ))
-        }
-        Some(0) => return Err(bad("light-samples", "must be at least 1")),
-        Some(n) if n > MAX_LIGHT_SAMPLES => {
-            return Err(bad(
-                "light-samples",
-                format!("{n} directions per receiver is beyond the work budget: at most {MAX_LIGHT_SAMPLES}"),
-            ))
-        }
-        Some(n) => n.div_ceil(REPLICATES) * REPLICATES,
-    };
-    Ok((angle, radius, samples))
+    // Directions per receiver: `light-samples` alone may go with a stage light, whose extent
+    // the stage gives; with a given light it needs an angle or a radius (`check`).
+    Ok((angle, radius, samples(o.light_samples)?))
 }
 
 /// [`LightOptions::soft`]: the keys of a light with extent, checked.
@@ -136,6 +127,12 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
             "is a sphere light's radius: it goes with light-pos",
         ));
     }
+    if o.light_samples.is_some() && o.light().is_some() && angle.is_none() && radius.is_none() {
+        return Err(bad(
+            "light-samples",
+            "samples a light with extent: give light-angle or light-radius (or a stage's light)",
+        ));
+    }
     let extent = match (angle, radius) {
         (Some(a), _) if a > 0.0 => Extent::Sun { angle: a },
         (_, Some(r)) if r > 0.0 => Extent::Sphere { radius: r },
@@ -148,6 +145,40 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
     }))
 }
 
+/// The directions traced per receiver for the `light-samples` key: the default when it is not
+/// given, else rounded up to a multiple of [`REPLICATES`].
+///
+/// # Errors
+/// [`Error::InvalidArgument`] naming `light-samples` for 0 or more than
+/// [`MAX_LIGHT_SAMPLES`].
+pub fn samples(given: Option<u32>) -> Result<u32> {
+    match given {
+        None => Ok(DEFAULT_LIGHT_SAMPLES),
+        Some(0) => Err(bad("light-samples", "must be at least 1")),
+        Some(n) if n > MAX_LIGHT_SAMPLES => Err(bad(
+            "light-samples",
+            format!(
+                "{n} directions per receiver is beyond the work budget: at most \
+                 {MAX_LIGHT_SAMPLES}"
+            ),
+        )),
+        Some(n) => Ok(n.div_ceil(REPLICATES) * REPLICATES),
+    }
+}
+
+/// Whether the rows `axes` are orthogonal and of one length (within `1e-9` relative): a
+/// sphere under them stays a sphere, of radius times that length.
+fn round(axes: &[[f64; 3]; 3]) -> Option<f64> {
+    let v = axes.map(DVec3::from_array);
+    let l = v.map(DVec3::length);
+    let tol = 1e-9 * l[0];
+    let same = (l[1] - l[0]).abs() <= tol && (l[2] - l[0]).abs() <= tol;
+    let square = v[0].dot(v[1]).abs() <= tol * l[0]
+        && v[0].dot(v[2]).abs() <= tol * l[0]
+        && v[1].dot(v[2]).abs() <= tol * l[0];
+    (same && square && l[0].is_finite() && l[0] > 0.0).then_some(l[0])
+}
+
 /// The cone of directions from a receiver toward the light.
 #[derive(Debug, Clone, Copy)]
 enum Cone {
@@ -158,6 +189,20 @@ enum Cone {
 }
 
 impl Cone {
+    /// The cone from a receiver that sees a sphere of radius `radius` at the offset `v`:
+    /// every direction when the receiver is inside it.
+    fn toward(v: DVec3, radius: f64) -> Self {
+        let d = safe_length(v);
+        if d.is_nan() || d <= radius {
+            return Self::All;
+        }
+        let s = radius / d;
+        Self::Cap {
+            axis: v / d,
+            one_minus_cos: s * s / (1.0 + (1.0 - s * s).max(0.0).sqrt()),
+        }
+    }
+
     /// `1 - cos(theta_max)`.
     fn one_minus_cos(self) -> f64 {
         match self {
@@ -183,7 +228,7 @@ impl Cone {
 }
 
 /// An orthonormal basis around the unit vector `n` (Duff et al. 2017, branchless).
-fn basis(n: DVec3) -> (DVec3, DVec3) {
+pub(super) fn basis(n: DVec3) -> (DVec3, DVec3) {
     let sign = 1.0_f64.copysign(n.z);
     let a = -1.0 / (sign + n.z);
     let b = n.x * n.y * a;
@@ -202,8 +247,17 @@ pub struct SoftRays {
     pub rays: Vec<Ray>,
     /// Each ray's id (its estimator's random streams).
     pub ids: Vec<u64>,
+    /// Each ray's weight (an area light's, [`Area`]); empty when every ray weighs the same.
+    pub weights: Vec<f64>,
+    /// Where each replicate's rays end in `rays` ([`REPLICATES`] entries; empty with no
+    /// rays).
+    pub ends: Vec<usize>,
     /// The ray toward the light's centre.
     pub centre: Ray,
+    /// The receiver provably sees none of the light's emitting side (behind a one-sided
+    /// light, inside a cylinder light): no light reaches it, and the answer is 1 by
+    /// convention (docs/lights.md).
+    pub unlit: bool,
 }
 
 /// `|v|` without overflow or underflow in its squares (a light at 1e300).
@@ -217,6 +271,48 @@ fn safe_length(v: DVec3) -> f64 {
 }
 
 impl SoftLight {
+    /// The light with extent a stage's light is, traced with `samples` directions per
+    /// receiver ([`samples`]): its centre is `Light::from(e)`; `None` for a point (a distant
+    /// light of angle 0, `treatAsPoint`, a shape of no size): today's point light, bit for
+    /// bit. A sphere its transform keeps round is the exact cone of a sphere light of the
+    /// scaled radius; any other shape is an [`Area`].
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] for a shape [`Area::new`] refuses.
+    pub fn of_emitter(e: crate::usd::Emitter, samples: u32) -> Result<Option<Self>> {
+        use super::area::Shape;
+        use crate::usd::Emitter as E;
+        let area = |shape, pos, axes| Area::new(shape, pos, axes).map(Extent::Area);
+        let extent = match e {
+            E::Directional { angle, .. } if angle > 0.0 => Extent::Sun { angle },
+            E::Directional { .. } | E::Point { .. } => return Ok(None),
+            E::Sphere { pos, radius, axes } => match round(&axes) {
+                Some(scale) => Extent::Sphere {
+                    radius: radius * scale,
+                },
+                None => area(Shape::Ellipsoid { radius }, pos, axes)?,
+            },
+            E::Disk { pos, radius, axes } => area(Shape::Disk { radius }, pos, axes)?,
+            E::Rect {
+                pos,
+                width,
+                height,
+                axes,
+            } => area(Shape::Rect { width, height }, pos, axes)?,
+            E::Cylinder {
+                pos,
+                radius,
+                length,
+                axes,
+            } => area(Shape::Cylinder { radius, length }, pos, axes)?,
+        };
+        Ok(Some(Self {
+            light: Light::from(e),
+            extent,
+            samples,
+        }))
+    }
+
     /// The cone from `at` toward the light.
     fn cone(&self, at: DVec3) -> Result<Cone> {
         match (self.light, self.extent) {
@@ -235,17 +331,10 @@ impl SoftLight {
                 })
             }
             (Light::Point { pos }, Extent::Sphere { radius }) => {
-                let v = DVec3::from_array(pos) - at;
-                let d = safe_length(v);
-                if d.is_nan() || d <= radius {
-                    return Ok(Cone::All);
-                }
-                let s = radius / d;
-                Ok(Cone::Cap {
-                    axis: v / d,
-                    one_minus_cos: s * s / (1.0 + (1.0 - s * s).max(0.0).sqrt()),
-                })
+                Ok(Cone::toward(DVec3::from_array(pos) - at, radius))
             }
+            // The cone about the sphere that holds the whole surface: it holds every segment.
+            (_, Extent::Area(a)) => Ok(Cone::toward(a.centre() - at, a.bound())),
             _ => Err(bad(
                 "light-angle",
                 "a sun's angle goes with light-dir, a sphere's radius with light-pos",
@@ -298,16 +387,21 @@ impl SoftLight {
             .light
             .ray_from_scene(scene, at)
             .or_else(|_| self.ray(scene, p, cone.direction(0.0, 0.0)))?;
-        if misses_everything(scene, p, cone, self.extent) {
-            return Ok(SoftRays {
-                rays: Vec::new(),
-                ids: Vec::new(),
-                centre,
-            });
+        let unlit = matches!(self.extent, Extent::Area(a) if a.unlit(p));
+        let mut out = SoftRays {
+            rays: Vec::new(),
+            ids: Vec::new(),
+            weights: Vec::new(),
+            ends: Vec::new(),
+            centre,
+            unlit,
+        };
+        if unlit || misses_everything(scene, p, cone) {
+            return Ok(out);
         }
         let m = self.samples / REPLICATES;
-        let mut rays = Vec::with_capacity(self.samples as usize);
-        let mut ids = Vec::with_capacity(self.samples as usize);
+        out.rays.reserve(self.samples as usize);
+        out.ids.reserve(self.samples as usize);
         for r in 0..u64::from(REPLICATES) {
             let mut rng = Rng::new(seed, ray_id, ROTATION_STREAM | r);
             let (du, dv) = (rng.uniform(), rng.uniform());
@@ -315,26 +409,35 @@ impl SoftLight {
                 let fi = f64::from(i);
                 let u = ((fi + 0.5) / f64::from(m) + du).fract();
                 let v = (fi * INV_GOLDEN + dv).fract();
-                rays.push(self.ray(scene, p, cone.direction(u, v))?);
+                let ray = match self.extent {
+                    Extent::Area(a) => match a.point(p, u, v) {
+                        (_, w) if w <= 0.0 => continue,
+                        (y, w) => {
+                            out.weights.push(w);
+                            Ray::between(p, y)?
+                        }
+                    },
+                    _ => self.ray(scene, p, cone.direction(u, v))?,
+                };
+                out.rays.push(ray);
                 let k = r * u64::from(m) + u64::from(i);
-                ids.push(Rng::new(seed, ray_id, DIRECTION_STREAM | k).next_u64());
+                out.ids
+                    .push(Rng::new(seed, ray_id, DIRECTION_STREAM | k).next_u64());
             }
+            out.ends.push(out.rays.len());
         }
-        Ok(SoftRays { rays, ids, centre })
+        Ok(out)
     }
 }
 
-/// Whether every ray of a sun's cone from `p` provably misses every volume's box and every
-/// solid's box (each box's bounding sphere lies outside the cone): `T = 1` exactly. A sphere
-/// light's segments are not bounded by the boxes, so it is always sampled.
-fn misses_everything(scene: &Scene, p: DVec3, cone: Cone, extent: Extent) -> bool {
-    let (
-        Extent::Sun { .. },
-        Cone::Cap {
-            axis,
-            one_minus_cos,
-        },
-    ) = (extent, cone)
+/// Whether every ray of the cone from `p` provably misses every volume's box and every
+/// solid's box (each box's bounding sphere lies outside the cone): `T = 1` exactly. A sun's
+/// rays, a sphere light's segments and an area light's all lie in their cone.
+fn misses_everything(scene: &Scene, p: DVec3, cone: Cone) -> bool {
+    let Cone::Cap {
+        axis,
+        one_minus_cos,
+    } = cone
     else {
         return false;
     };
@@ -371,15 +474,34 @@ impl SoftRays {
             return out;
         }
         let n = per.len();
-        let m = (n / REPLICATES as usize).max(1);
+        let weight = |i: usize| self.weights.get(i).copied().unwrap_or(1.0);
         for c in 0..3 {
-            let means: Vec<f64> = per
-                .chunks(m)
-                .map(|ch| ch.iter().map(|e| e.value[c]).sum::<f64>() / ch.len() as f64)
+            // Per replicate: the weighted sum of T and the weights' sum.
+            let mut start = 0;
+            let mut sums = Vec::with_capacity(self.ends.len());
+            for &end in &self.ends {
+                let end = end.min(n);
+                let (wt, w) = (start..end).fold((0.0, 0.0), |(wt, w), i| {
+                    (wt + weight(i) * per[i].value[c], w + weight(i))
+                });
+                sums.push((wt, w));
+                start = end;
+            }
+            let total = sums.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+            let means: Vec<f64> = sums
+                .iter()
+                .filter(|(_, w)| *w > 0.0)
+                .map(|(wt, w)| wt / w)
                 .collect();
+            let mean = if self.weights.is_empty() {
+                // Equal replicates: the mean of their means.
+                means.iter().sum::<f64>() / means.len().max(1) as f64
+            } else {
+                total.0 / total.1
+            };
             let r = means.len() as f64;
-            let mean = means.iter().sum::<f64>() / r;
-            let var = means.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (r - 1.0).max(1.0);
+            let centre = means.iter().sum::<f64>() / r.max(1.0);
+            let var = means.iter().map(|x| (x - centre).powi(2)).sum::<f64>() / (r - 1.0).max(1.0);
             let (lo, hi) = per
                 .iter()
                 .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), e| {
@@ -389,6 +511,9 @@ impl SoftRays {
             out.std_err[c] = if lo == hi {
                 let p = (crate::estimate::error_bar::RULE_OF_THREE / n as f64).min(1.0);
                 mean.max(1.0 - mean) * (p / n as f64).sqrt()
+            } else if means.len() < 2 {
+                // One replicate saw the light: no spread to measure, the widest bar.
+                mean.max(1.0 - mean)
             } else {
                 (var / r).sqrt()
             };

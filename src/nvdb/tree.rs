@@ -136,7 +136,13 @@ struct Decoder<'a> {
     precision: PrecisionLoss,
     voxels: u64,
     tiles: [u64; 3],
+    /// Each leaf's byte offset, in leaf order: their values are decoded after the walk, on
+    /// every core ([`leaf_values`]).
+    leaf_at: Vec<u64>,
 }
+
+/// Leaves per parallel work item of the value decode.
+const LEAF_CHUNK: usize = 256;
 
 /// Decode the tree of the grid buffer `b` whose headers are `h`, Vec3f values as `pick` says.
 pub(crate) fn decode(
@@ -166,11 +172,13 @@ pub(crate) fn decode(
         precision,
         voxels: 0,
         tiles: [0; 3],
+        leaf_at: Vec::new(),
     };
     // Exact capacities (the counts fit the buffer, `locate` checked): no growth slack held.
     let [leaves, lowers, uppers] = h.node_count.map(|c| c as usize);
     d.tree.leaves.reserve_exact(leaves);
     d.tree.values.reserve_exact(leaves);
+    d.leaf_at.reserve_exact(leaves);
     d.tree.lowers.reserve_exact(lowers);
     d.tree.uppers.reserve_exact(uppers);
     d.tree.root.reserve_exact(nodes.table_size as usize);
@@ -189,6 +197,27 @@ pub(crate) fn decode(
                 d.seen[k].len()
             )));
         }
+    }
+    // The leaves' values, on every core: each chunk of leaves is decoded by one worker into
+    // its own slots, so the tree is the serial walk's, bit for bit, whatever the thread count;
+    // the first error in leaf order is the one reported.
+    let (values, at) = (&mut d.tree.values, &d.leaf_at);
+    let parts: Vec<DecodeResult<PrecisionLoss>> = {
+        use rayon::prelude::*;
+        values
+            .par_chunks_mut(LEAF_CHUNK)
+            .zip(at.par_chunks(LEAF_CHUNK))
+            .map(|(vals, ats)| {
+                let mut p = PrecisionLoss::default();
+                for (v, &a) in vals.iter_mut().zip(ats) {
+                    leaf_values(b, l, pick, a, v, &mut p)?;
+                }
+                Ok(p)
+            })
+            .collect()
+    };
+    for part in parts {
+        d.precision.merge(part?);
     }
     let precision = (l.kind == ValueKind::Double).then_some(d.precision);
     d.tree.compute_bounds();
@@ -340,21 +369,6 @@ impl Decoder<'_> {
     fn leaf(&mut self, at: u64, origin: [i32; 3]) -> DecodeResult<u32> {
         self.check_origin(at, origin, 8)?;
         let value_mask = self.b.words::<8>(at + 16)?;
-        let mut values = [0f32; 512];
-        let codes = at + self.l.leaf_values;
-        match self.l.leaves {
-            Leaves::Raw => {
-                for (i, v) in values.iter_mut().enumerate() {
-                    let p = codes + i as u64 * self.l.value;
-                    *v = decode_value(&self.b, &self.l, p, self.pick, &mut self.precision)?;
-                }
-            }
-            Leaves::Fixed(bits) => self.dequantise(at, bits, &mut values)?,
-            Leaves::Variable => {
-                let bits = fpn_bits(&self.b, at)?;
-                self.dequantise(at, bits, &mut values)?;
-            }
-        }
         self.voxels = self
             .voxels
             .saturating_add(value_mask.iter().map(|w| u64::from(w.count_ones())).sum());
@@ -367,29 +381,53 @@ impl Decoder<'_> {
             halo: Bounds::EMPTY,
             data: index,
         });
-        self.tree.values.push(values);
+        // Its values come after the walk, in parallel ([`leaf_values`]).
+        self.tree.values.push([0f32; 512]);
+        self.leaf_at.push(at);
         Ok(index)
     }
+}
 
-    /// Quantised leaf values: code `i` is bits `[i w, (i + 1) w)` of the little-endian code
-    /// array at byte 96 (`w` = `bits`); its value `code * quantum + minimum`, in `f32` as
-    /// NanoVDB computes it (`LeafData<Fp4..FpN>::getValue`).
-    fn dequantise(&self, at: u64, bits: u32, out: &mut [f32; 512]) -> DecodeResult<()> {
-        let minimum = self.b.f32(at + 80)?;
-        let quantum = self.b.f32(at + 84)?;
-        let codes = self.b.slice(at + 96, 64 * u64::from(bits))?;
-        let mask = (1u32 << bits) - 1;
-        for (i, v) in out.iter_mut().enumerate() {
-            let bit = i * bits as usize;
-            let byte = bit / 8;
-            let word = if bits == 16 {
-                u32::from(u16::from_le_bytes([codes[byte], codes[byte + 1]]))
-            } else {
-                u32::from(codes[byte]) >> (bit % 8)
-            };
-            let code = word & mask;
-            *v = code as f32 * quantum + minimum;
+/// The 512 values of the leaf at byte `at` into `out`, doubles' precision tracked in `p`.
+fn leaf_values(
+    b: &Bytes<'_>,
+    l: &Layout,
+    pick: Pick,
+    at: u64,
+    out: &mut [f32; 512],
+    p: &mut PrecisionLoss,
+) -> DecodeResult<()> {
+    let codes = at + l.leaf_values;
+    match l.leaves {
+        Leaves::Raw => {
+            for (i, v) in out.iter_mut().enumerate() {
+                *v = decode_value(b, l, codes + i as u64 * l.value, pick, p)?;
+            }
+            Ok(())
         }
-        Ok(())
+        Leaves::Fixed(bits) => dequantise(b, at, bits, out),
+        Leaves::Variable => dequantise(b, at, fpn_bits(b, at)?, out),
     }
+}
+
+/// Quantised leaf values: code `i` is bits `[i w, (i + 1) w)` of the little-endian code
+/// array at byte 96 (`w` = `bits`); its value `code * quantum + minimum`, in `f32` as
+/// NanoVDB computes it (`LeafData<Fp4..FpN>::getValue`).
+fn dequantise(b: &Bytes<'_>, at: u64, bits: u32, out: &mut [f32; 512]) -> DecodeResult<()> {
+    let minimum = b.f32(at + 80)?;
+    let quantum = b.f32(at + 84)?;
+    let codes = b.slice(at + 96, 64 * u64::from(bits))?;
+    let mask = (1u32 << bits) - 1;
+    for (i, v) in out.iter_mut().enumerate() {
+        let bit = i * bits as usize;
+        let byte = bit / 8;
+        let word = if bits == 16 {
+            u32::from(u16::from_le_bytes([codes[byte], codes[byte + 1]]))
+        } else {
+            u32::from(codes[byte]) >> (bit % 8)
+        };
+        let code = word & mask;
+        *v = code as f32 * quantum + minimum;
+    }
+    Ok(())
 }

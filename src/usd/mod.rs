@@ -283,6 +283,10 @@ pub struct StageLight {
     /// How umbra traces it; `None` for a type umbra does not trace (a dome, a portal, a
     /// geometry light).
     pub emitter: Option<Emitter>,
+    /// Why a light of a type umbra traces cannot be traced (a shaped or textured light, a
+    /// size out of range, an attribute that cannot be read): it is refused with this when it
+    /// is chosen; the stage's other lights still read.
+    pub refused: Option<String>,
     /// Its shadow controls (UsdLux `ShadowAPI`, `LightAPI`).
     pub shadow: Shadow,
 }
@@ -406,7 +410,11 @@ impl Shot {
                 }
             },
         };
-        if let Some(reason) = &chosen.shadow.unreadable {
+        if let Some(reason) = chosen
+            .refused
+            .as_ref()
+            .or(chosen.shadow.unreadable.as_ref())
+        {
             return Err(Error::Stage {
                 path: self.path.clone(),
                 reason: reason.clone(),
@@ -422,8 +430,8 @@ impl Shot {
         match chosen.emitter {
             Some(e) => Ok((chosen, e)),
             None => Err(self.err(format!(
-                "{} is a {}: umbra traces DistantLight (a sun), SphereLight, DiskLight, \
-                 RectLight and CylinderLight (points)",
+                "{} is a {}: umbra traces DistantLight, SphereLight, DiskLight, RectLight \
+                 and CylinderLight",
                 chosen.prim, chosen.type_name
             ))),
         }

@@ -174,6 +174,25 @@ impl Reader<'_> {
         })
     }
 
+    fn flag(&self, prim: &str, attr: &str) -> Result<Option<bool>> {
+        match self.value(prim, attr)? {
+            None => Ok(None),
+            Some(Value::Bool(b)) => Ok(Some(b)),
+            Some(v) => Err(self.at(prim, format!("{attr}: {v:?} is not a bool"))),
+        }
+    }
+
+    /// A string, token or asset path attribute (the asset path as authored).
+    fn text(&self, prim: &str, attr: &str) -> Result<Option<String>> {
+        match self.value(prim, attr)? {
+            None => Ok(None),
+            Some(Value::String(s)) => Ok(Some(s)),
+            Some(Value::Token(t)) => Ok(Some(t.as_str().to_string())),
+            Some(Value::AssetPath(a)) => Ok(Some(a.authored_path)),
+            Some(v) => Err(self.at(prim, format!("{attr}: {v:?} is not a string"))),
+        }
+    }
+
     fn up(&self) -> Result<[f64; 3]> {
         let v = self
             .stage

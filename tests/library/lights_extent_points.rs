@@ -208,7 +208,6 @@ fn a_key_for_the_other_kind_of_light_is_refused_by_name() {
         (extent(Some(180.0), None, None), "light-angle"),
         (extent(None, Some(f64::INFINITY), None), "light-radius"),
         (extent(Some(1.0), None, Some(0)), "light-samples"),
-        (extent(None, None, Some(8)), "light-samples"),
     ] {
         let r = QueryRequest {
             positions: Some("/pts".into()),
@@ -221,6 +220,20 @@ fn a_key_for_the_other_kind_of_light_is_refused_by_name() {
             "{name}: {e}"
         );
     }
+    // Directions without an extent: a stage light may carry one, so it is refused when the
+    // light is read (per-point answers take the extent from the flags only, for now).
+    let e = QueryRequest {
+        positions: Some("/pts".into()),
+        light: extent(None, None, Some(8)),
+        ..QueryRequest::new(Source::new(&shot, read()))
+    }
+    .run(&mut |_| {})
+    .unwrap_err()
+    .error;
+    assert!(
+        matches!(&e, Error::InvalidArgument { name: n, .. } if n == "light-samples"),
+        "{e}"
+    );
     let e = QueryRequest {
         positions: Some("/pts".into()),
         light: extent(Some(1.0), Some(1.0), None),

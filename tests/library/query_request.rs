@@ -142,16 +142,20 @@ fn a_file_of_rays_keeps_its_bad_rows_and_numbers_its_ray_ids() {
 fn a_stage_point_toward_the_stage_light() {
     let dir = tempfile::tempdir().unwrap();
     let stage = dir.path().join("shot.usda");
-    // A sun turned 90 degrees about Y: it travels along its world -Z axis, here -X.
-    let text = format!(
+    // A sun turned 90 degrees about Y: it travels along its world -Z axis, here -X; its
+    // angle authored 0 (a point sun), then left to the schema's fallback (0.53 degrees).
+    let write = |angle: &str| {
+        let text = format!(
         "#usda 1.0\n\ndef Volume \"cloud\"\n{{\n    rel field:density = </cloud/density>\n\n    \
          def OpenVDBAsset \"density\"\n    {{\n        asset filePath = @{}@\n        \
          token fieldName = \"density\"\n    }}\n}}\n\n\
-         def DistantLight \"sun\"\n{{\n    double3 xformOp:rotateXYZ = (0, 90, 0)\n    \
+         def DistantLight \"sun\"\n{{\n    {angle}\n    double3 xformOp:rotateXYZ = (0, 90, 0)\n    \
          uniform token[] xformOpOrder = [\"xformOp:rotateXYZ\"]\n}}\n",
-        cloud().display()
-    );
-    std::fs::write(&stage, text).unwrap();
+            cloud().display()
+        );
+        std::fs::write(&stage, text).unwrap();
+    };
+    write("float inputs:angle = 0");
     let at = [-2.0, 1.5, 0.0];
     let a = rays(&QueryRequest {
         at: Some(at),
@@ -162,7 +166,7 @@ fn a_stage_point_toward_the_stage_light() {
     // through the cloud loaded from its own file.
     let shot = umbra::usd::lights_at(&stage, None).unwrap();
     let (_, emitter) = shot.light(Some("sun")).unwrap();
-    let umbra::usd::Emitter::Directional { dir: d } = emitter else {
+    let umbra::usd::Emitter::Directional { dir: d, .. } = emitter else {
         panic!("the sun is directional")
     };
     assert!((d[0] + 1.0).abs() < 1e-9 && d[1].abs() < 1e-9, "{d:?}");
@@ -180,19 +184,40 @@ fn a_stage_point_toward_the_stage_light() {
         got.estimate.value[0]
     );
     // The same light given by its direction: the same answer.
-    let given = rays(&QueryRequest {
-        at: Some(at),
-        light: umbra::request::LightOptions {
-            light_dir: Some(d),
-            light_pos: None,
-            ..umbra::request::LightOptions::default()
-        },
-        ..QueryRequest::new(Source::new(&stage, SourceOptions::default()))
-    });
-    let g = given.answers[0].result.as_ref().unwrap();
+    let toward = |angle: Option<f64>| {
+        let given = rays(&QueryRequest {
+            at: Some(at),
+            light: umbra::request::LightOptions {
+                light_dir: Some(d),
+                light_angle: angle,
+                ..umbra::request::LightOptions::default()
+            },
+            ..QueryRequest::new(Source::new(&stage, SourceOptions::default()))
+        });
+        given.answers[0].result.clone().unwrap()
+    };
+    let g = toward(None);
     assert_eq!(
         g.estimate.value[0].to_bits(),
         got.estimate.value[0].to_bits()
+    );
+    // Unauthored, the angle is the schema's 0.53 degrees (a float), as renderers apply it:
+    // the sun's disc, the same answer as the direction with that angle, bit for bit.
+    write("");
+    let soft = rays(&QueryRequest {
+        at: Some(at),
+        ..QueryRequest::new(Source::new(&stage, SourceOptions::default()))
+    });
+    let soft = soft.answers[0].result.as_ref().unwrap();
+    assert_eq!(soft.light_samples, Some(256));
+    let g = toward(Some(f64::from(0.53_f32)));
+    assert_eq!(
+        g.estimate.value[0].to_bits(),
+        soft.estimate.value[0].to_bits()
+    );
+    assert_eq!(
+        g.estimate.std_err[0].to_bits(),
+        soft.estimate.std_err[0].to_bits()
     );
 }
 

@@ -6,7 +6,7 @@ use anyhow::{bail, Context, Result};
 use serde_json::{json, Value};
 use std::io::Write;
 use std::path::Path;
-use umbra::usd::{Emitter, StageLight};
+use umbra::usd::StageLight;
 
 /// The stage's report as JSON (what `--json` prints; the text form is drawn from it).
 fn report(file: &Path, stage: &StageArgs) -> Result<Value> {
@@ -45,11 +45,12 @@ fn report(file: &Path, stage: &StageArgs) -> Result<Value> {
 }
 
 fn light(l: &StageLight) -> Value {
-    let traced = match l.emitter {
-        Some(Emitter::Directional { dir }) => json!({ "directional": dir }),
-        Some(Emitter::Point { pos }) => json!({ "point": pos }),
-        None => Value::Null,
-    };
+    // The emitter's own JSON: its kind and its fields (with the schema fallbacks applied).
+    let traced = l
+        .emitter
+        .as_ref()
+        .and_then(|e| serde_json::to_value(e).ok())
+        .unwrap_or(Value::Null);
     let rules: serde_json::Map<String, Value> = l
         .shadow
         .link
@@ -61,6 +62,7 @@ fn light(l: &StageLight) -> Value {
         "prim": l.prim,
         "type": l.type_name,
         "traced": traced,
+        "refused": l.refused,
         "shadow": {
             "enable": l.shadow.enabled,
             "linked": l.shadow.linked,
@@ -147,13 +149,12 @@ pub fn print(file: &Path, stage: &StageArgs, json: bool) -> Result<()> {
         writeln!(out, "    xform {}", m.join(","))?;
     }
     for l in lights {
-        let how = match &l["traced"] {
-            Value::Object(o) if o.contains_key("directional") => {
-                format!("a sun travelling along {}", vector(&o["directional"]))
-            }
-            Value::Object(o) if o.contains_key("point") => {
-                format!("a point at {}", vector(&o["point"]))
-            }
+        let how = match (&l["traced"], l["refused"].as_str()) {
+            (_, Some(why)) => format!(
+                "refused when chosen: {}",
+                umbra::internals::text::escape(why)
+            ),
+            (Value::Object(o), None) => traced_line(o),
             _ => "not traced by umbra".into(),
         };
         writeln!(
@@ -165,6 +166,40 @@ pub fn print(file: &Path, stage: &StageArgs, json: bool) -> Result<()> {
         writeln!(out, "    {}", shadow_line(&l["shadow"]))?;
     }
     Ok(())
+}
+
+/// How a traced light is drawn: its kind, its size and where it is.
+fn traced_line(map: &serde_json::Map<String, Value>) -> String {
+    let o = |k: &str| map.get(k).unwrap_or(&Value::Null);
+    let at = vector(o("pos"));
+    match o("kind").as_str().unwrap_or_default() {
+        "directional" => match n(o("angle")).as_str() {
+            "0" => format!("a sun travelling along {} (a point)", vector(o("dir"))),
+            a => format!(
+                "a sun travelling along {}, {a} degrees across",
+                vector(o("dir"))
+            ),
+        },
+        "sphere" => format!("a sphere of radius {} at {at}", n(o("radius"))),
+        "disk" => format!(
+            "a disk of radius {} at {at} (one-sided, along -Z)",
+            n(o("radius"))
+        ),
+        "rect" => format!(
+            "a {} x {} rect at {at} (one-sided, along -Z)",
+            n(o("width")),
+            n(o("height"))
+        ),
+        "cylinder" if o("radius").as_f64() == Some(0.0) => {
+            format!("a line of length {} at {at}", n(o("length")))
+        }
+        "cylinder" => format!(
+            "a cylinder of radius {} and length {} at {at}",
+            n(o("radius")),
+            n(o("length"))
+        ),
+        _ => format!("a point at {at}"),
+    }
 }
 
 fn text(v: &Value) -> String {

@@ -244,6 +244,9 @@ impl QueryRequest {
 }
 
 /// What a request without `positions` asks, once checked.
+// A light with extent (an area light's frame) makes `Toward` large; the value lives for one
+// query, copied a few times.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum Asked {
     /// A segment.
@@ -255,6 +258,7 @@ pub(crate) enum Asked {
 }
 
 /// The light a shading point is answered toward.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum AskedLight {
     /// A light given by its direction or position.

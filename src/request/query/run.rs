@@ -10,6 +10,7 @@ use crate::bake::Warning;
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
 use crate::input::Source;
+use crate::light::SoftLight;
 use crate::points::PointAnswers;
 use crate::scene::{Scene, SceneEstimate};
 use crate::{Interp, Light, Ray};
@@ -173,10 +174,7 @@ impl QueryRequest {
             return self.run_points(on_frame).map(QueryOutcome::Points);
         }
         let asked = self.asked().map_err(at(QueryStep::Check))?;
-        let (light, toward) = self.light(asked)?;
-        let asked = self
-            .toward_stage(asked, light)
-            .map_err(at(QueryStep::Check))?;
+        let (asked, light, toward) = self.light(asked)?;
         let (est, opts) = self.estimator().map_err(at(QueryStep::Check))?;
         let mut read = self.source.clone();
         read.options_mut().light = toward;
@@ -209,8 +207,9 @@ impl QueryRequest {
 
     /// The light a shading point is answered toward, and the stage light the scene is read
     /// toward (named, or the stage's only one): the scene holds only the volumes its shadow
-    /// link includes.
-    fn light(&self, asked: Asked) -> Step<(Option<Light>, Option<String>)> {
+    /// link includes. A stage light with extent (a distant light's angle, a sphere's radius,
+    /// a disk, rect or cylinder) turns the question into one toward a light with extent.
+    fn light(&self, asked: Asked) -> Step<(Asked, Option<Light>, Option<String>)> {
         let named = self.source.options().light.clone();
         match asked {
             Asked::Toward {
@@ -220,38 +219,36 @@ impl QueryRequest {
                 let shot = crate::usd::lights_at(self.source.path(), self.source.options().frame)
                     .map_err(at(QueryStep::Ray))?;
                 let (l, e) = shot.light(named.as_deref()).map_err(at(QueryStep::Ray))?;
-                Ok((Some(Light::from(e)), Some(l.prim.clone())))
+                // The flags' extent over the stage's (`light-angle`, `light-radius`), else the
+                // stage light's own.
+                let soft = if self.light.light_angle.is_some() || self.light.light_radius.is_some()
+                {
+                    self.light
+                        .soft_toward(Light::from(e))
+                        .map_err(at(QueryStep::Check))?
+                } else {
+                    let samples = crate::light::extent::samples(self.light.light_samples)
+                        .map_err(at(QueryStep::Check))?;
+                    SoftLight::of_emitter(e, samples).map_err(at(QueryStep::Ray))?
+                };
+                let asked = match (asked, soft) {
+                    (Asked::Toward { at, .. }, Some(s)) => Asked::Toward {
+                        at,
+                        light: AskedLight::Soft(s),
+                    },
+                    _ => asked,
+                };
+                Ok((asked, Some(Light::from(e)), Some(l.prim.clone())))
             }
             Asked::Toward {
                 light: AskedLight::Given(l),
                 ..
-            } => Ok((Some(l), named)),
+            } => Ok((asked, Some(l), named)),
             Asked::Toward {
                 light: AskedLight::Soft(s),
                 ..
-            } => Ok((Some(s.light), named)),
-            Asked::Segment { .. } | Asked::Rows => Ok((None, named)),
-        }
-    }
-
-    /// A point toward the stage light with the keys of a light with extent: toward that light
-    /// with its extent ([`crate::light::LightOptions::soft_toward`]); otherwise as asked.
-    fn toward_stage(&self, asked: Asked, light: Option<Light>) -> Result<Asked> {
-        match (asked, light) {
-            (
-                Asked::Toward {
-                    at,
-                    light: AskedLight::Stage,
-                },
-                Some(l),
-            ) if self.light.extent_key().is_some() => Ok(match self.light.soft_toward(l)? {
-                Some(s) => Asked::Toward {
-                    at,
-                    light: AskedLight::Soft(s),
-                },
-                None => asked,
-            }),
-            _ => Ok(asked),
+            } => Ok((asked, Some(s.light), named)),
+            Asked::Segment { .. } | Asked::Rows => Ok((asked, None, named)),
         }
     }
 

@@ -1,6 +1,7 @@
 //! A stage's lights: the point and distant lights it traces, their shadow links and the light
 //! collections that choose which volumes cast shadows.
 
+use super::super::emitter::Attributes;
 use super::super::{Emitter, Link, Rule, Shadow, StageLight};
 use super::Reader;
 use crate::error::{Error, Result};
@@ -29,24 +30,32 @@ impl Reader<'_> {
             if !is_light || !self.visible(p)? {
                 continue;
             }
-            let emitter = Emitter::of_light(
+            let read = Attributes {
+                number: &|attr| self.number(p, attr),
+                flag: &|attr| self.flag(p, attr),
+                text: &|attr| self.text(p, attr),
+            };
+            // A light that cannot be traced (shaped, textured, a bad size) fails only when it
+            // is chosen, as one whose shadow controls cannot be read.
+            let (emitter, refused) = match Emitter::of_light(
                 ty,
                 || Ok(self.local_to_world(p)?.0),
-                |attr| self.number(p, attr),
+                &read,
                 |reason| self.at(p, reason),
-            )?;
+            ) {
+                Ok(e) => (e, None),
+                Err(e) => (None, Some(unreadable(e))),
+            };
             // A light whose controls cannot be read fails only when it is chosen.
             let shadow = self.shadow(p, volumes).unwrap_or_else(|e| Shadow {
-                unreadable: Some(match e {
-                    Error::Stage { reason, .. } => reason,
-                    other => other.to_string(),
-                }),
+                unreadable: Some(unreadable(e)),
                 ..Shadow::default()
             });
             out.push(StageLight {
                 prim: p.clone(),
                 type_name: ty.clone(),
                 emitter,
+                refused,
                 shadow,
             });
         }
@@ -232,5 +241,13 @@ impl Reader<'_> {
             }
         }
         Ok(())
+    }
+}
+
+/// An error's reason, as a light refused when chosen words it.
+fn unreadable(e: Error) -> String {
+    match e {
+        Error::Stage { reason, .. } => reason,
+        other => other.to_string(),
     }
 }

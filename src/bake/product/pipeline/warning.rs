@@ -127,7 +127,7 @@ impl std::fmt::Display for Warning {
             ),
             Self::MissedEveryVoxel { queries } => write!(
                 f,
-                "{} (T = 1, tau = 0): check where the volume is against the rays (its --xform \
+                "{} (T = 1): check where the volume is against the rays (its --xform \
                  or the stage's transforms, its units: `umbra info -v` prints its world bbox) \
                  and the light's direction",
                 if queries == 1 {
