@@ -152,6 +152,21 @@ impl LightOptions {
         }
     }
 
+    /// The light with extent toward a stage light `e`: the flags' extent over the stage's
+    /// (`light-angle` or `light-radius` given: [`LightOptions::soft_toward`], 0 tracing it as
+    /// a point), else the stage light's own ([`SoftLight::of_emitter`]: a distant light's
+    /// angle, a sphere's radius, a disk, rect or cylinder) with `light-samples` directions.
+    /// `None`: the light as a point.
+    ///
+    /// # Errors
+    /// As [`LightOptions::soft_toward`] and [`SoftLight::of_emitter`].
+    pub fn soft_of_stage(&self, e: crate::usd::Emitter) -> Result<Option<SoftLight>> {
+        if self.light_angle.is_some() || self.light_radius.is_some() {
+            return self.soft_toward(Light::from(e));
+        }
+        SoftLight::of_emitter(e, extent::samples(self.light_samples)?)
+    }
+
     /// Check the keys of a light with extent before the light they apply to is known (a
     /// stage's): each value on its own, and not both an angle and a radius.
     ///

@@ -65,10 +65,11 @@ pub struct PointQuery<'a> {
     pub light: Option<&'a str>,
     /// The time codes, answered in this order.
     pub frames: &'a [f64],
-    /// The keys of a light with extent applied to the stage light
-    /// ([`crate::light::LightOptions::soft_toward`]: an angle for a distant light, a radius
-    /// for a light at a position); without them (or 0) each point's ray toward the light as a
-    /// point, as before, bit for bit.
+    /// The keys of a light with extent for the stage light
+    /// ([`crate::light::LightOptions::soft_of_stage`]: an angle for a distant light, a radius
+    /// for a light at a position, over the stage's own extent; without them the stage light's
+    /// own extent); zero extent traces each point's ray toward the light as a point, bit for
+    /// bit.
     pub extent: &'a crate::light::LightOptions,
 }
 
@@ -121,7 +122,7 @@ pub fn point_transmittance(
                 ),
             });
         }
-        let soft = extent.soft_toward(lamp)?;
+        let soft = extent.soft_of_stage(emitter)?;
         let at_point = |i: usize, p: &[f64; 3], e: Error| Error::Stage {
             path: stage.to_path_buf(),
             reason: format!("at time {t}: {prim}: point {i} {p:?}: {e}"),

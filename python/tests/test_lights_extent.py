@@ -157,11 +157,23 @@ def test_usd_points_toward_a_stage_light_with_extent(cli, tmp_path):
             assert np.array_equal(np.asarray(e.Get(1), dtype=np.float32), err.astype(np.float32))
             v = pv.GetPrimvar("umbra:transmittance:sun").Get(1)
             assert np.array_equal(np.asarray(v, dtype=np.float32), t.astype(np.float32))
-        # Zero extent: the point light's answers exactly.
+        # Zero extent: the light as a point, each point the query toward it at that point.
         zero = {k: 0.0 for k in kw}
-        hard = umbra.usd_point_transmittance(stage, prim, light, [1])[1.0]
-        assert np.array_equal(umbra.usd_point_transmittance(stage, prim, light, [1], **zero)[1.0],
-                              hard)
+        hard = umbra.usd_point_transmittance(stage, prim, light, [1], **zero)[1.0]
+        # Without a keyword, the stage light's own extent (the fallbacks: a sun 0.53 degrees
+        # across, a sphere of radius 0.5), as `query --at` toward it.
+        own, own_err = umbra.usd_point_transmittance(stage, prim, light, [1],
+                                                     return_stderr=True)[1.0]
+        assert own_err.max() > 0 and not np.array_equal(own, hard)
+        for i in (0, 17):
+            p = f["positions"][i]
+            at = "--at=" + ",".join(repr(float(x)) for x in p)
+            zflag = flag.split("=")[0] + "=0"
+            _, out, _ = cli("query", stage, "--light", light, "--frame=1", at, zflag, "--json")
+            assert json.loads(out)["T"] == hard[i]
+            _, out, _ = cli("query", stage, "--light", light, "--frame=1", at, f"--ray-id={i}",
+                            "--json")
+            assert json.loads(out)["T"] == own[i]
     # The other kind of light's key, or a bad value: named.
     with pytest.raises(ValueError, match="'light_radius'"):
         umbra.usd_point_transmittance(stage, prim, "sun", [1], light_radius=1.0)

@@ -825,7 +825,9 @@ def usd_point_transmittance(
     light at a position becomes a sphere light of that radius), with ``light_samples``
     directions per point (default 256): each point's mean T over the light with extent
     (``query --positions PRIM --light-angle A``; docs/lights.md), point ``i`` equal to
-    ``umbra query STAGE --at P --light-angle A --ray-id i`` bit for bit."""
+    ``umbra query STAGE --at P --light-angle A --ray-id i`` bit for bit. Without them the stage
+    light's own extent applies (a ``DistantLight``'s angle, 0.53 degrees unless authored; a
+    sphere's radius; disk, rect, cylinder); ``light_angle=0`` traces a sun as a point."""
     given = None if frames is None else [float(f) for f in frames]
     angle, radius, n = _extent(light_angle, light_radius, light_samples)
     doc, warns = _umbra.usd_points_json(

@@ -396,9 +396,9 @@ impl Job {
             let (_, emitter) = shot
                 .light(t.light.as_deref())
                 .map_err(|e| err(&self.path, &key, e))?;
-            // An angle for a distant light, a radius for a light at a position.
+            // The flags: an angle for a distant light, a radius for a light at a position.
             if let Err(crate::error::Error::InvalidArgument { name, reason }) =
-                t.options.light.soft_toward(crate::Light::from(emitter))
+                t.options.light.soft_of_stage(emitter)
             {
                 let k = format!("{key}.{}", name.replace('-', "_"));
                 return Err(err(&self.path, &k, reason));

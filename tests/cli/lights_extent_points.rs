@@ -165,7 +165,6 @@ fn a_jobs_bad_extent_keys_are_named() {
             "light_angle = 2\nlight_radius = 1",
             "positions[0].light_radius",
         ),
-        ("light_samples = 8", "positions[0].light_samples"),
         // The stage light is a sun: a radius does not apply.
         ("light_radius = 1", "positions[0].light_radius"),
         ("light_dir = [0, -1, 0]", "positions[0]"),

@@ -48,6 +48,14 @@ fn stage(dir: &Path, light: &str) -> PathBuf {
 /// A sun travelling along -Y (its -Z turned by -90 degrees about X).
 const SUN: &str = "def DistantLight \"sun\"\n{\n    double3 xformOp:rotateXYZ = (-90, 0, 0)\n    \
                    uniform token[] xformOpOrder = [\"xformOp:rotateXYZ\"]\n}";
+/// The sun traced as a point by the stage itself (its angle authored 0).
+const SUN_POINT: &str = "def DistantLight \"sun\"\n{\n    float inputs:angle = 0\n    \
+                         double3 xformOp:rotateXYZ = (-90, 0, 0)\n    \
+                         uniform token[] xformOpOrder = [\"xformOp:rotateXYZ\"]\n}";
+/// The sphere light traced as a point by the stage itself (its radius authored 0).
+const LAMP_POINT: &str = "def SphereLight \"lamp\"\n{\n    float inputs:radius = 0\n    \
+                          double3 xformOp:translate = (0, 6, 0)\n    \
+                          uniform token[] xformOpOrder = [\"xformOp:translate\"]\n}";
 /// A sphere light at (0, 6, 0).
 const LAMP: &str = "def SphereLight \"lamp\"\n{\n    double3 xformOp:translate = (0, 6, 0)\n    \
                     uniform token[] xformOpOrder = [\"xformOp:translate\"]\n}";
@@ -155,18 +163,35 @@ fn each_point_is_query_at_that_point_bit_for_bit() {
     assert_eq!(t.to_bits(), all.frames[0].transmittance[0].to_bits());
 }
 
+/// Zero extent from the flags is the stage light authored as a point, exactly; without a
+/// flag the stage light's own extent applies (the fallbacks: a sun 0.53 degrees across, a
+/// sphere of radius 0.5), as for a query at a point.
 #[test]
 fn zero_extent_is_the_point_lights_answer_exactly() {
     let dir = tempfile::tempdir().unwrap();
-    for (light, zero) in [
-        (SUN, extent(Some(0.0), None, Some(64))),
-        (LAMP, extent(None, Some(0.0), None)),
+    for (light, point, zero) in [
+        (SUN, SUN_POINT, extent(Some(0.0), None, Some(64))),
+        (LAMP, LAMP_POINT, extent(None, Some(0.0), None)),
     ] {
-        let shot = stage(dir.path(), light);
-        let hard = positions(&shot, LightOptions::default(), "regular", 0);
+        let hard = positions(
+            &stage(dir.path(), point),
+            LightOptions::default(),
+            "regular",
+            0,
+        );
         assert_eq!(hard.light_samples, None);
         assert_eq!(hard.frames[0].sampled, None);
+        let shot = stage(dir.path(), light);
         assert_eq!(positions(&shot, zero, "regular", 0), hard, "{light}");
+        // The stage's own extent, and each point as a query at it toward the stage light.
+        let own = positions(&shot, LightOptions::default(), "regular", 0);
+        assert_eq!(own.light_samples, Some(256), "{light}");
+        assert!(own.frames[0].std_err[0] > 0.0, "{light}");
+        let f = &own.frames[0];
+        for (i, p) in f.positions.iter().enumerate() {
+            let (t, e, _) = at(&shot, *p, LightOptions::default(), "regular", i as u64);
+            assert_eq!((t, e), (f.transmittance[i], f.std_err[i]), "{light} {i}");
+        }
     }
 }
 
@@ -220,20 +245,9 @@ fn a_key_for_the_other_kind_of_light_is_refused_by_name() {
             "{name}: {e}"
         );
     }
-    // Directions without an extent: a stage light may carry one, so it is refused when the
-    // light is read (per-point answers take the extent from the flags only, for now).
-    let e = QueryRequest {
-        positions: Some("/pts".into()),
-        light: extent(None, None, Some(8)),
-        ..QueryRequest::new(Source::new(&shot, read()))
-    }
-    .run(&mut |_| {})
-    .unwrap_err()
-    .error;
-    assert!(
-        matches!(&e, Error::InvalidArgument { name: n, .. } if n == "light-samples"),
-        "{e}"
-    );
+    // Directions without an extent: the stage light's own (the sun's 0.53 degree fallback).
+    let a = positions(&shot, extent(None, None, Some(8)), "regular", 0);
+    assert_eq!(a.light_samples, Some(8));
     let e = QueryRequest {
         positions: Some("/pts".into()),
         light: extent(Some(1.0), Some(1.0), None),

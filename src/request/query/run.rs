@@ -10,7 +10,6 @@ use crate::bake::Warning;
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
 use crate::input::Source;
-use crate::light::SoftLight;
 use crate::points::PointAnswers;
 use crate::scene::{Scene, SceneEstimate};
 use crate::{Interp, Light, Ray};
@@ -221,16 +220,16 @@ impl QueryRequest {
                 let (l, e) = shot.light(named.as_deref()).map_err(at(QueryStep::Ray))?;
                 // The flags' extent over the stage's (`light-angle`, `light-radius`), else the
                 // stage light's own.
-                let soft = if self.light.light_angle.is_some() || self.light.light_radius.is_some()
-                {
-                    self.light
-                        .soft_toward(Light::from(e))
-                        .map_err(at(QueryStep::Check))?
-                } else {
-                    let samples = crate::light::extent::samples(self.light.light_samples)
-                        .map_err(at(QueryStep::Check))?;
-                    SoftLight::of_emitter(e, samples).map_err(at(QueryStep::Ray))?
-                };
+                let soft = self.light.soft_of_stage(e).map_err(|err| {
+                    // An option's error is respelled; the stage's as the library says it.
+                    let flag = matches!(&err, Error::InvalidArgument { name, .. }
+                        if name.starts_with("light-"));
+                    at(if flag {
+                        QueryStep::Check
+                    } else {
+                        QueryStep::Ray
+                    })(err)
+                })?;
                 let asked = match (asked, soft) {
                     (Asked::Toward { at, .. }, Some(s)) => Asked::Toward {
                         at,
