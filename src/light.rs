@@ -6,8 +6,10 @@ use crate::volume::Volume;
 
 pub mod area;
 pub mod extent;
+mod receivers;
 pub use area::{Area, Shape};
 pub use extent::{Extent, SoftLight};
+pub use receivers::{SoftAnswer, RAYS_PER_BATCH};
 
 /// The light a job names by position or direction (a USD stage's own lights are read from the
 /// stage, `light` of the read options): the one declaration of the light keys, flattened into
@@ -33,21 +35,20 @@ pub struct LightOptions {
         arg(long, value_parser = crate::input::parse_vec3, allow_hyphen_values = true)
     )]
     pub light_pos: Option<[f64; 3]>,
-    /// With light-dir: the sun's angular diameter, degrees in [0, 180) (USD's `inputs:angle`;
-    /// the sun is about 0.53). A query at a point (`query --at`) and a map's texels (at their
-    /// receiver, receiver-depth) then answer the mean transmittance over the sun's disc
-    /// (docs/lights.md); 0 is the point light exactly. Transmittance volumes and per-point
-    /// answers refuse it for now (issue 60).
+    /// With light-dir (or a stage's distant light, over its own `inputs:angle`): the sun's
+    /// angular diameter, degrees in [0, 180) (USD's `inputs:angle`; the sun is about 0.53).
+    /// Queries (`--at`, `--positions`), maps (each texel at its receiver, receiver-depth) and
+    /// transmittance volumes (each voxel centre) then answer the mean transmittance over the
+    /// sun's disc (docs/lights.md); 0 is the point light exactly.
     #[cfg_attr(
         feature = "cli",
         arg(long, value_name = "DEG", allow_negative_numbers = true)
     )]
     pub light_angle: Option<f64>,
-    /// With light-pos: a sphere light's radius (world units). A query at a point
-    /// (`query --at`) and a map's texels (at their receiver, receiver-depth) then answer the
-    /// mean transmittance over the sphere's visible surface (docs/lights.md); 0 is the point
-    /// light exactly. Transmittance volumes and per-point answers refuse it for now
-    /// (issue 60).
+    /// With light-pos (or a stage light at a position, over its own size): a sphere light's
+    /// radius (world units). Queries, maps and transmittance volumes then answer the mean
+    /// transmittance over the sphere's visible surface at each receiver (docs/lights.md); 0 is
+    /// the point light exactly.
     #[cfg_attr(
         feature = "cli",
         arg(long, value_name = "R", allow_negative_numbers = true)
@@ -87,8 +88,7 @@ impl LightOptions {
     }
 
     /// Refuse the keys of a light with extent for a product that does not answer them yet
-    /// (`what`: a transmittance volume, `positions`): they apply to a query at a point and to
-    /// maps for now (issue 60), never silently dropped.
+    /// (`what`: the product and where the keys go instead): never silently dropped.
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] naming the first such key given.
@@ -96,10 +96,7 @@ impl LightOptions {
         match self.extent_key() {
             Some(k) => Err(Error::InvalidArgument {
                 name: k.into(),
-                reason: format!(
-                    "applies to a query at a point (query --at) and to maps for now (issue 60: \
-                     lights with extent); {what} traces the light as a point"
-                ),
+                reason: format!("does not apply to {what} (lights with extent: docs/lights.md)"),
             }),
             None => Ok(()),
         }
@@ -115,6 +112,72 @@ impl LightOptions {
     /// [`extent::MAX_LIGHT_SAMPLES`].
     pub fn soft(&self) -> Result<Option<SoftLight>> {
         extent::check(self)
+    }
+
+    /// The keys of a light with extent applied to a light given elsewhere (a USD stage's
+    /// light, toward which `query --positions` and a query at a point on a stage answer):
+    /// `light-angle` makes a directional light a sun of that angular diameter, `light-radius`
+    /// makes a light at a position a sphere light; these options' own `light-dir` and
+    /// `light-pos` are not read. `None` when no extent is given or it is 0 (the light as a
+    /// point, bit for bit).
+    ///
+    /// # Errors
+    /// As [`LightOptions::soft`], and [`Error::InvalidArgument`] naming `light-angle` for a
+    /// light at a position or `light-radius` for a directional light.
+    pub fn soft_toward(&self, light: Light) -> Result<Option<SoftLight>> {
+        self.check_extent()?;
+        let wrong = |name: &str, reason: &str| Error::InvalidArgument {
+            name: name.into(),
+            reason: format!("{reason} ({light})"),
+        };
+        match light {
+            Light::Point { .. } if self.light_angle.is_some() => Err(wrong(
+                "light-angle",
+                "is a sun's angular diameter, and the light is at a position: give light-radius",
+            )),
+            Light::Directional { .. } if self.light_radius.is_some() => Err(wrong(
+                "light-radius",
+                "is a sphere light's radius, and the light is directional: give light-angle",
+            )),
+            _ => Self {
+                light_dir: light.direction(),
+                light_pos: light.position(),
+                ..self.clone()
+            }
+            .soft(),
+        }
+    }
+
+    /// The light with extent toward a stage light `e`: the flags' extent over the stage's
+    /// (`light-angle` or `light-radius` given: [`LightOptions::soft_toward`], 0 tracing it as
+    /// a point), else the stage light's own ([`SoftLight::of_emitter`]: a distant light's
+    /// angle, a sphere's radius, a disk, rect or cylinder) with `light-samples` directions.
+    /// `None`: the light as a point.
+    ///
+    /// # Errors
+    /// As [`LightOptions::soft_toward`] and [`SoftLight::of_emitter`].
+    pub fn soft_of_stage(&self, e: crate::usd::Emitter) -> Result<Option<SoftLight>> {
+        if self.light_angle.is_some() || self.light_radius.is_some() {
+            return self.soft_toward(Light::from(e));
+        }
+        SoftLight::of_emitter(e, extent::samples(self.light_samples)?)
+    }
+
+    /// Check the keys of a light with extent before the light they apply to is known (a
+    /// stage's): each value on its own, and not both an angle and a radius.
+    ///
+    /// # Errors
+    /// As [`LightOptions::soft`]; [`Error::Conflict`] for both `light-angle` and
+    /// `light-radius`.
+    pub fn check_extent(&self) -> Result<()> {
+        extent::values(self)?;
+        if self.light_angle.is_some() && self.light_radius.is_some() {
+            return Err(Error::Conflict {
+                names: vec!["light-angle".into(), "light-radius".into()],
+                reason: "give {0} (a sun) or {1} (a sphere light), not both".into(),
+            });
+        }
+        Ok(())
     }
 }
 

@@ -13,6 +13,7 @@
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
 use crate::input::Source;
+use crate::light::SoftLight;
 use crate::Light;
 use std::path::Path;
 
@@ -25,8 +26,12 @@ pub struct PointFrame {
     pub positions: Vec<[f64; 3]>,
     /// Transmittance toward the light, one per point.
     pub transmittance: Vec<f64>,
-    /// Error bar of each answer (0 for deterministic estimators).
+    /// Error bar of each answer (0 for deterministic estimators; toward a light with extent
+    /// the replicates' error bar, docs/lights.md).
     pub std_err: Vec<f64>,
+    /// Toward a light with extent: how many points were sampled (the others' whole cone
+    /// provably misses every volume, `T = 1` without sampling); `None` toward a point.
+    pub sampled: Option<usize>,
 }
 
 /// Every frame's answers toward one light.
@@ -44,6 +49,9 @@ pub struct PointAnswers {
     pub frames: Vec<PointFrame>,
     /// Things the caller should say (a point count that changes between frames).
     pub warnings: Vec<String>,
+    /// Toward a light with extent: the directions traced per sampled point; `None` toward a
+    /// point.
+    pub light_samples: Option<u32>,
 }
 
 /// What to answer: the points prim of a stage, toward which light, at which frames.
@@ -57,6 +65,12 @@ pub struct PointQuery<'a> {
     pub light: Option<&'a str>,
     /// The time codes, answered in this order.
     pub frames: &'a [f64],
+    /// The keys of a light with extent for the stage light
+    /// ([`crate::light::LightOptions::soft_of_stage`]: an angle for a distant light, a radius
+    /// for a light at a position, over the stage's own extent; without them the stage light's
+    /// own extent); zero extent traces each point's ray toward the light as a point, bit for
+    /// bit.
+    pub extent: &'a crate::light::LightOptions,
 }
 
 /// Answer every point of `q.prim` toward `q.light` at each of `q.frames`. `source` is the stage with its
@@ -80,6 +94,7 @@ pub fn point_transmittance(
         prim,
         light,
         frames,
+        extent,
     } = *q;
     if frames.is_empty() {
         return Err(Error::InvalidArgument {
@@ -107,26 +122,21 @@ pub fn point_transmittance(
                 ),
             });
         }
-        let rays = points
-            .positions
-            .iter()
-            .enumerate()
-            .map(|(i, p)| {
-                lamp.ray_from_scene(&sc, *p).map_err(|e| Error::Stage {
-                    path: stage.to_path_buf(),
-                    reason: format!("at time {t}: {prim}: point {i} {p:?}: {e}"),
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        let ids: Vec<u64> = (0..rays.len() as u64).collect();
-        let answers = crate::scene::estimate_many(&sc, &rays, &ids, est, opts)
-            .into_iter()
-            .collect::<Result<Vec<_>>>()?;
+        let soft = extent.soft_of_stage(emitter)?;
+        let at_point = |i: usize, p: &[f64; 3], e: Error| Error::Stage {
+            path: stage.to_path_buf(),
+            reason: format!("at time {t}: {prim}: point {i} {p:?}: {e}"),
+        };
+        let (transmittance, std_err, sampled) = match &soft {
+            Some(s) => soft_answers(&sc, s, &points.positions, (est, opts), at_point)?,
+            None => hard_answers(&sc, lamp, &points.positions, (est, opts), at_point)?,
+        };
         let frame = PointFrame {
             frame: t,
             positions: points.positions,
-            transmittance: answers.iter().map(|a| a.value[0]).collect(),
-            std_err: answers.iter().map(|a| a.std_err[0]).collect(),
+            transmittance,
+            std_err,
+            sampled,
         };
         on_frame(&frame);
         let all = out.get_or_insert_with(|| PointAnswers {
@@ -136,6 +146,7 @@ pub fn point_transmittance(
             light_name: l.name().to_string(),
             frames: Vec::new(),
             warnings: Vec::new(),
+            light_samples: soft.map(|s| s.samples),
         });
         if let Some(prev) = all.frames.last() {
             if prev.positions.len() != frame.positions.len() {
@@ -156,17 +167,80 @@ pub fn point_transmittance(
     })
 }
 
+/// A frame's answers, error bars and sampled count.
+type Answered = (Vec<f64>, Vec<f64>, Option<usize>);
+
+/// Every point toward the light as a point: point `i` along its ray with ray id `i`.
+fn hard_answers(
+    sc: &crate::scene::Scene,
+    lamp: Light,
+    positions: &[[f64; 3]],
+    (est, opts): (&Estimator, &Options),
+    at_point: impl Fn(usize, &[f64; 3], Error) -> Error,
+) -> Result<Answered> {
+    let rays = positions
+        .iter()
+        .enumerate()
+        .map(|(i, p)| lamp.ray_from_scene(sc, *p).map_err(|e| at_point(i, p, e)))
+        .collect::<Result<Vec<_>>>()?;
+    let ids: Vec<u64> = (0..rays.len() as u64).collect();
+    let answers = crate::scene::estimate_many(sc, &rays, &ids, est, opts)
+        .into_iter()
+        .collect::<Result<Vec<_>>>()?;
+    Ok((
+        answers.iter().map(|a| a.value[0]).collect(),
+        answers.iter().map(|a| a.std_err[0]).collect(),
+        None,
+    ))
+}
+
+/// Every point toward a light with extent ([`SoftLight::answer_many`]): point `i` with ray id
+/// `i`, so its answer is `query --at` at that point with `--ray-id i`, bit for bit. The work
+/// budget is checked up front ([`SoftLight::check_budget`]).
+fn soft_answers(
+    sc: &crate::scene::Scene,
+    soft: &SoftLight,
+    positions: &[[f64; 3]],
+    (est, opts): (&Estimator, &Options),
+    at_point: impl Fn(usize, &[f64; 3], Error) -> Error,
+) -> Result<Answered> {
+    soft.check_budget(sc, positions.len() as u64, est, opts)?;
+    let (mut t, mut err, mut sampled) = (Vec::new(), Vec::new(), 0);
+    for (i, (a, p)) in soft
+        .answer_many(sc, positions, 0, est, opts)
+        .into_iter()
+        .zip(positions)
+        .enumerate()
+    {
+        let a = a.map_err(|e| at_point(i, p, e))?;
+        t.push(a.estimate.value[0]);
+        err.push(a.estimate.std_err[0]);
+        sampled += usize::from(a.light_samples > 0);
+    }
+    Ok((t, err, Some(sampled)))
+}
+
 /// The `.usda` layer of `answers`: an `over` on the points prim holding `float[]
 /// primvars:umbra:transmittance:<light name>` (interpolation `vertex`), one time sample per
-/// frame ([`crate::usd::points_layer`]).
+/// frame, and toward a light with extent `primvars:umbra:transmittance_std_err:<light name>`
+/// beside it, each point's error bar ([`crate::usd::points_layer`]).
 ///
 /// # Errors
 /// As [`crate::usd::points_layer`].
 pub fn layer_text(answers: &PointAnswers) -> Result<String> {
-    let samples: Vec<(f64, Vec<f32>)> = answers
-        .frames
-        .iter()
-        .map(|f| (f.frame, f.transmittance.iter().map(|&v| v as f32).collect()))
-        .collect();
-    crate::usd::points_layer(&answers.prim, &answers.light_name, &samples)
+    let arrays = |of: fn(&PointFrame) -> &Vec<f64>| -> Vec<(f64, Vec<f32>)> {
+        answers
+            .frames
+            .iter()
+            .map(|f| (f.frame, of(f).iter().map(|&v| v as f32).collect()))
+            .collect()
+    };
+    let samples = arrays(|f| &f.transmittance);
+    let errors = answers.light_samples.map(|_| arrays(|f| &f.std_err));
+    crate::usd::points_layer(
+        &answers.prim,
+        &answers.light_name,
+        &samples,
+        errors.as_deref(),
+    )
 }

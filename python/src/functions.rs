@@ -294,12 +294,14 @@ pub(crate) fn usd_points_json(
 ) -> PyResult<(String, Vec<String>)> {
     let o = BakeOptions::from_json(options).map_err(py_err)?;
     o.resolve_estimator().map_err(py_err)?;
-    o.light.refuse_extent("positions").map_err(py_err)?;
+    // The keys of a light with extent apply to the stage light.
+    o.light.check_extent().map_err(py_err)?;
     let mut source = umbra::input::Source::new(&stage, o.source.clone());
     source.options_mut().light = light;
     let request = QueryRequest {
         positions: Some(prim),
         frames: (!frames.is_empty()).then_some(frames),
+        light: o.light.clone(),
         estimator: o.estimator.clone(),
         params: o.params.clone(),
         threads: o.threads,

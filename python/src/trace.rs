@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
 use umbra::estimate::{Estimator, Options};
 use umbra::request::{QueryTally, TraceOptions};
-use umbra::{Interp, Ray};
+use umbra::{Interp, Light, Ray};
 
 pub(crate) fn parse_interp(s: &str) -> PyResult<Interp> {
     match s {
@@ -304,22 +304,133 @@ impl NativeVolume {
         };
         let traced = traced.and_then(|r| r).map_err(py_err)?;
         let traced = traced.map_err(|m| raise(Class::Other, m))?;
-        let c = traced.channels;
-        let n = traced.t.len() / c;
-        let shape = |v: Vec<f64>| -> PyResult<Bound<'py, PyArray2<f64>>> {
-            PyArray1::from_vec(py, v).reshape([n, c])
-        };
-        let warnings = traced
-            .tally
-            .warnings()
-            .iter()
-            .map(ToString::to_string)
-            .collect();
-        Ok((
-            shape(traced.t)?,
-            shape(traced.err)?,
-            shape(traced.tau)?,
-            warnings,
-        ))
+        out(py, traced)
     }
+
+    /// Each point toward a light with extent (`query --at` with `--light-angle` or
+    /// `--light-radius`): point `n` with ray id `ray_id + n`, through the library's one path
+    /// for many receivers ([`umbra::internals::light::SoftLight::answer_many`]), so a row equals the
+    /// CLI's answer at that point, bit for bit. `tau` is NaN (the mean of T has no single
+    /// optical depth). The work budget is checked up front (`SoftLight::check_budget`).
+    pub(crate) fn run_soft<'py>(
+        &self,
+        py: Python<'py>,
+        soft: &umbra::internals::light::SoftLight,
+        p: &[[f64; 3]],
+        options: &str,
+        ray_id: u64,
+        threads: usize,
+    ) -> PyResult<TraceOut<'py>> {
+        let o = TraceOptions::from_json(options).map_err(py_err)?;
+        o.estimator.motion(&o.source).map_err(py_err)?;
+        let (est, opts) = o
+            .estimator
+            .resolve(&o.params, self.source.options().interp)
+            .map_err(py_err)?;
+        let scene = self.scene_for(py, o.source)?;
+        let scene = &*scene;
+        // A direction that is no direction fails the call, not each row.
+        if let Light::Directional { .. } = soft.light {
+            soft.light.ray_from_scene(scene, [0.0; 3]).map_err(py_err)?;
+        }
+        let cancel = AtomicBool::new(false);
+        let work = || {
+            on_threads(threads, || {
+                soft.check_budget(scene, p.len() as u64, &est, &opts)?;
+                Ok(soft_rows(scene, soft, p, ray_id, (&est, &opts), &cancel))
+            })
+        };
+        let rays = p.len().saturating_mul(soft.samples as usize);
+        let traced = if rays >= INTERRUPTIBLE_ROWS {
+            py.detach(|| interruptible(work, &cancel))?
+        } else {
+            py.detach(work)
+        };
+        let traced = traced.and_then(|r| r).map_err(py_err)?;
+        let traced = traced.map_err(|m| raise(Class::Other, m))?;
+        out(py, traced)
+    }
+}
+
+/// Points toward a light with extent, in groups of [`umbra::internals::light::RAYS_PER_BATCH`]
+/// directions (Ctrl-C seen between groups): point `n` with ray id `ray_id + n`.
+fn soft_rows(
+    scene: &umbra::scene::Scene,
+    soft: &umbra::internals::light::SoftLight,
+    p: &[[f64; 3]],
+    ray_id: u64,
+    (est, opts): (&Estimator, &Options),
+    cancel: &AtomicBool,
+) -> Result<Traced, String> {
+    let (c, n) = (scene.channels(), p.len());
+    let (mut t, mut err) = (vec![f64::NAN; n * c], vec![f64::NAN; n * c]);
+    let mut tally = Tally::default();
+    let per_call = (umbra::internals::light::RAYS_PER_BATCH / soft.samples.max(1) as usize).max(1);
+    for start in (0..n).step_by(per_call) {
+        if cancel.load(Ordering::Relaxed) {
+            break;
+        }
+        let end = (start + per_call).min(n);
+        let first = ray_id.wrapping_add(start as u64);
+        for (k, r) in soft
+            .answer_many(scene, &p[start..end], first, est, opts)
+            .into_iter()
+            .enumerate()
+        {
+            let row = start + k;
+            let at = row * c..(row + 1) * c;
+            let one = match r {
+                Ok(a) => {
+                    t[at.clone()].copy_from_slice(&a.estimate.value[..c]);
+                    err[at].copy_from_slice(&a.estimate.std_err[..c]);
+                    let mut answers = QueryTally::default();
+                    answers.add(&a.estimate);
+                    Tally {
+                        answers,
+                        ..Tally::default()
+                    }
+                }
+                Err(e) => Tally {
+                    failed: 1,
+                    first: Some((row, cli_worded(e).to_string())),
+                    ..Tally::default()
+                },
+            };
+            tally = tally.merge(one);
+        }
+    }
+    if let Some((row, msg)) = tally.first {
+        return Err(format!(
+            "{} of {n} points failed (first: row {row}: {msg})",
+            tally.failed
+        ));
+    }
+    Ok(Traced {
+        channels: c,
+        t,
+        err,
+        tau: vec![f64::NAN; n * c],
+        tally: tally.answers,
+    })
+}
+
+/// The arrays and warnings of what was traced.
+fn out<'py>(py: Python<'py>, traced: Traced) -> PyResult<TraceOut<'py>> {
+    let c = traced.channels;
+    let n = traced.t.len() / c;
+    let shape = |v: Vec<f64>| -> PyResult<Bound<'py, PyArray2<f64>>> {
+        PyArray1::from_vec(py, v).reshape([n, c])
+    };
+    let warnings = traced
+        .tally
+        .warnings()
+        .iter()
+        .map(ToString::to_string)
+        .collect();
+    Ok((
+        shape(traced.t)?,
+        shape(traced.err)?,
+        shape(traced.tau)?,
+        warnings,
+    ))
 }

@@ -229,15 +229,25 @@ impl NativeVolume {
         points_: PyReadonlyArray2<'py, f64>,
         light_dir: Option<[f64; 3]>,
         light_pos: Option<[f64; 3]>,
+        extent: (Option<f64>, Option<f64>, Option<u32>),
         options: &str,
         ray_id: u64,
         threads: usize,
     ) -> PyResult<TraceOut<'py>> {
+        let (light_angle, light_radius, light_samples) = extent;
         let given = umbra::request::LightOptions {
             light_dir,
             light_pos,
-            ..umbra::request::LightOptions::default()
+            light_angle,
+            light_radius,
+            light_samples,
         };
+        // A light with extent: each point's mean over the light (`query --at`).
+        if let Some(soft) = given.soft().map_err(py_err)? {
+            let p = points(&points_)?;
+            drop(points_);
+            return self.run_soft(py, &soft, &p, options, ray_id, threads);
+        }
         let light = match given.light() {
             Some(light) => light,
             None => {
@@ -278,11 +288,9 @@ impl NativeVolume {
         let vol = scene
             .single()
             .ok_or_else(|| arg("velocity", "one volume"))?;
-        let (light, est, opts, threads) = (job.light, job.estimator, job.options, job.threads);
         let (ijk, t, stats) = py
             .detach(|| -> umbra::Result<_> {
-                let (leaves, stats) =
-                    umbra::bake::transmittance_leaves(vol, &light, &est, &opts, threads, &|_| {})?;
+                let (leaves, stats) = job.leaves(vol, &|_| {})?;
                 let voxels = usize::try_from(stats.voxels).unwrap_or(0);
                 let (mut ijk, mut t) = (Vec::with_capacity(voxels * 3), Vec::with_capacity(voxels));
                 for l in &leaves {

@@ -59,8 +59,9 @@ def test_every_point_is_the_explicit_query(cli, tmp_path, prim):
         assert np.allclose(f["positions"], [list(w) for w in world], rtol=0, atol=1e-12)
         for i in range(0, len(world), 7):
             w = world[i]
+            # Point i has ray id i (its stage light's directions, a sun 0.53 degrees across).
             _, one, _ = cli("query", stage, "--frame", f["frame"], "--light", "sun",
-                            "--at", f"{w[0]!r},{w[1]!r},{w[2]!r}", "--json")
+                            "--at", f"{w[0]!r},{w[1]!r},{w[2]!r}", "--ray-id", i, "--json")
             assert f["T"][i] == json.loads(one)["T"], (f["frame"], i)
         assert min(f["T"]) < 1.0  # some points are in the cloud's shadow
 
@@ -83,10 +84,11 @@ def test_a_subframe_and_a_point_light(cli, tmp_path):
         for i in (0, 13, 39):
             own, usd = f["positions"][i], world[i]
             _, one, _ = cli("query", stage, "--frame", t, "--light", "lamp",
-                            "--at", ",".join(repr(c) for c in own), "--json")
+                            "--at", ",".join(repr(c) for c in own), "--ray-id", i, "--json")
             assert f["T"][i] == json.loads(one)["T"], (t, i)
             _, two, _ = cli("query", stage, "--frame", t, "--light", "lamp",
-                            "--at", ",".join(repr(float(c)) for c in usd), "--json")
+                            "--at", ",".join(repr(float(c)) for c in usd), "--ray-id", i,
+                            "--json")
             assert f["T"][i] == pytest.approx(json.loads(two)["T"], rel=1e-6), (t, i)
 
 

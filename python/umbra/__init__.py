@@ -130,6 +130,25 @@ def _alias(canonical: str, value: Any, alias: str, alias_value: Any, default: An
     return alias_value
 
 
+def _extent(
+    light_angle: Any, light_radius: Any, light_samples: Any
+) -> Tuple[Optional[float], Optional[float], Optional[int]]:
+    """The keywords of a light with extent, by type (the library checks their values and
+    names the keyword that is wrong: negative, NaN, an angle of 180 degrees or more)."""
+
+    def real(name: str, v: Any) -> Optional[float]:
+        if v is None:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+            raise _invalid(name, f"expected a number, got {v!r}")
+        return float(v)
+
+    n = None if light_samples is None else _count("light_samples", light_samples)
+    if n is not None and n >= 2**32:
+        raise _invalid("light_samples", f"{n} is out of range")
+    return real("light_angle", light_angle), real("light_radius", light_radius), n
+
+
 def _count(name: str, v: Any) -> int:
     if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
         raise _invalid(name, f"expected a whole number, got {v!r}")
@@ -791,7 +810,11 @@ def usd_point_transmittance(
     velocity_scale: Optional[float] = None,
     time_samples: Optional[int] = None,
     threads: int = 0,
-) -> Dict[float, np.ndarray]:
+    light_angle: Optional[float] = None,
+    light_radius: Optional[float] = None,
+    light_samples: Optional[int] = None,
+    return_stderr: bool = False,
+) -> Union[Dict[float, np.ndarray], Dict[float, Tuple[np.ndarray, np.ndarray]]]:
     """How much of a stage light reaches every point of a ``UsdGeom.Points`` prim (its
     ``points``) or a ``PointInstancer`` (its ``positions``), placed in the world by the prim's
     local-to-world at each time code of ``frames`` (default: the stage's start): what ``umbra
@@ -799,9 +822,18 @@ def usd_point_transmittance(
     a prim path or name (default: the stage's only light); its shadow links are honoured.
 
     Returns ``{frame: T}``, ``T`` an (N,) float64 array in the prim's point order (N may change
-    between frames: a warning says so). The estimator keywords are those of
-    :meth:`Volume.transmittance`; point ``i`` uses ray id ``i``."""
+    between frames: a warning says so); with ``return_stderr``, ``{frame: (T, std_err)}``. The
+    estimator keywords are those of :meth:`Volume.transmittance`; point ``i`` uses ray id ``i``.
+
+    ``light_angle`` (a ``DistantLight``'s angular diameter, degrees) or ``light_radius`` (a
+    light at a position becomes a sphere light of that radius), with ``light_samples``
+    directions per point (default 256): each point's mean T over the light with extent
+    (``query --positions PRIM --light-angle A``; docs/lights.md), point ``i`` equal to
+    ``umbra query STAGE --at P --light-angle A --ray-id i`` bit for bit. Without them the stage
+    light's own extent applies (a ``DistantLight``'s angle, 0.53 degrees unless authored; a
+    sphere's radius; disk, rect, cylinder); ``light_angle=0`` traces a sun as a point."""
     given = None if frames is None else [float(f) for f in frames]
+    angle, radius, n = _extent(light_angle, light_radius, light_samples)
     doc, warns = _umbra.usd_points_json(
         _path("stage", stage),
         str(prim),
@@ -810,11 +842,15 @@ def usd_point_transmittance(
         _options(
             volume=None if volume is None else [str(v) for v in volume], field=field,
             interp=interp, density_scale=density_scale, **_estimator_options(locals()),
-            threads=threads,
+            threads=threads, light_angle=angle, light_radius=radius, light_samples=n,
         ),
     )
     _warn(warns)
-    return {f["frame"]: np.asarray(f["T"], dtype=np.float64) for f in json.loads(doc)["frames"]}
+    frames_ = json.loads(doc)["frames"]
+    t = {f["frame"]: np.asarray(f["T"], dtype=np.float64) for f in frames_}
+    if not return_stderr:
+        return t
+    return {f["frame"]: (t[f["frame"]], np.asarray(f["std_err"], dtype=np.float64)) for f in frames_}
 
 
 def estimators() -> List[Dict[str, Any]]:
@@ -1081,6 +1117,9 @@ class Volume:
         seed: int = 0,
         return_stderr: bool = False,
         *,
+        light_angle: Optional[float] = None,
+        light_radius: Optional[float] = None,
+        light_samples: Optional[int] = None,
         ray_id: int = 0,
         step: Optional[float] = None,
         kernel: Optional[float] = None,
@@ -1101,13 +1140,24 @@ class Volume:
         ``points``: (N, 3) world points. Returns as :meth:`transmittance`; row ``n`` uses ray
         id ``ray_id + n`` (``--ray-id``). ``points_per_estimate`` is the jackknife's
         ``--points``; ``granularity``, ``global_majorant`` and ``colour_walk`` as in
-        :meth:`transmittance`."""
+        :meth:`transmittance`.
+
+        A light with extent (``--light-angle``, ``--light-radius``, ``--light-samples``;
+        docs/lights.md): ``light_angle`` (degrees, with ``light_dir``) makes the light a sun of
+        that angular diameter, ``light_radius`` (with ``light_pos``) a sphere light;
+        ``light_samples`` directions per point (default 256). Each row is then the mean T over
+        the light with the replicates' error bar (``return_stderr``), row ``n`` with ray id
+        ``ray_id + n`` as ``umbra query --at P --ray-id`` answers it, bit for bit. 0 is the
+        point light exactly."""
         options = _estimator_options(locals(), points="points_per_estimate")
         p = _points("points", points)
         d, q = _vec3("light_dir", light_dir), _vec3("light_pos", light_pos)
         if (d is None) == (q is None):
             raise _invalid("light_dir", "give light_dir=(dx, dy, dz) or light_pos=(x, y, z), one of them")
-        t, err, _, warns = self._v.trace_to_light(p, d, q, *_sampling(options, ray_id, threads))
+        extent = _extent(light_angle, light_radius, light_samples)
+        t, err, _, warns = self._v.trace_to_light(
+            p, d, q, extent, *_sampling(options, ray_id, threads)
+        )
         _warn(warns)
         return _finish(t, err, return_stderr)
 
@@ -1116,6 +1166,9 @@ class Volume:
         light_dir: Optional[Vec3] = None,
         light_pos: Optional[Vec3] = None,
         *,
+        light_angle: Optional[float] = None,
+        light_radius: Optional[float] = None,
+        light_samples: Optional[int] = None,
         estimator: str = "regular",
         samples: int = 64,
         seed: int = 0,
@@ -1148,10 +1201,19 @@ class Volume:
         ``"lines"``/``"rays"``, ``line_step``, ``rays``, ``lookups``, ``T_min``, ``T_max``,
         ``T_mean``, ``seconds``, ``ns_per_voxel``). World positions: ``world_from_index``
         applied to ``ijk``. A scene is refused (a transmittance volume is made from one grid).
+
+        With ``light_angle`` (a sun's angular diameter, degrees, with ``light_dir``) or
+        ``light_radius`` (a sphere light, with ``light_pos``) each voxel holds the mean T over
+        the light from its centre (docs/lights.md), voxel ``k`` of the output with ray id ``k``
+        (``umbra query --at CENTRE --ray-id k``, bit for bit as f32); ``light_samples``
+        directions per voxel (default 256). The stats then add ``light_samples``,
+        ``sampled_fraction`` and ``std_err_max``.
         """
+        angle, radius, n = _extent(light_angle, light_radius, light_samples)
         ijk, t, stats, warns = self._v.transmittance_volume(
             _options(
-                light_dir=light_dir, light_pos=light_pos, **_estimator_options(locals()),
+                light_dir=light_dir, light_pos=light_pos, light_angle=angle,
+                light_radius=radius, light_samples=n, **_estimator_options(locals()),
                 threads=threads,
             )
         )
@@ -1164,6 +1226,9 @@ class Volume:
         light_dir: Optional[Vec3] = None,
         light_pos: Optional[Vec3] = None,
         *,
+        light_angle: Optional[float] = None,
+        light_radius: Optional[float] = None,
+        light_samples: Optional[int] = None,
         out_grid: str = "transmittance",
         half: bool = False,
         force: bool = False,
@@ -1193,7 +1258,10 @@ class Volume:
         (``--half``). The file is written atomically; an existing file is a
         :class:`FileError` unless ``force``. ``grid`` and ``overwrite`` are older names of
         ``out_grid`` and ``force``. Returns the stats dict of :meth:`transmittance_volume`.
+        ``light_angle``, ``light_radius`` and ``light_samples`` as there (the light's extent
+        recorded as ``umbra:light_extent``).
         """
+        angle, radius, n = _extent(light_angle, light_radius, light_samples)
         out_grid = _alias("out_grid", out_grid, "grid", grid, "transmittance")
         force = _alias("force", force, "overwrite", overwrite, False)
         if not isinstance(out_grid, str):
@@ -1201,7 +1269,8 @@ class Volume:
         stats, warns = self._v.write_transmittance_volume(
             _path("path", path),
             _options(
-                light_dir=light_dir, light_pos=light_pos, out_grid=out_grid, half=half,
+                light_dir=light_dir, light_pos=light_pos, light_angle=angle,
+                light_radius=radius, light_samples=n, out_grid=out_grid, half=half,
                 force=force, **_estimator_options(locals()), threads=threads,
             ),
         )

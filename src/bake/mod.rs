@@ -63,8 +63,9 @@ pub use product::pipeline::{
 pub use product::soft_deep::{
     soft_deep_attributes, soft_deep_depths, soft_deep_image, SOFT_DEEP_DEPTHS,
 };
+pub use product::soft_volume::soft_transmittance_leaves;
 pub use product::transmittance_volume::{
-    output_voxels, transmittance_leaves, Sharing, VolumeJob, VolumeReport, VolumeStats,
-    DEFAULT_OUT_GRID, MAX_VOLUME_LEAVES,
+    output_voxels, transmittance_leaves, Sharing, VolumeStats, MAX_VOLUME_LEAVES,
 };
+pub use product::volume_job::{VolumeJob, VolumeReport, DEFAULT_OUT_GRID};
 pub use trace::{bake, bake_scene};

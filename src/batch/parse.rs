@@ -73,9 +73,12 @@ pub fn parse_job(path: &Path, text: &str) -> Result<Job, BatchError> {
     let resolve = |s: &str| base.join(s);
     let grid = job_grid(&path, &file)?;
     if file.inputs.is_empty() {
-        // Lights with extent answer maps and `query --at`, not per-point answers yet.
+        // A job of [[positions]] only: the keys of a light with extent go in each entry,
+        // beside the light they shape.
         if let Err(crate::error::Error::InvalidArgument { name, reason }) =
-            file.bake.light.refuse_extent("positions")
+            file.bake.light.refuse_extent(
+                "a job of [[positions]] only (give the keys in each entry, for its light)",
+            )
         {
             return Err(err(
                 &path,

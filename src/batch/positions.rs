@@ -41,9 +41,31 @@ pub struct PositionsSpec {
     /// `density_scale`, `interp`, the motion keys, ...), of the estimator options and of its
     /// parameters ([`crate::request::TraceOptions`]), each declared there once; `frame` and
     /// `xform` do not apply (`frames`; points stand in the world).
+    /// The keys of a light with extent applied to the stage light (`light_angle` for a
+    /// `DistantLight`, `light_radius` for a light at a position, `light_samples`) are the
+    /// entry's own too, not `[bake]`'s.
     #[serde(flatten)]
-    #[cfg_attr(feature = "schema", schemars(with = "crate::request::TraceOptions"))]
+    #[cfg_attr(feature = "schema", schemars(with = "EntryKeys"))]
     pub overrides: serde_json::Map<String, serde_json::Value>,
+}
+
+/// The keys of a `[[positions]]` entry besides its own (the JSON Schema's view of
+/// [`PositionsSpec::overrides`]): the read and estimator keys, and the keys of a light with
+/// extent for the stage light.
+#[cfg(feature = "schema")]
+#[derive(schemars::JsonSchema)]
+#[allow(dead_code)]
+struct EntryKeys {
+    #[serde(flatten)]
+    trace: crate::request::TraceOptions,
+    /// The stage `DistantLight`'s angular diameter, degrees in [0, 180): each point's mean
+    /// transmittance over the sun's disc (docs/lights.md); 0 is the point light exactly.
+    light_angle: Option<f64>,
+    /// A stage light at a position as a sphere light of this radius (world units).
+    light_radius: Option<f64>,
+    /// With light_angle or light_radius: directions per point (default 256, a multiple of 8,
+    /// at most 1048576).
+    light_samples: Option<u32>,
 }
 
 impl PositionsSpec {
@@ -268,14 +290,23 @@ fn entry_options(
             return Err(err(path, &key(k), why));
         }
     }
-    // Only read and estimator keys, each of its type.
-    let keys = serde_json::Value::Object(s.overrides.clone()).to_string();
+    // The keys of a light with extent are the entry's own, like its light; the others only
+    // read and estimator keys, each of its type.
+    let (extent, overrides) = extent_keys(s);
+    let light: crate::light::LightOptions =
+        crate::request::overlaid(&crate::light::LightOptions::default(), &extent).map_err(named)?;
+    light.check_extent().map_err(|e| match e {
+        crate::error::Error::Conflict { .. } => err(path, &key("light_radius"), e),
+        e => named(e),
+    })?;
+    let keys = serde_json::Value::Object(overrides.clone()).to_string();
     crate::request::TraceOptions::from_json(&keys).map_err(named)?;
     let mut o = b.clone();
     o.source.grid = grid.to_string();
     o.source.frame = None;
     o.source.light = None;
-    let o = o.with_overrides(&s.overrides).map_err(named)?;
+    let mut o = o.with_overrides(&overrides).map_err(named)?;
+    o.light = light;
     if !(o.source.density_scale.is_finite() && o.source.density_scale >= 0.0) {
         return Err(err(
             path,
@@ -287,6 +318,19 @@ fn entry_options(
     o.motion().map_err(named)?;
     Ok(o)
 }
+
+/// The keys of a light with extent of an entry (`light_angle`, `light_radius`,
+/// `light_samples`: they apply to its stage light), and its other keys.
+type Keys = serde_json::Map<String, serde_json::Value>;
+fn extent_keys(s: &PositionsSpec) -> (Keys, Keys) {
+    s.overrides
+        .iter()
+        .map(|(k, v)| (k.clone(), v.clone()))
+        .partition(|(k, _)| EXTENT_KEYS.contains(&k.as_str()))
+}
+
+/// The keys of a light with extent an entry takes.
+const EXTENT_KEYS: [&str; 3] = ["light_angle", "light_radius", "light_samples"];
 
 /// One frame's answers as written to disk.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -302,6 +346,12 @@ struct FrameFile {
     transmittance: Vec<f64>,
     std_err: Vec<f64>,
     positions: Vec<[f64; 3]>,
+    /// Toward a light with extent: directions per sampled point.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    light_samples: Option<u32>,
+    /// Toward a light with extent: the points sampled.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    sampled: Option<usize>,
 }
 
 impl Job {
@@ -343,8 +393,16 @@ impl Job {
             crate::usd::points_at(&t.stage, &t.prim, time).map_err(|e| err(&self.path, &key, e))?;
             let shot =
                 crate::usd::lights_at(&t.stage, time).map_err(|e| err(&self.path, &key, e))?;
-            shot.light(t.light.as_deref())
+            let (_, emitter) = shot
+                .light(t.light.as_deref())
                 .map_err(|e| err(&self.path, &key, e))?;
+            // The flags: an angle for a distant light, a radius for a light at a position.
+            if let Err(crate::error::Error::InvalidArgument { name, reason }) =
+                t.options.light.soft_of_stage(emitter)
+            {
+                let k = format!("{key}.{}", name.replace('-', "_"));
+                return Err(err(&self.path, &k, reason));
+            }
         }
         Ok(())
     }
@@ -364,6 +422,7 @@ impl Job {
         let request = crate::request::QueryRequest {
             positions: Some(t.prim.clone()),
             frames: Some(vec![frame]),
+            light: o.light.clone(),
             estimator: o.estimator.clone(),
             params: o.params.clone(),
             // Tasks run one after another, each on every core.
@@ -389,6 +448,8 @@ impl Job {
             transmittance: f.transmittance,
             std_err: f.std_err,
             positions: f.positions,
+            light_samples: answers.light_samples,
+            sampled: f.sampled,
         };
         if let Some(d) = t.output.parent() {
             std::fs::create_dir_all(d).map_err(|e| crate::error::Error::Io {
@@ -429,12 +490,14 @@ impl Job {
                     light_name: f.light_name.clone(),
                     frames: Vec::new(),
                     warnings: Vec::new(),
+                    light_samples: f.light_samples,
                 });
                 all.frames.push(crate::points::PointFrame {
                     frame: f.frame,
                     positions: f.positions,
                     transmittance: f.transmittance,
                     std_err: f.std_err,
+                    sampled: f.sampled,
                 });
             }
             let Some(mut answers) = answers else { continue };

@@ -214,7 +214,7 @@ impl Area {
             return (p, 0.0);
         }
         let w = match self.shape {
-            Shape::Cylinder { radius, .. } if radius == 0.0 => {
+            Shape::Cylinder { radius: 0.0, .. } => {
                 self.axes.x_axis.cross(to).length() / (d * d * d)
             }
             _ => {

@@ -50,6 +50,8 @@ const DIRECTION_STREAM: u64 = 0xD1EC_7104_0000_0000;
 const INV_GOLDEN: f64 = 0.618_033_988_749_894_9;
 
 /// A light's extent: what a point light becomes.
+// An area light's frame makes `Area` large; extents are few and copied rarely.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Extent {
     /// A sun of this angular diameter, degrees in (0, 180).
@@ -118,8 +120,10 @@ fn bad(name: &str, reason: impl Into<String>) -> Error {
     }
 }
 
-/// [`LightOptions::soft`]: the keys of a light with extent, checked.
-pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
+/// The keys of a light with extent, each checked on its own (not yet against the light):
+/// the angle, the radius and the directions per receiver (rounded up to a multiple of
+/// [`REPLICATES`]).
+pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, u32)> {
     let value = |name: &str, v: Option<f64>| -> Result<Option<f64>> {
         match v {
             Some(x) if !x.is_finite() => Err(bad(name, format!("{x} is not a finite number"))),
@@ -129,19 +133,25 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
     };
     let angle = value("light-angle", o.light_angle)?;
     let radius = value("light-radius", o.light_radius)?;
-    if let Some(a) = angle {
-        if a >= 180.0 {
-            return Err(bad(
-                "light-angle",
-                format!("{a} degrees is not below 180 (the sun's angular diameter, degrees)"),
-            ));
-        }
-        if o.light_dir.is_none() {
-            return Err(bad(
-                "light-angle",
-                "is a sun's angular diameter: it goes with light-dir",
-            ));
-        }
+    if let Some(a) = angle.filter(|a| *a >= 180.0) {
+        return Err(bad(
+            "light-angle",
+            format!("{a} degrees is not below 180 (the sun's angular diameter, degrees)"),
+        ));
+    }
+    // Directions per receiver: `light-samples` alone may go with a stage light, whose extent
+    // the stage gives; with a given light it needs an angle or a radius (`check`).
+    Ok((angle, radius, samples(o.light_samples)?))
+}
+
+/// [`LightOptions::soft`]: the keys of a light with extent, checked.
+pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
+    let (angle, radius, samples) = values(o)?;
+    if angle.is_some() && o.light_dir.is_none() {
+        return Err(bad(
+            "light-angle",
+            "is a sun's angular diameter: it goes with light-dir",
+        ));
     }
     if radius.is_some() && o.light_pos.is_none() {
         return Err(bad(
@@ -155,7 +165,6 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
             "samples a light with extent: give light-angle or light-radius (or a stage's light)",
         ));
     }
-    let samples = samples(o.light_samples)?;
     let extent = match (angle, radius) {
         (Some(a), _) if a > 0.0 => Extent::Sun { angle: a },
         (_, Some(r)) if r > 0.0 => Extent::Sphere { radius: r },

@@ -140,9 +140,8 @@ impl BakeRequest {
     /// [`crate::error::Error::InvalidArgument`] naming the first option that cannot be honoured (canonical
     /// spelling, which each front end respells); errors reading a reused camera.
     pub fn plan(&self) -> Result<BakePlan> {
-        if is_volume_output(&self.output) {
-            self.options.light.refuse_extent("a transmittance volume")?;
-        }
+        // Maps and transmittance volumes both answer a light with extent (checked when
+        // planned).
         let with_light = self.with_stage_light()?;
         let req = with_light.as_ref().unwrap_or(self);
         req.plan_checked()

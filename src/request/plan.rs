@@ -200,9 +200,13 @@ impl BakeRequest {
                 (source, o.motion()?)
             }
         };
+        // A light with extent: the flags', or a stage light's own (its keys checked against
+        // it).
+        let soft = self.soft_light()?;
         Ok(VolumeJob {
             source,
             light,
+            soft,
             estimator,
             options,
             threads: o.threads,
@@ -363,21 +367,19 @@ impl BakeRequest {
         Ok(Some(crate::bake::SoftMap { light, receiver }))
     }
 
-    /// The light with extent a bake is made toward: the flags' (`light-angle`,
-    /// `light-radius`), which also override a stage light's own; else, toward a stage's light
+    /// The light with extent a bake (a map or a transmittance volume) is made toward: the
+    /// flags' (`light-angle`, `light-radius`); toward a stage's light
     /// ([`BakeRequest::with_stage_light`] put its centre in `light-dir` / `light-pos` and its
-    /// path in `light`), the stage light's own extent ([`crate::light::SoftLight::of_emitter`]:
-    /// a distant light's `inputs:angle`, 0.53 degrees when unauthored, a sphere's radius, a
-    /// disk, rect or cylinder), with `light-samples` directions per receiver. `None`: a point.
+    /// path in `light`), the stage light's own extent (a distant light's `inputs:angle`, 0.53
+    /// degrees when unauthored, a sphere's radius, a disk, rect or cylinder), which the flags
+    /// override ([`crate::light::LightOptions::soft_of_stage`]). `None`: a point.
     ///
     /// # Errors
     /// As [`crate::light::LightOptions::soft`]; reading the stage light.
     pub(super) fn soft_light(&self) -> Result<Option<crate::light::SoftLight>> {
         let o = &self.options;
-        let flagged = o.light.light_angle.is_some() || o.light.light_radius.is_some();
         let from_stage = o.source.light.as_deref().filter(|_| {
-            !flagged
-                && self.source().kind().is_stage()
+            self.source().kind().is_stage()
                 && (o.light.light_dir.is_some() || o.light.light_pos.is_some())
         });
         let Some(name) = from_stage else {
@@ -385,7 +387,6 @@ impl BakeRequest {
         };
         let shot = crate::usd::lights_at(&self.input, o.source.frame)?;
         let (_, emitter) = shot.light(Some(name))?;
-        let samples = crate::light::extent::samples(o.light.light_samples)?;
-        crate::light::SoftLight::of_emitter(emitter, samples)
+        o.light.soft_of_stage(emitter)
     }
 }

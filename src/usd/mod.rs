@@ -617,7 +617,12 @@ pub fn points_at(path: &Path, _prim: &str, _time: Option<f64>) -> Result<StagePo
 
 /// The error for a points layer when umbra is built without USD support.
 #[cfg(not(feature = "usd"))]
-pub fn points_layer(_prim: &str, _light: &str, _samples: &[(f64, Vec<f32>)]) -> Result<String> {
+pub fn points_layer(
+    _prim: &str,
+    _light: &str,
+    _samples: &[(f64, Vec<f32>)],
+    _errors: Option<&[(f64, Vec<f32>)]>,
+) -> Result<String> {
     Err(Error::Unsupported {
         path: PathBuf::from("usd-out"),
         what: "USD layers (this umbra was built without the \"usd\" feature)".into(),

@@ -22,6 +22,7 @@ mod deep_map;
 mod friction;
 mod hostile;
 mod lights_extent;
+mod lights_extent_points;
 mod lights_maps;
 mod motion;
 mod mutation;

@@ -26,6 +26,7 @@ mod exr_layout;
 mod lazy;
 mod library_api;
 mod lights_extent;
+mod lights_extent_points;
 mod lights_maps;
 mod map_summary;
 mod motion;

@@ -514,7 +514,7 @@ fn nvdb_decoded_in_parallel_is_the_serial_decode_bit_for_bit() {
                 let (a, b) = (&serial.tree, &par.tree);
                 let what = format!("{} {case}, {threads} threads", src.display());
                 assert_eq!(a.leaves().len(), b.leaves().len(), "{what}");
-                assert!(a.leaves().len() > 0, "{what}: no leaves");
+                assert!(!a.leaves().is_empty(), "{what}: no leaves");
                 for (i, (la, lb)) in a.leaves().iter().zip(b.leaves()).enumerate() {
                     assert_eq!(la.origin, lb.origin, "{what}: leaf {i}");
                     assert_eq!(la.value_mask, lb.value_mask, "{what}: leaf {i}");
@@ -524,11 +524,7 @@ fn nvdb_decoded_in_parallel_is_the_serial_decode_bit_for_bit() {
                         "{what}: leaf {i}'s values"
                     );
                 }
-                assert_eq!(
-                    a.background().to_bits(),
-                    b.background().to_bits(),
-                    "{what}"
-                );
+                assert_eq!(a.background().to_bits(), b.background().to_bits(), "{what}");
                 assert_eq!(a.stats().active_voxels, b.stats().active_voxels, "{what}");
             }
         }

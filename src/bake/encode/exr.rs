@@ -397,10 +397,7 @@ fn soft_attributes(
 ) -> Vec<(String, AttributeValue)> {
     let mut attrs = vec![
         ("receiver".into(), text(&soft.receiver.to_string())),
-        (
-            "light_extent".into(),
-            text(&soft.light.extent.to_string()),
-        ),
+        ("light_extent".into(), text(&soft.light.extent.to_string())),
         (
             "light_samples".into(),
             AttributeValue::I32(clamp_i32(u64::from(soft.light.samples))),

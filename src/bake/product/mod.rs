@@ -9,4 +9,6 @@ pub(crate) mod deep_map;
 pub(crate) mod fixed_map;
 pub(crate) mod pipeline;
 pub(crate) mod soft_deep;
+pub(crate) mod soft_volume;
 pub(crate) mod transmittance_volume;
+pub(crate) mod volume_job;

@@ -89,6 +89,18 @@ pub struct VolumeStats {
     pub t_mean: f64,
     /// Wall time of the computation, seconds.
     pub seconds: f64,
+    /// Toward a light with extent: the directions traced per sampled voxel; absent toward a
+    /// point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_samples: Option<u32>,
+    /// Toward a light with extent: the fraction of voxels sampled (the others' whole cone
+    /// provably misses every box: `T = 1` without sampling); absent toward a point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sampled_fraction: Option<f64>,
+    /// Toward a light with extent: the largest error bar of a voxel's `T` (the file holds `T`
+    /// only); absent toward a point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub std_err_max: Option<f64>,
 }
 
 impl VolumeStats {
@@ -136,8 +148,53 @@ pub fn output_voxels(vol: &Volume) -> u64 {
     leaves + tiles(tree.lowers(), 512) + tiles(tree.uppers(), 128 * 128 * 128) + root * (1 << 36)
 }
 
+/// The 8^3 blocks of the output and how many of them are made from active tiles.
+pub(super) fn output_blocks(vol: &Volume) -> Result<(Vec<LeafOut>, u64)> {
+    let leaves = blocks(vol)?;
+    let leaf_count = vol
+        .tree()
+        .leaves()
+        .iter()
+        .filter(|l| l.value_mask.iter().any(|&w| w != 0))
+        .count();
+    let tile_leaves = (leaves.len() - leaf_count) as u64;
+    debug_assert_eq!(
+        output_voxels(vol),
+        leaves
+            .iter()
+            .map(|l| l
+                .active
+                .iter()
+                .map(|w| u64::from(w.count_ones()))
+                .sum::<u64>())
+            .sum::<u64>()
+    );
+    Ok((leaves, tile_leaves))
+}
+
+/// The smallest, largest and mean `T` over the active voxels of `leaves`, and their count
+/// (1 and 1 for none).
+pub(super) fn summarise(leaves: &[LeafOut], stats: &mut VolumeStats) {
+    let mut sum = 0.0f64;
+    for l in leaves {
+        for (n, &v) in l.values.iter().enumerate() {
+            if bit(&l.active, n) {
+                let v = f64::from(v);
+                stats.voxels += 1;
+                stats.t_min = stats.t_min.min(v);
+                stats.t_max = stats.t_max.max(v);
+                sum += v;
+            }
+        }
+    }
+    stats.t_mean = sum / stats.voxels.max(1) as f64;
+    if stats.voxels == 0 {
+        (stats.t_min, stats.t_max) = (1.0, 1.0);
+    }
+}
+
 /// The 8^3 blocks of the output: a leaf's active voxels or an active tile's.
-fn output_blocks(vol: &Volume) -> Result<Vec<LeafOut>> {
+fn blocks(vol: &Volume) -> Result<Vec<LeafOut>> {
     let tree = vol.tree();
     let too_big = |n: usize| Error::InvalidArgument {
         name: "output".into(),
@@ -249,25 +306,7 @@ pub fn transmittance_leaves(
         });
     }
     let start = std::time::Instant::now();
-    let mut leaves = output_blocks(vol)?;
-    let leaf_count = vol
-        .tree()
-        .leaves()
-        .iter()
-        .filter(|l| l.value_mask.iter().any(|&w| w != 0))
-        .count();
-    let tile_leaves = (leaves.len() - leaf_count) as u64;
-    debug_assert_eq!(
-        output_voxels(vol),
-        leaves
-            .iter()
-            .map(|l| l
-                .active
-                .iter()
-                .map(|w| u64::from(w.count_ones()))
-                .sum::<u64>())
-            .sum::<u64>()
-    );
+    let (mut leaves, tile_leaves) = output_blocks(vol)?;
     let step = light_step(vol, light).filter(|_| *est == Estimator::REGULAR);
     // Check the light once (a zero direction is refused here, not per voxel).
     light.ray_from(vol, vol.to_world(glam::DVec3::ZERO).to_array())?;
@@ -310,23 +349,11 @@ pub fn transmittance_leaves(
         t_max: f64::NEG_INFINITY,
         t_mean: 0.0,
         seconds: 0.0,
+        light_samples: None,
+        sampled_fraction: None,
+        std_err_max: None,
     };
-    let mut sum = 0.0f64;
-    for l in &leaves {
-        for (n, &v) in l.values.iter().enumerate() {
-            if bit(&l.active, n) {
-                let v = f64::from(v);
-                stats.voxels += 1;
-                stats.t_min = stats.t_min.min(v);
-                stats.t_max = stats.t_max.max(v);
-                sum += v;
-            }
-        }
-    }
-    stats.t_mean = sum / stats.voxels.max(1) as f64;
-    if stats.voxels == 0 {
-        (stats.t_min, stats.t_max) = (1.0, 1.0);
-    }
+    summarise(&leaves, &mut stats);
     stats.seconds = start.elapsed().as_secs_f64();
     Ok((leaves, stats))
 }
@@ -618,194 +645,4 @@ fn by_lattice(
         }
     }
     Ok((rays, lookups))
-}
-
-/// One transmittance volume from a file to a `.vdb`: what `umbra bake ... -o NAME.vdb` runs.
-#[derive(Debug, Clone, PartialEq)]
-pub struct VolumeJob {
-    /// The grid file and how it is read: its density grid, `mu_t = density_scale x value`,
-    /// where the volume sits in the shot (the output grid's transform includes it).
-    pub source: crate::input::Source,
-    /// The light.
-    pub light: Light,
-    /// Estimator of every voxel's ray (regular tracking: exact).
-    pub estimator: Estimator,
-    /// Its options (samples, seed, interpolation).
-    pub options: Options,
-    /// Worker threads: 0 the current pool, `n` a pool of `n`.
-    pub threads: usize,
-    /// The `.vdb` written.
-    pub output: std::path::PathBuf,
-    /// Name of the written grid (`transmittance` by default, `--out-grid`).
-    pub out_grid: String,
-    /// Store 16-bit half floats.
-    pub half: bool,
-    /// Replace an existing output.
-    pub overwrite: bool,
-    /// Motion blur from a velocity grid of the input (`crate::motion`): T at each voxel is
-    /// the shutter mean.
-    pub motion: Option<crate::motion::MotionRequest>,
-}
-
-/// What a finished transmittance volume produced.
-#[derive(Debug, Clone)]
-pub struct VolumeReport {
-    /// Counts and cost.
-    pub stats: VolumeStats,
-    /// Things the user should be told (bad voxels in the density).
-    pub warnings: Vec<crate::bake::Warning>,
-}
-
-/// The default name of the written grid.
-pub const DEFAULT_OUT_GRID: &str = "transmittance";
-
-impl VolumeJob {
-    /// Check the output before any work: a writable `.vdb` path (no clobbering without
-    /// `overwrite`) and a usable grid name.
-    ///
-    /// # Errors
-    /// [`Error::Output`] naming the file; [`Error::InvalidArgument`] (`output`, `out-grid`).
-    pub fn check_outputs(&self) -> Result<()> {
-        crate::output::check_writable(&self.output, self.overwrite)?;
-        crate::bake::product::pipeline::check_extension(
-            &self.output,
-            "vdb",
-            "output",
-            "a transmittance volume is written as OpenVDB",
-        )?;
-        if self.out_grid.is_empty() || self.out_grid.contains(['\0', '\u{1e}']) {
-            return Err(Error::InvalidArgument {
-                name: "out-grid".into(),
-                reason: format!(
-                    "{:?}: a grid name must be non-empty, without NUL or the record separator",
-                    crate::text::escape(&self.out_grid)
-                ),
-            });
-        }
-        if self.out_grid == self.source.options().grid
-            && crate::output::same_file(&self.output, self.source.path())
-        {
-            return Err(Error::InvalidArgument {
-                name: "output".into(),
-                reason: "the transmittance volume would replace the density it is made from".into(),
-            });
-        }
-        Ok(())
-    }
-
-    /// Load the density grid as this job traces it (scale, `xform`).
-    ///
-    /// # Errors
-    /// Load errors.
-    pub fn load(&self) -> Result<Volume> {
-        let (path, o) = (self.source.path(), self.source.options());
-        if self.source.kind().is_scene_file() {
-            return Err(Error::InvalidArgument {
-                name: "output".into(),
-                reason: format!(
-                    "a transmittance volume (.vdb) is made from one density grid; {} is a scene \
-                     file",
-                    path.display()
-                ),
-            });
-        }
-        let mut v = Volume::load(path, &o.grid, o.density_scale)?;
-        if let Some(x) = &self.source.xform()? {
-            v = v.with_xform(x)?;
-        }
-        match &self.motion {
-            Some(m) => crate::scene::blurred(v, m, path),
-            None => Ok(v),
-        }
-    }
-
-    /// Check, load, compute and write. `progress` is told the voxels to compute and receives
-    /// finished voxel counts.
-    ///
-    /// # Errors
-    /// Output, load, light, estimator and write errors; nothing is written on error.
-    pub fn run(&self, progress: &dyn crate::progress::Progress) -> Result<VolumeReport> {
-        self.run_steps(progress).map_err(|e| e.error)
-    }
-
-    /// [`VolumeJob::run`], each failure with the step it stopped at.
-    pub(crate) fn run_steps(
-        &self,
-        progress: &dyn crate::progress::Progress,
-    ) -> std::result::Result<VolumeReport, crate::bake::BakeError> {
-        use crate::bake::{BakeError, Step};
-        let check = |e| BakeError::at(Step::Check, e);
-        self.check_outputs().map_err(check)?;
-        self.options.validate().map_err(check)?;
-        let vol = self
-            .load()
-            .map_err(|e| BakeError::loading(&self.source, e))?;
-        self.run_on(&vol, progress)
-            .map_err(|e| BakeError::at(Step::Bake, e))
-    }
-
-    /// [`VolumeJob::run`] on a volume already loaded (the Python module's `Volume`).
-    ///
-    /// # Errors
-    /// As [`VolumeJob::run`].
-    pub fn run_on(
-        &self,
-        vol: &Volume,
-        progress: &dyn crate::progress::Progress,
-    ) -> Result<VolumeReport> {
-        self.check_outputs()?;
-        progress.start(&crate::progress::Work {
-            units: output_voxels(vol),
-            what: "transmittance volume",
-            unit: Some("voxels"),
-        });
-        let (leaves, stats) = transmittance_leaves(
-            vol,
-            &self.light,
-            &self.estimator,
-            &self.options,
-            self.threads,
-            progress,
-        )?;
-        let mut grid =
-            crate::vdb::FloatGridOut::new(&self.out_grid, 1.0, vol.world_from_index(), leaves)?
-                .with_half(self.half);
-        let light = self.light.to_string();
-        let meta = [
-            (
-                "umbra:quantity",
-                "transmittance exp(-tau) from each voxel centre toward the light".to_string(),
-            ),
-            ("umbra:light", light),
-            ("umbra:estimator", self.estimator.name().to_string()),
-            (
-                "umbra:interp",
-                format!("{:?}", self.options.interp).to_lowercase(),
-            ),
-            (
-                "umbra:density_scale",
-                format!("{}", self.source.options().density_scale),
-            ),
-            (
-                "umbra:source_file",
-                self.source.path().display().to_string(),
-            ),
-            ("umbra:grid", vol.name().to_string()),
-            (
-                "umbra:software",
-                concat!("umbra ", env!("CARGO_PKG_VERSION")).to_string(),
-            ),
-        ];
-        for (k, v) in meta {
-            grid = grid.with_metadata(k, &v);
-        }
-        crate::vdb::write_vdb(&self.output, &grid, self.overwrite)?;
-        Ok(VolumeReport {
-            stats,
-            warnings: crate::bake::volume_warnings(&vol.sanitized())
-                .into_iter()
-                .chain(crate::bake::velocity_warnings(vol))
-                .collect(),
-        })
-    }
 }

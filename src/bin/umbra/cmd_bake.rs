@@ -294,6 +294,14 @@ fn report_volume(
             "seconds": st.seconds, "ns_per_voxel": st.ns_per_voxel(),
             "total_seconds": total,
         });
+        // Toward a light with extent: its directions, the fraction sampled, the worst error.
+        let mut v = v;
+        if let (Some(n), Some(f), Some(e)) = (st.light_samples, st.sampled_fraction, st.std_err_max)
+        {
+            v["light_samples"] = n.into();
+            v["sampled_fraction"] = f.into();
+            v["std_err_max"] = e.into();
+        }
         writeln!(out, "{v}")?;
     } else if !a.quiet {
         writeln!(
@@ -317,11 +325,21 @@ fn report_volume(
             match (st.sharing, st.line_step) {
                 (umbra::bake::Sharing::Lines, Some(w)) =>
                     format!("one exact ray per line of voxel centres, step {w:?} toward the light"),
+                _ if st.light_samples.is_some() =>
+                    "a ray per direction over the light per voxel".to_string(),
                 _ => "one ray per voxel".to_string(),
             },
             st.rays,
             st.voxels
         )?;
+        if let (Some(n), Some(f), Some(e)) = (st.light_samples, st.sampled_fraction, st.std_err_max)
+        {
+            writeln!(
+                out,
+                "light with extent: {n} directions per voxel, {:.1}% of voxels sampled, std_err max {e:.2e}",
+                100.0 * f
+            )?;
+        }
     }
     Ok(())
 }

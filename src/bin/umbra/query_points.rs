@@ -43,7 +43,7 @@ pub fn print_frame(f: &PointFrame) {
             (l.min(v), h.max(v))
         });
     let mean = t.iter().sum::<f64>() / t.len().max(1) as f64;
-    let line = if t.is_empty() {
+    let mut line = if t.is_empty() {
         format!("frame {}: no points", crate::common::num(f.frame))
     } else {
         format!(
@@ -55,6 +55,14 @@ pub fn print_frame(f: &PointFrame) {
             hi
         )
     };
+    // Toward a light with extent: the largest error bar and the points sampled.
+    if let Some(n) = f.sampled {
+        let worst = f.std_err.iter().fold(0.0f64, |a, &e| a.max(e));
+        line.push_str(&format!(
+            ", std_err max {worst:.2e}, {n} of {} points sampled",
+            t.len()
+        ));
+    }
     let mut out = std::io::stdout().lock();
     let _ = writeln!(out, "{line}");
     let _ = out.flush();
@@ -71,21 +79,28 @@ pub fn report(p: &PointsOutcome, json: bool) -> Result<ExitCode> {
             .frames
             .iter()
             .map(|f| {
-                serde_json::json!({
+                let mut v = serde_json::json!({
                     "frame": f.frame,
                     "T": f.transmittance,
                     "std_err": f.std_err,
                     "positions": f.positions,
-                })
+                });
+                if let Some(n) = f.sampled {
+                    v["sampled"] = n.into();
+                }
+                v
             })
             .collect();
-        let doc = serde_json::json!({
+        let mut doc = serde_json::json!({
             "prim": answers.prim,
             "type": answers.type_name,
             "light": answers.light,
             "estimator": p.estimator,
             "frames": frames,
         });
+        if let Some(n) = answers.light_samples {
+            doc["light_samples"] = n.into();
+        }
         writeln!(std::io::stdout().lock(), "{doc}")?;
     }
     if let (Some(layer), false) = (&p.usd_out, json) {

@@ -141,8 +141,18 @@ impl QueryRequest {
                 ));
             }
         }
-        // The keys of a light with extent, checked (they go with a given light).
-        let soft = self.light.soft()?;
+        // The keys of a light with extent, checked: they go with a given light, or apply to
+        // the stage light a point is answered toward (resolved when the stage is read).
+        let toward_stage = self.at.is_some()
+            && self.source.kind().is_stage()
+            && self.light.light_dir.is_none()
+            && self.light.light_pos.is_none();
+        let soft = if toward_stage {
+            self.light.check_extent()?;
+            None
+        } else {
+            self.light.soft()?
+        };
         let segment = match (self.from, self.to, self.at) {
             (Some(from), Some(to), None) => Some((from, to)),
             (Some(_), None, _) | (None, Some(_), _) => {
@@ -200,7 +210,8 @@ impl QueryRequest {
 
     /// The checks of a request with `positions`.
     fn check_positions(&self) -> Result<()> {
-        self.light.refuse_extent("positions")?;
+        // The keys of a light with extent apply to the stage light (resolved per frame).
+        self.light.check_extent()?;
         if !self.source.kind().is_stage() {
             return Err(Error::InvalidArgument {
                 name: "positions".into(),
@@ -233,6 +244,9 @@ impl QueryRequest {
 }
 
 /// What a request without `positions` asks, once checked.
+// A light with extent (an area light's frame) makes `Toward` large; the value lives for one
+// query, copied a few times.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum Asked {
     /// A segment.
@@ -244,6 +258,7 @@ pub(crate) enum Asked {
 }
 
 /// The light a shading point is answered toward.
+#[allow(clippy::large_enum_variant)]
 #[derive(Debug, Clone, Copy)]
 pub(crate) enum AskedLight {
     /// A light given by its direction or position.

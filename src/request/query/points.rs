@@ -1,6 +1,7 @@
 //! A `positions` request: every point of a stage's `Points` prim or `PointInstancer` toward
-//! the stage light, frame by frame ([`crate::points::point_transmittance`]), and with
-//! `usd_out` the `.usda` layer that time-samples the answers as a primvar on the prim.
+//! the stage light (with `light-angle` or `light-radius`, that light with extent), frame by
+//! frame ([`crate::points::point_transmittance`]), and with `usd_out` the `.usda` layer that
+//! time-samples the answers as a primvar on the prim.
 
 use super::run::{PointsOutcome, QueryError, QueryStep};
 use super::QueryRequest;
@@ -36,6 +37,7 @@ impl QueryRequest {
             prim,
             light: self.source.options().light.as_deref(),
             frames: &frames,
+            extent: &self.light,
         };
         let answers = pool
             .install(|| crate::points::point_transmittance(&q, &self.source, &est, &opts, on_frame))

@@ -10,7 +10,6 @@ use crate::bake::Warning;
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
 use crate::input::Source;
-use crate::light::SoftLight;
 use crate::points::PointAnswers;
 use crate::scene::{Scene, SceneEstimate};
 use crate::{Interp, Light, Ray};
@@ -219,9 +218,18 @@ impl QueryRequest {
                 let shot = crate::usd::lights_at(self.source.path(), self.source.options().frame)
                     .map_err(at(QueryStep::Ray))?;
                 let (l, e) = shot.light(named.as_deref()).map_err(at(QueryStep::Ray))?;
-                let samples = crate::light::extent::samples(self.light.light_samples)
-                    .map_err(at(QueryStep::Check))?;
-                let soft = SoftLight::of_emitter(e, samples).map_err(at(QueryStep::Ray))?;
+                // The flags' extent over the stage's (`light-angle`, `light-radius`), else the
+                // stage light's own.
+                let soft = self.light.soft_of_stage(e).map_err(|err| {
+                    // An option's error is respelled; the stage's as the library says it.
+                    let flag = matches!(&err, Error::InvalidArgument { name, .. }
+                        if name.starts_with("light-"));
+                    at(if flag {
+                        QueryStep::Check
+                    } else {
+                        QueryStep::Ray
+                    })(err)
+                })?;
                 let asked = match (asked, soft) {
                     (Asked::Toward { at, .. }, Some(s)) => Asked::Toward {
                         at,
@@ -498,26 +506,24 @@ fn answer_one(
     Answer { line: None, result }
 }
 
-/// A receiver toward a light with extent: every direction through the batch entry point, then
-/// their mean and the replicates' error bar ([`crate::light::extent::SoftRays::combine`]); a direction
-/// whose estimate fails is the answer's error.
+/// A receiver toward a light with extent ([`crate::light::extent::SoftRays::answer`]: every
+/// direction through the batch entry point, then their mean and the replicates' error bar); a
+/// direction whose estimate fails is the answer's error.
 fn answer_soft(
     scene: &Scene,
     soft: &crate::light::extent::SoftRays,
     (est, opts): (&Estimator, &Options),
 ) -> Answer {
     let start = std::time::Instant::now();
-    let per: std::result::Result<Vec<SceneEstimate>, String> =
-        crate::scene::estimate_many(scene, &soft.rays, &soft.ids, est, opts)
-            .into_iter()
-            .map(|r| r.map_err(|e| e.to_string()))
-            .collect();
-    let result = per.map(|per| Answered {
-        ray: soft.centre,
-        estimate: soft.combine(scene.channels(), &per),
-        seconds: start.elapsed().as_secs_f64(),
-        light_samples: Some(per.len()),
-    });
+    let result = soft
+        .answer(scene, est, opts)
+        .map(|a| Answered {
+            ray: a.centre,
+            estimate: a.estimate,
+            seconds: start.elapsed().as_secs_f64(),
+            light_samples: Some(a.light_samples),
+        })
+        .map_err(|e| e.to_string());
     Answer { line: None, result }
 }
 

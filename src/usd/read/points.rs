@@ -101,12 +101,19 @@ fn transform(m: &Matrix4d, p: [f64; 3]) -> [f64; 3] {
 /// A `.usda` layer that, over `prim`, time-samples `float[]
 /// primvars:umbra:transmittance:<light_name>` (interpolation `vertex`) with one array per
 /// frame: `samples` are `(time code, values)`. Sublayered over the shot, each point carries the
-/// fraction of the light that reaches it.
+/// fraction of the light that reaches it. With `errors` (toward a light with extent), `float[]
+/// primvars:umbra:transmittance_std_err:<light_name>` beside it holds each answer's error bar,
+/// time-sampled the same way.
 ///
 /// # Errors
 /// [`Error::InvalidArgument`] (name `usd-out`) when `prim` is not a valid prim path or the
 /// layer cannot be authored.
-pub fn points_layer(prim: &str, light_name: &str, samples: &[(f64, Vec<f32>)]) -> Result<String> {
+pub fn points_layer(
+    prim: &str,
+    light_name: &str,
+    samples: &[(f64, Vec<f32>)],
+    errors: Option<&[(f64, Vec<f32>)]>,
+) -> Result<String> {
     let bad = |reason: String| Error::InvalidArgument {
         name: "usd-out".into(),
         reason,
@@ -117,17 +124,24 @@ pub fn points_layer(prim: &str, light_name: &str, samples: &[(f64, Vec<f32>)]) -
     stage
         .override_prim(prim)
         .map_err(|e| bad(format!("{prim}: {e}")))?;
-    let name = format!("{prim}.primvars:umbra:transmittance:{light_name}");
-    let mut attr = stage
-        .create_attribute(name.as_str(), "float[]")
-        .map_err(|e| bad(format!("{name}: {e}")))?;
-    attr = attr
-        .set_metadata("interpolation", Value::Token("vertex".into()))
-        .map_err(|e| bad(format!("{name}: {e}")))?;
-    for (t, values) in samples {
-        attr = attr
-            .set_at(Value::FloatVec(values.clone()), TimeCode::new(*t))
+    let primvars = [
+        ("transmittance", Some(samples)),
+        ("transmittance_std_err", errors),
+    ];
+    for (what, arrays) in primvars {
+        let Some(arrays) = arrays else { continue };
+        let name = format!("{prim}.primvars:umbra:{what}:{light_name}");
+        let mut attr = stage
+            .create_attribute(name.as_str(), "float[]")
             .map_err(|e| bad(format!("{name}: {e}")))?;
+        attr = attr
+            .set_metadata("interpolation", Value::Token("vertex".into()))
+            .map_err(|e| bad(format!("{name}: {e}")))?;
+        for (t, values) in arrays {
+            attr = attr
+                .set_at(Value::FloatVec(values.clone()), TimeCode::new(*t))
+                .map_err(|e| bad(format!("{name}: {e}")))?;
+        }
     }
     let text = stage
         .root_layer()
