@@ -123,6 +123,14 @@ def test_usd_points_toward_a_stage_light_with_extent(cli, tmp_path):
 
     stage = tmp_path / "shot.usdc"
     _with_points(stage)
+    # test_usd's shot authors point lights; here they keep their schema fallbacks (a sun 0.53
+    # degrees across, a sphere of radius 0.5).
+    from pxr import Usd as _Usd
+
+    st = _Usd.Stage.Open(str(stage))
+    st.GetPrimAtPath("/Lights/sun").GetAttribute("inputs:angle").Clear()
+    st.GetPrimAtPath("/Lights/lamp").GetAttribute("treatAsPoint").Clear()
+    st.Save()
     prim = "/World/forest/trees"
     for light, kw, flag in [("sun", {"light_angle": 4.0}, "--light-angle=4"),
                             ("lamp", {"light_radius": 5.0}, "--light-radius=5")]:

@@ -56,10 +56,14 @@ def _stage(path, *, frames=(1, 2), animated_file=True, up="Z", lights=True):
     if lights:
         UsdGeom.Xform.Define(st, "/Lights").AddTranslateOp().Set(Gf.Vec3d(0, 1, 0))
         sun = UsdLux.DistantLight.Define(st, "/Lights/sun")
+        # Point lights (angle 0, treatAsPoint): these tests compare stage answers with
+        # --light-dir / --light-pos ones; lights with extent: test_lights_usd.py.
+        sun.CreateAngleAttr(0.0)
         so = UsdGeom.Xformable(sun).AddRotateXYZOp()
         for i, f in enumerate(frames):
             so.Set(Gf.Vec3f(-60 + 10 * i, 10, 0), f)
         lamp = UsdLux.SphereLight.Define(st, "/Lights/lamp")
+        lamp.CreateTreatAsPointAttr(True)
         UsdGeom.Xformable(lamp).AddTranslateOp().Set(Gf.Vec3d(2, 40, -3))
     st.Save()
     return st
@@ -273,9 +277,11 @@ def test_a_two_volume_stage_is_the_same_scene_file(cli, tmp_path):
 
 
 def test_a_query_toward_a_sphere_light_is_the_explicit_query(cli, tmp_path):
-    # The lamp's inputs:radius is unauthored: its schema fallback, 0.5, applies (a sphere
-    # light, as renderers draw it); treatAsPoint makes it the point light.
+    # The lamp's inputs:radius is unauthored: without treatAsPoint its schema fallback, 0.5,
+    # applies (a sphere light, as renderers draw it); treatAsPoint makes it the point light.
     st = _stage(tmp_path / "shot.usdc")
+    UsdLux.SphereLight(st.GetPrimAtPath("/Lights/lamp")).GetTreatAsPointAttr().Set(False)
+    st.Save()
     at = "1.4,2.6,3.2"
     for t in (1, 2):
         vdb = st.GetPrimAtPath("/World/cloud/density").GetAttribute("filePath").Get(t).resolvedPath
@@ -412,10 +418,9 @@ def test_python_reads_the_stage_as_the_cli_does(cli, tmp_path):
     got = umbra.usd_lights(tmp_path / "shot.usdc", time=2)
     assert got["time"] == 2 and got["up"] == [0, 0, 1]
     by = {l["name"]: l for l in got["lights"]}
-    assert by["sun"]["kind"] == "directional" and by["lamp"]["kind"] == "sphere"
-    # The schema fallbacks, as renderers apply them: the sun 0.53 degrees across, the lamp 0.5.
-    # (The schema's float fallbacks, widened: 0.53 as a float.)
-    assert by["sun"]["angle"] == pytest.approx(0.53, abs=1e-7) and by["lamp"]["radius"] == 0.5
+    # The shot's lights are points (angle 0, treatAsPoint); the fallbacks: test_lights_usd.py.
+    assert by["sun"]["kind"] == "directional" and by["lamp"]["kind"] == "point"
+    assert by["sun"]["angle"] == 0
     want = [float(c) for c in _sun(st, "/Lights/sun", 2).split(",")]
     assert by["sun"]["dir"] == pytest.approx(want, abs=1e-12)
     assert by["lamp"]["pos"] == pytest.approx(

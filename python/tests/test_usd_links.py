@@ -35,6 +35,7 @@ def _linked(tmp_path, name="shot.usdc"):
     st = _stage(stage)
     _volume(st, "/World/puff", "./cloud.0001.vdb", (3, 0, 0))
     key = UsdLux.DistantLight.Define(st, "/Lights/key")
+    key.CreateAngleAttr(0.0)  # a point sun, as test_usd's (extents: test_lights_usd.py)
     UsdGeom.Xformable(key).AddRotateXYZOp().Set(Gf.Vec3f(-50, 20, 0))
     Usd.CollectionAPI(key.GetPrim(), "shadowLink").GetExcludesRel().AddTarget("/World/puff")
     sun = Usd.CollectionAPI(st.GetPrimAtPath("/Lights/sun"), "shadowLink")

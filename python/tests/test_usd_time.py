@@ -68,6 +68,7 @@ def _issue_stage(path):
     a.GetFieldNameAttr().Set("density")
     v.CreateFieldRelationship("density", a.GetPath())
     sun = UsdLux.DistantLight.Define(st, "/World/sun")
+    sun.CreateAngleAttr(0.0)  # a point sun (extents: test_lights_usd.py)
     so = UsdGeom.Xformable(sun).AddRotateXOp()
     so.Set(-90.0, 1)
     so.Set(-30.0, 2)
@@ -160,6 +161,7 @@ def _op_stage(path, name, add, a, b):
     f.GetFieldNameAttr().Set("density")
     v.CreateFieldRelationship("density", f.GetPath())
     sun = UsdLux.DistantLight.Define(st, "/World/sun")
+    sun.CreateAngleAttr(0.0)  # a point sun (extents: test_lights_usd.py)
     UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-70, 20, 0))
     st.Save()
     return st
@@ -228,6 +230,7 @@ def test_layer_offsets_and_scales_on_references_and_sublayers(cli, tmp_path):
     fx.Save()
     lights = Usd.Stage.CreateNew(str(tmp_path / "lights.usda"))
     sun = UsdLux.DistantLight.Define(lights, "/World/sun")
+    sun.CreateAngleAttr(0.0)  # a point sun (extents: test_lights_usd.py)
     so = UsdGeom.Xformable(sun).AddRotateXOp()
     so.Set(-90.0, 1)
     so.Set(-30.0, 2)
@@ -282,6 +285,7 @@ def _clip_stage(tmp_path, *, manifest=True):
         clipsapi.GenerateClipManifest().Export(str(tmp_path / "manifest.usda"))
         clipsapi.SetClipManifestAssetPath(Sdf.AssetPath("./manifest.usda"))
     sun = UsdLux.DistantLight.Define(st, "/World/sun")
+    sun.CreateAngleAttr(0.0)  # a point sun (extents: test_lights_usd.py)
     UsdGeom.Xformable(sun).AddRotateXYZOp().Set(Gf.Vec3f(-70, 20, 0))
     st.Save()
     return Usd.Stage.Open(str(tmp_path / "shot.usda"))
@@ -349,7 +353,7 @@ def test_visibility_is_usds_at_the_time(cli, tmp_path):
     vis.Set("invisible", 2)
     UsdGeom.Imageable(UsdGeom.Xform.Define(st, "/World/hidden")).CreateVisibilityAttr().Set(
         "invisible")
-    UsdLux.DistantLight.Define(st, "/World/sun")
+    UsdLux.DistantLight.Define(st, "/World/sun").CreateAngleAttr(0.0)  # a point sun
     st.Save()
     for t in (1, 1.5, 2):
         want = [p for p in ("/Group/steady", "/World/blinks", "/World/hidden/cloud")
