@@ -84,9 +84,10 @@ impl std::fmt::Display for Extent {
                 Shape::Rect { width, height } => {
                     write!(f, "rect {} x {}", n(width), n(height))
                 }
-                Shape::Cylinder { radius, length } if radius == 0.0 => {
-                    write!(f, "line of length {}", n(length))
-                }
+                Shape::Cylinder {
+                    radius: 0.0,
+                    length,
+                } => write!(f, "line of length {}", n(length)),
                 Shape::Cylinder { radius, length } => write!(
                     f,
                     "cylinder of radius {} and length {}",

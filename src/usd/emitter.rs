@@ -81,6 +81,7 @@ pub enum Emitter {
 }
 
 /// The schema fallback of `inputs:angle` (degrees): the sun's angular diameter.
+#[cfg(feature = "usd")]
 pub const DISTANT_ANGLE: f64 = 0.53;
 
 impl Emitter {
