@@ -380,9 +380,15 @@ fn bad_values_are_refused_by_name() {
         };
         assert_eq!(name(plan_error(o, "m.exr")), "receiver-depth");
     }
-    // A transmittance volume still traces the light as a point.
+    // A transmittance volume takes a light with extent, and refuses a bad one by name.
     assert_eq!(
-        name(plan_error(options(sun(4.0), 8), "t.vdb")),
+        name(plan_error(
+            BakeOptions {
+                light: sun(200.0),
+                ..BakeOptions::default()
+            },
+            "t.vdb"
+        )),
         "light-angle"
     );
     // A deep map stores T_L as it is: no fit, so no deep-error.
