@@ -150,14 +150,6 @@ impl Area {
         }
     }
 
-    /// Whether `x` is inside the sphere (it then sees the whole inner surface).
-    fn inside(&self, x: DVec3) -> bool {
-        match self.shape {
-            Shape::Ellipsoid { radius } => (self.inverse * (x - self.centre)).length() <= radius,
-            _ => false,
-        }
-    }
-
     /// The point of the lattice point `(u, v)` in `[0, 1)^2` and its weight seen from `x`
     /// (module docs): 0 for a point of the back side. A cylinder's and a sphere's lattice covers
     /// only the part `x` can see: a point `q` of either faces `x` when `n . (q_x - q) > 0`, `q_x`
@@ -168,6 +160,7 @@ impl Area {
     #[must_use]
     pub fn point(&self, x: DVec3, u: f64, v: f64) -> (DVec3, f64) {
         let qx = self.inverse * (x - self.centre);
+        let mut inside = false;
         let (q, n) = match self.shape {
             Shape::Disk { radius } => {
                 let r = radius * u.sqrt();
@@ -193,7 +186,9 @@ impl Area {
             }
             Shape::Ellipsoid { radius } => {
                 let l = qx.length();
-                // Outside: the visible cap about q_x; inside: the whole sphere.
+                // Outside: the visible cap about q_x; inside: the whole sphere, whose inner
+                // surface the receiver sees.
+                inside = l <= radius;
                 let (axis, lowest) = if l > radius {
                     (qx / l, radius / l)
                 } else {
@@ -219,7 +214,7 @@ impl Area {
             }
             _ => {
                 let cos = (self.normals * n).dot(to);
-                let cos = if self.inside(x) { cos.abs() } else { cos };
+                let cos = if inside { cos.abs() } else { cos };
                 cos.max(0.0) / (d * d * d)
             }
         };
