@@ -47,13 +47,7 @@ pub fn soft_transmittance_leaves(
     threads: usize,
     progress: &dyn crate::progress::Progress,
 ) -> Result<(Vec<LeafOut>, VolumeStats)> {
-    opts.validate()?;
-    if vol.motion().is_some() && *est == Estimator::REGULAR {
-        return Err(crate::error::Error::InvalidArgument {
-            name: "estimator".into(),
-            reason: crate::estimate::blur::REGULAR_REFUSED.into(),
-        });
-    }
+    super::transmittance_volume::check_estimator(vol, est, opts)?;
     let start = std::time::Instant::now();
     let (mut leaves, tile_leaves) = output_blocks(vol)?;
     // The scene the receivers are answered in: this volume alone (sigma 1), as a query reads

@@ -283,6 +283,22 @@ pub fn light_step(vol: &Volume, light: &Light) -> Option<[i64; 3]> {
     })
 }
 
+/// The estimator's options checked, and regular tracking refused on a moving volume (its exact
+/// paths read the still grid): what every transmittance volume checks first.
+///
+/// # Errors
+/// The options' errors; [`Error::InvalidArgument`] naming `estimator`.
+pub(crate) fn check_estimator(vol: &Volume, est: &Estimator, opts: &Options) -> Result<()> {
+    opts.validate()?;
+    if vol.motion().is_some() && *est == Estimator::REGULAR {
+        return Err(crate::error::Error::InvalidArgument {
+            name: "estimator".into(),
+            reason: crate::estimate::blur::REGULAR_REFUSED.into(),
+        });
+    }
+    Ok(())
+}
+
 /// Transmittance toward `light` at every output voxel of `vol` (module docs): the leaves to
 /// write and what they cost. `progress` gets finished voxel counts.
 ///
@@ -297,14 +313,8 @@ pub fn transmittance_leaves(
     threads: usize,
     progress: &dyn crate::progress::Progress,
 ) -> Result<(Vec<LeafOut>, VolumeStats)> {
-    opts.validate()?;
-    if vol.motion().is_some() && *est == Estimator::REGULAR {
-        // The exact paths below read the still grid.
-        return Err(crate::error::Error::InvalidArgument {
-            name: "estimator".into(),
-            reason: crate::estimate::blur::REGULAR_REFUSED.into(),
-        });
-    }
+    // The exact paths below read the still grid.
+    check_estimator(vol, est, opts)?;
     let start = std::time::Instant::now();
     let (mut leaves, tile_leaves) = output_blocks(vol)?;
     let step = light_step(vol, light).filter(|_| *est == Estimator::REGULAR);
