@@ -42,14 +42,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_args import parse  # noqa: E402
-
-
-def vec(s):
-    v = np.array([float(x) for x in s.split(",")])
-    if v.shape != (3,):
-        sys.exit(f"expected x,y,z: {s}")
-    return v
+from bench_args import parse, vec  # noqa: E402
 
 
 def main():

@@ -29,30 +29,14 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from bench_args import parse  # noqa: E402
-
-
-def vec(s):
-    v = np.array([float(x) for x in s.split(",")])
-    if v.shape != (3,):
-        sys.exit(f"expected x,y,z: {s}")
-    return v
+from bench_args import ortho_view, parse  # noqa: E402
 
 
 def main():
     path, out, opt = parse(sys.argv[1:], "usage: warp_march.py FILE.nvdb OUT.exr [options]")
-    scale = float(opt.get("scale", "1"))
-    d = vec(opt.get("dir", "0,0,-1"))
-    d /= np.linalg.norm(d)
-    center = vec(opt.get("center", "0,0,0"))
-    up = vec(opt.get("up", "0,1,0"))
-    frame = float(opt.get("frame", "1"))
-    w, h = (int(x) for x in opt.get("res", "512x512").split("x"))
+    scale, d, center, u, r, frame, w, h = ortho_view(opt)
     step = float(opt.get("step", "0.5"))
     reps = int(opt.get("reps", "3"))
-    u = up - up.dot(d) * d
-    u /= np.linalg.norm(u)
-    r = np.cross(d, u)
 
     t_load = time.perf_counter()
     import warp as wp
