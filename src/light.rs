@@ -9,7 +9,7 @@ pub mod extent;
 mod receivers;
 pub use area::{Area, Shape};
 pub use extent::{Extent, SoftLight};
-pub use receivers::{SoftAnswer, RAYS_PER_BATCH};
+pub use receivers::{answer_each, SoftAnswer, RAYS_PER_BATCH};
 
 /// The light a job names by position or direction (a USD stage's own lights are read from the
 /// stage, `light` of the read options): the one declaration of the light keys, flattened into
@@ -268,21 +268,9 @@ impl Light {
     /// As [`Light::ray_from`].
     pub fn ray_from_scene(&self, scene: &crate::scene::Scene, at: [f64; 3]) -> Result<Ray> {
         self.ray_from_boxes(at, |back| {
-            let p = glam::DVec3::from_array(at);
-            let fogs = scene.fogs().iter().map(|f| {
-                let vol = f.volume();
-                vol.box_index()
-                    .and_then(|(lo, hi)| clip_box(vol.to_index(p), vol.to_index_dir(back), lo, hi))
-                    .map_or(0.0, |(_, t1)| t1.max(0.0))
-            });
-            let solids = scene.solids().iter().map(|s| {
-                s.box_corners().ok().map_or(0.0, |c| {
-                    let lo = c.iter().fold(glam::DVec3::INFINITY, |a, b| a.min(*b));
-                    let hi = c.iter().fold(glam::DVec3::NEG_INFINITY, |a, b| a.max(*b));
-                    clip_box(p, back, lo, hi).map_or(0.0, |(_, t1)| t1.max(0.0))
-                })
-            });
-            fogs.chain(solids).fold(0.0, f64::max)
+            scene
+                .box_exit(glam::DVec3::from_array(at), back)
+                .unwrap_or(0.0)
         })
     }
 

@@ -104,18 +104,10 @@ impl SoftLight {
                 .enumerate()
                 .map(|(k, at)| self.rays(scene, *at, opts.seed, first.wrapping_add(k as u64)))
                 .collect();
-            let (mut rays, mut ids) = (Vec::new(), Vec::new());
-            for s in made.iter().flatten() {
-                rays.extend_from_slice(&s.rays);
-                ids.extend_from_slice(&s.ids);
-            }
-            let mut per = crate::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
-            for m in made {
-                out.push(m.and_then(|s| {
-                    let mine: Vec<Result<SceneEstimate>> =
-                        per.by_ref().take(s.rays.len()).collect();
-                    combined(scene, &s, mine)
-                }));
+            let refs: Vec<Option<&SoftRays>> = made.iter().map(|m| m.as_ref().ok()).collect();
+            let answers = answer_each(scene, &refs, est, opts);
+            for (m, a) in made.into_iter().zip(answers) {
+                out.push(m.and_then(|_| a.unwrap_or_else(|| Err(missing()))));
             }
         }
         out
@@ -131,6 +123,41 @@ impl SoftRays {
     pub fn answer(&self, scene: &Scene, est: &Estimator, opts: &Options) -> Result<SoftAnswer> {
         let per = crate::scene::estimate_many(scene, &self.rays, &self.ids, est, opts);
         combined(scene, self, per)
+    }
+}
+
+/// The receivers `made` (`None`: a receiver not sampled) answered together: every
+/// receiver's directions through one [`crate::scene::estimate_many`] call (exact queries in
+/// batches on the SIMD kernel), then each receiver's mean and error bar, in order (`None` for
+/// `None`). What [`SoftLight::answer_many`] and a soft map's blocks of receivers both run.
+#[must_use]
+pub fn answer_each(
+    scene: &Scene,
+    made: &[Option<&SoftRays>],
+    est: &Estimator,
+    opts: &Options,
+) -> Vec<Option<Result<SoftAnswer>>> {
+    let (rays, ids): (Vec<Ray>, Vec<u64>) = made
+        .iter()
+        .flatten()
+        .flat_map(|s| s.rays.iter().copied().zip(s.ids.iter().copied()))
+        .unzip();
+    let mut per = crate::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
+    made.iter()
+        .map(|m| {
+            m.map(|s| {
+                let mine: Vec<Result<SceneEstimate>> = per.by_ref().take(s.rays.len()).collect();
+                combined(scene, s, mine)
+            })
+        })
+        .collect()
+}
+
+/// The error of a receiver that got no answer (the batch returned fewer than it was given).
+fn missing() -> Error {
+    Error::InvalidArgument {
+        name: "ids".into(),
+        reason: "a receiver's directions got no answer".into(),
     }
 }
 

@@ -158,6 +158,28 @@ impl Scene {
         &self.solids
     }
 
+    /// Where the ray from `p` along `d` (world units) last leaves a box of the scene: the
+    /// largest exit `t >= 0` over every fog volume's index box and every solid's world
+    /// bounding box; `None` when it leaves none ahead of `p`. What a directional light's ray
+    /// and a soft map's default receiver end at.
+    #[must_use]
+    pub fn box_exit(&self, p: DVec3, d: DVec3) -> Option<f64> {
+        let fogs = self.fogs.iter().filter_map(|f| {
+            let v = f.volume();
+            let (lo, hi) = v.box_index()?;
+            crate::ray::clip_box(v.to_index(p), v.to_index_dir(d), lo, hi).map(|(_, t1)| t1)
+        });
+        let solids = self.solids.iter().filter_map(|s| {
+            let c = s.box_corners().ok()?;
+            let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
+            let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
+            crate::ray::clip_box(p, d, lo, hi).map(|(_, t1)| t1)
+        });
+        fogs.chain(solids)
+            .filter(|t| *t >= 0.0)
+            .fold(None, |a: Option<f64>, t| Some(a.map_or(t, |a| a.max(t))))
+    }
+
     /// 1 (grey) or 3 (R, G, B).
     #[must_use]
     pub fn channels(&self) -> usize {

@@ -25,9 +25,8 @@ use crate::bake::map::{
 };
 use crate::error::Result;
 use crate::light::extent::SoftRays;
-use crate::ray::{clip_box, Ray};
+use crate::ray::Ray;
 use crate::scene::{Scene, SceneEstimate};
-use glam::DVec3;
 use rayon::prelude::*;
 
 /// Receivers answered per batch of rays, one batch per worker at a time: enough rays for the
@@ -95,22 +94,9 @@ fn receiver_t(scene: &Scene, ray: &Ray, receiver: Receiver, depths: &[f64], k: u
 
 /// Where `ray` leaves the last box (fog volumes: their index boxes; solids: the world box of
 /// their corners) it crosses; its end when it meets none.
-pub(crate) fn box_exit(scene: &Scene, ray: &Ray) -> f64 {
-    let (o, d) = (ray.origin(), ray.direction());
-    let fogs = scene.fogs().iter().filter_map(|f| {
-        let v = f.volume();
-        let (lo, hi) = v.box_index()?;
-        clip_box(v.to_index(o), v.to_index_dir(d), lo, hi).map(|(_, t1)| t1)
-    });
-    let solids = scene.solids().iter().filter_map(|s| {
-        let c = s.box_corners().ok()?;
-        let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
-        let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
-        clip_box(o, d, lo, hi).map(|(_, t1)| t1)
-    });
-    fogs.chain(solids)
-        .filter(|t| *t >= 0.0)
-        .fold(None, |a: Option<f64>, t| Some(a.map_or(t, |a| a.max(t))))
+fn box_exit(scene: &Scene, ray: &Ray) -> f64 {
+    scene
+        .box_exit(ray.origin(), ray.direction())
         .unwrap_or(ray.t_max())
 }
 
@@ -177,23 +163,15 @@ fn answer_block(
     made: &[Option<SoftRays>],
     (est, opts): (&crate::estimate::Estimator, &crate::estimate::Options),
 ) -> Result<Vec<Answer>> {
-    let (rays, ids): (Vec<Ray>, Vec<u64>) = made
-        .iter()
-        .flatten()
-        .flat_map(|s| s.rays.iter().copied().zip(s.ids.iter().copied()))
-        .unzip();
-    let mut per = crate::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
-    made.iter()
-        .map(|s| {
-            Ok(match s {
-                Some(s) => {
-                    let mine: Vec<SceneEstimate> =
-                        per.by_ref().take(s.rays.len()).collect::<Result<_>>()?;
-                    Answer {
-                        estimate: s.combine(scene.channels(), &mine),
-                        sampled: true,
-                    }
-                }
+    let refs: Vec<Option<&SoftRays>> = made.iter().map(Option::as_ref).collect();
+    crate::light::answer_each(scene, &refs, est, opts)
+        .into_iter()
+        .map(|a| {
+            Ok(match a {
+                Some(a) => Answer {
+                    estimate: a?.estimate,
+                    sampled: true,
+                },
                 None => Answer {
                     estimate: unsampled(scene.channels()),
                     sampled: false,
@@ -203,7 +181,6 @@ fn answer_block(
         .collect()
 }
 
-/// A receiver whose every direction provably meets no density: `T = 1` exactly.
 fn unsampled(channels: usize) -> SceneEstimate {
     let mut e = SceneEstimate::exact(channels, [0.0; 3], 0, 0);
     e.tau = None;
