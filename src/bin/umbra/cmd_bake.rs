@@ -211,7 +211,7 @@ fn map_text(
     if let (Some(soft), Some([sampled, receivers])) = (&s.soft, st.light_sampled) {
         writeln!(
             out,
-            "light with extent {:?}: {} directions per receiver at the {}; {sampled} of \
+            "light with extent ({}): {} directions per receiver at the {}; {sampled} of \
              {receivers} receivers sampled ({:.1}%), largest std_err {:.2e}",
             soft.light.extent,
             soft.light.samples,
