@@ -202,6 +202,10 @@ if [ "${WARP:-1}" = 1 ]; then
         entry "warp_$step" "Warp CPU march step $step (kernel time, 1 thread)" "wp.Volume volume_sample_f LINEAR, no empty-space skipping" \
             "$OUT/warp_$step.exr:T" "$REF" \
             "$WARP_VENV/bin/python" bench/warp_march.py "$NVDB" "$OUT/warp_$step.exr" "${VIEW[@]}" --step "$step" --reps 1
+        # umbra on Warp's input: the same .nvdb, view and step (its whole process is the wall time).
+        entry "umbra_riemann_nvdb_$step" "umbra riemann step $step, the .nvdb" "the Warp row's file, view and step; object-order sweep" \
+            "$OUT/umbra_riemann_nvdb_$step.exr:T" "$REF" \
+            "$UMBRA" "$NVDB" "${VIEW[@]}" --threads "$THREADS" --estimator riemann --step "$step" --out "$OUT/umbra_riemann_nvdb_$step.exr"
     done
 fi
 

@@ -87,6 +87,22 @@ pub fn sig3(v: f64) -> String {
 }
 
 /// The 8 corners of the box `[lo, hi]`, corner `n` taking `hi` on axis `a` when bit `2 - a`
+/// The axis-aligned box `[a, b]` holding the image of the box `[lo, hi]` under the affine
+/// `map`: the smallest and largest of its 8 corners' images per axis (an affine map takes a box
+/// to a parallelepiped whose extremes are at corners).
+#[must_use]
+pub fn mapped_box(
+    map: &glam::DAffine3,
+    lo: glam::DVec3,
+    hi: glam::DVec3,
+) -> (glam::DVec3, glam::DVec3) {
+    let inf = glam::DVec3::splat(f64::INFINITY);
+    box_corners([lo.to_array(), hi.to_array()])
+        .iter()
+        .map(|&c| map.transform_point3(c))
+        .fold((inf, -inf), |(a, b), w| (a.min(w), b.max(w)))
+}
+
 /// of `n` is set (the order of [`crate::Volume::box_corners`]).
 #[must_use]
 pub fn box_corners([lo, hi]: [[f64; 3]; 2]) -> [glam::DVec3; 8] {

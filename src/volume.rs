@@ -454,6 +454,53 @@ impl Volume {
         Ok(self)
     }
 
+    /// [`Volume::with_motion`] for a volume decoded a part at a time: `self` is its shell (its
+    /// topology, [`crate::vdb::LazyGrid::shell`]) and `leaf_range[i]` the `(max, min)` of leaf
+    /// `i`'s values as a whole load bounds them ([`crate::motion::Motion::from_summary`]). The
+    /// parts then share this motion ([`Volume::with_motion_of`]).
+    ///
+    /// # Errors
+    /// As [`crate::motion::Motion::from_summary`].
+    pub fn with_summarised_motion(
+        mut self,
+        spec: crate::motion::MotionSpec,
+        field: crate::motion::VelocityField,
+        leaf_range: &[(f32, f32)],
+    ) -> Result<Self> {
+        let field = match &self.xform {
+            Some(x) => field.placed(x),
+            None => field,
+        };
+        let m = crate::motion::Motion::from_summary(
+            spec,
+            field,
+            &self.tree,
+            leaf_range,
+            self.index_from_world,
+        )?;
+        self.motion = Some(std::sync::Arc::new(m));
+        Ok(self)
+    }
+
+    /// This volume (a part of the grid `whole` was made from, with the same placement) moving
+    /// as `whole` moves: the one motion shared, not rebuilt from the part's leaves.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] (name `velocity`) when the two are not placed alike.
+    pub fn with_motion_of(mut self, whole: &Volume) -> Result<Self> {
+        if self.index_from_world != whole.index_from_world {
+            return Err(Error::InvalidArgument {
+                name: "velocity".into(),
+                reason: format!(
+                    "a part of grid '{}' is placed unlike the grid it shares the motion of",
+                    self.name
+                ),
+            });
+        }
+        self.motion.clone_from(&whole.motion);
+        Ok(self)
+    }
+
     /// The motion set by [`Volume::with_motion`], if any (a still one included).
     #[must_use]
     pub fn motion(&self) -> Option<&crate::motion::Motion> {

@@ -184,7 +184,8 @@ fn main() {
 
     let rss_start = peak_rss();
     let t = Instant::now();
-    let mut g = umbra::internals::vdb::load_grid(&file, &grid).unwrap();
+    // A .vdb or a NanoVDB .nvdb (the Warp rows of peer.sh run on the .nvdb).
+    let mut g = umbra::input::load_grid(&file, &grid).unwrap();
     // `--index-offset 0.5`: voxel (i, j, k) sits at index (i, j, k) + offset (Cycles' convention).
     let offset: f64 = get("index-offset", "0").parse().unwrap();
     if offset != 0.0 {

@@ -204,6 +204,18 @@ impl BakeSettings {
     }
 }
 
+/// The larger of two standard errors, unknown (`NaN`) when either is: a map in which some
+/// pixel's error bar is unknown (a blurred march over one shutter time) has an unknown largest
+/// error bar (`null` in `--json`), never the largest of the known ones.
+#[must_use]
+pub(crate) fn worse_std_err(a: f64, b: f64) -> f64 {
+    if a.is_nan() || b.is_nan() {
+        f64::NAN
+    } else {
+        a.max(b)
+    }
+}
+
 /// What a bake cost.
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct BakeStats {
@@ -219,7 +231,8 @@ pub struct BakeStats {
     pub majorant_violations: u64,
     /// Pixels whose error bound is still above the target (adaptive sampling hit the cap).
     pub unconverged: u64,
-    /// Largest per-pixel standard error.
+    /// Largest per-pixel standard error; `NaN` (unknown) when any pixel's is
+    /// ([`worse_std_err`]).
     pub max_std_err: f64,
     /// Wall time of the render, seconds.
     pub seconds: f64,

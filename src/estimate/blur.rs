@@ -11,8 +11,11 @@
 //!   index `i K + k`, each time marched as the still estimator marches it. For the
 //!   deterministic `riemann` the `K` times are the samples the error bar is made of.
 //! - every other estimator (null collisions, power series): sample `i` draws its own time
-//!   uniformly from its stream, then walks the segments at that time: the mean over samples
-//!   is unbiased for the shutter mean whenever the estimator is unbiased for one time.
+//!   uniformly from its stream, then walks the segments of that time's interval of the shutter
+//!   ([`crate::motion::IntervalBounds`]: bounds that hold over the interval only, much tighter
+//!   than the whole shutter's; the ray is cut under an interval's bounds when a sample first
+//!   lands in it): the mean over samples is unbiased for the shutter mean whenever the
+//!   estimator is unbiased for one time.
 //!
 //! Segments with an infinite majorant (opaque voxels nearby) are integrated at each sample's
 //! time by a fine midpoint march ([`BlurredMedium::exact`], quarter-voxel steps): there is no
@@ -67,12 +70,15 @@ pub struct BlurredMedium<'v> {
     /// World displacement per unit of velocity at the current time, `S t / F`.
     k: f64,
     lookups: u64,
+    /// The ray in lookup space (`q + d t`): marchers cut their spans at its `8^3` blocks.
+    lattice: ([f64; 3], [f64; 3]),
 }
 
 impl<'v> BlurredMedium<'v> {
     /// The medium of `vol` (moving as `m` says) along `ray`, at the shutter time 0.
     #[must_use]
     pub fn new(vol: &'v Volume, m: &'v Motion, ray: &Ray, interp: Interp) -> Self {
+        let lattice = crate::traverse::lookup_ray(vol, ray, interp);
         Self {
             density: Accessor::new(vol.tree()),
             velocity: m.field().lookup(),
@@ -85,6 +91,7 @@ impl<'v> BlurredMedium<'v> {
             voxels_per_world: vol.to_index_dir(ray.direction()).length(),
             k: 0.0,
             lookups: 0,
+            lattice,
         }
     }
 
@@ -144,6 +151,13 @@ impl Extinction for BlurredMedium<'_> {
     fn voxels_per_world_unit(&self) -> f64 {
         self.voxels_per_world
     }
+
+    /// The lookup lattice of the still grid: a blurred march lays its pieces on the chords
+    /// of the `8^3` blocks the midpoints lie in, so a blurred map swept block by block
+    /// (`bake::trace::sweep::blur`) takes the same points.
+    fn lattice(&self) -> Option<([f64; 3], [f64; 3])> {
+        Some(self.lattice)
+    }
 }
 
 /// `riemann` at every shutter time at once: its midpoints do not depend on the time, so the
@@ -159,7 +173,7 @@ fn riemann_times(
 ) {
     let h = marching::step_world(m.voxels_per_world_unit(), step);
     taus.fill(0.0);
-    marching::for_chords(segs, None, h, |a, n, dt, _| {
+    marching::for_chords(segs, m.lattice(), h, |a, n, dt, _| {
         for i in 0..n {
             let (p, v) = m.point_and_velocity(a + (i as f64 + 0.5) * dt);
             for (tau, &k) in taus.iter_mut().zip(ks) {
@@ -170,39 +184,22 @@ fn riemann_times(
 }
 
 /// The segments of the index-space line `q + d t` over `[t0, t1]` inside `bounds`' dense box,
-/// in order, each with the minorant and majorant `scale * (min, max)` of its blocks (runs of
-/// equal bounds merged), or with `global`, one segment under the whole grid's bounds
-/// (`--global-majorant`); returns the length of `[t0, t1]` outside the box (background).
+/// in order, each with the minorant and majorant `scale * (min, max)` of its blocks as
+/// `range` gives them (runs of equal bounds merged), or with `global`, one segment under the
+/// whole grid's bounds (`--global-majorant`); returns the length of `[t0, t1]` outside the
+/// box (background).
 fn bound_segments(
-    bounds: &BlurBounds,
+    (bounds, range): (&BlurBounds, impl Fn([i64; 3]) -> (f32, f32)),
     (q, d): ([f64; 3], [f64; 3]),
     (t0, t1): (f64, f64),
     (scale, global): (f64, bool),
     out: &mut Vec<Segment>,
 ) -> f64 {
     let total = (t1 - t0).max(0.0);
+    let Some((a, b)) = bounds.clip(q, d, (t0, t1)) else {
+        return total;
+    };
     let (lo, dims) = bounds.dense_box();
-    if dims.contains(&0) {
-        return total;
-    }
-    // Clip to the box [8 lo, 8 (lo + dims)).
-    let (mut a, mut b) = (t0, t1);
-    for k in 0..3 {
-        let box_lo = (lo[k] * 8) as f64;
-        let box_hi = ((lo[k] + dims[k] as i64) * 8) as f64;
-        if d[k] == 0.0 {
-            if q[k] < box_lo || q[k] >= box_hi {
-                return total;
-            }
-            continue;
-        }
-        let (ta, tb) = ((box_lo - q[k]) / d[k], (box_hi - q[k]) / d[k]);
-        a = a.max(ta.min(tb));
-        b = b.min(ta.max(tb));
-    }
-    if b.partial_cmp(&a) != Some(std::cmp::Ordering::Greater) {
-        return total;
-    }
     if global {
         let (lo, hi) = bounds.global_range();
         out.push(Segment {
@@ -221,7 +218,7 @@ fn bound_segments(
     };
     let start = out.len();
     let _ = dda(q, d, (a, b), &cells, |c, ta, tb| {
-        let (lo, hi) = bounds.block_range(c);
+        let (lo, hi) = range(c);
         let (mu_min, mu) = (scaled(scale, f64::from(lo)), scaled(scale, f64::from(hi)));
         let run = out.len() > start;
         match out.last_mut() {
@@ -272,6 +269,9 @@ pub(crate) fn estimate(
 #[derive(Debug, Default)]
 struct Scratch {
     part: RayPart,
+    /// The ray's parts under each interval's bounds ([`crate::motion::IntervalBounds`]), cut
+    /// when a sample first draws a time in that interval.
+    layers: Layers,
     /// `riemann`'s stratum times, their displacements per velocity, and their optical depths
     /// (then their transmittances).
     times: Vec<f64>,
@@ -292,7 +292,7 @@ fn estimate_in(
     (ray_id, est, opts): (u64, &Estimator, &Options),
     s: &mut Scratch,
 ) -> Estimate {
-    s.part.fill(vol, m, ray, opts.global_majorant);
+    s.part.fill(vol, m, ray, (opts.global_majorant, None));
     let part = &s.part;
     if part.segs.is_empty() && part.opaque.is_empty() {
         return Estimate {
@@ -314,7 +314,7 @@ fn estimate_in(
         bounds.lo = 0.0;
     }
     let (samples, w) = if let (Algo::Riemann, step) = est.algo() {
-        let mut w = Walks::new(Spread::new(Some(time_range(bounds)), bounds));
+        let mut w = Walks::new(marcher_spread(bounds));
         let bufs = (&mut s.times, &mut s.ks, &mut s.taus);
         riemann_strata(
             part,
@@ -333,18 +333,29 @@ fn estimate_in(
             opts.samples.max(1)
         };
         let spread = if est.marches() {
-            Spread::new(Some(time_range(bounds)), bounds)
+            marcher_spread(bounds)
         } else {
             Spread::of(est, bounds)
         };
         let mut w = Walks::new(spread);
-        sampled(part, &mut medium, m, est, opts, (ray_id, samples), &mut w);
+        s.layers
+            .reset((vol, m), !est.marches() && !opts.global_majorant);
+        let parts = (part, &mut s.layers);
+        sampled(
+            parts,
+            (vol, m, ray),
+            &mut medium,
+            est,
+            opts,
+            (ray_id, samples),
+            &mut w,
+        );
         (samples, w)
     };
     // One shutter time in all (`--time-samples 1`, one sample): nothing says how T varies
     // over the shutter, so the error bar is unknown rather than the 0 of a single value.
-    let std_err = if est.marches() && w.spread.n < 2 {
-        UNKNOWN_STD_ERR
+    let std_err = if est.marches() {
+        marcher_std_err(&w.spread)
     } else {
         w.spread.std_err()
     };
@@ -371,15 +382,31 @@ struct RayPart {
 }
 
 impl RayPart {
-    /// This ray's parts, in the buffers already held.
-    fn fill(&mut self, vol: &Volume, m: &Motion, ray: &Ray, global: bool) {
+    /// This ray's parts, in the buffers already held: under the whole shutter's bounds, or
+    /// under those of interval `layer` ([`crate::motion::IntervalBounds`]).
+    fn fill(
+        &mut self,
+        vol: &Volume,
+        m: &Motion,
+        ray: &Ray,
+        (global, layer): (bool, Option<usize>),
+    ) {
         let q = vol.to_index(ray.origin()).to_array();
         let d = vol.to_index_dir(ray.direction()).to_array();
         self.segs.clear();
         self.opaque.clear();
         let range = (ray.t_min(), ray.t_max());
         let scale = (vol.density_scale(), global);
-        let gap = bound_segments(m.bounds(), (q, d), range, scale, &mut self.segs);
+        let whole = m.bounds();
+        let intervals = layer.map(|j| (j, m.intervals(vol.tree(), vol.index_from_world())));
+        let bounds = |c| {
+            match intervals {
+                Some((j, iv)) => iv.block_range(j, c),
+                None => None,
+            }
+            .unwrap_or_else(|| whole.block_range(c))
+        };
+        let gap = bound_segments((whole, bounds), (q, d), range, scale, &mut self.segs);
         let mu_bg = vol.mu_background();
         self.tau_known = if mu_bg != 0.0 && gap > 0.0 {
             mu_bg * gap
@@ -401,6 +428,57 @@ impl RayPart {
             .map(|s| medium.exact(s.t_min, s.t_max))
             .sum();
         (-self.tau_known).exp() * (-tau_opaque).exp() * t
+    }
+}
+
+/// A ray's parts under each interval's bounds, each cut on first use.
+#[derive(Debug, Default)]
+struct Layers {
+    parts: Vec<RayPart>,
+    /// Whether `parts[j]` holds this ray's part.
+    cut: Vec<bool>,
+    /// Whether the intervals are used on this ray (more than one kept, and wanted).
+    used: bool,
+}
+
+impl Layers {
+    /// Forget the last ray's parts; use the intervals of `m` when `wanted` and kept.
+    fn reset(&mut self, (vol, m): (&Volume, &Motion), wanted: bool) {
+        let count = if wanted {
+            m.intervals(vol.tree(), vol.index_from_world()).count()
+        } else {
+            1
+        };
+        self.used = wanted && count > 1;
+        if !self.used {
+            return;
+        }
+        if self.parts.len() < count {
+            self.parts.resize_with(count, RayPart::default);
+        }
+        self.cut.clear();
+        self.cut.resize(count, false);
+    }
+
+    /// The part of the interval holding shutter fraction `f` of the ray (cut now if not yet),
+    /// or `whole` when the intervals are not used.
+    fn part<'a>(
+        &'a mut self,
+        whole: &'a RayPart,
+        (vol, m, ray): (&Volume, &Motion, &Ray),
+        f: f64,
+    ) -> &'a RayPart {
+        if !self.used {
+            return whole;
+        }
+        let j = m
+            .intervals(vol.tree(), vol.index_from_world())
+            .interval_of(f);
+        if !self.cut[j] {
+            self.parts[j].fill(vol, m, ray, (false, Some(j)));
+            self.cut[j] = true;
+        }
+        &self.parts[j]
     }
 }
 
@@ -433,14 +511,7 @@ fn riemann_strata(
     (times, ks, taus): (&mut Vec<f64>, &mut Vec<f64>, &mut Vec<f64>),
     spread: &mut Spread,
 ) {
-    let strata = m.spec().time_samples();
-    times.clear();
-    times.extend((0..strata).map(|k| {
-        let u = Rng::new(seed, ray_id, u64::from(k)).uniform();
-        m.spec().time_at((f64::from(k) + u) / f64::from(strata))
-    }));
-    ks.clear();
-    ks.extend(times.iter().map(|&t| m.spec().displacement_per_velocity(t)));
+    strata_times(m.spec(), (seed, ray_id), times, ks);
     taus.resize(ks.len(), 0.0);
     riemann_times(&part.segs, medium, step, ks, taus);
     for (&t, tau) in times.iter().zip(taus.iter_mut()) {
@@ -450,13 +521,48 @@ fn riemann_strata(
     }
 }
 
+/// `riemann`'s `K` stratified shutter times of stream `(seed, ray_id)`,
+/// `t_k = o + (k + u_k) / K (c - o)` with `u_k` the first uniform of sample `k`'s stream, into
+/// `times`, and their displacements per velocity `S t_k / F` into `ks`.
+pub(crate) fn strata_times(
+    spec: &crate::motion::MotionSpec,
+    (seed, ray_id): (u64, u64),
+    times: &mut Vec<f64>,
+    ks: &mut Vec<f64>,
+) {
+    let strata = spec.time_samples();
+    times.clear();
+    times.extend((0..strata).map(|k| {
+        let u = Rng::new(seed, ray_id, u64::from(k)).uniform();
+        spec.time_at((f64::from(k) + u) / f64::from(strata))
+    }));
+    ks.clear();
+    ks.extend(times.iter().map(|&t| spec.displacement_per_velocity(t)));
+}
+
+/// The spread a blurred marcher's values go into on a ray whose `T` lies in `bounds` at every
+/// shutter time (see [`time_range`]).
+pub(crate) fn marcher_spread(bounds: Bounds) -> Spread {
+    Spread::new(Some(time_range(bounds)), bounds)
+}
+
+/// A blurred marcher's error bar from its values' `spread`: [`UNKNOWN_STD_ERR`] for one
+/// shutter time in all (nothing says how `T` varies over the shutter), else the spread's.
+pub(crate) fn marcher_std_err(spread: &Spread) -> f64 {
+    if spread.n < 2 {
+        UNKNOWN_STD_ERR
+    } else {
+        spread.std_err()
+    }
+}
+
 /// `samples` samples of `est` along the ray of `ray_id`: a marcher's sample is the mean of
 /// `K` walks at stratified times, any other estimator's one walk at a uniform time; each time
 /// is drawn first from the walk's own stream.
 fn sampled(
-    part: &RayPart,
+    (whole, layers): (&RayPart, &mut Layers),
+    (vol, m, ray): (&Volume, &Motion, &Ray),
     medium: &mut BlurredMedium<'_>,
-    m: &Motion,
     est: &Estimator,
     opts: &Options,
     (ray_id, samples): (u64, u32),
@@ -472,7 +578,11 @@ fn sampled(
             let index = u64::from(i) * u64::from(strata) + u64::from(k);
             let mut rng = Rng::new(opts.seed, ray_id, index);
             let u = rng.uniform();
-            medium.set_time(m, m.spec().time_at((f64::from(k) + u) / f64::from(strata)));
+            let f = (f64::from(k) + u) / f64::from(strata);
+            medium.set_time(m, m.spec().time_at(f));
+            // One time per sample: the bounds of its interval (a marcher's part is the whole
+            // shutter's, `layers` unused).
+            let part = layers.part(whole, (vol, m, ray), f);
             let mut cap = Cap::new(opts.max_collisions);
             let t = if part.segs.is_empty() {
                 1.0

@@ -44,13 +44,23 @@ fn spans(segs: &[Segment]) -> impl Iterator<Item = Segment> + '_ {
 /// that do not. Pieces may then exceed the step by this fraction.
 const PIECE_SLACK: f64 = 1e-9;
 
+/// `2^63`: below it a non-negative `f64` truncates to the same integer as `i64` and as `u64`.
+const I64_RANGE: f64 = 9_223_372_036_854_775_808.0;
+
 /// `(n, L / n)`: the fewest equal pieces of a chord of length `len` no longer than the step
 /// (within [`PIECE_SLACK`]), `n = ceil(L / h - slack)`, at least 1.
 pub(crate) fn pieces(len: f64, step_world: f64) -> (u64, f64) {
     let x = len / step_world;
     let y = x - x * PIECE_SLACK;
     // `ceil(y)` without a libm call (baseline x86-64 has no rounding instruction): the
-    // truncation, plus one when it fell short (NaN truncates to 0).
+    // truncation, plus one when it fell short (NaN truncates to 0). Below `2^63` through
+    // `i64`, the same numbers in one conversion instruction each way (baseline x86-64 has
+    // none for `u64`, whose emulation put a long dependency chain on every chord).
+    if y < I64_RANGE {
+        let t = y as i64;
+        let n = if (t as f64) < y { t + 1 } else { t }.max(1);
+        return (n as u64, len / n as f64);
+    }
     let t = y as u64;
     let n = if (t as f64) < y {
         t.saturating_add(1)
@@ -59,6 +69,101 @@ pub(crate) fn pieces(len: f64, step_world: f64) -> (u64, f64) {
     }
     .max(1);
     (n, len / n as f64)
+}
+
+/// `2^52`: from `2^52` to `2^53` the `f64`s are the integers, so `(y + 2^52) - 2^52` is `y`
+/// rounded to an integer for `0 <= y < 2^52`.
+const TWO_52: f64 = 4_503_599_627_370_496.0;
+
+/// [`pieces`] of `N` chords at once: lane `l`'s chord of length `len[l]` at step `h[l]`, its
+/// count into `n[l]` and its piece length into `dt[l]`: the same numbers as [`pieces`]
+/// (`ceil(y)` by rounding through [`TWO_52`], with no integer conversion), in a loop of
+/// independent lanes that compiles to vector divisions. False (the outputs then unspecified)
+/// when a lane's count is not below `2^52` or is NaN: the caller then asks [`pieces`].
+#[inline(always)]
+fn pieces_of<const N: usize>(
+    len: &[f64; N],
+    h: &[f64; N],
+    n: &mut [f64; N],
+    dt: &mut [f64; N],
+) -> bool {
+    let mut ok = true;
+    for l in 0..N {
+        let x = len[l] / h[l];
+        let y = x - x * PIECE_SLACK;
+        ok &= y < TWO_52;
+        // For 1 < y < 2^52: the nearest integer, then `floor`, then `ceil`; at most 1: one.
+        let r = (y + TWO_52) - TWO_52;
+        let floor = if r > y { r - 1.0 } else { r };
+        let ceil = if floor < y { floor + 1.0 } else { floor };
+        n[l] = if y > 1.0 { ceil } else { 1.0 };
+        dt[l] = len[l] / n[l];
+    }
+    ok
+}
+
+/// [`pieces_of`] built for an instruction set: `$name` with `$feature` enabled.
+macro_rules! pieces_for {
+    ($name:ident, $feature:literal, $doc:literal) => {
+        #[doc = $doc]
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $feature)]
+        #[allow(unsafe_code)]
+        unsafe fn $name<const N: usize>(
+            len: &[f64; N],
+            h: &[f64; N],
+            n: &mut [f64; N],
+            dt: &mut [f64; N],
+        ) -> bool {
+            pieces_of(len, h, n, dt)
+        }
+    };
+}
+pieces_for!(
+    pieces_avx512,
+    "avx512f",
+    "[`pieces_of`] built for AVX-512F (8 lanes a division)."
+);
+pieces_for!(
+    pieces_avx2,
+    "avx2",
+    "[`pieces_of`] built for AVX2 (4 lanes a division)."
+);
+
+/// [`pieces`] of the chords `0..used` of a batch (lane `l`: length `len[l]`, step `h[l]`):
+/// the count into `n[l]` and the piece length as `f32` into `dt[l]`, the same numbers lane by
+/// lane as [`pieces`] gives (IEEE divisions and conversions are exact whatever the register
+/// width). The divisions go `simd`'s width at a time; a count of `2^52` or more, or NaN, goes
+/// through [`pieces`]. Lanes from `used` on are left as they are.
+pub(crate) fn pieces_lanes<const N: usize>(
+    simd: crate::regular::kernel::Simd,
+    (len, h): (&[f64; N], &[f64; N]),
+    used: usize,
+    n: &mut [u32; N],
+    dt: &mut [f32; N],
+) {
+    use crate::regular::kernel::Simd;
+    let (mut nf, mut df) = ([0.0f64; N], [0.0f64; N]);
+    let ok = match simd {
+        // SAFETY: `Simd::Avx512` and `Simd::Avx2` are chosen only on CPUs that report them
+        // (`Simd::detected`).
+        #[cfg(target_arch = "x86_64")]
+        #[allow(unsafe_code)]
+        Simd::Avx512 => unsafe { pieces_avx512(len, h, &mut nf, &mut df) },
+        #[cfg(target_arch = "x86_64")]
+        #[allow(unsafe_code)]
+        Simd::Avx2 => unsafe { pieces_avx2(len, h, &mut nf, &mut df) },
+        _ => pieces_of(len, h, &mut nf, &mut df),
+    };
+    for l in 0..used.min(N) {
+        if ok {
+            // `nf` is a whole number in [1, 2^52): `as u64` is exact, then the kernel's `u32`.
+            (n[l], dt[l]) = (nf[l] as u64 as u32, df[l] as f32);
+        } else {
+            let (count, d) = pieces(len[l], h[l]);
+            (n[l], dt[l]) = (count as u32, d as f32);
+        }
+    }
 }
 
 /// The marching step in world units: `step_voxels` voxels along a ray crossing
@@ -182,6 +287,56 @@ mod tests {
         }
         let (n, dt) = pieces(7.5, 0.5);
         assert_eq!((n, dt), (15, 0.5));
+    }
+
+    #[test]
+    fn pieces_of_a_batch_are_the_pieces_of_each_chord() {
+        use crate::regular::kernel::Simd;
+        let levels = [Simd::Portable, Simd::Avx2, Simd::Avx512];
+        let mut rng = Rng::new(7, 0, 0);
+        let edges = [
+            0.0,
+            -1.0,
+            1e-300,
+            1.0,
+            1.0 + 1e-9,
+            8.000_000_000_000_002,
+            8.001,
+            7.5,
+            16.0 - 1e-12,
+            1e17,
+            f64::INFINITY,
+            f64::NAN,
+        ];
+        for round in 0..400 {
+            let mut len = [0.0f64; 16];
+            let mut h = [1.0f64; 16];
+            for l in 0..16 {
+                let u = rng.uniform();
+                len[l] = match (round + l) % 5 {
+                    // Whole steps, as chords across whole voxels come.
+                    0 => (u * 14.0).round() * 0.25,
+                    1 => u * 14.0,
+                    _ if round < 40 => edges[(round + l) % edges.len()],
+                    _ => u * 1e3,
+                };
+                h[l] = [0.25, 0.5, 1.0, 1.5, 0.1, 1e-9][(round + 3 * l) % 6];
+            }
+            let used = 1 + round % 16;
+            for &simd in levels.iter().filter(|&&s| s <= Simd::detected()) {
+                let (mut n, mut dt) = ([u32::MAX; 16], [f32::NAN; 16]);
+                pieces_lanes(simd, (&len, &h), used, &mut n, &mut dt);
+                for l in 0..16 {
+                    if l < used {
+                        let (count, d) = pieces(len[l], h[l]);
+                        assert_eq!(n[l], count as u32, "{simd:?} lane {l} len {}", len[l]);
+                        assert_eq!(dt[l].to_bits(), (d as f32).to_bits(), "{simd:?} {}", len[l]);
+                    } else {
+                        assert_eq!(n[l], u32::MAX, "lanes past `used` are left alone");
+                    }
+                }
+            }
+        }
     }
 
     #[test]

@@ -83,10 +83,36 @@ fn too_far(field: &VelocityField, spec: &MotionSpec, world: f64, voxels: &[f64; 
     }
 }
 
+/// Per block of a dense box (`at` its index there, `count` blocks): the largest and smallest
+/// value of `sources` ([`source_blocks`]) in it; a block no leaf or tile covers holds the
+/// background `outside`.
+pub(super) fn dense_sources(
+    sources: &[([i64; 3], f32, f32)],
+    outside: f32,
+    at: impl Fn([i64; 3]) -> usize,
+    count: usize,
+) -> Vec<(f32, f32)> {
+    let mut src = vec![(outside, f32::INFINITY); count];
+    for (b, hi, lo_v) in sources {
+        let i = at(*b);
+        src[i] = (src[i].0.max(*hi), src[i].1.min(*lo_v));
+    }
+    for v in &mut src {
+        if v.1 == f32::INFINITY {
+            v.1 = outside;
+        }
+    }
+    src
+}
+
 /// Every block of `tree` with data: `(block, max value, min value)` for each leaf (its bounds:
-/// every value a lookup in it can return, inactive ones included) and each tile whose value is
-/// not the background (a 4096^3 root tile is refused: too large to bound by blocks).
-fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32, f32)>> {
+/// every value a lookup in it can return, inactive ones included, `leaf_range(i)` as
+/// `(max, min)` for leaf `i`) and each tile whose value is not the background (a 4096^3 root
+/// tile is refused: too large to bound by blocks).
+pub(super) fn source_blocks(
+    tree: &Tree,
+    leaf_range: &dyn Fn(usize) -> (f32, f32),
+) -> Result<Vec<([i64; 3], f32, f32)>> {
     let bg = tree.background;
     let mut out = Vec::with_capacity(tree.leaves.len());
     for e in &tree.root {
@@ -120,12 +146,9 @@ fn source_blocks(tree: &Tree) -> Result<Vec<([i64; 3], f32, f32)>> {
             }
         }
     }
-    for l in &tree.leaves {
-        out.push((
-            l.origin.map(|c| i64::from(c) >> 3),
-            l.bounds.max,
-            l.bounds.min,
-        ));
+    for (i, l) in tree.leaves.iter().enumerate() {
+        let (max, min) = leaf_range(i);
+        out.push((l.origin.map(|c| i64::from(c) >> 3), max, min));
     }
     Ok(out)
 }
@@ -146,8 +169,45 @@ impl BlurBounds {
         if !density.is_complete() {
             return Err(refused("motion blur needs the density loaded whole".into()));
         }
+        let leaf = |i: usize| (density.leaves[i].bounds.max, density.leaves[i].bounds.min);
+        Self::build_with(density, &leaf, index_from_world, field, spec)
+    }
+
+    /// [`BlurBounds::build`] from the density's topology `shell` (its tiles and leaf origins;
+    /// its leaf values need not be loaded) and `leaf_range[i]`, the `(max, min)` of leaf `i`'s
+    /// values as a whole load bounds them: the same bounds, bit for bit, for a density decoded a
+    /// part at a time (a bake in parts keeps only these two numbers per leaf).
+    ///
+    /// # Errors
+    /// As [`BlurBounds::build`], and [`Error::InvalidArgument`] (name `velocity`) when
+    /// `leaf_range` does not hold one entry per leaf of `shell`.
+    pub(crate) fn from_summary(
+        shell: &Tree,
+        leaf_range: &[(f32, f32)],
+        index_from_world: DAffine3,
+        field: &VelocityField,
+        spec: &MotionSpec,
+    ) -> Result<Self> {
+        if leaf_range.len() != shell.leaves.len() {
+            return Err(refused(format!(
+                "{} leaf ranges for a density of {} leaves",
+                leaf_range.len(),
+                shell.leaves.len()
+            )));
+        }
+        Self::build_with(shell, &|i| leaf_range[i], index_from_world, field, spec)
+    }
+
+    /// [`BlurBounds::build`] with leaf `i`'s `(max, min)` from `leaf_range`.
+    fn build_with(
+        density: &Tree,
+        leaf_range: &dyn Fn(usize) -> (f32, f32),
+        index_from_world: DAffine3,
+        field: &VelocityField,
+        spec: &MotionSpec,
+    ) -> Result<Self> {
         let outside = density.background;
-        let sources = source_blocks(density)?;
+        let sources = source_blocks(density, leaf_range)?;
         let Some(first) = sources.first() else {
             return Ok(Self {
                 lo: [0; 3],
@@ -172,7 +232,7 @@ impl BlurBounds {
         let m = index_from_world.matrix3.transpose();
         let per_world = [m.x_axis.length(), m.y_axis.length(), m.z_axis.length()];
         let reach = spec.reach_per_velocity();
-        let radius = |speed: f64| per_world.map(|p| reach * speed * p + 2.0);
+        let radius = |speed: f64| lookup_radius(per_world, reach, speed);
         let rg = radius(field.speed_max());
         // Sized in f64 first: a reach from extreme numbers (a velocity of 1e30, a shutter of
         // 1e20 frames, 1e-300 fps) is refused by name before any integer is formed.
@@ -196,18 +256,7 @@ impl BlurBounds {
             let i = [0, 1, 2].map(|a| (b[a] - lo[a]) as usize);
             (i[0] * dims[1] + i[1]) * dims[2] + i[2]
         };
-        // Per source block: its largest value and its smallest (a block no leaf or tile
-        // covers holds the background).
-        let mut src = vec![(outside, f32::INFINITY); count as usize];
-        for (b, hi, lo_v) in &sources {
-            let i = at(*b);
-            src[i] = (src[i].0.max(*hi), src[i].1.min(*lo_v));
-        }
-        for v in &mut src {
-            if v.1 == f32::INFINITY {
-                v.1 = outside;
-            }
-        }
+        let src = dense_sources(&sources, outside, at, count as usize);
         let world_from_index = index_from_world.inverse();
         let slab = dims[1] * dims[2];
         let mut both = vec![(outside, outside); count as usize];
@@ -217,12 +266,7 @@ impl BlurBounds {
                 for y in 0..dims[1] {
                     for z in 0..dims[2] {
                         let c = [lo[0] + x as i64, lo[1] + y as i64, lo[2] + z as i64];
-                        let r = if reach == 0.0 {
-                            radius(0.0)
-                        } else {
-                            let (wlo, whi) = world_box(&world_from_index, c);
-                            radius(field.speed_bound(wlo, whi))
-                        };
+                        let r = block_radius(&world_from_index, per_world, reach, field, c);
                         out[y * dims[2] + z] = extremes_within(&src, outside, (lo, dims), c, r);
                     }
                 }
@@ -244,6 +288,32 @@ impl BlurBounds {
             reach: moved,
             extent,
         })
+    }
+
+    /// The part `[a, b]` of `[t0, t1]` where the index-space ray `q + t d` is inside the dense
+    /// box of blocks `[8 lo, 8 (lo + dims))` (slab test; half-open on the axes the ray runs
+    /// along, as the blocks are), `None` when it misses it or the box is empty: where a walk
+    /// through the bounds starts and ends.
+    #[must_use]
+    pub fn clip(&self, q: [f64; 3], d: [f64; 3], (t0, t1): (f64, f64)) -> Option<(f64, f64)> {
+        if self.dims.contains(&0) {
+            return None;
+        }
+        let (mut a, mut b) = (t0, t1);
+        for k in 0..3 {
+            let lo = (self.lo[k] * 8) as f64;
+            let hi = ((self.lo[k] + self.dims[k] as i64) * 8) as f64;
+            if d[k] == 0.0 {
+                if q[k] < lo || q[k] >= hi {
+                    return None;
+                }
+                continue;
+            }
+            let (ta, tb) = ((lo - q[k]) / d[k], (hi - q[k]) / d[k]);
+            a = a.max(ta.min(tb));
+            b = b.min(ta.max(tb));
+        }
+        (b > a).then_some((a, b))
     }
 
     /// The index box of the voxels of every block the blurred density may differ from the
@@ -316,9 +386,22 @@ fn extremes_within(
     let range = |a: usize| {
         let v0 = ((c[a] * 8) as f64 - r[a]).floor() as i64;
         let v1 = ((c[a] * 8 + 8) as f64 + r[a]).floor() as i64;
-        (v0 >> 3, v1 >> 3)
+        (v0, v1)
     };
-    let (rx, ry, rz) = (range(0), range(1), range(2));
+    extremes_over(src, outside, (lo, dims, 3), [range(0), range(1), range(2)])
+}
+
+/// The largest maximum and the smallest minimum of `src` (`(max, min)` per cell of
+/// `2^shift` voxels a side, dense over cells `lo`, `dims`, z fastest) over the cells that meet
+/// the voxels `[v0, v1]` (inclusive) on each axis, and `outside` when they leave the box (the
+/// background beyond it); the minimum is clamped at 0.
+pub(super) fn extremes_over(
+    src: &[(f32, f32)],
+    outside: f32,
+    (lo, dims, shift): ([i64; 3], [usize; 3], u32),
+    voxels: [(i64, i64); 3],
+) -> (f32, f32) {
+    let [rx, ry, rz] = voxels.map(|(v0, v1)| (v0 >> shift, v1 >> shift));
     let inside = |(a, b): (i64, i64), k: usize| (a.max(lo[k]), b.min(lo[k] + dims[k] as i64 - 1));
     // The reach leaves the dense box: the background is read there.
     let leaves_box = [rx, ry, rz]
@@ -368,15 +451,58 @@ fn value_box_of(
     value_box
 }
 
+/// How many voxels along each index axis the lookups of a point read around it when the
+/// shutter moves it `reach x speed` world units (`per_world`: voxels per world unit per axis),
+/// the trilinear stencil and the lookup's half-voxel shift included.
+fn lookup_radius(per_world: [f64; 3], reach: f64, speed: f64) -> [f64; 3] {
+    per_world.map(|p| reach * speed * p + 2.0)
+}
+
+/// The radius in voxels per index axis around block `c` that every lookup of a point of the
+/// block reads within at every shutter time (`reach`: world displacement per unit of velocity;
+/// the speed bounded over the block's world box, one voxel beyond it).
+fn block_radius(
+    world_from_index: &DAffine3,
+    per_world: [f64; 3],
+    reach: f64,
+    field: &VelocityField,
+    c: [i64; 3],
+) -> [f64; 3] {
+    if reach == 0.0 {
+        return lookup_radius(per_world, reach, 0.0);
+    }
+    let (wlo, whi) = world_box(world_from_index, c);
+    lookup_radius(per_world, reach, field.speed_bound(wlo, whi))
+}
+
+/// The voxel box (inclusive) every lookup of a point of block `c` (or within one voxel of it)
+/// reads at every shutter time of `spec` under `field`, for a density with map
+/// `index_from_world`: the block grown by [`BlurBounds`]' radius and one voxel more. A bake in
+/// parts loads the density leaves meeting this box for every block its rays cross.
+pub(crate) fn block_reads(
+    index_from_world: &DAffine3,
+    field: &VelocityField,
+    spec: &MotionSpec,
+    c: [i64; 3],
+) -> [[i64; 3]; 2] {
+    let m = index_from_world.matrix3.transpose();
+    let per_world = [m.x_axis.length(), m.y_axis.length(), m.z_axis.length()];
+    let world_from_index = index_from_world.inverse();
+    let r = block_radius(
+        &world_from_index,
+        per_world,
+        spec.reach_per_velocity(),
+        field,
+        c,
+    );
+    let lo = [0, 1, 2].map(|a| ((c[a] * 8) as f64 - r[a] - 1.0).floor() as i64);
+    let hi = [0, 1, 2].map(|a| ((c[a] * 8 + 8) as f64 + r[a] + 1.0).ceil() as i64);
+    [lo, hi]
+}
+
 /// The world box of block `c`'s voxels `[8c - 1, 8c + 9]` (one voxel beyond, for the lookup
 /// shift).
 fn world_box(world_from_index: &DAffine3, c: [i64; 3]) -> (DVec3, DVec3) {
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
-    for n in 0..8 {
-        let v = [0, 1, 2].map(|a| (c[a] * 8) as f64 + if n >> a & 1 == 0 { -1.0 } else { 9.0 });
-        let w = world_from_index.transform_point3(DVec3::from_array(v));
-        lo = lo.min(w);
-        hi = hi.max(w);
-    }
-    (lo, hi)
+    let lo = DVec3::from_array(c.map(|v| (v * 8) as f64 - 1.0));
+    crate::math::mapped_box(world_from_index, lo, lo + 10.0)
 }

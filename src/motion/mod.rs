@@ -18,16 +18,19 @@
 //! velocity's interpolation can give anywhere in `C` (its voxels around `C`). So
 //! `max rho over C dilated by r_C` (plus the trilinear stencil) majorises `rho_t` on `C` at
 //! every shutter time: a majorant per block, dilated by how far the velocity moves density into
-//! it, still sparse (blocks far from any density have none).
+//! it, still sparse (blocks far from any density have none). [`IntervalBounds`] holds the same
+//! per interval of the shutter, for the estimators that draw one time per sample.
 //!
 //! [`MotionSpec`] is the request (validated), [`VelocityField`] the decoded velocity
 //! ([`field`]), [`Motion`] both with the bounds, what a [`crate::Volume`] carries.
 
 pub mod bounds;
 pub mod field;
+pub mod intervals;
 
 pub use bounds::BlurBounds;
 pub use field::{VelocityField, VelocityLookup};
+pub use intervals::IntervalBounds;
 
 use crate::error::{Error, Result};
 
@@ -172,6 +175,9 @@ pub struct Motion {
     spec: MotionSpec,
     field: VelocityField,
     bounds: BlurBounds,
+    /// Built on first use ([`Motion::intervals`]): only the estimators that draw one time per
+    /// sample read them, so a marcher's bake never pays for them.
+    intervals: std::sync::OnceLock<IntervalBounds>,
 }
 
 impl Motion {
@@ -191,7 +197,41 @@ impl Motion {
             spec,
             field,
             bounds,
+            intervals: std::sync::OnceLock::new(),
         })
+    }
+
+    /// [`Motion::new`] for a density decoded a part at a time: its topology `shell` and the
+    /// `(max, min)` of each of its leaves ([`BlurBounds::from_summary`]); the same motion, bit
+    /// for bit, as the whole density's.
+    ///
+    /// # Errors
+    /// As [`BlurBounds::from_summary`].
+    pub fn from_summary(
+        spec: MotionSpec,
+        field: VelocityField,
+        shell: &crate::tree::Tree,
+        leaf_range: &[(f32, f32)],
+        index_from_world: glam::DAffine3,
+    ) -> Result<Self> {
+        let bounds = BlurBounds::from_summary(shell, leaf_range, index_from_world, &field, &spec)?;
+        // The bounds per interval need the density's voxels, which a bake in parts never holds
+        // at once: its null-collision samples walk the whole shutter's bounds (as valid, looser).
+        let intervals = std::sync::OnceLock::from(IntervalBounds::none(&bounds));
+        Ok(Self {
+            spec,
+            field,
+            bounds,
+            intervals,
+        })
+    }
+
+    /// The voxel box (inclusive) of the density that the lookups of every point of `8^3` block
+    /// `c` (and within one voxel of it) may read over the shutter, for a density with map
+    /// `index_from_world` (the bounds' own reach per block, `crate::demand`).
+    #[must_use]
+    pub fn block_reads(&self, index_from_world: &glam::DAffine3, c: [i64; 3]) -> [[i64; 3]; 2] {
+        bounds::block_reads(index_from_world, &self.field, &self.spec, c)
     }
 
     /// What was asked.
@@ -208,6 +248,23 @@ impl Motion {
     #[must_use]
     pub fn bounds(&self) -> &BlurBounds {
         &self.bounds
+    }
+    /// The blurred majorants per interval of the shutter (what the estimators that draw one
+    /// time per sample walk), built from `density` (map `index_from_world`: the tree and map
+    /// this motion was made for) on the first call ([`IntervalBounds::build`], with
+    /// [`IntervalBounds::default_count`] intervals); should the build fail, the whole
+    /// shutter's bounds serve every time ([`IntervalBounds::none`]), which hold as well.
+    pub fn intervals(
+        &self,
+        density: &crate::tree::Tree,
+        index_from_world: glam::DAffine3,
+    ) -> &IntervalBounds {
+        self.intervals.get_or_init(|| {
+            let (field, spec, whole) = (&self.field, &self.spec, &self.bounds);
+            let count = IntervalBounds::default_count(whole, index_from_world, field, spec);
+            IntervalBounds::build(density, index_from_world, field, spec, (whole, count))
+                .unwrap_or_else(|_| IntervalBounds::none(whole))
+        })
     }
 }
 

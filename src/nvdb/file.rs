@@ -380,22 +380,45 @@ pub(crate) fn grid_buffer(g: &GridMeta, blob: Vec<u8>) -> DecodeResult<Vec<u8>> 
                     blob.len()
                 )));
             }
-            // Grown as the stream expands: the size is the file's claim, not yet a fact.
-            let mut out = Vec::with_capacity(want.min(blob.len().saturating_mul(8)));
-            let mut z = std::io::Read::take(flate2::read::ZlibDecoder::new(src), g.grid_size + 1);
-            std::io::Read::read_to_end(&mut z, &mut out)
-                .map_err(|e| DecodeError::invalid(format!("ZIP stream: {e}")))?;
-            if out.len() != want {
-                return Err(DecodeError::invalid(format!(
-                    "ZIP stream expands to {}{} bytes, the metadata says {want}",
-                    out.len().min(want),
-                    if out.len() > want { "+" } else { "" }
-                )));
-            }
-            Ok(out)
+            inflate(src, want)
         }
         Codec::Blosc => blosc_chunks(&blob, want),
     }
+}
+
+/// A ZIP blob's zlib stream, which must expand to exactly `want` bytes: inflated straight from
+/// the blob into the buffer (no reader's copy of the input), the buffer grown as the stream
+/// expands (the size is the file's claim, not yet a fact).
+fn inflate(src: &[u8], want: usize) -> DecodeResult<Vec<u8>> {
+    use flate2::{Decompress, FlushDecompress, Status};
+    let mut z = Decompress::new(true);
+    // One byte past the claim, so that a stream longer than it is seen.
+    let limit = want.saturating_add(1);
+    let mut out = Vec::with_capacity(limit.min(src.len().saturating_mul(8)));
+    loop {
+        if out.len() == out.capacity() {
+            out.reserve_exact((limit - out.len()).min(out.len().max(1 << 20)));
+        }
+        let (before_in, before_out) = (z.total_in(), z.total_out());
+        let rest = src
+            .get(usize::try_from(before_in).unwrap_or(usize::MAX)..)
+            .unwrap_or(&[]);
+        let status = z
+            .decompress_vec(rest, &mut out, FlushDecompress::Finish)
+            .map_err(|e| DecodeError::invalid(format!("ZIP stream: {e}")))?;
+        let stuck = z.total_in() == before_in && z.total_out() == before_out;
+        if status == Status::StreamEnd || out.len() >= limit || stuck {
+            break;
+        }
+    }
+    if out.len() != want {
+        return Err(DecodeError::invalid(format!(
+            "ZIP stream expands to {}{} bytes, the metadata says {want}",
+            out.len().min(want),
+            if out.len() > want { "+" } else { "" }
+        )));
+    }
+    Ok(out)
 }
 
 /// BLOSC blobs: chunks, each after its u64 compressed size, each expanding to the size its own
@@ -416,21 +439,22 @@ fn blosc_chunks(blob: &[u8], want: usize) -> DecodeResult<Vec<u8>> {
             "BLOSC chunks hold {total} bytes, the metadata says {want}"
         )));
     }
+    // Each chunk's source and its share of the buffer, in order (the sizes were added up
+    // above, so the shares tile the buffer).
     let mut out = vec![0u8; want];
-    let mut at = 0u64;
-    let mut done = 0usize;
-    loop {
+    let mut chunks: Vec<(u64, &[u8], &mut [u8])> = Vec::new();
+    let (mut at, mut rest) = (0u64, out.as_mut_slice());
+    while !rest.is_empty() {
         let n = b.u64(at)?;
         let src = b.slice(at + 8, n)?;
-        // Within `want`: the chunks' sizes were added up above.
-        let chunk = (Bytes::new(src).u32(4)? as usize).min(want - done);
-        crate::vdb::blosc::decompress_into(src, &mut out[done..done + chunk])
-            .map_err(|e| prefix(e, &format!("BLOSC chunk at blob byte {at}")))?;
-        done += chunk;
-        at += 8 + n;
-        if done == want || chunk == 0 {
+        let size = (Bytes::new(src).u32(4)? as usize).min(rest.len());
+        if size == 0 {
             break;
         }
+        let (share, tail) = std::mem::take(&mut rest).split_at_mut(size);
+        chunks.push((at, src, share));
+        rest = tail;
+        at += 8 + n;
     }
     if at != blob.len() as u64 {
         return Err(DecodeError::invalid(format!(
@@ -438,12 +462,81 @@ fn blosc_chunks(blob: &[u8], want: usize) -> DecodeResult<Vec<u8>> {
             blob.len()
         )));
     }
+    // Every core busy: the chunks side by side, and each chunk's blocks on c-blosc's own
+    // threads (NanoVDB's chunks are 2^30 bytes, Warp's one chunk whatever the size: a single
+    // chunk gets all the threads). The bytes are the same whatever the count.
+    let threads = (rayon::current_num_threads() / chunks.len().max(1)).max(1);
+    let done: Vec<DecodeResult<()>> = {
+        use rayon::prelude::*;
+        chunks
+            .into_par_iter()
+            .map(|(at, src, share)| {
+                crate::vdb::blosc::decompress_on(src, share, threads)
+                    .map_err(|e| prefix(e, &format!("BLOSC chunk at blob byte {at}")))
+            })
+            .collect()
+    };
+    done.into_iter().collect::<DecodeResult<()>>()?;
     Ok(out)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn data(n: u32) -> Vec<u8> {
+        (0..n)
+            .flat_map(|i| ((i % 977) as f32 * 0.5 + (i / 3000) as f32).to_le_bytes())
+            .collect()
+    }
+
+    /// A zlib stream inflated into the buffer is the source, whether the buffer starts at its
+    /// size or grows (a stream expanding more than 8 times); a claim one byte short or long, or
+    /// a cut stream, is refused.
+    #[test]
+    fn inflate_gives_exactly_the_stream_or_an_error() {
+        use std::io::Write;
+        for src in [data(1 << 20), vec![7u8; 5 << 20]] {
+            let mut enc = flate2::write::ZlibEncoder::new(Vec::new(), flate2::Compression::new(6));
+            enc.write_all(&src).unwrap();
+            let z = enc.finish().unwrap();
+            assert!(inflate(&z, src.len()).unwrap() == src);
+            let long = inflate(&z, src.len() - 1).unwrap_err();
+            assert!(
+                matches!(&long, DecodeError::Invalid(m) if m.contains("expands to") && m.contains("+ bytes")),
+                "{long:?}"
+            );
+            assert!(inflate(&z, src.len() + 1).is_err());
+            assert!(inflate(&z[..z.len() / 2], src.len()).is_err());
+        }
+    }
+
+    /// BLOSC chunks are decompressed side by side, each into its share of the buffer: the
+    /// buffer is the chunks' bytes in order whatever the thread count; a blob with bytes after
+    /// its chunks, or chunks short of the grid size, is refused.
+    #[test]
+    fn blosc_chunks_in_parallel_are_the_chunks_in_order() {
+        let parts = [data(70_000), data(1 << 18), data(12_345)];
+        let mut blob = Vec::new();
+        for p in &parts {
+            let c = crate::vdb::blosc::compress_for_tests(p, 8 << 10);
+            blob.extend_from_slice(&(c.len() as u64).to_le_bytes());
+            blob.extend_from_slice(&c);
+        }
+        let whole = parts.concat();
+        for threads in [1, 2, 4] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let out = pool.install(|| blosc_chunks(&blob, whole.len())).unwrap();
+            assert!(out == whole, "{threads} threads");
+        }
+        assert!(blosc_chunks(&blob, whole.len() - 1).is_err());
+        let mut longer = blob.clone();
+        longer.extend_from_slice(&[0u8; 8]);
+        assert!(blosc_chunks(&longer, whole.len()).is_err());
+    }
 
     #[test]
     fn name_hash_is_nanovdbs() {

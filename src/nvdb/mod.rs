@@ -289,13 +289,15 @@ impl NvdbFile {
         }
     }
 
-    /// The bytes of grid `meta`'s blob (its size was checked against the file on open).
+    /// The bytes of grid `meta`'s blob (its size was checked against the file on open), read
+    /// in pieces on every core (the copy out of the page cache and the first touch of the
+    /// buffer's pages shared among the workers).
     fn read_blob(&self, meta: &GridMeta) -> Result<Vec<u8>> {
         let file = std::fs::File::open(&self.path).map_err(|err| Error::Io {
             path: self.path.clone(),
             err,
         })?;
-        read_at(&file, self.file_len, meta.offset, meta.blob_bytes)
+        read_pieces(&file, self.file_len, meta.offset, meta.blob_bytes)
             .map_err(|e| e.at_nvdb(&self.path))
     }
 
@@ -388,18 +390,54 @@ fn not_nvdb(path: &Path, reason: &str) -> Error {
 
 /// Read `n` bytes at `at` of a file of `len` bytes, after checking they are all in it.
 fn read_at(file: &std::fs::File, len: u64, at: u64, n: u64) -> crate::error::DecodeResult<Vec<u8>> {
-    if at.checked_add(n).is_none_or(|e| e > len) {
-        return Err(DecodeError::Truncated {
-            msg: format!("{n} bytes at byte {at} run past the end of the file ({len} bytes)"),
-            need: at.saturating_add(n),
-        });
-    }
+    check_range(len, at, n)?;
     let n = usize::try_from(n)
         .map_err(|_| DecodeError::unsupported("a block beyond the address space"))?;
     let mut buf = vec![0u8; n];
     crate::vdb::positioned_read(file, &mut buf, at)
         .map_err(|e| DecodeError::invalid(format!("reading {n} bytes at byte {at}: {e}")))?;
     Ok(buf)
+}
+
+/// Bytes per piece of [`read_pieces`].
+const READ_PIECE: usize = 4 << 20;
+
+/// As [`read_at`], the bytes read in pieces of [`READ_PIECE`] on every core (positioned reads
+/// of one file, each piece into its own part of the buffer).
+fn read_pieces(
+    file: &std::fs::File,
+    len: u64,
+    at: u64,
+    n: u64,
+) -> crate::error::DecodeResult<Vec<u8>> {
+    use rayon::prelude::*;
+    if n <= READ_PIECE as u64 {
+        return read_at(file, len, at, n);
+    }
+    check_range(len, at, n)?;
+    let size = usize::try_from(n)
+        .map_err(|_| DecodeError::unsupported("a block beyond the address space"))?;
+    let mut buf = vec![0u8; size];
+    buf.par_chunks_mut(READ_PIECE)
+        .enumerate()
+        .try_for_each(|(k, piece)| {
+            let from = at + (k * READ_PIECE) as u64;
+            crate::vdb::positioned_read(file, piece, from).map_err(|e| {
+                DecodeError::invalid(format!("reading {} bytes at byte {from}: {e}", piece.len()))
+            })
+        })?;
+    Ok(buf)
+}
+
+/// `n` bytes at `at` must be within a file of `len` bytes.
+fn check_range(len: u64, at: u64, n: u64) -> crate::error::DecodeResult<()> {
+    if at.checked_add(n).is_none_or(|e| e > len) {
+        return Err(DecodeError::Truncated {
+            msg: format!("{n} bytes at byte {at} run past the end of the file ({len} bytes)"),
+            need: at.saturating_add(n),
+        });
+    }
+    Ok(())
 }
 
 /// Display names: the stored name when unique, `name[k]` for the k-th of a repeated name, `[k]`
@@ -424,4 +462,35 @@ fn display_names(grids: &[GridMeta]) -> Vec<String> {
             name
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A blob read in pieces on every core is the bytes one read gives, for a size that is no
+    /// multiple of the piece, at an odd offset; a range past the end is refused before any read.
+    #[test]
+    fn a_blob_read_in_pieces_is_the_blob_read_at_once() {
+        let mut f = tempfile::tempfile().unwrap();
+        let bytes: Vec<u8> = (0..(2 * READ_PIECE + 12_345) as u32)
+            .map(|i| (i.wrapping_mul(2_654_435_761) >> 13) as u8)
+            .collect();
+        std::io::Write::write_all(&mut f, &bytes).unwrap();
+        let len = bytes.len() as u64;
+        for threads in [1, 3] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let n = len - 20;
+            let got = pool.install(|| read_pieces(&f, len, 7, n)).unwrap();
+            assert!(got == read_at(&f, len, 7, n).unwrap(), "{threads} threads");
+            assert!(got[..] == bytes[7..len as usize - 13], "{threads} threads");
+        }
+        assert!(matches!(
+            read_pieces(&f, len, 8, len),
+            Err(DecodeError::Truncated { .. })
+        ));
+    }
 }

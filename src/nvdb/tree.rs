@@ -177,7 +177,6 @@ pub(crate) fn decode(
     // Exact capacities (the counts fit the buffer, `locate` checked): no growth slack held.
     let [leaves, lowers, uppers] = h.node_count.map(|c| c as usize);
     d.tree.leaves.reserve_exact(leaves);
-    d.tree.values.reserve_exact(leaves);
     d.leaf_at.reserve_exact(leaves);
     d.tree.lowers.reserve_exact(lowers);
     d.tree.uppers.reserve_exact(uppers);
@@ -200,7 +199,10 @@ pub(crate) fn decode(
     }
     // The leaves' values, on every core: each chunk of leaves is decoded by one worker into
     // its own slots, so the tree is the serial walk's, bit for bit, whatever the thread count;
-    // the first error in leaf order is the one reported.
+    // the first error in leaf order is the one reported. The slots are allocated zeroed (the
+    // allocator's fresh pages, no pass over them), so each page is first touched by the worker
+    // that fills it, on every core.
+    d.tree.values = vec![[0f32; 512]; d.leaf_at.len()];
     let (values, at) = (&mut d.tree.values, &d.leaf_at);
     let parts: Vec<DecodeResult<PrecisionLoss>> = {
         use rayon::prelude::*;
@@ -382,7 +384,6 @@ impl Decoder<'_> {
             data: index,
         });
         // Its values come after the walk, in parallel ([`leaf_values`]).
-        self.tree.values.push([0f32; 512]);
         self.leaf_at.push(at);
         Ok(index)
     }
@@ -400,8 +401,28 @@ fn leaf_values(
     let codes = at + l.leaf_values;
     match l.leaves {
         Leaves::Raw => {
-            for (i, v) in out.iter_mut().enumerate() {
-                *v = decode_value(b, l, codes + i as u64 * l.value, pick, p)?;
+            // One bounds check for the leaf's 512 values, then a pass over them.
+            let bytes = b.slice(codes, 512 * l.value)?;
+            let each = bytes.chunks_exact(l.value as usize);
+            match l.kind {
+                ValueKind::Float => {
+                    for (v, c) in out.iter_mut().zip(each) {
+                        *v = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+                    }
+                }
+                ValueKind::Double => {
+                    for (v, c) in out.iter_mut().zip(each) {
+                        let d =
+                            f64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]);
+                        p.add(d);
+                        *v = l.kind.decode(c, pick);
+                    }
+                }
+                kind => {
+                    for (v, c) in out.iter_mut().zip(each) {
+                        *v = kind.decode(c, pick);
+                    }
+                }
             }
             Ok(())
         }
@@ -430,4 +451,54 @@ fn dequantise(b: &Bytes<'_>, at: u64, bits: u32, out: &mut [f32; 512]) -> Decode
         *v = code as f32 * quantum + minimum;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A raw leaf's values read in one pass are those read value by value ([`decode_value`]),
+    /// bit for bit, for float, double (with the same precision tally) and Vec3f (length and
+    /// components).
+    #[test]
+    fn raw_leaf_values_in_one_pass_are_the_values_one_by_one() {
+        for code in [1, 2, 6] {
+            let l = Layout::of(code).unwrap();
+            let n = (l.leaf_values + 512 * l.value) as usize;
+            // Bytes that make finite values of every type, some negative, some tiny.
+            let buf: Vec<u8> = (0..n as u32)
+                .map(|i| match i % 8 {
+                    3 | 7 => (i % 61) as u8,
+                    _ => (i.wrapping_mul(2_654_435_761) >> 24) as u8,
+                })
+                .collect();
+            let b = Bytes::new(&buf);
+            for pick in [Pick::Length, Pick::Component(1), Pick::Component(2)] {
+                let (mut fast, mut p_fast) = ([0f32; 512], PrecisionLoss::default());
+                leaf_values(&b, &l, pick, 0, &mut fast, &mut p_fast).unwrap();
+                let mut p_one = PrecisionLoss::default();
+                for (i, v) in fast.iter().enumerate() {
+                    let at = l.leaf_values + i as u64 * l.value;
+                    let one = decode_value(&b, &l, at, pick, &mut p_one).unwrap();
+                    assert_eq!(
+                        v.to_bits(),
+                        one.to_bits(),
+                        "type {code}, {pick:?}, value {i}"
+                    );
+                }
+                assert_eq!(p_fast, p_one, "type {code}");
+            }
+            let short = Bytes::new(&buf[..n - 1]);
+            let mut out = [0f32; 512];
+            assert!(leaf_values(
+                &short,
+                &l,
+                Pick::Length,
+                0,
+                &mut out,
+                &mut PrecisionLoss::default()
+            )
+            .is_err());
+        }
+    }
 }

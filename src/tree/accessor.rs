@@ -175,28 +175,37 @@ impl<'t> Accessor<'t> {
                 }
             }
         }
-        // Guarded so that infinite values give inf, not `inf * 0 = NaN`, at zero weight.
-        let lerp = |a: f32, b: f32, w: f64| {
-            if a == b || w == 0.0 {
-                a
-            } else if w == 1.0 {
-                b
-            } else {
-                (f64::from(a) + (f64::from(b) - f64::from(a)) * w) as f32
-            }
-        };
-        let y0 = lerp(
-            lerp(v[0][0][0], v[0][0][1], u[2]),
-            lerp(v[0][1][0], v[0][1][1], u[2]),
-            u[1],
-        );
-        let y1 = lerp(
-            lerp(v[1][0][0], v[1][0][1], u[2]),
-            lerp(v[1][1][0], v[1][1][1], u[2]),
-            u[1],
-        );
-        lerp(y0, y1, u[0])
+        interpolate(&v, u)
     }
+}
+
+/// OpenVDB's `BoxSampler` blend of the 8 voxels `v[dx][dy][dz]` around a point at fractions
+/// `u` of its cell: z first, then y, then x, each `a + (b - a) w` in f64 rounded to f32, with
+/// `a` kept where `a == b` or `w == 0` (so infinite values give `inf`, not `inf * 0 = NaN`, at
+/// zero weight) and `b` where `w == 1`. Every trilinear read of a tree's values goes through
+/// it ([`Accessor::trilinear`], [`super::Window::trilinear`]), so they agree bit for bit.
+#[inline(always)]
+pub(crate) fn interpolate(v: &[[[f32; 2]; 2]; 2], u: [f64; 3]) -> f32 {
+    let lerp = |a: f32, b: f32, w: f64| {
+        if a == b || w == 0.0 {
+            a
+        } else if w == 1.0 {
+            b
+        } else {
+            (f64::from(a) + (f64::from(b) - f64::from(a)) * w) as f32
+        }
+    };
+    let y0 = lerp(
+        lerp(v[0][0][0], v[0][0][1], u[2]),
+        lerp(v[0][1][0], v[0][1][1], u[2]),
+        u[1],
+    );
+    let y1 = lerp(
+        lerp(v[1][0][0], v[1][0][1], u[2]),
+        lerp(v[1][1][0], v[1][1][1], u[2]),
+        u[1],
+    );
+    lerp(y0, y1, u[0])
 }
 
 /// The values of one 8^3 block of voxels: a leaf's, or a single value (tile or background).

@@ -11,6 +11,7 @@ mod bounds;
 mod build;
 mod region;
 mod stats;
+mod window;
 
 pub use accessor::Accessor;
 pub(crate) use accessor::Block;
@@ -18,6 +19,7 @@ pub use bounds::Bounds;
 pub use build::TreeBuilder;
 pub(crate) use region::{RegionIndex, REGION_LEAF_BYTES, REGION_LOWER_BYTES, REGION_UPPER_BYTES};
 pub use stats::TreeStats;
+pub use window::Window;
 
 /// log2 of a leaf's edge in voxels.
 pub const LEAF_LOG2: u32 = 3;

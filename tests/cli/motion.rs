@@ -577,3 +577,95 @@ fn a_blurred_maps_error_channel_holds() {
         "{nan} unknown error bars, {blurred} blurred pixels"
     );
 }
+
+/// `/usr/bin/time -f %M` of `umbra args`: the exit status, umbra's stderr, and the child's
+/// peak resident set in KiB (time's last line).
+fn peak_kib(args: &[&str]) -> (std::process::ExitStatus, String, u64) {
+    let o = std::process::Command::new("/usr/bin/time")
+        .args(["-f", "%M", env!("CARGO_BIN_EXE_umbra")])
+        .args(args)
+        .output()
+        .expect("/usr/bin/time (Debian package time) measures the peak memory");
+    let err = String::from_utf8_lossy(&o.stderr).to_string();
+    let (rest, last) = err
+        .trim_end()
+        .rsplit_once('\n')
+        .unwrap_or(("", err.trim_end()));
+    // time's own note of a failed command is not umbra's.
+    let rest: Vec<&str> = rest
+        .lines()
+        .filter(|l| !l.starts_with("Command exited with non-zero status"))
+        .collect();
+    (o.status, rest.join("\n"), last.trim().parse().unwrap())
+}
+
+/// A blurred map under `--max-memory` is baked in parts: the same EXR bytes as the whole bake,
+/// at a lower peak memory; a budget below the least part is exit 1, one line naming the flag,
+/// nothing written. The cache is the sample cloud tiled 5 x 5 x 5 with a swirling velocity
+/// (`tests/motion/make_moving_cloud.py`, pyopenvdb).
+#[test]
+fn a_blurred_bake_under_max_memory_is_the_same_map_at_a_lower_peak() {
+    if !common::oracle_available() {
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let cache = dir.path().join("moving.vdb");
+    let script = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/motion/make_moving_cloud.py");
+    let o = std::process::Command::new("/usr/bin/python3")
+        .arg(script)
+        .arg(&cache)
+        .args(["--copies", "5", "5", "5"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cache = cache.to_str().unwrap();
+    let bake = |out: &Path, budget: Option<&str>| {
+        let mut a = vec![
+            cache,
+            "--velocity",
+            "vel",
+            // The ray path both ways (a whole blurred riemann map is swept by default, equal to
+            // the rays up to the order of its sums; parts go by rays).
+            "--estimator",
+            "riemann",
+            "--order",
+            "rays",
+            "--res",
+            "48x40",
+            "--light-dir",
+            "0.3,-1,0.2",
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        if let Some(b) = budget {
+            a.extend(["--max-memory", b]);
+        }
+        let mut args = vec!["bake"];
+        args.extend(a);
+        peak_kib(&args)
+    };
+    let whole_exr = dir.path().join("whole.exr");
+    let (s, err, whole) = bake(&whole_exr, None);
+    assert!(s.success(), "{err}");
+    let parts_exr = dir.path().join("parts.exr");
+    let (s, err, parts) = bake(&parts_exr, Some("96M"));
+    assert!(s.success(), "{err}");
+    assert!(
+        std::fs::read(&whole_exr).unwrap() == std::fs::read(&parts_exr).unwrap(),
+        "the EXR files differ"
+    );
+    assert!(
+        parts * 4 < whole * 3,
+        "peak {parts} KiB in parts against {whole} KiB whole"
+    );
+    let small = dir.path().join("small.exr");
+    let (s, err, _) = bake(&small, Some("8M"));
+    assert_eq!(s.code(), Some(1), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(
+        err.starts_with("umbra: error: invalid argument '--max-memory'"),
+        "{err}"
+    );
+    assert!(!small.exists());
+}

@@ -550,7 +550,7 @@ fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> um
 
 /// The least budget `job`'s plan accepts, read from its refusal of 1 MiB (which names it and
 /// the option `max-memory`).
-fn least_budget(job: &umbra::bake::BakeJob) -> u64 {
+pub(crate) fn least_budget(job: &umbra::bake::BakeJob) -> u64 {
     let mut j = job.clone();
     j.max_memory = Some(1 << 20);
     match j.plan_bounded() {

@@ -176,6 +176,14 @@ fn encode_exr(
     encode_exr_with(map, prov, layout, Vec::new(), Vec::new())
 }
 
+/// Whether the EXR encoder compresses its chunks in parallel for a bake on `threads` threads
+/// (0: all cores): the `exr` crate's pool has a thread per core, so only when the bake may use
+/// them all. The chunks are compressed alike and written in line order either way: the same
+/// bytes.
+fn compress_in_parallel(threads: usize) -> bool {
+    threads == 0 || std::thread::available_parallelism().is_ok_and(|n| threads >= n.get())
+}
+
 /// [`encode_exr`] with more channels (one value per pixel each; scanline and tiled layouts,
 /// not mip levels) and more header attributes.
 pub(crate) fn encode_exr_with(
@@ -213,7 +221,7 @@ pub(crate) fn encode_exr_with(
         },
         line_order: exr::meta::attribute::LineOrder::Increasing,
     };
-    let parallel = map.settings.threads == 0;
+    let parallel = compress_in_parallel(map.settings.threads);
     let mut buf = std::io::Cursor::new(Vec::new());
     // Each layout is its own image type; they encode alike.
     macro_rules! encode {

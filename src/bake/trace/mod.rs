@@ -10,7 +10,7 @@ pub(crate) mod sweep;
 
 use crate::bake::camera::{Camera, MAX_PIXELS};
 use crate::bake::map::{
-    bad, split_channels, BakeSettings, BakeStats, Channel, Map, Order, MAX_BATCHES,
+    bad, split_channels, worse_std_err, BakeSettings, BakeStats, Channel, Map, Order, MAX_BATCHES,
 };
 use crate::error::Result;
 use crate::estimate::{estimate, Estimate, Estimator, Options};
@@ -71,7 +71,7 @@ impl Px {
             lookups: self.lookups,
             capped: self.capped,
             majorant_violations: self.violations,
-            max_std_err: self.std_err.iter().copied().fold(0.0, f64::max),
+            max_std_err: self.std_err.iter().copied().fold(0.0, worse_std_err),
             unconverged: u64::from(self.unconverged),
             ..BakeStats::default()
         }
@@ -85,7 +85,7 @@ impl BakeStats {
         self.lookups += o.lookups;
         self.capped += o.capped;
         self.majorant_violations += o.majorant_violations;
-        self.max_std_err = self.max_std_err.max(o.max_std_err);
+        self.max_std_err = worse_std_err(self.max_std_err, o.max_std_err);
         self.unconverged += o.unconverged;
     }
 }
@@ -459,8 +459,15 @@ fn render(
     if s.order == Order::Auto {
         let exact = crate::bake::trace::sweep::applies(s);
         match src {
-            // A moving volume is traced ray by ray: the sweep reads the still grid.
-            Source::Volume(vol) if vol.moving().is_some() => {}
+            // A moving volume: blurred `riemann` maps are swept (`sweep::blur`), every other
+            // map is traced ray by ray.
+            Source::Volume(vol) if vol.moving().is_some() => {
+                if let Some(map) = crate::bake::trace::sweep::render_blurred(
+                    vol, camera, s, depths, rows, progress,
+                )? {
+                    return Ok(map);
+                }
+            }
             Source::Volume(vol)
                 if exact
                     || crate::bake::trace::sweep::marches(s).is_some()

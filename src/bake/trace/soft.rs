@@ -227,7 +227,7 @@ fn assemble(
         stats.max_std_err = e.std_err[..channels]
             .iter()
             .copied()
-            .fold(stats.max_std_err, f64::max);
+            .fold(stats.max_std_err, crate::bake::map::worse_std_err);
     }
     stats.samples = answers[..n]
         .iter()

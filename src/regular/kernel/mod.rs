@@ -178,6 +178,11 @@ impl Kernel {
         }
     }
 
+    /// The instruction set this version runs on.
+    pub(crate) fn simd(self) -> Simd {
+        self.simd
+    }
+
     /// Integrate the block's field along every used lane.
     pub(crate) fn integrate(self, block: &[f32; BLOCK], lanes: &Lanes) -> Sums {
         #[cfg(target_arch = "x86_64")]

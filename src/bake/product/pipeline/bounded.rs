@@ -24,8 +24,10 @@ impl BakeJob {
     /// a part holds the lower nodes its blocks read, their leaves' topology and the values of
     /// the leaves it decodes); every other map of one grid (any estimator, nearest lookups,
     /// extinction above lower nodes) goes by runs of image rows on the ray path, each run
-    /// decoding the leaves its pixel rays touch onto a copy of the topology. Scene files and
-    /// colour maps load whole.
+    /// decoding the leaves its pixel rays touch onto a copy of the topology. A blurred map of a
+    /// grid file goes by rows too, its shell set moving first (`moving.rs`: the velocity whole,
+    /// the bounds from per-leaf ranges). Scene files, colour maps and a stage's blurred volume
+    /// load whole.
     ///
     /// # Errors
     /// Output and settings errors; [`Error::InvalidArgument`] (name `max-memory`) when the
@@ -43,9 +45,10 @@ impl BakeJob {
         }
         self.check_outputs()?;
         self.settings.validate()?;
-        if self.source.kind().is_scene_file() || self.sigma_t().is_some() || self.moving() {
-            // Scenes, colour maps and blurred maps load whole (a velocity moves density
-            // anywhere its reach allows).
+        let kind = self.source.kind();
+        if kind.is_scene_file() || self.sigma_t().is_some() || (self.moving() && kind.is_stage()) {
+            // Scenes, colour maps and a stage's blurred volume (its velocity field may be
+            // another file's) load whole.
             return Ok(None);
         }
         let file = crate::input::GridFile::open(self.source.path())?;
@@ -61,20 +64,35 @@ impl BakeJob {
         let loaded = lazy.loaded_memory_bytes();
         let leaves = lazy.leaf_count() as u64;
         let topology = lazy.shell().tree.memory_bytes();
-        let shell = Scene::from_volume(self.volume_of(lazy.take_shell())?);
+        let shell = self.volume_of(lazy.take_shell())?;
+        // A moving grid: its velocity loaded whole and its blurred bounds built from the
+        // leaves' ranges, read a region at a time within what the budget leaves beside the
+        // topology, the velocity and the process (`moving.rs`).
+        let offsets = (leaves + 1) * 8;
+        let (shell, motion) = match self.moving_shell(&lazy, shell, |velocity| {
+            let per_region = topology + head_bytes + offsets + velocity + PROCESS_SLACK;
+            budget.saturating_sub(per_region).max(MIN_SUMMARY_CHUNK)
+        })? {
+            Ok(m) => (m.shell, Some((m.held, m.building))),
+            Err(still) => (still, None),
+        };
+        let (motion_held, motion_building) = motion.unwrap_or((0, 0));
+        let shell = Scene::from_volume(shell);
         let (camera, depth_shift) = match self.camera {
             Some(c) => c.covering(&shell.box_corners()?),
             None => (Camera::frame(&self.view, &shell.box_corners()?)?, 0.0),
         };
         let image = camera.pixels() * (1 + self.depth_images()) * 12;
         // The whole grid, the image and the process itself.
-        let whole = loaded + image + PROCESS_SLACK;
+        let whole = loaded + image + PROCESS_SLACK + motion_held;
         if whole <= budget {
             return Ok(None);
         }
         // Exact trilinear maps the sweep takes go in tree order (the sweep's own order);
         // every other map by runs of image rows on the ray path.
         let sweep = match shell.fogs().first() {
+            // A blurred map goes by rows on the ray path (the sweep reads a still grid).
+            _ if motion.is_some() => false,
             Some(f) => {
                 (self.is_exact_sweep() || self.is_march_sweep())
                     && crate::bake::trace::sweep::streams(f.volume(), &camera)?
@@ -93,9 +111,9 @@ impl BakeJob {
             return Ok(None);
         };
         // Held throughout: the topology (in the shell volume), the image and the process.
-        let offsets = (lazy.leaf_count() as u64 + 1) * 8;
-        let held = topology + offsets + image + PROCESS_SLACK;
-        let opening = topology + head_bytes + 2 * offsets + PROCESS_SLACK;
+        let held = topology + offsets + image + PROCESS_SLACK + motion_held;
+        let opening =
+            topology + head_bytes + 2 * offsets + PROCESS_SLACK + motion_held + motion_building;
         let z = Sizes {
             budget,
             whole,
@@ -240,7 +258,11 @@ impl BakeJob {
             };
             (map, streamed.sanitized)
         } else {
-            let load = |ids: &[u32]| self.volume_of(plan.lazy.load_from(shell.tree(), ids)?);
+            // A moving grid's parts share the shell's motion (its bounds are the whole grid's).
+            let load = |ids: &[u32]| {
+                self.volume_of(plan.lazy.load_from(shell.tree(), ids)?)?
+                    .with_motion_of(shell)
+            };
             let (mut map, parts) = crate::bake::trace::bake_rows_streamed(
                 shell,
                 &load,
@@ -276,6 +298,10 @@ const IMPLIED_MIN_FILE: u64 = 64 << 20;
 fn file_len(path: &std::path::Path) -> u64 {
     std::fs::metadata(path).map_or(0, |m| m.len())
 }
+
+/// The least bytes of leaf values a moving grid's summary pass decodes at a time, whatever
+/// the budget (a budget too small for the parts is refused after it, by `parts`).
+const MIN_SUMMARY_CHUNK: u64 = 4 << 20;
 
 /// What the process takes besides its data (code, thread stacks, allocator), counted against
 /// `--max-memory`.

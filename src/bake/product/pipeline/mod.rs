@@ -14,6 +14,7 @@ use std::path::PathBuf;
 mod bounded;
 mod deep;
 mod failure;
+mod moving;
 mod warning;
 
 pub use bounded::{BoundedPlan, IMPLIED_BUDGET};

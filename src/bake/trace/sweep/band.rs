@@ -13,13 +13,11 @@
 //! or threads.
 
 use super::pieces::{neighbourhood, Part, Piece};
-use super::rays::{pinhole_span, Layout, PixelDir};
+use super::rays::PixelDir;
 use super::Sweep;
 use crate::error::Result;
-use crate::math::box_corners;
 use crate::regular::kernel::{fill, Kernel, Lanes, BLOCK, LANES};
 use crate::regular::{cells_integral, leaf_integral, optical_depth_above_lowers, Counts};
-use crate::traverse::lookup_ray;
 use crate::tree::Accessor;
 use crate::volume::Interp;
 use glam::DVec3;
@@ -97,6 +95,22 @@ pub(super) trait BandKernel {
     /// One chord of a piece on the lane kernel, its block's corners in `at`.
     fn chord(&mut self, on: &Self::On, at: &Filled<'_>, c: Crossing);
 
+    /// Every chord of piece `p` on the lane kernel in `rows` (as [`Sweep::chords`] takes
+    /// them): [`BandKernel::chord`] for each chord [`Sweep::chords`] gives, pixels row by row.
+    /// A kernel may walk them itself, in the same order, where it has a shorter loop.
+    fn piece_chords(
+        &mut self,
+        sw: &Sweep<'_>,
+        (p, rows): (&Piece, (u32, u32, u32)),
+        band: &BandRows,
+        on: &Self::On,
+        at: &Filled<'_>,
+    ) {
+        sw.chords(p, rows, &band.dirs, |px, q, d, a, b| {
+            self.chord(on, at, Crossing { px, q, d, a, b });
+        });
+    }
+
     /// After the chords of piece `p`: the lanes still waiting, and closed-form parts.
     fn leave(&mut self, p: &Piece, on: &Self::On, at: &Filled<'_>);
 
@@ -133,33 +147,16 @@ impl Sweep<'_> {
                 origin: p.origin,
                 centre: DVec3::from(p.origin.map(|c| (c + 4) as f64)),
             };
-            self.chords(p, rows, &band.dirs, |px, q, d, a, b| {
-                k.chord(&on, &at, Crossing { px, q, d, a, b });
-            });
+            k.piece_chords(self, (p, rows), band, &on, &at);
             k.leave(p, &on, &at);
         }
         Ok(k.finish() + reads.n.reads)
     }
 
-    /// Each pixel's lookup-space direction through a pinhole, rows `y0..=y1`, as the ray path
-    /// computes it (empty for parallel rays).
+    /// Each pixel's lookup-space direction through a pinhole, rows `y0..=y1`
+    /// ([`super::rays::Rays::pixel_dirs`]).
     pub(super) fn pixel_dirs(&self, y0: u32, y1: u32) -> Result<Vec<PixelDir>> {
-        let (vol, camera, w) = (self.vol, self.camera, self.rays.width);
-        let mut dirs = Vec::new();
-        if matches!(self.rays.layout, Layout::Pinhole { .. }) {
-            dirs.reserve(((y1 - y0 + 1) * w) as usize);
-            for j in y0..=y1 {
-                for i in 0..w {
-                    let (_, d) = lookup_ray(vol, &camera.pixel_ray(i, j)?, Interp::Trilinear);
-                    let d = DVec3::from(d);
-                    dirs.push(PixelDir {
-                        d,
-                        inv_d: d.recip(),
-                    });
-                }
-            }
-        }
-        Ok(dirs)
+        self.rays.pixel_dirs(self.vol, self.camera, y0, y1)
     }
 
     /// Add a piece's contribution to pixel `n`'s full optical depth and to every slice whose
@@ -184,59 +181,16 @@ impl Sweep<'_> {
         }
     }
 
-    /// Every ray of rows `ja..=jb` (band rows from `y0`) that crosses piece `p`:
-    /// `f(n, q, d, a, b)` with its pixel's index in the band, its lookup-space origin and
-    /// direction, and its chord `[a, b]` inside the block (and the walk's clip box).
+    /// Every ray of rows `ja..=jb` (band rows from `y0`) that crosses piece `p`
+    /// ([`super::rays::Rays::chords`]).
     pub(super) fn chords(
         &self,
         p: &Piece,
-        (ja, jb, y0): (u32, u32, u32),
+        rows: (u32, u32, u32),
         dirs: &[PixelDir],
-        mut f: impl FnMut(usize, DVec3, DVec3, f64, f64),
+        f: impl FnMut(usize, DVec3, DVec3, f64, f64),
     ) {
-        let rays = &self.rays;
-        let (w, [i0, i1, ..]) = (rays.width, p.rect);
-        match &rays.layout {
-            Layout::Parallel(par) => {
-                for j in ja..=jb {
-                    let row = rays.row_clip(par, j, p.origin, 8);
-                    let Some([i0, i1]) = row.span([i0, i1]) else {
-                        continue;
-                    };
-                    for i in i0..=i1 {
-                        if let Some((q, a, b)) = row.at(i) {
-                            f(((j - y0) * w + i) as usize, q, par.d, a, b);
-                        }
-                    }
-                }
-            }
-            &Layout::Pinhole { p: q, inv } => {
-                let Some(bx) = rays.clipped(p.origin, 8) else {
-                    return;
-                };
-                let corners = box_corners([bx.0, bx.1]).map(|c| inv * (c - q));
-                // A box reaching behind the pinhole's plane: its footprint's columns
-                // (`Rays::straddling_rect`); each ray is clipped to the box all the same.
-                let straddles = corners.iter().any(|v| v.x <= 0.0);
-                for j in ja..=jb {
-                    let span = if straddles {
-                        Some([i0, i1])
-                    } else {
-                        pinhole_span(&corners, j, [i0, i1])
-                    };
-                    let Some([i0, i1]) = span else {
-                        continue;
-                    };
-                    for i in i0..=i1 {
-                        let n = ((j - y0) * w + i) as usize;
-                        let pd = &dirs[n];
-                        if let Some((a, b)) = pd.clip(q, bx, rays.t_min, rays.t_max) {
-                            f(n, q, pd.d, a, b);
-                        }
-                    }
-                }
-            }
-        }
+        self.rays.chords((p.origin, p.rect), rows, dirs, f);
     }
 }
 

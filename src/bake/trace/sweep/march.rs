@@ -33,9 +33,9 @@ use super::Sweep;
 use crate::bake::camera::Camera;
 use crate::bake::map::BakeSettings;
 use crate::error::Result;
-use crate::estimate::marching::{pieces, step_world};
+use crate::estimate::marching::{pieces, pieces_lanes, step_world};
 use crate::estimate::{Algo, Bounds, Estimator, Options, Spread};
-use crate::regular::kernel::{Kernel, Lanes, Steps, BLOCK, LANES};
+use crate::regular::kernel::{Kernel, Lanes, Simd, Steps, BLOCK, LANES};
 use crate::regular::{leaf_integral, Counts};
 use crate::rng::Rng;
 use crate::tree::Accessor;
@@ -114,13 +114,38 @@ pub(super) struct Job {
 }
 
 /// Up to [`LANES`] chords waiting for the kernel: their lanes, pieces, point offsets, and per
-/// lane the band buffer index it adds to, whether slices share it, and its end.
+/// lane the band buffer index it adds to, whether slices share it, and its end. A midpoint
+/// march keeps each lane's chord in f64 ([`Staged`]) until the batch is full, and then sets
+/// the lanes and counts their pieces for the whole batch at once ([`Batch::set_staged`]).
 struct Batch {
     lanes: Lanes,
     steps: Steps,
     offsets: Vec<[f32; LANES]>,
     at: [(usize, bool, f64); LANES],
+    staged: Staged,
     used: usize,
+}
+
+/// The midpoint lanes before [`Batch::set_staged`], per lane: the block-centred entry point
+/// and lookup-space direction (per axis), the chord's length and the step (world units).
+struct Staged {
+    e: [[f64; LANES]; 3],
+    d: [[f64; LANES]; 3],
+    len: [f64; LANES],
+    h: [f64; LANES],
+}
+
+impl Staged {
+    /// Lane `l`: the chord from `e` along `d` for `len`, at step `h`.
+    #[inline]
+    fn set(&mut self, l: usize, e: [f64; 3], d: DVec3, len: f64, h: f64) {
+        for k in 0..3 {
+            self.e[k][l] = e[k];
+            self.d[k][l] = d[k];
+        }
+        self.len[l] = len;
+        self.h[l] = h;
+    }
 }
 
 impl Batch {
@@ -130,8 +155,28 @@ impl Batch {
             steps: Steps::default(),
             offsets: Vec::new(),
             at: [(0, false, 0.0); LANES],
+            // Unused lanes' steps stay finite (no division by zero in `pieces_lanes`).
+            staged: Staged {
+                e: [[0.0; LANES]; 3],
+                d: [[0.0; LANES]; 3],
+                len: [0.0; LANES],
+                h: [1.0; LANES],
+            },
             used: 0,
         }
+    }
+
+    /// The staged lanes `0..used` set and their pieces counted ([`pieces_lanes`]): what the
+    /// midpoint march would set lane by lane, the same numbers, with the lanes' divisions and
+    /// conversions (a long dependency chain per chord) done side by side.
+    fn set_staged(&mut self, simd: Simd) {
+        let c = &self.staged;
+        for l in 0..self.used {
+            let at = |v: &[[f64; LANES]; 3]| [v[0][l], v[1][l], v[2][l]];
+            self.lanes.set(l, at(&c.e), at(&c.d), c.len[l]);
+        }
+        let steps = &mut self.steps;
+        pieces_lanes(simd, (&c.len, &c.h), self.used, &mut steps.n, &mut steps.dt);
     }
 }
 
@@ -308,7 +353,11 @@ impl<'s, 'a> MarchBand<'s, 'a> {
     /// The waiting lanes marched through `block`, each added to its estimate.
     fn flush(&mut self, block: &[f32; BLOCK]) {
         let batch = &mut self.batch;
-        let offsets = (self.m.points != Points::Midpoint).then_some(&batch.offsets[..]);
+        let midpoint = self.m.points == Points::Midpoint;
+        if midpoint {
+            batch.set_staged(self.kernel.simd());
+        }
+        let offsets = (!midpoint).then_some(&batch.offsets[..]);
         let sums = self
             .kernel
             .march(block, &batch.lanes, &batch.steps, offsets);
@@ -323,6 +372,29 @@ impl<'s, 'a> MarchBand<'s, 'a> {
         batch.used = 0;
     }
 
+    /// The one estimate of a midpoint chord without slices (`Sweep::jobs`: slot 0, to `b`,
+    /// shared; one sample) staged: pixel `px`'s chord `[a, b]` from the block-centred entry
+    /// point `e` along `d`, at step `h`, through the block `at`.
+    #[inline]
+    fn stage(
+        &mut self,
+        px: usize,
+        e: [f64; 3],
+        d: DVec3,
+        (a, b): (f64, f64),
+        h: f64,
+        at: &Filled<'_>,
+    ) {
+        let batch = &mut self.batch;
+        let l = batch.used;
+        batch.staged.set(l, e, d, b - a, h);
+        batch.at[l] = (px * self.stride, true, b);
+        batch.used += 1;
+        if batch.used == self.width {
+            self.flush(at.block);
+        }
+    }
+
     /// The lanes of part `[a, b]` of a chord (`c`, through the block `at` with stream key
     /// `key`; step `h`): one per job and sample, its pieces and, for a random march, its points'
     /// offsets from the sample's stream forked by the block.
@@ -330,6 +402,10 @@ impl<'s, 'a> MarchBand<'s, 'a> {
         let Crossing { px, q, d, a, b } = c;
         let e = ((q - at.centre) + d * a).to_array();
         let m = self.m;
+        if m.points == Points::Midpoint && self.sw.depths.is_empty() {
+            self.stage(px, e, d, (a, b), h, at);
+            return;
+        }
         self.sw
             .jobs(m.random(), (a, b), self.pixel_id(px), &mut self.jobs);
         // Taken for the loop: a full batch flushes (`&mut self`) inside it.
@@ -339,10 +415,12 @@ impl<'s, 'a> MarchBand<'s, 'a> {
             for i in 0..self.samples {
                 let batch = &mut self.batch;
                 let l = batch.used;
-                batch.lanes.set(l, e, d.to_array(), job.end - a);
-                batch.steps.n[l] = count as u32;
-                batch.steps.dt[l] = dt as f32;
-                if m.points != Points::Midpoint {
+                if m.points == Points::Midpoint {
+                    batch.staged.set(l, e, d, job.end - a, h);
+                } else {
+                    batch.lanes.set(l, e, d.to_array(), job.end - a);
+                    batch.steps.n[l] = count as u32;
+                    batch.steps.dt[l] = dt as f32;
                     let rows = count as usize;
                     if batch.offsets.len() < rows {
                         batch.offsets.resize(rows, [0.0; LANES]);
@@ -418,6 +496,48 @@ impl BandKernel for MarchBand<'_, '_> {
                 }
             }
         });
+    }
+
+    /// A leaf's chords on parallel rays in a midpoint march without slices: the chords
+    /// [`Sweep::chords`] gives, in its order, staged straight into the batch (the lanes
+    /// [`BandKernel::chord`] would stage, without its calls per chord); any other piece or
+    /// march through [`BandKernel::chord`].
+    fn piece_chords(
+        &mut self,
+        sw: &Sweep<'_>,
+        (p, rows): (&Piece, (u32, u32, u32)),
+        band: &BandRows,
+        on: &MarchOn,
+        at: &Filled<'_>,
+    ) {
+        let (Layout::Parallel(par), Some(h), false, Points::Midpoint, true) = (
+            &sw.rays.layout,
+            self.h_parallel,
+            on.tile,
+            self.m.points,
+            sw.depths.is_empty(),
+        ) else {
+            sw.chords(p, rows, &band.dirs, |px, q, d, a, b| {
+                self.chord(on, at, Crossing { px, q, d, a, b });
+            });
+            return;
+        };
+        let ((ja, jb, y0), w, d) = (rows, sw.rays.width, par.d);
+        let [i0, i1, ..] = p.rect;
+        for j in ja..=jb {
+            let row = sw.rays.row_clip(par, j, p.origin, 8);
+            let Some([i0, i1]) = row.span([i0, i1]) else {
+                continue;
+            };
+            for i in i0..=i1 {
+                let Some((q, a, b)) = row.at(i) else {
+                    continue;
+                };
+                let px = ((j - y0) * w + i) as usize;
+                // As `MarchBand::lanes` stages it.
+                self.stage(px, ((q - at.centre) + d * a).to_array(), d, (a, b), h, at);
+            }
+        }
     }
 
     /// The chord's lanes; a marched tile's chord is split around its inner box

@@ -45,6 +45,7 @@
 //! dual cell of a block, 4 for each further one.
 
 mod band;
+mod blur;
 mod flight;
 mod march;
 mod pieces;
@@ -52,6 +53,7 @@ mod rays;
 mod streamed;
 
 use band::{BandRows, ExactBand};
+pub(crate) use blur::render as render_blurred;
 pub(crate) use flight::flights;
 use flight::{Flight, FlightBand};
 pub(crate) use march::marches;
@@ -61,7 +63,7 @@ use rays::Rays;
 pub(crate) use streamed::{part_bytes, render_streamed, streams, Streamed};
 
 use crate::bake::camera::Camera;
-use crate::bake::map::{BakeSettings, BakeStats, Map};
+use crate::bake::map::{worse_std_err, BakeSettings, BakeStats, Map};
 use crate::error::Result;
 use crate::estimate::{Bounds, Estimator};
 use crate::volume::{Interp, Volume};
@@ -380,7 +382,7 @@ fn view_map(
         map.stats.samples = camera.pixels() * samples as u64;
         map.std_err = s.std_err.then(|| errs.concat());
         if let Some(e) = &map.std_err {
-            map.stats.max_std_err = e.iter().fold(0.0, |m, &v| m.max(f64::from(v)));
+            map.stats.max_std_err = e.iter().fold(0.0, |m, &v| worse_std_err(m, f64::from(v)));
         }
     }
     map

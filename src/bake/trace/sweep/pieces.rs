@@ -230,9 +230,19 @@ pub(super) fn neighbourhood<'t>(
 
 /// The pieces of each band of `rows` rows, in piece order.
 pub(super) fn bins(pieces: &[Piece], rows: u32, height: u32) -> Vec<Vec<u32>> {
+    bins_of(pieces.iter().map(|p| p.rect), rows, height)
+}
+
+/// The ids (positions in `rects`) of the footprints `[i0, i1, j0, j1]` meeting each band of
+/// `rows` rows, in their order.
+pub(super) fn bins_of(
+    rects: impl Iterator<Item = [u32; 4]>,
+    rows: u32,
+    height: u32,
+) -> Vec<Vec<u32>> {
     let mut bins: Vec<Vec<u32>> = vec![Vec::new(); height.div_ceil(rows) as usize];
-    for (id, p) in pieces.iter().enumerate() {
-        for b in (p.rect[2] / rows)..=(p.rect[3] / rows) {
+    for (id, rect) in rects.enumerate() {
+        for b in (rect[2] / rows)..=(rect[3] / rows) {
             bins[b as usize].push(id as u32);
         }
     }

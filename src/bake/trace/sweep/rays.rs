@@ -53,6 +53,20 @@ impl Rays {
     /// index space, or a pinhole that is not strictly behind the whole clip box (then some
     /// block's footprint is unbounded and the rays are traced instead).
     pub(super) fn new(vol: &Volume, camera: &Camera) -> Result<Option<Self>> {
+        // As `hdda::Walker::run`: lookup cells whose trilinear reads touch the value box.
+        let clip = match vol.value_box() {
+            Some([lo, hi]) => (lo.map(|c| (c - 1) as f64), hi.map(|c| (c + 1) as f64)),
+            None => ([0.0; 3], [0.0; 3]),
+        };
+        Self::clipped_to(vol, camera, clip)
+    }
+
+    /// [`Rays::new`] with the walk's clip box `clip` (lookup space) given.
+    pub(super) fn clipped_to(
+        vol: &Volume,
+        camera: &Camera,
+        (clip_lo, clip_hi): ([f64; 3], [f64; 3]),
+    ) -> Result<Option<Self>> {
         if crate::bake::camera::is_omni(camera.kind) {
             // Not one projection: a cube map is swept face by face (`render_cube`).
             return Ok(None);
@@ -62,11 +76,6 @@ impl Rays {
         let (q0, d) = (DVec3::from(q0), DVec3::from(d));
         let qx = vol.to_index_dir(DVec3::from(camera.step_x));
         let qy = vol.to_index_dir(DVec3::from(camera.step_y));
-        // As `hdda::Walker::run`: lookup cells whose trilinear reads touch the value box.
-        let (clip_lo, clip_hi) = match vol.value_box() {
-            Some([lo, hi]) => (lo.map(|c| (c - 1) as f64), hi.map(|c| (c + 1) as f64)),
-            None => ([0.0; 3], [0.0; 3]),
-        };
         let m = match camera.kind {
             Projection::Ortho => DMat3::from_cols(qx, qy, d),
             _ => DMat3::from_cols(vol.to_index_dir(DVec3::from(camera.direction)), qx, qy),
@@ -98,6 +107,89 @@ impl Rays {
             width: camera.width,
             height: camera.height,
         }))
+    }
+
+    /// Every ray of rows `ja..=jb` (band rows from `y0`) that crosses the `8^3` block at
+    /// `origin` whose footprint is `rect` ([`Rays::footprint`]): `f(n, q, d, a, b)` with its
+    /// pixel's index in the band, its lookup-space origin and direction, and its chord
+    /// `[a, b]` inside the block (and the walk's clip box).
+    pub(super) fn chords(
+        &self,
+        (origin, rect): ([i64; 3], [u32; 4]),
+        (ja, jb, y0): (u32, u32, u32),
+        dirs: &[PixelDir],
+        mut f: impl FnMut(usize, DVec3, DVec3, f64, f64),
+    ) {
+        let rays = self;
+        let (w, [i0, i1, ..]) = (rays.width, rect);
+        match &rays.layout {
+            Layout::Parallel(par) => {
+                for j in ja..=jb {
+                    let row = rays.row_clip(par, j, origin, 8);
+                    let Some([i0, i1]) = row.span([i0, i1]) else {
+                        continue;
+                    };
+                    for i in i0..=i1 {
+                        if let Some((q, a, b)) = row.at(i) {
+                            f(((j - y0) * w + i) as usize, q, par.d, a, b);
+                        }
+                    }
+                }
+            }
+            &Layout::Pinhole { p: q, inv } => {
+                let Some(bx) = rays.clipped(origin, 8) else {
+                    return;
+                };
+                let corners = box_corners([bx.0, bx.1]).map(|c| inv * (c - q));
+                // A box reaching behind the pinhole's plane: its footprint's columns
+                // (`Rays::straddling_rect`); each ray is clipped to the box all the same.
+                let straddles = corners.iter().any(|v| v.x <= 0.0);
+                for j in ja..=jb {
+                    let span = if straddles {
+                        Some([i0, i1])
+                    } else {
+                        pinhole_span(&corners, j, [i0, i1])
+                    };
+                    let Some([i0, i1]) = span else {
+                        continue;
+                    };
+                    for i in i0..=i1 {
+                        let n = ((j - y0) * w + i) as usize;
+                        let pd = &dirs[n];
+                        if let Some((a, b)) = pd.clip(q, bx, rays.t_min, rays.t_max) {
+                            f(n, q, pd.d, a, b);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Each pixel's lookup-space direction through a pinhole, rows `y0..=y1` of `camera`'s
+    /// map of `vol`, as the ray path computes it (empty for parallel rays).
+    pub(super) fn pixel_dirs(
+        &self,
+        vol: &Volume,
+        camera: &Camera,
+        y0: u32,
+        y1: u32,
+    ) -> Result<Vec<PixelDir>> {
+        let w = self.width;
+        let mut dirs = Vec::new();
+        if matches!(self.layout, Layout::Pinhole { .. }) {
+            dirs.reserve(((y1 - y0 + 1) * w) as usize);
+            for j in y0..=y1 {
+                for i in 0..w {
+                    let (_, d) = lookup_ray(vol, &camera.pixel_ray(i, j)?, Interp::Trilinear);
+                    let d = DVec3::from(d);
+                    dirs.push(PixelDir {
+                        d,
+                        inv_d: d.recip(),
+                    });
+                }
+            }
+        }
+        Ok(dirs)
     }
 
     /// The box of side `dim` at `o` clipped to the walk's clip box, or `None` when they do not
@@ -347,7 +439,13 @@ impl RowClip {
                 hi = f64::NEG_INFINITY;
             }
         };
-        let slabs: Vec<usize> = (0..3).filter(|&k| !self.flat[k]).collect();
+        // The slabs the rays cross (a fixed array: this runs for every row of every block).
+        let (mut slabs, mut crossed) = ([0usize; 3], 0);
+        for k in (0..3).filter(|&k| !self.flat[k]) {
+            slabs[crossed] = k;
+            crossed += 1;
+        }
+        let slabs = &slabs[..crossed];
         for k in 0..3 {
             if self.flat[k] {
                 // lo <= q + i qx <= hi.
@@ -357,7 +455,7 @@ impl RowClip {
             }
             need(self.near[k] - self.t_max, self.beta[k]);
             need(self.t_min - self.far[k], -self.beta[k]);
-            for &m in &slabs {
+            for &m in slabs {
                 need(self.near[k] - self.far[m], self.beta[k] - self.beta[m]);
             }
         }

@@ -353,13 +353,7 @@ fn slices_match_prefix_optical_depths() {
             .expect("plan")
             .expect("frame");
         let s = sweep.stride();
-        let mut buf = vec![0.0; camera.pixels() as usize * s];
-        for (b, chunk) in buf
-            .chunks_mut(rows as usize * camera.width as usize * s)
-            .enumerate()
-        {
-            sweep.band(b, chunk, &mut 0).expect("band");
-        }
+        let buf = run_bands(&sweep, &camera, rows);
         let mut straddled = 0;
         for n in 0..camera.pixels() as usize {
             let (i, j) = (n as u32 % camera.width, n as u32 / camera.width);
@@ -422,13 +416,7 @@ fn check_march(
     };
     let (stride, samples) = (sweep.stride(), sweep.samples());
     let per = stride / samples;
-    let mut buf = vec![0.0; camera.pixels() as usize * stride];
-    for (b, chunk) in buf
-        .chunks_mut(rows as usize * camera.width as usize * stride)
-        .enumerate()
-    {
-        sweep.band(b, chunk, &mut 0).expect("band");
-    }
+    let buf = run_bands(&sweep, camera, rows);
     let (est, opts) = m.estimator();
     let npix = camera.pixels();
     let mut hit = 0;
@@ -546,6 +534,82 @@ fn marches_match_the_ray_path() {
             assert!(hit > 20, "{what}: {hit}");
         }
     }
+}
+
+/// Every band of `sweep` (planned for `camera` in bands of `rows` rows), one after the other:
+/// the image's buffer, [`Sweep::stride`] values a pixel.
+pub(super) fn run_bands(sweep: &Sweep<'_>, camera: &Camera, rows: u32) -> Vec<f64> {
+    let stride = sweep.stride();
+    let mut buf = vec![0.0; camera.pixels() as usize * stride];
+    for (b, chunk) in buf
+        .chunks_mut(rows as usize * camera.width as usize * stride)
+        .enumerate()
+    {
+        sweep.band(b, chunk, &mut 0).expect("band");
+    }
+    buf
+}
+
+/// The sweep's march `m` of every pixel (`stride` values each: its estimates, each the full
+/// ray then its slices at `depths`) and that stride, or `None` when the sweep declines.
+fn march_buf(vol: &Volume, camera: &Camera, m: March, depths: &[f64]) -> Option<(Vec<f64>, usize)> {
+    let rows = 16;
+    let sweep = Sweep::new(vol, camera, rows, depths)
+        .expect("plan")
+        .expect("frame")
+        .marching(Some(m), None)?;
+    Some((run_bands(&sweep, camera, rows), sweep.stride()))
+}
+
+/// A Riemann map without slices (a leaf's chords on parallel rays staged straight into the
+/// kernel's batches, `MarchBand::piece_chords`; through a pinhole staged chord by chord) has
+/// the very bits of the full depth of the same map with a slice (every chord through the
+/// estimates of `Sweep::jobs`): corpus files with leaves and tiles, both projections, steps on
+/// and off the voxel grid.
+#[test]
+fn a_riemann_map_without_slices_is_bit_for_bit_its_full_depth_with_slices() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/corpus");
+    let mut vols: Vec<(String, Volume)> = [
+        ("gen/cloud_fbm.vdb", 5.0),
+        ("gen/tiles_mixed.vdb", 3.0),
+        ("real/openvdb_smoke1_houdini_v222.vdb", 0.3),
+    ]
+    .into_iter()
+    .map(|(file, scale)| {
+        let vol = Volume::load(root.join(file), "density", scale).expect(file);
+        (file.to_string(), vol)
+    })
+    .collect();
+    vols.push(("tiles and shells".into(), tiles_and_shells()));
+    let mut checked = 0;
+    for (file, vol) in &vols {
+        for (what, camera) in cameras(vol, 40) {
+            let mid = 0.5 * (camera.t_near + camera.t_max);
+            for step in [1.0, 0.37] {
+                let what = format!("{file} {what} step {step}");
+                let m = march_of("riemann", step, 1);
+                let Some((plain, one)) = march_buf(vol, &camera, m, &[]) else {
+                    continue;
+                };
+                let (sliced, two) = march_buf(vol, &camera, m, &[mid]).expect("swept");
+                assert_eq!((one, two), (1, 2), "{what}");
+                let mut seen = 0;
+                for (n, &tau) in plain.iter().enumerate() {
+                    assert_eq!(
+                        tau.to_bits(),
+                        sliced[2 * n].to_bits(),
+                        "{what}: pixel {n}: {tau} without slices, {} with",
+                        sliced[2 * n]
+                    );
+                    seen += usize::from(tau > 0.0);
+                }
+                assert!(seen > 20, "{what}: {seen} pixels saw the volume");
+                checked += 1;
+            }
+        }
+    }
+    // Every volume but the one with extinction above lower nodes (which goes by rays).
+    assert!(checked >= 3 * 8 * 2, "{checked}");
 }
 
 /// Jittered and Monte Carlo maps swept block by block draw the ray path's points (each chord's

@@ -1,7 +1,7 @@
 //! Null-collision maps swept block by block against the exact optical depth: unbiased within
 //! their standard errors, the same bits whatever the bands or threads.
 
-use super::super::tests::{cameras, tiles_and_shells};
+use super::super::tests::{cameras, run_bands, tiles_and_shells};
 use super::*;
 use crate::bake::camera::Camera;
 use crate::volume::Volume;
@@ -30,14 +30,7 @@ fn estimates(
         .expect("plan")
         .expect("frame");
     let sweep = planned.marching(None, Some(f))?;
-    let stride = sweep.stride();
-    let mut buf = vec![0.0; camera.pixels() as usize * stride];
-    for (b, chunk) in buf
-        .chunks_mut(rows as usize * camera.width as usize * stride)
-        .enumerate()
-    {
-        sweep.band(b, chunk, &mut 0).expect("band");
-    }
+    let buf = run_bands(&sweep, camera, rows);
     assert!(!sweep.capped.load(Ordering::Relaxed));
     Some(buf)
 }
