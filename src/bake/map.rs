@@ -246,6 +246,65 @@ pub struct BakeStats {
     /// receiver (texels times `1 + slices`). Absent for a point light.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_sampled: Option<[u64; 2]>,
+    /// A blurred `riemann` map the object-order sweep declined, so it went ray by ray (about
+    /// 3-4x the sweep's time): why. Said as a warning ([`crate::bake::Warning::SweepDeclined`]).
+    #[serde(skip)]
+    pub declined: Option<SweepDeclined>,
+}
+
+/// Why the object-order sweep of a blurred `riemann` map (`bake::trace::sweep::blur`) handed
+/// it to the ray path. Each is a case the sweep's closed per-block sums do not hold: depth
+/// slices and adaptive counts need per-ray state, a nearest lookup and a non-zero background
+/// read outside the blocks' windows, an infinite majorant needs the ray path's fine march.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SweepDeclined {
+    /// Depth slices (`--depths`, a deep map).
+    Slices,
+    /// An adaptive count (`--target-error`).
+    TargetError,
+    /// Nearest lookups (`--interp nearest`).
+    Nearest,
+    /// One majorant for the whole grid (`--global-majorant`).
+    GlobalMajorant,
+    /// A non-zero background extinction (per world unit, scaled).
+    Background(f64),
+    /// A voxel that is infinite (opaque) lies within the shutter's reach of a block.
+    Opaque,
+    /// A band of rows would hold more per-pixel time values than the sweep keeps
+    /// (`values`: rows times width times time samples).
+    WideBand {
+        /// Time values the band would hold.
+        values: u64,
+        /// The most the sweep keeps.
+        max: u64,
+    },
+    /// The map is baked in parts under `--max-memory`, which go ray by ray.
+    Parts,
+}
+
+impl std::fmt::Display for SweepDeclined {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match *self {
+            Self::Slices => f.write_str("it has depth slices (--depths)"),
+            Self::TargetError => f.write_str("--target-error asks for an adaptive count"),
+            Self::Nearest => f.write_str("its lookups are nearest (--interp nearest)"),
+            Self::GlobalMajorant => f.write_str("--global-majorant is set"),
+            Self::Background(mu) => write!(
+                f,
+                "the grid's background extinction is not zero ({})",
+                crate::math::sig3(mu)
+            ),
+            Self::Opaque => {
+                f.write_str("an infinite (opaque) voxel lies within the shutter's reach")
+            }
+            Self::WideBand { values, max } => write!(
+                f,
+                "a band of rows would hold {values} time values (the sweep keeps at most \
+                 {max}: fewer time samples or a narrower map)"
+            ),
+            Self::Parts => f.write_str("it is baked in parts under --max-memory"),
+        }
+    }
 }
 
 /// A baked map: row-major channels, row 0 at the top, pixel `(i, j)` at index `j W + i`.

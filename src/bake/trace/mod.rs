@@ -87,6 +87,7 @@ impl BakeStats {
         self.majorant_violations += o.majorant_violations;
         self.max_std_err = worse_std_err(self.max_std_err, o.max_std_err);
         self.unconverged += o.unconverged;
+        self.declined = self.declined.or(o.declined);
     }
 }
 
@@ -418,10 +419,18 @@ pub(crate) fn bake_rows_streamed(
         }
         flush(r0, h, &held)?;
         let nc = 1;
-        Ok((
-            assemble_rays(camera, settings, &depths, nc, t_image, bands, start),
-            parts,
-        ))
+        let mut map = assemble_rays(camera, settings, &depths, nc, t_image, bands, start);
+        // A blurred `riemann` map in parts goes by rays, where a whole load would be swept.
+        if settings.order == Order::Auto
+            && shell.moving().is_some()
+            && matches!(
+                settings.estimator.algo(),
+                (crate::estimate::Algo::Riemann, _)
+            )
+        {
+            map.stats.declined = Some(crate::bake::SweepDeclined::Parts);
+        }
+        Ok((map, parts))
     };
     in_pool(settings.threads, run)
 }
@@ -456,16 +465,18 @@ fn render(
     let h = camera.height;
     let nc = src.channels();
     let rows = band_rows(h, rayon::current_num_threads());
+    let mut declined = None;
     if s.order == Order::Auto {
         let exact = crate::bake::trace::sweep::applies(s);
         match src {
             // A moving volume: blurred `riemann` maps are swept (`sweep::blur`), every other
-            // map is traced ray by ray.
+            // map is traced ray by ray; a blurred `riemann` map the sweep declines says why.
             Source::Volume(vol) if vol.moving().is_some() => {
-                if let Some(map) = crate::bake::trace::sweep::render_blurred(
+                match crate::bake::trace::sweep::render_blurred(
                     vol, camera, s, depths, rows, progress,
                 )? {
-                    return Ok(map);
+                    crate::bake::trace::sweep::Swept::Map(map) => return Ok(map),
+                    crate::bake::trace::sweep::Swept::Rays(why) => declined = why,
                 }
             }
             Source::Volume(vol)
@@ -486,7 +497,9 @@ fn render(
         }
     }
     let (t_image, bands) = render_rows(src, camera, s, depths, (0, h), rows, progress)?;
-    Ok(assemble_rays(camera, s, depths, nc, t_image, bands, start))
+    let mut map = assemble_rays(camera, s, depths, nc, t_image, bands, start);
+    map.stats.declined = declined;
+    Ok(map)
 }
 
 /// The ray path over image rows `r0..r1` (in bands of `rows` rows, in parallel): their `T`

@@ -428,6 +428,11 @@ impl BakeJob {
         let mut warnings = volume_warnings(&scene.sanitized().merged(leaves));
         warnings.extend(solid_warnings(scene));
         warnings.extend(warning::motion_warnings(scene));
+        if let Some(why) = map.stats.declined {
+            warnings.push(Warning::SweepDeclined {
+                reason: why.to_string(),
+            });
+        }
         if self.max_memory.is_some() {
             let kind = self.source.kind();
             if kind.is_scene_file() {

@@ -97,6 +97,12 @@ pub enum Warning {
         /// What loads whole.
         what: &'static str,
     },
+    /// A blurred `riemann` map went ray by ray where the object-order sweep usually takes it
+    /// (several times slower): why ([`crate::bake::SweepDeclined`]).
+    SweepDeclined {
+        /// Why, in words.
+        reason: String,
+    },
 }
 
 impl std::fmt::Display for Warning {
@@ -163,6 +169,11 @@ impl std::fmt::Display for Warning {
                 f,
                 "--max-memory is not honoured: {what} load whole (the budget applies to maps of \
                  one grey grid)"
+            ),
+            Self::SweepDeclined { ref reason } => write!(
+                f,
+                "this blurred map is traced ray by ray, not swept in object order (several \
+                 times slower): {reason}"
             ),
             Self::BadVoxels { nan, negative } => {
                 write!(f, "{nan} NaN and {negative} negative values treated as 0")

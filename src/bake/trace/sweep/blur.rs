@@ -31,7 +31,7 @@
 use super::pieces::bins_of;
 use super::rays::Rays;
 use crate::bake::camera::Camera;
-use crate::bake::map::{BakeSettings, BakeStats, Map};
+use crate::bake::map::{BakeSettings, BakeStats, Map, SweepDeclined};
 use crate::error::Result;
 use crate::estimate::blur::{marcher_spread, marcher_std_err, strata_times};
 use crate::estimate::marching::{pieces, step_world};
@@ -77,8 +77,27 @@ struct BlurSweep<'a> {
     seed: u64,
 }
 
-/// Render `camera`'s blurred `riemann` map of the moving `vol` in object order, or `None` when
-/// the sweep does not take it (module docs): the caller traces rays.
+/// What [`BlurSweep::new`] makes of a map.
+enum Plan<'a> {
+    /// The sweep takes it.
+    Sweep(BlurSweep<'a>),
+    /// Not a blurred `riemann` map, or none of its rays meets the blurred bounds: the ray path
+    /// is the only path (or a trivial one), nothing to say.
+    NotMine,
+    /// A blurred `riemann` map the sweep declines: the ray path traces it, and says why.
+    Declined(SweepDeclined),
+}
+
+/// What [`render`] did with a map.
+pub(crate) enum Swept {
+    /// The map, swept.
+    Map(Map),
+    /// Not the sweep's; `Some`: a blurred `riemann` map it declined, and why.
+    Rays(Option<SweepDeclined>),
+}
+
+/// Render `camera`'s blurred `riemann` map of the moving `vol` in object order, or say why
+/// not (module docs): the caller traces rays.
 pub(crate) fn render(
     vol: &Volume,
     camera: &Camera,
@@ -86,10 +105,12 @@ pub(crate) fn render(
     depths: &[f64],
     rows: u32,
     progress: &dyn crate::progress::Progress,
-) -> Result<Option<Map>> {
+) -> Result<Swept> {
     let start = std::time::Instant::now();
-    let Some(sweep) = BlurSweep::new(vol, camera, s, depths, rows)? else {
-        return Ok(None);
+    let sweep = match BlurSweep::new(vol, camera, s, depths, rows)? {
+        Plan::Sweep(sweep) => sweep,
+        Plan::NotMine => return Ok(Swept::Rays(None)),
+        Plan::Declined(why) => return Ok(Swept::Rays(Some(why))),
     };
     let w = camera.width as usize;
     let mut t_image = vec![0.0f32; camera.pixels() as usize];
@@ -113,7 +134,7 @@ pub(crate) fn render(
         total.absorb(st);
     }
     total.seconds = start.elapsed().as_secs_f64();
-    Ok(Some(Map {
+    Ok(Swept::Map(Map {
         camera: *camera,
         settings: s.clone(),
         t: t_image,
@@ -126,33 +147,45 @@ pub(crate) fn render(
 }
 
 impl<'a> BlurSweep<'a> {
-    /// The sweep of `camera`'s map, or `None` when it does not apply (module docs).
+    /// The sweep of `camera`'s map, or why not (module docs).
     fn new(
         vol: &'a Volume,
         camera: &'a Camera,
         s: &BakeSettings,
         depths: &[f64],
         rows: u32,
-    ) -> Result<Option<Self>> {
+    ) -> Result<Plan<'a>> {
         let Some(motion) = vol.moving() else {
-            return Ok(None);
+            return Ok(Plan::NotMine);
         };
         let (Algo::Riemann, step) = s.estimator.algo() else {
-            return Ok(None);
+            return Ok(Plan::NotMine);
         };
-        if !depths.is_empty()
-            || s.target_error.is_some()
-            || s.options.interp != Interp::Trilinear
-            || s.options.global_majorant
-            || vol.mu_background() != 0.0
-        {
-            return Ok(None);
+        let declined = if !depths.is_empty() {
+            Some(SweepDeclined::Slices)
+        } else if s.target_error.is_some() {
+            Some(SweepDeclined::TargetError)
+        } else if s.options.interp != Interp::Trilinear {
+            Some(SweepDeclined::Nearest)
+        } else if s.options.global_majorant {
+            Some(SweepDeclined::GlobalMajorant)
+        } else if vol.mu_background() != 0.0 {
+            Some(SweepDeclined::Background(vol.mu_background()))
+        } else {
+            None
+        };
+        if let Some(why) = declined {
+            return Ok(Plan::Declined(why));
         }
         // A band keeps `K` displacements and optical depths per pixel: a band over
         // `MAX_BAND_VALUES` of them (thousands of times on a wide map) goes by rays.
         let band_values = u64::from(rows) * u64::from(camera.width);
-        if band_values * u64::from(motion.spec().time_samples()) > MAX_BAND_VALUES {
-            return Ok(None);
+        let values = band_values.saturating_mul(u64::from(motion.spec().time_samples()));
+        if values > MAX_BAND_VALUES {
+            return Ok(Plan::Declined(SweepDeclined::WideBand {
+                values,
+                max: MAX_BAND_VALUES,
+            }));
         }
         let bounds = motion.bounds();
         let (lo, dims) = bounds.dense_box();
@@ -162,7 +195,7 @@ impl<'a> BlurSweep<'a> {
             [0, 1, 2].map(|a| ((lo[a] + dims[a] as i64) * 8) as f64),
         );
         let Some(rays) = Rays::clipped_to(vol, camera, clip)? else {
-            return Ok(None);
+            return Ok(Plan::NotMine);
         };
         let scale = vol.density_scale();
         let mut blocks = Vec::new();
@@ -174,7 +207,7 @@ impl<'a> BlurSweep<'a> {
                     let mu = (scaled(scale, f64::from(mn)), scaled(scale, f64::from(mx)));
                     if !mu.1.is_finite() {
                         // Opaque somewhere at some time: the ray path's fine march.
-                        return Ok(None);
+                        return Ok(Plan::Declined(SweepDeclined::Opaque));
                     }
                     if mu.1 <= 0.0 {
                         continue;
@@ -187,7 +220,7 @@ impl<'a> BlurSweep<'a> {
             }
         }
         let bins = bins_of(blocks.iter().map(|b| b.rect), rows, camera.height);
-        Ok(Some(Self {
+        Ok(Plan::Sweep(Self {
             vol,
             motion,
             camera,

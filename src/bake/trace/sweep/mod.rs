@@ -53,7 +53,7 @@ mod rays;
 mod streamed;
 
 use band::{BandRows, ExactBand};
-pub(crate) use blur::render as render_blurred;
+pub(crate) use blur::{render as render_blurred, Swept};
 pub(crate) use flight::flights;
 use flight::{Flight, FlightBand};
 pub(crate) use march::marches;
