@@ -175,6 +175,101 @@ impl Window {
         unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
         u32::from(!inside)
     }
+
+    /// [`Window::trilinear8_avx512`] for AVX2 CPUs: the same 8 lanes, read as two halves of 4
+    /// `f64` lanes (`_mm_i32gather_ps` for the 8 voxels of each, the comparisons as blend
+    /// masks), with the same bits and the same returned mask of lanes outside.
+    ///
+    /// # Safety
+    /// The CPU must run AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    #[inline]
+    pub unsafe fn trilinear8_avx2(&self, [x, y, z]: [&[f64; 8]; 3], out: &mut [f32; 8]) -> u32 {
+        let mut outside = 0;
+        for half in 0..2 {
+            let r = half * 4..half * 4 + 4;
+            let q = [&x[r.clone()], &y[r.clone()], &z[r.clone()]];
+            let mut o = [0f32; 4];
+            // SAFETY: the CPU runs AVX2 (this function's contract).
+            outside |= unsafe { self.trilinear4_avx2(q, &mut o) } << (half * 4);
+            out[half * 4..half * 4 + 4].copy_from_slice(&o);
+        }
+        outside
+    }
+
+    /// Four lanes of [`Window::trilinear8_avx2`] in AVX2 registers.
+    ///
+    /// # Safety
+    /// The CPU must run AVX2; each of `p`'s slices holds 4 values.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    #[inline]
+    unsafe fn trilinear4_avx2(&self, p: [&[f64]; 3], out: &mut [f32; 4]) -> u32 {
+        use std::arch::x86_64::*;
+        if self.dims.iter().any(|&d| d < 2) || p.iter().any(|c| c.len() < 4) {
+            return 0xf;
+        }
+        let (sy, sx) = (self.dims[2] as i32, (self.dims[1] * self.dims[2]) as i32);
+        // SAFETY: unaligned loads of 4 f64 from slices of at least 4 (checked above).
+        let p = unsafe {
+            [
+                _mm256_loadu_pd(p[0].as_ptr()),
+                _mm256_loadu_pd(p[1].as_ptr()),
+                _mm256_loadu_pd(p[2].as_ptr()),
+            ]
+        };
+        let zero = _mm256_setzero_pd();
+        let mut inside = _mm256_castsi256_pd(_mm256_set1_epi64x(-1));
+        let mut r = [zero; 3];
+        let mut u = [zero; 3];
+        for a in 0..3 {
+            let f = _mm256_floor_pd(p[a]);
+            r[a] = _mm256_sub_pd(f, _mm256_set1_pd(self.lo[a] as f64));
+            inside = _mm256_and_pd(inside, _mm256_cmp_pd::<_CMP_GE_OQ>(r[a], zero));
+            let top = _mm256_set1_pd((self.dims[a] - 1) as f64);
+            inside = _mm256_and_pd(inside, _mm256_cmp_pd::<_CMP_LT_OQ>(r[a], top));
+            u[a] = _mm256_sub_pd(p[a], f);
+        }
+        // Lanes outside read voxel 0's stencil: inside the window, as `dims >= 2`.
+        let mut idx = _mm_setzero_si128();
+        for (a, stride) in [sx, sy, 1].into_iter().enumerate() {
+            let ia = _mm256_cvttpd_epi32(_mm256_and_pd(inside, r[a]));
+            idx = _mm_add_epi32(idx, _mm_mullo_epi32(ia, _mm_set1_epi32(stride)));
+        }
+        let base = self.values.as_ptr();
+        // SAFETY: every lane's index plus `sx + sy + 1` is a voxel of the window (inside lanes
+        // by the test above, the others at 0).
+        let g = |off: i32| unsafe {
+            _mm256_cvtps_pd(_mm_i32gather_ps::<4>(
+                base,
+                _mm_add_epi32(idx, _mm_set1_epi32(off)),
+            ))
+        };
+        let one = _mm256_set1_pd(1.0);
+        let lerp = |a: __m256d, b: __m256d, w: __m256d| {
+            let mix = _mm256_add_pd(a, _mm256_mul_pd(_mm256_sub_pd(b, a), w));
+            let mix = _mm256_cvtps_pd(_mm256_cvtpd_ps(mix));
+            let end = _mm256_blendv_pd(mix, b, _mm256_cmp_pd::<_CMP_EQ_OQ>(w, one));
+            let keep = _mm256_or_pd(
+                _mm256_cmp_pd::<_CMP_EQ_OQ>(a, b),
+                _mm256_cmp_pd::<_CMP_EQ_OQ>(w, zero),
+            );
+            _mm256_blendv_pd(end, a, keep)
+        };
+        let y0 = lerp(lerp(g(0), g(1), u[2]), lerp(g(sy), g(sy + 1), u[2]), u[1]);
+        let y1 = lerp(
+            lerp(g(sx), g(sx + 1), u[2]),
+            lerp(g(sx + sy), g(sx + sy + 1), u[2]),
+            u[1],
+        );
+        let v = _mm256_cvtpd_ps(lerp(y0, y1, u[0]));
+        // SAFETY: an unaligned store of 4 f32 into an array of 4.
+        unsafe { _mm_storeu_ps(out.as_mut_ptr(), v) };
+        (!(_mm256_movemask_pd(inside) as u32)) & 0xf
+    }
 }
 
 #[cfg(test)]
@@ -228,7 +323,14 @@ mod tests {
         }
         assert!(inside > 5000 && outside > 1000, "{inside} {outside}");
         #[cfg(target_arch = "x86_64")]
-        if std::arch::is_x86_feature_detected!("avx512f") {
+        for level in ["avx512f", "avx2"] {
+            let runs = match level {
+                "avx512f" => std::arch::is_x86_feature_detected!("avx512f"),
+                _ => std::arch::is_x86_feature_detected!("avx2"),
+            };
+            if !runs {
+                continue;
+            }
             for round in 0..4000 {
                 let mut q = [[0f64; 8]; 3];
                 for (a, (scale, shift)) in [(34.0, 15.0), (26.0, 9.0), (32.0, 7.0)]
@@ -243,13 +345,22 @@ mod tests {
                 }
                 let mut out = [0f32; 8];
                 #[allow(unsafe_code)]
-                // SAFETY: the CPU runs AVX-512F (checked above).
-                let outside = unsafe { w.trilinear8_avx512([&q[0], &q[1], &q[2]], &mut out) };
+                // SAFETY: the CPU runs the level (checked above).
+                let outside = unsafe {
+                    match level {
+                        "avx512f" => w.trilinear8_avx512([&q[0], &q[1], &q[2]], &mut out),
+                        _ => w.trilinear8_avx2([&q[0], &q[1], &q[2]], &mut out),
+                    }
+                };
                 for l in 0..8 {
                     let p = [q[0][l], q[1][l], q[2][l]];
                     match w.trilinear(p) {
                         Some(v) if outside >> l & 1 == 0 => {
-                            assert_eq!(v.to_bits(), out[l].to_bits(), "lane {l} at {p:?}");
+                            assert_eq!(
+                                v.to_bits(),
+                                out[l].to_bits(),
+                                "{level} lane {l} at {p:?}"
+                            );
                         }
                         // NaN: the scalar read takes voxel 0 as the accessor does; the lanes
                         // leave it to them.

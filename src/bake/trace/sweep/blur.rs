@@ -474,11 +474,12 @@ impl Moved<'_> {
     /// The density at `p - k_l v` for [`LANES`] times at once, with [`Moved::one`]'s bits:
     /// the same world point and index transform, lane by lane (`glam`'s order:
     /// `((m_x y_x + m_y y_y) + m_z y_z) + t`), the window's AVX-512 lanes
-    /// ([`Window::trilinear8_avx512`]), then any lane outside it read on its own. Inlined
-    /// into `add_avx512` only.
+    /// ([`Window::trilinear8_avx512`]) or AVX2 half-lanes ([`Window::trilinear8_avx2`],
+    /// `WIDE` false), then any lane outside it read on its own. Inlined into `add_avx512` and
+    /// `add_avx2` only.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn lanes(
+    fn lanes<const WIDE: bool>(
         &self,
         p: DVec3,
         v: DVec3,
@@ -502,8 +503,15 @@ impl Moved<'_> {
         }
         let mut x = [0f32; LANES];
         #[allow(unsafe_code)]
-        // SAFETY: called only from `add_avx512`, on a CPU that runs AVX-512F.
-        let mut outside = unsafe { self.window.trilinear8_avx512([&q[0], &q[1], &q[2]], &mut x) };
+        // SAFETY: called only from `add_avx512` (`WIDE`), on a CPU that runs AVX-512F, or
+        // from `add_avx2`, on one that runs AVX2.
+        let mut outside = unsafe {
+            if WIDE {
+                self.window.trilinear8_avx512([&q[0], &q[1], &q[2]], &mut x)
+            } else {
+                self.window.trilinear8_avx2([&q[0], &q[1], &q[2]], &mut x)
+            }
+        };
         for (o, &x) in out.iter_mut().zip(&x) {
             *o = scaled(self.scale, f64::from(x));
         }
@@ -516,10 +524,10 @@ impl Moved<'_> {
 }
 
 /// Every midpoint's density reads at its pixel's shutter times, added to its optical depths:
-/// `tau_k += mu(p - k v) dt`, [`LANES`] times at once with `LANES_ON` (AVX-512 only), one by
-/// one otherwise; the same bits either way.
+/// `tau_k += mu(p - k v) dt`, [`LANES`] times at once with `LANES_ON` (AVX-512 lanes with
+/// `WIDE`, AVX2 half-lanes without), one by one otherwise; the same bits either way.
 #[inline(always)]
-fn add_reads<const LANES_ON: bool>(
+fn add_reads<const LANES_ON: bool, const WIDE: bool>(
     moved: &Moved<'_>,
     (mids, vels): (&[(u32, DVec3, f64)], &[DVec3]),
     px: &mut Pixels,
@@ -537,7 +545,7 @@ fn add_reads<const LANES_ON: bool>(
         if LANES_ON {
             for (kc, tc) in ks.chunks_exact(LANES).zip(tau.chunks_exact_mut(LANES)) {
                 let kc: &[f64; LANES] = kc.try_into().unwrap_or(&[0.0; LANES]);
-                moved.lanes(p, v, kc, acc, &mut mu);
+                moved.lanes::<WIDE>(p, v, kc, acc, &mut mu);
                 for (t, m) in tc.iter_mut().zip(&mu) {
                     *t += m * dt;
                 }
@@ -550,8 +558,8 @@ fn add_reads<const LANES_ON: bool>(
     }
 }
 
-/// [`add_reads`] at the level `simd` this CPU runs: AVX-512 lanes, or one read at a time
-/// (AVX2 and portable).
+/// [`add_reads`] at the level `simd` this CPU runs: AVX-512 lanes, AVX2 half-lanes, or one
+/// read at a time (portable).
 #[allow(unsafe_code)]
 fn add_all(
     simd: Simd,
@@ -564,8 +572,25 @@ fn add_all(
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `Simd::active` chose the level only if this CPU runs it.
         Simd::Avx512 => unsafe { add_avx512(moved, work, px, acc) },
-        _ => add_reads::<false>(moved, work, px, acc),
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: as above.
+        Simd::Avx2 => unsafe { add_avx2(moved, work, px, acc) },
+        _ => add_reads::<false, false>(moved, work, px, acc),
     }
+}
+
+/// [`add_reads`] in half-lanes compiled for AVX2 (4 `f64` lanes a register; no FMA, so every
+/// blend rounds as the scalar read's).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
+unsafe fn add_avx2(
+    moved: &Moved<'_>,
+    work: (&[(u32, DVec3, f64)], &[DVec3]),
+    px: &mut Pixels,
+    acc: &mut Accessor<'_>,
+) {
+    add_reads::<true, false>(moved, work, px, acc);
 }
 
 /// [`add_reads`] in lanes compiled for AVX-512F (8 `f64` lanes a register).
@@ -578,5 +603,5 @@ unsafe fn add_avx512(
     px: &mut Pixels,
     acc: &mut Accessor<'_>,
 ) {
-    add_reads::<true>(moved, work, px, acc);
+    add_reads::<true, true>(moved, work, px, acc);
 }
