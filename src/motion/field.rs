@@ -326,6 +326,32 @@ impl VelocityLookup<'_> {
     #[target_feature(enable = "avx512f")]
     #[allow(unsafe_code)]
     pub unsafe fn at8_avx512(&mut self, p: &[DVec3; 8], out: &mut [DVec3; 8]) {
+        // SAFETY: the caller's CPU runs AVX-512F.
+        unsafe { self.at8::<true>(p, out) }
+    }
+
+    /// [`VelocityLookup::at8_avx512`] for AVX2 CPUs ([`Window::trilinear8_avx2`]): the same
+    /// bits as 8 calls of [`VelocityLookup::at`].
+    ///
+    /// # Safety
+    /// The CPU must run AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    pub unsafe fn at8_avx2(&mut self, p: &[DVec3; 8], out: &mut [DVec3; 8]) {
+        // SAFETY: the caller's CPU runs AVX2.
+        unsafe { self.at8::<false>(p, out) }
+    }
+
+    /// The 8 points of [`VelocityLookup::at8_avx512`] (`WIDE`) or
+    /// [`VelocityLookup::at8_avx2`]; inlined into each.
+    ///
+    /// # Safety
+    /// The CPU must run AVX-512F (`WIDE`) or AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[allow(unsafe_code)]
+    #[inline(always)]
+    unsafe fn at8<const WIDE: bool>(&mut self, p: &[DVec3; 8], out: &mut [DVec3; 8]) {
         let half = if self.f.staggered { 0.5 } else { 0.0 };
         let mut u = [[0.0f64; 8]; 3];
         for l in 0..8 {
@@ -339,9 +365,14 @@ impl VelocityLookup<'_> {
                 *v += half;
             }
             let mut x = [0f32; 8];
-            // SAFETY: the caller's CPU runs AVX-512F.
-            let mut outside =
-                unsafe { self.win[k].trilinear8_avx512([&q[0], &q[1], &q[2]], &mut x) };
+            // SAFETY: the caller's CPU runs the level (this function's contract).
+            let mut outside = unsafe {
+                if WIDE {
+                    self.win[k].trilinear8_avx512([&q[0], &q[1], &q[2]], &mut x)
+                } else {
+                    self.win[k].trilinear8_avx2([&q[0], &q[1], &q[2]], &mut x)
+                }
+            };
             for l in 0..8 {
                 c[k][l] = f64::from(x[l]);
             }
@@ -479,14 +510,26 @@ mod tests {
                 );
             }
             #[cfg(target_arch = "x86_64")]
-            if std::arch::is_x86_feature_detected!("avx512f") {
+            for wide in [true, false] {
+                let runs = if wide {
+                    std::arch::is_x86_feature_detected!("avx512f")
+                } else {
+                    std::arch::is_x86_feature_detected!("avx2")
+                };
+                if !runs {
+                    continue;
+                }
                 for (c, w) in pts.chunks_exact(8).zip(want.chunks_exact(8)) {
                     let p: [DVec3; 8] = c.try_into().unwrap();
                     let mut out = [DVec3::ZERO; 8];
                     #[allow(unsafe_code)]
-                    // SAFETY: the CPU runs AVX-512F (checked above).
+                    // SAFETY: the CPU runs the level (checked above).
                     unsafe {
-                        covered.at8_avx512(&p, &mut out);
+                        if wide {
+                            covered.at8_avx512(&p, &mut out);
+                        } else {
+                            covered.at8_avx2(&p, &mut out);
+                        }
                     }
                     for l in 0..8 {
                         assert_eq!(

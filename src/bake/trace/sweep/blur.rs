@@ -386,16 +386,20 @@ impl<'v> Reads<'v> {
         self.vels.clear();
         let mut done = 0;
         #[cfg(target_arch = "x86_64")]
-        if self.simd == Simd::Avx512 {
+        if self.simd != Simd::Portable {
             let (mut p8, mut v8) = ([DVec3::ZERO; 8], [DVec3::ZERO; 8]);
             for chunk in self.mids.chunks_exact(8) {
                 for (p, m) in p8.iter_mut().zip(chunk) {
                     *p = m.1;
                 }
                 #[allow(unsafe_code)]
-                // SAFETY: `Simd::active` chose AVX-512 only on a CPU that runs it.
+                // SAFETY: `Simd::active` chose AVX-512 or AVX2 only on a CPU that runs it.
                 unsafe {
-                    self.velocity.at8_avx512(&p8, &mut v8);
+                    if self.simd == Simd::Avx512 {
+                        self.velocity.at8_avx512(&p8, &mut v8);
+                    } else {
+                        self.velocity.at8_avx2(&p8, &mut v8);
+                    }
                 }
                 self.vels.extend_from_slice(&v8);
                 done += 8;
