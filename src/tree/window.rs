@@ -356,11 +356,7 @@ mod tests {
                     let p = [q[0][l], q[1][l], q[2][l]];
                     match w.trilinear(p) {
                         Some(v) if outside >> l & 1 == 0 => {
-                            assert_eq!(
-                                v.to_bits(),
-                                out[l].to_bits(),
-                                "{level} lane {l} at {p:?}"
-                            );
+                            assert_eq!(v.to_bits(), out[l].to_bits(), "{level} lane {l} at {p:?}");
                         }
                         // NaN: the scalar read takes voxel 0 as the accessor does; the lanes
                         // leave it to them.
