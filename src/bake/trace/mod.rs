@@ -475,7 +475,7 @@ fn render(
                 match crate::bake::trace::sweep::render_blurred(
                     vol, camera, s, depths, rows, progress,
                 )? {
-                    crate::bake::trace::sweep::Swept::Map(map) => return Ok(map),
+                    crate::bake::trace::sweep::Swept::Map(map) => return Ok(*map),
                     crate::bake::trace::sweep::Swept::Rays(why) => declined = why,
                 }
             }

@@ -77,10 +77,10 @@ struct BlurSweep<'a> {
     seed: u64,
 }
 
-/// What [`BlurSweep::new`] makes of a map.
+/// What [`BlurSweep::plan`] makes of a map.
 enum Plan<'a> {
     /// The sweep takes it.
-    Sweep(BlurSweep<'a>),
+    Sweep(Box<BlurSweep<'a>>),
     /// Not a blurred `riemann` map, or none of its rays meets the blurred bounds: the ray path
     /// is the only path (or a trivial one), nothing to say.
     NotMine,
@@ -91,7 +91,7 @@ enum Plan<'a> {
 /// What [`render`] did with a map.
 pub(crate) enum Swept {
     /// The map, swept.
-    Map(Map),
+    Map(Box<Map>),
     /// Not the sweep's; `Some`: a blurred `riemann` map it declined, and why.
     Rays(Option<SweepDeclined>),
 }
@@ -107,7 +107,7 @@ pub(crate) fn render(
     progress: &dyn crate::progress::Progress,
 ) -> Result<Swept> {
     let start = std::time::Instant::now();
-    let sweep = match BlurSweep::new(vol, camera, s, depths, rows)? {
+    let sweep = match BlurSweep::plan(vol, camera, s, depths, rows)? {
         Plan::Sweep(sweep) => sweep,
         Plan::NotMine => return Ok(Swept::Rays(None)),
         Plan::Declined(why) => return Ok(Swept::Rays(Some(why))),
@@ -134,7 +134,7 @@ pub(crate) fn render(
         total.absorb(st);
     }
     total.seconds = start.elapsed().as_secs_f64();
-    Ok(Swept::Map(Map {
+    Ok(Swept::Map(Box::new(Map {
         camera: *camera,
         settings: s.clone(),
         t: t_image,
@@ -143,12 +143,12 @@ pub(crate) fn render(
         slices: Vec::new(),
         color: None,
         stats: total,
-    }))
+    })))
 }
 
 impl<'a> BlurSweep<'a> {
     /// The sweep of `camera`'s map, or why not (module docs).
-    fn new(
+    fn plan(
         vol: &'a Volume,
         camera: &'a Camera,
         s: &BakeSettings,
@@ -220,7 +220,7 @@ impl<'a> BlurSweep<'a> {
             }
         }
         let bins = bins_of(blocks.iter().map(|b| b.rect), rows, camera.height);
-        Ok(Plan::Sweep(Self {
+        Ok(Plan::Sweep(Box::new(Self {
             vol,
             motion,
             camera,
@@ -230,7 +230,7 @@ impl<'a> BlurSweep<'a> {
             rows,
             step,
             seed: s.options.seed,
-        }))
+        })))
     }
 
     /// Band `b`: each pixel's `T` into `t` and its error bar into `err`; the band's statistics.
