@@ -4,7 +4,7 @@
 # null-collision lookups per sample, whole bakes of .nvdb against .vdb, the still riemann sweep
 # against NanoVDB's march, and umbra's riemann map against Warp's CPU kernel.
 # Usage: bench/issue67.sh [UMBRA_BIN]   (default target/quick/umbra); ROUNDS (5); OUT; WARP=1
-# adds the Warp rows (bench/peer.sh, which builds the --release ortho_view example first).
+# adds the Warp rows; FROM=N starts at part N (1-3 can be skipped) (bench/peer.sh, which builds the --release ortho_view example first).
 set -euo pipefail
 repo="$(cd "$(dirname "$0")/.." && pwd)"
 cd "$repo"
@@ -15,6 +15,7 @@ mkdir -p "$OUT"
 corpus="$repo/../shared/corpus"
 echo "== $(date -u +%FT%TZ); $(git rev-parse --short HEAD); $(grep -o -m1 avx512f /proc/cpuinfo || echo 'no avx512f (AVX2)'); load $(cut -d' ' -f1-3 /proc/loadavg)"
 
+if [ "${FROM:-1}" -le 1 ]; then
 echo "== 1. blurred against still riemann, 256 map, shutter of one frame (bench/alternate.py)"
 for kind in constant swirl; do
   f="$OUT/$kind.vdb"
@@ -34,13 +35,16 @@ print(f"RMS of the 8-time sweep against 128 times: {np.sqrt(np.mean((a - b) ** 2
 PY
 done
 
+fi
+if [ "${FROM:-1}" -le 2 ]; then
 echo "== 2. null collisions: lookups per sample, still against blurred (bench/blur_intervals.sh)"
 bash bench/blur_intervals.sh "$U" "$U" "$OUT/intervals" | grep -v "blurred before"
 
+fi
 echo "== 3. whole bakes of .nvdb against .vdb (bench/nvdb_bake.py)"
 dense="$OUT/dense.vdb"
 [ -s "$dense" ] || /usr/bin/python3 - "$dense" <<'PY'
-import sys, numpy as np, openvdb as vdb
+import sys, numpy as np, pyopenvdb as vdb
 rng = np.random.default_rng(61)
 a = rng.random((256, 256, 256), dtype=np.float32)
 g = vdb.FloatGrid()
