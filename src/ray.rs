@@ -24,9 +24,12 @@ pub struct Ray {
 }
 
 /// What rounding left out of a ray (the low halves of double-doubles): `direction + lo.direction`
-/// is the unit vector of the exact vector the ray was made along, to about `2^-104`, and
-/// `t_max + lo.t_max` the exact length of a segment made between two points. Nothing but a far
-/// ray's move ([`Ray::moved_to`]) reads them, so a ray's walk is what it always was.
+/// is the unit vector of the exact vector the ray was made along, to about `2^-104`, for a
+/// segment between two points ([`Ray::between`]) and a ray along an exact vector
+/// ([`Ray::along_exactly`]: a sun's `-dir`, a sphere light's cone); [`Ray::new`] takes its
+/// rounded unit as exact (no cost per camera ray). `t_max + lo.t_max` is the exact length of
+/// a segment. Nothing but a far ray's move ([`Ray::moved_to`]) reads them, so a ray's walk is
+/// what it always was.
 #[derive(Debug, Clone, Copy, PartialEq, Default)]
 struct Lo {
     direction: DVec3,
@@ -123,16 +126,12 @@ impl Ray {
                 crate::math::short(t_max)
             )));
         }
-        let unit = direction / len;
         Ok(Self {
             origin,
-            direction: unit,
+            direction: direction / len,
             t_min,
             t_max,
-            lo: Lo {
-                direction: unit_lo(direction, DVec3::ZERO, unit),
-                t_max: 0.0,
-            },
+            lo: Lo::default(),
         })
     }
 
