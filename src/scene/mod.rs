@@ -208,6 +208,16 @@ impl Scene {
         (lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
     }
 
+    /// The world box of one volume (the bounding box of its corners), what a map of one grid
+    /// moves its far rays next to ([`Scene::localise`]).
+    #[must_use]
+    pub(crate) fn volume_box(v: &Volume) -> Option<(DVec3, DVec3)> {
+        let c = v.box_corners().ok()?;
+        let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
+        let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
+        (lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    }
+
     /// `ray` as a walk takes it, with the distance `s` it was moved by: a ray that enters the
     /// scene's world box `[lo, hi]` (of size `L`, its longest side) farther than
     /// [`FAR`]` L` from its origin is moved to `t = max(t_min, t_0 - max(L, 4 eps t_0))`

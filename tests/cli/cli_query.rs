@@ -394,3 +394,42 @@ fn far_points_answer_what_near_points_answer() {
         "{text}"
     );
 }
+
+/// A perspective map from a light 1e16 away (issue 68, item 3, maps): its pinhole is too far
+/// for the sweep's footprints and its rays' walks, which gave `T` up to 6.9; it is traced, each
+/// ray moved next to the volume, and is the sun's map along the same axis to 2e-4.
+#[test]
+fn a_map_from_a_far_light_is_the_suns() {
+    let dir = tempfile::tempdir().unwrap();
+    let range = |args: &[&str]| -> (f64, f64) {
+        let out = dir.path().join("m.exr");
+        let o = umbra()
+            .args(["bake", "data/cloud.vdb", "--res", "16", "--force", "-o"])
+            .arg(&out)
+            .args(args)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(
+            o.status.success(),
+            "{text}{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let r = text
+            .split("T in [")
+            .nth(1)
+            .unwrap()
+            .split(']')
+            .next()
+            .unwrap();
+        let (a, b) = r.split_once(", ").unwrap();
+        (a.parse().unwrap(), b.parse().unwrap())
+    };
+    let sun = range(&["--light-dir", "1,0,0"]);
+    let far = range(&["--light-pos=-1e16,0.5,0"]);
+    assert!(far.1 <= 1.0, "far {far:?}");
+    assert!(
+        (far.0 - sun.0).abs() <= 2e-4 && (far.1 - sun.1).abs() <= 2e-4,
+        "far {far:?}, sun {sun:?}"
+    );
+}
