@@ -4,6 +4,24 @@ use crate::vdb::{Archive, Grid, LazyGrid, ValueKind};
 use serde::Serialize;
 use serde_json::{json, Value};
 
+/// Which bytes of a NanoVDB grid buffer its checksum covered (`.nvdb` only). The magic number
+/// and the checksum itself, the buffer's first 16 bytes, are not counted:
+/// `checked_bytes + unchecked_bytes = grid_bytes` = the buffer's size - 16.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct ChecksumCoverage {
+    /// Bytes the checksum covered.
+    pub checked_bytes: u64,
+    /// Bytes of the grid buffer after its magic number and checksum.
+    pub grid_bytes: u64,
+    /// Bytes it did not cover: `grid_bytes - checked_bytes` (0 for a full checksum of 32.5 on
+    /// and for fixed-size leaves without blind data).
+    pub unchecked_bytes: u64,
+    /// Of those, the bytes of FpN leaves' codes (voxel values): a checksum of NanoVDB 32.4
+    /// (and 32.5 to 32.6 checked the 32.4 way) covers each leaf's fixed 96 bytes only, so a
+    /// corrupt code is not detected, by umbra or by NanoVDB.
+    pub unchecked_code_bytes: u64,
+}
+
 /// Per-grid report, the JSON schema of `umbra info --json`.
 #[derive(Debug, Clone, Serialize)]
 pub struct GridInfo {
@@ -68,12 +86,16 @@ pub struct GridInfo {
     /// `.nvdb` only: how the leaves quantise values (`none`, `fp4`, `fp8`, `fp16`, `fpN`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub quantisation: Option<String>,
-    /// `.nvdb` only: `full` (the file carries a full checksum, head and tail, and every byte
-    /// of the grid matches it), `partial` (the file carries only the head's, NanoVDB's default:
-    /// the headers match, the nodes were not checked), `absent` (the file carries none) or
-    /// `mismatch` (then `error` says what disagrees).
+    /// `.nvdb` only: `full` (the file carries a full checksum, head and tail, and the grid
+    /// matches it: every byte but where `checksum_coverage` says otherwise), `partial` (the
+    /// file carries only the head's, NanoVDB's default: the headers match, the nodes were not
+    /// checked), `absent` (the file carries none) or `mismatch` (then `error` says what
+    /// disagrees).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub checksum: Option<String>,
+    /// `.nvdb` only, with a matching `full` or `partial` checksum: which bytes it covered.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub checksum_coverage: Option<ChecksumCoverage>,
     /// `.nvdb` only: the grid buffer's NanoVDB version (`32.8.0`); the file header's may
     /// differ (Warp writes 32.3.3 there).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -210,6 +232,7 @@ impl GridInfo {
             codec: None,
             quantisation: None,
             checksum: None,
+            checksum_coverage: None,
             nanovdb_version: None,
             vector: VectorInfo::of(grid),
         }
@@ -285,6 +308,7 @@ impl GridInfo {
             codec: None,
             quantisation: None,
             checksum: None,
+            checksum_coverage: None,
             nanovdb_version: None,
             vector: None,
         }
@@ -435,6 +459,12 @@ impl GridInfo {
                     info.error = Some(format!("checksum mismatch: {why}"));
                 }
                 info.checksum = Some(d.checksum.name().to_string());
+                info.checksum_coverage = d.checksum.coverage().map(|c| ChecksumCoverage {
+                    checked_bytes: c.checked,
+                    grid_bytes: c.grid,
+                    unchecked_bytes: c.unchecked(),
+                    unchecked_code_bytes: c.codes,
+                });
                 info.nanovdb_version = Some(d.version.to_string());
                 info
             }

@@ -267,10 +267,22 @@ impl Light {
     /// # Errors
     /// As [`Light::ray_from`].
     pub fn ray_from_scene(&self, scene: &crate::scene::Scene, at: [f64; 3]) -> Result<Ray> {
+        // From a point farther than `scene::FAR` box sizes, the exit is computed to a few
+        // ulps of `t` (2 world units at 1e16): it is taken 8 ulps on, and the walk, moved next
+        // to the boxes (`Scene::localise`), clips the ray to each box itself.
+        let size = scene
+            .world_box()
+            .map_or(f64::INFINITY, |(lo, hi)| (hi - lo).max_element());
         self.ray_from_boxes(at, |back| {
             scene
                 .box_exit(glam::DVec3::from_array(at), back)
-                .unwrap_or(0.0)
+                .map_or(0.0, |t| {
+                    if t > crate::scene::FAR * size {
+                        t + 8.0 * f64::EPSILON * t
+                    } else {
+                        t
+                    }
+                })
         })
     }
 
@@ -288,7 +300,9 @@ impl Light {
                         ),
                     })?;
                 let back = -glam::DVec3::from_array(d);
-                Ray::new(at, back, 0.0, exit(back))
+                // The line as given: its low direction from `-dir` itself, not the rounded unit.
+                Ok(Ray::new(at, back, 0.0, exit(back))?
+                    .along_exactly(-glam::DVec3::from_array(dir), glam::DVec3::ZERO))
             }
         }
     }

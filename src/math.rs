@@ -44,6 +44,13 @@ pub fn short(v: f64) -> String {
     }
 }
 
+/// A point or vector for a message: `(x, y, z)`, each component as [`short`] writes it
+/// (`(NaN, 0, 0)`, `(1e300, 0.5, 0)`).
+#[must_use]
+pub fn short3(v: [f64; 3]) -> String {
+    format!("({}, {}, {})", short(v[0]), short(v[1]), short(v[2]))
+}
+
 /// `v` with `digits` significant digits: fixed-point for magnitudes `10^lo ..= 10^hi`
 /// (`floor(log10 |v|)` in `lo..=hi`), scientific otherwise; with `trim`, trailing zeros (and a
 /// trailing point) of the fixed or mantissa part dropped. Zero and non-finite values as `{v}`.
@@ -157,6 +164,22 @@ pub(crate) fn normalise(v: glam::DVec3) -> Option<glam::DVec3> {
             .then(|| (v / m).try_normalize())
             .flatten()
     })
+}
+
+/// `a + b` as `(s, e)` with `s = fl(a + b)` and `s + e = a + b` exactly (Knuth's two-sum):
+/// the double-double sums that keep a far ray's line exact ([`crate::ray::Ray`]).
+#[must_use]
+pub(crate) fn two_sum(a: f64, b: f64) -> (f64, f64) {
+    let s = a + b;
+    let bb = s - a;
+    (s, (a - (s - bb)) + (b - bb))
+}
+
+/// `a * b` as `(p, e)` with `p = fl(a b)` and `p + e = a b` exactly (one fused multiply-add).
+#[must_use]
+pub(crate) fn two_prod(a: f64, b: f64) -> (f64, f64) {
+    let p = a * b;
+    (p, a.mul_add(b, -p))
 }
 
 #[cfg(test)]

@@ -125,7 +125,10 @@ pub fn point_transmittance(
         let soft = extent.soft_of_stage(emitter)?;
         let at_point = |i: usize, p: &[f64; 3], e: Error| Error::Stage {
             path: stage.to_path_buf(),
-            reason: format!("at time {t}: {prim}: point {i} {p:?}: {e}"),
+            reason: format!(
+                "at time {t}: {prim}: point {i} {}: {e}",
+                crate::math::short3(*p)
+            ),
         };
         let (transmittance, std_err, sampled) = match &soft {
             Some(s) => soft_answers(&sc, s, &points.positions, (est, opts), at_point)?,

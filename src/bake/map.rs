@@ -136,7 +136,7 @@ impl std::fmt::Display for Receiver {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         match self {
             Self::BoxExit => write!(f, "box exit"),
-            Self::Depth(d) => write!(f, "depth {d}"),
+            Self::Depth(d) => write!(f, "depth {}", crate::math::short(*d)),
         }
     }
 }

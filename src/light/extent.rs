@@ -127,8 +127,11 @@ fn bad(name: &str, reason: impl Into<String>) -> Error {
 pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, u32)> {
     let value = |name: &str, v: Option<f64>| -> Result<Option<f64>> {
         match v {
-            Some(x) if !x.is_finite() => Err(bad(name, format!("{x} is not a finite number"))),
-            Some(x) if x < 0.0 => Err(bad(name, format!("{x} is negative"))),
+            Some(x) if !x.is_finite() => Err(bad(
+                name,
+                format!("{} is not a finite number", crate::math::short(x)),
+            )),
+            Some(x) if x < 0.0 => Err(bad(name, format!("{} is negative", crate::math::short(x)))),
             _ => Ok(v),
         }
     };
@@ -215,23 +218,31 @@ fn round(axes: &[[f64; 3]; 3]) -> Option<f64> {
 /// The cone of directions from a receiver toward the light.
 #[derive(Debug, Clone, Copy)]
 enum Cone {
-    /// Directions within `acos(1 - one_minus_cos)` of `axis`.
-    Cap { axis: DVec3, one_minus_cos: f64 },
+    /// Directions within `acos(1 - one_minus_cos)` of `axis` (`axis + axis_lo` in
+    /// double-double: a sphere light 1e16 away subtends 1e-17 radians, below a unit vector's
+    /// rounding, and its directions keep it only so).
+    Cap {
+        axis: DVec3,
+        axis_lo: DVec3,
+        one_minus_cos: f64,
+    },
     /// Every direction (a receiver inside a sphere light).
     All,
 }
 
 impl Cone {
-    /// The cone from a receiver that sees a sphere of radius `radius` at the offset `v`:
-    /// every direction when the receiver is inside it.
-    fn toward(v: DVec3, radius: f64) -> Self {
+    /// The cone from a receiver that sees a sphere of radius `radius` at the offset `v`
+    /// (`v + v_lo` exactly): every direction when the receiver is inside it.
+    fn toward(v: DVec3, v_lo: DVec3, radius: f64) -> Self {
         let d = safe_length(v);
         if d.is_nan() || d <= radius {
             return Self::All;
         }
         let s = radius / d;
+        let axis = v / d;
         Self::Cap {
-            axis: v / d,
+            axis,
+            axis_lo: crate::ray::unit_lo(v, v_lo, axis),
             one_minus_cos: s * s / (1.0 + (1.0 - s * s).max(0.0).sqrt()),
         }
     }
@@ -244,19 +255,30 @@ impl Cone {
         }
     }
 
-    /// The direction of the lattice point `(u, v)` in `[0, 1)^2`, uniform in solid angle.
-    fn direction(self, u: f64, v: f64) -> DVec3 {
+    /// The direction of the lattice point `(u, v)` in `[0, 1)^2`, uniform in solid angle:
+    /// `b1 sin(theta) cos(phi) + b2 sin(theta) sin(phi) + axis cos(theta)`, with what
+    /// rounding left out of it (`(hi, lo)`, double-double): the axis's own low half and the
+    /// parts of `cos(theta)` and of the sum a tiny cone loses, so that a direction `1e-17`
+    /// off the axis is still off it.
+    fn direction_dd(self, u: f64, v: f64) -> (DVec3, DVec3) {
         let omc = self.one_minus_cos();
         let x = u * omc;
-        let cos = 1.0 - x;
+        let (cos, cos_lo) = crate::math::two_sum(1.0, -x);
         let sin = (x * (2.0 - x)).max(0.0).sqrt();
         let (s, c) = (std::f64::consts::TAU * v).sin_cos();
-        let axis = match self {
-            Self::Cap { axis, .. } => axis,
-            Self::All => DVec3::Z,
+        let (axis, axis_lo) = match self {
+            Self::Cap { axis, axis_lo, .. } => (axis, axis_lo),
+            Self::All => (DVec3::Z, DVec3::ZERO),
         };
         let (b1, b2) = basis(axis);
-        b1 * (sin * c) + b2 * (sin * s) + axis * cos
+        let off = b1 * (sin * c) + b2 * (sin * s);
+        let hi = off + axis * cos;
+        let lo = DVec3::from_array(std::array::from_fn(|k| {
+            let (p, pe) = crate::math::two_prod(axis[k], cos);
+            let (h, he) = crate::math::two_sum(off[k], p);
+            (h - hi[k]) + he + pe + axis[k] * cos_lo + axis_lo[k] * cos
+        }));
+        (hi, lo)
     }
 }
 
@@ -360,14 +382,20 @@ impl SoftLight {
                 let s = (half / 2.0).sin();
                 Ok(Cone::Cap {
                     axis,
+                    axis_lo: DVec3::ZERO,
                     one_minus_cos: 2.0 * s * s,
                 })
             }
             (Light::Point { pos }, Extent::Sphere { radius }) => {
-                Ok(Cone::toward(DVec3::from_array(pos) - at, radius))
+                let pos = DVec3::from_array(pos);
+                // What `pos - at` rounds away, so that a far receiver's cone keeps its axis.
+                let lo = DVec3::from_array(std::array::from_fn(|k| {
+                    crate::math::two_sum(pos[k], -at[k]).1
+                }));
+                Ok(Cone::toward(pos - at, lo, radius))
             }
             // The cone about the sphere that holds the whole surface: it holds every segment.
-            (_, Extent::Area(a)) => Ok(Cone::toward(a.centre() - at, a.bound())),
+            (_, Extent::Area(a)) => Ok(Cone::toward(a.centre() - at, DVec3::ZERO, a.bound())),
             _ => Err(bad(
                 "light-angle",
                 "a sun's angle goes with light-dir, a sphere's radius with light-pos",
@@ -375,8 +403,8 @@ impl SoftLight {
         }
     }
 
-    /// The ray from `at` along the unit direction `d` toward the light.
-    fn ray(&self, scene: &Scene, at: DVec3, d: DVec3) -> Result<Ray> {
+    /// The ray from `at` along the unit direction `d` (`d + d_lo` exactly) toward the light.
+    fn ray(&self, scene: &Scene, at: DVec3, (d, d_lo): (DVec3, DVec3)) -> Result<Ray> {
         match (self.light, self.extent) {
             (Light::Point { pos }, Extent::Sphere { radius }) => {
                 // In units of the distance to the centre, so a light at 1e300 does not
@@ -397,7 +425,7 @@ impl SoftLight {
                 } else {
                     radius
                 };
-                Ray::new(at, d, 0.0, t.max(0.0))
+                Ok(Ray::new(at, d, 0.0, t.max(0.0))?.along_exactly(d, d_lo))
             }
             _ => Light::Directional {
                 dir: (-d).to_array(),
@@ -413,13 +441,16 @@ impl SoftLight {
     pub fn rays(&self, scene: &Scene, at: [f64; 3], seed: u64, ray_id: u64) -> Result<SoftRays> {
         let p = DVec3::from_array(at);
         if !p.is_finite() {
-            return Err(bad("at", format!("{at:?} is not a finite point")));
+            return Err(bad(
+                "at",
+                format!("{} is not a finite point", crate::math::short3(at)),
+            ));
         }
         let cone = self.cone(p)?;
         let centre = self
             .light
             .ray_from_scene(scene, at)
-            .or_else(|_| self.ray(scene, p, cone.direction(0.0, 0.0)))?;
+            .or_else(|_| self.ray(scene, p, cone.direction_dd(0.0, 0.0)))?;
         let unlit = matches!(self.extent, Extent::Area(a) if a.unlit(p));
         let mut out = SoftRays {
             rays: Vec::new(),
@@ -450,7 +481,7 @@ impl SoftLight {
                             Ray::between(p, y)?
                         }
                     },
-                    _ => self.ray(scene, p, cone.direction(u, v))?,
+                    _ => self.ray(scene, p, cone.direction_dd(u, v))?,
                 };
                 out.rays.push(ray);
                 let k = r * u64::from(m) + u64::from(i);
@@ -470,11 +501,15 @@ fn misses_everything(scene: &Scene, p: DVec3, cone: Cone) -> bool {
     let Cone::Cap {
         axis,
         one_minus_cos,
+        ..
     } = cone
     else {
         return false;
     };
-    let half = (1.0 - one_minus_cos).clamp(-1.0, 1.0).acos();
+    // Angles from sines (`2 asin(sqrt(omc / 2))`, `atan2(|to x axis|, to . axis)`): an acos
+    // of a cosine near 1 is off by 1e-8 radians, far more than a sphere light 1e16 away
+    // subtends.
+    let half = 2.0 * (one_minus_cos / 2.0).clamp(0.0, 1.0).sqrt().asin();
     let boxes = scene
         .fogs()
         .iter()
@@ -489,7 +524,7 @@ fn misses_everything(scene: &Scene, p: DVec3, cone: Cone) -> bool {
         if !dist.is_finite() || dist <= rho {
             return false;
         }
-        let apart = (to.dot(axis) / dist).clamp(-1.0, 1.0).acos();
+        let apart = to.cross(axis).length().atan2(to.dot(axis));
         apart > half + (rho / dist).asin() + 1e-9
     })
 }
@@ -570,15 +605,16 @@ mod tests {
         let omc = 1.0 - 4f64.to_radians().cos();
         let cone = Cone::Cap {
             axis,
+            axis_lo: DVec3::ZERO,
             one_minus_cos: omc,
         };
         for (u, v) in [(0.0, 0.0), (0.999, 0.5), (0.5, 0.25), (1.0, 0.9)] {
-            let d = cone.direction(u, v);
+            let d = cone.direction_dd(u, v).0;
             assert!((d.length() - 1.0).abs() < 1e-12);
             assert!(d.dot(axis) >= 1.0 - omc - 1e-12);
         }
         // u = 1 is the rim, u = 0 the axis.
-        assert!((cone.direction(1.0, 0.3).dot(axis) - (1.0 - omc)).abs() < 1e-12);
-        assert!((cone.direction(0.0, 0.3).dot(axis) - 1.0).abs() < 1e-12);
+        assert!((cone.direction_dd(1.0, 0.3).0.dot(axis) - (1.0 - omc)).abs() < 1e-12);
+        assert!((cone.direction_dd(0.0, 0.3).0.dot(axis) - 1.0).abs() < 1e-12);
     }
 }

@@ -17,13 +17,17 @@
 //! - after 32.6.0: the head covers the grid and tree headers only (bytes 16 to 736); the tail is
 //!   the blocked CRC-32 of bytes 736 to the grid's end (nodes and blind data).
 //!
+//! What a matching checksum covered is its [`Coverage`]: a 32.4 tail (and a 32.5/32.6 grid
+//! checked that way) takes each node's `sizeof`, so an FpN leaf's codes after its first 96
+//! bytes, blind data and padding are in no CRC, and the coverage counts them (docs/loading.md).
+//!
 //! The blocked CRC-32 of `n` bytes is the CRC-32 of the array of the CRC-32s (u32 each) of its
 //! `n >> 12` blocks of 4096 bytes, the last block taking the remainder.
 
 use super::bytes::Bytes;
 use super::file::Version;
 use super::layout::{GridHead, Layout, BREADTH_FIRST, GRID_BYTES, TILE_BYTES, TREE_BYTES};
-use super::tree::Nodes;
+use super::tree::{leaf_size, Nodes};
 use crate::error::DecodeResult;
 
 /// "Not computed": all bits of a CRC half set.
@@ -35,17 +39,42 @@ const V32_6_0: Version = Version(32 << 21 | 6 << 10);
 /// 32.5.0, the first version whose checksum may be blocked.
 const V32_5_0: Version = Version(32 << 21 | 5 << 10);
 
+/// Which bytes of a grid buffer a matching checksum covers. The 16 bytes of the magic number
+/// and the checksum itself are never covered (the magic is checked by parsing), so a grid of
+/// `n` bytes has `grid = n - 16` bytes a checksum can cover and `grid - checked` it does not.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Coverage {
+    /// Bytes the checksum covered.
+    pub checked: u64,
+    /// Bytes of the grid buffer after its magic number and checksum.
+    pub grid: u64,
+    /// Of the bytes not covered, those of FpN leaves' codes (values umbra decodes): a tail of
+    /// the 32.4 kind takes each leaf's `sizeof`, 96 bytes for FpN, so the `64 x bits` bytes of
+    /// codes after them are in no CRC (NanoVDB's own `nanovdb_validate` passes a flipped code).
+    pub codes: u64,
+}
+
+impl Coverage {
+    /// Bytes of the grid buffer not covered: `grid - checked`.
+    #[must_use]
+    pub fn unchecked(&self) -> u64 {
+        self.grid.saturating_sub(self.checked)
+    }
+}
+
 /// What checking a grid's checksum found.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Checksum {
-    /// The file carries a full checksum (head and tail) and the grid matches both: every byte
-    /// of the grid was checked.
-    Full,
+    /// The file carries a full checksum (head and tail) and the grid matches both. Every byte
+    /// of the grid after the magic and the checksum is covered (a 32.7 tail), or every byte
+    /// of the headers, the root and each node's `sizeof` (a 32.4 tail: FpN leaves' codes, blind
+    /// data and padding are not): the [`Coverage`] says which.
+    Full(Coverage),
     /// The file carries a partial checksum (NanoVDB's default `CheckMode::Partial`: the head
     /// alone) and the grid matches it: only the headers (and before 32.7 the root) were
     /// checked, not the nodes. Also what a full checksum umbra cannot recompute gives (a 32.4
     /// tail of nodes not laid out breadth-first): its head matched.
-    Partial,
+    Partial(Coverage),
     /// The file carries none (all bits set).
     Absent,
     /// The file's checksum and the grid disagree: what disagrees.
@@ -57,10 +86,19 @@ impl Checksum {
     #[must_use]
     pub fn name(&self) -> &'static str {
         match self {
-            Self::Full => "full",
-            Self::Partial => "partial",
+            Self::Full(_) => "full",
+            Self::Partial(_) => "partial",
             Self::Absent => "absent",
             Self::Mismatch(_) => "mismatch",
+        }
+    }
+
+    /// Which bytes a matching checksum covered (`None` when absent or mismatched).
+    #[must_use]
+    pub fn coverage(&self) -> Option<Coverage> {
+        match self {
+            Self::Full(c) | Self::Partial(c) => Some(*c),
+            Self::Absent | Self::Mismatch(_) => None,
         }
     }
 }
@@ -135,29 +173,82 @@ pub(crate) fn check(
             "the head checksum is {head:#010x} but the grid's headers hash to {got:#010x}"
         )));
     };
+    let grid = b.len().saturating_sub(16);
+    let head_only = Coverage {
+        checked: head_end.saturating_sub(16).min(grid),
+        grid,
+        codes: 0,
+    };
     if tail == EMPTY {
-        return Ok(Checksum::Partial);
+        return Ok(Checksum::Partial(head_only));
     }
+    // Each candidate tail with what it covers.
     let mut candidates = Vec::new();
     if h.version >= V32_5_0 {
-        candidates.push(blocked_crc32(b.slice(head_end, b.len() - head_end)?));
+        let every = Coverage {
+            checked: grid,
+            grid,
+            codes: 0,
+        };
+        candidates.push((blocked_crc32(b.slice(head_end, b.len() - head_end)?), every));
     }
     if h.version <= V32_6_0 {
         // The 32.4 tail needs NanoVDB's traversal order: every NanoVDB writer lays nodes out
         // breadth-first.
         if h.flags & BREADTH_FIRST == 0 {
-            return Ok(Checksum::Partial);
+            return Ok(Checksum::Partial(head_only));
         }
-        candidates.extend(node_tails(b, l, nodes, h.node_count)?);
+        let covered = node_coverage(b, l, nodes, h.node_count, head_end)?;
+        for crc in node_tails(b, l, nodes, h.node_count)? {
+            candidates.push((crc, covered));
+        }
     }
-    if candidates.contains(&tail) {
-        Ok(Checksum::Full)
-    } else {
-        Ok(Checksum::Mismatch(format!(
+    match candidates.iter().find(|(crc, _)| *crc == tail) {
+        Some((_, covered)) => Ok(Checksum::Full(*covered)),
+        None => Ok(Checksum::Mismatch(format!(
             "the tail checksum is {tail:#010x} but the nodes hash to {:#010x}",
-            candidates.first().copied().unwrap_or_default()
-        )))
+            candidates.first().map(|c| c.0).unwrap_or_default()
+        ))),
     }
+}
+
+/// What the head (bytes 16 to `head_end`) and a 32.4 tail (each node's `sizeof` bytes) cover
+/// together: the union of those ranges, and the FpN codes after each leaf's 96 bytes.
+fn node_coverage(
+    b: &Bytes<'_>,
+    l: &Layout,
+    nodes: &Nodes,
+    counts: [u32; 3],
+    head_end: u64,
+) -> DecodeResult<Coverage> {
+    let mut ranges = vec![(16, head_end)];
+    for (level, size) in [(2usize, l.node_bytes[0]), (1, l.node_bytes[1])] {
+        let first = nodes.first[2 - level];
+        let n = u64::from(counts[level]);
+        if n > 0 {
+            ranges.push((first, first.saturating_add(n.saturating_mul(size))));
+        }
+    }
+    let mut codes = 0u64;
+    for &at in &nodes.leaves {
+        ranges.push((at, at.saturating_add(l.leaf_bytes)));
+        codes += leaf_size(b, l, at)?.saturating_sub(l.leaf_bytes);
+    }
+    ranges.sort_unstable();
+    let (mut checked, mut reach) = (0u64, 0u64);
+    for (start, end) in ranges {
+        let end = end.min(b.len());
+        let start = start.max(reach);
+        if end > start {
+            checked += end - start;
+            reach = end;
+        }
+    }
+    Ok(Coverage {
+        checked,
+        grid: b.len().saturating_sub(16),
+        codes,
+    })
 }
 
 /// The 32.4 tail: the CRC-32 of each node's CRC-32, stored 8 bytes and 4 bytes each.

@@ -106,7 +106,8 @@ fn fpn_bits(b: &Bytes<'_>, at: u64) -> DecodeResult<u32> {
     Ok(1 << shift)
 }
 
-fn leaf_size(b: &Bytes<'_>, l: &Layout, at: u64) -> DecodeResult<u64> {
+/// Bytes of the leaf at `at`: its layout's, or for FpN 96 and its own codes.
+pub(crate) fn leaf_size(b: &Bytes<'_>, l: &Layout, at: u64) -> DecodeResult<u64> {
     Ok(match l.leaves {
         Leaves::Variable => 96 + 64 * u64::from(fpn_bits(b, at)?),
         _ => l.leaf_bytes,

@@ -66,21 +66,25 @@ pub fn estimate_many(
         return by_ray();
     }
     let channels = scene.channels();
-    let hits: Vec<Option<f64>> = rays
+    // Far rays moved next to the scene's box first, as `estimate` moves them.
+    let world = scene.world_box();
+    let moved: Vec<(Ray, f64)> = rays.iter().map(|r| Scene::localise(r, world)).collect();
+    let hits: Vec<Option<f64>> = moved
         .par_iter()
-        .map(|ray| {
+        .map(|(ray, shift)| {
             scene
                 .solids
                 .iter()
                 .filter_map(|s| s.first_hit(ray))
                 .min_by(f64::total_cmp)
+                .map(|t| t + shift)
         })
         .collect();
-    let open: Vec<Ray> = rays
+    let open: Vec<Ray> = moved
         .iter()
         .zip(&hits)
         .filter(|(_, h)| h.is_none())
-        .map(|(r, _)| *r)
+        .map(|((r, _), _)| *r)
         .collect();
     // Per open ray: its optical depth per channel, lookups and segments, summed over the
     // volumes (the first volume's error kept).

@@ -167,6 +167,8 @@ pub fn estimate(
     for f in &scene.fogs {
         budget::check_ray(&f.volume, est, opts.samples)?;
     }
+    let (ray, moved) = Scene::localise(ray, scene.world_box());
+    let ray = &ray;
     let channels = scene.channels();
     let hit = scene
         .solids
@@ -176,7 +178,7 @@ pub fn estimate(
     if let Some(t) = hit {
         return Ok(SceneEstimate::behind_solid(
             channels,
-            t,
+            t + moved,
             est.is_deterministic(),
         ));
     }

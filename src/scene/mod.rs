@@ -23,6 +23,24 @@ use crate::solid::Solid;
 use crate::volume::{Sanitized, Volume};
 use glam::DVec3;
 
+/// How far, in sizes of the scene's world box, a ray's entry may be from its origin before its
+/// walk starts from a moved origin ([`Scene::localise`]): `2^16`, where the walk's round-off is
+/// still below `1e-11` of the box.
+pub(crate) const FAR: f64 = 65_536.0;
+
+/// Where a far ray is moved to and the box's size: `None` for a ray that misses the box or
+/// enters it within [`FAR`] box sizes of its origin.
+fn far_entry(ray: &crate::ray::Ray, world: Option<(DVec3, DVec3)>) -> Option<(f64, f64)> {
+    let (lo, hi) = world?;
+    let size = (hi - lo).max_element().max(f64::MIN_POSITIVE);
+    let (t0, _) = crate::ray::clip_box(ray.origin(), ray.direction(), lo, hi)?;
+    if !(t0 > FAR * size && t0.is_finite()) {
+        return None;
+    }
+    let t = (t0 - size.max(4.0 * f64::EPSILON * t0)).max(ray.t_min());
+    Some((t, size))
+}
+
 /// Most fog volumes in one scene (the sampled set of each interval is a 64-bit mask).
 pub const MAX_VOLUMES: usize = 64;
 
@@ -178,6 +196,63 @@ impl Scene {
         fogs.chain(solids)
             .filter(|t| *t >= 0.0)
             .fold(None, |a: Option<f64>, t| Some(a.map_or(t, |a| a.max(t))))
+    }
+
+    /// The world box of every fog volume and solid (the bounding box of their corners);
+    /// `None` for a scene without one.
+    #[must_use]
+    pub(crate) fn world_box(&self) -> Option<(DVec3, DVec3)> {
+        let c = self.box_corners().ok()?;
+        let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
+        let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
+        (lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    }
+
+    /// The world box of one volume (the bounding box of its corners), what a map of one grid
+    /// moves its far rays next to ([`Scene::localise`]).
+    #[must_use]
+    pub(crate) fn volume_box(v: &Volume) -> Option<(DVec3, DVec3)> {
+        let c = v.box_corners().ok()?;
+        let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
+        let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
+        (lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+    }
+
+    /// `ray` as a walk takes it, with the distance `s` it was moved by: a ray that enters the
+    /// scene's world box `[lo, hi]` (of size `L`, its longest side) farther than
+    /// [`FAR`]` L` from its origin is moved to `t = max(t_min, t_0 - max(L, 4 eps t_0))`
+    /// before its entry `t_0` ([`Ray::moved_to`]: the same line and end, the origin in
+    /// double-double), so a far end costs no precision: a walk in index space from an
+    /// origin at `|o|` resolves `t` to about `eps |o| / voxel`, 2 world units at 1e16. Any
+    /// other ray is returned as it is (`s = 0`), bit for bit. `t` on the moved ray is `t - s`
+    /// on the given one.
+    #[must_use]
+    pub(crate) fn localise(
+        ray: &crate::ray::Ray,
+        world: Option<(DVec3, DVec3)>,
+    ) -> (crate::ray::Ray, f64) {
+        let Some((t, _)) = far_entry(ray, world) else {
+            return (*ray, 0.0);
+        };
+        match ray.moved_to(t) {
+            Some(moved) => (moved, t),
+            None => (*ray, 0.0),
+        }
+    }
+
+    /// Whether a walk along `ray` loses precision even when moved ([`Scene::localise`]):
+    /// the moved origin's error, about `2^-104` of the distance moved plus `eps` of how far
+    /// before the box it lands (`4 eps t_0` when that exceeds `L`), is more than `1e-9 L`
+    /// (from about `1e21 L` away).
+    #[must_use]
+    pub(crate) fn loses_precision(&self, ray: &crate::ray::Ray) -> bool {
+        let world = self.world_box();
+        let Some((t, size)) = far_entry(ray, world) else {
+            return false;
+        };
+        let eps = f64::EPSILON;
+        let error = t * eps * eps * 16.0 + eps * (4.0 * eps * t).max(size);
+        error > 1e-9 * size || ray.moved_to(t).is_none()
     }
 
     /// 1 (grey) or 3 (R, G, B).

@@ -164,13 +164,22 @@ impl Reader<'_> {
             .map_err(|e| self.at(prim, format!("{attr}: {e:#}")))
     }
 
+    /// A numeric attribute at the time code: a finite number, as every numeric flag is
+    /// (a NaN or an infinity is refused here, naming the attribute, whatever reads it).
     fn number(&self, prim: &str, attr: &str) -> Result<Option<f64>> {
         Ok(match self.value(prim, attr)? {
             None => None,
-            Some(v) => Some(
-                as_number(&v)
-                    .ok_or_else(|| self.at(prim, format!("{attr}: {v:?} is not a number")))?,
-            ),
+            Some(v) => {
+                let x = as_number(&v)
+                    .ok_or_else(|| self.at(prim, format!("{attr}: {v:?} is not a number")))?;
+                if !x.is_finite() {
+                    return Err(self.at(
+                        prim,
+                        format!("{attr} is {}: give a finite number", crate::math::short(x)),
+                    ));
+                }
+                Some(x)
+            }
         })
     }
 

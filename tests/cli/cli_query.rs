@@ -321,3 +321,115 @@ fn bad_query_arguments_are_one_line_errors() {
         .unwrap();
     assert_eq!(o.status.code(), Some(1));
 }
+
+/// Far points (issue 68, item 3): a segment, a point light, a sun and a sphere light from
+/// `x = 1e16` and `1e17` along `y = 0.5, z = 0` through the cloud answer what the same line
+/// from `x = 3` answers (0.049315), within 1e-6: the walk starts next to the cloud, not
+/// from 1e16 away (2 world units of f64 resolution there). An oblique line keeps its line
+/// too; a finite 1e300-long segment has a finite length, in text and JSON.
+#[test]
+fn far_points_answer_what_near_points_answer() {
+    let cloud = "data/cloud.vdb";
+    let one = |args: &[&str]| {
+        let (code, v, err) = query(cloud, args, None);
+        assert_eq!(code, 0, "{args:?}: {err}");
+        assert!(!err.contains("met no active voxel"), "{args:?}: {err}");
+        t(&v[0])
+    };
+    let near = one(&["--from", "3,0.5,0", "--to=-3,0.5,0"]);
+    assert!((near - 0.049315).abs() < 1e-6, "{near}");
+    let soft_near = one(&[
+        "--at",
+        "3,0.5,0",
+        "--light-pos=-3,0.5,0",
+        "--light-radius",
+        "1e-7",
+    ]);
+    assert!((soft_near - near).abs() < 1e-6, "{soft_near} {near}");
+    for x in ["1e16", "1e17"] {
+        let (a, b) = (format!("{x},0.5,0"), format!("-{x},0.5,0"));
+        let cases: [(&str, Vec<&str>); 4] = [
+            ("segment", vec!["--from", &a, "--to", &b]),
+            ("point light", vec!["--at", &a, "--light-pos", &b]),
+            ("sun", vec!["--at", &a, "--light-dir", "1,0,0"]),
+            (
+                "sphere light",
+                vec!["--at", &a, "--light-pos", &b, "--light-radius", "1e-7"],
+            ),
+        ];
+        for (what, args) in cases {
+            let got = one(&args);
+            assert!(
+                (got - near).abs() < 1e-6,
+                "{what} at {x}: {got}, near {near}"
+            );
+        }
+    }
+    // An oblique line, y = 3x in z = 0, from 1e16 away against the same line near.
+    let near = one(&["--from", "2,6,0", "--to=-2,-6,0"]);
+    let far = one(&["--from", "1e16,3e16,0", "--to=-1e16,-3e16,0"]);
+    assert!((far - near).abs() < 1e-6, "oblique: {far}, near {near}");
+    let far = one(&[
+        "--at",
+        "1e16,3e16,0",
+        "--light-pos=-1e16,-3e16,0",
+        "--light-radius",
+        "1e-7",
+    ]);
+    assert!(
+        (far - near).abs() < 1e-6,
+        "oblique sphere light: {far}, near {near}"
+    );
+    // A segment 1e300 long: its length is finite (it printed inf, and null in JSON).
+    let (code, v, _) = query(cloud, &["--from", "0,0,0", "--to", "1e300,0,0"], None);
+    assert_eq!(code, 0);
+    assert_eq!(v[0]["length"].as_f64(), Some(1e300), "{}", v[0]);
+    let o = umbra()
+        .args(["query", cloud, "--from", "0,0,0", "--to", "1e300,0,0"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("length 1e300") && !text.contains("inf"),
+        "{text}"
+    );
+}
+
+/// A perspective map from a light 1e16 away (issue 68, item 3, maps): its pinhole is too far
+/// for the sweep's footprints and its rays' walks, which gave `T` up to 6.9; it is traced, each
+/// ray moved next to the volume, and is the sun's map along the same axis to 2e-4.
+#[test]
+fn a_map_from_a_far_light_is_the_suns() {
+    let dir = tempfile::tempdir().unwrap();
+    let range = |args: &[&str]| -> (f64, f64) {
+        let out = dir.path().join("m.exr");
+        let o = umbra()
+            .args(["bake", "data/cloud.vdb", "--res", "16", "--force", "-o"])
+            .arg(&out)
+            .args(args)
+            .output()
+            .unwrap();
+        let text = String::from_utf8_lossy(&o.stdout).into_owned();
+        assert!(
+            o.status.success(),
+            "{text}{}",
+            String::from_utf8_lossy(&o.stderr)
+        );
+        let r = text
+            .split("T in [")
+            .nth(1)
+            .unwrap()
+            .split(']')
+            .next()
+            .unwrap();
+        let (a, b) = r.split_once(", ").unwrap();
+        (a.parse().unwrap(), b.parse().unwrap())
+    };
+    let sun = range(&["--light-dir", "1,0,0"]);
+    let far = range(&["--light-pos=-1e16,0.5,0"]);
+    assert!(far.1 <= 1.0, "far {far:?}");
+    assert!(
+        (far.0 - sun.0).abs() <= 2e-4 && (far.1 - sun.1).abs() <= 2e-4,
+        "far {far:?}, sun {sun:?}"
+    );
+}

@@ -27,6 +27,7 @@ mod lights_maps;
 mod motion;
 mod mutation;
 mod nvdb;
+mod quiet_inputs;
 mod stress;
 mod transmittance_volume;
 mod vdb_blender;

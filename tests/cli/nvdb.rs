@@ -263,3 +263,71 @@ fn info_tells_full_from_partial_checksums() {
         assert!(out.contains(text), "{kind}: {out}");
     }
 }
+
+/// A full checksum of NanoVDB 32.4 on an FpN grid covers each leaf's first 96 bytes, not its
+/// codes (issue 68, item 2): `nanovdb_validate` passes a flipped code. `info` says which bytes
+/// it checked and which it did not, never "every byte"; a flipped code (the issue's byte
+/// 2488336, bit 2) moves the value sum and `info` still says those bytes were not checked.
+/// Raw and fixed-width quantised grids are covered whole.
+#[test]
+fn info_says_which_bytes_an_fpn_checksum_leaves_out() {
+    let dir = tempfile::tempdir().unwrap();
+    let vdb = common::data("cloud.vdb");
+    let fpn = dir.path().join("c.nvdb");
+    nanovdb_convert(&["--fpN", "-a", "0.01", "-c", "full"], &vdb, &fpn);
+    let o = umbra(&["info", "--json", s(&fpn)]);
+    assert!(o.status.success());
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    let g = &v["grids"][0];
+    assert_eq!(g["checksum"], "full");
+    let c = &g["checksum_coverage"];
+    let [checked, grid, unchecked, codes] = [
+        "checked_bytes",
+        "grid_bytes",
+        "unchecked_bytes",
+        "unchecked_code_bytes",
+    ]
+    .map(|k| c[k].as_u64().unwrap());
+    assert_eq!(checked + unchecked, grid, "{c}");
+    // 427 leaves: their codes are all that is not covered.
+    assert!(codes > 0 && codes == unchecked, "{c}");
+    let sum = g["value_sum"].as_f64().unwrap();
+    let text = |p: &Path| {
+        let o = umbra(&["info", "-v", s(p)]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stdout).into_owned()
+    };
+    let want = format!(
+        "checksum: full (head and nodes: {checked} of {grid} bytes checked; not checked: \
+         {codes} bytes of FpN leaf codes"
+    );
+    let out = text(&fpn);
+    assert!(out.contains(&want) && !out.contains("every byte"), "{out}");
+    let mut b = std::fs::read(&fpn).unwrap();
+    b[2_488_336] ^= 1 << 2;
+    let flip = dir.path().join("flip.nvdb");
+    std::fs::write(&flip, &b).unwrap();
+    let out = text(&flip);
+    assert!(out.contains(&want) && !out.contains("every byte"), "{out}");
+    let o = umbra(&["info", "--json", s(&flip)]);
+    let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_ne!(v["grids"][0]["value_sum"].as_f64().unwrap(), sum);
+    for (flags, name) in [
+        (&["-c", "full"][..], "raw"),
+        (&["--fp16", "-c", "full"][..], "fp16"),
+    ] {
+        let p = dir.path().join(format!("{name}.nvdb"));
+        nanovdb_convert(flags, &vdb, &p);
+        let out = text(&p);
+        assert!(
+            out.contains("checksum: full (head and nodes: every byte of the grid checked)"),
+            "{name}: {out}"
+        );
+        let o = umbra(&["info", "--json", s(&p)]);
+        let v: Value = serde_json::from_slice(&o.stdout).unwrap();
+        assert_eq!(
+            v["grids"][0]["checksum_coverage"]["unchecked_bytes"], 0,
+            "{name}"
+        );
+    }
+}

@@ -38,7 +38,12 @@ impl Source<'_> {
         opts: &Options,
     ) -> Result<SceneEstimate> {
         match self {
-            Self::Volume(v) => Ok(SceneEstimate::grey(&estimate(v, ray, id, est, opts)?)),
+            Self::Volume(v) => {
+                // A far camera's rays (a perspective map from a light 1e16 away) walk from
+                // next to the volume, as a scene's do.
+                let (ray, _) = Scene::localise(ray, Scene::volume_box(v));
+                Ok(SceneEstimate::grey(&estimate(v, &ray, id, est, opts)?))
+            }
             Self::Scene(s) => crate::scene::estimate(s, ray, id, est, opts),
         }
     }

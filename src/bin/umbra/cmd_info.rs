@@ -281,7 +281,7 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
             "  NanoVDB {}  codec: {codec}  quantisation: {}  checksum: {}",
             g.nanovdb_version.as_deref().unwrap_or("-"),
             g.quantisation.as_deref().unwrap_or("-"),
-            checksum_text(g.checksum.as_deref())
+            checksum_text(g.checksum.as_deref(), g.checksum_coverage.as_ref())
         )?;
     }
     if let Some(v) = &g.vector {
@@ -366,13 +366,34 @@ fn print_grid(out: &mut impl Write, g: &GridInfo) -> Result<()> {
     Ok(())
 }
 
-/// A NanoVDB checksum kind with what it covered.
-fn checksum_text(kind: Option<&str>) -> String {
-    let what = match kind {
-        Some("full") => "head and nodes: every byte of the grid checked",
-        Some("partial") => "head only: the headers checked, not the nodes",
-        Some("absent") => "the file carries none",
-        Some("mismatch") => "the grid disagrees with it",
+/// A NanoVDB checksum kind with what it covered: every byte, or how many bytes and which were
+/// not.
+fn checksum_text(kind: Option<&str>, coverage: Option<&umbra::info::ChecksumCoverage>) -> String {
+    let what = match (kind, coverage) {
+        (Some("full"), Some(c)) if c.unchecked_bytes > 0 => {
+            let mut not = Vec::new();
+            if c.unchecked_code_bytes > 0 {
+                not.push(format!(
+                    "{} bytes of FpN leaf codes (NanoVDB 32.4's checksum stops at each leaf's \
+                     first 96 bytes: a corrupt value is not detected)",
+                    c.unchecked_code_bytes
+                ));
+            }
+            let other = c.unchecked_bytes.saturating_sub(c.unchecked_code_bytes);
+            if other > 0 {
+                not.push(format!("{other} bytes of blind data or padding"));
+            }
+            format!(
+                "head and nodes: {} of {} bytes checked; not checked: {}",
+                c.checked_bytes,
+                c.grid_bytes,
+                not.join(", ")
+            )
+        }
+        (Some("full"), _) => "head and nodes: every byte of the grid checked".into(),
+        (Some("partial"), _) => "head only: the headers checked, not the nodes".into(),
+        (Some("absent"), _) => "the file carries none".into(),
+        (Some("mismatch"), _) => "the grid disagrees with it".into(),
         _ => return "-".into(),
     };
     format!("{} ({what})", kind.unwrap_or("-"))

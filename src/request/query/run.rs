@@ -335,11 +335,16 @@ impl QueryRequest {
                 tally.add(&a.estimate);
             }
         }
+        let mut warnings = tally.warnings();
+        let far = rays.iter().filter(|r| scene.loses_precision(r)).count() as u64;
+        if far > 0 {
+            warnings.push(Warning::FarRays { rays: far });
+        }
         Ok(RayAnswers {
             answers,
             estimator: est.name().to_string(),
             interp: self.source.options().interp,
-            warnings: tally.warnings(),
+            warnings,
             load_warnings,
         })
     }

@@ -165,8 +165,11 @@ impl Reader<'_> {
         Ok(match self.value(prim, "umbra:sigmaT")? {
             None => (None, false),
             Some(v) => match (as_number(&v), as_triple(&v)) {
-                (Some(s), _) => (Some([s; 3]), false),
-                (None, Some(c)) => (Some(c), true),
+                (Some(s), _) if s.is_finite() => (Some([s; 3]), false),
+                (None, Some(c)) if c.iter().all(|x| x.is_finite()) => (Some(c), true),
+                (Some(_), _) | (None, Some(_)) => {
+                    return Err(self.at(prim, format!("umbra:sigmaT is {v:?}: give finite numbers")))
+                }
                 _ => {
                     return Err(self.at(
                         prim,

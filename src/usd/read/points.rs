@@ -70,6 +70,21 @@ pub fn points_at(path: &Path, prim: &str, time: Option<f64>) -> Result<StagePoin
                 ))
             }
         };
+        // Every number read from a stage is finite, as every numeric flag is: a NaN point is
+        // refused as authored, before a transform spreads it over the other components.
+        if let Some((i, p)) = local
+            .iter()
+            .enumerate()
+            .find(|(_, p)| !p.iter().all(|c| c.is_finite()))
+        {
+            return Err(r.at(
+                prim,
+                format!(
+                    "{attr}[{i}] is {}: give finite coordinates",
+                    crate::math::short3(*p)
+                ),
+            ));
+        }
         let m = r.local_to_world(prim)?;
         let world = local.iter().map(|p| transform(&m, *p)).collect();
         Ok(StagePoints {

@@ -72,6 +72,13 @@ pub enum Warning {
         /// Queries answered.
         queries: u64,
     },
+    /// Rays start so far from the volumes (about `1e21` times their box's size) that even
+    /// moved next to them in double-double ([`crate::scene::Scene`]'s far rays) their walk
+    /// resolves less than `1e-9` of the box: the answer may be off.
+    FarRays {
+        /// Rays so far.
+        rays: u64,
+    },
     /// NaN or infinite components of a velocity grid were read as 0 (motion blur).
     BadVelocity {
         /// The velocity grid.
@@ -174,6 +181,12 @@ impl std::fmt::Display for Warning {
                 f,
                 "this blurred map is traced ray by ray, not swept in object order (several \
                  times slower): {reason}"
+            ),
+            Self::FarRays { rays } => write!(
+                f,
+                "{rays} ray(s) start so far from the volumes (about 1e21 times their size or \
+                 more) that their walk loses precision: the answer may be off; give points \
+                 nearer the volumes"
             ),
             Self::BadVoxels { nan, negative } => {
                 write!(f, "{nan} NaN and {negative} negative values treated as 0")

@@ -72,6 +72,14 @@ impl Rays {
             return Ok(None);
         }
         let r0 = camera.pixel_ray(0, 0)?;
+        // A pinhole farther than `scene::FAR` box sizes (a light 1e16 away): its footprints
+        // cannot be resolved in f64, so the map is traced, each ray moved next to the volume.
+        if let Some((lo, hi)) = crate::scene::Scene::volume_box(vol) {
+            let size = (hi - lo).max_element();
+            if (r0.origin() - (lo + hi) / 2.0).length() > crate::scene::FAR * size {
+                return Ok(None);
+            }
+        }
         let (q0, d) = lookup_ray(vol, &r0, Interp::Trilinear);
         let (q0, d) = (DVec3::from(q0), DVec3::from(d));
         let qx = vol.to_index_dir(DVec3::from(camera.step_x));
