@@ -13,6 +13,7 @@ mod common;
 mod vdb_writer;
 
 mod batch;
+mod batch_key;
 mod cli_bake;
 mod cli_contract;
 mod cli_query;
