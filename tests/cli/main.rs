@@ -22,6 +22,7 @@ mod corpus_manifest;
 mod deep_map;
 mod friction;
 mod hostile;
+mod info_map;
 mod lights_extent;
 mod lights_extent_points;
 mod lights_maps;
