@@ -265,6 +265,9 @@ fn log_path(job: &Job, opts: &RunOptions) -> Result<PathBuf, BatchError> {
     Ok(opts.log.clone().unwrap_or_else(|| job.log.clone()))
 }
 
+/// A task to bake, and why (its [`Freshness`], with its key).
+type ToBake<'a, T> = (&'a T, Freshness);
+
 /// Check every input and frame the shared cameras (one camera per light over every input, not
 /// just this shard's, so shards agree), cached beside the log: missing frames and grids fail
 /// the job up front, before anything is created.
@@ -282,7 +285,7 @@ fn frame(job: &Job, log_path: &Path) -> Result<(), BatchError> {
 /// to run); then the log's and the outputs' directories made.
 fn prepare(
     job: &Job,
-    (todo, points_todo): (&[(&Task, Freshness)], &[(&PositionsTask, Freshness)]),
+    (todo, points_todo): (&[ToBake<'_, Task>], &[ToBake<'_, PositionsTask>]),
     log_path: &Path,
 ) -> Result<(), BatchError> {
     if !points_todo.is_empty() {

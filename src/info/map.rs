@@ -111,7 +111,7 @@ fn attribute_json(v: &exr::meta::attribute::AttributeValue) -> Value {
         A::F64(x) => Value::from(*x),
         A::F32(x) => Value::from(f64::from(*x)),
         A::I32(x) => Value::from(*x),
-        A::Custom { kind, bytes } if kind.to_string() == "v3d" && bytes.len() == 24 => {
+        A::Custom { kind, bytes } if kind == "v3d" && bytes.len() == 24 => {
             let c: Vec<f64> = bytes
                 .chunks_exact(8)
                 .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
