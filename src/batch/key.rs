@@ -13,7 +13,7 @@
 //! it (unless [`KeyCheck::verify`]); one whose size or time differ is hashed, and a touched
 //! but identical file is no change.
 
-use super::{BatchError, Job, PositionsTask, Task};
+use super::{BatchError, Job, Task};
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 use std::io::Read;
@@ -33,7 +33,7 @@ pub const KEY_ATTRIBUTE: &str = "umbra:key";
 pub const NOT_IN_KEY: &[&str] = &["threads", "force", "max_memory", "framing", "usd_out"];
 
 /// The request keys that say which light a task is baked toward.
-const LIGHT_KEYS: &[&str] = &[
+pub(super) const LIGHT_KEYS: &[&str] = &[
     "light_dir",
     "light_pos",
     "light",
@@ -369,7 +369,7 @@ impl Freshness {
 
 /// The canonical form of a request's options: serialized after defaults, without
 /// [`NOT_IN_KEY`].
-fn canonical(options: &crate::request::BakeOptions) -> Map<String, Value> {
+pub(super) fn canonical(options: &crate::request::BakeOptions) -> Map<String, Value> {
     let mut m = match serde_json::to_value(options) {
         Ok(Value::Object(m)) => m,
         _ => Map::new(),
@@ -381,7 +381,7 @@ fn canonical(options: &crate::request::BakeOptions) -> Map<String, Value> {
 }
 
 /// The identities of `files` now, reusing `recorded`'s hashes where size and time match.
-fn identify(
+pub(super) fn identify(
     files: &[PathBuf],
     recorded: Option<&TaskKey>,
     check: KeyCheck,
@@ -393,7 +393,7 @@ fn identify(
 }
 
 /// Compare `stored` with the key now (`now`, or the error computing it).
-fn compare(
+pub(super) fn compare(
     stored: &Stored,
     now: Result<TaskKey, String>,
     check: KeyCheck,
@@ -544,57 +544,5 @@ impl Job {
             format!("bake.{key}")
         };
         Change::Settings(vec![name])
-    }
-
-    /// The key of positions task `t` now: its options, stage, prim, light and frame, and the
-    /// files it reads.
-    ///
-    /// # Errors
-    /// As [`Job::task_key`].
-    pub fn positions_key(
-        &self,
-        t: &PositionsTask,
-        recorded: Option<&TaskKey>,
-        check: KeyCheck,
-    ) -> Result<TaskKey, BatchError> {
-        let mut m = canonical(&t.options);
-        m.insert("stage".into(), Value::from(t.stage.display().to_string()));
-        m.insert("prim".into(), Value::from(t.prim.clone()));
-        m.insert(
-            "light".into(),
-            t.light.clone().map_or(Value::Null, Value::from),
-        );
-        m.insert("frame".into(), Value::from(t.frame));
-        let files = t.source().files()?;
-        Ok(TaskKey {
-            format: format!("points/{FORMAT_VERSION}"),
-            request: m,
-            camera: None,
-            files: identify(&files, recorded, check)?,
-        })
-    }
-
-    /// [`Job::freshness`] of positions task `t`.
-    #[must_use]
-    pub fn positions_freshness(&self, t: &PositionsTask, check: KeyCheck) -> Freshness {
-        let stored = Stored::read(&t.output);
-        let now = self
-            .positions_key(t, stored.key(), check)
-            .map_err(|e| e.to_string());
-        let base = canonical(&self.options);
-        compare(&stored, now, check, &|k| {
-            if LIGHT_KEYS.contains(&k) {
-                return Change::Light(t.light_name());
-            }
-            let mine = canonical(&t.options);
-            let name = if mine.get(k) != base.get(k) || matches!(k, "stage" | "prim") {
-                format!("positions[{}].{k}", t.entry)
-            } else if k == "frame" {
-                "frame".into()
-            } else {
-                format!("bake.{k}")
-            };
-            Change::Settings(vec![name])
-        })
     }
 }

@@ -531,3 +531,67 @@ fn read_frame(p: &Path) -> Result<FrameFile, BatchError> {
         })
     })
 }
+
+/// Positions tasks' keys ([`super::TaskKey`]).
+impl Job {
+    /// The key of positions task `t` now: its options, stage, prim, light and frame, and the
+    /// files it reads.
+    ///
+    /// # Errors
+    /// As [`Job::task_key`].
+    pub fn positions_key(
+        &self,
+        t: &PositionsTask,
+        recorded: Option<&super::TaskKey>,
+        check: super::KeyCheck,
+    ) -> Result<super::TaskKey, BatchError> {
+        let mut m = super::key::canonical(&t.options);
+        m.insert(
+            "stage".into(),
+            serde_json::Value::from(t.stage.display().to_string()),
+        );
+        m.insert("prim".into(), serde_json::Value::from(t.prim.clone()));
+        m.insert(
+            "light".into(),
+            t.light
+                .clone()
+                .map_or(serde_json::Value::Null, serde_json::Value::from),
+        );
+        m.insert("frame".into(), serde_json::Value::from(t.frame));
+        let files = t.source().files()?;
+        Ok(super::TaskKey {
+            format: format!("points/{}", super::FORMAT_VERSION),
+            request: m,
+            camera: None,
+            files: super::key::identify(&files, recorded, check)?,
+        })
+    }
+
+    /// [`Job::freshness`] of positions task `t`.
+    #[must_use]
+    pub fn positions_freshness(
+        &self,
+        t: &PositionsTask,
+        check: super::KeyCheck,
+    ) -> super::Freshness {
+        let stored = super::Stored::read(&t.output);
+        let now = self
+            .positions_key(t, stored.key(), check)
+            .map_err(|e| e.to_string());
+        let base = super::key::canonical(&self.options);
+        super::key::compare(&stored, now, check, &|k| {
+            if super::key::LIGHT_KEYS.contains(&k) {
+                return super::Change::Light(t.light_name());
+            }
+            let mine = super::key::canonical(&t.options);
+            let name = if mine.get(k) != base.get(k) || matches!(k, "stage" | "prim") {
+                format!("positions[{}].{k}", t.entry)
+            } else if k == "frame" {
+                "frame".into()
+            } else {
+                format!("bake.{k}")
+            };
+            super::Change::Settings(vec![name])
+        })
+    }
+}
