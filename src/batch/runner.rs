@@ -11,9 +11,7 @@
 //! remaining tasks in index order, each with `cores / workers` threads of its own. A failed task
 //! is logged with its error and the others go on.
 
-use super::{
-    in_shard, valid_shard, BatchError, Freshness, Job, KeyCheck, PositionsTask, Record, Stale, Task,
-};
+use super::{in_shard, valid_shard, BatchError, Job, PositionsTask, Record, Task};
 use crate::progress::{Share, Work};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -33,9 +31,6 @@ pub struct RunOptions {
     pub log: Option<PathBuf>,
     /// Tasks baked at once (0: as many as cores, at most the number of tasks).
     pub jobs: usize,
-    /// How outputs' keys are checked: take outputs without a key as up to date
-    /// ([`KeyCheck::keep_unkeyed`]), hash every input ([`KeyCheck::verify`]).
-    pub check: KeyCheck,
 }
 
 /// What a run reports as it goes: the library's [`crate::progress::Progress`] (the run's
@@ -119,31 +114,13 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         .iter()
         .filter_map(|t| job.shadowless(t).map(|why| (*t, why)))
         .collect();
-    let bakes: Vec<&Task> = selected
+    let (todo, skipped): (Vec<&Task>, Vec<&Task>) = selected
         .iter()
-        .copied()
         .filter(|t| !shadowless.iter().any(|(s, _)| s.index == t.index))
-        .collect();
-    if !bakes.is_empty() {
-        // A task's key holds its camera: the inputs are checked and the shared cameras framed
-        // before anything is decided (or created).
-        frame(job, &log_path)?;
-    }
-    let fresh = |f: Freshness| match opts.force {
-        true => Freshness {
-            stale: Some(Stale::Forced),
-            ..f
-        },
-        false => f,
-    };
-    let (todo, skipped): (Vec<_>, Vec<_>) = bakes
+        .partition(|t| opts.force || !job.up_to_date(t));
+    let (points_todo, points_skipped): (Vec<&PositionsTask>, Vec<&PositionsTask>) = points
         .iter()
-        .map(|t| (*t, fresh(job.freshness(t, opts.check))))
-        .partition(|(_, f)| f.stale.is_some());
-    let (points_todo, points_skipped): (Vec<_>, Vec<_>) = points
-        .iter()
-        .map(|t| (*t, fresh(job.positions_freshness(t, opts.check))))
-        .partition(|(_, f)| f.stale.is_some());
+        .partition(|t| opts.force || !job.positions_up_to_date(t));
     prepare(job, (&todo, &points_todo), &log_path)?;
     let log = Mutex::new(
         std::fs::OpenOptions::new()
@@ -167,11 +144,8 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             v.push(rec);
         }
     };
-    for (t, f) in &skipped {
-        keep(Record {
-            reason: Some(f.reason()),
-            ..record(t, "skipped", 0.0, 0.0, None)
-        });
+    for t in &skipped {
+        keep(record(t, "skipped", 0.0, 0.0, None));
     }
     for (t, why) in &shadowless {
         keep(Record {
@@ -179,11 +153,8 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             ..record(t, "skipped", 0.0, 0.0, None)
         });
     }
-    for (t, f) in &points_skipped {
-        keep(Record {
-            reason: Some(f.reason()),
-            ..points_record(t, "skipped", 0.0, 0.0, None)
-        });
+    for t in &points_skipped {
+        keep(points_record(t, "skipped", 0.0, 0.0, None));
     }
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
     let workers = if opts.jobs == 0 { cores } else { opts.jobs }
@@ -206,12 +177,9 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         for _ in 0..workers {
             s.spawn(|| loop {
                 let k = next.fetch_add(1, Ordering::Relaxed);
-                let Some((t, f)) = todo.get(k) else { break };
+                let Some(t) = todo.get(k) else { break };
                 let share = Share::new(progress, worth);
-                let rec = Record {
-                    reason: Some(f.reason()),
-                    ..run_task(job, t, f.key.as_ref(), per_task, &share)
-                };
+                let rec = run_task(job, t, per_task, &share);
                 if rec.status == "failed" {
                     failed.fetch_add(1, Ordering::Relaxed);
                 }
@@ -265,34 +233,28 @@ fn log_path(job: &Job, opts: &RunOptions) -> Result<PathBuf, BatchError> {
     Ok(opts.log.clone().unwrap_or_else(|| job.log.clone()))
 }
 
-/// A task to bake, and why (its [`Freshness`], with its key).
-type ToBake<'a, T> = (&'a T, Freshness);
-
-/// Check every input and frame the shared cameras (one camera per light over every input, not
-/// just this shard's, so shards agree), cached beside the log: missing frames and grids fail
-/// the job up front, before anything is created.
-fn frame(job: &Job, log_path: &Path) -> Result<(), BatchError> {
-    job.check_inputs()?;
-    let stem = log_path.file_stem().map_or_else(
-        || "umbra_batch".into(),
-        |s| s.to_string_lossy().into_owned(),
-    );
-    job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
-    Ok(())
-}
-
-/// Before anything is created: the positions entries checked (when there are positions tasks
-/// to run); then the log's and the outputs' directories made.
+/// Before anything is created: the positions entries and (when there are bakes to run) every
+/// input and the shared cameras checked; then the log's and the outputs' directories made.
 fn prepare(
     job: &Job,
-    (todo, points_todo): (&[ToBake<'_, Task>], &[ToBake<'_, PositionsTask>]),
+    (todo, points_todo): (&[&Task], &[&PositionsTask]),
     log_path: &Path,
 ) -> Result<(), BatchError> {
     if !points_todo.is_empty() {
         job.check_positions()?;
     }
+    if !todo.is_empty() {
+        // Missing frames and grids fail the job up front; then one camera per light over every
+        // input (not just this shard's), so shards agree. Both before anything is created.
+        job.check_inputs()?;
+        let stem = log_path.file_stem().map_or_else(
+            || "umbra_batch".into(),
+            |s| s.to_string_lossy().into_owned(),
+        );
+        job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
+    }
     let dirs = std::iter::once(log_path)
-        .chain(todo.iter().map(|(t, _)| t.output.as_path()))
+        .chain(todo.iter().map(|t| t.output.as_path()))
         .filter_map(|p| p.parent().filter(|d| !d.as_os_str().is_empty()));
     for d in dirs {
         std::fs::create_dir_all(d).map_err(|e| io(d, e))?;
@@ -311,22 +273,16 @@ fn io(path: &Path, e: std::io::Error) -> BatchError {
 /// Bake task `t` on `per_task` threads, its progress a share of the run's: its record, `ok`
 /// (with its rate: rays per second for a map, voxels per second for a transmittance volume,
 /// and its warnings) or `failed` (with the error).
-fn run_task(
-    job: &Job,
-    t: &Task,
-    key: Option<&super::TaskKey>,
-    per_task: usize,
-    share: &Share<'_, dyn Progress + '_>,
-) -> Record {
+fn run_task(job: &Job, t: &Task, per_task: usize, share: &Share<'_, dyn Progress + '_>) -> Record {
     let t0 = std::time::Instant::now();
     // Maps report rays per second, transmittance volumes voxels per second.
     let result = if job.volume {
-        job.run_volume_task(t, per_task, key, share).map(|d| {
+        job.run_volume_task(t, per_task, share).map(|d| {
             let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
             (rate, d.warnings.iter().map(ToString::to_string).collect())
         })
     } else {
-        job.run_task(t, per_task, key, share).map(|d| {
+        job.run_task(t, per_task, share).map(|d| {
             let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
             (rate, d.warnings.iter().map(ToString::to_string).collect())
         })
@@ -407,14 +363,14 @@ fn select<'a>(
 /// how many failed.
 fn run_points(
     job: &Job,
-    todo: &[(&PositionsTask, Freshness)],
+    todo: &[&PositionsTask],
     keep: &dyn Fn(Record),
     progress: &dyn Progress,
 ) -> usize {
     let mut failed = 0;
-    for (t, f) in todo {
+    for t in todo {
         let t0 = std::time::Instant::now();
-        let result = job.run_positions_task(t, f.key.as_ref());
+        let result = job.run_positions_task(t);
         let secs = t0.elapsed().as_secs_f64();
         let rec = match result {
             Ok(n) => points_record(t, "ok", secs, n as f64 / secs.max(1e-9), None),
@@ -422,10 +378,6 @@ fn run_points(
                 failed += 1;
                 points_record(t, "failed", secs, 0.0, Some(e.to_string()))
             }
-        };
-        let rec = Record {
-            reason: Some(f.reason()),
-            ..rec
         };
         progress.task(&rec);
         keep(rec);
@@ -459,7 +411,6 @@ fn record(
         rays_per_second,
         error,
         reason: None,
-        holds: None,
         warnings: Vec::new(),
     }
 }
@@ -490,6 +441,5 @@ fn points_record(
         error,
         warnings: Vec::new(),
         reason: None,
-        holds: None,
     }
 }

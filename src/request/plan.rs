@@ -218,7 +218,6 @@ impl BakeRequest {
             half: o.half,
             overwrite: o.force,
             motion,
-            key: None,
         })
     }
 
@@ -320,7 +319,6 @@ impl BakeRequest {
             layout,
             max_memory: o.max_memory()?,
             product,
-            key: None,
         })
     }
 

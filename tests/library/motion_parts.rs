@@ -68,7 +68,6 @@ fn job(
         max_memory,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
-        key: None,
     }
 }
 

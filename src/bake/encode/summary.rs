@@ -318,7 +318,6 @@ impl MapSummary {
             light_pos: self.light_pos,
             xform: self.xform,
             sigma_t: self.sigma_t,
-            key: None,
         };
         Ok((map, prov))
     }

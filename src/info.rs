@@ -1,7 +1,4 @@
-//! `umbra info`: what a `.vdb` file holds, grid by grid, as a serializable report; what a
-//! baked map says about itself ([`map`]).
-
-pub mod map;
+//! `umbra info`: what a `.vdb` file holds, grid by grid, as a serializable report.
 
 use crate::vdb::{Archive, Grid, LazyGrid, ValueKind};
 use serde::Serialize;
