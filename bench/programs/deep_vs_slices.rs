@@ -329,6 +329,7 @@ fn job(args: &Args, scale: f64, output: PathBuf, camera: Option<Camera>) -> Bake
         layout: ExrLayout::default(),
         max_memory: None,
         product: Product::Map,
+        key: None,
     }
 }
 

@@ -302,6 +302,7 @@ fn main() {
             density_scale: scale,
             light_dir: Some(dir),
             light_pos: (spec.kind == Projection::Perspective).then_some(spec.origin),
+            key: None,
         };
         write_exr(std::path::Path::new(path), &map, &prov, true).unwrap();
     }

@@ -27,7 +27,7 @@ pub(crate) fn info_json(py: Python<'_>, path: PathBuf, grid: Option<String>) -> 
 /// work (pixels, or tasks) as they finish, from the runner's threads. The run's report as JSON
 /// text.
 #[pyfunction]
-#[pyo3(signature = (path, task, shard, force, log, jobs, progress))]
+#[pyo3(signature = (path, task, shard, force, log, jobs, progress, keep_unkeyed=false, verify=false))]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn run_job(
     py: Python<'_>,
@@ -38,6 +38,8 @@ pub(crate) fn run_job(
     log: Option<PathBuf>,
     jobs: usize,
     progress: Option<Py<PyAny>>,
+    keep_unkeyed: bool,
+    verify: bool,
 ) -> PyResult<String> {
     let batch_err = |e: umbra::batch::BatchError| match e {
         umbra::batch::BatchError::Task(e) | umbra::batch::BatchError::Options(e) => py_err(e),
@@ -52,6 +54,10 @@ pub(crate) fn run_job(
         force,
         log,
         jobs,
+        check: umbra::batch::KeyCheck {
+            keep_unkeyed,
+            verify,
+        },
     };
     let callback = PyProgress::new(progress);
     let report = py
@@ -62,11 +68,22 @@ pub(crate) fn run_job(
 
 /// Where a job stands (`umbra batch JOB --status --json`), reading the job's log and `logs`.
 #[pyfunction]
-pub(crate) fn job_status(py: Python<'_>, path: PathBuf, logs: Vec<PathBuf>) -> PyResult<String> {
+#[pyo3(signature = (path, logs, keep_unkeyed=false, verify=false))]
+pub(crate) fn job_status(
+    py: Python<'_>,
+    path: PathBuf,
+    logs: Vec<PathBuf>,
+    keep_unkeyed: bool,
+    verify: bool,
+) -> PyResult<String> {
     let job = py
         .detach(|| umbra::batch::load_job(&path))
         .map_err(|e| raise(Class::File, e.to_string()))?;
-    let s = py.detach(|| umbra::batch::status(&job, &logs));
+    let check = umbra::batch::KeyCheck {
+        keep_unkeyed,
+        verify,
+    };
+    let s = py.detach(|| umbra::batch::status(&job, &logs, check));
     serde_json::to_string(&s).map_err(|e| raise(Class::Other, e.to_string()))
 }
 

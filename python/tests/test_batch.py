@@ -72,3 +72,29 @@ def test_run_job_errors(tmp_path):
     failed = [r for r in report["records"] if r["status"] == "failed"]
     assert [r["task"] for r in failed] == [2, 3]
     assert all("broken.vdb" in r["error"] for r in failed)
+
+
+def test_run_job_rebakes_what_an_edit_changes_and_says_why(tmp_path):
+    """The task key from Python: an edited setting re-bakes every task naming the key, a light
+    only its own, an output without a key is stale unless keep_unkeyed; job_status lists stale
+    tasks apart from missing ones."""
+    job = _job(tmp_path, "k", inputs=[DATA / "cloud.vdb"])
+    first = umbra.run_job(job)
+    assert [r["reason"] for r in first["records"]] == ["output missing"] * 2
+    assert [r["reason"] for r in umbra.run_job(job)["records"]] == ["up to date"] * 2
+    job.write_text(job.read_text().replace("density_scale = 2.0", "density_scale = 3.0"))
+    report = umbra.run_job(job)
+    assert report["baked"] == 2
+    assert all(r["reason"] == "settings changed: bake.density_scale" for r in report["records"])
+    job.write_text(job.read_text().replace("dir = [0.3, -1.0, 0.2]", "dir = [1.0, -1.0, 0.0]"))
+    report = umbra.run_job(job)
+    baked = [(r["light"], r["reason"]) for r in report["records"] if r["status"] == "ok"]
+    assert baked == [("sun", "light sun changed")]
+    # An output written over: stale (unreadable), not missing.
+    sun = tmp_path / "k" / "shadow_sun.cloud.exr"
+    sun.write_bytes(b"not an exr")
+    status = umbra.job_status(job)
+    assert [t["task"] for t in status["stale"]] == [0] and status["missing"] == []
+    assert "output unreadable" in status["stale"][0]["reason"]
+    assert umbra.run_job(job)["baked"] == 1
+    assert umbra.job_status(job, keep_unkeyed=True, verify=True)["stale"] == []

@@ -232,10 +232,15 @@ def run_job(
     log: Optional[PathLike] = None,
     jobs: int = 0,
     progress: Optional[Callable[[int, int], Any]] = None,
+    keep_unkeyed: bool = False,
+    verify: bool = False,
 ) -> Dict[str, Any]:
     """Run a batch job file as ``umbra batch PATH`` does (the same runner, the same outputs
     and JSON-lines log): every task, or only ``task`` (0-based, as ``--plan`` numbers them),
-    or shard ``(I, N)`` (1-based); up-to-date outputs are skipped unless ``force``; ``log``
+    or shard ``(I, N)`` (1-based); up-to-date outputs (those carrying the task's key: its
+    settings, light, camera and the identity of every file it reads) are skipped unless
+    ``force``; ``keep_unkeyed`` takes outputs without a key (an older umbra's) as up to date;
+    ``verify`` hashes every input even when its size and time match the key's; ``log``
     replaces the job's log (its directory must exist); ``jobs`` tasks at once (0: as many as
     cores). ``progress(done, total)`` is called as work finishes, from the runner's threads:
     each task's share is its map's pixels when every map has a known size, else 1000 units
@@ -243,7 +248,8 @@ def run_job(
 
     Returns the run's report: ``selected``, ``baked``, ``skipped``, ``failed``, ``seconds``,
     ``workers``, ``threads_per_task``, ``log`` and ``records`` (one dict per task, as the log
-    holds them: ``task``, ``input``, ``light``, ``output``, ``status``, ``error``, ...). A
+    holds them: ``task``, ``input``, ``light``, ``output``, ``status``, ``error``, ``reason``
+    (why it was baked, ``settings changed: bake.density_scale``, or ``up to date``), ...). A
     failed task does not raise: it is counted and recorded. Raises :class:`FileError` for a
     job file that cannot be read or is invalid, or a missing input;
     :class:`InvalidArgument` for ``task``/``shard``/``log`` out of range.
@@ -260,7 +266,15 @@ def run_job(
         raise _invalid("progress", "give a callable progress(done, total)")
     log_path = None if log is None else _path("log", log)
     report = _umbra.run_job(
-        _path("path", path), task, shard, bool(force), log_path, _count("jobs", jobs), progress
+        _path("path", path),
+        task,
+        shard,
+        bool(force),
+        log_path,
+        _count("jobs", jobs),
+        progress,
+        bool(keep_unkeyed),
+        bool(verify),
     )
     return json.loads(report)
 
@@ -582,13 +596,23 @@ def deep_lookup(image: Any, header: Dict[str, Any], points: Any) -> np.ndarray:
     return out[0] if len(out) == 1 else np.stack(out, -1)
 
 
-def job_status(path: PathLike, *, logs: Sequence[PathLike] = ()) -> Dict[str, Any]:
+def job_status(
+    path: PathLike,
+    *,
+    logs: Sequence[PathLike] = (),
+    keep_unkeyed: bool = False,
+    verify: bool = False,
+) -> Dict[str, Any]:
     """Where a batch job stands, as ``umbra batch PATH --status --json`` reports it: lists
-    ``done`` (output on disk and up to date), ``failed`` (with the ``error`` a log records) and
-    ``missing``, one dict per task (``task``, ``input``, ``light``, ``output``). Reads the
-    job's own log and ``logs`` (those shards or task runs wrote elsewhere)."""
+    ``done`` (output on disk carrying the task's key now), ``failed`` (with the ``error`` a log
+    records), ``stale`` (an output baked with other settings or inputs, or without a key: the
+    ``reason``) and ``missing``, one dict per task (``task``, ``input``, ``light``,
+    ``output``). Reads the job's own log and ``logs`` (those shards or task runs wrote
+    elsewhere); ``keep_unkeyed`` and ``verify`` as :func:`run_job`'s."""
     paths = [_path("logs", p) for p in logs]
-    return json.loads(_umbra.job_status(_path("path", path), paths))
+    return json.loads(
+        _umbra.job_status(_path("path", path), paths, bool(keep_unkeyed), bool(verify))
+    )
 
 
 def _user() -> str:

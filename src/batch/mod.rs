@@ -52,12 +52,15 @@
 //! `i % N == I - 1`. `[[positions]]` entries (per-point transmittance, [`PositionsTask`]) add one
 //! task per frame after every bake task, split the same way.
 //!
-//! **Resume.** A task is up to date when its output exists and its modification time is not
-//! older than its input's; outputs are written atomically, so an existing output is complete.
+//! **Resume.** A task is up to date when its output exists and carries the task's key now
+//! ([`TaskKey`], module `key`: the canonical request, the camera, the identity of every file it
+//! reads, the format's version); outputs are written atomically with their key, so an existing
+//! output is complete.
 
 mod cameras;
 mod checks;
 pub mod emit;
+mod key;
 mod layer;
 mod parse;
 mod patterns;
@@ -66,6 +69,10 @@ mod read;
 mod runner;
 mod schema;
 mod status;
+pub use key::{
+    hash_file, Change, FileId, Freshness, KeyCheck, Stale, Stored, TaskKey, FORMAT_VERSION,
+    KEY_ATTRIBUTE, NOT_IN_KEY,
+};
 pub use parse::parse_job;
 pub use patterns::{expand_pattern, fill_output, MAX_FRAMES, MAX_FRAME_PAD};
 pub use positions::{PositionsSpec, PositionsTask};
@@ -246,10 +253,15 @@ pub struct Record {
     pub rays_per_second: f64,
     /// Error message of a failed task.
     pub error: Option<String>,
-    /// Why a task skipped without being up to date bakes nothing: its stage light casts no
-    /// shadows ([`Job::shadowless`]).
+    /// Why a task was baked (`settings changed: bake.density_scale`, `input changed:
+    /// cloud.0012.vdb`, `light sun changed`, `output missing`, `forced`) or skipped (`up to
+    /// date`; a stage light that casts no shadows, [`Job::shadowless`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub reason: Option<String>,
+    /// A held frame: the frame whose bake this output copies (same input content, a request
+    /// that differs only by the frame).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub holds: Option<i64>,
     /// Warnings of a finished task (bad voxels, capped samples, majorant violations).
     pub warnings: Vec<String>,
 }
@@ -316,17 +328,12 @@ impl Job {
         task.source.files().ok()
     }
 
-    /// Whether a task's output exists and is not older than any of its sources
-    /// ([`Job::sources`]): a re-simulated cache behind an unchanged stage or scene file is
-    /// baked again.
+    /// Whether a task's output exists and carries the task's key now ([`Job::freshness`]
+    /// with the default [`KeyCheck`]): any setting, light, camera or file content it depends
+    /// on that changed makes it stale.
     #[must_use]
     pub fn up_to_date(&self, task: &Task) -> bool {
-        let mtime = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-        let Some(out) = mtime(&task.output) else {
-            return false;
-        };
-        self.sources(task)
-            .is_some_and(|s| s.iter().all(|p| mtime(p).is_some_and(|input| out >= input)))
+        self.freshness(task, KeyCheck::default()).stale.is_none()
     }
 
     /// The request of one task, as `umbra bake INPUT ... -o OUTPUT` would make it: the job's
@@ -484,7 +491,9 @@ impl Job {
     /// ([`BakeRequest::run_plan`] with the task's plan, [`Job::plan`]), and write its outputs
     /// atomically (overwriting stale ones). Loads only the job's grid of the task's input.
     /// `threads` as [`crate::bake::BakeSettings::threads`]; `progress` is told the task's work and receives
-    /// finished units. A panic inside the bake is caught and returned with its message.
+    /// finished units. `key` (the task's [`TaskKey`], [`Job::freshness`]) is written into the
+    /// map's header as `umbra:key`. A panic inside the bake is caught and returned with its
+    /// message.
     ///
     /// # Errors
     /// [`BatchError::Task`] for any load, framing, bake or write error (without the context a
@@ -493,9 +502,11 @@ impl Job {
         &self,
         task: &Task,
         threads: usize,
+        key: Option<&TaskKey>,
         progress: &dyn crate::progress::Progress,
     ) -> Result<BakeReport, BatchError> {
-        let job = self.bake_job(task, threads)?;
+        let mut job = self.bake_job(task, threads)?;
+        job.key = key.map(TaskKey::to_text);
         match self.run_planned(task, threads, BakePlan::Map(Box::new(job)), progress)? {
             crate::request::BakeOutcome::Map { report, .. } => Ok(*report),
             crate::request::BakeOutcome::Volume { .. } => {
@@ -550,9 +561,11 @@ impl Job {
         &self,
         task: &Task,
         threads: usize,
+        key: Option<&TaskKey>,
         progress: &dyn crate::progress::Progress,
     ) -> Result<crate::bake::VolumeReport, BatchError> {
-        let job = self.volume_job(task, threads)?;
+        let mut job = self.volume_job(task, threads)?;
+        job.key = key.map(TaskKey::to_text);
         match self.run_planned(task, threads, BakePlan::Volume(Box::new(job)), progress)? {
             crate::request::BakeOutcome::Volume { report, .. } => Ok(report),
             crate::request::BakeOutcome::Map { .. } => {

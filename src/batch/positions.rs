@@ -114,7 +114,7 @@ impl PositionsTask {
     }
 
     /// How the stage is read at this task's frame.
-    fn source(&self) -> crate::input::Source {
+    pub(super) fn source(&self) -> crate::input::Source {
         let mut s = crate::input::Source::new(&self.stage, self.options.source.clone());
         #[allow(clippy::cast_precision_loss)]
         {
@@ -352,6 +352,9 @@ struct FrameFile {
     /// Toward a light with extent: the points sampled.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     sampled: Option<usize>,
+    /// The task's key ([`super::TaskKey`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    key: Option<super::TaskKey>,
 }
 
 impl Job {
@@ -368,15 +371,13 @@ impl Job {
         t.source().files().ok()
     }
 
-    /// Whether a positions task's per-frame file exists and is not older than its sources.
+    /// Whether a positions task's per-frame file exists and carries the task's key now
+    /// ([`Job::positions_freshness`] with the default [`super::KeyCheck`]).
     #[must_use]
     pub fn positions_up_to_date(&self, t: &PositionsTask) -> bool {
-        let mtime = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-        let Some(out) = mtime(&t.output) else {
-            return false;
-        };
-        self.positions_sources(t)
-            .is_some_and(|s| s.iter().all(|p| mtime(p).is_some_and(|i| out >= i)))
+        self.positions_freshness(t, super::KeyCheck::default())
+            .stale
+            .is_none()
     }
 
     /// Check every `[[positions]]` entry as its first frame would run: the stage has the
@@ -407,12 +408,17 @@ impl Job {
         Ok(())
     }
 
-    /// Answer one positions task (one frame) and write its per-frame file atomically; how
-    /// many points it answered.
+    /// Answer one positions task (one frame) and write its per-frame file atomically, with
+    /// `key` (its [`super::TaskKey`], [`Job::positions_freshness`]); how many points it
+    /// answered.
     ///
     /// # Errors
     /// [`BatchError::Task`] for any error reading the stage, estimating or writing.
-    pub fn run_positions_task(&self, t: &PositionsTask) -> Result<usize, BatchError> {
+    pub fn run_positions_task(
+        &self,
+        t: &PositionsTask,
+        key: Option<&super::TaskKey>,
+    ) -> Result<usize, BatchError> {
         #[allow(clippy::cast_precision_loss)]
         let frame = t.frame as f64;
         let o = &t.options;
@@ -450,6 +456,7 @@ impl Job {
             positions: f.positions,
             light_samples: answers.light_samples,
             sampled: f.sampled,
+            key: key.cloned(),
         };
         if let Some(d) = t.output.parent() {
             std::fs::create_dir_all(d).map_err(|e| crate::error::Error::Io {
@@ -523,4 +530,68 @@ fn read_frame(p: &Path) -> Result<FrameFile, BatchError> {
             reason: format!("not a per-frame answers file: {e}"),
         })
     })
+}
+
+/// Positions tasks' keys ([`super::TaskKey`]).
+impl Job {
+    /// The key of positions task `t` now: its options, stage, prim, light and frame, and the
+    /// files it reads.
+    ///
+    /// # Errors
+    /// As [`Job::task_key`].
+    pub fn positions_key(
+        &self,
+        t: &PositionsTask,
+        recorded: Option<&super::TaskKey>,
+        check: super::KeyCheck,
+    ) -> Result<super::TaskKey, BatchError> {
+        let mut m = super::key::canonical(&t.options);
+        m.insert(
+            "stage".into(),
+            serde_json::Value::from(t.stage.display().to_string()),
+        );
+        m.insert("prim".into(), serde_json::Value::from(t.prim.clone()));
+        m.insert(
+            "light".into(),
+            t.light
+                .clone()
+                .map_or(serde_json::Value::Null, serde_json::Value::from),
+        );
+        m.insert("frame".into(), serde_json::Value::from(t.frame));
+        let files = t.source().files()?;
+        Ok(super::TaskKey {
+            format: format!("points/{}", super::FORMAT_VERSION),
+            request: m,
+            camera: None,
+            files: super::key::identify(&files, recorded, check)?,
+        })
+    }
+
+    /// [`Job::freshness`] of positions task `t`.
+    #[must_use]
+    pub fn positions_freshness(
+        &self,
+        t: &PositionsTask,
+        check: super::KeyCheck,
+    ) -> super::Freshness {
+        let stored = super::Stored::read(&t.output);
+        let now = self
+            .positions_key(t, stored.key(), check)
+            .map_err(|e| e.to_string());
+        let base = super::key::canonical(&self.options);
+        super::key::compare(&stored, now, check, &|k| {
+            if super::key::LIGHT_KEYS.contains(&k) {
+                return super::Change::Light(t.light_name());
+            }
+            let mine = super::key::canonical(&t.options);
+            let name = if mine.get(k) != base.get(k) || matches!(k, "stage" | "prim") {
+                format!("positions[{}].{k}", t.entry)
+            } else if k == "frame" {
+                "frame".into()
+            } else {
+                format!("bake.{k}")
+            };
+            super::Change::Settings(vec![name])
+        })
+    }
 }

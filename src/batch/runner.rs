@@ -11,7 +11,9 @@
 //! remaining tasks in index order, each with `cores / workers` threads of its own. A failed task
 //! is logged with its error and the others go on.
 
-use super::{in_shard, valid_shard, BatchError, Job, PositionsTask, Record, Task};
+use super::{
+    in_shard, valid_shard, BatchError, Freshness, Job, KeyCheck, PositionsTask, Record, Stale, Task,
+};
 use crate::progress::{Share, Work};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -31,6 +33,9 @@ pub struct RunOptions {
     pub log: Option<PathBuf>,
     /// Tasks baked at once (0: as many as cores, at most the number of tasks).
     pub jobs: usize,
+    /// How outputs' keys are checked: take outputs without a key as up to date
+    /// ([`KeyCheck::keep_unkeyed`]), hash every input ([`KeyCheck::verify`]).
+    pub check: KeyCheck,
 }
 
 /// What a run reports as it goes: the library's [`crate::progress::Progress`] (the run's
@@ -114,13 +119,31 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         .iter()
         .filter_map(|t| job.shadowless(t).map(|why| (*t, why)))
         .collect();
-    let (todo, skipped): (Vec<&Task>, Vec<&Task>) = selected
+    let bakes: Vec<&Task> = selected
         .iter()
+        .copied()
         .filter(|t| !shadowless.iter().any(|(s, _)| s.index == t.index))
-        .partition(|t| opts.force || !job.up_to_date(t));
-    let (points_todo, points_skipped): (Vec<&PositionsTask>, Vec<&PositionsTask>) = points
+        .collect();
+    if !bakes.is_empty() {
+        // A task's key holds its camera: the inputs are checked and the shared cameras framed
+        // before anything is decided (or created).
+        frame(job, &log_path)?;
+    }
+    let fresh = |f: Freshness| match opts.force {
+        true => Freshness {
+            stale: Some(Stale::Forced),
+            ..f
+        },
+        false => f,
+    };
+    let (todo, skipped): (Vec<_>, Vec<_>) = bakes
         .iter()
-        .partition(|t| opts.force || !job.positions_up_to_date(t));
+        .map(|t| (*t, fresh(job.freshness(t, opts.check))))
+        .partition(|(_, f)| f.stale.is_some());
+    let (points_todo, points_skipped): (Vec<_>, Vec<_>) = points
+        .iter()
+        .map(|t| (*t, fresh(job.positions_freshness(t, opts.check))))
+        .partition(|(_, f)| f.stale.is_some());
     prepare(job, (&todo, &points_todo), &log_path)?;
     let log = Mutex::new(
         std::fs::OpenOptions::new()
@@ -144,8 +167,11 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             v.push(rec);
         }
     };
-    for t in &skipped {
-        keep(record(t, "skipped", 0.0, 0.0, None));
+    for (t, f) in &skipped {
+        keep(Record {
+            reason: Some(f.reason()),
+            ..record(t, "skipped", 0.0, 0.0, None)
+        });
     }
     for (t, why) in &shadowless {
         keep(Record {
@@ -153,8 +179,11 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             ..record(t, "skipped", 0.0, 0.0, None)
         });
     }
-    for t in &points_skipped {
-        keep(points_record(t, "skipped", 0.0, 0.0, None));
+    for (t, f) in &points_skipped {
+        keep(Record {
+            reason: Some(f.reason()),
+            ..points_record(t, "skipped", 0.0, 0.0, None)
+        });
     }
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
     let workers = if opts.jobs == 0 { cores } else { opts.jobs }
@@ -177,9 +206,12 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
         for _ in 0..workers {
             s.spawn(|| loop {
                 let k = next.fetch_add(1, Ordering::Relaxed);
-                let Some(t) = todo.get(k) else { break };
+                let Some((t, f)) = todo.get(k) else { break };
                 let share = Share::new(progress, worth);
-                let rec = run_task(job, t, per_task, &share);
+                let rec = Record {
+                    reason: Some(f.reason()),
+                    ..run_task(job, t, f.key.as_ref(), per_task, &share)
+                };
                 if rec.status == "failed" {
                     failed.fetch_add(1, Ordering::Relaxed);
                 }
@@ -233,28 +265,34 @@ fn log_path(job: &Job, opts: &RunOptions) -> Result<PathBuf, BatchError> {
     Ok(opts.log.clone().unwrap_or_else(|| job.log.clone()))
 }
 
-/// Before anything is created: the positions entries and (when there are bakes to run) every
-/// input and the shared cameras checked; then the log's and the outputs' directories made.
+/// A task to bake, and why (its [`Freshness`], with its key).
+type ToBake<'a, T> = (&'a T, Freshness);
+
+/// Check every input and frame the shared cameras (one camera per light over every input, not
+/// just this shard's, so shards agree), cached beside the log: missing frames and grids fail
+/// the job up front, before anything is created.
+fn frame(job: &Job, log_path: &Path) -> Result<(), BatchError> {
+    job.check_inputs()?;
+    let stem = log_path.file_stem().map_or_else(
+        || "umbra_batch".into(),
+        |s| s.to_string_lossy().into_owned(),
+    );
+    job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
+    Ok(())
+}
+
+/// Before anything is created: the positions entries checked (when there are positions tasks
+/// to run); then the log's and the outputs' directories made.
 fn prepare(
     job: &Job,
-    (todo, points_todo): (&[&Task], &[&PositionsTask]),
+    (todo, points_todo): (&[ToBake<'_, Task>], &[ToBake<'_, PositionsTask>]),
     log_path: &Path,
 ) -> Result<(), BatchError> {
     if !points_todo.is_empty() {
         job.check_positions()?;
     }
-    if !todo.is_empty() {
-        // Missing frames and grids fail the job up front; then one camera per light over every
-        // input (not just this shard's), so shards agree. Both before anything is created.
-        job.check_inputs()?;
-        let stem = log_path.file_stem().map_or_else(
-            || "umbra_batch".into(),
-            |s| s.to_string_lossy().into_owned(),
-        );
-        job.share_cameras_cached(&log_path.with_file_name(format!("{stem}.cameras.json")))?;
-    }
     let dirs = std::iter::once(log_path)
-        .chain(todo.iter().map(|t| t.output.as_path()))
+        .chain(todo.iter().map(|(t, _)| t.output.as_path()))
         .filter_map(|p| p.parent().filter(|d| !d.as_os_str().is_empty()));
     for d in dirs {
         std::fs::create_dir_all(d).map_err(|e| io(d, e))?;
@@ -273,16 +311,22 @@ fn io(path: &Path, e: std::io::Error) -> BatchError {
 /// Bake task `t` on `per_task` threads, its progress a share of the run's: its record, `ok`
 /// (with its rate: rays per second for a map, voxels per second for a transmittance volume,
 /// and its warnings) or `failed` (with the error).
-fn run_task(job: &Job, t: &Task, per_task: usize, share: &Share<'_, dyn Progress + '_>) -> Record {
+fn run_task(
+    job: &Job,
+    t: &Task,
+    key: Option<&super::TaskKey>,
+    per_task: usize,
+    share: &Share<'_, dyn Progress + '_>,
+) -> Record {
     let t0 = std::time::Instant::now();
     // Maps report rays per second, transmittance volumes voxels per second.
     let result = if job.volume {
-        job.run_volume_task(t, per_task, share).map(|d| {
+        job.run_volume_task(t, per_task, key, share).map(|d| {
             let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
             (rate, d.warnings.iter().map(ToString::to_string).collect())
         })
     } else {
-        job.run_task(t, per_task, share).map(|d| {
+        job.run_task(t, per_task, key, share).map(|d| {
             let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
             (rate, d.warnings.iter().map(ToString::to_string).collect())
         })
@@ -363,14 +407,14 @@ fn select<'a>(
 /// how many failed.
 fn run_points(
     job: &Job,
-    todo: &[&PositionsTask],
+    todo: &[(&PositionsTask, Freshness)],
     keep: &dyn Fn(Record),
     progress: &dyn Progress,
 ) -> usize {
     let mut failed = 0;
-    for t in todo {
+    for (t, f) in todo {
         let t0 = std::time::Instant::now();
-        let result = job.run_positions_task(t);
+        let result = job.run_positions_task(t, f.key.as_ref());
         let secs = t0.elapsed().as_secs_f64();
         let rec = match result {
             Ok(n) => points_record(t, "ok", secs, n as f64 / secs.max(1e-9), None),
@@ -378,6 +422,10 @@ fn run_points(
                 failed += 1;
                 points_record(t, "failed", secs, 0.0, Some(e.to_string()))
             }
+        };
+        let rec = Record {
+            reason: Some(f.reason()),
+            ..rec
         };
         progress.task(&rec);
         keep(rec);
@@ -411,6 +459,7 @@ fn record(
         rays_per_second,
         error,
         reason: None,
+        holds: None,
         warnings: Vec::new(),
     }
 }
@@ -441,5 +490,6 @@ fn points_record(
         error,
         warnings: Vec::new(),
         reason: None,
+        holds: None,
     }
 }

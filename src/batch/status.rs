@@ -2,13 +2,14 @@
 //! from the outputs on disk and the runs' logs.
 //!
 //! A task toward a stage light without shadows is **skipped** ([`Job::shadowless`]: it bakes
-//! nothing). Any other task is **done** when its output exists and is up to date
-//! ([`Job::up_to_date`]: not older
-//! than any file it reads), whichever run, shard or machine baked it; else **failed** when a log
-//! records it failing (the last such record's error); else **missing**. Logs are JSON lines;
-//! a line a killed run left half-written is ignored.
+//! nothing). Any other task is **done** when its output exists and carries the task's key now
+//! ([`Job::freshness`]), whichever run, shard or machine baked it; else **failed** when a log
+//! records it failing (the last such record's error); else **stale** when its output is there
+//! but baked with other settings, other inputs, without a key, or is unreadable (`reason`
+//! says which); else **missing**. Logs are JSON lines; a line a killed run left half-written
+//! is ignored.
 
-use super::{Job, Task};
+use super::{Freshness, Job, KeyCheck, Stale};
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -26,6 +27,9 @@ pub struct TaskState {
     /// The failure's message (failed tasks), or why a skipped task bakes nothing.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub error: Option<String>,
+    /// Why a stale or missing task would be baked (`settings changed: bake.res`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub reason: Option<String>,
 }
 
 /// Every task of a job, by where it stands.
@@ -35,8 +39,10 @@ pub struct Status {
     pub done: Vec<TaskState>,
     /// Tasks a log records failing, without an up-to-date output.
     pub failed: Vec<TaskState>,
-    /// Tasks not yet run (or whose output went stale).
+    /// Tasks not yet run: no output.
     pub missing: Vec<TaskState>,
+    /// Tasks whose output is there but stale (`reason` says why).
+    pub stale: Vec<TaskState>,
     /// Tasks that bake nothing: their stage light casts no shadows (`error` says why).
     pub skipped: Vec<TaskState>,
 }
@@ -45,7 +51,7 @@ impl Status {
     /// Whether every task is done (or skipped: it bakes nothing).
     #[must_use]
     pub fn complete(&self) -> bool {
-        self.failed.is_empty() && self.missing.is_empty()
+        self.failed.is_empty() && self.missing.is_empty() && self.stale.is_empty()
     }
 }
 
@@ -78,50 +84,68 @@ fn failures(logs: &[PathBuf]) -> std::collections::BTreeMap<usize, String> {
     out
 }
 
-/// Where every task of `job` stands, from its outputs and the logs `logs` (the job's own log
-/// is always read).
+/// Where every task of `job` stands, from its outputs (their keys checked as `check` says)
+/// and the logs `logs` (the job's own log is always read). The shared cameras a key holds are
+/// read from the job's camera cache, or framed (a job that cannot be framed leaves every
+/// output of shared framing stale: its run fails saying why).
 #[must_use]
-pub fn status(job: &Job, logs: &[PathBuf]) -> Status {
+pub fn status(job: &Job, logs: &[PathBuf], check: KeyCheck) -> Status {
     let mut all: Vec<PathBuf> = vec![job.log.clone()];
     all.extend(logs.iter().filter(|l| **l != job.log).cloned());
     let failed = failures(&all);
-    let state = |t: &Task, error: Option<String>| TaskState {
-        task: t.index,
-        input: t.input.clone(),
-        light: t.light.clone(),
-        output: t.output.clone(),
-        error,
+    let stem = job.log.file_stem().map_or_else(
+        || "umbra_batch".into(),
+        |s| s.to_string_lossy().into_owned(),
+    );
+    let cache = job.log.with_file_name(format!("{stem}.cameras.json"));
+    let _ = job.share_cameras_cached(&cache);
+    let state = |task: usize, input: &PathBuf, light: String, output: &PathBuf| TaskState {
+        task,
+        input: input.clone(),
+        light,
+        output: output.clone(),
+        error: None,
+        reason: None,
     };
     let mut s = Status::default();
-    for t in &job.tasks {
-        if let Some(why) = job.shadowless(t) {
-            s.skipped.push(state(t, Some(why)));
-        } else if job.up_to_date(t) {
-            s.done.push(state(t, None));
-        } else if let Some(e) = failed.get(&t.index) {
-            s.failed.push(state(t, Some(e.clone())));
-        } else {
-            s.missing.push(state(t, None));
-        }
-    }
-    for t in &job.positions {
-        let st = TaskState {
-            task: t.index,
-            input: t.stage.clone(),
-            light: t.light_name(),
-            output: t.output.clone(),
-            error: None,
-        };
-        if job.positions_up_to_date(t) {
+    let mut place = |st: TaskState, f: Freshness| {
+        let Some(why) = f.stale else {
             s.done.push(st);
-        } else if let Some(e) = failed.get(&t.index) {
+            return;
+        };
+        if let Some(e) = failed.get(&st.task) {
             s.failed.push(TaskState {
                 error: Some(e.clone()),
+                reason: Some(why.to_string()),
+                ..st
+            });
+            return;
+        }
+        let st = TaskState {
+            reason: Some(why.to_string()),
+            ..st
+        };
+        match why {
+            Stale::Missing => s.missing.push(st),
+            _ => s.stale.push(st),
+        }
+    };
+    let mut skipped = Vec::new();
+    for t in &job.tasks {
+        let st = state(t.index, &t.input, t.light.clone(), &t.output);
+        if let Some(why) = job.shadowless(t) {
+            skipped.push(TaskState {
+                error: Some(why),
                 ..st
             });
         } else {
-            s.missing.push(st);
+            place(st, job.freshness(t, check));
         }
     }
+    for t in &job.positions {
+        let st = state(t.index, &t.stage, t.light_name(), &t.output);
+        place(st, job.positions_freshness(t, check));
+    }
+    s.skipped = skipped;
     s
 }

@@ -218,6 +218,7 @@ impl BakeRequest {
             half: o.half,
             overwrite: o.force,
             motion,
+            key: None,
         })
     }
 
@@ -319,6 +320,7 @@ impl BakeRequest {
             layout,
             max_memory: o.max_memory()?,
             product,
+            key: None,
         })
     }
 

@@ -100,6 +100,7 @@ pub fn prov(vol: &Volume) -> Provenance {
         density_scale: vol.density_scale(),
         light_dir: None,
         light_pos: None,
+        key: None,
     }
 }
 

@@ -55,6 +55,7 @@ fn job(out: PathBuf, est: Estimator, interp: Interp, product: Product) -> BakeJo
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product,
+        key: None,
     }
 }
 

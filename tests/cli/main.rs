@@ -13,6 +13,7 @@ mod common;
 mod vdb_writer;
 
 mod batch;
+mod batch_key;
 mod cli_bake;
 mod cli_contract;
 mod cli_query;
@@ -21,6 +22,7 @@ mod corpus_manifest;
 mod deep_map;
 mod friction;
 mod hostile;
+mod info_map;
 mod lights_extent;
 mod lights_extent_points;
 mod lights_maps;

@@ -2175,6 +2175,7 @@ fn bake_grid(path: &Path, vol: Volume, name: &str, out: &Path, stage: &Stage, re
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
+        key: None,
     };
     stage.set("bake");
     match job.run_loaded(&umbra::scene::Scene::from_volume(vol), camera, &|_| {}) {

@@ -179,3 +179,57 @@ pub fn nanovdb_convert(args: &[&str], src: &std::path::Path, dst: &std::path::Pa
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+/// Whether the transmittance volume a batch task wrote (`batch`) is the file `umbra bake`
+/// wrote for the same request (`cli`) but for the task's `umbra:key` metadata entry: byte for
+/// byte once the entry is cut out (and the grid's offsets moved back), apart from the file's
+/// UUID (36 characters at byte 21), which umbra derives from the content.
+pub fn same_volume_but_key(batch: &std::path::Path, cli: &std::path::Path) -> bool {
+    let uuid = 21..57;
+    let mut a = vdb_without_key(batch);
+    let mut b = std::fs::read(cli).unwrap();
+    if a.len() != b.len() || a.len() < uuid.end {
+        return false;
+    }
+    a[uuid.clone()].fill(0);
+    b[uuid].fill(0);
+    a == b
+}
+
+/// A transmittance volume a batch task wrote, without the `umbra:key` metadata entry its task
+/// added (and with the grid's offsets moved back). A file without the entry is returned as it
+/// is.
+pub fn vdb_without_key(path: &std::path::Path) -> Vec<u8> {
+    let mut bytes = std::fs::read(path).unwrap();
+    let archive = umbra::internals::vdb::open(path).unwrap();
+    let gd = &archive.grids[0];
+    let name = b"umbra:key";
+    let mut pattern = (name.len() as u32).to_le_bytes().to_vec();
+    pattern.extend_from_slice(name);
+    let Some(at) = bytes
+        .windows(pattern.len())
+        .position(|w| w == pattern.as_slice())
+    else {
+        return bytes;
+    };
+    let u32_at = |b: &[u8], i: usize| u32::from_le_bytes(b[i..i + 4].try_into().unwrap()) as usize;
+    let type_at = at + 4 + name.len();
+    let value_at = type_at + 4 + u32_at(&bytes, type_at);
+    let end = value_at + 4 + u32_at(&bytes, value_at);
+    let cut = (end - at) as u64;
+    bytes.drain(at..end);
+    // The grid's metadata count (after its compression flags at grid_pos).
+    let count_at = gd.grid_pos as usize + 4;
+    let count = u32_at(&bytes, count_at) as u32 - 1;
+    bytes[count_at..count_at + 4].copy_from_slice(&count.to_le_bytes());
+    // Its descriptor's block and end offsets, stored one after the other before the grid.
+    let mut offsets = gd.block_pos.to_le_bytes().to_vec();
+    offsets.extend_from_slice(&gd.end_pos.to_le_bytes());
+    let o = bytes[..gd.grid_pos as usize]
+        .windows(16)
+        .position(|w| w == offsets.as_slice())
+        .unwrap();
+    bytes[o..o + 8].copy_from_slice(&(gd.block_pos - cut).to_le_bytes());
+    bytes[o + 8..o + 16].copy_from_slice(&(gd.end_pos - cut).to_le_bytes());
+    bytes
+}

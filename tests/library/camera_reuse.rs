@@ -120,6 +120,7 @@ fn job(view: View, settings: BakeSettings) -> BakeJob {
         layout: ExrLayout::default(),
         max_memory: None,
         product: Product::Map,
+        key: None,
     }
 }
 

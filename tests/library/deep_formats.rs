@@ -48,6 +48,7 @@ fn job(input: &Path, out: PathBuf, format: DeepFormat, solid: bool) -> BakeJob {
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: Product::Fixed { format },
+        key: None,
     }
 }
 

@@ -545,6 +545,7 @@ fn bake_job(path: &std::path::Path, out: PathBuf, max_memory: Option<u64>) -> um
         max_memory,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
+        key: None,
     }
 }
 

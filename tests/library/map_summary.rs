@@ -46,6 +46,7 @@ fn job(out: PathBuf, est: Estimator, spp: u32, std_err: bool) -> BakeJob {
         max_memory: None,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
+        key: None,
     }
 }
 

@@ -68,6 +68,7 @@ fn job(
         max_memory,
         layout: umbra::bake::ExrLayout::default(),
         product: umbra::bake::Product::Map,
+        key: None,
     }
 }
 

@@ -39,6 +39,9 @@ pub struct Provenance {
     pub xform: Option<[[f64; 4]; 4]>,
     /// The extinction colour given with the input (`--sigma-t`), if any.
     pub sigma_t: Option<[f64; 3]>,
+    /// A batch task's key (`umbra::batch::TaskKey` as text): the `umbra:key` attribute.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub key: Option<String>,
 }
 
 /// An EXR text attribute: characters outside Latin-1 become `?`.
@@ -364,6 +367,9 @@ pub(crate) fn umbra_attributes(map: &Map, prov: &Provenance) -> Vec<(String, Att
     }
     if let Some(s) = prov.sigma_t {
         attrs.push(("sigma_t".into(), v3d(s)));
+    }
+    if let Some(k) = &prov.key {
+        attrs.push(("key".into(), text(k)));
     }
     if map.channels() == 3 && !s.estimator.is_deterministic() {
         attrs.push(("colour_walk".into(), text(s.options.colour_walk.name())));

@@ -318,6 +318,7 @@ impl MapSummary {
             light_pos: self.light_pos,
             xform: self.xform,
             sigma_t: self.sigma_t,
+            key: None,
         };
         Ok((map, prov))
     }

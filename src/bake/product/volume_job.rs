@@ -37,6 +37,9 @@ pub struct VolumeJob {
     /// Motion blur from a velocity grid of the input (`crate::motion`): T at each voxel is
     /// the shutter mean.
     pub motion: Option<crate::motion::MotionRequest>,
+    /// A batch task's key (`umbra::batch::TaskKey` as text), written as the grid's
+    /// `umbra:key` metadata; `None` for a bake outside a job.
+    pub key: Option<String>,
 }
 
 /// What a finished transmittance volume produced.
@@ -186,7 +189,8 @@ impl VolumeJob {
                 concat!("umbra ", env!("CARGO_PKG_VERSION")).to_string(),
             ),
         ];
-        for (k, v) in meta.into_iter().chain(self.extent_metadata()) {
+        let key = self.key.iter().map(|k| ("umbra:key", k.clone()));
+        for (k, v) in meta.into_iter().chain(self.extent_metadata()).chain(key) {
             grid = grid.with_metadata(k, &v);
         }
         crate::vdb::write_vdb(&self.output, &grid, self.overwrite)?;

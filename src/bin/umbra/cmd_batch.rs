@@ -30,16 +30,25 @@ pub struct BatchArgs {
     /// Re-bake outputs that are up to date.
     #[arg(long)]
     force: bool,
+    /// Take outputs that carry no key (baked by an older umbra, or by hand) as up to date
+    /// instead of stale.
+    #[arg(long)]
+    keep_unkeyed: bool,
+    /// Hash every file a task reads, even when its size and modification time match the ones
+    /// its output's key records (finds a re-simulated file of the same size and time; reads
+    /// every input in full).
+    #[arg(long)]
+    verify: bool,
     /// JSON-lines log (default: the job's `log`, else umbra_batch.jsonl beside the outputs).
     /// With --status: more logs to read (repeatable; the job's own is always read).
     #[arg(long)]
     log: Vec<PathBuf>,
-    /// Report where the job stands and exit: tasks done (output on disk and up to date),
-    /// failed (with the error a log records) and not yet run. Exit 0 when all are done, 3
-    /// otherwise.
+    /// Report where the job stands and exit: tasks done (output on disk carrying the task's
+    /// key now), failed (with the error a log records), stale (baked with other settings or
+    /// inputs, with the reason) and not yet run. Exit 0 when all are done, 3 otherwise.
     #[arg(long, conflicts_with_all = ["plan", "task", "shard", "force"])]
     status: bool,
-    /// With --status: one JSON object with arrays done, failed and missing.
+    /// With --status: one JSON object with arrays done, failed, stale and missing.
     #[arg(long, requires = "status")]
     json: bool,
     /// Tasks baked at once (0: as many as cores, at most the number of tasks); the cores are
@@ -228,6 +237,7 @@ pub fn run(a: &BatchArgs) -> Result<ExitCode> {
         force: a.force,
         log: a.log.first().cloned(),
         jobs: a.jobs,
+        check: check(a),
     };
     let bar = Bar {
         shown: CliProgress::new(a.progress.progress, a.quiet, |_| {
@@ -353,9 +363,17 @@ impl Progress for Bar {
     }
 }
 
+/// How `--keep-unkeyed` and `--verify` ask keys to be checked.
+fn check(a: &BatchArgs) -> umbra::batch::KeyCheck {
+    umbra::batch::KeyCheck {
+        keep_unkeyed: a.keep_unkeyed,
+        verify: a.verify,
+    }
+}
+
 /// `--status`: the library's report ([`umbra::batch::status`]) as text or JSON.
 fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
-    let s = umbra::batch::status(job, &a.log);
+    let s = umbra::batch::status(job, &a.log, check(a));
     let mut out = std::io::stdout().lock();
     if a.json {
         serde_json::to_writer_pretty(&mut out, &s)?;
@@ -368,12 +386,23 @@ fn status(job: &umbra::batch::Job, a: &BatchArgs) -> Result<ExitCode> {
         };
         writeln!(
             out,
-            "umbra batch: {} tasks: {} done, {} failed, {} not yet run{skipped}",
+            "umbra batch: {} tasks: {} done, {} failed, {} stale, {} not yet run{skipped}",
             job.task_count(),
             s.done.len(),
             s.failed.len(),
+            s.stale.len(),
             s.missing.len()
         )?;
+        for t in &s.stale {
+            writeln!(
+                out,
+                "stale   task {} ({}, light {}): {}",
+                t.task,
+                t.input.display(),
+                t.light,
+                umbra::internals::text::escape(t.reason.as_deref().unwrap_or(""))
+            )?;
+        }
         for t in &s.skipped {
             writeln!(
                 out,

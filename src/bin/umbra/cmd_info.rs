@@ -50,6 +50,11 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
         crate::info_stage::print(stage, &a.stage, a.json)?;
         return Ok(ExitCode::SUCCESS);
     }
+    if let [one] = a.files.as_slice() {
+        if umbra::info::map::is_exr(one) {
+            return map_report(one, a.json);
+        }
+    }
     if let Some(f) = a.files.first() {
         let source = umbra::input::Source::new(f, a.stage.options());
         source.check().map_err(crate::common::flag_error)?;
@@ -64,10 +69,21 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
             Err(e) => file_errors.push(e.to_string()),
         }
     }
+    // A transmittance volume umbra baked says what it was baked from, and whether it is stale.
+    let baked = match a.files.as_slice() {
+        [one] => umbra::info::map::MapInfo::read(one)
+            .ok()
+            .filter(|m| m.baked_by_umbra),
+        _ => None,
+    };
     let mut out = std::io::stdout().lock();
     if a.json {
         if a.files.len() == 1 {
-            serde_json::to_writer_pretty(&mut out, &reports[0]).context("writing JSON")?;
+            let mut v = serde_json::to_value(&reports[0])?;
+            if let (Some(m), Some(o)) = (&baked, v.as_object_mut()) {
+                o.insert("umbra".into(), serde_json::to_value(m)?);
+            }
+            serde_json::to_writer_pretty(&mut out, &v).context("writing JSON")?;
         } else {
             serde_json::to_writer_pretty(&mut out, &reports).context("writing JSON")?;
         }
@@ -79,6 +95,9 @@ pub fn run(a: &InfoArgs) -> Result<ExitCode> {
             } else {
                 print_short(&mut out, info)?;
             }
+        }
+        if let Some(m) = &baked {
+            print_baked(&mut out, m)?;
         }
     }
     out.flush()?;
@@ -413,4 +432,96 @@ fn tiles(t: &Option<Value>) -> String {
             .join(", "),
         other => val(other),
     }
+}
+
+/// `umbra info MAP.exr`: what the map is and what it was baked from (text or `--json`).
+fn map_report(path: &std::path::Path, json: bool) -> Result<ExitCode> {
+    let m = umbra::info::map::MapInfo::read(path)?;
+    let mut out = std::io::stdout().lock();
+    if json {
+        serde_json::to_writer_pretty(&mut out, &m).context("writing JSON")?;
+        writeln!(out)?;
+        return Ok(ExitCode::SUCCESS);
+    }
+    let kind = if m.deep { "deep OpenEXR" } else { "OpenEXR" };
+    writeln!(
+        out,
+        "{}: {kind} {} x {}, channels {}{}",
+        m.path.display(),
+        m.width.unwrap_or(0),
+        m.height.unwrap_or(0),
+        m.channels.join(", "),
+        if m.baked_by_umbra {
+            ""
+        } else {
+            " (not baked by umbra)"
+        }
+    )?;
+    if m.baked_by_umbra {
+        print_baked(&mut out, &m)?;
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// The lines of a map (or transmittance volume) umbra baked: its request from the header,
+/// its key and whether it is stale against its inputs today.
+fn print_baked(out: &mut dyn Write, m: &umbra::info::map::MapInfo) -> Result<()> {
+    let a = &m.attributes;
+    let text = |k: &str| {
+        a.get(k)
+            .map(|v| v.as_str().map_or_else(|| v.to_string(), str::to_string))
+    };
+    writeln!(out, "  baked by umbra from:")?;
+    for (label, key) in [
+        ("source file", "source_file"),
+        ("grid", "grid"),
+        ("density scale", "density_scale"),
+        ("light dir", "light_dir"),
+        ("light pos", "light_pos"),
+        ("light", "light"),
+        ("estimator", "estimator"),
+        ("interp", "interp"),
+        ("spp", "spp"),
+        ("seed", "seed"),
+        ("camera", "camera_kind"),
+        ("fov (deg)", "fov_deg"),
+        ("xform", "xform"),
+        ("sigma_t", "sigma_t"),
+    ] {
+        if let Some(v) = text(key) {
+            writeln!(out, "    {label:<14} {}", escape(&v))?;
+        }
+    }
+    let Some(k) = &m.key else {
+        writeln!(
+            out,
+            "  no batch key: baked outside a job (or by an older umbra); staleness unknown"
+        )?;
+        return Ok(());
+    };
+    writeln!(
+        out,
+        "  batch key ({}): {} request keys, {} input files",
+        k.format,
+        k.request.len(),
+        k.files.len()
+    )?;
+    for i in &m.inputs {
+        writeln!(
+            out,
+            "    {:<9} {}",
+            i.state,
+            escape(&i.path.display().to_string())
+        )?;
+    }
+    writeln!(
+        out,
+        "  {}",
+        if m.stale == Some(true) {
+            "stale: an input changed since it was baked"
+        } else {
+            "up to date with its inputs"
+        }
+    )?;
+    Ok(())
 }

@@ -51,6 +51,9 @@ pub struct BakeJob {
     pub max_memory: Option<u64>,
     /// What `output` holds: a flat map (the default) or a deep map.
     pub product: Product,
+    /// A batch task's key (`umbra::batch::TaskKey` as text), written into the header as
+    /// `umbra:key`; `None` for a bake outside a job.
+    pub key: Option<String>,
 }
 
 /// What a bake writes at its output.
@@ -503,6 +506,7 @@ impl BakeJob {
             light_pos,
             xform: self.source.xform().ok().flatten().map(|x| x.rows()),
             sigma_t: self.sigma_t(),
+            key: self.key.clone(),
         };
         if map.stats.capped > 0 {
             warnings.push(Warning::Capped {

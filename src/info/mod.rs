@@ -1,4 +1,7 @@
-//! `umbra info`: what a `.vdb` file holds, grid by grid, as a serializable report.
+//! `umbra info`: what a `.vdb` file holds, grid by grid, as a serializable report; what a
+//! baked map says about itself ([`map`]).
+
+pub mod map;
 
 use crate::vdb::{Archive, Grid, LazyGrid, ValueKind};
 use serde::Serialize;
