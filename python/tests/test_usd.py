@@ -471,15 +471,20 @@ def test_a_batch_job_reads_frames_and_lights_from_the_stage(cli, tmp_path):
     cli("batch", job)
     names = sorted(p.name for p in (tmp_path / "all").glob("*.exr"))
     assert names == ["lamp.0001.exr", "lamp.0002.exr", "sun.0001.exr", "sun.0002.exr"], names
-    # Resume: nothing changed, nothing baked; a re-simulated cache behind the unchanged stage
-    # makes its frame stale (the stage's assets are the tasks' sources).
+    # Resume: nothing changed, nothing baked; a cache only touched is no change (its content
+    # hash is the key's); a re-simulated cache behind the unchanged stage makes its frame
+    # stale (the stage's assets are the tasks' sources), and the log line says which file.
     _, out, _ = cli("batch", job)
     assert "0 baked, 4 skipped" in out, out
     import os, time
     later = time.time() + 5
     os.utime(tmp_path / "cloud.0002.vdb", (later, later))
     _, out, _ = cli("batch", job)
+    assert "0 baked, 4 skipped" in out, out
+    shutil.copy(DATA / "cloud_half.vdb", tmp_path / "cloud.0002.vdb")
+    _, out, err = cli("batch", job)
     assert "2 baked, 2 skipped" in out, out
+    assert "input changed: " in out + err and "cloud.0002.vdb" in out + err, out + err
     # A frame whose asset is missing fails alone (exit 3); the other frame is baked.
     (tmp_path / "cloud.0002.vdb").unlink()
     job.write_text(body.replace("out/", "miss/") + 'framing = "per-frame"\n'

@@ -231,7 +231,7 @@ def test_a_job_over_every_light_skips_the_one_without_shadows(cli, tmp_path):
             _same_pixels(tmp_path / "out" / f"{light}.{f:04d}.exr", tmp_path / "want.exr")
     code, out, err = cli("batch", job, "--status", check=False)
     assert code == 0, (out, err)
-    assert "4 done, 0 failed, 0 not yet run, 2 skipped (no shadows)" in out, out
+    assert "4 done, 0 failed, 0 stale, 0 not yet run, 2 skipped (no shadows)" in out, out
     assert sum(l.startswith("skipped task") and "light lamp" in l for l in out.splitlines()) == 2
     _, js, _ = cli("batch", job, "--status", "--json")
     s = json.loads(js)

@@ -223,8 +223,13 @@ def test_a_positions_job_in_shards_is_the_query(cli, tmp_path):
     pos = [r for r in recs if r["task"] >= 2]
     assert [(r["status"], r["light"]) for r in pos] == [("skipped", "sun")] * 2, recs
     assert pos[0]["output"].endswith("1.json") and pos[0]["input"].endswith("shot.usdc")
-    # A re-simulated stage answers again.
+    # A stage only touched is no change; a re-authored one answers again.
     stage.touch()
+    _, out, _ = cli("batch", job, "--task", "3")
+    assert "0 baked, 1 skipped" in out, out
+    layer = Sdf.Layer.FindOrOpen(str(stage))
+    layer.customLayerData = {"note": "re-authored"}
+    layer.Save()
     _, out, _ = cli("batch", job, "--task", "3")
     assert "1 baked" in out, out
 

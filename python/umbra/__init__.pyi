@@ -148,6 +148,8 @@ def run_job(
     log: Optional[PathLike] = ...,
     jobs: int = ...,
     progress: Optional[Callable[[int, int], Any]] = ...,
+    keep_unkeyed: bool = ...,
+    verify: bool = ...,
 ) -> Dict[str, Any]: ...
 def sample_omni(
     image: npt.ArrayLike, header: Dict[str, Any], points: npt.ArrayLike
@@ -158,7 +160,13 @@ def deep_transmittance(
 def deep_lookup(
     image: npt.ArrayLike, header: Dict[str, Any], points: npt.ArrayLike
 ) -> npt.NDArray[np.float64]: ...
-def job_status(path: PathLike, *, logs: Sequence[PathLike] = ...) -> Dict[str, Any]: ...
+def job_status(
+    path: PathLike,
+    *,
+    logs: Sequence[PathLike] = ...,
+    keep_unkeyed: bool = ...,
+    verify: bool = ...,
+) -> Dict[str, Any]: ...
 def emit_job(
     path: PathLike,
     engine: str,
