@@ -160,6 +160,30 @@ impl TaskKey {
         serde_json::from_str(text).ok()
     }
 
+    /// What a held frame shares with the frame it holds: the key without the frame and the
+    /// input's name, its files by content (size and xxh3-64, in order), not by path. Two tasks
+    /// with the same signature ask for the same bytes but for the map's source file and key
+    /// (the request, light, camera and every file's content are the same), so one bake serves
+    /// both ([`crate::batch::run`]).
+    #[must_use]
+    pub fn hold_signature(&self) -> String {
+        let mut request = self.request.clone();
+        request.remove("frame");
+        request.remove("input");
+        let files: Vec<(u64, &str)> = self
+            .files
+            .iter()
+            .map(|f| (f.size, f.xxh3.as_str()))
+            .collect();
+        serde_json::json!({
+            "format": self.format,
+            "request": request,
+            "camera": self.camera,
+            "files": files,
+        })
+        .to_string()
+    }
+
     /// The recorded file identity for `path`, if any.
     fn file(&self, path: &Path) -> Option<&FileId> {
         self.files.iter().find(|f| f.path == path)

@@ -60,6 +60,7 @@
 mod cameras;
 mod checks;
 pub mod emit;
+mod hold;
 mod key;
 mod layer;
 mod parse;

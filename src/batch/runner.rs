@@ -185,9 +185,11 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
             ..points_record(t, "skipped", 0.0, 0.0, None)
         });
     }
+    // Held frames bake once: a unit's first task bakes, the others copy its map.
+    let units = super::hold::units(job, &todo);
     let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
     let workers = if opts.jobs == 0 { cores } else { opts.jobs }
-        .min(todo.len())
+        .min(units.len())
         .max(1);
     let per_task = (cores / workers).max(1);
     // Each bake is a share of the run: its map's pixels when every map has a known size, else
@@ -205,19 +207,39 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
     std::thread::scope(|s| {
         for _ in 0..workers {
             s.spawn(|| loop {
-                let k = next.fetch_add(1, Ordering::Relaxed);
-                let Some((t, f)) = todo.get(k) else { break };
-                let share = Share::new(progress, worth);
-                let rec = Record {
-                    reason: Some(f.reason()),
-                    ..run_task(job, t, f.key.as_ref(), per_task, &share)
-                };
-                if rec.status == "failed" {
-                    failed.fetch_add(1, Ordering::Relaxed);
+                let u = next.fetch_add(1, Ordering::Relaxed);
+                let Some(unit) = units.get(u) else { break };
+                // The unit's bake (its frame and report), when others hold its frame.
+                let mut lead: Option<(i64, crate::bake::BakeReport)> = None;
+                for &k in unit {
+                    let (t, f) = &todo[k];
+                    let share = Share::new(progress, worth);
+                    let copied = lead
+                        .as_ref()
+                        .and_then(|(frame, r)| super::hold::copy(job, (t, f), (*frame, r)));
+                    let rec = match copied {
+                        Some(rec) => rec,
+                        None => {
+                            let keep_report = lead.is_none() && unit.len() > 1;
+                            let (rec, report) =
+                                run_task(job, t, f.key.as_ref(), per_task, &share, keep_report);
+                            if let (Some(r), Some(frame)) = (report, t.frame) {
+                                lead = Some((frame, r));
+                            }
+                            rec
+                        }
+                    };
+                    let rec = Record {
+                        reason: Some(f.reason()),
+                        ..rec
+                    };
+                    if rec.status == "failed" {
+                        failed.fetch_add(1, Ordering::Relaxed);
+                    }
+                    share.finish();
+                    progress.task(&rec);
+                    keep(rec);
                 }
-                share.finish();
-                progress.task(&rec);
-                keep(rec);
             });
         }
     });
@@ -310,34 +332,44 @@ fn io(path: &Path, e: std::io::Error) -> BatchError {
 
 /// Bake task `t` on `per_task` threads, its progress a share of the run's: its record, `ok`
 /// (with its rate: rays per second for a map, voxels per second for a transmittance volume,
-/// and its warnings) or `failed` (with the error).
+/// and its warnings) or `failed` (with the error); with `keep_report`, a map's report too (the
+/// bake that held frames copy, [`super::hold`]).
 fn run_task(
     job: &Job,
     t: &Task,
     key: Option<&super::TaskKey>,
     per_task: usize,
     share: &Share<'_, dyn Progress + '_>,
-) -> Record {
+    keep_report: bool,
+) -> (Record, Option<crate::bake::BakeReport>) {
     let t0 = std::time::Instant::now();
     // Maps report rays per second, transmittance volumes voxels per second.
     let result = if job.volume {
         job.run_volume_task(t, per_task, key, share).map(|d| {
             let rate = d.stats.voxels as f64 / d.stats.seconds.max(1e-9);
-            (rate, d.warnings.iter().map(ToString::to_string).collect())
+            (
+                rate,
+                d.warnings.iter().map(ToString::to_string).collect(),
+                None,
+            )
         })
     } else {
         job.run_task(t, per_task, key, share).map(|d| {
             let rate = d.map.stats.rays as f64 / d.map.stats.seconds.max(1e-9);
-            (rate, d.warnings.iter().map(ToString::to_string).collect())
+            let warnings = d.warnings.iter().map(ToString::to_string).collect();
+            (rate, warnings, keep_report.then_some(d))
         })
     };
     let secs = t0.elapsed().as_secs_f64();
     match result {
-        Ok((rate, warnings)) => Record {
-            warnings,
-            ..record(t, "ok", secs, rate, None)
-        },
-        Err(e) => record(t, "failed", secs, 0.0, Some(e.to_string())),
+        Ok((rate, warnings, report)) => (
+            Record {
+                warnings,
+                ..record(t, "ok", secs, rate, None)
+            },
+            report,
+        ),
+        Err(e) => (record(t, "failed", secs, 0.0, Some(e.to_string())), None),
     }
 }
 
@@ -441,7 +473,7 @@ fn invalid(option: &str, reason: String) -> BatchError {
     })
 }
 
-fn record(
+pub(super) fn record(
     t: &Task,
     status: &'static str,
     seconds: f64,

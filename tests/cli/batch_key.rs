@@ -409,3 +409,72 @@ fn exr_key(path: &Path) -> Option<String> {
         _ => None,
     }
 }
+
+/// The `holds` of every record of the job's log, by task.
+fn holds(job: &Path) -> Vec<(u64, Option<i64>)> {
+    let log = job.parent().unwrap().join("out/umbra_batch.jsonl");
+    let mut v: Vec<(u64, Option<i64>)> = std::fs::read_to_string(log)
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            (v["task"].as_u64().unwrap(), v["holds"].as_i64())
+        })
+        .collect();
+    v.sort_unstable();
+    v
+}
+
+#[test]
+fn held_frames_bake_once_and_their_copies_are_the_bytes_a_bake_writes() {
+    let dir = tempfile::tempdir().unwrap();
+    let job = setup(dir.path());
+    // Frame 2 holds frame 1 (a copy of the same cache); frame 3 is re-simulated.
+    std::fs::copy(data("cloud_half.vdb"), dir.path().join("cloud.0003.vdb")).unwrap();
+    run(&job, &[]);
+    // Tasks 0, 1: frame 1 (sun, lamp); 2, 3: frame 2 holds frame 1; 4, 5: frame 3; 6, 7: hero
+    // (not a sequence).
+    let h = holds(&job);
+    assert_eq!(
+        h,
+        vec![
+            (0, None),
+            (1, None),
+            (2, Some(1)),
+            (3, Some(1)),
+            (4, None),
+            (5, None),
+            (6, None),
+            (7, None)
+        ],
+        "{h:?}"
+    );
+    let copies: Vec<Vec<u8>> = ["cloud.0002_sun.exr", "cloud.0002_lamp.exr"]
+        .iter()
+        .map(|n| read(dir.path(), n))
+        .collect();
+    // The copy names its own source file and key, not frame 1's.
+    let key = exr_key(&dir.path().join("out/cloud.0002_sun.exr")).unwrap();
+    assert!(
+        key.contains("cloud.0002.vdb") && !key.contains("cloud.0001.vdb"),
+        "{key}"
+    );
+    assert_ne!(copies[0], read(dir.path(), "cloud.0001_sun.exr"));
+    // Each copy is what the task's own bake writes, byte for byte.
+    for (task, name, copy) in [
+        ("2", "cloud.0002_sun.exr", &copies[0]),
+        ("3", "cloud.0002_lamp.exr", &copies[1]),
+    ] {
+        let recs = run(&job, &["--task", task, "--force"]);
+        assert_eq!(baked(&recs).len(), 1);
+        assert_eq!(
+            &read(dir.path(), name),
+            copy,
+            "{name}: the copy differs from a bake"
+        );
+    }
+    // The frames hold each other only while their content is the same.
+    std::fs::copy(data("cloud_half.vdb"), dir.path().join("cloud.0002.vdb")).unwrap();
+    let recs = run(&job, &[]);
+    assert_eq!(indices(&baked(&recs)), vec![2, 3], "{recs:?}");
+}

@@ -266,6 +266,42 @@ impl BakeJob {
         Ok(traced.report)
     }
 
+    /// Write this job's map from `from`, the finished bake of another job whose request
+    /// differs from this one's only in the source file's name and the key (a held frame of a
+    /// sequence: the same content): the same image under this job's provenance, so the bytes
+    /// are the ones this job's own bake would write. `None` (nothing written) when `from` does
+    /// not hold its whole image in memory (a deep or fixed-size deep map, a map streamed in
+    /// parts): this job must bake.
+    ///
+    /// # Errors
+    /// Output and write errors; nothing is written on error.
+    pub fn commit_copy(&self, from: &BakeReport) -> Result<Option<Provenance>> {
+        let whole = from.map.t.len() as u64 == from.map.camera.pixels();
+        if !matches!(self.product, Product::Map)
+            || from.deep.is_some()
+            || from.fixed.is_some()
+            || !whole
+        {
+            return Ok(None);
+        }
+        self.check_outputs()?;
+        let provenance = Provenance {
+            source_file: self.source.path().display().to_string(),
+            key: self.key.clone(),
+            ..from.provenance.clone()
+        };
+        let staged = crate::bake::encode::exr::stage_map(
+            &self.output,
+            self.preview.as_deref(),
+            &from.map,
+            &provenance,
+            &self.layout,
+            self.overwrite,
+        )?;
+        crate::output::commit_all(staged)?;
+        Ok(Some(provenance))
+    }
+
     /// Whether this job's map is one the sweep makes: exact regular tracking with trilinear
     /// lookups, in the automatic order.
     fn is_exact_sweep(&self) -> bool {
