@@ -34,6 +34,27 @@ pub fn scaled(scale: f64, v: f64) -> f64 {
     }
 }
 
+/// A size in bytes for a message, in the binary unit that keeps it readable: `1 byte`,
+/// `512 bytes`, `3.5 KiB`, `26.4 MiB`, `1.0 GiB`, up to EiB (one decimal past bytes), so a
+/// budget of a few bytes never reads `0.0 MiB`.
+#[must_use]
+pub fn size(bytes: u64) -> String {
+    const UNITS: [&str; 6] = ["KiB", "MiB", "GiB", "TiB", "PiB", "EiB"];
+    match bytes {
+        1 => "1 byte".into(),
+        b if b < 1024 => format!("{b} bytes"),
+        b => {
+            let mut v = b as f64 / 1024.0;
+            let mut unit = 0;
+            while v >= 1024.0 && unit + 1 < UNITS.len() {
+                v /= 1024.0;
+                unit += 1;
+            }
+            format!("{v:.1} {}", UNITS[unit])
+        }
+    }
+}
+
 /// A number for a message: plain when moderate, `1e308` rather than 309 digits otherwise.
 #[must_use]
 pub fn short(v: f64) -> String {
@@ -184,6 +205,16 @@ pub(crate) fn two_prod(a: f64, b: f64) -> (f64, f64) {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn sizes_read_in_the_unit_that_keeps_them_readable() {
+        assert_eq!(size(1), "1 byte");
+        assert_eq!(size(0), "0 bytes");
+        assert_eq!(size(1023), "1023 bytes");
+        assert_eq!(size(1536), "1.5 KiB");
+        assert_eq!(size(26 << 20), "26.0 MiB");
+        assert_eq!(size(u64::MAX), "16.0 EiB");
+    }
     use super::*;
 
     #[test]

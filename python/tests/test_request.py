@@ -210,11 +210,16 @@ def _key_entry(data):
 
 def _same_bytes_but_the_key(a, b, name):
     """`b` is `a` with one key entry more: without it, the same bytes but for the offsets that
-    point past it (i64 words larger by its length) and a `.vdb` metadata count (one more)."""
+    point past it (i64 words larger by its length), a `.vdb` metadata count (one more) and
+    the `.vdb` header's content-derived UUID."""
     start, end = _key_entry(b)
     delta = end - start
     rest = b[:start] + b[end:]
     assert len(rest) == len(a), f"{name}: job differs from the CLI beyond its key"
+    if a[:4] != b"\x76\x2f\x31\x01":
+        # A `.vdb` header's UUID (36 characters at byte 21) is derived from the content.
+        assert rest[21:57] != a[21:57], f"{name}: the UUID does not follow the content"
+        rest = rest[:21] + a[21:57] + rest[57:]
     i = 0
     while i < len(a):
         if a[i] == rest[i]:

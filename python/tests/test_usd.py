@@ -482,9 +482,12 @@ def test_a_batch_job_reads_frames_and_lights_from_the_stage(cli, tmp_path):
     _, out, _ = cli("batch", job)
     assert "0 baked, 4 skipped" in out, out
     shutil.copy(DATA / "cloud_half.vdb", tmp_path / "cloud.0002.vdb")
-    _, out, err = cli("batch", job)
+    _, out, _ = cli("batch", job)
     assert "2 baked, 2 skipped" in out, out
-    assert "input changed: " in out + err and "cloud.0002.vdb" in out + err, out + err
+    recs = [json.loads(l) for l in (tmp_path / "all" / "umbra_batch.jsonl").read_text()
+            .splitlines()][-4:]
+    why = sorted(r["reason"] for r in recs if r["status"] == "ok")
+    assert why == ["input changed: cloud.0002.vdb"] * 2, recs
     # A frame whose asset is missing fails alone (exit 3); the other frame is baked.
     (tmp_path / "cloud.0002.vdb").unlink()
     job.write_text(body.replace("out/", "miss/") + 'framing = "per-frame"\n'

@@ -334,7 +334,7 @@ impl BoundedPlan {
 
 /// A size in MiB, as the refusals word it.
 fn mib(b: u64) -> String {
-    format!("{:.1} MiB", b as f64 / f64::from(1 << 20))
+    crate::math::size(b)
 }
 
 /// A decoded leaf's values, bytes.
