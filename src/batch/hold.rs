@@ -8,7 +8,7 @@
 //! time, an animated transform, are not in the key), nor a transmittance volume's; a map that
 //! is not whole in memory (deep, fixed-size deep, streamed in parts) is baked by each task.
 
-use super::{BatchError, Freshness, Job, Record, Task, TaskKey};
+use super::{BatchError, Freshness, Job, Task, TaskKey};
 use crate::bake::BakeReport;
 use std::collections::hash_map::{Entry, HashMap};
 
@@ -59,32 +59,5 @@ impl Job {
         job.commit_copy(from)
             .map(|p| p.is_some())
             .map_err(BatchError::Task)
-    }
-}
-
-/// The record of `t` written as a copy of `from` (the bake of frame `frame`, whose warnings
-/// its map shares), `None` when it must bake.
-pub(super) fn copy(
-    job: &Job,
-    (t, f): (&Task, &Freshness),
-    (frame, from): (i64, &BakeReport),
-) -> Option<Record> {
-    let t0 = std::time::Instant::now();
-    let done = job.copy_task(t, f.key.as_ref(), from);
-    let secs = t0.elapsed().as_secs_f64();
-    match done {
-        Ok(false) => None,
-        Ok(true) => Some(Record {
-            holds: Some(frame),
-            warnings: from.warnings.iter().map(ToString::to_string).collect(),
-            ..super::runner::record(t, "ok", secs, 0.0, None)
-        }),
-        Err(e) => Some(super::runner::record(
-            t,
-            "failed",
-            secs,
-            0.0,
-            Some(e.to_string()),
-        )),
     }
 }

@@ -216,7 +216,7 @@ pub fn run(job: &Job, opts: &RunOptions, progress: &dyn Progress) -> Result<RunR
                     let share = Share::new(progress, worth);
                     let copied = lead
                         .as_ref()
-                        .and_then(|(frame, r)| super::hold::copy(job, (t, f), (*frame, r)));
+                        .and_then(|(frame, r)| copy_held(job, (t, f), (*frame, r)));
                     let rec = match copied {
                         Some(rec) => rec,
                         None => {
@@ -473,7 +473,7 @@ fn invalid(option: &str, reason: String) -> BatchError {
     })
 }
 
-pub(super) fn record(
+fn record(
     t: &Task,
     status: &'static str,
     seconds: f64,
@@ -523,5 +523,26 @@ fn points_record(
         warnings: Vec::new(),
         reason: None,
         holds: None,
+    }
+}
+
+/// The record of `t` written as a copy of `from` (the bake of frame `frame`, whose warnings
+/// its map shares), `None` when it must bake.
+fn copy_held(
+    job: &Job,
+    (t, f): (&Task, &Freshness),
+    (frame, from): (i64, &crate::bake::BakeReport),
+) -> Option<Record> {
+    let t0 = std::time::Instant::now();
+    let done = job.copy_task(t, f.key.as_ref(), from);
+    let secs = t0.elapsed().as_secs_f64();
+    match done {
+        Ok(false) => None,
+        Ok(true) => Some(Record {
+            holds: Some(frame),
+            warnings: from.warnings.iter().map(ToString::to_string).collect(),
+            ..record(t, "ok", secs, 0.0, None)
+        }),
+        Err(e) => Some(record(t, "failed", secs, 0.0, Some(e.to_string()))),
     }
 }

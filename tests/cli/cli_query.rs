@@ -433,3 +433,33 @@ fn a_map_from_a_far_light_is_the_suns() {
         "far {far:?}, sun {sun:?}"
     );
 }
+
+/// A deep map from a light 1e16 away (issue 68, item 3): its depths, distances from the light
+/// in f32, cannot tell the cloud's layers apart, so it is refused naming `--deep` and why
+/// (it failed with "the profile's depths and optical depths must not decrease"); from 100
+/// units away it is baked.
+#[test]
+fn a_deep_map_from_a_far_light_is_refused_with_the_reason() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("d.exr");
+    let bake = |pos: &str| {
+        umbra()
+            .args(["bake", "data/cloud.vdb", "--res", "8", "--deep", "--force"])
+            .arg(format!("--light-pos={pos}"))
+            .arg("-o")
+            .arg(&out)
+            .output()
+            .unwrap()
+    };
+    let o = bake("-1e16,0.5,0");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(
+        err.starts_with("umbra: error: ") && err.contains("'--deep'") && err.contains("32-bit"),
+        "{err}"
+    );
+    assert!(!out.exists());
+    let o = bake("-100,0.5,0");
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(out.exists());
+}

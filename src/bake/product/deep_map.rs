@@ -141,6 +141,7 @@ pub fn bake_deep(
             ),
         });
     }
+    check_depth_resolution(scene, camera)?;
     let colour = scene.channels() == 3;
     let (w, h) = (camera.width(), camera.height());
     let range = (camera.t_near().max(0.0), camera.t_max());
@@ -188,6 +189,37 @@ pub fn bake_deep(
 }
 
 /// Channel names in the order [`Row`] fills them.
+/// A deep map's depths are distances from the camera stored in f32: refused (naming `deep`)
+/// when, where the centre ray leaves the scene's world box (longest side `L`), one f32 step of
+/// depth (at most `t 2^-23` at depth `t`) is more than `L / 4096` (a light more than about 2048 box sizes away), so the depths
+/// could not tell the volume's layers apart; a flat map, or a sun, is what such a light takes.
+fn check_depth_resolution(scene: &Scene, camera: &crate::bake::camera::Camera) -> Result<()> {
+    let Some((lo, hi)) = scene.world_box() else {
+        return Ok(());
+    };
+    let size = (hi - lo).max_element();
+    let centre = camera.pixel_ray(camera.width() / 2, camera.height() / 2)?;
+    let Some((_, t1)) = crate::ray::clip_box(centre.origin(), centre.direction(), lo, hi) else {
+        return Ok(());
+    };
+    // One f32 step at depth `t1` is at most `t1 2^-23`.
+    let step = t1.abs() * f64::from(f32::EPSILON);
+    if step > size / 4096.0 {
+        return Err(Error::InvalidArgument {
+            name: "deep".into(),
+            reason: format!(
+                "a deep map stores depths from the light in 32-bit floats: {} away from a \
+                 volume {} across, one step of depth is {}, too coarse to tell its layers \
+                 apart; bake a flat map, or use a sun (light-dir) for a light this far",
+                crate::math::short(t1),
+                crate::math::short(size),
+                crate::math::short(step)
+            ),
+        });
+    }
+    Ok(())
+}
+
 fn channel_names(colour: bool) -> Vec<String> {
     let names: &[&str] = if colour {
         &["A", "AR", "AG", "AB", "Z", "ZBack"]
