@@ -198,6 +198,7 @@ pub const VOLUME_OPTIONS: &[&str] = &[
     "light_angle",
     "light_radius",
     "light_samples",
+    "light_max_samples",
     "xform",
     "out_grid",
     "half",

@@ -209,12 +209,20 @@ fn map_text(
         summary.mean_spp,
     )?;
     if let (Some(soft), Some([sampled, receivers])) = (&s.soft, st.light_sampled) {
+        let d = st.light_directions.unwrap_or_default();
+        let count = match soft.light.target {
+            Some(e) => format!(
+                "directions per receiver to reach std_err {e:.2e} (at most {}): mean {:.1}, \
+                 99th percentile {}, most {}, {} receivers capped",
+                soft.light.samples, d.mean, d.p99, d.max, d.capped
+            ),
+            None => format!("{} directions per receiver", soft.light.samples),
+        };
         writeln!(
             out,
-            "light with extent ({}): {} directions per receiver at the {}; {sampled} of \
-             {receivers} receivers sampled ({:.1}%), largest std_err {:.2e}",
+            "light with extent ({}): {count} at the {}; {sampled} of {receivers} receivers \
+             sampled ({:.1}%), largest std_err {:.2e}",
             soft.light.extent,
-            soft.light.samples,
             soft.receiver,
             100.0 * sampled as f64 / receivers.max(1) as f64,
             st.max_std_err,

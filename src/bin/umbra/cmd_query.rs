@@ -301,6 +301,7 @@ fn answer_json(
     }
     if let Some(n) = a.light_samples {
         v["light_samples"] = n.into();
+        v["light_capped"] = a.light_capped.into();
     }
     v
 }
