@@ -63,14 +63,17 @@ pub fn final_points(
             });
         let t = pilot.value[c];
         let n = if lo == hi {
-            (crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target / r)
-                .ceil()
+            (crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target / r).ceil()
         } else {
             let e0 = pilot.std_err[c];
             (SAFETY * f64::from(PILOT_POINTS) * (e0 / target).powi(2)).ceil()
         };
         // NaN (a NaN estimate) asks for the cap.
-        need = if n.is_nan() { f64::INFINITY } else { need.max(n) };
+        need = if n.is_nan() {
+            f64::INFINITY
+        } else {
+            need.max(n)
+        };
     }
     let cap = cap.max(MIN_POINTS);
     if need > f64::from(cap) {
@@ -147,4 +150,3 @@ impl SoftRays {
         out
     }
 }
-

@@ -206,7 +206,8 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
     ]
     .into_iter()
     .find_map(|(k, given)| given.then_some(k));
-    if let Some(k) = count_key.filter(|_| o.light().is_some() && angle.is_none() && radius.is_none())
+    if let Some(k) =
+        count_key.filter(|_| o.light().is_some() && angle.is_none() && radius.is_none())
     {
         return Err(bad(
             k,
@@ -582,4 +583,3 @@ pub struct Key {
     /// The stage: 0 a fixed count, 1 a pilot, 2 the final stage after it.
     pub stage: u64,
 }
-

@@ -23,11 +23,11 @@
 use super::in_pool;
 use super::occupancy::Occupancy;
 use crate::bake::camera::{Camera, MAX_PIXELS};
+use crate::bake::map::LightDirections;
 use crate::bake::map::{
     bad, split_channels, BakeSettings, BakeStats, Channel, Map, Receiver as Place, SoftMap,
 };
 use crate::error::Result;
-use crate::bake::map::LightDirections;
 use crate::light::Receiver;
 use crate::ray::Ray;
 use crate::scene::{Scene, SceneEstimate};
@@ -142,7 +142,9 @@ fn render(
     let make = |r: usize| -> Result<Option<Receiver>> {
         let (p, k) = (r % n, r / n);
         let ray = camera.pixel_ray((p % w) as u32, (p / w) as u32)?;
-        let at = ray.at(receiver_t(scene, &ray, soft.receiver, depths, k)).to_array();
+        let at = ray
+            .at(receiver_t(scene, &ray, soft.receiver, depths, k))
+            .to_array();
         let ray_id = if k == 0 { p } else { (63 + k) * n + p } as u64;
         // The proof covers the light's whole cone, not the directions drawn.
         let reach = soft.light.reach(scene, at)?;

@@ -329,7 +329,9 @@ impl QueryRequest {
         check_budget(&scene, est, opts, n_rays)
             .map_err(|e| with_warnings(QueryError::at(QueryStep::Check, e)))?;
         let answers = match (asked, rays.first(), &soft_rays) {
-            (_, _, Some((soft, at))) => vec![answer_soft(&scene, soft, *at, self.ray_id, (est, opts))],
+            (_, _, Some((soft, at))) => {
+                vec![answer_soft(&scene, soft, *at, self.ray_id, (est, opts))]
+            }
             (Asked::Rows, ..) => answer_file(
                 &scene,
                 self.rays.as_deref().unwrap_or_default(),
