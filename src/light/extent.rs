@@ -58,7 +58,7 @@ pub const MAX_LIGHT_SAMPLES: u32 = 1 << 20;
 /// The stream index of a replicate's rotation (beside the estimator's sample streams).
 const ROTATION_STREAM: u64 = 0x5CA1_AB1E_0000_0000;
 /// The key of the rotations in place of a ray id: every receiver shares them.
-const SHARED_ROTATIONS: u64 = 0x5EED_0F_D1EC_0000;
+const SHARED_ROTATIONS: u64 = 0x005E_ED0F_D1EC_0000;
 /// The stream index of a direction's ray id.
 const DIRECTION_STREAM: u64 = 0xD1EC_7104_0000_0000;
 /// `1 / phi`, the golden ratio's inverse.
