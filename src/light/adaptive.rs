@@ -24,7 +24,9 @@
 //! estimates). So `n = ceil(F99 n0 e0^2 / E^2)` puts `>= 99%` of final error bars at or below
 //! the target `E` ([`SAFETY`] is `F_0.99(15, 15)`). Clamped to `[MIN_POINTS, cap]`; a
 //! receiver whose `n` the cap cut is counted ([`super::SoftAnswer::light_capped`]). A pilot whose
-//! directions all agree exactly asks for the `N` at which the rule-of-three floor is `E`:
+//! directions all agree exactly, or half of whose directions sit exactly at one end of its
+//! range (rays that meet no density give exactly 1), asks for at least the `N` at which the
+//! final stage's rule-of-three floor, should its directions all agree, is `E`:
 //! `N >= sqrt(3) max(T0, 1 - T0) / E`.
 
 use super::extent::{SoftRays, MIN_POINTS, REPLICATES};
@@ -62,11 +64,19 @@ pub fn final_points(
                 (a.min(e.value[c]), b.max(e.value[c]))
             });
         let t = pilot.value[c];
-        let n = if lo == hi {
-            (crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target / r).ceil()
-        } else {
-            let e0 = pilot.std_err[c];
-            (SAFETY * f64::from(PILOT_POINTS) * (e0 / target).powi(2)).ceil()
+        // At least half the pilot's directions exactly at one end (rays that meet no density
+        // give exactly 1): the final stage may agree exactly, and its rule-of-three floor must
+        // then be at the target too.
+        let at = |x: f64| per.iter().filter(|e| e.value[c] == x).count();
+        let ties = 2 * at(lo).max(at(hi)) >= per.len();
+        let floor = crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target;
+        let floor = (floor / r).ceil();
+        let spread =
+            (SAFETY * f64::from(PILOT_POINTS) * (pilot.std_err[c] / target).powi(2)).ceil();
+        let n = match (lo == hi, ties) {
+            (true, _) => floor,
+            (false, true) => spread.max(floor),
+            (false, false) => spread,
         };
         // NaN (a NaN estimate) asks for the cap.
         need = if n.is_nan() {
