@@ -309,6 +309,9 @@ fn report_volume(
             v["light_samples"] = n.into();
             v["sampled_fraction"] = f.into();
             v["std_err_max"] = e.into();
+            if let Some(d) = st.light_directions {
+                v["light_directions"] = serde_json::to_value(d).unwrap_or_default();
+            }
         }
         writeln!(out, "{v}")?;
     } else if !a.quiet {
@@ -342,9 +345,14 @@ fn report_volume(
         )?;
         if let (Some(n), Some(f), Some(e)) = (st.light_samples, st.sampled_fraction, st.std_err_max)
         {
+            let d = st.light_directions.unwrap_or_default();
             writeln!(
                 out,
-                "light with extent: {n} directions per voxel, {:.1}% of voxels sampled, std_err max {e:.2e}",
+                "light with extent: at most {n} directions per voxel (mean {:.1}, 99th \
+                 percentile {}, {} capped), {:.1}% of voxels sampled, std_err max {e:.2e}",
+                d.mean,
+                d.p99,
+                d.capped,
                 100.0 * f
             )?;
         }
