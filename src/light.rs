@@ -4,12 +4,14 @@ use crate::error::{Error, Result};
 use crate::ray::{clip_box, Ray};
 use crate::volume::Volume;
 
+pub mod adaptive;
 pub mod area;
+mod cone;
 pub mod extent;
 mod receivers;
 pub use area::{Area, Shape};
-pub use extent::{Extent, SoftLight};
-pub use receivers::{answer_each, SoftAnswer, RAYS_PER_BATCH};
+pub use extent::{Extent, Reach, SoftLight};
+pub use receivers::{Receiver, SoftAnswer, RAYS_PER_BATCH};
 
 /// The light a job names by position or direction (a USD stage's own lights are read from the
 /// stage, `light` of the read options): the one declaration of the light keys, flattened into
@@ -54,11 +56,17 @@ pub struct LightOptions {
         arg(long, value_name = "R", allow_negative_numbers = true)
     )]
     pub light_radius: Option<f64>,
-    /// With light-angle or light-radius: the directions traced per receiver, in 8 randomised
-    /// quasi-Monte Carlo replicates (rounded up to a multiple of 8; default 256, at most
-    /// 1048576).
+    /// With light-angle or light-radius: exactly N directions per receiver, in 16 randomised
+    /// quasi-Monte Carlo replicates (rounded up to a multiple of 16; at least 64, at most
+    /// 1048576). Without it each receiver traces as many as its error bar needs to reach
+    /// target-error (default 5e-3; docs/lights.md).
     #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
     pub light_samples: Option<u32>,
+    /// With light-angle or light-radius and no light-samples: the most directions a receiver
+    /// may trace to reach the target error, its pilot's included (default 4096, at least 128);
+    /// receivers that reach it are counted in the report.
+    #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
+    pub light_max_samples: Option<u32>,
 }
 
 impl LightOptions {
@@ -75,13 +83,14 @@ impl LightOptions {
     }
 
     /// The first key of a light with extent that is given (`light-angle`, `light-radius`,
-    /// `light-samples`), by the library's name.
+    /// `light-samples`, `light-max-samples`), by the library's name.
     #[must_use]
     pub fn extent_key(&self) -> Option<&'static str> {
         [
             ("light-angle", self.light_angle.is_some()),
             ("light-radius", self.light_radius.is_some()),
             ("light-samples", self.light_samples.is_some()),
+            ("light-max-samples", self.light_max_samples.is_some()),
         ]
         .into_iter()
         .find_map(|(k, given)| given.then_some(k))
@@ -160,7 +169,7 @@ impl LightOptions {
         if self.light_angle.is_some() || self.light_radius.is_some() {
             return self.soft_toward(Light::from(e));
         }
-        SoftLight::of_emitter(e, extent::samples(self.light_samples)?)
+        SoftLight::of_emitter(e, extent::count(self)?)
     }
 
     /// Check the keys of a light with extent before the light they apply to is known (a

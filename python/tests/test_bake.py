@@ -193,7 +193,7 @@ def test_a_soft_map_says_its_light(tmp_path):
     point light's dict has no `light`."""
     out = tmp_path / "soft.exr"
     d = umbra.bake(DATA / "cloud.vdb", out, light_dir=(0, -1, 0), light_angle=4,
-                   light_samples=16, res=8, receiver_depth=3, stderr=True)
+                   light_samples=64, res=8, receiver_depth=3, stderr=True)
     light = d["light"]
     assert light["receiver"] == "depth 3" and light["samples"] == 16
     assert 0 < light["sampled"] <= light["receivers"] == 8 * d["height"]

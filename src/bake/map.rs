@@ -216,6 +216,45 @@ pub(crate) fn worse_std_err(a: f64, b: f64) -> f64 {
     }
 }
 
+/// The directions the sampled receivers of a product toward a light with extent traced (a
+/// pilot's and its final stage's together; receivers answered without sampling left out).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct LightDirections {
+    /// Their mean over the sampled receivers.
+    pub mean: f64,
+    /// Their 99th percentile (the least count at or above 99% of the sampled receivers').
+    pub p99: u64,
+    /// The most any receiver traced.
+    pub max: u64,
+    /// Receivers whose target error asked for more directions than `light-max-samples`
+    /// allows: their error bar may be above the target.
+    pub capped: u64,
+}
+
+impl LightDirections {
+    /// From each receiver's `(directions, capped)`; a receiver of 0 directions was answered
+    /// without sampling and is left out.
+    pub fn of(answers: impl Iterator<Item = (usize, bool)>) -> Self {
+        let mut counts = Vec::new();
+        let mut capped = 0;
+        for (n, c) in answers {
+            capped += u64::from(c);
+            if n > 0 {
+                counts.push(n as u64);
+            }
+        }
+        counts.sort_unstable();
+        let k = counts.len();
+        let at = |q: f64| counts.get(((q * k as f64).ceil() as usize).clamp(1, k.max(1)) - 1);
+        Self {
+            mean: counts.iter().sum::<u64>() as f64 / k.max(1) as f64,
+            p99: at(0.99).copied().unwrap_or(0),
+            max: counts.last().copied().unwrap_or(0),
+            capped,
+        }
+    }
+}
+
 /// What a bake cost.
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct BakeStats {
@@ -246,6 +285,9 @@ pub struct BakeStats {
     /// receiver (texels times `1 + slices`). Absent for a point light.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_sampled: Option<[u64; 2]>,
+    /// A map toward a light with extent: the directions its sampled receivers traced.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_directions: Option<LightDirections>,
     /// A blurred `riemann` map the object-order sweep declined, so it went ray by ray (about
     /// 3-4x the sweep's time): why. Said as a warning ([`crate::bake::Warning::SweepDeclined`]).
     #[serde(skip)]

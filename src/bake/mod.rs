@@ -51,8 +51,9 @@ pub use encode::fixed::{texel_error, DeepFormat, NormProfile, TexelError, TAU_CA
 pub use encode::layout::{mip_levels, mip_sizes, ExrLayout, MAX_TILE};
 pub use encode::summary::{MapSummary, SummaryCamera, SummaryLight};
 pub use map::{
-    channel_names, check_threads, slice_channel, BakeSettings, BakeStats, Channel, Depths, Map,
-    Order, Receiver, SoftMap, SweepDeclined, MAX_BATCHES, MAX_SLICES, MAX_THREADS,
+    channel_names, check_threads, slice_channel, BakeSettings, BakeStats, Channel, Depths,
+    LightDirections, Map, Order, Receiver, SoftMap, SweepDeclined, MAX_BATCHES, MAX_SLICES,
+    MAX_THREADS,
 };
 pub use product::deep_map::{bake_deep, deep_attributes, DeepMap, DeepStats, STOCHASTIC_DEPTHS};
 pub use product::fixed_map::{bake_fixed, FixedMap, FixedStats, PROFILE_ERROR};

@@ -197,7 +197,7 @@ impl Area {
                 let z = 1.0 - u * (1.0 - lowest);
                 let r = (1.0 - z * z).max(0.0).sqrt();
                 let (s, c) = (TAU * v).sin_cos();
-                let (b1, b2) = super::extent::basis(axis);
+                let (b1, b2) = super::cone::basis(axis);
                 let n = b1 * (r * c) + b2 * (r * s) + axis * z;
                 (n * radius, n)
             }

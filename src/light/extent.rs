@@ -13,37 +13,52 @@
 //!
 //! **The sampling.** Randomised quasi-Monte Carlo: [`REPLICATES`] independent copies of a
 //! 2D Fibonacci lattice of `m` points, `((i + 1/2) / m, i / phi) mod 1`, each shifted by its
-//! own Cranley-Patterson rotation drawn from [`crate::rng::Rng`] keyed by the query's seed and
-//! ray id (deterministic whatever the thread count), mapped to the cone by the area-preserving
-//! map `cos(theta) = 1 - u (1 - cos(theta_max))`, `phi = 2 pi v`. Each direction's `T` is the
-//! chosen estimator's (exact with `regular`); its own noise is then inside the replicates'
-//! spread. The answer is the mean over every direction.
+//! own Cranley-Patterson rotation drawn from [`crate::rng::Rng`] keyed by the query's seed, the
+//! replicate and the stage alone ([`Key`]): every receiver of a product traces the same point
+//! set (the same directions for a sun, the same points on an area light), and the answers are
+//! deterministic whatever the thread count. The lattice maps to the cone by the
+//! area-preserving map `cos(theta) = 1 - u (1 - cos(theta_max))`, `phi = 2 pi v`. Each
+//! direction's `T` is the chosen estimator's (exact with `regular`), its random streams keyed
+//! by the receiver's ray id; its own noise is then inside the replicates' spread. The answer
+//! is the mean over every direction, its error bar the replicates' ([`super::adaptive`]).
 //!
-//! **The error bar.** `std_err` is the standard deviation of the `R` replicate means over
-//! `sqrt(R)`. When every direction gave exactly the same `T0`, the spread is 0 and could hide a
-//! feature between the points: a fraction `p <= min(1, 3 / N)` of the cone (the rule of three,
-//! as for independent points) may differ by up to `max(T0, 1 - T0)`, so the error bar is then
-//! `max(T0, 1 - T0) sqrt(p / N)`, never 0. It is 0 only when the sun's whole cone provably
-//! misses every volume's box and every solid's box: the answer is then 1 without sampling.
+//! **The count.** `light-samples N`: exactly `N` directions (at least [`MIN_LIGHT_SAMPLES`]).
+//! Otherwise as many as the target error asks (Stein's two-stage rule, [`super::adaptive`]),
+//! at most `light-max-samples`. A receiver whose whole cone provably misses every volume's
+//! box and every solid's box is 1 without sampling, error bar 0.
 
 use super::area::Area;
+use super::cone::{misses_everything, safe_length, Cone};
 use super::{Light, LightOptions};
 use crate::error::{Error, Result};
 use crate::ray::Ray;
 use crate::rng::Rng;
-use crate::scene::{Scene, SceneEstimate};
+use crate::scene::Scene;
 use glam::DVec3;
 
 /// Independent randomisations of the lattice: the error bar's degrees of freedom plus one.
-pub const REPLICATES: u32 = 8;
-/// Directions per receiver when `light-samples` is not given: 8 replicates of 32 points,
-/// measured to reach `std_err <= 5e-3` in the penumbrae of `data/cloud.vdb` at density scale 4
-/// (docs/lights.md).
-pub const DEFAULT_LIGHT_SAMPLES: u32 = 256;
+/// Under normality a mean over `R` replicates is beyond 4 of its error bars `s_R / sqrt(R)`
+/// 0.52% of the time at `R = 8` and 0.12% at `R = 16`; with few points per replicate the
+/// replicates are far from normal (docs/lights.md), so 16.
+pub const REPLICATES: u32 = 16;
+/// The fewest points per replicate: `R = 16 x n = 4` kept the share beyond 4 error bars under
+/// 0.3% in the research note's penumbrae, where `n = 1` reached 12% (docs/lights.md).
+pub const MIN_POINTS: u32 = 4;
+/// The fewest directions per receiver `light-samples` may ask for: [`REPLICATES`] x
+/// [`MIN_POINTS`].
+pub const MIN_LIGHT_SAMPLES: u32 = REPLICATES * MIN_POINTS;
+/// The most directions per receiver when the count follows the target error
+/// (`light-max-samples`' default), the pilot's included.
+pub const DEFAULT_LIGHT_MAX_SAMPLES: u32 = 4096;
+/// The error bar each receiver toward a light with extent must reach when neither
+/// `light-samples` nor `target-error` is given.
+pub const DEFAULT_TARGET_ERROR: f64 = 5e-3;
 /// Most directions per receiver: 2^20.
 pub const MAX_LIGHT_SAMPLES: u32 = 1 << 20;
 /// The stream index of a replicate's rotation (beside the estimator's sample streams).
 const ROTATION_STREAM: u64 = 0x5CA1_AB1E_0000_0000;
+/// The key of the rotations in place of a ray id: every receiver shares them.
+const SHARED_ROTATIONS: u64 = 0x005E_ED0F_D1EC_0000;
 /// The stream index of a direction's ray id.
 const DIRECTION_STREAM: u64 = 0xD1EC_7104_0000_0000;
 /// `1 / phi`, the golden ratio's inverse.
@@ -102,16 +117,38 @@ impl std::fmt::Display for Extent {
     }
 }
 
-/// A light with extent: its centre (a directional or point [`Light`]), its extent and the
-/// directions traced per receiver (a multiple of [`REPLICATES`]).
+/// A light with extent: its centre (a directional or point [`Light`]), its extent and how
+/// many directions each receiver traces.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct SoftLight {
     /// The light's centre: `Directional` for a sun, `Point` for a sphere.
     pub light: Light,
     /// Its extent.
     pub extent: Extent,
-    /// Directions per receiver.
+    /// Directions per receiver (a multiple of [`REPLICATES`]): exactly these with no
+    /// `target`, else the most a receiver may take, its pilot's included (`light-max-samples`).
     pub samples: u32,
+    /// The error bar each receiver's count is chosen to reach (Stein's two-stage rule,
+    /// [`super::adaptive`]); `None`: `samples` directions exactly (`light-samples`).
+    pub target: Option<f64>,
+}
+
+/// How many directions a receiver traces: `(samples, target)` of [`SoftLight`].
+pub type Count = (u32, Option<f64>);
+
+/// The cone from a receiver that holds every segment toward the light, for a proof that no
+/// segment meets density: every point `apex + t d`, `d` within `half` of `axis`, `0 <= t <=
+/// length`.
+#[derive(Debug, Clone, Copy)]
+pub struct Reach {
+    /// The receiver.
+    pub apex: DVec3,
+    /// The cone's axis (unit).
+    pub axis: DVec3,
+    /// Its half-angle, radians (`pi`: every direction).
+    pub half: f64,
+    /// How far the segments may run.
+    pub length: f64,
 }
 
 fn bad(name: &str, reason: impl Into<String>) -> Error {
@@ -124,7 +161,7 @@ fn bad(name: &str, reason: impl Into<String>) -> Error {
 /// The keys of a light with extent, each checked on its own (not yet against the light):
 /// the angle, the radius and the directions per receiver (rounded up to a multiple of
 /// [`REPLICATES`]).
-pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, u32)> {
+pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, Count)> {
     let value = |name: &str, v: Option<f64>| -> Result<Option<f64>> {
         match v {
             Some(x) if !x.is_finite() => Err(bad(
@@ -145,7 +182,7 @@ pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, u32)
     }
     // Directions per receiver: `light-samples` alone may go with a stage light, whose extent
     // the stage gives; with a given light it needs an angle or a radius (`check`).
-    Ok((angle, radius, samples(o.light_samples)?))
+    Ok((angle, radius, count(o)?))
 }
 
 /// [`LightOptions::soft`]: the keys of a light with extent, checked.
@@ -163,9 +200,17 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
             "is a sphere light's radius: it goes with light-pos",
         ));
     }
-    if o.light_samples.is_some() && o.light().is_some() && angle.is_none() && radius.is_none() {
+    let count_key = [
+        ("light-samples", o.light_samples.is_some()),
+        ("light-max-samples", o.light_max_samples.is_some()),
+    ]
+    .into_iter()
+    .find_map(|(k, given)| given.then_some(k));
+    if let Some(k) =
+        count_key.filter(|_| o.light().is_some() && angle.is_none() && radius.is_none())
+    {
         return Err(bad(
-            "light-samples",
+            k,
             "samples a light with extent: give light-angle or light-radius (or a stage's light)",
         ));
     }
@@ -177,28 +222,63 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
     Ok(o.light().map(|light| SoftLight {
         light,
         extent,
-        samples,
+        samples: samples.0,
+        target: samples.1,
     }))
 }
 
-/// The directions traced per receiver for the `light-samples` key: the default when it is not
-/// given, else rounded up to a multiple of [`REPLICATES`].
+/// The directions traced per receiver from the `light-samples` and `light-max-samples` keys:
+/// `light-samples` given, exactly that many (rounded up to a multiple of [`REPLICATES`]);
+/// else as many as [`DEFAULT_TARGET_ERROR`] asks, at most `light-max-samples` (default
+/// [`DEFAULT_LIGHT_MAX_SAMPLES`]).
 ///
 /// # Errors
-/// [`Error::InvalidArgument`] naming `light-samples` for 0 or more than
-/// [`MAX_LIGHT_SAMPLES`].
-pub fn samples(given: Option<u32>) -> Result<u32> {
-    match given {
-        None => Ok(DEFAULT_LIGHT_SAMPLES),
-        Some(0) => Err(bad("light-samples", "must be at least 1")),
-        Some(n) if n > MAX_LIGHT_SAMPLES => Err(bad(
+/// [`Error::InvalidArgument`] naming `light-samples` below [`MIN_LIGHT_SAMPLES`] or above
+/// [`MAX_LIGHT_SAMPLES`], or `light-max-samples` below what the pilot and the least final
+/// stage take or above [`MAX_LIGHT_SAMPLES`]; [`Error::Conflict`] for both keys.
+pub fn count(o: &LightOptions) -> Result<Count> {
+    let most = |name: &str, n: u32| {
+        if n > MAX_LIGHT_SAMPLES {
+            Err(bad(
+                name,
+                format!(
+                    "{n} directions per receiver is beyond the work budget: at most \
+                     {MAX_LIGHT_SAMPLES}"
+                ),
+            ))
+        } else {
+            Ok(n.div_ceil(REPLICATES) * REPLICATES)
+        }
+    };
+    match (o.light_samples, o.light_max_samples) {
+        (Some(_), Some(_)) => Err(Error::Conflict {
+            names: vec!["light-samples".into(), "light-max-samples".into()],
+            reason: "{0} asks for exactly that many directions, {1} caps the count the target \
+                     error chooses: give one"
+                .into(),
+        }),
+        (Some(n), None) if n < MIN_LIGHT_SAMPLES => Err(bad(
             "light-samples",
             format!(
-                "{n} directions per receiver is beyond the work budget: at most \
-                 {MAX_LIGHT_SAMPLES}"
+                "{n} directions cannot give an honest error bar: at least {MIN_LIGHT_SAMPLES} \
+                 ({REPLICATES} replicates of {MIN_POINTS} points; docs/lights.md)"
             ),
         )),
-        Some(n) => Ok(n.div_ceil(REPLICATES) * REPLICATES),
+        (Some(n), None) => Ok((most("light-samples", n)?, None)),
+        (None, max) => {
+            let max = max.unwrap_or(DEFAULT_LIGHT_MAX_SAMPLES);
+            let least = super::adaptive::LEAST_ADAPTIVE;
+            if max < least {
+                return Err(bad(
+                    "light-max-samples",
+                    format!(
+                        "{max} is fewer than the pilot and the least final stage take: at \
+                         least {least}"
+                    ),
+                ));
+            }
+            Ok((most("light-max-samples", max)?, Some(DEFAULT_TARGET_ERROR)))
+        }
     }
 }
 
@@ -213,84 +293,6 @@ fn round(axes: &[[f64; 3]; 3]) -> Option<f64> {
         && v[0].dot(v[2]).abs() <= tol * l[0]
         && v[1].dot(v[2]).abs() <= tol * l[0];
     (same && square && l[0].is_finite() && l[0] > 0.0).then_some(l[0])
-}
-
-/// The cone of directions from a receiver toward the light.
-#[derive(Debug, Clone, Copy)]
-enum Cone {
-    /// Directions within `acos(1 - one_minus_cos)` of `axis` (`axis + axis_lo` in
-    /// double-double: a sphere light 1e16 away subtends 1e-17 radians, below a unit vector's
-    /// rounding, and its directions keep it only so).
-    Cap {
-        axis: DVec3,
-        axis_lo: DVec3,
-        one_minus_cos: f64,
-    },
-    /// Every direction (a receiver inside a sphere light).
-    All,
-}
-
-impl Cone {
-    /// The cone from a receiver that sees a sphere of radius `radius` at the offset `v`
-    /// (`v + v_lo` exactly): every direction when the receiver is inside it.
-    fn toward(v: DVec3, v_lo: DVec3, radius: f64) -> Self {
-        let d = safe_length(v);
-        if d.is_nan() || d <= radius {
-            return Self::All;
-        }
-        let s = radius / d;
-        let axis = v / d;
-        Self::Cap {
-            axis,
-            axis_lo: crate::ray::unit_lo(v, v_lo, axis),
-            one_minus_cos: s * s / (1.0 + (1.0 - s * s).max(0.0).sqrt()),
-        }
-    }
-
-    /// `1 - cos(theta_max)`.
-    fn one_minus_cos(self) -> f64 {
-        match self {
-            Self::Cap { one_minus_cos, .. } => one_minus_cos,
-            Self::All => 2.0,
-        }
-    }
-
-    /// The direction of the lattice point `(u, v)` in `[0, 1)^2`, uniform in solid angle:
-    /// `b1 sin(theta) cos(phi) + b2 sin(theta) sin(phi) + axis cos(theta)`, with what
-    /// rounding left out of it (`(hi, lo)`, double-double): the axis's own low half and the
-    /// parts of `cos(theta)` and of the sum a tiny cone loses, so that a direction `1e-17`
-    /// off the axis is still off it.
-    fn direction_dd(self, u: f64, v: f64) -> (DVec3, DVec3) {
-        let omc = self.one_minus_cos();
-        let x = u * omc;
-        let (cos, cos_lo) = crate::math::two_sum(1.0, -x);
-        let sin = (x * (2.0 - x)).max(0.0).sqrt();
-        let (s, c) = (std::f64::consts::TAU * v).sin_cos();
-        let (axis, axis_lo) = match self {
-            Self::Cap { axis, axis_lo, .. } => (axis, axis_lo),
-            Self::All => (DVec3::Z, DVec3::ZERO),
-        };
-        let (b1, b2) = basis(axis);
-        let off = b1 * (sin * c) + b2 * (sin * s);
-        let hi = off + axis * cos;
-        let lo = DVec3::from_array(std::array::from_fn(|k| {
-            let (p, pe) = crate::math::two_prod(axis[k], cos);
-            let (h, he) = crate::math::two_sum(off[k], p);
-            (h - hi[k]) + he + pe + axis[k] * cos_lo + axis_lo[k] * cos
-        }));
-        (hi, lo)
-    }
-}
-
-/// An orthonormal basis around the unit vector `n` (Duff et al. 2017, branchless).
-pub(super) fn basis(n: DVec3) -> (DVec3, DVec3) {
-    let sign = 1.0_f64.copysign(n.z);
-    let a = -1.0 / (sign + n.z);
-    let b = n.x * n.y * a;
-    (
-        DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
-        DVec3::new(b, sign + n.y * n.y * a, -n.y),
-    )
 }
 
 /// The rays of one receiver toward a light with extent, their ray ids, and the ray toward the
@@ -315,26 +317,16 @@ pub struct SoftRays {
     pub unlit: bool,
 }
 
-/// `|v|` without overflow or underflow in its squares (a light at 1e300).
-fn safe_length(v: DVec3) -> f64 {
-    let m = v.abs().max_element();
-    if m > 0.0 && m.is_finite() {
-        m * (v / m).length()
-    } else {
-        m
-    }
-}
-
 impl SoftLight {
     /// The light with extent a stage's light is, traced with `samples` directions per
-    /// receiver ([`samples`]): its centre is `Light::from(e)`; `None` for a point (a distant
+    /// receiver ([`count`]): its centre is `Light::from(e)`; `None` for a point (a distant
     /// light of angle 0, `treatAsPoint`, a shape of no size): today's point light, bit for
     /// bit. A sphere its transform keeps round is the exact cone of a sphere light of the
     /// scaled radius; any other shape is an [`Area`].
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] for a shape [`Area::new`] refuses.
-    pub fn of_emitter(e: crate::usd::Emitter, samples: u32) -> Result<Option<Self>> {
+    pub fn of_emitter(e: crate::usd::Emitter, samples: Count) -> Result<Option<Self>> {
         use super::area::Shape;
         use crate::usd::Emitter as E;
         let area = |shape, pos, axes| Area::new(shape, pos, axes).map(Extent::Area);
@@ -364,7 +356,8 @@ impl SoftLight {
         Ok(Some(Self {
             light: Light::from(e),
             extent,
-            samples,
+            samples: samples.0,
+            target: samples.1,
         }))
     }
 
@@ -434,11 +427,14 @@ impl SoftLight {
         }
     }
 
-    /// The rays from the receiver `at` toward the light, keyed by `seed` and `ray_id`.
+    /// The rays from the receiver `at` toward the light: `m` points per replicate, each
+    /// replicate's lattice rotated by a draw keyed by `seed`, the replicate and `stage`
+    /// alone (the same directions for every receiver: `(seed, stage)` name a point set), each
+    /// direction's estimator streams keyed by `seed`, `ray_id`, `stage` and the direction.
     ///
     /// # Errors
     /// [`Error::InvalidArgument`] for a zero or non-finite direction, position or receiver.
-    pub fn rays(&self, scene: &Scene, at: [f64; 3], seed: u64, ray_id: u64) -> Result<SoftRays> {
+    pub fn rays(&self, scene: &Scene, at: [f64; 3], key: Key, m: u32) -> Result<SoftRays> {
         let p = DVec3::from_array(at);
         if !p.is_finite() {
             return Err(bad(
@@ -463,11 +459,11 @@ impl SoftLight {
         if unlit || misses_everything(scene, p, cone) {
             return Ok(out);
         }
-        let m = self.samples / REPLICATES;
-        out.rays.reserve(self.samples as usize);
-        out.ids.reserve(self.samples as usize);
+        let total = (REPLICATES * m) as usize;
+        out.rays.reserve(total);
+        out.ids.reserve(total);
         for r in 0..u64::from(REPLICATES) {
-            let mut rng = Rng::new(seed, ray_id, ROTATION_STREAM | r);
+            let mut rng = Rng::new(key.seed, SHARED_ROTATIONS | key.stage, ROTATION_STREAM | r);
             let (du, dv) = (rng.uniform(), rng.uniform());
             for i in 0..m {
                 let fi = f64::from(i);
@@ -484,137 +480,106 @@ impl SoftLight {
                     _ => self.ray(scene, p, cone.direction_dd(u, v))?,
                 };
                 out.rays.push(ray);
-                let k = r * u64::from(m) + u64::from(i);
+                let k = (key.stage << 40) | (r * u64::from(m) + u64::from(i));
                 out.ids
-                    .push(Rng::new(seed, ray_id, DIRECTION_STREAM | k).next_u64());
+                    .push(Rng::new(key.seed, key.ray_id, DIRECTION_STREAM | k).next_u64());
             }
             out.ends.push(out.rays.len());
         }
         Ok(out)
     }
-}
 
-/// Whether every ray of the cone from `p` provably misses every volume's box and every
-/// solid's box (each box's bounding sphere lies outside the cone): `T = 1` exactly. A sun's
-/// rays, a sphere light's segments and an area light's all lie in their cone.
-fn misses_everything(scene: &Scene, p: DVec3, cone: Cone) -> bool {
-    let Cone::Cap {
-        axis,
-        one_minus_cos,
-        ..
-    } = cone
-    else {
-        return false;
-    };
-    // Angles from sines (`2 asin(sqrt(omc / 2))`, `atan2(|to x axis|, to . axis)`): an acos
-    // of a cosine near 1 is off by 1e-8 radians, far more than a sphere light 1e16 away
-    // subtends.
-    let half = 2.0 * (one_minus_cos / 2.0).clamp(0.0, 1.0).sqrt().asin();
-    let boxes = scene
-        .fogs()
-        .iter()
-        .map(|f| f.volume().box_corners().ok())
-        .chain(scene.solids().iter().map(|s| s.box_corners().ok()));
-    boxes.flatten().all(|c| {
-        let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
-        let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
-        let (centre, rho) = ((lo + hi) / 2.0, (hi - lo).length() / 2.0);
-        let to = centre - p;
-        let dist = to.length();
-        if !dist.is_finite() || dist <= rho {
-            return false;
-        }
-        let apart = to.cross(axis).length().atan2(to.dot(axis));
-        apart > half + (rho / dist).asin() + 1e-9
-    })
-}
-
-impl SoftRays {
-    /// The answer at one receiver from its directions' estimates, in the order of
-    /// [`SoftRays::rays`]: per channel the mean over every direction, the error bar from the
-    /// replicates' spread (module docs). No direction: the cone missed everything, `T = 1`.
-    #[must_use]
-    pub fn combine(&self, channels: usize, per: &[SceneEstimate]) -> SceneEstimate {
-        let mut out = SceneEstimate::exact(channels, [0.0; 3], 0, 0);
-        out.tau = None;
-        if per.is_empty() {
-            out.value = [1.0; 3];
-            return out;
-        }
-        let n = per.len();
-        let weight = |i: usize| self.weights.get(i).copied().unwrap_or(1.0);
-        for c in 0..3 {
-            // Per replicate: the weighted sum of T and the weights' sum.
-            let mut start = 0;
-            let mut sums = Vec::with_capacity(self.ends.len());
-            for &end in &self.ends {
-                let end = end.min(n);
-                let (wt, w) = (start..end).fold((0.0, 0.0), |(wt, w), i| {
-                    (wt + weight(i) * per[i].value[c], w + weight(i))
-                });
-                sums.push((wt, w));
-                start = end;
-            }
-            let total = sums.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
-            let means: Vec<f64> = sums
-                .iter()
-                .filter(|(_, w)| *w > 0.0)
-                .map(|(wt, w)| wt / w)
-                .collect();
-            let mean = if self.weights.is_empty() {
-                // Equal replicates: the mean of their means.
-                means.iter().sum::<f64>() / means.len().max(1) as f64
-            } else {
-                total.0 / total.1
-            };
-            let r = means.len() as f64;
-            let centre = means.iter().sum::<f64>() / r.max(1.0);
-            let var = means.iter().map(|x| (x - centre).powi(2)).sum::<f64>() / (r - 1.0).max(1.0);
-            let (lo, hi) = per
-                .iter()
-                .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), e| {
-                    (a.min(e.value[c]), b.max(e.value[c]))
-                });
-            out.value[c] = mean;
-            out.std_err[c] = if lo == hi {
-                let p = (crate::estimate::error_bar::RULE_OF_THREE / n as f64).min(1.0);
-                mean.max(1.0 - mean) * (p / n as f64).sqrt()
-            } else if means.len() < 2 {
-                // One replicate saw the light: no spread to measure, the widest bar.
-                mean.max(1.0 - mean)
-            } else {
-                (var / r).sqrt()
-            };
-        }
-        out.lookups = per.iter().map(|e| e.lookups).sum();
-        out.segments = per.iter().map(|e| e.segments).sum();
-        out.samples = per.iter().map(|e| e.samples).max().unwrap_or(1);
-        out.capped = per.iter().map(|e| e.capped).sum();
-        out.majorant_violations = per.iter().map(|e| e.majorant_violations).sum();
-        out
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn directions_stay_in_the_cone_and_are_unit() {
-        let axis = DVec3::new(0.3, -0.8, 0.2).normalize();
-        let omc = 1.0 - 4f64.to_radians().cos();
-        let cone = Cone::Cap {
-            axis,
-            axis_lo: DVec3::ZERO,
-            one_minus_cos: omc,
+    /// The cone from `at` that holds every segment toward the light, however it is sampled
+    /// (what a proof that `T = 1` must cover): a sun's cap of half-angle `angle / 2`, as long
+    /// as the farthest corner of the scene's boxes; the cone toward a sphere light's (or an area
+    /// light's bounding) sphere of radius `r` at distance `d`, half-angle `asin(r / d)`, length
+    /// `d + r`; every direction (`pi`) from inside it.
+    ///
+    /// # Errors
+    /// As [`SoftLight::rays`].
+    pub fn reach(&self, scene: &Scene, at: [f64; 3]) -> Result<Reach> {
+        let p = DVec3::from_array(at);
+        let cone = self.cone(p)?;
+        let (axis, half) = match cone {
+            Cone::Cap {
+                axis,
+                one_minus_cos,
+                ..
+            } => (
+                axis,
+                2.0 * (one_minus_cos / 2.0).clamp(0.0, 1.0).sqrt().asin(),
+            ),
+            Cone::All => (DVec3::Z, std::f64::consts::PI),
         };
-        for (u, v) in [(0.0, 0.0), (0.999, 0.5), (0.5, 0.25), (1.0, 0.9)] {
-            let d = cone.direction_dd(u, v).0;
-            assert!((d.length() - 1.0).abs() < 1e-12);
-            assert!(d.dot(axis) >= 1.0 - omc - 1e-12);
-        }
-        // u = 1 is the rim, u = 0 the axis.
-        assert!((cone.direction_dd(1.0, 0.3).0.dot(axis) - (1.0 - omc)).abs() < 1e-12);
-        assert!((cone.direction_dd(0.0, 0.3).0.dot(axis) - 1.0).abs() < 1e-12);
+        let far = |c: DVec3, r: f64| safe_length(c - p) + r;
+        let length = match (self.light, self.extent) {
+            (Light::Point { pos }, Extent::Sphere { radius }) => {
+                far(DVec3::from_array(pos), radius)
+            }
+            (_, Extent::Area(a)) => far(a.centre(), a.bound()),
+            _ => scene.world_box().map_or(0.0, |(lo, hi)| {
+                (0..8)
+                    .map(|k| {
+                        let c = DVec3::new(
+                            if k & 1 == 0 { lo.x } else { hi.x },
+                            if k & 2 == 0 { lo.y } else { hi.y },
+                            if k & 4 == 0 { lo.z } else { hi.z },
+                        );
+                        far(c, 0.0)
+                    })
+                    .fold(0.0, f64::max)
+            }),
+        };
+        Ok(Reach {
+            apex: p,
+            axis,
+            half,
+            length,
+        })
     }
+
+    /// This light with the error bar `target` each receiver's count is chosen to reach (a
+    /// product's `target-error`); `None` keeps it as it is.
+    ///
+    /// # Errors
+    /// [`Error::InvalidArgument`] naming `name` for a target that is not a finite number in
+    /// `(0, 1)`; [`Error::Conflict`] when `light-samples` fixed the count.
+    pub fn with_target(self, target: Option<f64>, name: &str) -> Result<Self> {
+        let Some(e) = target else {
+            return Ok(self);
+        };
+        if !(e.is_finite() && e > 0.0 && e < 1.0) {
+            return Err(bad(
+                name,
+                format!(
+                    "{} is not an error bar in (0, 1) (a transmittance's standard error)",
+                    crate::math::short(e)
+                ),
+            ));
+        }
+        if self.target.is_none() {
+            return Err(Error::Conflict {
+                names: vec![name.into(), "light-samples".into()],
+                reason: "{1} asks for exactly that many directions per receiver, {0} for as \
+                         many as its error bar needs: give one"
+                    .into(),
+            });
+        }
+        Ok(Self {
+            target: Some(e),
+            ..self
+        })
+    }
+}
+
+/// What keys a receiver's directions: the seed and the stage name the shared point set, the
+/// ray id the receiver's own estimator streams.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Key {
+    /// The query's seed.
+    pub seed: u64,
+    /// The receiver's ray id.
+    pub ray_id: u64,
+    /// The stage: 0 a fixed count, 1 a pilot, 2 the final stage after it.
+    pub stage: u64,
 }

@@ -1,16 +1,18 @@
-//! Many receivers toward one light with extent: the one path every product that answers
-//! points in bulk takes (`query --positions`, Python's per-point calls, transmittance
-//! volumes), so each receiver's answer is the one `query --at` gives at that point with the
-//! same seed and ray id, bit for bit.
+//! Receivers toward one light with extent: the one path every product takes (maps, `query
+//! --at` and `--positions`, Python's per-point calls, transmittance volumes), so each
+//! receiver's answer is the one `query --at` gives at that point with the same seed and ray
+//! id, bit for bit.
 //!
-//! Receiver `k` is answered with ray id `first_id + k` ([`SoftLight::rays`]: its directions'
-//! rotations and ray ids are keyed by the seed and that id alone), so the answers are the same
-//! whatever the thread count and however the receivers are split. The receivers go in groups
-//! of at most [`RAYS_PER_BATCH`] directions: each group's rays are made on the current rayon
-//! pool and handed to [`crate::scene::estimate_many`] together (exact queries in batches on
-//! the SIMD kernel), then combined per receiver ([`super::extent::SoftRays::combine`]).
+//! Every receiver traces the same directions ([`SoftLight::rays`]: rotations keyed by the seed,
+//! the replicate and the stage), its directions' estimator streams keyed by its ray id, so the
+//! answers are the same whatever the thread count and however the receivers are split. With a
+//! target error ([`SoftLight::target`]) each receiver runs Stein's two-stage rule
+//! ([`super::adaptive`]): the pilot of every receiver of a group is one batch of rays, the
+//! final stage another, each handed to [`crate::scene::estimate_many`] whole (exact queries in
+//! batches on the SIMD kernel), then combined per receiver ([`SoftRays::combine`]).
 
-use super::extent::SoftRays;
+use super::adaptive::PILOT_POINTS;
+use super::extent::{Key, SoftRays, REPLICATES};
 use super::SoftLight;
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
@@ -28,9 +30,28 @@ pub struct SoftAnswer {
     pub estimate: SceneEstimate,
     /// The ray toward the light's centre (what a query reports as its ray).
     pub centre: Ray,
-    /// The directions traced: the light's samples, or 0 when its whole cone provably misses
-    /// every volume's and solid's box (`T = 1` without sampling).
+    /// The directions traced (a pilot's and its final stage's together), or 0 when its whole
+    /// cone provably misses every volume's and solid's box (`T = 1` without sampling).
     pub light_samples: usize,
+    /// The count the target error asked for was more than `light-max-samples` allows: the
+    /// error bar may be above the target.
+    pub light_capped: bool,
+}
+
+/// A receiver: where it is and its ray id (its directions' estimator streams).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Receiver {
+    /// World position.
+    pub at: [f64; 3],
+    /// Ray id.
+    pub ray_id: u64,
+}
+
+/// One stage of a receiver: its rays, their estimates and their combined answer.
+struct Stage {
+    rays: SoftRays,
+    per: Vec<SceneEstimate>,
+    answer: SceneEstimate,
 }
 
 impl SoftLight {
@@ -95,62 +116,163 @@ impl SoftLight {
         est: &Estimator,
         opts: &Options,
     ) -> Vec<Result<SoftAnswer>> {
-        let per_group = (RAYS_PER_BATCH / self.samples.max(1) as usize).max(1);
+        let typical = match self.target {
+            Some(_) => 4 * super::adaptive::LEAST_ADAPTIVE,
+            None => self.samples,
+        };
+        let per_group = (RAYS_PER_BATCH / typical.max(1) as usize).max(1);
         let mut out = Vec::with_capacity(receivers.len());
         for (g, group) in receivers.chunks(per_group).enumerate() {
             let first = first_id.wrapping_add((g * per_group) as u64);
-            let made: Vec<Result<SoftRays>> = group
-                .par_iter()
+            let asked: Vec<Option<Receiver>> = group
+                .iter()
                 .enumerate()
-                .map(|(k, at)| self.rays(scene, *at, opts.seed, first.wrapping_add(k as u64)))
+                .map(|(k, at)| {
+                    Some(Receiver {
+                        at: *at,
+                        ray_id: first.wrapping_add(k as u64),
+                    })
+                })
                 .collect();
-            let refs: Vec<Option<&SoftRays>> = made.iter().map(|m| m.as_ref().ok()).collect();
-            let answers = answer_each(scene, &refs, est, opts);
-            for (m, a) in made.into_iter().zip(answers) {
-                out.push(m.and_then(|_| a.unwrap_or_else(|| Err(missing()))));
+            for a in self.answer_each(scene, &asked, est, opts) {
+                out.push(a.unwrap_or_else(|| Err(missing())));
             }
         }
         out
     }
-}
 
-impl SoftRays {
-    /// This receiver's answer: every direction through [`crate::scene::estimate_many`], then
-    /// their mean and error bar (what [`SoftLight::answer_many`] gives each of its receivers).
-    ///
-    /// # Errors
-    /// The first error of its directions' estimates.
-    pub fn answer(&self, scene: &Scene, est: &Estimator, opts: &Options) -> Result<SoftAnswer> {
-        let per = crate::scene::estimate_many(scene, &self.rays, &self.ids, est, opts);
-        combined(scene, self, per)
+    /// Every receiver of `receivers` answered (`None`: not asked, `None` back), in order:
+    /// exactly [`SoftLight::samples`] directions each, or with a target error Stein's two
+    /// stages (module docs), each stage's rays of every receiver in one
+    /// [`crate::scene::estimate_many`] call. Runs on the current rayon pool.
+    #[must_use]
+    pub fn answer_each(
+        &self,
+        scene: &Scene,
+        receivers: &[Option<Receiver>],
+        est: &Estimator,
+        opts: &Options,
+    ) -> Vec<Option<Result<SoftAnswer>>> {
+        let Some(target) = self.target else {
+            let m = self.samples / REPLICATES;
+            let made = self.make(scene, receivers, (opts.seed, 0), &|_| Some(m));
+            return stage(scene, made, est, opts)
+                .into_iter()
+                .map(|s| s.map(|s| s.map(|s| answered(None, s, false))))
+                .collect();
+        };
+        let pilot = self.make(scene, receivers, (opts.seed, 1), &|_| Some(PILOT_POINTS));
+        let pilots = stage(scene, pilot, est, opts);
+        let cap = (self.samples / REPLICATES).saturating_sub(PILOT_POINTS);
+        let plan: Vec<Option<(u32, bool)>> = pilots
+            .iter()
+            .map(|p| match p {
+                Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::final_points(
+                    &p.per,
+                    &p.answer,
+                    scene.channels(),
+                    target,
+                    cap,
+                )),
+                _ => None,
+            })
+            .collect();
+        let last = self.make(scene, receivers, (opts.seed, 2), &|k| plan[k].map(|p| p.0));
+        let finals = stage(scene, last, est, opts);
+        pilots
+            .into_iter()
+            .zip(finals)
+            .zip(plan)
+            .map(|((p, f), plan)| {
+                let p = p?;
+                Some(match (p, f) {
+                    (Err(e), _) | (Ok(_), Some(Err(e))) => Err(e),
+                    (Ok(p), None) => Ok(answered(None, p, false)),
+                    (Ok(p), Some(Ok(f))) => {
+                        Ok(answered(Some(p), f, plan.is_some_and(|(_, capped)| capped)))
+                    }
+                })
+            })
+            .collect()
+    }
+
+    /// Each asked receiver's rays of one stage (`(seed, stage)`), `m(k)` points per replicate
+    /// for receiver `k` (`None`: none asked).
+    fn make(
+        &self,
+        scene: &Scene,
+        receivers: &[Option<Receiver>],
+        (seed, stage): (u64, u64),
+        m: &(dyn Fn(usize) -> Option<u32> + Sync),
+    ) -> Vec<Option<Result<SoftRays>>> {
+        receivers
+            .par_iter()
+            .enumerate()
+            .map(|(k, r)| {
+                let r = (*r)?;
+                let key = Key {
+                    seed,
+                    ray_id: r.ray_id,
+                    stage,
+                };
+                Some(self.rays(scene, r.at, key, m(k)?))
+            })
+            .collect()
     }
 }
 
-/// The receivers `made` (`None`: a receiver not sampled) answered together: every
-/// receiver's directions through one [`crate::scene::estimate_many`] call (exact queries in
-/// batches on the SIMD kernel), then each receiver's mean and error bar, in order (`None` for
-/// `None`). What [`SoftLight::answer_many`] and a soft map's blocks of receivers both run.
-#[must_use]
-pub fn answer_each(
+/// One stage of every receiver: every ray of `made` through one
+/// [`crate::scene::estimate_many`] call, then each receiver's mean and error bar, in order.
+fn stage(
     scene: &Scene,
-    made: &[Option<&SoftRays>],
+    made: Vec<Option<Result<SoftRays>>>,
     est: &Estimator,
     opts: &Options,
-) -> Vec<Option<Result<SoftAnswer>>> {
+) -> Vec<Option<Result<Stage>>> {
     let (rays, ids): (Vec<Ray>, Vec<u64>) = made
         .iter()
+        .flatten()
         .flatten()
         .flat_map(|s| s.rays.iter().copied().zip(s.ids.iter().copied()))
         .unzip();
     let mut per = crate::scene::estimate_many(scene, &rays, &ids, est, opts).into_iter();
-    made.iter()
+    made.into_iter()
         .map(|m| {
-            m.map(|s| {
+            m.map(|r| {
+                let s = r?;
                 let mine: Vec<Result<SceneEstimate>> = per.by_ref().take(s.rays.len()).collect();
-                combined(scene, s, mine)
+                if mine.len() != s.rays.len() {
+                    return Err(missing());
+                }
+                let mine = mine.into_iter().collect::<Result<Vec<_>>>()?;
+                let answer = s.combine(scene.channels(), &mine);
+                Ok(Stage {
+                    rays: s,
+                    per: mine,
+                    answer,
+                })
             })
         })
         .collect()
+}
+
+/// A receiver's answer from its last stage, after its pilot (whose work is counted in it).
+fn answered(pilot: Option<Stage>, last: Stage, capped: bool) -> SoftAnswer {
+    let mut estimate = last.answer;
+    let mut light_samples = last.per.len();
+    if let Some(p) = pilot {
+        estimate.lookups += p.answer.lookups;
+        estimate.segments += p.answer.segments;
+        estimate.capped += p.answer.capped;
+        estimate.majorant_violations += p.answer.majorant_violations;
+        light_samples += p.per.len();
+    }
+    SoftAnswer {
+        estimate,
+        centre: last.rays.centre,
+        light_samples,
+        light_capped: capped,
+    }
 }
 
 /// The error of a receiver that got no answer (the batch returned fewer than it was given).
@@ -159,20 +281,4 @@ fn missing() -> Error {
         name: "ids".into(),
         reason: "a receiver's directions got no answer".into(),
     }
-}
-
-/// One receiver's answer from its directions' estimates: the first error, or their mean.
-fn combined(scene: &Scene, s: &SoftRays, per: Vec<Result<SceneEstimate>>) -> Result<SoftAnswer> {
-    if per.len() != s.rays.len() {
-        return Err(Error::InvalidArgument {
-            name: "ids".into(),
-            reason: format!("{} answers for {} directions", per.len(), s.rays.len()),
-        });
-    }
-    let per = per.into_iter().collect::<Result<Vec<_>>>()?;
-    Ok(SoftAnswer {
-        estimate: s.combine(scene.channels(), &per),
-        centre: s.centre,
-        light_samples: per.len(),
-    })
 }

@@ -114,6 +114,8 @@ pub struct BakeOptions {
     )]
     pub receiver_depth: Option<f64>,
     /// Adaptive sampling: double a pixel's samples until its standard error is below E.
+    /// Toward a light with extent (without light-samples): the error bar each receiver's
+    /// count of directions is chosen to reach, in (0, 1) (default 5e-3; docs/lights.md).
     #[cfg_attr(feature = "cli", arg(long, allow_negative_numbers = true))]
     pub target_error: Option<f64>,
     /// Cap on samples per pixel for target-error.
@@ -198,6 +200,7 @@ pub const VOLUME_OPTIONS: &[&str] = &[
     "light_angle",
     "light_radius",
     "light_samples",
+    "light_max_samples",
     "xform",
     "out_grid",
     "half",

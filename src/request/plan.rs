@@ -366,6 +366,8 @@ impl BakeRequest {
             Some(d) => crate::bake::Receiver::Depth(d),
             None => crate::bake::Receiver::BoxExit,
         };
+        // A map's `target-error` is the error bar each receiver's count is chosen to reach.
+        let light = light.with_target(o.target_error, "target-error")?;
         Ok(Some(crate::bake::SoftMap { light, receiver }))
     }
 

@@ -199,11 +199,11 @@ fn a_transmittance_volume_toward_a_sun_with_an_angle() {
     };
     let h = run(&[], &hard);
     assert!(h.get("light_samples").is_none(), "{h}");
-    run(&["--light-angle=0", "--light-samples=8"], &zero);
+    run(&["--light-angle=0", "--light-samples=64"], &zero);
     // Zero extent: today's bytes.
     assert_eq!(std::fs::read(&hard).unwrap(), std::fs::read(&zero).unwrap());
-    let s = run(&["--light-angle=8", "--light-samples=8"], &soft);
-    assert_eq!(s["light_samples"], 8, "{s}");
+    let s = run(&["--light-angle=8", "--light-samples=64"], &soft);
+    assert_eq!(s["light_samples"], 64, "{s}");
     assert_eq!(s["sampled_fraction"], 1.0, "{s}");
     assert!(s["std_err_max"].as_f64().unwrap() > 0.0, "{s}");
     assert_eq!(s["voxels"], h["voxels"]);
@@ -227,7 +227,7 @@ fn a_batch_job_of_transmittance_volumes_takes_the_keys() {
             &job,
             format!(
                 "output = \"{}/{output}\"\n[[inputs]]\nfile = \"{CLOUD}\"\n[bake]\n\
-                 light_dir = [0, -1, 0]\nlight_angle = 8.0\nlight_samples = 8\n\
+                 light_dir = [0, -1, 0]\nlight_angle = 8.0\nlight_samples = 64\n\
                  density_scale = 4.0\n",
                 dir.path().display()
             ),
@@ -243,7 +243,7 @@ fn a_batch_job_of_transmittance_volumes_takes_the_keys() {
         CLOUD,
         "--light-dir=0,-1,0",
         "--light-angle=8",
-        "--light-samples=8",
+        "--light-samples=64",
         "--density-scale=4",
         "-o",
         cli.to_str().unwrap(),
@@ -284,17 +284,17 @@ fn a_transmittance_volume_under_extreme_lights() {
         [
             "--light-dir=0,-1,0",
             "--light-angle=179.9",
-            "--light-samples=1",
+            "--light-samples=64",
         ],
         [
             "--light-pos=0,0,0",
             "--light-radius=1e300",
-            "--light-samples=8",
+            "--light-samples=64",
         ],
         [
             "--light-pos=1e300,0,0",
             "--light-radius=1e299",
-            "--light-samples=8",
+            "--light-samples=64",
         ],
     ] {
         let mut args = vec!["bake", tiles];

@@ -109,7 +109,7 @@ fn zero_extent_writes_todays_bytes() {
     zero.extend([
         b.to_str().unwrap(),
         "--light-radius=0",
-        "--light-samples=16",
+        "--light-samples=64",
     ]);
     assert_eq!(umbra(&hard).0, 0);
     assert_eq!(umbra(&zero).0, 0);
@@ -163,7 +163,7 @@ fn a_job_bakes_a_soft_map() {
         &job,
         format!(
             "output = \"{}/{{stem}}.exr\"\n[[inputs]]\nfile = \"{CLOUD}\"\n[bake]\n\
-             light_dir = [0, -1, 0]\nlight_angle = 4.0\nlight_samples = 16\n\
+             light_dir = [0, -1, 0]\nlight_angle = 4.0\nlight_samples = 64\n\
              receiver_depth = 3.0\nres = 8\n",
             dir.path().display()
         ),

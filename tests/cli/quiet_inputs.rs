@@ -74,7 +74,7 @@ fn every_stage_number_is_finite_or_refused() {
     .enumerate()
     {
         let p = stage(dir.path(), &format!("s{i}.usda"), "", &lamp(attr));
-        let o = umbra(&["query", s(&p), "--at", "0,1,0", "--light-samples", "8"]);
+        let o = umbra(&["query", s(&p), "--at", "0,1,0", "--light-samples", "64"]);
         if name.is_empty() {
             assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         } else {
@@ -118,7 +118,7 @@ fn a_huge_receiver_depth_is_short_in_the_report() {
         "--light-radius",
         "0.1",
         "--light-samples",
-        "8",
+        "64",
         "--receiver-depth",
         "1e300",
         "--res",

@@ -361,7 +361,11 @@ fn a_cone_that_misses_every_box_is_one_without_sampling() {
     ));
     assert_eq!(b.estimate.value[0], 1.0);
     assert!(b.estimate.std_err[0] > 0.0);
-    assert_eq!(b.light_samples, Some(256));
+    assert!(
+        b.light_samples.is_some_and(|n| n >= 128),
+        "{:?}",
+        b.light_samples
+    );
 }
 
 fn refused(l: LightOptions) -> String {

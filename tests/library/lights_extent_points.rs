@@ -185,7 +185,7 @@ fn zero_extent_is_the_point_lights_answer_exactly() {
         assert_eq!(positions(&shot, zero, "regular", 0), hard, "{light}");
         // The stage's own extent, and each point as a query at it toward the stage light.
         let own = positions(&shot, LightOptions::default(), "regular", 0);
-        assert_eq!(own.light_samples, Some(256), "{light}");
+        assert_eq!(own.light_samples, Some(4096), "{light}");
         assert!(own.frames[0].std_err[0] > 0.0, "{light}");
         let f = &own.frames[0];
         for (i, p) in f.positions.iter().enumerate() {
@@ -246,8 +246,8 @@ fn a_key_for_the_other_kind_of_light_is_refused_by_name() {
         );
     }
     // Directions without an extent: the stage light's own (the sun's 0.53 degree fallback).
-    let a = positions(&shot, extent(None, None, Some(8)), "regular", 0);
-    assert_eq!(a.light_samples, Some(8));
+    let a = positions(&shot, extent(None, None, Some(64)), "regular", 0);
+    assert_eq!(a.light_samples, Some(64));
     let e = QueryRequest {
         positions: Some("/pts".into()),
         light: extent(Some(1.0), Some(1.0), None),
@@ -263,9 +263,9 @@ fn extreme_lights_are_answered() {
     let dir = tempfile::tempdir().unwrap();
     let sun = stage(dir.path(), SUN);
     for keys in [
-        extent(Some(8.0), None, Some(1)),
+        extent(Some(8.0), None, Some(64)),
         extent(Some(179.9), None, Some(64)),
-        extent(Some(1e-9), None, Some(8)),
+        extent(Some(1e-9), None, Some(64)),
     ] {
         let a = positions(&sun, keys.clone(), "regular", 0);
         for (t, e) in a.frames[0].transmittance.iter().zip(&a.frames[0].std_err) {
@@ -276,7 +276,7 @@ fn extreme_lights_are_answered() {
         }
     }
     // The far receiver under a narrow sun: its cone misses the cloud, T = 1 unsampled.
-    let a = positions(&sun, extent(Some(1.0), None, Some(8)), "regular", 0);
+    let a = positions(&sun, extent(Some(1.0), None, Some(64)), "regular", 0);
     let f = &a.frames[0];
     assert_eq!((f.transmittance[4], f.std_err[4]), (1.0, 0.0));
     assert_eq!(f.sampled, Some(POINTS.len() - 1));
@@ -284,8 +284,8 @@ fn extreme_lights_are_answered() {
     for keys in [
         // Every receiver inside the sphere.
         extent(None, Some(20.0), Some(64)),
-        extent(None, Some(1e300), Some(16)),
-        extent(None, Some(1.0), Some(1)),
+        extent(None, Some(1e300), Some(64)),
+        extent(None, Some(1.0), Some(64)),
     ] {
         let a = positions(&lamp, keys.clone(), "regular", 0);
         for (t, e) in a.frames[0].transmittance.iter().zip(&a.frames[0].std_err) {
@@ -318,10 +318,10 @@ fn a_voxel_holds_query_at_its_centre() {
         };
         job
     };
-    let soft = plan(extent(Some(8.0), None, Some(8)));
+    let soft = plan(extent(Some(8.0), None, Some(64)));
     let vol = soft.load().unwrap();
     let (leaves, stats) = soft.leaves(&vol, &|_| {}).unwrap();
-    assert_eq!(stats.light_samples, Some(8));
+    assert_eq!(stats.light_samples, Some(64));
     assert_eq!(stats.sampled_fraction, Some(1.0));
     let mut k = 0u64;
     let mut checked = 0;
@@ -339,7 +339,7 @@ fn a_voxel_holds_query_at_its_centre() {
                 let c = vol.to_world(glam::DVec3::from_array(ijk.map(f64::from)));
                 let keys = LightOptions {
                     light_dir: Some([0.3, -1.0, 0.2]),
-                    ..extent(Some(8.0), None, Some(8))
+                    ..extent(Some(8.0), None, Some(64))
                 };
                 let r = QueryRequest {
                     at: Some(c.to_array()),
@@ -364,7 +364,7 @@ fn a_voxel_holds_query_at_its_centre() {
     assert!(checked > 30, "{checked}");
     // Zero extent: the point light's job, values and all.
     let hard = plan(LightOptions::default());
-    let zero = plan(extent(Some(0.0), None, Some(8)));
+    let zero = plan(extent(Some(0.0), None, Some(64)));
     assert_eq!(zero.soft, None);
     let (h, _) = hard.leaves(&vol, &|_| {}).unwrap();
     let (z, zs) = zero.leaves(&vol, &|_| {}).unwrap();
@@ -384,7 +384,7 @@ fn a_soft_volume_ignores_the_thread_count() {
             options: BakeOptions {
                 light: LightOptions {
                     light_pos: Some([0.0, 6.0, 0.0]),
-                    ..extent(None, Some(1.0), Some(8))
+                    ..extent(None, Some(1.0), Some(64))
                 },
                 source: read(),
                 estimator: EstimatorOptions {

@@ -27,6 +27,7 @@ mod estimators;
 mod exr_layout;
 mod lazy;
 mod library_api;
+mod lights_adaptive;
 mod lights_extent;
 mod lights_extent_points;
 mod lights_maps;

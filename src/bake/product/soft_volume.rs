@@ -29,6 +29,9 @@ use crate::tree::bit;
 use crate::vdb::LeafOut;
 use crate::volume::Volume;
 
+/// A voxel's `T`, error bar, lookups, and its directions and whether the cap cut them.
+type VoxelAnswer = (f32, f64, u64, (usize, bool));
+
 /// Voxels handed to [`SoftLight::answer_many`] together (progress is reported between them).
 const VOXELS_PER_GROUP: usize = 1 << 14;
 
@@ -72,7 +75,7 @@ pub fn soft_transmittance_leaves(
             .to_array()
     };
     let receivers: Vec<[f64; 3]> = at.iter().map(|&p| centre(p)).collect();
-    let run = || -> Result<Vec<(f32, f64, u64, bool)>> {
+    let run = || -> Result<Vec<VoxelAnswer>> {
         let mut out = Vec::with_capacity(receivers.len());
         for (g, group) in receivers.chunks(VOXELS_PER_GROUP).enumerate() {
             let first = (g * VOXELS_PER_GROUP) as u64;
@@ -83,7 +86,7 @@ pub fn soft_transmittance_leaves(
                     e.value[0] as f32,
                     e.std_err[0],
                     e.lookups,
-                    a.light_samples > 0,
+                    (a.light_samples, a.light_capped),
                 ));
             }
             progress.advance(group.len() as u64);
@@ -91,13 +94,15 @@ pub fn soft_transmittance_leaves(
         Ok(out)
     };
     let answers = crate::bake::trace::in_pool(threads, run)?;
-    let (mut lookups, mut sampled, mut worst) = (0u64, 0u64, 0.0f64);
-    for (&(li, n), &(t, err, l, s)) in at.iter().zip(&answers) {
+    let (mut lookups, mut sampled, mut worst, mut traced) = (0u64, 0u64, 0.0f64, 0u64);
+    for (&(li, n), &(t, err, l, (d, _))) in at.iter().zip(&answers) {
         leaves[li].values[n] = t;
         lookups += l;
-        sampled += u64::from(s);
+        sampled += u64::from(d > 0);
+        traced += d as u64;
         worst = worst.max(err);
     }
+    let directions = crate::bake::LightDirections::of(answers.iter().map(|a| a.3));
     let voxels = at.len() as u64;
     let mut stats = VolumeStats {
         voxels: 0,
@@ -105,7 +110,7 @@ pub fn soft_transmittance_leaves(
         tile_leaves,
         sharing: Sharing::Rays,
         line_step: None,
-        rays: sampled * u64::from(soft.samples),
+        rays: traced,
         lookups,
         t_min: f64::INFINITY,
         t_max: f64::NEG_INFINITY,
@@ -118,6 +123,7 @@ pub fn soft_transmittance_leaves(
             sampled as f64 / voxels as f64
         }),
         std_err_max: Some(worst),
+        light_directions: Some(directions),
     };
     summarise(&leaves, &mut stats);
     stats.seconds = start.elapsed().as_secs_f64();

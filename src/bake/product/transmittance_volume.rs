@@ -101,6 +101,11 @@ pub struct VolumeStats {
     /// only); absent toward a point.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub std_err_max: Option<f64>,
+    /// Toward a light with extent: the directions its sampled voxels traced (mean, 99th
+    /// percentile, most) and the voxels whose target error asked for more than
+    /// `light-max-samples`; absent toward a point.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_directions: Option<crate::bake::LightDirections>,
 }
 
 impl VolumeStats {
@@ -361,6 +366,7 @@ pub fn transmittance_leaves(
         seconds: 0.0,
         light_samples: None,
         sampled_fraction: None,
+        light_directions: None,
         std_err_max: None,
     };
     summarise(&leaves, &mut stats);

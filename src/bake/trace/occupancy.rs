@@ -1,6 +1,7 @@
 //! Where a scene can hold density, as world spheres in two levels, for a soft map's receivers
-//! answered without sampling (`trace/soft.rs`): a receiver whose rays toward the light all
-//! lie in a cone that misses every sphere meets no density, so `T = 1` exactly.
+//! answered without sampling (`trace/soft.rs`): a receiver whose light's whole cone (every
+//! direction toward the light, as far as its segments run) misses every sphere meets no
+//! density, so `T = 1` exactly.
 //!
 //! **Blocks.** Per fog volume: every leaf and every lower-node tile whose values are not all
 //! zero, every non-zero upper-node tile, as index boxes grown by one voxel on each side (the
@@ -153,33 +154,21 @@ impl Occupancy {
         }
     }
 
-    /// Whether every ray of `rays` (from one receiver, `t` from 0) provably misses every
-    /// block: the cone around them (its axis their mean direction, its half-angle the widest
-    /// of them, its length the longest) misses every block's sphere.
-    pub(crate) fn misses(&self, rays: &[crate::ray::Ray]) -> bool {
-        let (Some(groups), Some(first)) = (&self.groups, rays.first()) else {
+    /// Whether every segment of the light's reach from a receiver (its whole cone, as long as
+    /// its segments may run: [`crate::light::SoftLight::reach`]) provably misses every block:
+    /// the cone misses every block's sphere. Every direction of the light, not the ones drawn.
+    pub(crate) fn misses(&self, reach: &crate::light::Reach) -> bool {
+        let Some(groups) = &self.groups else {
             return false;
         };
-        let apex = first.origin();
-        if rays.iter().any(|r| r.origin() != apex || r.t_min() != 0.0) {
-            return false;
-        }
-        let sum: DVec3 = rays.iter().map(crate::ray::Ray::direction).sum();
-        let Some(axis) = sum.try_normalize() else {
-            return false;
-        };
-        let cos = rays
-            .iter()
-            .map(|r| r.direction().dot(axis))
-            .fold(1.0, f64::min)
-            .clamp(-1.0, 1.0);
         let cone = Cone {
-            apex,
-            axis,
-            half: cos.acos(),
-            length: rays.iter().map(crate::ray::Ray::t_max).fold(0.0, f64::max),
+            apex: reach.apex,
+            axis: reach.axis,
+            half: reach.half,
+            length: reach.length,
         };
-        if !(cone.length.is_finite() && apex.is_finite()) {
+        // The angular test holds for any half-angle (it compares directions from the apex).
+        if !(cone.length.is_finite() && cone.apex.is_finite() && cone.half.is_finite()) {
             return false;
         }
         groups

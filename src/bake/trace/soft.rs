@@ -7,24 +7,28 @@
 //! box it crosses (a ray that meets no box: its end, `t_max`), or at `receiver-depth` along it.
 //!
 //! **The answer at a receiver** is exactly `umbra query --at X --ray-id P` toward the same
-//! light ([`crate::light::SoftLight::rays`], [`crate::scene::estimate_many`],
-//! [`crate::light::extent::SoftRays::combine`]): texel `p = j W + i` uses ray id `p`, slice `k`
+//! light ([`crate::light::SoftLight::answer_each`]): texel `p = j W + i` uses ray id `p`, slice `k`
 //! ray id `(64 + k) W H + p`, as a hard map's pixels do, so a texel depends on the seed alone,
 //! never on the thread count.
 //!
 //! **Receivers answered without sampling.** A receiver whose every direction provably meets no
-//! density ([`Occupancy`]: the cone around its rays misses every block that holds density,
-//! or the light's own test found nothing) stores `T = 1` with `std_err = 0`, and is not
-//! counted in [`BakeStats::light_sampled`].
+//! density ([`Occupancy`]: the light's whole cone from it, [`crate::light::SoftLight::reach`],
+//! misses every block that holds density, or the light's own box test found nothing) stores
+//! `T = 1` with `std_err = 0`, and is not counted in [`BakeStats::light_sampled`].
+//!
+//! **The count.** Each receiver's directions are [`crate::light::SoftLight::answer_each`]'s: a
+//! fixed `light-samples`, or as many as `target-error` asks (default 5e-3), counted in
+//! [`BakeStats::light_directions`].
 
 use super::in_pool;
 use super::occupancy::Occupancy;
 use crate::bake::camera::{Camera, MAX_PIXELS};
+use crate::bake::map::LightDirections;
 use crate::bake::map::{
-    bad, split_channels, BakeSettings, BakeStats, Channel, Map, Receiver, SoftMap,
+    bad, split_channels, BakeSettings, BakeStats, Channel, Map, Receiver as Place, SoftMap,
 };
 use crate::error::Result;
-use crate::light::extent::SoftRays;
+use crate::light::Receiver;
 use crate::ray::Ray;
 use crate::scene::{Scene, SceneEstimate};
 use rayon::prelude::*;
@@ -32,6 +36,9 @@ use rayon::prelude::*;
 /// Receivers answered per batch of rays, one batch per worker at a time: enough rays for the
 /// SIMD batches (256 directions x 32 receivers = 8192 rays), few enough to hold.
 const BLOCK: usize = 32;
+/// Receivers per block under a target error: a pilot of 64 directions x 128 receivers = 8192
+/// rays per batch.
+const ADAPTIVE_BLOCK: usize = 128;
 
 /// The soft map of `scene` seen by `camera` toward `soft` (module docs).
 ///
@@ -47,14 +54,15 @@ pub(crate) fn bake_soft(
 ) -> Result<Map> {
     crate::bake::check_res(camera.width, camera.height)?;
     settings.validate()?;
-    if settings.target_error.is_some() {
-        return Err(bad(
-            "target-error",
-            "does not apply to a map toward a light with extent: its error bar is the light's \
-             replicates' (raise light-samples)"
-                .into(),
-        ));
-    }
+    // A `target-error` is the light's (the plan put it there); with a fixed count it is
+    // refused there, and here for a map made without a plan.
+    let light = soft
+        .light
+        .with_target(settings.target_error, "target-error")?;
+    let soft = &SoftMap {
+        light,
+        receiver: soft.receiver,
+    };
     let depths = settings.depths.resolve(camera)?;
     let per_texel = 1 + depths.len();
     let channels = scene.channels();
@@ -84,10 +92,10 @@ pub(crate) fn bake_soft(
 }
 
 /// Where receiver `k` of a texel (0: the texel's own, `1 + s`: slice `s`) is on `ray`.
-fn receiver_t(scene: &Scene, ray: &Ray, receiver: Receiver, depths: &[f64], k: usize) -> f64 {
+fn receiver_t(scene: &Scene, ray: &Ray, receiver: Place, depths: &[f64], k: usize) -> f64 {
     match (k, receiver) {
-        (0, Receiver::Depth(d)) => d,
-        (0, Receiver::BoxExit) => box_exit(scene, ray),
+        (0, Place::Depth(d)) => d,
+        (0, Place::BoxExit) => box_exit(scene, ray),
         (k, _) => depths[k - 1],
     }
 }
@@ -100,10 +108,11 @@ fn box_exit(scene: &Scene, ray: &Ray) -> f64 {
         .unwrap_or(ray.t_max())
 }
 
-/// One receiver's answer and whether its light was sampled.
+/// One receiver's answer, its directions and whether the target asked for more than the cap.
 struct Answer {
     estimate: SceneEstimate,
-    sampled: bool,
+    directions: usize,
+    capped: bool,
 }
 
 /// Every receiver of the map, `BLOCK` at a time on every worker; then the images.
@@ -122,23 +131,31 @@ fn render(
     let (est, opts) = (&settings.estimator, &settings.options);
     let w = camera.width as usize;
     // Receiver `r` of the map is texel `r % n`'s receiver `r / n` (slices after the map),
-    // answered `BLOCK` at a time on every worker (each block's rays in one batch).
+    // answered `block` at a time on every worker (each stage's rays of a block in one batch).
     let total = n * per_texel;
+    let block = if soft.light.target.is_some() {
+        ADAPTIVE_BLOCK
+    } else {
+        BLOCK
+    };
     let done = std::sync::atomic::AtomicUsize::new(0);
-    let make = |r: usize| -> Result<Option<SoftRays>> {
+    let make = |r: usize| -> Result<Option<Receiver>> {
         let (p, k) = (r % n, r / n);
         let ray = camera.pixel_ray((p % w) as u32, (p / w) as u32)?;
-        let at = ray.at(receiver_t(scene, &ray, soft.receiver, depths, k));
-        let id = if k == 0 { p } else { (63 + k) * n + p } as u64;
-        let rays = soft.light.rays(scene, at.to_array(), opts.seed, id)?;
-        Ok((!rays.rays.is_empty() && !occupancy.misses(&rays.rays)).then_some(rays))
+        let at = ray
+            .at(receiver_t(scene, &ray, soft.receiver, depths, k))
+            .to_array();
+        let ray_id = if k == 0 { p } else { (63 + k) * n + p } as u64;
+        // The proof covers the light's whole cone, not the directions drawn.
+        let reach = soft.light.reach(scene, at)?;
+        Ok((!occupancy.misses(&reach)).then_some(Receiver { at, ray_id }))
     };
-    let blocks: Vec<Vec<Answer>> = (0..total.div_ceil(BLOCK))
+    let blocks: Vec<Vec<Answer>> = (0..total.div_ceil(block))
         .into_par_iter()
         .map(|b| {
-            let (r0, r1) = (b * BLOCK, ((b + 1) * BLOCK).min(total));
-            let made: Vec<Option<SoftRays>> = (r0..r1).map(make).collect::<Result<_>>()?;
-            let answers = answer_block(scene, &made, (est, opts))?;
+            let (r0, r1) = (b * block, ((b + 1) * block).min(total));
+            let made: Vec<Option<Receiver>> = (r0..r1).map(make).collect::<Result<_>>()?;
+            let answers = answer_block(scene, &soft.light, &made, (est, opts))?;
             // Progress in whole texels' worth of receivers.
             let before = done.fetch_add(r1 - r0, std::sync::atomic::Ordering::Relaxed);
             progress.advance(((before + r1 - r0) / per_texel - before / per_texel) as u64);
@@ -156,25 +173,31 @@ fn render(
     ))
 }
 
-/// The answers of one block of receivers (`None`: provably unoccluded), their rays in one
-/// batch ([`crate::scene::estimate_many`]).
+/// The answers of one block of receivers (`None`: provably unoccluded), each stage's rays in
+/// one batch ([`crate::light::SoftLight::answer_each`]).
 fn answer_block(
     scene: &Scene,
-    made: &[Option<SoftRays>],
+    light: &crate::light::SoftLight,
+    made: &[Option<Receiver>],
     (est, opts): (&crate::estimate::Estimator, &crate::estimate::Options),
 ) -> Result<Vec<Answer>> {
-    let refs: Vec<Option<&SoftRays>> = made.iter().map(Option::as_ref).collect();
-    crate::light::answer_each(scene, &refs, est, opts)
+    light
+        .answer_each(scene, made, est, opts)
         .into_iter()
         .map(|a| {
             Ok(match a {
-                Some(a) => Answer {
-                    estimate: a?.estimate,
-                    sampled: true,
-                },
+                Some(a) => {
+                    let a = a?;
+                    Answer {
+                        estimate: a.estimate,
+                        directions: a.light_samples,
+                        capped: a.light_capped,
+                    }
+                }
                 None => Answer {
                     estimate: unsampled(scene.channels()),
-                    sampled: false,
+                    directions: 0,
+                    capped: false,
                 },
             })
         })
@@ -234,9 +257,12 @@ fn assemble(
         .map(|a| u64::from(a.estimate.samples.max(1)))
         .sum();
     stats.light_sampled = Some([
-        answers.iter().filter(|a| a.sampled).count() as u64,
+        answers.iter().filter(|a| a.directions > 0).count() as u64,
         answers.len() as u64,
     ]);
+    stats.light_directions = Some(LightDirections::of(
+        answers.iter().map(|a| (a.directions, a.capped)),
+    ));
     stats.seconds = start.elapsed().as_secs_f64();
     Map {
         camera: *camera,

@@ -209,12 +209,20 @@ fn map_text(
         summary.mean_spp,
     )?;
     if let (Some(soft), Some([sampled, receivers])) = (&s.soft, st.light_sampled) {
+        let d = st.light_directions.unwrap_or_default();
+        let count = match soft.light.target {
+            Some(e) => format!(
+                "directions per receiver to reach std_err {e:.2e} (at most {}): mean {:.1}, \
+                 99th percentile {}, most {}, {} receivers capped",
+                soft.light.samples, d.mean, d.p99, d.max, d.capped
+            ),
+            None => format!("{} directions per receiver", soft.light.samples),
+        };
         writeln!(
             out,
-            "light with extent ({}): {} directions per receiver at the {}; {sampled} of \
-             {receivers} receivers sampled ({:.1}%), largest std_err {:.2e}",
+            "light with extent ({}): {count} at the {}; {sampled} of {receivers} receivers \
+             sampled ({:.1}%), largest std_err {:.2e}",
             soft.light.extent,
-            soft.light.samples,
             soft.receiver,
             100.0 * sampled as f64 / receivers.max(1) as f64,
             st.max_std_err,
@@ -301,6 +309,9 @@ fn report_volume(
             v["light_samples"] = n.into();
             v["sampled_fraction"] = f.into();
             v["std_err_max"] = e.into();
+            if let Some(d) = st.light_directions {
+                v["light_directions"] = serde_json::to_value(d).unwrap_or_default();
+            }
         }
         writeln!(out, "{v}")?;
     } else if !a.quiet {
@@ -334,9 +345,14 @@ fn report_volume(
         )?;
         if let (Some(n), Some(f), Some(e)) = (st.light_samples, st.sampled_fraction, st.std_err_max)
         {
+            let d = st.light_directions.unwrap_or_default();
             writeln!(
                 out,
-                "light with extent: {n} directions per voxel, {:.1}% of voxels sampled, std_err max {e:.2e}",
+                "light with extent: at most {n} directions per voxel (mean {:.1}, 99th \
+                 percentile {}, {} capped), {:.1}% of voxels sampled, std_err max {e:.2e}",
+                d.mean,
+                d.p99,
+                d.capped,
                 100.0 * f
             )?;
         }

@@ -301,6 +301,7 @@ fn answer_json(
     }
     if let Some(n) = a.light_samples {
         v["light_samples"] = n.into();
+        v["light_capped"] = a.light_capped.into();
     }
     v
 }
@@ -325,9 +326,14 @@ fn answer_text(a: &umbra::request::Answered, est: &str, interp: Interp) -> Strin
     let hit = e
         .hit
         .map_or(String::new(), |h| format!(", solid hit at {}", full(h)));
-    let light = a
-        .light_samples
-        .map_or(String::new(), |n| format!(", {n} light directions"));
+    let light = a.light_samples.map_or(String::new(), |n| {
+        let capped = if a.light_capped {
+            " (capped: light-max-samples)"
+        } else {
+            ""
+        };
+        format!(", {n} light directions{capped}")
+    });
     format!(
         "T = {}{err}{tau}{hit} ({est}, {interp:?}, {} samples, length {}, {} lookups{light})",
         list(e.value, &|x| full(x)),

@@ -62,6 +62,9 @@ pub struct Answered {
     /// Toward a light with extent: the directions traced (0 when the light's whole cone
     /// provably misses every volume and solid); `None` toward a point (and for segments).
     pub light_samples: Option<usize>,
+    /// Toward a light with extent: the target error asked for more directions than
+    /// `light-max-samples` allows (the error bar may be above the target).
+    pub light_capped: bool,
 }
 
 /// The answers at every point of a stage's points prim.
@@ -269,12 +272,19 @@ impl QueryRequest {
                 light: AskedLight::Soft(s),
             } = asked
             {
-                return match s.rays(scene, at, opts.seed, self.ray_id) {
-                    Ok(r) => {
-                        let rays = r.rays.clone();
-                        soft_rays = Some(r);
-                        rays
-                    }
+                // The rays a lazy load decodes along: a fixed count's own; with a target
+                // error the final directions follow the pilot, so the scene is read whole
+                // (`load_scene`).
+                let key = crate::light::extent::Key {
+                    seed: opts.seed,
+                    ray_id: self.ray_id,
+                    stage: 0,
+                };
+                let m = s.samples / crate::light::extent::REPLICATES;
+                soft_rays = Some((s, at));
+                return match s.rays(scene, at, key, m) {
+                    Ok(r) if s.target.is_none() => r.rays,
+                    Ok(_) => Vec::new(),
                     Err(e) => {
                         ray_error = Some(e);
                         Vec::new()
@@ -295,7 +305,14 @@ impl QueryRequest {
             };
             ray.map_err(|e| ray_error = Some(e)).into_iter().collect()
         };
-        let (scene, rays) = self.load_scene(read, opts, make_rays)?;
+        let whole = matches!(
+            asked,
+            Asked::Toward {
+                light: AskedLight::Soft(s),
+                ..
+            } if s.target.is_some()
+        );
+        let (scene, rays) = self.load_scene(read, opts, whole, make_rays)?;
         let load_warnings = load_warnings(&scene);
         let with_warnings = |e: QueryError| QueryError {
             load_warnings: load_warnings.clone().into(),
@@ -306,13 +323,15 @@ impl QueryRequest {
         }
         // The work budget, up front: per ray and for every ray of the batch together.
         let n_rays = match &soft_rays {
-            Some(s) => s.rays.len().max(1),
+            Some((s, _)) => s.samples.max(1) as usize,
             None => self.rays.as_ref().map_or(1, Vec::len),
         } as u64;
         check_budget(&scene, est, opts, n_rays)
             .map_err(|e| with_warnings(QueryError::at(QueryStep::Check, e)))?;
         let answers = match (asked, rays.first(), &soft_rays) {
-            (_, _, Some(soft)) => vec![answer_soft(&scene, soft, (est, opts))],
+            (_, _, Some((soft, at))) => {
+                vec![answer_soft(&scene, soft, *at, self.ray_id, (est, opts))]
+            }
             (Asked::Rows, ..) => answer_file(
                 &scene,
                 self.rays.as_deref().unwrap_or_default(),
@@ -355,9 +374,10 @@ impl QueryRequest {
         &self,
         read: &Source,
         opts: &Options,
+        whole: bool,
         make_rays: impl FnOnce(&Scene) -> Vec<Ray>,
     ) -> Step<(Scene, Vec<Ray>)> {
-        let loaded = if self.load == LoadMode::Eager || opts.global_majorant {
+        let loaded = if self.load == LoadMode::Eager || opts.global_majorant || whole {
             read.load().map(|s| {
                 let r = make_rays(&s);
                 (s, r)
@@ -479,6 +499,7 @@ fn answer_file(
                         estimate,
                         seconds: per_ray,
                         light_samples: None,
+                        light_capped: false,
                     }),
                     Some((_, Err(e))) => Err(e.to_string()),
                     None => Err("no answer for this row".to_string()),
@@ -507,26 +528,39 @@ fn answer_one(
             estimate,
             seconds: start.elapsed().as_secs_f64(),
             light_samples: None,
+            light_capped: false,
         });
     Answer { line: None, result }
 }
 
-/// A receiver toward a light with extent ([`crate::light::extent::SoftRays::answer`]: every
-/// direction through the batch entry point, then their mean and the replicates' error bar); a
-/// direction whose estimate fails is the answer's error.
+/// A receiver toward a light with extent ([`crate::light::SoftLight::answer_each`], the path
+/// every product takes: a texel at `at` with ray id `ray_id` is this answer); a direction whose
+/// estimate fails is the answer's error.
 fn answer_soft(
     scene: &Scene,
-    soft: &crate::light::extent::SoftRays,
+    soft: &crate::light::SoftLight,
+    at: [f64; 3],
+    ray_id: u64,
     (est, opts): (&Estimator, &Options),
 ) -> Answer {
     let start = std::time::Instant::now();
+    let receiver = crate::light::Receiver { at, ray_id };
     let result = soft
-        .answer(scene, est, opts)
+        .answer_each(scene, &[Some(receiver)], est, opts)
+        .pop()
+        .flatten()
+        .unwrap_or_else(|| {
+            Err(Error::InvalidArgument {
+                name: "at".into(),
+                reason: "the receiver got no answer".into(),
+            })
+        })
         .map(|a| Answered {
             ray: a.centre,
             estimate: a.estimate,
             seconds: start.elapsed().as_secs_f64(),
             light_samples: Some(a.light_samples),
+            light_capped: a.light_capped,
         })
         .map_err(|e| e.to_string());
     Answer { line: None, result }
