@@ -18,11 +18,13 @@
 //! small biases it low; so a pilot of `R x n0` points ([`PILOT_POINTS`], its own rotations)
 //! only chooses the count, and `R` fresh replicates of `n` points each give the answer and its
 //! error bar (the pilot is not mixed in: the error bar is the fresh replicates', unbiased).
-//! With the pilot's error bar `e0`, assuming the variance of a replicate mean falls as `1 / n`
-//! (RQMC does at least that well), the final error bar is about `e0 sqrt(n0 / n)` times the
-//! square root of an `F(R - 1, R - 1)` variable (the ratio of two independent variance
-//! estimates). So `n = ceil(F99 n0 e0^2 / E^2)` puts `>= 99%` of final error bars at or below
-//! the target `E` ([`SAFETY`] is `F_0.99(15, 15)`). Clamped to `[MIN_POINTS, cap]`; a
+//! With the pilot's error bar `e0`, taking the variance of a replicate mean to fall as
+//! `n^-a` ([`VARIANCE_RATE`] `a = 1.5`: indicator-like integrands, a cone crossed by density
+//! edges), the final error bar is about `e0 (n0 / n)^(a / 2)` times the square root of an
+//! `F(R - 1, R - 1)` variable (the ratio of two independent variance estimates). So
+//! `n = ceil(n0 (F99 e0^2 / E^2)^(1 / a))` puts `>= 99%` of final error bars at or below
+//! the target `E` where the rate holds ([`SAFETY`] is `F_0.99(15, 15)`); the error bar itself is
+//! the fresh replicates', honest whatever `n` the rate chose. Clamped to `[MIN_POINTS, cap]`; a
 //! receiver whose `n` the cap cut is counted ([`super::SoftAnswer::light_capped`]). A pilot whose
 //! directions all agree exactly, or half of whose directions sit exactly at one end of its
 //! range (rays that meet no density give exactly 1), asks for at least the `N` at which the
@@ -40,6 +42,9 @@ pub const LEAST_ADAPTIVE: u32 = REPLICATES * (PILOT_POINTS + MIN_POINTS);
 /// `F_0.99(R - 1, R - 1)` at `R = 16`: the 99th percentile of the ratio of two independent
 /// 15-degree-of-freedom variance estimates.
 pub const SAFETY: f64 = 3.52;
+/// The rate the variance of a replicate mean of `n` points is taken to fall at, `n^-1.5` (a
+/// rotated lattice over a cone crossed by density edges: indicator-like integrands, docs/lights.md).
+pub const VARIANCE_RATE: f64 = 1.5;
 /// The relative rounding of a direction's `T` below which a spread is not a measurement:
 /// `2^-40`.
 pub const ROUNDING: f64 = 1.0 / 1_099_511_627_776.0;
@@ -71,8 +76,9 @@ pub fn final_points(
         let ties = 2 * at(lo).max(at(hi)) >= per.len();
         let floor = crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target;
         let floor = (floor / r).ceil();
-        let spread =
-            (SAFETY * f64::from(PILOT_POINTS) * (pilot.std_err[c] / target).powi(2)).ceil();
+        let spread = (f64::from(PILOT_POINTS)
+            * (SAFETY * (pilot.std_err[c] / target).powi(2)).powf(VARIANCE_RATE.recip()))
+        .ceil();
         let n = match (lo == hi, ties) {
             (true, _) => floor,
             (false, true) => spread.max(floor),
