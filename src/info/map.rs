@@ -133,19 +133,7 @@ fn exr_info(path: &Path) -> Result<MapInfo> {
             reason: format!("not a readable OpenEXR file: {e}"),
         },
     })?;
-    let mut info = MapInfo {
-        path: path.to_path_buf(),
-        format: "exr",
-        baked_by_umbra: false,
-        width: None,
-        height: None,
-        channels: Vec::new(),
-        deep: false,
-        attributes: BTreeMap::new(),
-        key: None,
-        inputs: Vec::new(),
-        stale: None,
-    };
+    let mut info = MapInfo::unread(path, "exr");
     if let Some(h) = meta.headers.first() {
         info.width = u32::try_from(h.layer_size.0).ok();
         info.height = u32::try_from(h.layer_size.1).ok();
@@ -160,21 +148,28 @@ fn exr_info(path: &Path) -> Result<MapInfo> {
     Ok(info)
 }
 
+impl MapInfo {
+    /// What is known of `path` (a file of `format`) before its header is read: nothing.
+    fn unread(path: &Path, format: &'static str) -> Self {
+        Self {
+            path: path.to_path_buf(),
+            format,
+            baked_by_umbra: false,
+            width: None,
+            height: None,
+            channels: Vec::new(),
+            deep: false,
+            attributes: BTreeMap::new(),
+            key: None,
+            inputs: Vec::new(),
+            stale: None,
+        }
+    }
+}
+
 fn vdb_info(path: &Path) -> Result<MapInfo> {
     let archive = crate::vdb::Archive::open(path)?;
-    let mut info = MapInfo {
-        path: path.to_path_buf(),
-        format: "vdb",
-        baked_by_umbra: false,
-        width: None,
-        height: None,
-        channels: Vec::new(),
-        deep: false,
-        attributes: BTreeMap::new(),
-        key: None,
-        inputs: Vec::new(),
-        stale: None,
-    };
+    let mut info = MapInfo::unread(path, "vdb");
     if let Some(gd) = archive.grids.first() {
         let header = archive.header(gd)?;
         for (k, v) in &header.metadata {
