@@ -241,6 +241,8 @@ impl NativeVolume {
             light_angle,
             light_radius,
             light_samples,
+            // The per-point calls take the default cap on directions per receiver.
+            light_max_samples: None,
         };
         // A light with extent: each point's mean over the light (`query --at`).
         if let Some(soft) = given.soft().map_err(py_err)? {

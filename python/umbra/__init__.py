@@ -679,6 +679,7 @@ def bake(
     light_angle: Optional[float] = None,
     light_radius: Optional[float] = None,
     light_samples: Optional[int] = None,
+    light_max_samples: Optional[int] = None,
     ortho: bool = False,
     omni: Optional[str] = None,
     fov: Optional[float] = None,
@@ -739,7 +740,9 @@ def bake(
     ``deep_format`` (read it with :func:`deep_lookup`), with ``slices``/``depths`` and
     ``stderr`` channels, RGB with ``sigma_t`` or a scene's colours; toward a light with extent,
     ``light_angle`` or ``light_radius``, each texel the mean transmittance over the light at its
-    receiver, ``receiver_depth``), or, for an output ending in ``.vdb``, a transmittance volume
+    receiver, ``receiver_depth``; each receiver's directions chosen to reach ``target_error``,
+    default 5e-3, at most ``light_max_samples``, or exactly ``light_samples``), or, for an
+    output ending in ``.vdb``, a transmittance volume
     (``out_grid``, ``half``).
 
     Every keyword is the command line's long flag with ``_`` for ``-`` (``--deep-error`` is
@@ -771,7 +774,8 @@ def bake(
         _path("output", output),
         _options(
             grid=grid, light_dir=light_dir, light_pos=light_pos, light_angle=light_angle,
-            light_radius=light_radius, light_samples=light_samples, ortho=ortho, omni=omni,
+            light_radius=light_radius, light_samples=light_samples,
+            light_max_samples=light_max_samples, ortho=ortho, omni=omni,
             fov=fov, up=up,
             frame_box=frame_box, xform=xform, frame=frame,
             volume=None if volume is None else [str(v) for v in volume], field=field,

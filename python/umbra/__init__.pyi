@@ -86,6 +86,7 @@ def bake(
     light_angle: Optional[float] = None,
     light_radius: Optional[float] = None,
     light_samples: Optional[int] = None,
+    light_max_samples: Optional[int] = None,
     ortho: bool = False,
     omni: Optional[str] = None,
     fov: Optional[float] = None,
