@@ -195,7 +195,7 @@ def test_a_soft_map_says_its_light(tmp_path):
     d = umbra.bake(DATA / "cloud.vdb", out, light_dir=(0, -1, 0), light_angle=4,
                    light_samples=64, res=8, receiver_depth=3, stderr=True)
     light = d["light"]
-    assert light["receiver"] == "depth 3" and light["samples"] == 16
+    assert light["receiver"] == "depth 3" and light["samples"] == 64
     assert 0 < light["sampled"] <= light["receivers"] == 8 * d["height"]
     assert light["sampled_fraction"] == light["sampled"] / light["receivers"]
     channels, header = read_exr(out)
