@@ -47,9 +47,10 @@ pub struct Receiver {
     pub ray_id: u64,
 }
 
-/// One stage of a receiver: its rays, their estimates and their combined answer.
+/// One stage of a receiver: its ray toward the light's centre, its directions' estimates and
+/// their combined answer (the directions themselves are dropped once traced).
 struct Stage {
-    rays: SoftRays,
+    centre: Ray,
     per: Vec<SceneEstimate>,
     answer: SceneEstimate,
 }
@@ -247,7 +248,7 @@ fn stage(
                 let mine = mine.into_iter().collect::<Result<Vec<_>>>()?;
                 let answer = s.combine(scene.channels(), &mine);
                 Ok(Stage {
-                    rays: s,
+                    centre: s.centre,
                     per: mine,
                     answer,
                 })
@@ -269,7 +270,7 @@ fn answered(pilot: Option<Stage>, last: Stage, capped: bool) -> SoftAnswer {
     }
     SoftAnswer {
         estimate,
-        centre: last.rays.centre,
+        centre: last.centre,
         light_samples,
         light_capped: capped,
     }

@@ -8,8 +8,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used)]
 
 use crate::bake_support::read_exr;
-use crate::vdb_writer::{Grid, Leaf, VdbFile};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use umbra::bake::{BakeReport, Resolution};
 use umbra::input::{Source, SourceOptions};
 use umbra::request::{
@@ -18,20 +17,7 @@ use umbra::request::{
 };
 use umbra::Error;
 
-/// A 16^3-voxel box of constant density 0.2 (unit voxels).
-fn constant_box(dir: &Path) -> PathBuf {
-    let mut leaves = Vec::new();
-    for i in [0, 8] {
-        for j in [0, 8] {
-            for k in [0, 8] {
-                leaves.push(Leaf::filled([i, j, k], 0.2));
-            }
-        }
-    }
-    let p = dir.join("box16.vdb");
-    VdbFile::new(vec![Grid::fog("density", leaves)]).write(&p);
-    p
-}
+use crate::lights_extent::constant_box;
 
 fn sun(dir: [f64; 3], angle: f64, samples: Option<u32>) -> LightOptions {
     LightOptions {

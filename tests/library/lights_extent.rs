@@ -21,8 +21,9 @@ fn cloud() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/cloud.vdb")
 }
 
-/// A 16^3-voxel box of constant density 0.2 (unit voxels), written with the test writer.
-fn constant_box(dir: &Path) -> PathBuf {
+/// A 16^3-voxel box of constant density 0.2 (unit voxels), written with the test writer (also
+/// `lights_adaptive`'s).
+pub(crate) fn constant_box(dir: &Path) -> PathBuf {
     let mut leaves = Vec::new();
     for i in [0, 8] {
         for j in [0, 8] {
