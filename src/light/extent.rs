@@ -267,13 +267,15 @@ pub fn count(o: &LightOptions) -> Result<Count> {
         (Some(n), None) => Ok((most("light-samples", n)?, None)),
         (None, max) => {
             let max = max.unwrap_or(DEFAULT_LIGHT_MAX_SAMPLES);
-            let least = super::adaptive::LEAST_ADAPTIVE;
+            // The pilot and as many again: room for the count to grow.
+            let least = 2 * super::adaptive::LEAST_ADAPTIVE;
             if max < least {
                 return Err(bad(
                     "light-max-samples",
                     format!(
-                        "{max} is fewer than the pilot and the least final stage take: at \
-                         least {least}"
+                        "{max} leaves no room after the pilot's {} directions: at least \
+                         {least}",
+                        super::adaptive::LEAST_ADAPTIVE
                     ),
                 ));
             }
@@ -306,7 +308,7 @@ pub struct SoftRays {
     pub ids: Vec<u64>,
     /// Each ray's weight (an area light's, [`Area`]); empty when every ray weighs the same.
     pub weights: Vec<f64>,
-    /// Where each replicate's rays end in `rays` ([`REPLICATES`] entries; empty with no
+    /// Where each replicate's rays end in `rays` (one entry per replicate; empty with no
     /// rays).
     pub ends: Vec<usize>,
     /// The ray toward the light's centre.
@@ -435,6 +437,24 @@ impl SoftLight {
     /// # Errors
     /// [`Error::InvalidArgument`] for a zero or non-finite direction, position or receiver.
     pub fn rays(&self, scene: &Scene, at: [f64; 3], key: Key, m: u32) -> Result<SoftRays> {
+        self.replicates(scene, at, key, m, 0..REPLICATES)
+    }
+
+    /// [`SoftLight::rays`] for the replicates `reps` of the stage alone: replicate `r`'s
+    /// rotation is keyed by `(seed, stage, r)`, so replicates `16..n` of a stage continue its
+    /// first 16 with independent rotations of the same lattice (Stein's extra replicates,
+    /// [`super::adaptive`]).
+    ///
+    /// # Errors
+    /// As [`SoftLight::rays`].
+    pub fn replicates(
+        &self,
+        scene: &Scene,
+        at: [f64; 3],
+        key: Key,
+        m: u32,
+        reps: std::ops::Range<u32>,
+    ) -> Result<SoftRays> {
         let p = DVec3::from_array(at);
         if !p.is_finite() {
             return Err(bad(
@@ -459,10 +479,10 @@ impl SoftLight {
         if unlit || misses_everything(scene, p, cone) {
             return Ok(out);
         }
-        let total = (REPLICATES * m) as usize;
+        let total = (reps.len() as u32 * m) as usize;
         out.rays.reserve(total);
         out.ids.reserve(total);
-        for r in 0..u64::from(REPLICATES) {
+        for r in u64::from(reps.start)..u64::from(reps.end) {
             let mut rng = Rng::new(key.seed, SHARED_ROTATIONS | key.stage, ROTATION_STREAM | r);
             let (du, dv) = (rng.uniform(), rng.uniform());
             for i in 0..m {
@@ -580,6 +600,7 @@ pub struct Key {
     pub seed: u64,
     /// The receiver's ray id.
     pub ray_id: u64,
-    /// The stage: 0 a fixed count, 1 a pilot, 2 the final stage after it.
+    /// The stage: 0 a fixed count, 1 a target error's replicates (its pilot's 16 and the
+    /// extra ones the pilot asks for).
     pub stage: u64,
 }

@@ -8,7 +8,7 @@
 //! answers are the same whatever the thread count and however the receivers are split. With a
 //! target error ([`SoftLight::target`]) each receiver runs Stein's two-stage rule
 //! ([`super::adaptive`]): the pilot of every receiver of a group is one batch of rays, the
-//! final stage another, each handed to [`crate::scene::estimate_many`] whole (exact queries in
+//! extra replicates another, each handed to [`crate::scene::estimate_many`] whole (exact queries in
 //! batches on the SIMD kernel), then combined per receiver ([`SoftRays::combine`]).
 
 use super::adaptive::PILOT_POINTS;
@@ -53,6 +53,9 @@ struct Stage {
     centre: Ray,
     per: Vec<SceneEstimate>,
     answer: SceneEstimate,
+    /// The directions' weights (empty: all equal) and where each replicate ends in `per`.
+    weights: Vec<f64>,
+    ends: Vec<usize>,
 }
 
 impl SoftLight {
@@ -155,20 +158,20 @@ impl SoftLight {
         opts: &Options,
     ) -> Vec<Option<Result<SoftAnswer>>> {
         let Some(target) = self.target else {
-            let m = self.samples / REPLICATES;
-            let made = self.make(scene, receivers, (opts.seed, 0), &|_| Some(m));
+            let made = self.make(scene, receivers, (opts.seed, 0), &|_| Some(0..REPLICATES));
             return stage(scene, made, est, opts)
                 .into_iter()
-                .map(|s| s.map(|s| s.map(|s| answered(None, s, false))))
+                .map(|s| s.map(|s| s.map(|s| answered(s, None, false))))
                 .collect();
         };
-        let pilot = self.make(scene, receivers, (opts.seed, 1), &|_| Some(PILOT_POINTS));
+        let r0 = REPLICATES;
+        let pilot = self.make(scene, receivers, (opts.seed, 1), &|_| Some(0..r0));
         let pilots = stage(scene, pilot, est, opts);
-        let cap = (self.samples / REPLICATES).saturating_sub(PILOT_POINTS);
+        let cap = self.samples / PILOT_POINTS;
         let plan: Vec<Option<(u32, bool)>> = pilots
             .iter()
             .map(|p| match p {
-                Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::final_points(
+                Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::replicates_for(
                     &p.per,
                     &p.answer,
                     scene.channels(),
@@ -178,34 +181,41 @@ impl SoftLight {
                 _ => None,
             })
             .collect();
-        let last = self.make(scene, receivers, (opts.seed, 2), &|k| plan[k].map(|p| p.0));
-        let finals = stage(scene, last, est, opts);
+        // Only the receivers whose pilot fell short of the target trace more.
+        let more = |k: usize| plan[k].and_then(|(n, _)| (n > r0).then_some(r0..n));
+        let extra = self.make(scene, receivers, (opts.seed, 1), &more);
+        let extras = stage(scene, extra, est, opts);
         pilots
             .into_iter()
-            .zip(finals)
+            .zip(extras)
             .zip(plan)
-            .map(|((p, f), plan)| {
+            .map(|((p, x), plan)| {
                 let p = p?;
-                Some(match (p, f) {
+                let capped = plan.is_some_and(|(_, capped)| capped);
+                Some(match (p, x) {
                     (Err(e), _) | (Ok(_), Some(Err(e))) => Err(e),
-                    (Ok(p), None) => Ok(answered(None, p, false)),
-                    (Ok(p), Some(Ok(f))) => {
-                        Ok(answered(Some(p), f, plan.is_some_and(|(_, capped)| capped)))
-                    }
+                    (Ok(p), None) => Ok(answered(p, None, capped)),
+                    (Ok(p), Some(Ok(x))) => Ok(answered(p, Some(x), capped)),
                 })
             })
             .collect()
     }
 
-    /// Each asked receiver's rays of one stage (`(seed, stage)`), `m(k)` points per replicate
-    /// for receiver `k` (`None`: none asked).
+    /// Each asked receiver's rays of one stage (`(seed, stage)`): the replicates `reps(k)` of
+    /// [`PILOT_POINTS`] points, or with a fixed count all 16 of `samples / 16` points, for
+    /// receiver `k` (`None`: none asked).
     fn make(
         &self,
         scene: &Scene,
         receivers: &[Option<Receiver>],
         (seed, stage): (u64, u64),
-        m: &(dyn Fn(usize) -> Option<u32> + Sync),
+        reps: &(dyn Fn(usize) -> Option<std::ops::Range<u32>> + Sync),
     ) -> Vec<Option<Result<SoftRays>>> {
+        let m = if stage == 0 {
+            self.samples / REPLICATES
+        } else {
+            PILOT_POINTS
+        };
         receivers
             .par_iter()
             .enumerate()
@@ -216,7 +226,7 @@ impl SoftLight {
                     ray_id: r.ray_id,
                     stage,
                 };
-                Some(self.rays(scene, r.at, key, m(k)?))
+                Some(self.replicates(scene, r.at, key, m, reps(k)?))
             })
             .collect()
     }
@@ -251,27 +261,42 @@ fn stage(
                     centre: s.centre,
                     per: mine,
                     answer,
+                    weights: s.weights,
+                    ends: s.ends,
                 })
             })
         })
         .collect()
 }
 
-/// A receiver's answer from its last stage, after its pilot (whose work is counted in it).
-fn answered(pilot: Option<Stage>, last: Stage, capped: bool) -> SoftAnswer {
-    let mut estimate = last.answer;
-    let mut light_samples = last.per.len();
-    if let Some(p) = pilot {
-        estimate.lookups += p.answer.lookups;
-        estimate.segments += p.answer.segments;
-        estimate.capped += p.answer.capped;
-        estimate.majorant_violations += p.answer.majorant_violations;
-        light_samples += p.per.len();
-    }
+/// A receiver's answer from its first stage (a fixed count's, or a target error's pilot) and
+/// the extra replicates the pilot asked for (Stein's rule: the mean of every replicate, the
+/// pilot's error bar scaled to their number, [`super::adaptive::stein`]).
+fn answered(first: Stage, extra: Option<Stage>, capped: bool) -> SoftAnswer {
+    let Some(x) = extra else {
+        return SoftAnswer {
+            light_samples: first.per.len(),
+            estimate: first.answer,
+            centre: first.centre,
+            light_capped: capped,
+        };
+    };
+    let reps = (first.ends.len() + x.ends.len()) as u32;
+    let offset = first.per.len();
+    let ends: Vec<usize> = first
+        .ends
+        .iter()
+        .copied()
+        .chain(x.ends.iter().map(|e| e + offset))
+        .collect();
+    let weights: Vec<f64> = first.weights.iter().chain(&x.weights).copied().collect();
+    let channels = first.answer.channels;
+    let per: Vec<SceneEstimate> = first.per.iter().chain(&x.per).cloned().collect();
+    let all = super::adaptive::combine(&weights, &ends, channels, &per);
     SoftAnswer {
-        estimate,
-        centre: last.centre,
-        light_samples,
+        estimate: super::adaptive::stein(&first.per, &first.answer, all, reps),
+        centre: first.centre,
+        light_samples: per.len(),
         light_capped: capped,
     }
 }

@@ -3,7 +3,8 @@
 //! direction toward the light, as far as its segments run) misses every sphere meets no
 //! density, so `T = 1` exactly.
 //!
-//! **Blocks.** Per fog volume: every leaf and every lower-node tile whose values are not all
+//! **Blocks.** Per fog volume: the non-zero values of every leaf, as one box per `4^3` octant
+//! around the voxels that hold them, every lower-node tile whose value is not
 //! zero, every non-zero upper-node tile, as index boxes grown by one voxel on each side (the
 //! reach of a trilinear lookup, and one more), grouped by lower node; a solid is its box. Each
 //! block and each group is bounded by the world sphere around its transformed box.
@@ -23,10 +24,12 @@ struct Sphere {
     radius: f64,
 }
 
-/// A group of blocks (one lower node's, an upper tile, a solid) and its bounding sphere.
+/// A group of blocks (one lower node's, one `32^3` brick of it, an upper tile, a solid) and its
+/// bounding sphere: its blocks and the groups inside it.
 #[derive(Debug, Clone)]
 struct Group {
     bound: Sphere,
+    parts: Vec<Group>,
     blocks: Vec<Sphere>,
 }
 
@@ -67,6 +70,36 @@ fn grown(origin: [i32; 3], edge: f64) -> (DVec3, DVec3) {
     (o - 2.0, o + edge + 2.0)
 }
 
+/// The boxes around a leaf's non-zero values (an unloaded leaf's NaN included), one per
+/// `4^3` octant that holds any: the index box `[v_lo - 1.5, v_hi + 1.5]` of those voxels
+/// (their reach, with half a voxel to spare). A wisp at a cloud's edge is then a box a few voxels wide, not its leaf's.
+fn octant_boxes(origin: [i32; 3], values: &[f32; 512], out: &mut Vec<(DVec3, DVec3)>) {
+    for oct in 0..8usize {
+        let o = [4 * (oct >> 2), 4 * ((oct >> 1) & 1), 4 * (oct & 1)];
+        let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
+        for x in o[0]..o[0] + 4 {
+            for y in o[1]..o[1] + 4 {
+                for z in o[2]..o[2] + 4 {
+                    // `leaf_offset`'s layout; NaN is not zero.
+                    if values[(x << 6) | (y << 3) | z] != 0.0 {
+                        lo = [lo[0].min(x), lo[1].min(y), lo[2].min(z)];
+                        hi = [hi[0].max(x), hi[1].max(y), hi[2].max(z)];
+                    }
+                }
+            }
+        }
+        if lo[0] == usize::MAX {
+            continue;
+        }
+        let at = |k: usize, v: usize| f64::from(origin[k]) + v as f64;
+        let l = DVec3::new(at(0, lo[0]), at(1, lo[1]), at(2, lo[2]));
+        let h = DVec3::new(at(0, hi[0] + 1), at(1, hi[1] + 1), at(2, hi[2] + 1));
+        // A trilinear lookup at `p` reads voxel `v` only for `v - 1 < p < v + 1` (a nearest
+        // one within half a voxel): the voxels' boxes grown by one, and half a voxel more.
+        out.push((l - 1.5, h + 0.5));
+    }
+}
+
 /// The groups of one volume, `None` when it may hold density anywhere.
 fn volume_groups(vol: &Volume) -> Option<Vec<Group>> {
     let tree = vol.tree();
@@ -81,33 +114,60 @@ fn volume_groups(vol: &Volume) -> Option<Vec<Group>> {
         return None;
     }
     let mut groups = Vec::new();
-    let group = |boxes: Vec<(DVec3, DVec3)>| -> Option<Group> {
+    let bound = |boxes: &[(DVec3, DVec3)]| {
         let lo = boxes.iter().fold(DVec3::INFINITY, |a, b| a.min(b.0));
         let hi = boxes.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(b.1));
+        (lo, hi)
+    };
+    let group = |boxes: Vec<(DVec3, DVec3)>| -> Option<Group> {
+        let (lo, hi) = bound(&boxes);
         (!boxes.is_empty()).then(|| Group {
             bound: sphere(vol, lo, hi),
+            parts: Vec::new(),
             blocks: boxes.iter().map(|(l, h)| sphere(vol, *l, *h)).collect(),
         })
     };
     for lower in tree.lowers() {
-        let mut boxes = Vec::new();
+        // The lower node's 64 bricks of 4^3 leaves (32^3 voxels), each a group.
+        let mut bricks: Vec<Vec<(DVec3, DVec3)>> = vec![Vec::new(); 64];
         for n in 0..4096usize {
             let at = [
                 lower.origin[0] + 8 * (n >> 8) as i32,
                 lower.origin[1] + 8 * ((n >> 4) & 15) as i32,
                 lower.origin[2] + 8 * (n & 15) as i32,
             ];
-            let empty = if lower.has_child(n) {
+            let brick = &mut bricks[((n >> 10) << 4) | (((n >> 6) & 3) << 2) | ((n >> 2) & 3)];
+            if lower.has_child(n) {
                 let leaf = &tree.leaves()[lower.slots[n] as usize];
-                zero(leaf.bounds)
-            } else {
-                lower.tile_value(n) == 0.0
-            };
-            if !empty {
-                boxes.push(grown(at, 8.0));
+                if !zero(leaf.bounds) {
+                    octant_boxes(at, tree.values_of(leaf), brick);
+                }
+            } else if lower.tile_value(n) != 0.0 {
+                brick.push(grown(at, 8.0));
             }
         }
-        groups.extend(group(boxes));
+        let parts: Vec<Group> = bricks.into_iter().filter_map(group).collect();
+        if parts.is_empty() {
+            continue;
+        }
+        let lo = parts.iter().fold(DVec3::INFINITY, |a, g| {
+            a.min(g.bound.centre - g.bound.radius)
+        });
+        let hi = parts.iter().fold(DVec3::NEG_INFINITY, |a, g| {
+            a.max(g.bound.centre + g.bound.radius)
+        });
+        let radius = parts
+            .iter()
+            .map(|g| (g.bound.centre - (lo + hi) / 2.0).length() + g.bound.radius)
+            .fold(0.0, f64::max);
+        groups.push(Group {
+            bound: Sphere {
+                centre: (lo + hi) / 2.0,
+                radius,
+            },
+            parts,
+            blocks: Vec::new(),
+        });
     }
     for upper in tree.uppers() {
         for n in 0..32768usize {
@@ -146,6 +206,7 @@ impl Occupancy {
             };
             groups.push(Group {
                 bound,
+                parts: Vec::new(),
                 blocks: vec![bound],
             });
         }
@@ -161,33 +222,52 @@ impl Occupancy {
         let Some(groups) = &self.groups else {
             return false;
         };
-        let cone = Cone {
-            apex: reach.apex,
-            axis: reach.axis,
-            half: reach.half,
-            length: reach.length,
-        };
+        let cone = Cone::new(reach.apex, reach.axis, reach.half, reach.length);
         // The angular test holds for any half-angle (it compares directions from the apex).
         if !(cone.length.is_finite() && cone.apex.is_finite() && cone.half.is_finite()) {
             return false;
         }
-        groups
-            .iter()
-            .all(|g| cone.misses(g.bound) || g.blocks.iter().all(|b| cone.misses(*b)))
+        groups.iter().all(|g| cone.misses_group(g))
     }
 }
 
-/// The cone around a receiver's rays.
+/// The cone around a receiver's rays, with the cosine and sine of its half-angle widened by
+/// `1e-9` (a margin for rounding).
 #[derive(Debug, Clone, Copy)]
 struct Cone {
     apex: DVec3,
     axis: DVec3,
     half: f64,
     length: f64,
+    cos: f64,
+    sin: f64,
 }
 
 impl Cone {
-    /// Whether no point of the cone within `length` of its apex is in the sphere `s`.
+    fn new(apex: DVec3, axis: DVec3, half: f64, length: f64) -> Self {
+        let (sin, cos) = (half + 1e-9).sin_cos();
+        Self {
+            apex,
+            axis,
+            half,
+            length,
+            cos,
+            sin,
+        }
+    }
+
+    /// Whether the cone misses every block of `g` (its bound, or each part and block).
+    fn misses_group(&self, g: &Group) -> bool {
+        self.misses(g.bound)
+            || (g.parts.iter().all(|p| self.misses_group(p))
+                && g.blocks.iter().all(|b| self.misses(*b)))
+    }
+
+    /// Whether no point of the cone within `length` of its apex is in the sphere `s`: the
+    /// angle between the axis and the sphere's centre is more than the half-angle `h` plus the
+    /// sphere's angular radius `b = asin(r / d)`. Without trigonometry: for `h + b < pi`, that
+    /// is `cos(angle) < cos(h + b)`, i.e. `v . axis < cos(h) sqrt(d^2 - r^2) - sin(h) r`; and
+    /// `h + b >= pi` (never a miss) only when `h >= pi / 2` and `r / d >= sin(h)`.
     fn misses(&self, s: Sphere) -> bool {
         let v = s.centre - self.apex;
         let dist = v.length();
@@ -197,8 +277,14 @@ impl Cone {
         if dist - s.radius > self.length {
             return true;
         }
-        let apart = (v.dot(self.axis) / dist).clamp(-1.0, 1.0).acos();
-        apart > self.half + (s.radius / dist).asin() + 1e-9
+        let wide = self.half + 1e-9;
+        if wide >= std::f64::consts::PI
+            || (wide >= std::f64::consts::FRAC_PI_2 && s.radius >= self.sin * dist)
+        {
+            return false;
+        }
+        let edge = self.cos * ((dist - s.radius) * (dist + s.radius)).sqrt() - self.sin * s.radius;
+        v.dot(self.axis) < edge
     }
 }
 
@@ -208,12 +294,7 @@ mod tests {
 
     #[test]
     fn a_cone_misses_what_is_beside_or_beyond_it() {
-        let cone = Cone {
-            apex: DVec3::ZERO,
-            axis: DVec3::Y,
-            half: 0.1,
-            length: 10.0,
-        };
+        let cone = Cone::new(DVec3::ZERO, DVec3::Y, 0.1, 10.0);
         let s = |x: f64, y: f64, r: f64| Sphere {
             centre: DVec3::new(x, y, 0.0),
             radius: r,
@@ -224,5 +305,25 @@ mod tests {
         assert!(cone.misses(s(0.0, 12.0, 1.0)));
         assert!(!cone.misses(s(0.0, 0.0, 0.01)));
         assert!(cone.misses(s(0.0, -5.0, 1.0)));
+        // Against the angular form, on spheres all around the apex and cones of every width.
+        for half in [1e-6, 0.01, 0.3, 1.2, 1.6, 2.5, 3.1] {
+            let cone = Cone::new(DVec3::ZERO, DVec3::Y, half, 1e9);
+            for k in 0..2000 {
+                let a = f64::from(k) * 0.618_033_988_75 * std::f64::consts::TAU;
+                let b = (f64::from(k) / 2000.0 * 2.0 - 1.0).acos();
+                let c = DVec3::new(b.sin() * a.cos(), b.cos(), b.sin() * a.sin()) * 10.0;
+                let r = 0.01 + f64::from(k % 7) * 1.3;
+                let sphere = Sphere {
+                    centre: c,
+                    radius: r,
+                };
+                let apart = b;
+                let want = r < 10.0 && apart > half + (r / 10.0).asin() + 2e-9;
+                let near = (apart - half - (r / 10.0).min(1.0).asin()).abs() < 1e-8;
+                if !near {
+                    assert_eq!(cone.misses(sphere), want, "half {half}, k {k}");
+                }
+            }
+        }
     }
 }
