@@ -18,6 +18,7 @@ use umbra::request::{
 use umbra::Error;
 
 use crate::lights_extent::constant_box;
+use crate::vdb_writer::{Grid, Leaf, VdbFile};
 
 fn sun(dir: [f64; 3], angle: f64, samples: Option<u32>) -> LightOptions {
     LightOptions {
@@ -261,4 +262,65 @@ fn bad_target_errors_are_refused_by_name() {
         );
         assert_eq!(name(bake(&file, &out, o).unwrap_err()), "light-max-samples");
     }
+}
+
+#[test]
+fn a_cone_beside_a_lone_voxel_is_proven_clear_and_one_that_reaches_it_is_sampled() {
+    // One voxel of density 5 at index (3, 3, 3) of a leaf at the origin (voxel size 1): a
+    // trilinear lookup reads it only within one voxel of it. The proof looks at the voxel, not
+    // at its leaf: a texel whose whole cone passes more than a voxel beside it is answered
+    // without sampling, exactly 1; one whose cone reaches it is sampled and sees it.
+    let dir = tempfile::tempdir().unwrap();
+    let file = dir.path().join("voxel.vdb");
+    let leaf = Leaf::from_fn([0, 0, 0], |v| if v == [3, 3, 3] { 5.0 } else { 0.0 });
+    VdbFile::new(vec![Grid::fog("density", vec![leaf])]).write(&file);
+    let light = sun([0.0, -1.0, 0.0], 0.53, None);
+    let out = dir.path().join("v.exr");
+    let o = BakeOptions {
+        frame_box: Some([[-5.0, -20.0, -5.0], [11.0, 16.0, 11.0]]),
+        ..map_options(light.clone(), 64)
+    };
+    let r = bake(&file, &out, o).unwrap();
+    let w = r.map.camera.width() as usize;
+    let (t, e) = (&r.map.t, r.map.std_err.as_ref().unwrap());
+    let (mut clear_in_leaf, mut seen) = (0, 0);
+    for p in 0..t.len() {
+        let ray = r
+            .map
+            .camera
+            .pixel_ray((p % w) as u32, (p / w) as u32)
+            .unwrap();
+        let at = ray.at(30.0);
+        // How far the receiver's vertical line passes from the voxel, per axis.
+        let off = (at.x - 3.0).abs().max((at.z - 3.0).abs());
+        if e[p] == 0.0 {
+            assert_eq!(t[p], 1.0, "texel {p}");
+            // The cone is at most 0.2 voxels wide where it passes the voxel.
+            assert!(
+                off > 0.8,
+                "texel {p} at {off} voxels from the voxel was not sampled"
+            );
+            // Inside the leaf's box, where the leaf-level test sampled every receiver.
+            if (-2.0..10.0).contains(&at.x) && (-2.0..10.0).contains(&at.z) {
+                clear_in_leaf += 1;
+                if clear_in_leaf % 40 == 1 {
+                    let (q, ..) = query(
+                        &file,
+                        at.to_array(),
+                        sun([0.0, -1.0, 0.0], 0.53, Some(4096)),
+                        0,
+                    );
+                    assert_eq!(q, 1.0, "texel {p}: 4096 directions see density");
+                }
+            }
+        } else if off < 0.9 {
+            assert!(t[p] < 1.0, "texel {p} at {off} voxels: {}", t[p]);
+            seen += 1;
+        }
+    }
+    assert!(
+        clear_in_leaf > 100,
+        "{clear_in_leaf} texels over the leaf proven clear"
+    );
+    assert!(seen >= 4, "{seen} texels see the voxel");
 }
