@@ -63,7 +63,7 @@ pub struct LightOptions {
     #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
     pub light_samples: Option<u32>,
     /// With light-angle or light-radius and no light-samples: the most directions a receiver
-    /// may trace to reach the target error, its pilot's included (default 4096, at least 128);
+    /// may trace to reach the target error, its pilot's included (default 16384, at least 128);
     /// receivers that reach it are counted in the report.
     #[cfg_attr(feature = "cli", arg(long, value_name = "N"))]
     pub light_max_samples: Option<u32>,

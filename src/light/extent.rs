@@ -49,7 +49,7 @@ pub const MIN_POINTS: u32 = 4;
 pub const MIN_LIGHT_SAMPLES: u32 = REPLICATES * MIN_POINTS;
 /// The most directions per receiver when the count follows the target error
 /// (`light-max-samples`' default), the pilot's included.
-pub const DEFAULT_LIGHT_MAX_SAMPLES: u32 = 4096;
+pub const DEFAULT_LIGHT_MAX_SAMPLES: u32 = 16384;
 /// The error bar each receiver toward a light with extent must reach when neither
 /// `light-samples` nor `target-error` is given.
 pub const DEFAULT_TARGET_ERROR: f64 = 5e-3;
@@ -188,6 +188,20 @@ pub(super) fn values(o: &LightOptions) -> Result<(Option<f64>, Option<f64>, Coun
 /// [`LightOptions::soft`]: the keys of a light with extent, checked.
 pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
     let (angle, radius, samples) = values(o)?;
+    // The light the keys give: with light-pos (and light-dir aiming a map from it) the point
+    // at light-pos, whose extent is a radius; light-dir alone, a sun.
+    let light = match (o.light_dir, o.light_pos) {
+        (_, Some(pos)) => Some(Light::Point { pos }),
+        (Some(dir), None) => Some(Light::Directional { dir }),
+        (None, None) => None,
+    };
+    if angle.is_some() && o.light_dir.is_some() && o.light_pos.is_some() {
+        return Err(bad(
+            "light-angle",
+            "is a sun's angular diameter, and with light-pos the light is the point there \
+             (light-dir only aims the map): give light-radius for its size",
+        ));
+    }
     if angle.is_some() && o.light_dir.is_none() {
         return Err(bad(
             "light-angle",
@@ -206,9 +220,7 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
     ]
     .into_iter()
     .find_map(|(k, given)| given.then_some(k));
-    if let Some(k) =
-        count_key.filter(|_| o.light().is_some() && angle.is_none() && radius.is_none())
-    {
+    if let Some(k) = count_key.filter(|_| light.is_some() && angle.is_none() && radius.is_none()) {
         return Err(bad(
             k,
             "samples a light with extent: give light-angle or light-radius (or a stage's light)",
@@ -219,7 +231,7 @@ pub(super) fn check(o: &LightOptions) -> Result<Option<SoftLight>> {
         (_, Some(r)) if r > 0.0 => Extent::Sphere { radius: r },
         _ => return Ok(None),
     };
-    Ok(o.light().map(|light| SoftLight {
+    Ok(light.map(|light| SoftLight {
         light,
         extent,
         samples: samples.0,
