@@ -185,7 +185,7 @@ fn zero_extent_is_the_point_lights_answer_exactly() {
         assert_eq!(positions(&shot, zero, "regular", 0), hard, "{light}");
         // The stage's own extent, and each point as a query at it toward the stage light.
         let own = positions(&shot, LightOptions::default(), "regular", 0);
-        assert_eq!(own.light_samples, Some(4096), "{light}");
+        assert_eq!(own.light_samples, Some(16384), "{light}");
         assert!(own.frames[0].std_err[0] > 0.0, "{light}");
         let f = &own.frames[0];
         for (i, p) in f.positions.iter().enumerate() {
