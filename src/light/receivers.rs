@@ -125,24 +125,30 @@ impl SoftLight {
             None => self.samples,
         };
         let per_group = (RAYS_PER_BATCH / typical.max(1) as usize).max(1);
-        let mut out = Vec::with_capacity(receivers.len());
-        for (g, group) in receivers.chunks(per_group).enumerate() {
-            let first = first_id.wrapping_add((g * per_group) as u64);
-            let asked: Vec<Option<Receiver>> = group
-                .iter()
-                .enumerate()
-                .map(|(k, at)| {
-                    Some(Receiver {
-                        at: *at,
-                        ray_id: first.wrapping_add(k as u64),
+        // Groups in parallel: one group's pilot is about one batch of the kernel, which a
+        // single worker walks (`regular::batch`), so groups one after another kept one core.
+        let groups: Vec<Vec<Result<SoftAnswer>>> = receivers
+            .par_chunks(per_group)
+            .enumerate()
+            .map(|(g, group)| {
+                let first = first_id.wrapping_add((g * per_group) as u64);
+                let asked: Vec<Option<Receiver>> = group
+                    .iter()
+                    .enumerate()
+                    .map(|(k, at)| {
+                        Some(Receiver {
+                            at: *at,
+                            ray_id: first.wrapping_add(k as u64),
+                        })
                     })
-                })
-                .collect();
-            for a in self.answer_each(scene, &asked, est, opts) {
-                out.push(a.unwrap_or_else(|| Err(missing())));
-            }
-        }
-        out
+                    .collect();
+                self.answer_each(scene, &asked, est, opts)
+                    .into_iter()
+                    .map(|a| a.unwrap_or_else(|| Err(missing())))
+                    .collect()
+            })
+            .collect();
+        groups.into_iter().flatten().collect()
     }
 
     /// Every receiver of `receivers` answered (`None`: not asked, `None` back), in order:
