@@ -232,11 +232,11 @@ def test_each_light_kind_agrees_with_a_quadrature_over_it(cli, tmp_path, name, q
     vol = umbra.Volume.from_usd(stage, time=0, light=name)
     soft_vs_hard, z2 = [], []
     for x in RECEIVERS:
-        # A fixed count, the reference a user can ask for (docs/lights.md). At the default
-        # target (Stein's two-stage count), the egg's weighted replicates at few points gave
-        # error bars too small at one receiver (z 3.9 at seed 0): an open defect of issue 69.
-        got = _query(cli, stage, name, x, "--light-samples", "1024")
-        assert got["tau"] is None and got["light_samples"] > 0, got
+        # At the default target (Stein's rule, docs/lights.md): what a user gets. (Under the
+        # first count model, fresh replicates after a pilot, the egg's error bar was too small
+        # at one receiver, z 3.9 at seed 0; with the pilot kept it is within its bar.)
+        got = _query(cli, stage, name, x)
+        assert got["tau"] is None and got["light_samples"] >= 64, got
         q1, q2 = quad(vol, st, x, 48), quad(vol, st, x, 96)
         tol = 6 * got["std_err"] + 2 * abs(q2 - q1) + 1e-9
         assert abs(got["T"] - q2) <= tol, (name, x, got["T"], got["std_err"], q1, q2)
@@ -251,7 +251,11 @@ def test_each_light_kind_agrees_with_a_quadrature_over_it(cli, tmp_path, name, q
             flag = "--light-pos=" + ",".join(map(repr, list(m.Transform(Gf.Vec3d(0, 0, 0)))))
         _, out, _ = cli("query", DATA / "cloud.vdb", "--at", ",".join(map(repr, x)), flag,
                         "--json")
-        soft_vs_hard.append(abs(got["T"] - json.loads(out)["T"]) / max(got["std_err"], 1e-12))
+        # Against a fixed 1024 directions (the reference a user can ask for): a bar small
+        # enough to tell the light from its centre.
+        fixed = _query(cli, stage, name, x, "--light-samples", "1024")
+        soft_vs_hard.append(abs(fixed["T"] - json.loads(out)["T"])
+                            / max(fixed["std_err"], 1e-12))
     assert np.mean(z2) <= 4, (name, z2)
     if name != "sun":
         # The extent matters at some receiver (the check can tell a point from the light).
