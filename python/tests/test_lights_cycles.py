@@ -146,6 +146,10 @@ def cosine_bound(alpha, tilt):
     return 0.5 * np.sqrt(var) / (np.cos(tilt) * (1 - h / 2))
 
 
+# Directions per umbra query in the comparison with Cycles.
+FIXED = ["--light-samples", "256"]
+
+
 def umbra_soft(umbra_bin, points, light_flags):
     """`umbra query --at P ... --json` at every point (two processes at a time): T, std_err.
     Point n is ray id n (pixel (i, j) is j * W + i, as a bake numbers them): every pixel draws
@@ -239,6 +243,10 @@ def test_soft_shadows_match_cycles(cycles, umbra_bin, light):
     cos_tilt = np.abs(np.sum(normal * axis, axis=1)) / np.linalg.norm(normal, axis=1)
     tilt = np.arccos(np.minimum(cos_tilt, 1.0))
     t0 = time.perf_counter()
+    # A fixed count, the reference a user can ask for (docs/lights.md): the default target's
+    # error bars (5e-3, which the kept pilot reaches exactly) are too wide to tell a light 5%
+    # smaller apart, which the check below asks of this comparison.
+    flags, smaller = flags + FIXED, smaller + FIXED
     soft, se = umbra_soft(umbra_bin, pts, flags)
     query_seconds = time.perf_counter() - t0
     soft_smaller, se_smaller = umbra_soft(umbra_bin, pts, smaller)
