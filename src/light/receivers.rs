@@ -288,19 +288,17 @@ fn answered(first: Stage, extra: Option<Stage>, capped: bool) -> SoftAnswer {
         };
     };
     let reps = (first.ends.len() + x.ends.len()) as u32;
-    let offset = first.per.len();
-    let ends: Vec<usize> = first
-        .ends
-        .iter()
-        .copied()
-        .chain(x.ends.iter().map(|e| e + offset))
-        .collect();
-    let weights: Vec<f64> = first.weights.iter().chain(&x.weights).copied().collect();
-    let channels = first.answer.channels;
-    let per: Vec<SceneEstimate> = first.per.iter().chain(&x.per).cloned().collect();
+    // The pilot's directions first, the extra replicates' after them (moved, not copied).
+    let (pilot_len, channels) = (first.per.len(), first.answer.channels);
+    let mut ends = first.ends;
+    ends.extend(x.ends.iter().map(|e| e + pilot_len));
+    let mut weights = first.weights;
+    weights.extend(x.weights);
+    let mut per = first.per;
+    per.extend(x.per);
     let all = super::adaptive::combine(&weights, &ends, channels, &per);
     SoftAnswer {
-        estimate: super::adaptive::stein(&first.per, &first.answer, all, reps),
+        estimate: super::adaptive::stein(&per[..pilot_len], &first.answer, all, reps),
         centre: first.centre,
         light_samples: per.len(),
         light_capped: capped,
