@@ -33,7 +33,11 @@
 //! normal), asks for at least the `N` at which the rule-of-three floor is `E`: `N >= sqrt(3)
 //! max(T0, 1 - T0) / E` directions. A pilot whose directions all agreed has no `s0`: its
 //! answer's error bar is the spread of all `n` replicates (or, if they all agree too, the
-//! rule-of-three floor over every direction).
+//! rule-of-three floor over every direction). When that spread puts the error bar above `E`,
+//! the pilot and its extras together (`n1` replicates, all independent of the pilot's count
+//! once the pilot agreed) are the pilot of one more Stein stage: `n2 = ceil(n1 s1^2 / E^2)`
+//! replicates in all, the error bar `s1 / sqrt(n2)` (`s1` the spread of the `n1`), so a
+//! receiver ends above the target only when the cap cut its count, and is then counted.
 
 use super::extent::{SoftRays, REPLICATES};
 use crate::scene::SceneEstimate;
@@ -47,18 +51,18 @@ pub const LEAST_ADAPTIVE: u32 = REPLICATES * PILOT_POINTS;
 /// `2^-40`.
 pub const ROUNDING: f64 = 1.0 / 1_099_511_627_776.0;
 
-/// The replicates in all (the pilot's included, at least [`REPLICATES`]) a receiver takes after
-/// the pilot `per` (its directions' estimates) whose answer is `pilot`, to reach `target`
-/// (module docs), at most `cap`; and whether the cap cut it.
+/// The replicates in all (the pilot's included, at least `r0`) a receiver takes after the
+/// pilot `per` (its directions' estimates, `r0` replicates) whose answer is `pilot`, to reach
+/// `target` (module docs), at most `cap`; and whether the cap cut it.
 #[must_use]
 pub fn replicates_for(
     per: &[SceneEstimate],
-    pilot: &SceneEstimate,
+    (pilot, r0): (&SceneEstimate, u32),
     channels: usize,
     target: f64,
     cap: u32,
 ) -> (u32, bool) {
-    let r = f64::from(REPLICATES);
+    let r = f64::from(r0);
     let mut need = r;
     for c in 0..channels.clamp(1, 3) {
         let (lo, hi) = span(per, c);
@@ -83,7 +87,7 @@ pub fn replicates_for(
             need.max(n)
         };
     }
-    let cap = cap.max(REPLICATES);
+    let cap = cap.max(r0);
     if need > f64::from(cap) {
         (cap, true)
     } else {
@@ -102,24 +106,44 @@ fn span(per: &[SceneEstimate], c: usize) -> (f64, f64) {
 }
 
 /// Stein's answer (module docs): `all`, the combined answer of every replicate (the pilot's
-/// and the `n - 16` extra), keeps its mean; its error bar becomes the pilot's `s0 / sqrt(n)`
-/// (`pilot` is the pilot's answer, `pilot_per` its directions' estimates), never below the
-/// rounding of the answer. A channel whose pilot directions all agreed keeps `all`'s own.
+/// `r0` and the `n - r0` extra), keeps its mean; its error bar becomes the pilot's `s0 /
+/// sqrt(n)` (`pilot` is the pilot's answer, `pilot_per` its directions' estimates), never
+/// below the rounding of the answer. A channel whose pilot directions all agreed keeps `all`'s
+/// own.
 #[must_use]
 pub fn stein(
     pilot_per: &[SceneEstimate],
-    pilot: &SceneEstimate,
+    (pilot, r0): (&SceneEstimate, u32),
     mut all: SceneEstimate,
     n: u32,
 ) -> SceneEstimate {
-    let scale = (f64::from(REPLICATES) / f64::from(n.max(REPLICATES))).sqrt();
+    let scale = (f64::from(r0) / f64::from(n.max(r0))).sqrt();
     for c in 0..3 {
-        let (lo, hi) = span(pilot_per, c);
-        if lo < hi {
+        if spread(pilot_per, c) {
             all.std_err[c] = (pilot.std_err[c] * scale).max(ROUNDING * all.value[c].abs());
         }
     }
     all
+}
+
+/// True when the directions `per` disagree on channel `c`.
+#[must_use]
+pub fn spread(per: &[SceneEstimate], c: usize) -> bool {
+    let (lo, hi) = span(per, c);
+    lo < hi
+}
+
+/// True when some channel of `answer` (`channels` of them) whose pilot directions `pilot_per`
+/// all agreed has an error bar above `target`: the spread of its extra replicates asks for a
+/// stage more (module docs).
+#[must_use]
+pub fn recount(
+    pilot_per: &[SceneEstimate],
+    answer: &SceneEstimate,
+    channels: usize,
+    target: f64,
+) -> bool {
+    (0..channels.clamp(1, 3)).any(|c| !spread(pilot_per, c) && answer.std_err[c] > target)
 }
 
 impl SoftRays {

@@ -167,20 +167,21 @@ impl SoftLight {
             let made = self.make(scene, receivers, (opts.seed, 0), &|_| Some(0..REPLICATES));
             return stage(scene, made, est, opts)
                 .into_iter()
-                .map(|s| s.map(|s| s.map(|s| answered(s, None, false))))
+                .map(|s| s.map(|s| s.map(|s| Answered::pilot(s, false).answer())))
                 .collect();
         };
         let r0 = REPLICATES;
         let pilot = self.make(scene, receivers, (opts.seed, 1), &|_| Some(0..r0));
         let pilots = stage(scene, pilot, est, opts);
         let cap = self.samples / PILOT_POINTS;
+        let channels = scene.channels();
         let plan: Vec<Option<(u32, bool)>> = pilots
             .iter()
             .map(|p| match p {
                 Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::replicates_for(
                     &p.per,
-                    &p.answer,
-                    scene.channels(),
+                    (&p.answer, r0),
+                    channels,
                     target,
                     cap,
                 )),
@@ -191,17 +192,53 @@ impl SoftLight {
         let more = |k: usize| plan[k].and_then(|(n, _)| (n > r0).then_some(r0..n));
         let extra = self.make(scene, receivers, (opts.seed, 1), &more);
         let extras = stage(scene, extra, est, opts);
-        pilots
+        let firsts: Vec<Option<Result<Answered>>> = pilots
             .into_iter()
             .zip(extras)
-            .zip(plan)
+            .zip(&plan)
             .map(|((p, x), plan)| {
-                let p = p?;
                 let capped = plan.is_some_and(|(_, capped)| capped);
-                Some(match (p, x) {
+                let n = plan.map_or(r0, |(n, _)| n);
+                Some(match (p?, x) {
                     (Err(e), _) | (Ok(_), Some(Err(e))) => Err(e),
-                    (Ok(p), None) => Ok(answered(p, None, capped)),
-                    (Ok(p), Some(Ok(x))) => Ok(answered(p, Some(x), capped)),
+                    (Ok(p), None) => Ok(Answered::pilot(p, capped)),
+                    (Ok(p), Some(Ok(x))) => Ok(Answered::joined(p, x, n, capped)),
+                })
+            })
+            .collect();
+        // A pilot that agreed and extras that did not, with an error bar above the target:
+        // Stein once more, everything so far the pilot (module docs of `adaptive`).
+        let again: Vec<Option<(u32, u32, bool)>> = firsts
+            .iter()
+            .map(|a| match a {
+                Some(Ok(a)) if !a.capped && a.recount(channels, target) => {
+                    let (n, capped) = super::adaptive::replicates_for(
+                        &a.all.per,
+                        (&a.all.answer, a.reps),
+                        channels,
+                        target,
+                        cap,
+                    );
+                    (n > a.reps).then_some((a.reps, n, capped))
+                }
+                _ => None,
+            })
+            .collect();
+        let more = |k: usize| again[k].map(|(from, n, _)| from..n);
+        let extra = self.make(scene, receivers, (opts.seed, 1), &more);
+        let extras = stage(scene, extra, est, opts);
+        firsts
+            .into_iter()
+            .zip(extras)
+            .zip(again)
+            .map(|((a, x), again)| {
+                Some(match (a?, x) {
+                    (Err(e), _) | (Ok(_), Some(Err(e))) => Err(e),
+                    (Ok(a), None) => Ok(a.answer()),
+                    (Ok(a), Some(Ok(x))) => {
+                        let (n, capped) = again.map_or((a.reps, false), |(_, n, c)| (n, c));
+                        Ok(a.again(x, n, capped))
+                    }
                 })
             })
             .collect()
@@ -275,33 +312,113 @@ fn stage(
         .collect()
 }
 
-/// A receiver's answer from its first stage (a fixed count's, or a target error's pilot) and
-/// the extra replicates the pilot asked for (Stein's rule: the mean of every replicate, the
-/// pilot's error bar scaled to their number, [`super::adaptive::stein`]).
-fn answered(first: Stage, extra: Option<Stage>, capped: bool) -> SoftAnswer {
-    let Some(x) = extra else {
-        return SoftAnswer {
-            light_samples: first.per.len(),
-            estimate: first.answer,
-            centre: first.centre,
-            light_capped: capped,
-        };
-    };
-    let reps = (first.ends.len() + x.ends.len()) as u32;
-    // The pilot's directions first, the extra replicates' after them (moved, not copied).
-    let (pilot_len, channels) = (first.per.len(), first.answer.channels);
+/// A receiver's stages so far: every direction together (`all`), the answer with Stein's
+/// error bar, the replicates it took and whether the cap cut them.
+struct Answered {
+    /// The pilot's directions' estimates and answer (whose spread scales the error bar).
+    pilot: (Vec<SceneEstimate>, SceneEstimate),
+    /// The pilot's and every extra replicate's directions, combined.
+    all: Stage,
+    /// The answer: `all`'s mean, Stein's error bar.
+    answer: SceneEstimate,
+    reps: u32,
+    capped: bool,
+}
+
+impl Answered {
+    /// A fixed count's stage, or a pilot that met the target on its own.
+    fn pilot(first: Stage, capped: bool) -> Self {
+        let reps = first.ends.len() as u32;
+        Self {
+            pilot: (Vec::new(), first.answer.clone()),
+            answer: first.answer.clone(),
+            all: first,
+            reps,
+            capped,
+        }
+    }
+
+    /// The pilot `first` and the `n - 16` extra replicates `x` it asked for (Stein's rule: the
+    /// mean of every replicate, the pilot's error bar scaled to their number,
+    /// [`super::adaptive::stein`]).
+    fn joined(first: Stage, x: Stage, n: u32, capped: bool) -> Self {
+        let r0 = first.ends.len() as u32;
+        let pilot_answer = first.answer.clone();
+        let pilot_len = first.per.len();
+        let all = join(first, x);
+        let answer = super::adaptive::stein(
+            &all.per[..pilot_len],
+            (&pilot_answer, r0),
+            all.answer.clone(),
+            n,
+        );
+        Self {
+            pilot: (all.per[..pilot_len].to_vec(), pilot_answer),
+            all,
+            answer,
+            reps: n,
+            capped,
+        }
+    }
+
+    /// True when a channel whose pilot agreed ended above `target` ([`super::adaptive::recount`]).
+    fn recount(&self, channels: usize, target: f64) -> bool {
+        !self.pilot.0.is_empty()
+            && super::adaptive::recount(&self.pilot.0, &self.answer, channels, target)
+    }
+
+    /// One more Stein stage: `x`, the `n - reps` replicates everything so far asked for. The
+    /// channels whose first pilot had a spread keep its error bar, scaled to `n`; the others
+    /// take the spread of everything before `x`, scaled to `n`.
+    fn again(self, x: Stage, n: u32, capped: bool) -> SoftAnswer {
+        let before = self.all.per.len();
+        let (previous, r1) = (self.all.answer.clone(), self.reps);
+        let all = join(self.all, x);
+        let mut answer =
+            super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer.clone(), n);
+        let scale = (f64::from(REPLICATES) / f64::from(n.max(REPLICATES))).sqrt();
+        for c in 0..3 {
+            if super::adaptive::spread(&self.pilot.0, c) {
+                answer.std_err[c] = (self.pilot.1.std_err[c] * scale)
+                    .max(super::adaptive::ROUNDING * answer.value[c].abs());
+            }
+        }
+        SoftAnswer {
+            light_samples: all.per.len(),
+            estimate: answer,
+            centre: all.centre,
+            light_capped: capped || self.capped,
+        }
+    }
+
+    /// The answer as it stands.
+    fn answer(self) -> SoftAnswer {
+        SoftAnswer {
+            light_samples: self.all.per.len(),
+            estimate: self.answer,
+            centre: self.all.centre,
+            light_capped: self.capped,
+        }
+    }
+}
+
+/// Two stages of one receiver as one: `first`'s directions, then `x`'s (moved, not copied),
+/// combined.
+fn join(first: Stage, x: Stage) -> Stage {
+    let (first_len, channels) = (first.per.len(), first.answer.channels);
     let mut ends = first.ends;
-    ends.extend(x.ends.iter().map(|e| e + pilot_len));
+    ends.extend(x.ends.iter().map(|e| e + first_len));
     let mut weights = first.weights;
     weights.extend(x.weights);
     let mut per = first.per;
     per.extend(x.per);
-    let all = super::adaptive::combine(&weights, &ends, channels, &per);
-    SoftAnswer {
-        estimate: super::adaptive::stein(&per[..pilot_len], &first.answer, all, reps),
+    let answer = super::adaptive::combine(&weights, &ends, channels, &per);
+    Stage {
         centre: first.centre,
-        light_samples: per.len(),
-        light_capped: capped,
+        per,
+        answer,
+        weights,
+        ends,
     }
 }
 
