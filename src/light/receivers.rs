@@ -330,8 +330,8 @@ impl Answered {
     fn pilot(first: Stage, capped: bool) -> Self {
         let reps = first.ends.len() as u32;
         Self {
-            pilot: (Vec::new(), first.answer.clone()),
-            answer: first.answer.clone(),
+            pilot: (Vec::new(), first.answer),
+            answer: first.answer,
             all: first,
             reps,
             capped,
@@ -343,13 +343,13 @@ impl Answered {
     /// [`super::adaptive::stein`]).
     fn joined(first: Stage, x: Stage, n: u32, capped: bool) -> Self {
         let r0 = first.ends.len() as u32;
-        let pilot_answer = first.answer.clone();
+        let pilot_answer = first.answer;
         let pilot_len = first.per.len();
         let all = join(first, x);
         let answer = super::adaptive::stein(
             &all.per[..pilot_len],
             (&pilot_answer, r0),
-            all.answer.clone(),
+            all.answer,
             n,
         );
         Self {
@@ -372,10 +372,10 @@ impl Answered {
     /// take the spread of everything before `x`, scaled to `n`.
     fn again(self, x: Stage, n: u32, capped: bool) -> SoftAnswer {
         let before = self.all.per.len();
-        let (previous, r1) = (self.all.answer.clone(), self.reps);
+        let (previous, r1) = (self.all.answer, self.reps);
         let all = join(self.all, x);
         let mut answer =
-            super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer.clone(), n);
+            super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer, n);
         let scale = (f64::from(REPLICATES) / f64::from(n.max(REPLICATES))).sqrt();
         for c in 0..3 {
             if super::adaptive::spread(&self.pilot.0, c) {

@@ -395,8 +395,14 @@ fn a_pilot_that_agreed_then_extras_that_did_not_trace_on_to_the_target() {
         let (r, r_se, ..) = query(&file, at, light(Some(4096)), 9);
         let (t, se, dirs, capped) = query(&file, at, light(None), 0);
         eprintln!("{at:?}: {t:.6} +- {se:.1e} ({dirs}) vs {r:.6} +- {r_se:.1e}");
-        assert!(se > 0.0 && se <= 5e-3 && !capped, "{se} ({dirs}, capped {capped})");
-        assert!((t - r).abs() <= 4.0 * (se * se + r_se * r_se).sqrt(), "{t} vs {r}");
+        assert!(
+            se > 0.0 && se <= 5e-3 && !capped,
+            "{se} ({dirs}, capped {capped})"
+        );
+        assert!(
+            (t - r).abs() <= 4.0 * (se * se + r_se * r_se).sqrt(),
+            "{t} vs {r}"
+        );
         // More than the rule-of-three count (348 directions at 5e-3): traced again.
         again += usize::from(dirs > 348);
     }
