@@ -346,12 +346,8 @@ impl Answered {
         let pilot_answer = first.answer;
         let pilot_len = first.per.len();
         let all = join(first, x);
-        let answer = super::adaptive::stein(
-            &all.per[..pilot_len],
-            (&pilot_answer, r0),
-            all.answer,
-            n,
-        );
+        let answer =
+            super::adaptive::stein(&all.per[..pilot_len], (&pilot_answer, r0), all.answer, n);
         Self {
             pilot: (all.per[..pilot_len].to_vec(), pilot_answer),
             all,
@@ -374,8 +370,7 @@ impl Answered {
         let before = self.all.per.len();
         let (previous, r1) = (self.all.answer, self.reps);
         let all = join(self.all, x);
-        let mut answer =
-            super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer, n);
+        let mut answer = super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer, n);
         let scale = (f64::from(REPLICATES) / f64::from(n.max(REPLICATES))).sqrt();
         for c in 0..3 {
             if super::adaptive::spread(&self.pilot.0, c) {

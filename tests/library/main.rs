@@ -46,6 +46,7 @@ mod scene;
 mod solid;
 mod source_options;
 mod spent_weights;
+mod transmittance_layers;
 mod tree_bounds;
 mod usd_corrupt;
 mod vdb_write;

@@ -10,5 +10,6 @@ pub(crate) mod fixed_map;
 pub(crate) mod pipeline;
 pub(crate) mod soft_deep;
 pub(crate) mod soft_volume;
+mod transmittance_layers;
 pub(crate) mod transmittance_volume;
 pub(crate) mod volume_job;

@@ -55,6 +55,8 @@ pub enum Sharing {
     /// One exact ray per line of voxel centres along the light (a sun along a lattice
     /// direction of the index grid).
     Lines,
+    /// One sweep per layer of voxel centres toward a sun (`transmittance_layers`).
+    Layers,
     /// One ray (or estimate) per voxel.
     Rays,
 }
@@ -325,6 +327,7 @@ pub fn transmittance_leaves(
     let step = light_step(vol, light).filter(|_| *est == Estimator::REGULAR);
     // Check the light once (a zero direction is refused here, not per voxel).
     light.ray_from(vol, vol.to_world(glam::DVec3::ZERO).to_array())?;
+    let mut layered = false;
     let run = || -> Result<(u64, u64)> {
         match step {
             Some(w) => {
@@ -342,7 +345,13 @@ pub fn transmittance_leaves(
                 }
             }
             None if *est == Estimator::REGULAR && opts.interp == Interp::Trilinear => {
-                by_ray_batches(vol, light, &mut leaves, progress)
+                match super::transmittance_layers::by_layers(vol, light, &mut leaves, progress)? {
+                    Some(done) => {
+                        layered = true;
+                        Ok(done)
+                    }
+                    None => by_ray_batches(vol, light, &mut leaves, progress),
+                }
             }
             None => by_rays(vol, light, est, opts, &mut leaves, progress),
         }
@@ -354,6 +363,8 @@ pub fn transmittance_leaves(
         tile_leaves,
         sharing: if step.is_some() {
             Sharing::Lines
+        } else if layered {
+            Sharing::Layers
         } else {
             Sharing::Rays
         },

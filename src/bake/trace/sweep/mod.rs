@@ -468,6 +468,70 @@ pub(crate) fn tau_image(
     Ok(Some((tau, lookups)))
 }
 
+/// A lattice of parallel rays in lookup space: ray `(i, j)` (`i < width`, `j < height`) is
+/// `q0 + i qx + j qy + t d` for `t` in `[0, t_max]` (world units along it: `d` is the
+/// lookup-space image of a unit world direction). A transmittance volume's layer of voxel
+/// centres, each ray ending at its voxel, is one.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Lattice {
+    pub(crate) q0: [f64; 3],
+    pub(crate) qx: [f64; 3],
+    pub(crate) qy: [f64; 3],
+    pub(crate) d: [f64; 3],
+    pub(crate) t_max: f64,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+}
+
+/// The exact optical depth of every ray of `lattice` through `vol` in object order (the map
+/// sweep's blocks, lane kernel and piece order, on rays that need not be perpendicular to
+/// their rows): `tau[j width + i]`, and the lookups spent. `None` when the sweep cannot take
+/// them: extinction outside lower nodes (which the map sweep walks pixel by pixel from a
+/// camera), a singular lattice, or more rays than one image holds.
+pub(crate) fn tau_lattice(
+    vol: &Volume,
+    lattice: &Lattice,
+    rows: u32,
+) -> Result<Option<(Vec<f64>, u64)>> {
+    if needs_rest(vol) {
+        return Ok(None);
+    }
+    // The sweep's image: `lattice`'s size. Its rays are the lattice's; the camera is read
+    // only for pinhole directions and the rest walk, neither of which a lattice has.
+    let spec = crate::bake::camera::CameraSpec {
+        kind: crate::bake::camera::Projection::Ortho,
+        width: lattice.width,
+        height: lattice.height,
+        origin: [0.0; 3],
+        step_x: [1.0, 0.0, 0.0],
+        step_y: [0.0, -1.0, 0.0],
+        direction: [0.0, 0.0, -1.0],
+        t_max: lattice.t_max,
+    };
+    let Ok(grid) = Camera::from_spec(&spec) else {
+        return Ok(None);
+    };
+    let Some(rays) = Rays::lattice(vol, lattice) else {
+        return Ok(None);
+    };
+    let pieces = pieces(vol, &rays, true);
+    let sweep = Sweep::from_pieces(vol, &grid, rays, pieces, false, rows, &[]);
+    let w = lattice.width as usize;
+    let mut tau = vec![0.0f64; grid.pixels() as usize];
+    let lookups = tau
+        .par_chunks_mut(rows as usize * w)
+        .enumerate()
+        .map(|(b, band)| {
+            let mut lookups = 0;
+            sweep.band(b, band, &mut lookups)?;
+            Ok(lookups)
+        })
+        .collect::<Result<Vec<u64>>>()?
+        .iter()
+        .sum();
+    Ok(Some((tau, lookups)))
+}
+
 /// The band dispatch: each band picks its estimator's kernel once ([`band::BandKernel`]) and
 /// runs the one loop ([`Sweep::run_band`]) with it.
 impl Sweep<'_> {

@@ -61,6 +61,37 @@ impl Rays {
         Self::clipped_to(vol, camera, clip)
     }
 
+    /// The rays of `lattice` (lookup space), or `None` when `[qx qy d]` is singular.
+    pub(super) fn lattice(vol: &Volume, lattice: &super::Lattice) -> Option<Self> {
+        let (clip_lo, clip_hi) = match vol.value_box() {
+            Some([lo, hi]) => (lo.map(|c| (c - 1) as f64), hi.map(|c| (c + 1) as f64)),
+            None => ([0.0; 3], [0.0; 3]),
+        };
+        let v = DVec3::from_array;
+        let (q0, qx, qy, d) = (v(lattice.q0), v(lattice.qx), v(lattice.qy), v(lattice.d));
+        let m = DMat3::from_cols(qx, qy, d);
+        let det = m.determinant();
+        if !(det.is_finite() && det != 0.0 && q0.is_finite() && lattice.t_max.is_finite()) {
+            return None;
+        }
+        Some(Self {
+            layout: Layout::Parallel(Parallel {
+                q0,
+                qx,
+                qy,
+                d,
+                inv_d: d.recip(),
+                inv: m.inverse(),
+            }),
+            t_min: 0.0,
+            t_max: lattice.t_max,
+            clip_lo,
+            clip_hi,
+            width: lattice.width,
+            height: lattice.height,
+        })
+    }
+
     /// [`Rays::new`] with the walk's clip box `clip` (lookup space) given.
     pub(super) fn clipped_to(
         vol: &Volume,
