@@ -516,19 +516,8 @@ pub(crate) fn tau_lattice(
     };
     let pieces = pieces(vol, &rays, true);
     let sweep = Sweep::from_pieces(vol, &grid, rays, pieces, false, rows, &[]);
-    let w = lattice.width as usize;
     let mut tau = vec![0.0f64; grid.pixels() as usize];
-    let lookups = tau
-        .par_chunks_mut(rows as usize * w)
-        .enumerate()
-        .map(|(b, band)| {
-            let mut lookups = 0;
-            sweep.band(b, band, &mut lookups)?;
-            Ok(lookups)
-        })
-        .collect::<Result<Vec<u64>>>()?
-        .iter()
-        .sum();
+    let lookups = sweep.add_all(&mut tau)?;
     Ok(Some((tau, lookups)))
 }
 
