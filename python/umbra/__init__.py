@@ -1220,13 +1220,14 @@ class Volume:
         (a point light). Each voxel's value is the transmittance from its centre (index point
         ``ijk`` in world space) toward the light. With the exact ``regular`` estimator and a
         sun along a lattice direction of the index grid (an axis, a diagonal, ``0.3,-1,0.2``),
-        voxels on one line toward the light share its ray exactly. Stochastic estimators use
+        voxels on one line toward the light share its ray exactly; toward another sun a dense
+        volume is swept a layer of voxel centres at a time (``"layers"``). Stochastic estimators use
         each voxel's index in the output as its ray id.
 
         Returns ``(ijk, T, stats)``: an (N, 3) int32 array of index coordinates and an (N,)
         float32 array of T, in output order (8^3 leaves by origin, voxels by offset), and a
         dict of counts and cost (``voxels``, ``leaves``, ``tile_leaves``, ``sharing``
-        ``"lines"``/``"rays"``, ``line_step``, ``rays``, ``lookups``, ``T_min``, ``T_max``,
+        ``"lines"``/``"layers"``/``"rays"``, ``line_step``, ``rays``, ``lookups``, ``T_min``, ``T_max``,
         ``T_mean``, ``seconds``, ``ns_per_voxel``). World positions: ``world_from_index``
         applied to ``ijk``. A scene is refused (a transmittance volume is made from one grid).
 

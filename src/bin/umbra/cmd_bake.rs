@@ -336,6 +336,8 @@ fn report_volume(
             match (st.sharing, st.line_step) {
                 (umbra::bake::Sharing::Lines, Some(w)) =>
                     format!("one exact ray per line of voxel centres, step {w:?} toward the light"),
+                (umbra::bake::Sharing::Layers, _) =>
+                    "one sweep per layer of voxel centres toward the light".to_string(),
                 _ if st.light_samples.is_some() =>
                     "a ray per direction over the light per voxel".to_string(),
                 _ => "one ray per voxel".to_string(),
