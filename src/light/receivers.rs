@@ -315,8 +315,9 @@ fn stage(
 /// A receiver's stages so far: every direction together (`all`), the answer with Stein's
 /// error bar, the replicates it took and whether the cap cut them.
 struct Answered {
-    /// The pilot's directions' estimates and answer (whose spread scales the error bar).
-    pilot: (Vec<SceneEstimate>, SceneEstimate),
+    /// How many of `all`'s directions are the pilot's (0: no pilot to re-count from), and
+    /// the pilot's answer (whose spread scales the error bar).
+    pilot: (usize, SceneEstimate),
     /// The pilot's and every extra replicate's directions, combined.
     all: Stage,
     /// The answer: `all`'s mean, Stein's error bar.
@@ -330,7 +331,7 @@ impl Answered {
     fn pilot(first: Stage, capped: bool) -> Self {
         let reps = first.ends.len() as u32;
         Self {
-            pilot: (Vec::new(), first.answer),
+            pilot: (0, first.answer),
             answer: first.answer,
             all: first,
             reps,
@@ -349,7 +350,7 @@ impl Answered {
         let answer =
             super::adaptive::stein(&all.per[..pilot_len], (&pilot_answer, r0), all.answer, n);
         Self {
-            pilot: (all.per[..pilot_len].to_vec(), pilot_answer),
+            pilot: (pilot_len, pilot_answer),
             all,
             answer,
             reps: n,
@@ -359,8 +360,8 @@ impl Answered {
 
     /// True when a channel whose pilot agreed ended above `target` ([`super::adaptive::recount`]).
     fn recount(&self, channels: usize, target: f64) -> bool {
-        !self.pilot.0.is_empty()
-            && super::adaptive::recount(&self.pilot.0, &self.answer, channels, target)
+        let pilot = &self.all.per[..self.pilot.0];
+        !pilot.is_empty() && super::adaptive::recount(pilot, &self.answer, channels, target)
     }
 
     /// One more Stein stage: `x`, the `n - reps` replicates everything so far asked for. The
@@ -369,15 +370,11 @@ impl Answered {
     fn again(self, x: Stage, n: u32, capped: bool) -> SoftAnswer {
         let before = self.all.per.len();
         let (previous, r1) = (self.all.answer, self.reps);
+        let ((pilot_len, pilot), r0) = (self.pilot, REPLICATES);
         let all = join(self.all, x);
-        let mut answer = super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer, n);
-        let scale = (f64::from(REPLICATES) / f64::from(n.max(REPLICATES))).sqrt();
-        for c in 0..3 {
-            if super::adaptive::spread(&self.pilot.0, c) {
-                answer.std_err[c] = (self.pilot.1.std_err[c] * scale)
-                    .max(super::adaptive::ROUNDING * answer.value[c].abs());
-            }
-        }
+        let answer = super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer, n);
+        // The first pilot's channels with a spread keep its bar (Stein over it overwrites them).
+        let answer = super::adaptive::stein(&all.per[..pilot_len], (&pilot, r0), answer, n);
         SoftAnswer {
             light_samples: all.per.len(),
             estimate: answer,

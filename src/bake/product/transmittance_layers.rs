@@ -142,10 +142,12 @@ pub(super) fn by_layers(
             let mut done = 0u64;
             for &n in members {
                 let leaf = &mut leaves[n];
-                let at = layer as usize;
-                for v in (0..512usize).filter(|&v| bit(&leaf.active, v)) {
-                    let ijk = [v >> 6, (v >> 3) & 7, v & 7];
-                    if ijk[a] != at {
+                // The leaf's 64 voxels in this layer.
+                for uv in 0..64usize {
+                    let mut ijk = [0usize; 3];
+                    (ijk[a], ijk[b], ijk[c]) = (layer as usize, uv >> 3, uv & 7);
+                    let v = (ijk[0] << 6) | (ijk[1] << 3) | ijk[2];
+                    if !bit(&leaf.active, v) {
                         continue;
                     }
                     let i = (leaf.origin[b] - b0) as usize + ijk[b];

@@ -12,7 +12,7 @@
 //! **Voxels.** A cone that meets an octant's box may still pass between its voxels (a wisp at
 //! a cloud's edge, a cone that grazes it): each octant keeps the mask of its non-zero voxels,
 //! and such a cone is tested against each voxel's own box `[v - 1, v + 1]` (what a trilinear
-//! lookup reads it from, grown by [`REACH_MARGIN`], [`voxel_sphere`]). Missing all of them proves `T = 1` where
+//! lookup reads it from, grown by [`REACH_MARGIN`], [`Frame::voxel_sphere`]). Missing all of them proves `T = 1` where
 //! the rule-of-three count (348 directions at the default target) would otherwise trace.
 //!
 //! **When nothing is proven.** A volume whose background is not zero (density everywhere in
@@ -98,7 +98,7 @@ struct Voxels {
 pub(crate) struct Occupancy {
     groups: Option<Vec<Group>>,
     /// Each fog volume's index-to-world map (for its voxels' boxes).
-    xforms: Vec<DAffine3>,
+    xforms: Vec<Frame>,
 }
 
 /// The world sphere and box around the index box `[lo, hi]` of `vol`.
@@ -275,7 +275,7 @@ impl Occupancy {
                     }
                 }
             }
-            xforms.push(affine(vol));
+            xforms.push(Frame::of(vol));
         }
         for s in scene.solids() {
             let Ok(c) = s.box_corners() else {
@@ -316,30 +316,36 @@ impl Occupancy {
     }
 }
 
-/// `vol`'s index-to-world map as an affine map (its image of the origin and the axes).
-fn affine(vol: &Volume) -> DAffine3 {
-    let o = vol.to_world(DVec3::ZERO);
-    let axis = |v: DVec3| vol.to_world(v) - o;
-    DAffine3 {
-        matrix3: DMat3::from_cols(axis(DVec3::X), axis(DVec3::Y), axis(DVec3::Z)),
-        translation: o,
-    }
+/// A fog volume's index-to-world map and the world half-extent `|M| h` of a voxel's box
+/// `[v - 1, v + 1]` grown by [`REACH_MARGIN`] (`h` its index half-edge, `|M|` the entrywise
+/// absolute matrix): the box `centre +- |M| h` holds the image of every corner.
+#[derive(Debug, Clone, Copy)]
+struct Frame {
+    xf: DAffine3,
+    half: DVec3,
 }
 
-/// The world sphere and box around voxel `v`'s index box `[v - 1, v + 1]` under `xf`: the box
-/// `centre +- |M| h` (`h` the index half-edge, `|M|` the entrywise absolute matrix) holds the
-/// image of every corner, and the sphere around that box holds the box.
-fn voxel_sphere(xf: &DAffine3, v: [i32; 3]) -> Sphere {
-    let c = DVec3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]));
-    let m = xf.matrix3;
-    let abs = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
-    let e = abs * DVec3::splat(1.0 + REACH_MARGIN);
-    let centre = xf.transform_point3(c);
-    Sphere {
-        centre,
-        radius: e.length(),
-        lo: centre - e,
-        hi: centre + e,
+impl Frame {
+    fn of(vol: &Volume) -> Self {
+        let xf = vol.world_from_index();
+        let m = xf.matrix3;
+        let abs = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
+        Self {
+            xf,
+            half: abs * DVec3::splat(1.0 + REACH_MARGIN),
+        }
+    }
+
+    /// The world box around voxel `v`'s box, and the sphere around that box.
+    fn voxel_sphere(&self, v: [i32; 3]) -> Sphere {
+        let c = DVec3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]));
+        let centre = self.xf.transform_point3(c);
+        Sphere {
+            centre,
+            radius: self.half.length(),
+            lo: centre - self.half,
+            hi: centre + self.half,
+        }
     }
 }
 
@@ -370,7 +376,7 @@ impl Cone {
 
     /// Whether the cone misses every block of `g` (its bound, or each part and block; a block
     /// it meets, each of its voxels' boxes), `xforms` each fog volume's index-to-world map.
-    fn misses_group(&self, g: &Group, xforms: &[DAffine3]) -> bool {
+    fn misses_group(&self, g: &Group, xforms: &[Frame]) -> bool {
         self.misses(g.bound)
             || (g.parts.iter().all(|p| self.misses_group(p, xforms))
                 && g.blocks.iter().all(|b| {
@@ -378,14 +384,14 @@ impl Cone {
                 }))
     }
 
-    /// Whether the cone misses the box of every voxel of `v` ([`voxel_sphere`]).
-    fn misses_voxels(&self, v: Voxels, xforms: &[DAffine3]) -> bool {
+    /// Whether the cone misses the box of every voxel of `v` ([`Frame::voxel_sphere`]).
+    fn misses_voxels(&self, v: Voxels, xforms: &[Frame]) -> bool {
         let Some(xf) = xforms.get(v.volume as usize) else {
             return false;
         };
         (0..64).filter(|b| v.mask >> b & 1 == 1).all(|b| {
             let at = [b >> 4, (b >> 2) & 3, b & 3];
-            self.misses(voxel_sphere(xf, [0, 1, 2].map(|k| v.origin[k] + at[k])))
+            self.misses(xf.voxel_sphere([0, 1, 2].map(|k| v.origin[k] + at[k])))
         })
     }
 
