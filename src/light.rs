@@ -8,9 +8,11 @@ pub mod adaptive;
 pub mod area;
 mod cone;
 pub mod extent;
+mod occupancy;
 mod receivers;
 pub use area::{Area, Shape};
 pub use extent::{Extent, Reach, SoftLight};
+pub use occupancy::Occupancy;
 pub use receivers::{Receiver, SoftAnswer, RAYS_PER_BATCH};
 
 /// The light a job names by position or direction (a USD stage's own lights are read from the

@@ -285,6 +285,11 @@ pub struct BakeStats {
     /// receiver (texels times `1 + slices`). Absent for a point light.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_sampled: Option<[u64; 2]>,
+    /// A map toward a light with extent under a target error: the receivers answered by a
+    /// bound on every direction's optical depth (their cones only graze density:
+    /// `T = 1` with the bound's error bar, not sampled).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_bounded: Option<u64>,
     /// A map toward a light with extent: the directions its sampled receivers traced.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_directions: Option<LightDirections>,

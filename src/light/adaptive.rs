@@ -40,12 +40,20 @@
 //! receiver ends above the target only when the cap cut its count, and is then counted.
 
 use super::extent::{SoftRays, REPLICATES};
-use crate::scene::SceneEstimate;
+use super::SoftLight;
+use crate::scene::{Scene, SceneEstimate};
 
-/// Points per replicate under a target error (the pilot's and every extra replicate's).
+/// Points per replicate under a target error (the pilot's and every extra replicate's) where
+/// the cone is not narrow ([`SoftLight::points_at`]).
 pub const PILOT_POINTS: u32 = 4;
-/// The fewest directions a receiver toward a light with extent can take under a target error:
-/// the pilot.
+/// Points per replicate under a target error where the cone is narrow: one, so the pilot is
+/// [`REPLICATES`] directions.
+pub const NARROW_POINTS: u32 = 1;
+/// A cone is narrow when it spreads at most this many voxels (the smallest voxel edge of
+/// every fog volume) sideways over its whole length ([`SoftLight::points_at`]).
+pub const NARROW_SPREAD_VOXELS: f64 = 2.0;
+/// The fewest directions a receiver toward a light with extent can take under a target error
+/// where the cone is not narrow: the pilot.
 pub const LEAST_ADAPTIVE: u32 = REPLICATES * PILOT_POINTS;
 /// The relative rounding of a direction's `T` below which a spread is not a measurement:
 /// `2^-40`.
@@ -58,7 +66,7 @@ pub const ROUNDING: f64 = 1.0 / 1_099_511_627_776.0;
 pub fn replicates_for(
     per: &[SceneEstimate],
     (pilot, r0): (&SceneEstimate, u32),
-    channels: usize,
+    (channels, m): (usize, u32),
     target: f64,
     cap: u32,
 ) -> (u32, bool) {
@@ -72,7 +80,7 @@ pub fn replicates_for(
         let at = |x: f64| per.iter().filter(|e| e.value[c] == x).count();
         let ties = 2 * at(lo).max(at(hi)) >= per.len();
         let floor = crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target;
-        let floor = (floor / f64::from(PILOT_POINTS)).ceil();
+        let floor = (floor / f64::from(m.max(1))).ceil();
         // `s0^2 / E^2` with `s0 = sqrt(R0) e0`.
         let spread = (r * (pilot.std_err[c] / target).powi(2)).ceil();
         let n = match (lo == hi, ties) {
@@ -94,6 +102,41 @@ pub fn replicates_for(
         // `need` is a whole number in [REPLICATES, cap]: the cast is exact.
         #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         (need as u32, false)
+    }
+}
+
+impl SoftLight {
+    /// Points per replicate of a target error's stages at the receiver `at` (module docs,
+    /// "narrow cones"): [`NARROW_POINTS`] when the directions' estimates are exact
+    /// (`deterministic`), the scene holds no solid and the light's whole cone from `at`
+    /// ([`SoftLight::reach`]) spreads at most [`NARROW_SPREAD_VOXELS`] voxels sideways over its
+    /// length, `length x tan(half)`; else [`PILOT_POINTS`].
+    #[must_use]
+    pub fn points_at(&self, scene: &Scene, at: [f64; 3], deterministic: bool) -> u32 {
+        if !deterministic || !scene.solids().is_empty() {
+            return PILOT_POINTS;
+        }
+        let Ok(reach) = self.reach(scene, at) else {
+            return PILOT_POINTS;
+        };
+        let voxel = scene
+            .fogs()
+            .iter()
+            .map(|f| {
+                let m = f.volume().world_from_index().matrix3;
+                m.x_axis.length().min(m.y_axis.length()).min(m.z_axis.length())
+            })
+            .fold(f64::INFINITY, f64::min);
+        let spread = reach.length * reach.half.tan();
+        let narrow = reach.half < std::f64::consts::FRAC_PI_4
+            && spread.is_finite()
+            && voxel.is_finite()
+            && spread <= NARROW_SPREAD_VOXELS * voxel;
+        if narrow {
+            NARROW_POINTS
+        } else {
+            PILOT_POINTS
+        }
     }
 }
 

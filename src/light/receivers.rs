@@ -13,6 +13,7 @@
 
 use super::adaptive::PILOT_POINTS;
 use super::extent::{Key, SoftRays, REPLICATES};
+use super::occupancy::Occupancy;
 use super::SoftLight;
 use crate::error::{Error, Result};
 use crate::estimate::{Estimator, Options};
@@ -125,6 +126,7 @@ impl SoftLight {
             None => self.samples,
         };
         let per_group = (RAYS_PER_BATCH / typical.max(1) as usize).max(1);
+        let occupancy = Occupancy::of(scene);
         // Groups in parallel: one group's pilot is about one batch of the kernel, which a
         // single worker walks (`regular::batch`), so groups one after another kept one core.
         let groups: Vec<Vec<Result<SoftAnswer>>> = receivers
@@ -142,7 +144,7 @@ impl SoftLight {
                         })
                     })
                     .collect();
-                self.answer_each(scene, &asked, est, opts)
+                self.answer_each(scene, &occupancy, &asked, est, opts)
                     .into_iter()
                     .map(|a| a.unwrap_or_else(|| Err(missing())))
                     .collect()
@@ -151,12 +153,74 @@ impl SoftLight {
         groups.into_iter().flatten().collect()
     }
 
-    /// Every receiver of `receivers` answered (`None`: not asked, `None` back), in order:
-    /// exactly [`SoftLight::samples`] directions each, or with a target error Stein's two
-    /// stages (module docs), each stage's rays of every receiver in one
+    /// Every receiver of `receivers` answered (`None`: not asked, `None` back), in order. A
+    /// receiver whose light's whole cone ([`SoftLight::reach`]) provably meets no density
+    /// (`occupancy`, [`Occupancy::optical_bound`] 0) is `T = 1` exactly, without sampling;
+    /// under a target error, one whose cone only grazes density, every direction's optical
+    /// depth at most `B` with `e^B - 1 <= target`, is `T = 1` with that error bar
+    /// (docs/lights.md, "Receivers answered without sampling"). The others trace exactly
+    /// [`SoftLight::samples`] directions each, or with a target error Stein's two stages
+    /// (module docs), each stage's rays of every receiver in one
     /// [`crate::scene::estimate_many`] call. Runs on the current rayon pool.
     #[must_use]
     pub fn answer_each(
+        &self,
+        scene: &Scene,
+        occupancy: &Occupancy,
+        receivers: &[Option<Receiver>],
+        est: &Estimator,
+        opts: &Options,
+    ) -> Vec<Option<Result<SoftAnswer>>> {
+        let limit = self.target.map_or(0.0, f64::ln_1p);
+        let bounds: Vec<Option<f64>> = receivers
+            .par_iter()
+            .map(|r| {
+                let reach = self.reach(scene, (*r)?.at).ok()?;
+                occupancy.optical_bound(&reach, limit)
+            })
+            .collect();
+        let asked: Vec<Option<Receiver>> = receivers
+            .iter()
+            .zip(&bounds)
+            .map(|(r, b)| r.filter(|_| b.is_none()))
+            .collect();
+        let sampled = self.sample_each(scene, &asked, est, opts);
+        sampled
+            .into_iter()
+            .zip(receivers)
+            .zip(bounds)
+            .map(|((s, r), b)| match (r, b) {
+                (Some(r), Some(b)) => Some(self.bounded(scene, *r, b, opts.seed)),
+                _ => s,
+            })
+            .collect()
+    }
+
+    /// The answer at `r` when every direction of its light's cone has an optical depth of at
+    /// most `bound`: `T = 1` with the error bar `e^B - 1`, which holds `|T(w) - 1|` for
+    /// every direction `w` (`T(w) >= e^-B`) and so their mean; exactly 1 (error bar 0) where
+    /// `B = 0`.
+    fn bounded(&self, scene: &Scene, r: Receiver, bound: f64, seed: u64) -> Result<SoftAnswer> {
+        let key = Key {
+            seed,
+            ray_id: r.ray_id,
+            stage: 1,
+        };
+        let centre = self.replicates(scene, r.at, key, 1, 0..0)?.centre;
+        let mut estimate = SceneEstimate::exact(scene.channels(), [0.0; 3], 0, 0);
+        estimate.tau = None;
+        estimate.value = [1.0; 3];
+        estimate.std_err = [bound.exp_m1(); 3];
+        Ok(SoftAnswer {
+            estimate,
+            centre,
+            light_samples: 0,
+            light_capped: false,
+        })
+    }
+
+    /// [`SoftLight::answer_each`] of the receivers it samples.
+    fn sample_each(
         &self,
         scene: &Scene,
         receivers: &[Option<Receiver>],
@@ -164,33 +228,42 @@ impl SoftLight {
         opts: &Options,
     ) -> Vec<Option<Result<SoftAnswer>>> {
         let Some(target) = self.target else {
-            let made = self.make(scene, receivers, (opts.seed, 0), &|_| Some(0..REPLICATES));
+            let m = self.samples / REPLICATES;
+            let made = self.make(scene, receivers, (opts.seed, 0), &|_| m, &|_| Some(0..REPLICATES));
             return stage(scene, made, est, opts)
                 .into_iter()
                 .map(|s| s.map(|s| s.map(|s| Answered::pilot(s, false).answer())))
                 .collect();
         };
         let r0 = REPLICATES;
-        let pilot = self.make(scene, receivers, (opts.seed, 1), &|_| Some(0..r0));
+        // Points per replicate, receiver by receiver: one where the cone is narrow.
+        let deterministic = est.spec().deterministic;
+        let points: Vec<u32> = receivers
+            .par_iter()
+            .map(|r| r.map_or(PILOT_POINTS, |r| self.points_at(scene, r.at, deterministic)))
+            .collect();
+        let m = |k: usize| points[k];
+        let cap = |k: usize| self.samples / points[k];
+        let pilot = self.make(scene, receivers, (opts.seed, 1), &m, &|_| Some(0..r0));
         let pilots = stage(scene, pilot, est, opts);
-        let cap = self.samples / PILOT_POINTS;
         let channels = scene.channels();
         let plan: Vec<Option<(u32, bool)>> = pilots
             .iter()
-            .map(|p| match p {
+            .enumerate()
+            .map(|(k, p)| match p {
                 Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::replicates_for(
                     &p.per,
                     (&p.answer, r0),
-                    channels,
+                    (channels, points[k]),
                     target,
-                    cap,
+                    cap(k),
                 )),
                 _ => None,
             })
             .collect();
         // Only the receivers whose pilot fell short of the target trace more.
         let more = |k: usize| plan[k].and_then(|(n, _)| (n > r0).then_some(r0..n));
-        let extra = self.make(scene, receivers, (opts.seed, 1), &more);
+        let extra = self.make(scene, receivers, (opts.seed, 1), &m, &more);
         let extras = stage(scene, extra, est, opts);
         let firsts: Vec<Option<Result<Answered>>> = pilots
             .into_iter()
@@ -210,14 +283,15 @@ impl SoftLight {
         // Stein once more, everything so far the pilot (module docs of `adaptive`).
         let again: Vec<Option<(u32, u32, bool)>> = firsts
             .iter()
-            .map(|a| match a {
+            .enumerate()
+            .map(|(k, a)| match a {
                 Some(Ok(a)) if !a.capped && a.recount(channels, target) => {
                     let (n, capped) = super::adaptive::replicates_for(
                         &a.all.per,
                         (&a.all.answer, a.reps),
-                        channels,
+                        (channels, points[k]),
                         target,
-                        cap,
+                        cap(k),
                     );
                     (n > a.reps).then_some((a.reps, n, capped))
                 }
@@ -225,7 +299,7 @@ impl SoftLight {
             })
             .collect();
         let more = |k: usize| again[k].map(|(from, n, _)| from..n);
-        let extra = self.make(scene, receivers, (opts.seed, 1), &more);
+        let extra = self.make(scene, receivers, (opts.seed, 1), &m, &more);
         let extras = stage(scene, extra, est, opts);
         firsts
             .into_iter()
@@ -245,20 +319,15 @@ impl SoftLight {
     }
 
     /// Each asked receiver's rays of one stage (`(seed, stage)`): the replicates `reps(k)` of
-    /// [`PILOT_POINTS`] points, or with a fixed count all 16 of `samples / 16` points, for
-    /// receiver `k` (`None`: none asked).
+    /// `m(k)` points for receiver `k` (`None`: none asked).
     fn make(
         &self,
         scene: &Scene,
         receivers: &[Option<Receiver>],
         (seed, stage): (u64, u64),
+        m: &(dyn Fn(usize) -> u32 + Sync),
         reps: &(dyn Fn(usize) -> Option<std::ops::Range<u32>> + Sync),
     ) -> Vec<Option<Result<SoftRays>>> {
-        let m = if stage == 0 {
-            self.samples / REPLICATES
-        } else {
-            PILOT_POINTS
-        };
         receivers
             .par_iter()
             .enumerate()
@@ -269,7 +338,7 @@ impl SoftLight {
                     ray_id: r.ray_id,
                     stage,
                 };
-                Some(self.replicates(scene, r.at, key, m, reps(k)?))
+                Some(self.replicates(scene, r.at, key, m(k), reps(k)?))
             })
             .collect()
     }

@@ -426,6 +426,12 @@ fn soft_attributes(
     if let Some(e) = soft.light.target {
         attrs.push(("light_target_error".into(), AttributeValue::F64(e)));
     }
+    if let Some(b) = stats.light_bounded {
+        attrs.push((
+            "light_bounded".into(),
+            AttributeValue::I32(clamp_i32(b)),
+        ));
+    }
     if let Some(d) = stats.light_directions {
         attrs.push(("light_directions_mean".into(), AttributeValue::F64(d.mean)));
         attrs.push((

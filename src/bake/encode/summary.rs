@@ -122,6 +122,10 @@ pub struct SummaryLight {
     pub sampled: u64,
     /// `sampled / receivers`.
     pub sampled_fraction: f64,
+    /// Receivers answered by a bound on every direction's optical depth (their cones only
+    /// graze density; `T = 1` with the bound as its error bar), not sampled.
+    #[serde(default)]
+    pub bounded: u64,
 }
 
 impl SummaryLight {
@@ -141,6 +145,7 @@ impl SummaryLight {
             receivers,
             sampled,
             sampled_fraction: sampled as f64 / receivers.max(1) as f64,
+            bounded: map.stats.light_bounded.unwrap_or(0),
         })
     }
 }

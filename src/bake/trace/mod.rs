@@ -3,7 +3,6 @@
 //! bake of scenes (`scene`). Tracing makes a [`Map`] in memory; it reads no file and writes
 //! none (encoding is `bake/encode`, orchestration `bake/product`).
 
-mod occupancy;
 pub(crate) mod scene;
 mod soft;
 pub(crate) mod sweep;

@@ -14,21 +14,22 @@
 //! **Receivers answered without sampling.** A receiver whose every direction provably meets no
 //! density ([`Occupancy`]: the light's whole cone from it, [`crate::light::SoftLight::reach`],
 //! misses every block that holds density, or the light's own box test found nothing) stores
-//! `T = 1` with `std_err = 0`, and is not counted in [`BakeStats::light_sampled`].
+//! `T = 1` with `std_err = 0`; under a target error one whose cone only grazes density stores
+//! `T = 1` with its bound as the error bar ([`Occupancy::optical_bound`]). Neither is counted
+//! in [`BakeStats::light_sampled`]; the second is counted in [`BakeStats::light_bounded`].
 //!
 //! **The count.** Each receiver's directions are [`crate::light::SoftLight::answer_each`]'s: a
 //! fixed `light-samples`, or as many as `target-error` asks (default 5e-3), counted in
 //! [`BakeStats::light_directions`].
 
 use super::in_pool;
-use super::occupancy::Occupancy;
 use crate::bake::camera::{Camera, MAX_PIXELS};
 use crate::bake::map::LightDirections;
 use crate::bake::map::{
     bad, split_channels, BakeSettings, BakeStats, Channel, Map, Receiver as Place, SoftMap,
 };
 use crate::error::Result;
-use crate::light::Receiver;
+use crate::light::{Occupancy, Receiver};
 use crate::ray::Ray;
 use crate::scene::{Scene, SceneEstimate};
 use rayon::prelude::*;
@@ -146,16 +147,14 @@ fn render(
             .at(receiver_t(scene, &ray, soft.receiver, depths, k))
             .to_array();
         let ray_id = if k == 0 { p } else { (63 + k) * n + p } as u64;
-        // The proof covers the light's whole cone, not the directions drawn.
-        let reach = soft.light.reach(scene, at)?;
-        Ok((!occupancy.misses(&reach)).then_some(Receiver { at, ray_id }))
+        Ok(Some(Receiver { at, ray_id }))
     };
     let blocks: Vec<Vec<Answer>> = (0..total.div_ceil(block))
         .into_par_iter()
         .map(|b| {
             let (r0, r1) = (b * block, ((b + 1) * block).min(total));
             let made: Vec<Option<Receiver>> = (r0..r1).map(make).collect::<Result<_>>()?;
-            let answers = answer_block(scene, &soft.light, &made, (est, opts))?;
+            let answers = answer_block(scene, (&soft.light, &occupancy), &made, (est, opts))?;
             // Progress in whole texels' worth of receivers.
             let before = done.fetch_add(r1 - r0, std::sync::atomic::Ordering::Relaxed);
             progress.advance(((before + r1 - r0) / per_texel - before / per_texel) as u64);
@@ -177,12 +176,12 @@ fn render(
 /// one batch ([`crate::light::SoftLight::answer_each`]).
 fn answer_block(
     scene: &Scene,
-    light: &crate::light::SoftLight,
+    (light, occupancy): (&crate::light::SoftLight, &Occupancy),
     made: &[Option<Receiver>],
     (est, opts): (&crate::estimate::Estimator, &crate::estimate::Options),
 ) -> Result<Vec<Answer>> {
     light
-        .answer_each(scene, made, est, opts)
+        .answer_each(scene, occupancy, made, est, opts)
         .into_iter()
         .map(|a| {
             Ok(match a {
@@ -260,6 +259,12 @@ fn assemble(
         answers.iter().filter(|a| a.directions > 0).count() as u64,
         answers.len() as u64,
     ]);
+    stats.light_bounded = Some(
+        answers
+            .iter()
+            .filter(|a| a.directions == 0 && a.estimate.std_err[0] > 0.0)
+            .count() as u64,
+    );
     stats.light_directions = Some(LightDirections::of(
         answers.iter().map(|a| (a.directions, a.capped)),
     ));

@@ -221,10 +221,11 @@ fn map_text(
         writeln!(
             out,
             "light with extent ({}): {count} at the {}; {sampled} of {receivers} receivers \
-             sampled ({:.1}%), largest std_err {:.2e}",
+             sampled ({:.1}%), {} answered by a bound, largest std_err {:.2e}",
             soft.light.extent,
             soft.receiver,
             100.0 * sampled as f64 / receivers.max(1) as f64,
+            st.light_bounded.unwrap_or(0),
             st.max_std_err,
         )?;
     }

@@ -546,7 +546,13 @@ fn answer_soft(
     let start = std::time::Instant::now();
     let receiver = crate::light::Receiver { at, ray_id };
     let result = soft
-        .answer_each(scene, &[Some(receiver)], est, opts)
+        .answer_each(
+            scene,
+            &crate::light::Occupancy::of(scene),
+            &[Some(receiver)],
+            est,
+            opts,
+        )
         .pop()
         .flatten()
         .unwrap_or_else(|| {

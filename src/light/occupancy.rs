@@ -1,7 +1,9 @@
-//! Where a scene can hold density, as world spheres in two levels, for a soft map's receivers
-//! answered without sampling (`trace/soft.rs`): a receiver whose light's whole cone (every
-//! direction toward the light, as far as its segments run) misses every sphere meets no
-//! density, so `T = 1` exactly.
+//! Where a scene can hold density, as world spheres in two levels, for receivers toward a
+//! light with extent answered without sampling ([`super::SoftLight::answer_each`], every
+//! product's one path): a receiver whose light's whole cone (every direction toward the
+//! light, as far as its segments run) misses every sphere meets no density, so `T = 1`
+//! exactly; one whose cone only grazes a few voxels has a bound on every direction's optical
+//! depth.
 //!
 //! **Blocks.** Per fog volume: the non-zero values of every leaf, as one box per `4^3` octant
 //! around the voxels that hold them, every lower-node tile whose value is not
@@ -10,10 +12,18 @@
 //! block and each group is bounded by the world sphere around its transformed box.
 //!
 //! **Voxels.** A cone that meets an octant's box may still pass between its voxels (a wisp at
-//! a cloud's edge, a cone that grazes it): each octant keeps the mask of its non-zero voxels,
-//! and such a cone is tested against each voxel's own box `[v - 1, v + 1]` (what a trilinear
-//! lookup reads it from, grown by [`REACH_MARGIN`], [`Frame::voxel_sphere`]). Missing all of them proves `T = 1` where
-//! the rule-of-three count (348 directions at the default target) would otherwise trace.
+//! a cloud's edge, a cone that grazes it): each octant keeps the mask of its non-zero voxels
+//! and their largest `|value|`, and such a cone is tested against each voxel's own box `[v -
+//! 1, v + 1]` (what a trilinear lookup reads it from, grown by [`REACH_MARGIN`]). Missing all
+//! of them proves `T = 1` where the rule-of-three count would otherwise trace.
+//!
+//! **Grazing cones** ([`Occupancy::optical_bound`]). A cone that meets a voxel's box but stays
+//! outside the inner box `[v - (1 - e), v + (1 - e)]` (for the thinnest of the depths
+//! [`SHELLS`]) reads that voxel with a trilinear weight `prod_k (1 - |p_k - v_k|) <= e`
+//! everywhere, along a chord no longer than the box's world diameter `2 r`: the voxel adds at
+//! most `mu |value| e 2 r` to any direction's optical depth. The sum `B` over every voxel the
+//! cone meets bounds every direction's `tau`, so `e^-B <= T(w) <= 1` for every direction `w`
+//! of the light, not only the ones drawn.
 //!
 //! **When nothing is proven.** A volume whose background is not zero (density everywhere in
 //! its box), with a non-zero root tile, or moving (motion blur moves density), makes
@@ -85,17 +95,19 @@ struct Block {
 }
 
 /// The non-zero voxels of a leaf's `4^3` octant: bit `16 x + 4 y + z` of `mask` for voxel
-/// `origin + (x, y, z)` (index space of fog volume `volume`).
+/// `origin + (x, y, z)` (index space of fog volume `volume`), and the largest `|value|` among
+/// them (NaN if one is NaN).
 #[derive(Debug, Clone, Copy)]
 struct Voxels {
     origin: [i32; 3],
     mask: u64,
     volume: u32,
+    most: f32,
 }
 
 /// Where density can be (module docs); `None`: anywhere.
 #[derive(Debug, Clone)]
-pub(crate) struct Occupancy {
+pub struct Occupancy {
     groups: Option<Vec<Group>>,
     /// Each fog volume's index-to-world map (for its voxels' boxes).
     xforms: Vec<Frame>,
@@ -142,11 +154,19 @@ fn octant_boxes(origin: [i32; 3], values: &[f32; 512], out: &mut Vec<Boxed>) {
         let o = [4 * (oct >> 2), 4 * ((oct >> 1) & 1), 4 * (oct & 1)];
         let (mut lo, mut hi) = ([usize::MAX; 3], [0usize; 3]);
         let mut mask = 0u64;
+        let mut most = 0.0f32;
         for x in o[0]..o[0] + 4 {
             for y in o[1]..o[1] + 4 {
                 for z in o[2]..o[2] + 4 {
                     // `leaf_offset`'s layout; NaN is not zero.
-                    if values[(x << 6) | (y << 3) | z] != 0.0 {
+                    let v = values[(x << 6) | (y << 3) | z];
+                    if v != 0.0 {
+                        // NaN stays NaN (`max` would drop it).
+                        most = if v.is_nan() || most.is_nan() {
+                            f32::NAN
+                        } else {
+                            most.max(v.abs())
+                        };
                         lo = [lo[0].min(x), lo[1].min(y), lo[2].min(z)];
                         hi = [hi[0].max(x), hi[1].max(y), hi[2].max(z)];
                         mask |= 1 << (16 * (x - o[0]) + 4 * (y - o[1]) + (z - o[2]));
@@ -167,13 +187,13 @@ fn octant_boxes(origin: [i32; 3], values: &[f32; 512], out: &mut Vec<Boxed>) {
         out.push((
             l - (1.0 + REACH_MARGIN),
             h + REACH_MARGIN,
-            Some((corner, mask)),
+            Some((corner, mask, most)),
         ));
     }
 }
 
 /// An index box and, for a leaf's octant, its first voxel and non-zero voxels' mask.
-type Boxed = (DVec3, DVec3, Option<([i32; 3], u64)>);
+type Boxed = (DVec3, DVec3, Option<([i32; 3], u64, f32)>);
 
 /// The groups of one volume (fog volume number `id`), `None` when it may hold density anywhere.
 fn volume_groups(vol: &Volume, id: u32) -> Option<Vec<Group>> {
@@ -203,10 +223,11 @@ fn volume_groups(vol: &Volume, id: u32) -> Option<Vec<Group>> {
                 .iter()
                 .map(|(l, h, v)| Block {
                     bound: sphere(vol, *l, *h),
-                    voxels: v.map(|(origin, mask)| Voxels {
+                    voxels: v.map(|(origin, mask, most)| Voxels {
                         origin,
                         mask,
                         volume: id,
+                        most,
                     }),
                 })
                 .collect(),
@@ -261,7 +282,8 @@ fn volume_groups(vol: &Volume, id: u32) -> Option<Vec<Group>> {
 
 impl Occupancy {
     /// Where `scene` can hold density.
-    pub(crate) fn of(scene: &Scene) -> Self {
+    #[must_use]
+    pub fn of(scene: &Scene) -> Self {
         let mut groups = Vec::new();
         let mut xforms = Vec::new();
         for (id, f) in scene.fogs().iter().enumerate() {
@@ -275,7 +297,7 @@ impl Occupancy {
                     }
                 }
             }
-            xforms.push(Frame::of(vol));
+            xforms.push(Frame::of(vol, f.sigma()));
         }
         for s in scene.solids() {
             let Ok(c) = s.box_corners() else {
@@ -303,16 +325,30 @@ impl Occupancy {
     /// Whether every segment of the light's reach from a receiver (its whole cone, as long as
     /// its segments may run: [`crate::light::SoftLight::reach`]) provably misses every block:
     /// the cone misses every block's sphere. Every direction of the light, not the ones drawn.
-    pub(crate) fn misses(&self, reach: &crate::light::Reach) -> bool {
-        let Some(groups) = &self.groups else {
-            return false;
-        };
+    #[must_use]
+    pub fn misses(&self, reach: &super::Reach) -> bool {
+        self.optical_bound(reach, 0.0) == Some(0.0)
+    }
+
+    /// An upper bound `B` on the optical depth of every segment of the light's reach from a
+    /// receiver (its whole cone), when that bound is at most `limit`: 0 when the cone misses
+    /// every block ([`Occupancy::misses`]); else the sum over the voxels whose boxes it meets
+    /// of [`Cone::voxel_bound`]; `None` when the bound is above `limit`, or the cone meets a
+    /// tile, a solid or a NaN voxel, or nothing is proven for this scene. Every direction `w`
+    /// of the cone then has `|T(w) - 1| <= e^B - 1`, and so has their mean.
+    #[must_use]
+    pub fn optical_bound(&self, reach: &super::Reach, limit: f64) -> Option<f64> {
+        let groups = self.groups.as_ref()?;
         let cone = Cone::new(reach.apex, reach.axis, reach.half, reach.length);
         // The angular test holds for any half-angle (it compares directions from the apex).
         if !(cone.length.is_finite() && cone.apex.is_finite() && cone.half.is_finite()) {
-            return false;
+            return None;
         }
-        groups.iter().all(|g| cone.misses_group(g, &self.xforms))
+        let mut sum = 0.0;
+        for g in groups {
+            sum += cone.group_bound(g, &self.xforms, limit - sum)?;
+        }
+        (sum <= limit).then_some(sum)
     }
 }
 
@@ -323,28 +359,40 @@ impl Occupancy {
 struct Frame {
     xf: DAffine3,
     half: DVec3,
+    /// The world half-extents of the shells' inner boxes `[v - (1 - e), v + (1 - e)]` grown
+    /// by [`REACH_MARGIN`], one per `e` of [`SHELLS`].
+    inner: [DVec3; SHELLS.len()],
+    /// `mu` per unit value: the largest `sigma` times the density scale.
+    mu: f64,
 }
 
+/// The depths `e` (voxels) of the shells a grazing cone is bounded by ([`Cone::voxel_bound`]),
+/// increasing.
+const SHELLS: [f64; 8] = [2e-3, 5e-3, 1e-2, 2e-2, 5e-2, 0.1, 0.2, 0.4];
+
 impl Frame {
-    fn of(vol: &Volume) -> Self {
+    fn of(vol: &Volume, sigma: [f64; 3]) -> Self {
         let xf = vol.world_from_index();
         let m = xf.matrix3;
         let abs = DMat3::from_cols(m.x_axis.abs(), m.y_axis.abs(), m.z_axis.abs());
+        let s = sigma.iter().copied().fold(0.0f64, f64::max);
         Self {
             xf,
             half: abs * DVec3::splat(1.0 + REACH_MARGIN),
+            inner: SHELLS.map(|e| abs * DVec3::splat(1.0 - e + REACH_MARGIN)),
+            mu: crate::math::scaled(s, vol.density_scale()),
         }
     }
 
-    /// The world box around voxel `v`'s box, and the sphere around that box.
-    fn voxel_sphere(&self, v: [i32; 3]) -> Sphere {
+    /// The world box (and sphere) around voxel `v`'s index box of half-edge given by `half`.
+    fn voxel_box(&self, v: [i32; 3], half: DVec3) -> Sphere {
         let c = DVec3::new(f64::from(v[0]), f64::from(v[1]), f64::from(v[2]));
         let centre = self.xf.transform_point3(c);
         Sphere {
             centre,
-            radius: self.half.length(),
-            lo: centre - self.half,
-            hi: centre + self.half,
+            radius: half.length(),
+            lo: centre - half,
+            hi: centre + half,
         }
     }
 }
@@ -374,25 +422,61 @@ impl Cone {
         }
     }
 
-    /// Whether the cone misses every block of `g` (its bound, or each part and block; a block
-    /// it meets, each of its voxels' boxes), `xforms` each fog volume's index-to-world map.
-    fn misses_group(&self, g: &Group, xforms: &[Frame]) -> bool {
-        self.misses(g.bound)
-            || (g.parts.iter().all(|p| self.misses_group(p, xforms))
-                && g.blocks.iter().all(|b| {
-                    self.misses(b.bound) || b.voxels.is_some_and(|v| self.misses_voxels(v, xforms))
-                }))
+    /// [`Occupancy::optical_bound`] over the group `g`, `None` beyond `limit`.
+    fn group_bound(&self, g: &Group, xforms: &[Frame], limit: f64) -> Option<f64> {
+        if self.misses(g.bound) {
+            return Some(0.0);
+        }
+        let mut sum = 0.0;
+        for p in &g.parts {
+            sum += self.group_bound(p, xforms, limit - sum)?;
+        }
+        for b in &g.blocks {
+            if self.misses(b.bound) {
+                continue;
+            }
+            // A tile or a solid the cone meets: no bound.
+            sum += self.voxels_bound(b.voxels?, xforms, limit - sum)?;
+        }
+        (sum <= limit).then_some(sum)
     }
 
-    /// Whether the cone misses the box of every voxel of `v` ([`Frame::voxel_sphere`]).
-    fn misses_voxels(&self, v: Voxels, xforms: &[Frame]) -> bool {
-        let Some(xf) = xforms.get(v.volume as usize) else {
-            return false;
-        };
-        (0..64).filter(|b| v.mask >> b & 1 == 1).all(|b| {
+    /// The optical depth a segment of the cone can gather from the voxels of `v`: per voxel
+    /// whose box `[v - 1, v + 1]` the cone meets, `mu |value| e d` ([`Cone::voxel_bound`]);
+    /// `None` beyond `limit`.
+    fn voxels_bound(&self, v: Voxels, xforms: &[Frame], limit: f64) -> Option<f64> {
+        let xf = xforms.get(v.volume as usize)?;
+        let mu = crate::math::scaled(xf.mu, f64::from(v.most));
+        let mut sum = 0.0;
+        for b in (0..64).filter(|b| v.mask >> b & 1 == 1) {
             let at = [b >> 4, (b >> 2) & 3, b & 3];
-            self.misses(xf.voxel_sphere([0, 1, 2].map(|k| v.origin[k] + at[k])))
-        })
+            let voxel = [0, 1, 2].map(|k| v.origin[k] + at[k]);
+            let full = xf.voxel_box(voxel, xf.half);
+            if self.misses(full) {
+                continue;
+            }
+            if limit <= 0.0 {
+                return None;
+            }
+            sum += self.voxel_bound(xf, voxel, full.radius, mu)?;
+            if !(sum <= limit) {
+                return None;
+            }
+        }
+        Some(sum)
+    }
+
+    /// A bound on what voxel `voxel` (`mu` its largest extinction, `radius` the half-diagonal
+    /// of the world box around its box) adds to the optical depth of any segment of the cone,
+    /// when the cone stays in the shell `1 - e <= max_k |p_k - v_k| <= 1` of its box (index
+    /// space) for the thinnest `e` of [`SHELLS`]: a trilinear lookup at `p` weighs voxel `v` by
+    /// `prod_k (1 - |p_k - v_k|) <= 1 - max_k |p_k - v_k| <= e`, and a segment crosses the box
+    /// within its diameter, so the voxel adds at most `mu e 2 radius`. `None` when the cone
+    /// reaches inside every shell.
+    fn voxel_bound(&self, xf: &Frame, voxel: [i32; 3], radius: f64, mu: f64) -> Option<f64> {
+        let k = (0..SHELLS.len()).find(|&k| self.misses(xf.voxel_box(voxel, xf.inner[k])))?;
+        let b = mu * SHELLS[k] * 2.0 * radius;
+        b.is_finite().then_some(b)
     }
 
     /// Whether no point of the cone within `length` of its apex is in the sphere `s`: the
