@@ -124,7 +124,10 @@ impl SoftLight {
             .iter()
             .map(|f| {
                 let m = f.volume().world_from_index().matrix3;
-                m.x_axis.length().min(m.y_axis.length()).min(m.z_axis.length())
+                m.x_axis
+                    .length()
+                    .min(m.y_axis.length())
+                    .min(m.z_axis.length())
             })
             .fold(f64::INFINITY, f64::min);
         let spread = reach.length * reach.half.tan();

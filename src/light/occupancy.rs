@@ -459,7 +459,8 @@ impl Cone {
                 return None;
             }
             sum += self.voxel_bound(xf, voxel, full.radius, mu)?;
-            if !(sum <= limit) {
+            // NaN (a NaN voxel) is beyond any limit.
+            if sum.is_nan() || sum > limit {
                 return None;
             }
         }
@@ -588,6 +589,58 @@ mod tests {
         // The margin: a line just outside a voxel's reach is clear, one just inside is not.
         assert!(occ.misses(&reach([1.0 + 2e-3, 0.0, -20.0], 1e-9)));
         assert!(!occ.misses(&reach([1.0 - 1e-3, 0.0, -20.0], 1e-9)));
+    }
+
+    #[test]
+    fn a_cone_in_a_voxels_outer_shell_is_bounded_above_its_optical_depth() {
+        // One voxel of value 3 at the origin; cones along z at index x = 0.99 (inside the
+        // voxel's reach [-1, 1], a trilinear weight of at most 0.01 there).
+        let mut b = crate::tree::TreeBuilder::new(0.0);
+        b.set([0, 0, 0], 3.0);
+        let xf = [
+            [0.5, 0.0, 0.0, 1.0],
+            [0.0, 0.5, 0.0, -2.0],
+            [0.0, 0.0, 0.5, 0.25],
+        ];
+        let vol = Volume::from_tree("v".into(), b.build(), xf, 2.0).expect("volume");
+        let scene = Scene::from_volume(vol.clone());
+        let occ = Occupancy::of(&scene);
+        let world = |p: [f64; 3]| vol.to_world(DVec3::from_array(p));
+        let reach = |x: f64, half: f64| crate::light::Reach {
+            apex: world([x, 0.0, -20.0]),
+            axis: DVec3::Z,
+            half,
+            length: 100.0,
+        };
+        let exact = |x: f64, dx: f64| {
+            let ray = crate::ray::Ray::new(
+                world([x, 0.0, -20.0]),
+                DVec3::new(dx, 0.0, 1.0).normalize(),
+                0.0,
+                100.0,
+            )
+            .expect("ray");
+            crate::regular::optical_depth(&vol, &ray, crate::volume::Interp::Trilinear)
+                .expect("tau")
+                .tau
+        };
+        // Not proven clear, but bounded: above every direction's optical depth (the axis and
+        // both edges of the cone), and small.
+        let half = 1e-4;
+        assert!(!occ.misses(&reach(0.99, half)));
+        let bound = occ.optical_bound(&reach(0.99, half), 1.0).expect("a bound");
+        for dx in [-half, 0.0, half] {
+            let tau = exact(0.99, dx);
+            assert!(tau > 0.0 && tau <= bound, "tau {tau}, bound {bound}");
+        }
+        // The truth is 6 x 0.01 x 0.5 = 0.03 (mu, the weight, the integral of the tent along
+        // z); the bound takes the next shell (0.02) and the box's diagonal for the chord.
+        assert!(bound < 10.0 * exact(0.99, 0.0), "{bound}");
+        // A limit below the bound gives none; a cone through the voxel has none; one outside
+        // its reach is clear.
+        assert_eq!(occ.optical_bound(&reach(0.99, half), bound / 2.0), None);
+        assert_eq!(occ.optical_bound(&reach(0.3, half), 1.0), None);
+        assert_eq!(occ.optical_bound(&reach(1.01, half), 1.0), Some(0.0));
     }
 
     #[test]

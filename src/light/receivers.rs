@@ -229,7 +229,9 @@ impl SoftLight {
     ) -> Vec<Option<Result<SoftAnswer>>> {
         let Some(target) = self.target else {
             let m = self.samples / REPLICATES;
-            let made = self.make(scene, receivers, (opts.seed, 0), &|_| m, &|_| Some(0..REPLICATES));
+            let made = self.make(scene, receivers, (opts.seed, 0), &|_| m, &|_| {
+                Some(0..REPLICATES)
+            });
             return stage(scene, made, est, opts)
                 .into_iter()
                 .map(|s| s.map(|s| s.map(|s| Answered::pilot(s, false).answer())))

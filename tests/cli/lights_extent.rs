@@ -248,11 +248,20 @@ fn every_refusal_names_its_flag() {
     );
 }
 
-/// A sphere light 1e300 away (its squared distance overflows): answered, T = 1 with an
-/// error bar that is not 0, never an error about a ray without direction.
+/// A sphere light 1e300 away (its squared distance overflows): answered, never an error about
+/// a ray without direction. Toward `+x` the whole cone passes beside the cloud's voxels: `T =
+/// 1` proven, without sampling; up and to `-x` it crosses the cloud: sampled, an error bar
+/// that is not 0.
 #[test]
 fn a_sphere_light_at_1e300_is_answered() {
     let v = answer(&["--light-pos=1e300,0,0", "--light-radius", "1e299"]);
-    assert_eq!(v["T"], 1.0, "{v}");
+    assert_eq!(
+        (&v["T"], &v["std_err"], &v["light_samples"]),
+        (&Value::from(1.0), &Value::from(0.0), &Value::from(0)),
+        "{v}"
+    );
+    let v = answer(&["--light-pos=-1e300,0.5e300,0", "--light-radius", "1e299"]);
+    let t = v["T"].as_f64().unwrap();
+    assert!(t > 0.0 && t < 1.0, "{v}");
     assert!(v["std_err"].as_f64().unwrap() > 0.0, "{v}");
 }

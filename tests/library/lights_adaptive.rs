@@ -218,8 +218,12 @@ fn a_receiver_that_reaches_the_cap_is_counted() {
     let d = r.map.stats.light_directions.unwrap();
     assert!(d.capped > 0, "{d:?}");
     assert!(d.max <= 128, "{d:?}");
-    let (_, _, dirs, capped) = query(&file, [-1.5, -10.0, 2.0], light, 0);
+    // A receiver in the box's penumbra (one beside it, `x = -1.5`, is proven clear: its cone
+    // passes outside every voxel's reach).
+    let (_, _, dirs, capped) = query(&file, [1.5, -10.0, 2.0], light.clone(), 0);
     assert!(capped && dirs == 128, "{dirs} {capped}");
+    let (t, e, dirs, capped) = query(&file, [-1.5, -10.0, 2.0], light, 0);
+    assert_eq!((t, e, dirs, capped), (1.0, 0.0, 0, false));
 }
 
 #[test]

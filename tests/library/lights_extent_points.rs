@@ -279,7 +279,8 @@ fn extreme_lights_are_answered() {
     let a = positions(&sun, extent(Some(1.0), None, Some(64)), "regular", 0);
     let f = &a.frames[0];
     assert_eq!((f.transmittance[4], f.std_err[4]), (1.0, 0.0));
-    assert_eq!(f.sampled, Some(POINTS.len() - 1));
+    // And one near receiver whose cone passes between the cloud's voxels is proven clear too.
+    assert_eq!(f.sampled, Some(POINTS.len() - 2));
     let lamp = stage(dir.path(), LAMP);
     for keys in [
         // Every receiver inside the sphere.

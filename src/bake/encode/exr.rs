@@ -427,10 +427,7 @@ fn soft_attributes(
         attrs.push(("light_target_error".into(), AttributeValue::F64(e)));
     }
     if let Some(b) = stats.light_bounded {
-        attrs.push((
-            "light_bounded".into(),
-            AttributeValue::I32(clamp_i32(b)),
-        ));
+        attrs.push(("light_bounded".into(), AttributeValue::I32(clamp_i32(b))));
     }
     if let Some(d) = stats.light_directions {
         attrs.push(("light_directions_mean".into(), AttributeValue::F64(d.mean)));
