@@ -447,6 +447,10 @@ impl Cone {
     fn voxels_bound(&self, v: Voxels, xforms: &[Frame], limit: f64) -> Option<f64> {
         let xf = xforms.get(v.volume as usize)?;
         let mu = crate::math::scaled(xf.mu, f64::from(v.most));
+        // No extinction (a density scale or sigma of 0): these voxels add nothing anywhere.
+        if mu == 0.0 {
+            return Some(0.0);
+        }
         let mut sum = 0.0;
         for b in (0..64).filter(|b| v.mask >> b & 1 == 1) {
             let at = [b >> 4, (b >> 2) & 3, b & 3];
@@ -641,6 +645,11 @@ mod tests {
         assert_eq!(occ.optical_bound(&reach(0.99, half), bound / 2.0), None);
         assert_eq!(occ.optical_bound(&reach(0.3, half), 1.0), None);
         assert_eq!(occ.optical_bound(&reach(1.01, half), 1.0), Some(0.0));
+        // With a density scale of 0 nothing anywhere has extinction: clear, even through it.
+        let none = Volume::from_tree("v".into(), vol.tree().clone(), xf, 0.0).expect("volume");
+        let occ = Occupancy::of(&Scene::from_volume(none));
+        assert_eq!(occ.optical_bound(&reach(0.3, half), 1.0), Some(0.0));
+        assert!(occ.misses(&reach(0.0, half)));
     }
 
     #[test]
