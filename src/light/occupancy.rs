@@ -288,6 +288,12 @@ impl Occupancy {
         let mut xforms = Vec::new();
         for (id, f) in scene.fogs().iter().enumerate() {
             let vol = f.volume();
+            let frame = Frame::of(vol, f.sigma());
+            xforms.push(frame);
+            // A volume without extinction (a density scale or sigma of 0) holds no density.
+            if frame.mu == 0.0 {
+                continue;
+            }
             match volume_groups(vol, id as u32) {
                 Some(g) => groups.extend(g),
                 None => {
@@ -297,7 +303,6 @@ impl Occupancy {
                     }
                 }
             }
-            xforms.push(Frame::of(vol, f.sigma()));
         }
         for s in scene.solids() {
             let Ok(c) = s.box_corners() else {
@@ -447,10 +452,6 @@ impl Cone {
     fn voxels_bound(&self, v: Voxels, xforms: &[Frame], limit: f64) -> Option<f64> {
         let xf = xforms.get(v.volume as usize)?;
         let mu = crate::math::scaled(xf.mu, f64::from(v.most));
-        // No extinction (a density scale or sigma of 0): these voxels add nothing anywhere.
-        if mu == 0.0 {
-            return Some(0.0);
-        }
         let mut sum = 0.0;
         for b in (0..64).filter(|b| v.mask >> b & 1 == 1) {
             let at = [b >> 4, (b >> 2) & 3, b & 3];
