@@ -38,6 +38,18 @@
 //! once the pilot agreed) are the pilot of one more Stein stage: `n2 = ceil(n1 s1^2 / E^2)`
 //! replicates in all, the error bar `s1 / sqrt(n2)` (`s1` the spread of the `n1`), so a
 //! receiver ends above the target only when the cap cut its count, and is then counted.
+//!
+//! **Narrow cones** ([`SoftLight::points_at`]). Toward a sun whose whole cone from a receiver
+//! spreads at most [`NARROW_SPREAD_VOXELS`] voxels sideways (`length x tan(half)`, against the
+//! smallest voxel edge of every fog volume), with exact estimates and no solid, every replicate
+//! is one direction ([`NARROW_POINTS`]): the pilot is 16 directions, not 64. Across such a cone
+//! the trilinear density moves by a couple of voxels at most, so `T` is close to affine in the
+//! direction and single directions are near enough normal for the `t` above (measured against
+//! 4096-direction references on real caches at up to 4 voxels of spread, docs/lights.md). A
+//! wide cone can hide an edge or a bright spot from one direction per replicate, a solid's edge
+//! is a step at any width, a stochastic estimator's noise need not be normal in one direction,
+//! and an area or sphere light's points carry solid-angle weights (a one-sided light's can be
+//! 0): those keep [`PILOT_POINTS`].
 
 use super::extent::{SoftRays, REPLICATES};
 use super::SoftLight;
@@ -107,13 +119,14 @@ pub fn replicates_for(
 
 impl SoftLight {
     /// Points per replicate of a target error's stages at the receiver `at` (module docs,
-    /// "narrow cones"): [`NARROW_POINTS`] when the directions' estimates are exact
-    /// (`deterministic`), the scene holds no solid and the light's whole cone from `at`
+    /// "Narrow cones"): [`NARROW_POINTS`] toward a sun when the directions' estimates are
+    /// exact (`deterministic`), the scene holds no solid and the light's whole cone from `at`
     /// ([`SoftLight::reach`]) spreads at most [`NARROW_SPREAD_VOXELS`] voxels sideways over its
     /// length, `length x tan(half)`; else [`PILOT_POINTS`].
     #[must_use]
     pub fn points_at(&self, scene: &Scene, at: [f64; 3], deterministic: bool) -> u32 {
-        if !deterministic || !scene.solids().is_empty() {
+        let sun = matches!(self.extent, super::Extent::Sun { .. });
+        if !sun || !deterministic || !scene.solids().is_empty() {
             return PILOT_POINTS;
         }
         let Ok(reach) = self.reach(scene, at) else {
