@@ -38,34 +38,14 @@
 //! once the pilot agreed) are the pilot of one more Stein stage: `n2 = ceil(n1 s1^2 / E^2)`
 //! replicates in all, the error bar `s1 / sqrt(n2)` (`s1` the spread of the `n1`), so a
 //! receiver ends above the target only when the cap cut its count, and is then counted.
-//!
-//! **Narrow cones** ([`SoftLight::points_at`]). Toward a sun whose whole cone from a receiver
-//! spreads at most [`NARROW_SPREAD_VOXELS`] voxels sideways (`length x tan(half)`, against the
-//! smallest voxel edge of every fog volume), with exact estimates and no solid, every replicate
-//! is one direction ([`NARROW_POINTS`]): the pilot is 16 directions, not 64. Across such a cone
-//! the trilinear density moves by a couple of voxels at most, so `T` is close to affine in the
-//! direction and single directions are near enough normal for the `t` above (measured against
-//! 4096-direction references on real caches at up to 4 voxels of spread, docs/lights.md). A
-//! wide cone can hide an edge or a bright spot from one direction per replicate, a solid's edge
-//! is a step at any width, a stochastic estimator's noise need not be normal in one direction,
-//! and an area or sphere light's points carry solid-angle weights (a one-sided light's can be
-//! 0): those keep [`PILOT_POINTS`].
 
 use super::extent::{SoftRays, REPLICATES};
-use super::SoftLight;
-use crate::scene::{Scene, SceneEstimate};
+use crate::scene::SceneEstimate;
 
-/// Points per replicate under a target error (the pilot's and every extra replicate's) where
-/// the cone is not narrow ([`SoftLight::points_at`]).
+/// Points per replicate under a target error (the pilot's and every extra replicate's).
 pub const PILOT_POINTS: u32 = 4;
-/// Points per replicate under a target error where the cone is narrow: one, so the pilot is
-/// [`REPLICATES`] directions.
-pub const NARROW_POINTS: u32 = 1;
-/// A cone is narrow when it spreads at most this many voxels (the smallest voxel edge of
-/// every fog volume) sideways over its whole length ([`SoftLight::points_at`]).
-pub const NARROW_SPREAD_VOXELS: f64 = 2.0;
-/// The fewest directions a receiver toward a light with extent can take under a target error
-/// where the cone is not narrow: the pilot.
+/// The fewest directions a receiver toward a light with extent can take under a target error:
+/// the pilot.
 pub const LEAST_ADAPTIVE: u32 = REPLICATES * PILOT_POINTS;
 /// The relative rounding of a direction's `T` below which a spread is not a measurement:
 /// `2^-40`.
@@ -114,45 +94,6 @@ pub fn replicates_for(
         // `need` is a whole number in [REPLICATES, cap]: the cast is exact.
         #[allow(clippy::cast_possible_truncation, clippy::cast_sign_loss)]
         (need as u32, false)
-    }
-}
-
-impl SoftLight {
-    /// Points per replicate of a target error's stages at the receiver `at` (module docs,
-    /// "Narrow cones"): [`NARROW_POINTS`] toward a sun when the directions' estimates are
-    /// exact (`deterministic`), the scene holds no solid and the light's whole cone from `at`
-    /// ([`SoftLight::reach`]) spreads at most [`NARROW_SPREAD_VOXELS`] voxels sideways over its
-    /// length, `length x tan(half)`; else [`PILOT_POINTS`].
-    #[must_use]
-    pub fn points_at(&self, scene: &Scene, at: [f64; 3], deterministic: bool) -> u32 {
-        let sun = matches!(self.extent, super::Extent::Sun { .. });
-        if !sun || !deterministic || !scene.solids().is_empty() {
-            return PILOT_POINTS;
-        }
-        let Ok(reach) = self.reach(scene, at) else {
-            return PILOT_POINTS;
-        };
-        let voxel = scene
-            .fogs()
-            .iter()
-            .map(|f| {
-                let m = f.volume().world_from_index().matrix3;
-                m.x_axis
-                    .length()
-                    .min(m.y_axis.length())
-                    .min(m.z_axis.length())
-            })
-            .fold(f64::INFINITY, f64::min);
-        let spread = reach.length * reach.half.tan();
-        let narrow = reach.half < std::f64::consts::FRAC_PI_4
-            && spread.is_finite()
-            && voxel.is_finite()
-            && spread <= NARROW_SPREAD_VOXELS * voxel;
-        if narrow {
-            NARROW_POINTS
-        } else {
-            PILOT_POINTS
-        }
     }
 }
 

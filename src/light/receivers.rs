@@ -238,27 +238,20 @@ impl SoftLight {
                 .collect();
         };
         let r0 = REPLICATES;
-        // Points per replicate, receiver by receiver: one where the cone is narrow.
-        let deterministic = est.spec().deterministic;
-        let points: Vec<u32> = receivers
-            .par_iter()
-            .map(|r| r.map_or(PILOT_POINTS, |r| self.points_at(scene, r.at, deterministic)))
-            .collect();
-        let m = |k: usize| points[k];
-        let cap = |k: usize| self.samples / points[k];
+        let m = |_| PILOT_POINTS;
+        let cap = self.samples / PILOT_POINTS;
         let pilot = self.make(scene, receivers, (opts.seed, 1), &m, &|_| Some(0..r0));
         let pilots = stage(scene, pilot, est, opts);
         let channels = scene.channels();
         let plan: Vec<Option<(u32, bool)>> = pilots
             .iter()
-            .enumerate()
-            .map(|(k, p)| match p {
+            .map(|p| match p {
                 Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::replicates_for(
                     &p.per,
                     (&p.answer, r0),
-                    (channels, points[k]),
+                    (channels, PILOT_POINTS),
                     target,
-                    cap(k),
+                    cap,
                 )),
                 _ => None,
             })
@@ -285,15 +278,14 @@ impl SoftLight {
         // Stein once more, everything so far the pilot (module docs of `adaptive`).
         let again: Vec<Option<(u32, u32, bool)>> = firsts
             .iter()
-            .enumerate()
-            .map(|(k, a)| match a {
+            .map(|a| match a {
                 Some(Ok(a)) if !a.capped && a.recount(channels, target) => {
                     let (n, capped) = super::adaptive::replicates_for(
                         &a.all.per,
                         (&a.all.answer, a.reps),
-                        (channels, points[k]),
+                        (channels, PILOT_POINTS),
                         target,
-                        cap(k),
+                        cap,
                     );
                     (n > a.reps).then_some((a.reps, n, capped))
                 }
