@@ -236,8 +236,14 @@ def test_each_light_kind_agrees_with_a_quadrature_over_it(cli, tmp_path, name, q
         # first count model, fresh replicates after a pilot, the egg's error bar was too small
         # at one receiver, z 3.9 at seed 0; with the pilot kept it is within its bar.)
         got = _query(cli, stage, name, x)
-        assert got["tau"] is None and got["light_samples"] >= 64, got
         q1, q2 = quad(vol, st, x, 48), quad(vol, st, x, 96)
+        if got["light_samples"] == 0:
+            # Answered without sampling (docs/lights.md): the whole cone provably misses every
+            # voxel's reach (T = 1, error bar 0), or only grazes it (T = 1 within its bound).
+            assert got["tau"] is None and got["T"] == 1.0, got
+            assert abs(1.0 - q2) <= got["std_err"] + 2 * abs(q2 - q1) + 1e-9, (name, x, q1, q2)
+            continue
+        assert got["tau"] is None and got["light_samples"] >= 64, got
         tol = 6 * got["std_err"] + 2 * abs(q2 - q1) + 1e-9
         assert abs(got["T"] - q2) <= tol, (name, x, got["T"], got["std_err"], q1, q2)
         assert 0 < got["std_err"] < 0.02, got
