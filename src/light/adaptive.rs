@@ -58,7 +58,7 @@ pub const ROUNDING: f64 = 1.0 / 1_099_511_627_776.0;
 pub fn replicates_for(
     per: &[SceneEstimate],
     (pilot, r0): (&SceneEstimate, u32),
-    (channels, m): (usize, u32),
+    channels: usize,
     target: f64,
     cap: u32,
 ) -> (u32, bool) {
@@ -72,7 +72,7 @@ pub fn replicates_for(
         let at = |x: f64| per.iter().filter(|e| e.value[c] == x).count();
         let ties = 2 * at(lo).max(at(hi)) >= per.len();
         let floor = crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target;
-        let floor = (floor / f64::from(m.max(1))).ceil();
+        let floor = (floor / f64::from(PILOT_POINTS)).ceil();
         // `s0^2 / E^2` with `s0 = sqrt(R0) e0`.
         let spread = (r * (pilot.std_err[c] / target).powi(2)).ceil();
         let n = match (lo == hi, ties) {

@@ -228,20 +228,16 @@ impl SoftLight {
         opts: &Options,
     ) -> Vec<Option<Result<SoftAnswer>>> {
         let Some(target) = self.target else {
-            let m = self.samples / REPLICATES;
-            let made = self.make(scene, receivers, (opts.seed, 0), &|_| m, &|_| {
-                Some(0..REPLICATES)
-            });
+            let made = self.make(scene, receivers, (opts.seed, 0), &|_| Some(0..REPLICATES));
             return stage(scene, made, est, opts)
                 .into_iter()
                 .map(|s| s.map(|s| s.map(|s| Answered::pilot(s, false).answer())))
                 .collect();
         };
         let r0 = REPLICATES;
-        let m = |_| PILOT_POINTS;
-        let cap = self.samples / PILOT_POINTS;
-        let pilot = self.make(scene, receivers, (opts.seed, 1), &m, &|_| Some(0..r0));
+        let pilot = self.make(scene, receivers, (opts.seed, 1), &|_| Some(0..r0));
         let pilots = stage(scene, pilot, est, opts);
+        let cap = self.samples / PILOT_POINTS;
         let channels = scene.channels();
         let plan: Vec<Option<(u32, bool)>> = pilots
             .iter()
@@ -249,7 +245,7 @@ impl SoftLight {
                 Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::replicates_for(
                     &p.per,
                     (&p.answer, r0),
-                    (channels, PILOT_POINTS),
+                    channels,
                     target,
                     cap,
                 )),
@@ -258,7 +254,7 @@ impl SoftLight {
             .collect();
         // Only the receivers whose pilot fell short of the target trace more.
         let more = |k: usize| plan[k].and_then(|(n, _)| (n > r0).then_some(r0..n));
-        let extra = self.make(scene, receivers, (opts.seed, 1), &m, &more);
+        let extra = self.make(scene, receivers, (opts.seed, 1), &more);
         let extras = stage(scene, extra, est, opts);
         let firsts: Vec<Option<Result<Answered>>> = pilots
             .into_iter()
@@ -283,7 +279,7 @@ impl SoftLight {
                     let (n, capped) = super::adaptive::replicates_for(
                         &a.all.per,
                         (&a.all.answer, a.reps),
-                        (channels, PILOT_POINTS),
+                        channels,
                         target,
                         cap,
                     );
@@ -293,7 +289,7 @@ impl SoftLight {
             })
             .collect();
         let more = |k: usize| again[k].map(|(from, n, _)| from..n);
-        let extra = self.make(scene, receivers, (opts.seed, 1), &m, &more);
+        let extra = self.make(scene, receivers, (opts.seed, 1), &more);
         let extras = stage(scene, extra, est, opts);
         firsts
             .into_iter()
@@ -313,15 +309,20 @@ impl SoftLight {
     }
 
     /// Each asked receiver's rays of one stage (`(seed, stage)`): the replicates `reps(k)` of
-    /// `m(k)` points for receiver `k` (`None`: none asked).
+    /// [`PILOT_POINTS`] points, or with a fixed count all 16 of `samples / 16` points, for
+    /// receiver `k` (`None`: none asked).
     fn make(
         &self,
         scene: &Scene,
         receivers: &[Option<Receiver>],
         (seed, stage): (u64, u64),
-        m: &(dyn Fn(usize) -> u32 + Sync),
         reps: &(dyn Fn(usize) -> Option<std::ops::Range<u32>> + Sync),
     ) -> Vec<Option<Result<SoftRays>>> {
+        let m = if stage == 0 {
+            self.samples / REPLICATES
+        } else {
+            PILOT_POINTS
+        };
         receivers
             .par_iter()
             .enumerate()
@@ -332,7 +333,7 @@ impl SoftLight {
                     ray_id: r.ray_id,
                     stage,
                 };
-                Some(self.replicates(scene, r.at, key, m(k), reps(k)?))
+                Some(self.replicates(scene, r.at, key, m, reps(k)?))
             })
             .collect()
     }

@@ -38,8 +38,7 @@ use rayon::prelude::*;
 /// SIMD batches (256 directions x 32 receivers = 8192 rays), few enough to hold.
 const BLOCK: usize = 32;
 /// Receivers per block under a target error: a pilot of 64 directions x 128 receivers = 8192
-/// rays per batch (2048 for a narrow cone's 16-direction pilot: 512 receivers a block measured
-/// the same on the default sun's map).
+/// rays per batch.
 const ADAPTIVE_BLOCK: usize = 128;
 
 /// The soft map of `scene` seen by `camera` toward `soft` (module docs).
