@@ -10,6 +10,7 @@ mod cone;
 pub mod extent;
 mod occupancy;
 mod receivers;
+mod umbra;
 pub use area::{Area, Shape};
 pub use extent::{Extent, Reach, SoftLight};
 pub use occupancy::Occupancy;

@@ -570,6 +570,23 @@ impl SoftLight {
         })
     }
 
+    /// How far every segment of the light's `reach` from its apex runs at least (what a
+    /// lower bound on optical depth may march, [`super::umbra`]): a sun's run until they
+    /// leave every volume's box, as far as `reach`; a sphere light's end on the sphere, at
+    /// least `d - r` away from a receiver outside it. `None` for a receiver inside the
+    /// sphere and for area lights.
+    #[must_use]
+    pub fn shortest(&self, reach: &Reach) -> Option<f64> {
+        match (self.light, self.extent) {
+            (Light::Directional { .. }, Extent::Sun { .. }) => Some(reach.length),
+            (Light::Point { pos }, Extent::Sphere { radius }) => {
+                let d = (DVec3::from_array(pos) - reach.apex).length();
+                (d > radius).then_some((d - radius) * (1.0 - 1e-12))
+            }
+            _ => None,
+        }
+    }
+
     /// This light with the error bar `target` each receiver's count is chosen to reach (a
     /// product's `target-error`); `None` keeps it as it is.
     ///

@@ -179,19 +179,87 @@ impl SoftLight {
                 occupancy.optical_bound(&reach, limit)
             })
             .collect();
+        let umbral = self.umbral(scene, receivers, &bounds, opts);
         let asked: Vec<Option<Receiver>> = receivers
             .iter()
-            .zip(&bounds)
-            .map(|(r, b)| r.filter(|_| b.is_none()))
+            .zip(bounds.iter().zip(&umbral))
+            .map(|(r, (b, u))| r.filter(|_| b.is_none() && u.is_none()))
             .collect();
         let sampled = self.sample_each(scene, &asked, est, opts);
         sampled
             .into_iter()
             .zip(receivers)
-            .zip(bounds)
-            .map(|((s, r), b)| match (r, b) {
-                (Some(r), Some(b)) => Some(self.bounded(scene, *r, b, opts.seed)),
+            .zip(bounds.into_iter().zip(umbral))
+            .map(|((s, r), (b, u))| match (r, b, u) {
+                (Some(r), Some(b), _) => Some(self.bounded(scene, *r, b, opts.seed)),
+                (Some(_), None, Some((centre, tau))) => Some(Ok(in_umbra(scene, centre, tau))),
                 _ => s,
+            })
+            .collect()
+    }
+
+    /// Under a target error `E`, the receivers (not already `bounded`) proven in umbra: every
+    /// direction of the light's cone has an optical depth of at least `tau_c` per channel with
+    /// `e^-tau_c <= 2 E` ([`super::umbra`]), with their rays toward the light's centre. Only a
+    /// receiver whose own centre ray is that deep (one exact ray each, all in one
+    /// [`crate::scene::estimate_many`] call) is marched: the cone's bound is never above it.
+    fn umbral(
+        &self,
+        scene: &Scene,
+        receivers: &[Option<Receiver>],
+        bounds: &[Option<f64>],
+        opts: &Options,
+    ) -> Vec<Option<(Ray, [f64; 3])>> {
+        let none = || vec![None; receivers.len()];
+        let (Some(target), Some(umbra)) =
+            (self.target, super::umbra::Umbra::of(scene, opts.interp))
+        else {
+            return none();
+        };
+        let need = -(2.0 * target).ln();
+        if !(need > 0.0 && need.is_finite()) {
+            return none();
+        }
+        let centres: Vec<Option<(Receiver, Ray)>> = receivers
+            .par_iter()
+            .zip(bounds)
+            .map(|(r, b)| {
+                let r = r.filter(|_| b.is_none())?;
+                let key = Key {
+                    seed: opts.seed,
+                    ray_id: r.ray_id,
+                    stage: 1,
+                };
+                let centre = self.replicates(scene, r.at, key, 1, 0..0).ok()?.centre;
+                Some((r, centre))
+            })
+            .collect();
+        let (rays, ids): (Vec<Ray>, Vec<u64>) = centres
+            .iter()
+            .flatten()
+            .map(|(r, c)| (*c, r.ray_id))
+            .unzip();
+        let exact = crate::scene::estimate_many(scene, &rays, &ids, &Estimator::REGULAR, opts);
+        let mut exact = exact.into_iter();
+        let deep: Vec<Option<(Receiver, Ray)>> = centres
+            .into_iter()
+            .map(|c| {
+                let c = c?;
+                let tau = exact.next()?.ok()?.tau?;
+                let least = tau[..scene.channels()]
+                    .iter()
+                    .copied()
+                    .fold(f64::INFINITY, f64::min);
+                (least >= need).then_some(c)
+            })
+            .collect();
+        deep.into_par_iter()
+            .map(|c| {
+                let (r, centre) = c?;
+                let reach = self.reach(scene, r.at).ok()?;
+                let shortest = self.shortest(&reach)?;
+                let tau = umbra.depth_at_least(&reach, shortest, need)?;
+                Some((centre, tau))
             })
             .collect()
     }
@@ -483,5 +551,20 @@ fn missing() -> Error {
     Error::InvalidArgument {
         name: "ids".into(),
         reason: "a receiver's directions got no answer".into(),
+    }
+}
+
+/// A receiver in umbra: every direction's `T_c <= U_c = e^-tau_c`, so the mean is in
+/// `[0, U_c]`: `T_c = U_c / 2` with the error bar `U_c / 2` (at most the target).
+fn in_umbra(scene: &Scene, centre: Ray, tau: [f64; 3]) -> SoftAnswer {
+    let mut estimate = SceneEstimate::exact(scene.channels(), [0.0; 3], 0, 0);
+    estimate.tau = None;
+    estimate.value = tau.map(|t| (-t).exp() / 2.0);
+    estimate.std_err = estimate.value;
+    SoftAnswer {
+        estimate,
+        centre,
+        light_samples: 0,
+        light_capped: false,
     }
 }

@@ -77,6 +77,13 @@ impl Fog {
     }
 }
 
+/// The bounding box of `corners`; `None` when it is empty or not finite.
+fn corner_box(corners: &[DVec3]) -> Option<(DVec3, DVec3)> {
+    let lo = corners.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
+    let hi = corners.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
+    (lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+}
+
 /// Check an extinction colour: finite, non-negative.
 ///
 /// # Errors
@@ -103,6 +110,8 @@ pub struct Scene {
     fogs: Vec<Fog>,
     solids: Vec<Solid>,
     channels: usize,
+    /// [`Scene::world_box`], made once (every ray toward a directional light asks for it).
+    world: Option<(DVec3, DVec3)>,
 }
 
 impl Scene {
@@ -148,7 +157,9 @@ impl Scene {
             fogs,
             solids,
             channels: if rgb { 3 } else { 1 },
-        })
+            world: None,
+        }
+        .with_world_box())
     }
 
     /// The scene of one grey volume.
@@ -161,7 +172,15 @@ impl Scene {
             }],
             solids: Vec::new(),
             channels: 1,
+            world: None,
         }
+        .with_world_box()
+    }
+
+    /// The scene with its world box made.
+    fn with_world_box(mut self) -> Self {
+        self.world = self.box_corners().ok().and_then(|c| corner_box(&c));
+        self
     }
 
     /// The fog volumes.
@@ -202,20 +221,14 @@ impl Scene {
     /// `None` for a scene without one.
     #[must_use]
     pub(crate) fn world_box(&self) -> Option<(DVec3, DVec3)> {
-        let c = self.box_corners().ok()?;
-        let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
-        let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
-        (lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+        self.world
     }
 
     /// The world box of one volume (the bounding box of its corners), what a map of one grid
     /// moves its far rays next to ([`Scene::localise`]).
     #[must_use]
     pub(crate) fn volume_box(v: &Volume) -> Option<(DVec3, DVec3)> {
-        let c = v.box_corners().ok()?;
-        let lo = c.iter().fold(DVec3::INFINITY, |a, b| a.min(*b));
-        let hi = c.iter().fold(DVec3::NEG_INFINITY, |a, b| a.max(*b));
-        (lo.cmple(hi).all() && lo.is_finite() && hi.is_finite()).then_some((lo, hi))
+        corner_box(&v.box_corners().ok()?)
     }
 
     /// `ray` as a walk takes it, with the distance `s` it was moved by: a ray that enters the
