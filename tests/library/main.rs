@@ -31,6 +31,7 @@ mod lights_adaptive;
 mod lights_extent;
 mod lights_extent_points;
 mod lights_maps;
+mod lights_umbra;
 mod map_summary;
 mod motion;
 mod motion_parts;
