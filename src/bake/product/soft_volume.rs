@@ -12,11 +12,11 @@
 //! estimator's seed, so its value is `query --at CENTRE --ray-id k --seed S` rounded to f32, bit
 //! for bit, whatever the thread count. The shared walks of the point light's volume (lines of
 //! voxel centres along a sun) do not apply: each voxel costs its light's directions
-//! (`light_samples`, default 256). A voxel whose whole cone provably misses every box is 1
-//! without sampling; a voxel lies inside its own volume's box, so every voxel is sampled today
-//! (`sampled_fraction` reports it). The file holds `T` only; the stats report the largest error
-//! bar (`std_err_max`), the metadata the light's extent (`umbra:light_extent`,
-//! `umbra:light_samples`, `umbra:seed`).
+//! (the target error's count, or `light_samples`). A voxel whose whole cone provably misses
+//! every box is 1 without sampling, one deep in umbra is its bound (`U / 2 +- U / 2`,
+//! [`crate::light`]'s umbra proof); the rest are sampled (`sampled_fraction` reports it). The
+//! file holds `T` only; the stats report the largest error bar (`std_err_max`), the metadata
+//! the light's extent (`umbra:light_extent`, `umbra:light_samples`, `umbra:seed`).
 
 use super::transmittance_volume::{
     output_blocks, summarise, transmittance_leaves, Sharing, VolumeStats,
