@@ -186,22 +186,30 @@ fn least_value(acc: &mut Accessor<'_>, lo: DVec3, hi: DVec3) -> f64 {
         return 0.0;
     }
     let (a, b) = (a.as_i64vec3(), b.as_i64vec3());
+    // The box's lattice of corners, each read once (a cell shares its corners with its
+    // neighbours): `b - a + 2` a side, at most `MOST_SPAN + 1`.
+    let n = (b - a + 2).as_uvec3();
+    let (nx, ny) = (n.x as usize, n.y as usize);
+    let mut corners = [0.0f64; (MOST_SPAN as usize + 1).pow(3)];
+    for k in 0..n.z as usize {
+        for j in 0..ny {
+            for i in 0..nx {
+                let ijk = [a.x + i as i64, a.y + j as i64, a.z + k as i64];
+                // NaN and negative values read as 0 (`max` returns the number).
+                corners[(k * ny + j) * nx + i] = f64::from(acc.value_at(ijk).max(0.0));
+            }
+        }
+    }
     let mut least = f64::INFINITY;
-    for i in a.x..=b.x {
-        for j in a.y..=b.y {
-            for k in a.z..=b.z {
-                let c = DVec3::new(i as f64, j as f64, k as f64);
+    for k in 0..n.z as usize - 1 {
+        for j in 0..ny - 1 {
+            for i in 0..nx - 1 {
+                let c = (a + glam::I64Vec3::new(i as i64, j as i64, k as i64)).as_dvec3();
                 let u0 = (lo - c).max(DVec3::ZERO);
                 let u1 = (hi - c).min(DVec3::ONE);
-                let mut v = [0.0f64; 8];
-                for (n, v) in v.iter_mut().enumerate() {
-                    let ijk = [
-                        i + (n & 1) as i64,
-                        j + (n >> 1 & 1) as i64,
-                        k + (n >> 2) as i64,
-                    ];
-                    *v = f64::from(acc.value_at(ijk).max(0.0));
-                }
+                let v: [f64; 8] = std::array::from_fn(|m| {
+                    corners[((k + (m >> 2)) * ny + j + (m >> 1 & 1)) * nx + i + (m & 1)]
+                });
                 least = least.min(cell_least(&v, u0, u1));
                 if least <= 0.0 {
                     return 0.0;
