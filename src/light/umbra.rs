@@ -151,7 +151,7 @@ impl Fog<'_> {
         // STEP voxels of the axis a step; only where the grown axis meets the volume box.
         let dt = STEP / per_world;
         let grow = self.rows * (spread * shortest) + DVec3::splat(1e-9);
-        let Some((t_in, t_out)) = slab(o, d, self.lo - grow, self.hi + grow) else {
+        let Some((t_in, t_out)) = crate::ray::clip_box(o, d, self.lo - grow, self.hi + grow) else {
             return 0.0;
         };
         let (start, end) = (t_in.max(0.0), t_out.min(shortest));
@@ -241,23 +241,6 @@ fn cell_least(v: &[f64; 8], u0: DVec3, u1: DVec3) -> f64 {
         }
     }
     least
-}
-
-/// The parameter interval where `o + t d` is inside the box `[lo, hi]`, if any.
-fn slab(o: DVec3, d: DVec3, lo: DVec3, hi: DVec3) -> Option<(f64, f64)> {
-    let (mut t_in, mut t_out) = (f64::NEG_INFINITY, f64::INFINITY);
-    for a in 0..3 {
-        if d[a] == 0.0 {
-            if o[a] < lo[a] || o[a] > hi[a] {
-                return None;
-            }
-            continue;
-        }
-        let (u, v) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
-        t_in = t_in.max(u.min(v));
-        t_out = t_out.min(u.max(v));
-    }
-    (t_in <= t_out).then_some((t_in, t_out))
 }
 
 #[cfg(test)]

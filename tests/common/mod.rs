@@ -233,3 +233,12 @@ pub fn vdb_without_key(path: &std::path::Path) -> Vec<u8> {
     bytes[o + 8..o + 16].copy_from_slice(&(gd.end_pos - cut).to_le_bytes());
     bytes
 }
+
+/// The answer to the one ray a query asks about (`at`, a segment); a query that answered
+/// points, or an error, fails the test.
+pub fn one_answer(r: &umbra::request::QueryRequest) -> umbra::request::Answered {
+    let umbra::request::QueryOutcome::Rays(a) = r.run(&mut |_| {}).unwrap() else {
+        panic!("a query of one ray answered points")
+    };
+    a.answers[0].result.clone().unwrap()
+}

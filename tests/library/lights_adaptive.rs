@@ -40,10 +40,7 @@ fn query(file: &Path, at: [f64; 3], light: LightOptions, seed: u64) -> (f64, f64
         },
         ..QueryRequest::new(Source::new(file, SourceOptions::default()))
     };
-    let QueryOutcome::Rays(a) = r.run(&mut |_| {}).unwrap() else {
-        panic!("a ray query answered points")
-    };
-    let a = a.answers[0].result.clone().unwrap();
+    let a = crate::common::one_answer(&r);
     (
         a.estimate.value[0],
         a.estimate.std_err[0],

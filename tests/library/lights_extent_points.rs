@@ -110,10 +110,7 @@ fn at(stage: &Path, at: [f64; 3], light: LightOptions, est: &str, id: u64) -> (f
         },
         ..QueryRequest::new(Source::new(stage, read()))
     };
-    let QueryOutcome::Rays(a) = r.run(&mut |_| {}).unwrap() else {
-        panic!("a query at a point answered points")
-    };
-    let a = a.answers[0].result.clone().unwrap();
+    let a = crate::common::one_answer(&r);
     (
         a.estimate.value[0],
         a.estimate.std_err[0],

@@ -8,7 +8,7 @@
 
 use std::path::{Path, PathBuf};
 use umbra::input::{Source, SourceOptions};
-use umbra::request::{EstimatorOptions, LightOptions, QueryOutcome, QueryRequest};
+use umbra::request::{EstimatorOptions, LightOptions, QueryRequest};
 use umbra::Interp;
 
 use crate::vdb_writer::{Grid, Leaf, VdbFile};
@@ -53,10 +53,7 @@ fn query(file: &Path, at: [f64; 3], interp: Interp, samples: Option<u32>) -> (f6
             },
         ))
     };
-    let QueryOutcome::Rays(a) = r.run(&mut |_| {}).unwrap() else {
-        panic!("a ray query answered points")
-    };
-    let a = a.answers[0].result.clone().unwrap();
+    let a = crate::common::one_answer(&r);
     (
         a.estimate.value[0],
         a.estimate.std_err[0],
