@@ -21,7 +21,7 @@
 
 use super::Reach;
 use crate::scene::Scene;
-use crate::tree::Accessor;
+use crate::tree::{Accessor, Window};
 use glam::{DAffine3, DVec3};
 
 /// One fog volume's march: its index map and the world length each step covers.
@@ -157,6 +157,7 @@ impl Fog<'_> {
         let (start, end) = (t_in.max(0.0), t_out.min(shortest));
         let mut sum = 0.0;
         let mut acc = Accessor::new(self.tree);
+        let mut window = Window::default();
         let mut t0 = start;
         while t0 < end {
             let t1 = (t0 + dt).min(end);
@@ -164,7 +165,7 @@ impl Fog<'_> {
             let (p0, p1) = (o + d * t0, o + d * t1);
             let (lo, hi) = (p0.min(p1) - h, p0.max(p1) + h);
             if lo.cmpge(self.lo).all() && hi.cmple(self.hi).all() {
-                sum += (t1 - t0) * least_value(&mut acc, lo, hi);
+                sum += (t1 - t0) * least_value(&mut acc, &mut window, lo, hi);
                 if mu * sum >= need {
                     return sum;
                 }
@@ -179,37 +180,28 @@ impl Fog<'_> {
 /// meets, a trilinear function is multilinear, so its least value over the box's part in
 /// that cell is at one of that part's 8 corners. 0 for a box wider than [`MOST_SPAN`] cells
 /// on an axis; a NaN voxel counts as 0.
-fn least_value(acc: &mut Accessor<'_>, lo: DVec3, hi: DVec3) -> f64 {
+fn least_value(acc: &mut Accessor<'_>, window: &mut Window, lo: DVec3, hi: DVec3) -> f64 {
     let a = lo.floor();
     let b = hi.floor();
     if (b - a).max_element() >= MOST_SPAN as f64 || !a.is_finite() || !b.is_finite() {
         return 0.0;
     }
     let (a, b) = (a.as_i64vec3(), b.as_i64vec3());
-    // The box's lattice of corners, each read once (a cell shares its corners with its
-    // neighbours): `b - a + 2` a side, at most `MOST_SPAN + 1`.
-    let n = (b - a + 2).as_uvec3();
-    let (nx, ny) = (n.x as usize, n.y as usize);
-    let mut corners = [0.0f64; (MOST_SPAN as usize + 1).pow(3)];
-    for k in 0..n.z as usize {
-        for j in 0..ny {
-            for i in 0..nx {
-                let ijk = [a.x + i as i64, a.y + j as i64, a.z + k as i64];
-                // NaN and negative values read as 0 (`max` returns the number).
-                corners[(k * ny + j) * nx + i] = f64::from(acc.value_at(ijk).max(0.0));
-            }
-        }
-    }
+    // The box's lattice of corners, copied once (a cell shares its corners with its
+    // neighbours): `b - a + 2` a side.
+    let n = (b - a + 2).as_uvec3().to_array().map(|c| c as usize);
+    window.fill(acc, a.to_array(), n);
+    // NaN and negative values read as 0 (`max` returns the number).
+    let value = |i: usize, j: usize, k: usize| f64::from(window.at([i, j, k]).max(0.0));
     let mut least = f64::INFINITY;
-    for k in 0..n.z as usize - 1 {
-        for j in 0..ny - 1 {
-            for i in 0..nx - 1 {
+    for i in 0..n[0] - 1 {
+        for j in 0..n[1] - 1 {
+            for k in 0..n[2] - 1 {
                 let c = (a + glam::I64Vec3::new(i as i64, j as i64, k as i64)).as_dvec3();
                 let u0 = (lo - c).max(DVec3::ZERO);
                 let u1 = (hi - c).min(DVec3::ONE);
-                let v: [f64; 8] = std::array::from_fn(|m| {
-                    corners[((k + (m >> 2)) * ny + j + (m >> 1 & 1)) * nx + i + (m & 1)]
-                });
+                let v: [f64; 8] =
+                    std::array::from_fn(|m| value(i + (m & 1), j + (m >> 1 & 1), k + (m >> 2)));
                 least = least.min(cell_least(&v, u0, u1));
                 if least <= 0.0 {
                     return 0.0;

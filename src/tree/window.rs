@@ -75,6 +75,13 @@ impl Window {
         }
     }
 
+    /// The value of voxel `lo + o` (`o` inside `[0, dims)`, as [`Window::fill`] was given).
+    #[inline]
+    #[must_use]
+    pub fn at(&self, o: [usize; 3]) -> f32 {
+        self.values[(o[0] * self.dims[1] + o[1]) * self.dims[2] + o[2]]
+    }
+
     /// The trilinear sample at index point `p` ([`Accessor::trilinear`]'s bits), or `None`
     /// when its 8 voxels (from `floor(p)`, as the accessor takes them) are not all in the
     /// window.
