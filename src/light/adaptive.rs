@@ -69,13 +69,12 @@ pub fn replicates_for(
         let t = pilot.value[c];
         // At least half the pilot's directions exactly at one end (rays that meet no density
         // give exactly 1): a few outliers, and the rule-of-three count at the least.
-        let at = |x: f64| per.iter().filter(|e| e.value[c] == x).count();
-        let ties = 2 * at(lo).max(at(hi)) >= per.len();
+        let lumpy = !normal(per, c);
         let floor = crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target;
         let floor = (floor / f64::from(PILOT_POINTS)).ceil();
         // `s0^2 / E^2` with `s0 = sqrt(R0) e0`.
         let spread = (r * (pilot.std_err[c] / target).powi(2)).ceil();
-        let n = match (lo == hi, ties) {
+        let n = match (lo == hi, lumpy) {
             (true, _) => floor,
             (false, true) => spread.max(floor),
             (false, false) => spread,
@@ -113,13 +112,37 @@ fn span(per: &[SceneEstimate], c: usize) -> (f64, f64) {
 #[must_use]
 pub fn stein(
     pilot_per: &[SceneEstimate],
+    pilot: (&SceneEstimate, u32),
+    all: SceneEstimate,
+    n: u32,
+) -> SceneEstimate {
+    scaled(pilot_per, pilot, all, n, normal)
+}
+
+/// Stein's answer of a second stage ([`stein`]), whose pilot is every replicate the first
+/// stage took (at least the rule-of-three count, module docs): its spread scales the error bar
+/// wherever its directions disagree, normal or not.
+#[must_use]
+pub fn stein_again(
+    pilot_per: &[SceneEstimate],
+    pilot: (&SceneEstimate, u32),
+    all: SceneEstimate,
+    n: u32,
+) -> SceneEstimate {
+    scaled(pilot_per, pilot, all, n, spread)
+}
+
+/// `all` with the error bar `s0 / sqrt(n)` of the pilot on the channels `fit` accepts.
+fn scaled(
+    pilot_per: &[SceneEstimate],
     (pilot, r0): (&SceneEstimate, u32),
     mut all: SceneEstimate,
     n: u32,
+    fit: fn(&[SceneEstimate], usize) -> bool,
 ) -> SceneEstimate {
     let scale = (f64::from(r0) / f64::from(n.max(r0))).sqrt();
     for c in 0..3 {
-        if spread(pilot_per, c) {
+        if fit(pilot_per, c) {
             all.std_err[c] = (pilot.std_err[c] * scale).max(ROUNDING * all.value[c].abs());
         }
     }
@@ -133,6 +156,41 @@ pub fn spread(per: &[SceneEstimate], c: usize) -> bool {
     lo < hi
 }
 
+/// The share of the replicates' sum of squares one replicate may hold before a pilot is
+/// called lumpy: `G^2 / (R - 1)` for Grubbs' statistic `G = max |m_i - m| / s`; at `R = 16`,
+/// 0.5 is `G = 2.74`, which normal replicate means pass about 98% of the time.
+pub const OUTLIER_SHARE: f64 = 0.5;
+
+/// True when the replicates of `per` (consecutive runs of [`PILOT_POINTS`] directions) are
+/// fit for Stein's rule on channel `c`: their directions disagree, fewer than half of them sit
+/// exactly at one end of their range (rays that meet no density give exactly 1), and no
+/// replicate mean holds more than [`OUTLIER_SHARE`] of the replicates' sum of squares (a cone
+/// whose few bright or dark directions fell in one replicate: a spread of outliers, far from
+/// normal, which Student's `t` does not cover). A pilot that is not normal takes at least the
+/// rule-of-three count, and its error bar is the spread of every replicate it took (module
+/// docs).
+#[must_use]
+pub fn normal(per: &[SceneEstimate], c: usize) -> bool {
+    let (lo, hi) = span(per, c);
+    if lo >= hi {
+        return false;
+    }
+    let at = |x: f64| per.iter().filter(|e| e.value[c] == x).count();
+    if 2 * at(lo).max(at(hi)) >= per.len() {
+        return false;
+    }
+    let means: Vec<f64> = per
+        .chunks(PILOT_POINTS as usize)
+        .map(|r| r.iter().map(|e| e.value[c]).sum::<f64>() / r.len() as f64)
+        .collect();
+    let m = means.iter().sum::<f64>() / means.len() as f64;
+    let (most, all) = means.iter().fold((0.0f64, 0.0), |(most, all), x| {
+        let d = (x - m).powi(2);
+        (most.max(d), all + d)
+    });
+    !(most > OUTLIER_SHARE * all)
+}
+
 /// True when some channel of `answer` (`channels` of them) whose pilot directions `pilot_per`
 /// all agreed has an error bar above `target`: the spread of its extra replicates asks for a
 /// stage more (module docs).
@@ -143,7 +201,7 @@ pub fn recount(
     channels: usize,
     target: f64,
 ) -> bool {
-    (0..channels.clamp(1, 3)).any(|c| !spread(pilot_per, c) && answer.std_err[c] > target)
+    (0..channels.clamp(1, 3)).any(|c| !normal(pilot_per, c) && answer.std_err[c] > target)
 }
 
 impl SoftRays {

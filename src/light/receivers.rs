@@ -504,7 +504,8 @@ impl Answered {
         let (previous, r1) = (self.all.answer, self.reps);
         let ((pilot_len, pilot), r0) = (self.pilot, REPLICATES);
         let all = join(self.all, x);
-        let answer = super::adaptive::stein(&all.per[..before], (&previous, r1), all.answer, n);
+        let answer =
+            super::adaptive::stein_again(&all.per[..before], (&previous, r1), all.answer, n);
         // The first pilot's channels with a spread keep its bar (Stein over it overwrites them).
         let answer = super::adaptive::stein(&all.per[..pilot_len], (&pilot, r0), answer, n);
         SoftAnswer {
