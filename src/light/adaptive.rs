@@ -28,16 +28,19 @@
 //! count chose. A receiver whose pilot already meets the target traces the pilot alone (64
 //! directions). Capped at `light-max-samples / 4` replicates; a receiver whose `n` the cap cut
 //! is counted ([`super::SoftAnswer::light_capped`]), its error bar still `s0 / sqrt(n)`. A pilot
-//! whose directions all agree exactly, or half of whose directions sit exactly at one end of
-//! its range (rays that meet no density give exactly 1: a spread of a few outliers, far from
-//! normal), asks for at least the `N` at which the rule-of-three floor is `E`: `N >= sqrt(3)
-//! max(T0, 1 - T0) / E` directions. A pilot whose directions all agreed has no `s0`: its
-//! answer's error bar is the spread of all `n` replicates (or, if they all agree too, the
-//! rule-of-three floor over every direction). When that spread puts the error bar above `E`,
-//! the pilot and its extras together (`n1` replicates, all independent of the pilot's count
-//! once the pilot agreed) are the pilot of one more Stein stage: `n2 = ceil(n1 s1^2 / E^2)`
-//! replicates in all, the error bar `s1 / sqrt(n2)` (`s1` the spread of the `n1`), so a
-//! receiver ends above the target only when the cap cut its count, and is then counted.
+//! that is not normal ([`normal`]: its directions all agree exactly; or half of them sit
+//! exactly at one end of its range, rays that meet no density giving exactly 1; or one
+//! replicate holds more than half of the replicates' sum of squares, a cone whose few bright
+//! directions fell in one replicate: a spread of outliers, far from normal) asks for at least
+//! the `N` at which the rule-of-three floor is `E`: `N >= sqrt(3) max(T0, 1 - T0) / E`
+//! directions. Its `s0` is not trusted: its answer's error bar is the spread of all `n`
+//! replicates (or, if they all agree too, the rule-of-three floor over every direction), `n`
+//! being at least that floor's count, which depends on `T0` alone. When that spread puts the
+//! error bar above `E`, the pilot and its extras together (`n1` replicates, at least the
+//! floor's count, where the mean of replicates is much nearer normal) are the pilot of one
+//! more Stein stage ([`stein_again`]): `n2 = ceil(n1 s1^2 / E^2)` replicates in all, the error
+//! bar `s1 / sqrt(n2)` (`s1` the spread of the `n1`), so a receiver ends above the target only
+//! when the cap cut its count, and is then counted.
 
 use super::extent::{SoftRays, REPLICATES};
 use crate::scene::SceneEstimate;

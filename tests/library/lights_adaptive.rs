@@ -409,3 +409,34 @@ fn a_pilot_that_agreed_then_extras_that_did_not_trace_on_to_the_target() {
     }
     assert!(again >= 3, "{again} receivers traced a third stage");
 }
+
+#[test]
+fn a_pilot_whose_spread_is_one_replicate_takes_the_spread_of_every_replicate() {
+    // 400 units below the 16^3 box under the 0.53-degree sun, receivers whose cone's rim just
+    // reaches past the box's edge: T is about 0.04 inside and 1 beyond, so a pilot whose one
+    // replicate caught the rim has a spread of one outlier, which Stein's rule used to trust
+    // (3 of these 30 answers beyond 4 error bars, up to 57). Such a pilot now takes the
+    // rule-of-three count and the spread of every replicate.
+    let dir = tempfile::tempdir().unwrap();
+    let file = constant_box(dir.path());
+    let down = [0.0, -1.0, 0.0];
+    let (mut beyond, mut n, mut lumpy) = (0, 0, 0);
+    for x in [1.44, 1.5, 1.56] {
+        let at = [x, -400.0, 8.0];
+        let (r, r_se, ..) = query(&file, at, sun(down, 0.53, Some(65536)), 0);
+        for seed in 1..=10 {
+            let (t, se, dirs, capped) = query(&file, at, sun(down, 0.53, None), seed);
+            assert!(se > 0.0 && se <= 5e-3 && !capped, "{se} ({dirs})");
+            let off = (t - r).abs() / (se * se + r_se * r_se).sqrt();
+            eprintln!("{at:?} seed {seed}: {t:.6} +- {se:.1e} ({dirs}) vs {r:.6}: {off:.2}");
+            beyond += usize::from(off > 4.0);
+            lumpy += usize::from(dirs > 64);
+            n += 1;
+        }
+    }
+    assert!(beyond == 0, "{beyond} of {n} beyond 4 error bars");
+    assert!(
+        lumpy > 0,
+        "no pilot was lumpy: the test no longer reaches the rim"
+    );
+}
