@@ -191,7 +191,7 @@ pub fn normal(per: &[SceneEstimate], c: usize) -> bool {
         let d = (x - m).powi(2);
         (most.max(d), all + d)
     });
-    !(most > OUTLIER_SHARE * all)
+    most <= OUTLIER_SHARE * all
 }
 
 /// True when some channel of `answer` (`channels` of them) whose pilot directions `pilot_per`
