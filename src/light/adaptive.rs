@@ -167,7 +167,8 @@ pub const OUTLIER_SHARE: f64 = 0.5;
 /// True when the replicates of `per` (consecutive runs of [`PILOT_POINTS`] directions) are
 /// fit for Stein's rule on channel `c`: their directions disagree, fewer than half of them sit
 /// exactly at one end of their range (rays that meet no density give exactly 1), and no
-/// replicate mean holds more than [`OUTLIER_SHARE`] of the replicates' sum of squares (a cone
+/// replicate mean (unweighted: a test, not an estimate) holds more than [`OUTLIER_SHARE`] of
+/// the replicates' sum of squares (a cone
 /// whose few bright or dark directions fell in one replicate: a spread of outliers, far from
 /// normal, which Student's `t` does not cover). A pilot that is not normal takes at least the
 /// rule-of-three count, and its error bar is the spread of every replicate it took (module
