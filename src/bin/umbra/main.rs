@@ -15,6 +15,7 @@ mod query_points;
 
 use anyhow::Result;
 use clap::{Parser, Subcommand};
+use std::io::Write as _;
 use std::process::ExitCode;
 
 /// Exit codes, the same for every command (also in the README).
@@ -60,8 +61,12 @@ enum Command {
     },
 }
 
+/// Set by the signal thread when a signal arrives, before it removes anything.
+static INTERRUPTED: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
 /// On SIGINT or SIGTERM: delete every temporary output (waiting for a commit in progress, so a
-/// group of outputs is never half renamed), then exit 128 + the signal.
+/// group of outputs is never half renamed), then exit 128 + the signal. The main thread, whose
+/// writes fail once the temporaries are gone, leaves the exit to this thread ([`main`]).
 fn handle_signals() {
     use signal_hook::consts::{SIGINT, SIGTERM};
     let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM]) else {
@@ -69,8 +74,11 @@ fn handle_signals() {
     };
     std::thread::spawn(move || {
         if let Some(sig) = signals.forever().next() {
+            INTERRUPTED.store(true, std::sync::atomic::Ordering::SeqCst);
             let left = umbra::internals::output::remove_temporaries();
-            eprintln!(
+            // Never a panic here (a closed stderr): the main thread waits for this exit.
+            let _ = writeln!(
+                std::io::stderr(),
                 "umbra: interrupted ({}); {}",
                 if sig == SIGINT { "SIGINT" } else { "SIGTERM" },
                 left.describe(4)
@@ -83,7 +91,16 @@ fn handle_signals() {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     handle_signals();
-    match run(cli) {
+    let result = run(cli);
+    if INTERRUPTED.load(std::sync::atomic::Ordering::SeqCst) {
+        // A signal arrived: its thread reports what is on disk and exits 128 + the signal; an
+        // error of ours now (a write refused once the temporaries went) would race it with
+        // exit code 1.
+        loop {
+            std::thread::park();
+        }
+    }
+    match result {
         Ok(code) => code,
         Err(e) => {
             // A closed pipe (`umbra info x | head`) is not an error.
