@@ -110,8 +110,8 @@ fn span(per: &[SceneEstimate], c: usize) -> (f64, f64) {
 /// Stein's answer (module docs): `all`, the combined answer of every replicate (the pilot's
 /// `r0` and the `n - r0` extra), keeps its mean; its error bar becomes the pilot's `s0 /
 /// sqrt(n)` (`pilot` is the pilot's answer, `pilot_per` its directions' estimates), never
-/// below the rounding of the answer. A channel whose pilot directions all agreed keeps `all`'s
-/// own.
+/// below the rounding of the answer. A channel whose pilot was not [`normal`] keeps `all`'s
+/// own (the spread of every replicate).
 #[must_use]
 pub fn stein(
     pilot_per: &[SceneEstimate],
@@ -196,8 +196,8 @@ pub fn normal(per: &[SceneEstimate], c: usize) -> bool {
 }
 
 /// True when some channel of `answer` (`channels` of them) whose pilot directions `pilot_per`
-/// all agreed has an error bar above `target`: the spread of its extra replicates asks for a
-/// stage more (module docs).
+/// were not [`normal`] has an error bar above `target`: the spread of all its replicates asks
+/// for a stage more (module docs).
 #[must_use]
 pub fn recount(
     pilot_per: &[SceneEstimate],

@@ -490,14 +490,15 @@ impl Answered {
         }
     }
 
-    /// True when a channel whose pilot agreed ended above `target` ([`super::adaptive::recount`]).
+    /// True when a channel whose pilot was not normal ended above `target`
+    /// ([`super::adaptive::recount`]).
     fn recount(&self, channels: usize, target: f64) -> bool {
         let pilot = &self.all.per[..self.pilot.0];
         !pilot.is_empty() && super::adaptive::recount(pilot, &self.answer, channels, target)
     }
 
     /// One more Stein stage: `x`, the `n - reps` replicates everything so far asked for. The
-    /// channels whose first pilot had a spread keep its error bar, scaled to `n`; the others
+    /// channels whose first pilot was normal keep its error bar, scaled to `n`; the others
     /// take the spread of everything before `x`, scaled to `n`.
     fn again(self, x: Stage, n: u32, capped: bool) -> SoftAnswer {
         let before = self.all.per.len();
