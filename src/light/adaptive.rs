@@ -54,12 +54,61 @@ pub const LEAST_ADAPTIVE: u32 = REPLICATES * PILOT_POINTS;
 /// `2^-40`.
 pub const ROUNDING: f64 = 1.0 / 1_099_511_627_776.0;
 
+/// A receiver's directions' estimates, in the order traced, and where each replicate ends
+/// among them (a replicate of an area light may hold fewer than [`PILOT_POINTS`]: points
+/// facing away are dropped).
+#[derive(Debug, Clone, Copy)]
+pub struct Traced<'a> {
+    per: &'a [SceneEstimate],
+    ends: &'a [usize],
+}
+
+impl<'a> Traced<'a> {
+    /// The estimates `per` whose replicates end at `ends` (indices past `per` are ignored).
+    #[must_use]
+    pub fn new(per: &'a [SceneEstimate], ends: &'a [usize]) -> Self {
+        Self { per, ends }
+    }
+
+    /// The first `k` directions and the replicates that end within them.
+    #[must_use]
+    pub fn head(self, k: usize) -> Self {
+        let k = k.min(self.per.len());
+        let n = self.ends.iter().take_while(|&&e| e <= k).count();
+        Self {
+            per: &self.per[..k],
+            ends: &self.ends[..n],
+        }
+    }
+
+    /// The directions' estimates.
+    #[must_use]
+    pub fn per(self) -> &'a [SceneEstimate] {
+        self.per
+    }
+
+    /// Channel `c`'s unweighted mean of each replicate that holds a direction.
+    fn means(self, c: usize) -> Vec<f64> {
+        let mut start = 0;
+        let mut out = Vec::with_capacity(self.ends.len());
+        for &end in self.ends {
+            let end = end.min(self.per.len());
+            if end > start {
+                let sum: f64 = self.per[start..end].iter().map(|e| e.value[c]).sum();
+                out.push(sum / (end - start) as f64);
+            }
+            start = end;
+        }
+        out
+    }
+}
+
 /// The replicates in all (the pilot's included, at least `r0`) a receiver takes after the
-/// pilot `per` (its directions' estimates, `r0` replicates) whose answer is `pilot`, to reach
-/// `target` (module docs), at most `cap`; and whether the cap cut it.
+/// pilot `traced` (its directions' estimates, `r0` replicates) whose answer is `pilot`, to
+/// reach `target` (module docs), at most `cap`; and whether the cap cut it.
 #[must_use]
 pub fn replicates_for(
-    per: &[SceneEstimate],
+    traced: Traced<'_>,
     (pilot, r0): (&SceneEstimate, u32),
     channels: usize,
     target: f64,
@@ -68,11 +117,10 @@ pub fn replicates_for(
     let r = f64::from(r0);
     let mut need = r;
     for c in 0..channels.clamp(1, 3) {
-        let (lo, hi) = span(per, c);
+        let (lo, hi) = span(traced.per, c);
         let t = pilot.value[c];
-        // At least half the pilot's directions exactly at one end (rays that meet no density
-        // give exactly 1): a few outliers, and the rule-of-three count at the least.
-        let lumpy = !normal(per, c);
+        // A pilot that is not normal: the rule-of-three count at the least.
+        let lumpy = !normal(traced, c);
         let floor = crate::estimate::error_bar::RULE_OF_THREE.sqrt() * t.max(1.0 - t) / target;
         let floor = (floor / f64::from(PILOT_POINTS)).ceil();
         // `s0^2 / E^2` with `s0 = sqrt(R0) e0`.
@@ -114,12 +162,12 @@ fn span(per: &[SceneEstimate], c: usize) -> (f64, f64) {
 /// own (the spread of every replicate).
 #[must_use]
 pub fn stein(
-    pilot_per: &[SceneEstimate],
+    pilot_traced: Traced<'_>,
     pilot: (&SceneEstimate, u32),
     all: SceneEstimate,
     n: u32,
 ) -> SceneEstimate {
-    scaled(pilot_per, pilot, all, n, normal)
+    scaled(pilot_traced, pilot, all, n, normal)
 }
 
 /// Stein's answer of a second stage ([`stein`]), whose pilot is every replicate the first
@@ -127,35 +175,35 @@ pub fn stein(
 /// wherever its directions disagree, normal or not.
 #[must_use]
 pub fn stein_again(
-    pilot_per: &[SceneEstimate],
+    pilot_traced: Traced<'_>,
     pilot: (&SceneEstimate, u32),
     all: SceneEstimate,
     n: u32,
 ) -> SceneEstimate {
-    scaled(pilot_per, pilot, all, n, spread)
+    scaled(pilot_traced, pilot, all, n, spread)
 }
 
 /// `all` with the error bar `s0 / sqrt(n)` of the pilot on the channels `fit` accepts.
 fn scaled(
-    pilot_per: &[SceneEstimate],
+    pilot_traced: Traced<'_>,
     (pilot, r0): (&SceneEstimate, u32),
     mut all: SceneEstimate,
     n: u32,
-    fit: fn(&[SceneEstimate], usize) -> bool,
+    fit: fn(Traced<'_>, usize) -> bool,
 ) -> SceneEstimate {
     let scale = (f64::from(r0) / f64::from(n.max(r0))).sqrt();
     for c in 0..3 {
-        if fit(pilot_per, c) {
+        if fit(pilot_traced, c) {
             all.std_err[c] = (pilot.std_err[c] * scale).max(ROUNDING * all.value[c].abs());
         }
     }
     all
 }
 
-/// True when the directions `per` disagree on channel `c`.
+/// True when the directions of `traced` disagree on channel `c`.
 #[must_use]
-pub fn spread(per: &[SceneEstimate], c: usize) -> bool {
-    let (lo, hi) = span(per, c);
+pub fn spread(traced: Traced<'_>, c: usize) -> bool {
+    let (lo, hi) = span(traced.per, c);
     lo < hi
 }
 
@@ -164,8 +212,7 @@ pub fn spread(per: &[SceneEstimate], c: usize) -> bool {
 /// 0.5 is `G = 2.74`, which normal replicate means pass about 98% of the time.
 pub const OUTLIER_SHARE: f64 = 0.5;
 
-/// True when the replicates of `per` (consecutive runs of [`PILOT_POINTS`] directions) are
-/// fit for Stein's rule on channel `c`: their directions disagree, fewer than half of them sit
+/// True when the replicates of `traced` are fit for Stein's rule on channel `c`: their directions disagree, fewer than half of them sit
 /// exactly at one end of their range (rays that meet no density give exactly 1), and no
 /// replicate mean (unweighted: a test, not an estimate) holds more than [`OUTLIER_SHARE`] of
 /// the replicates' sum of squares (a cone
@@ -174,7 +221,8 @@ pub const OUTLIER_SHARE: f64 = 0.5;
 /// rule-of-three count, and its error bar is the spread of every replicate it took (module
 /// docs).
 #[must_use]
-pub fn normal(per: &[SceneEstimate], c: usize) -> bool {
+pub fn normal(traced: Traced<'_>, c: usize) -> bool {
+    let per = traced.per;
     let (lo, hi) = span(per, c);
     if lo >= hi {
         return false;
@@ -183,11 +231,8 @@ pub fn normal(per: &[SceneEstimate], c: usize) -> bool {
     if 2 * at(lo).max(at(hi)) >= per.len() {
         return false;
     }
-    let means: Vec<f64> = per
-        .chunks(PILOT_POINTS as usize)
-        .map(|r| r.iter().map(|e| e.value[c]).sum::<f64>() / r.len() as f64)
-        .collect();
-    let m = means.iter().sum::<f64>() / means.len() as f64;
+    let means = traced.means(c);
+    let m = means.iter().sum::<f64>() / means.len().max(1) as f64;
     let (most, all) = means.iter().fold((0.0f64, 0.0), |(most, all), x| {
         let d = (x - m).powi(2);
         (most.max(d), all + d)
@@ -195,17 +240,17 @@ pub fn normal(per: &[SceneEstimate], c: usize) -> bool {
     most <= OUTLIER_SHARE * all
 }
 
-/// True when some channel of `answer` (`channels` of them) whose pilot directions `pilot_per`
-/// were not [`normal`] has an error bar above `target`: the spread of all its replicates asks
+/// True when some channel of `answer` (`channels` of them) whose pilot `pilot_traced` was
+/// not [`normal`] has an error bar above `target`: the spread of all its replicates asks
 /// for a stage more (module docs).
 #[must_use]
 pub fn recount(
-    pilot_per: &[SceneEstimate],
+    pilot_traced: Traced<'_>,
     answer: &SceneEstimate,
     channels: usize,
     target: f64,
 ) -> bool {
-    (0..channels.clamp(1, 3)).any(|c| !normal(pilot_per, c) && answer.std_err[c] > target)
+    (0..channels.clamp(1, 3)).any(|c| !normal(pilot_traced, c) && answer.std_err[c] > target)
 }
 
 impl SoftRays {

@@ -311,7 +311,7 @@ impl SoftLight {
             .iter()
             .map(|p| match p {
                 Some(Ok(p)) if !p.per.is_empty() => Some(super::adaptive::replicates_for(
-                    &p.per,
+                    p.traced(),
                     (&p.answer, r0),
                     channels,
                     target,
@@ -345,7 +345,7 @@ impl SoftLight {
             .map(|a| match a {
                 Some(Ok(a)) if !a.capped && a.recount(channels, target) => {
                     let (n, capped) = super::adaptive::replicates_for(
-                        &a.all.per,
+                        a.all.traced(),
                         (&a.all.answer, a.reps),
                         channels,
                         target,
@@ -444,6 +444,13 @@ fn stage(
         .collect()
 }
 
+impl Stage {
+    /// Its directions' estimates with their replicates' ends.
+    fn traced(&self) -> super::adaptive::Traced<'_> {
+        super::adaptive::Traced::new(&self.per, &self.ends)
+    }
+}
+
 /// A receiver's stages so far: every direction together (`all`), the answer with Stein's
 /// error bar, the replicates it took and whether the cap cut them.
 struct Answered {
@@ -479,8 +486,8 @@ impl Answered {
         let pilot_answer = first.answer;
         let pilot_len = first.per.len();
         let all = join(first, x);
-        let answer =
-            super::adaptive::stein(&all.per[..pilot_len], (&pilot_answer, r0), all.answer, n);
+        let pilot = all.traced().head(pilot_len);
+        let answer = super::adaptive::stein(pilot, (&pilot_answer, r0), all.answer, n);
         Self {
             pilot: (pilot_len, pilot_answer),
             all,
@@ -493,8 +500,8 @@ impl Answered {
     /// True when a channel whose pilot was not normal ended above `target`
     /// ([`super::adaptive::recount`]).
     fn recount(&self, channels: usize, target: f64) -> bool {
-        let pilot = &self.all.per[..self.pilot.0];
-        !pilot.is_empty() && super::adaptive::recount(pilot, &self.answer, channels, target)
+        let pilot = self.all.traced().head(self.pilot.0);
+        !pilot.per().is_empty() && super::adaptive::recount(pilot, &self.answer, channels, target)
     }
 
     /// One more Stein stage: `x`, the `n - reps` replicates everything so far asked for. The
@@ -506,9 +513,9 @@ impl Answered {
         let ((pilot_len, pilot), r0) = (self.pilot, REPLICATES);
         let all = join(self.all, x);
         let answer =
-            super::adaptive::stein_again(&all.per[..before], (&previous, r1), all.answer, n);
+            super::adaptive::stein_again(all.traced().head(before), (&previous, r1), all.answer, n);
         // The first pilot's channels with a spread keep its bar (Stein over it overwrites them).
-        let answer = super::adaptive::stein(&all.per[..pilot_len], (&pilot, r0), answer, n);
+        let answer = super::adaptive::stein(all.traced().head(pilot_len), (&pilot, r0), answer, n);
         SoftAnswer {
             light_samples: all.per.len(),
             estimate: answer,
