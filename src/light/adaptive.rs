@@ -89,18 +89,33 @@ impl<'a> Traced<'a> {
 
     /// Channel `c`'s unweighted mean of each replicate that holds a direction.
     fn means(self, c: usize) -> Vec<f64> {
-        let mut start = 0;
-        let mut out = Vec::with_capacity(self.ends.len());
-        for &end in self.ends {
-            let end = end.min(self.per.len());
-            if end > start {
-                let sum: f64 = self.per[start..end].iter().map(|e| e.value[c]).sum();
-                out.push(sum / (end - start) as f64);
-            }
-            start = end;
-        }
-        out
+        replicate_sums(self.per, self.ends, c, |_| 1.0)
+            .into_iter()
+            .filter(|(_, w)| *w > 0.0)
+            .map(|(wt, w)| wt / w)
+            .collect()
     }
+}
+
+/// Per replicate of `per` (ending at `ends`; indices past `per` are ignored), channel `c`'s
+/// weighted sum of `T` and the sum of its weights (`weight(i)` of direction `i`).
+fn replicate_sums(
+    per: &[SceneEstimate],
+    ends: &[usize],
+    c: usize,
+    weight: impl Fn(usize) -> f64,
+) -> Vec<(f64, f64)> {
+    let mut start = 0;
+    let mut sums = Vec::with_capacity(ends.len());
+    for &end in ends {
+        let end = end.min(per.len());
+        let (wt, w) = (start..end).fold((0.0, 0.0), |(wt, w), i| {
+            (wt + weight(i) * per[i].value[c], w + weight(i))
+        });
+        sums.push((wt, w));
+        start = end;
+    }
+    sums
 }
 
 /// The replicates in all (the pilot's included, at least `r0`) a receiver takes after the
@@ -157,7 +172,7 @@ fn span(per: &[SceneEstimate], c: usize) -> (f64, f64) {
 
 /// Stein's answer (module docs): `all`, the combined answer of every replicate (the pilot's
 /// `r0` and the `n - r0` extra), keeps its mean; its error bar becomes the pilot's `s0 /
-/// sqrt(n)` (`pilot` is the pilot's answer, `pilot_per` its directions' estimates), never
+/// sqrt(n)` (`pilot` is the pilot's answer, `pilot_traced` its directions' estimates), never
 /// below the rounding of the answer. A channel whose pilot was not [`normal`] keeps `all`'s
 /// own (the spread of every replicate).
 #[must_use]
@@ -212,12 +227,12 @@ pub fn spread(traced: Traced<'_>, c: usize) -> bool {
 /// 0.5 is `G = 2.74`, which normal replicate means pass about 98% of the time.
 pub const OUTLIER_SHARE: f64 = 0.5;
 
-/// True when the replicates of `traced` are fit for Stein's rule on channel `c`: their directions disagree, fewer than half of them sit
-/// exactly at one end of their range (rays that meet no density give exactly 1), and no
-/// replicate mean (unweighted: a test, not an estimate) holds more than [`OUTLIER_SHARE`] of
-/// the replicates' sum of squares (a cone
-/// whose few bright or dark directions fell in one replicate: a spread of outliers, far from
-/// normal, which Student's `t` does not cover). A pilot that is not normal takes at least the
+/// True when the replicates of `traced` are fit for Stein's rule on channel `c`: their
+/// directions disagree, fewer than half of them sit exactly at one end of their range (rays
+/// that meet no density give exactly 1), and no replicate mean (unweighted: a test, not an
+/// estimate) holds more than [`OUTLIER_SHARE`] of the replicates' sum of squares (a cone whose
+/// few bright or dark directions fell in one replicate: a spread of outliers, far from normal,
+/// which Student's `t` does not cover). A pilot that is not normal takes at least the
 /// rule-of-three count, and its error bar is the spread of every replicate it took (module
 /// docs).
 #[must_use]
@@ -282,16 +297,7 @@ pub fn combine(
     let weight = |i: usize| weights.get(i).copied().unwrap_or(1.0);
     for c in 0..3 {
         // Per replicate: the weighted sum of T and the weights' sum.
-        let mut start = 0;
-        let mut sums = Vec::with_capacity(ends.len());
-        for &end in ends {
-            let end = end.min(n);
-            let (wt, w) = (start..end).fold((0.0, 0.0), |(wt, w), i| {
-                (wt + weight(i) * per[i].value[c], w + weight(i))
-            });
-            sums.push((wt, w));
-            start = end;
-        }
+        let sums = replicate_sums(per, ends, c, weight);
         let total = sums.iter().fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
         let means: Vec<f64> = sums
             .iter()

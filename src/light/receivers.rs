@@ -514,7 +514,7 @@ impl Answered {
         let all = join(self.all, x);
         let answer =
             super::adaptive::stein_again(all.traced().head(before), (&previous, r1), all.answer, n);
-        // The first pilot's channels with a spread keep its bar (Stein over it overwrites them).
+        // The first pilot's normal channels keep its bar (Stein over it overwrites them).
         let answer = super::adaptive::stein(all.traced().head(pilot_len), (&pilot, r0), answer, n);
         SoftAnswer {
             light_samples: all.per.len(),
